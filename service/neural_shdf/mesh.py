@@ -1,0 +1,102 @@
+"""The triangle mesh every algorithm works on, and its link back to the input file's faces."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True, eq=False)
+class TriangleMesh:
+    """Triangles in a fixed order, plus the input face each triangle came from.
+
+    Attributes:
+        vertices: (V, 3) float64 positions.
+        faces: (F, 3) int64 vertex indices of triangles.
+        face_origin: (F,) int64, index of the input file's face (polygon) that
+            triangle ``i`` came from; non-decreasing, so triangles of one polygon
+            are contiguous and in the input order.
+        input_face_count: number of faces in the input file. Input faces that
+            produced no triangle (dropped as unusable) map to no triangle.
+    """
+
+    vertices: NDArray[np.float64]
+    faces: NDArray[np.int64]
+    face_origin: NDArray[np.int64] = field(default=None)  # type: ignore[assignment]
+    input_face_count: int = -1
+
+    def __post_init__(self) -> None:
+        vertices = np.ascontiguousarray(self.vertices, dtype=np.float64).reshape(-1, 3)
+        faces = np.ascontiguousarray(self.faces, dtype=np.int64).reshape(-1, 3)
+        origin = (
+            np.arange(len(faces), dtype=np.int64)
+            if self.face_origin is None
+            else np.ascontiguousarray(self.face_origin, dtype=np.int64)
+        )
+        count = int(origin.max()) + 1 if self.input_face_count < 0 and len(origin) else 0
+        object.__setattr__(self, "vertices", vertices)
+        object.__setattr__(self, "faces", faces)
+        object.__setattr__(self, "face_origin", origin)
+        if self.input_face_count < 0:
+            object.__setattr__(self, "input_face_count", count)
+
+    @property
+    def face_count(self) -> int:
+        return int(len(self.faces))
+
+    def content_hash(self) -> str:
+        """SHA-256 of the canonical geometry: vertices, triangles and face origins."""
+        digest = hashlib.sha256()
+        digest.update(b"neural-shdf-mesh-v1")
+        for array in (self.vertices, self.faces, self.face_origin):
+            digest.update(str(array.shape).encode())
+            digest.update(np.ascontiguousarray(array).tobytes())
+        digest.update(str(self.input_face_count).encode())
+        return digest.hexdigest()
+
+    def to_input_faces(self, values: NDArray, *, weights: NDArray | None = None) -> NDArray:
+        """Map per-triangle float values to per-input-face values (weighted mean).
+
+        Input faces without triangles get NaN.
+        """
+        values = np.asarray(values, dtype=np.float64)
+        w = np.ones(len(values)) if weights is None else np.asarray(weights, dtype=np.float64)
+        total = np.bincount(self.face_origin, weights=w * values, minlength=self.input_face_count)
+        norm = np.bincount(self.face_origin, weights=w, minlength=self.input_face_count)
+        out = np.full(self.input_face_count, np.nan)
+        ok = norm > 0
+        out[ok] = total[ok] / norm[ok]
+        return out
+
+    def labels_to_input_faces(
+        self, labels: NDArray, *, weights: NDArray | None = None, missing: int = -1
+    ) -> NDArray[np.int64]:
+        """Map per-triangle labels to one label per input face.
+
+        A polygon split into several triangles takes the label that covers the
+        largest share of its area (ties: the smallest label). Input faces that
+        produced no triangle get ``missing``.
+        """
+        labels = np.asarray(labels, dtype=np.int64)
+        out = np.full(self.input_face_count, missing, dtype=np.int64)
+        if len(labels) == 0:
+            return out
+        if np.array_equal(self.face_origin, np.arange(len(labels))):
+            out[: len(labels)] = labels
+            return out
+        w = np.ones(len(labels)) if weights is None else np.asarray(weights, dtype=np.float64)
+        # Sum weight per (origin, label), then keep the heaviest label per origin.
+        keys = self.face_origin * (int(labels.max()) + 1) + labels
+        unique_keys, inverse = np.unique(keys, return_inverse=True)
+        mass = np.bincount(inverse, weights=w)
+        origin = unique_keys // (int(labels.max()) + 1)
+        label = unique_keys % (int(labels.max()) + 1)
+        order = np.lexsort((label, -mass, origin))
+        first = np.ones(len(order), dtype=bool)
+        first[1:] = origin[order][1:] != origin[order][:-1]
+        chosen = order[first]
+        out[origin[chosen]] = label[chosen]
+        return out

@@ -1,0 +1,61 @@
+"""The library's front door: mesh -> ShDF -> labels, each step explicit and reusable.
+
+Every array here is per triangle of ``mesh`` (``TriangleMesh.faces``); map to the
+input file's faces with ``mesh.to_input_faces`` / ``mesh.labels_to_input_faces``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.geometry import FaceGraph, build_face_graph, face_normals, weld_faces
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.segment import SegmentParams
+
+ShdfMethod = Literal["exact", "neural"]
+Progress = Callable[[float], None]
+
+
+def mesh_face_graph(mesh: TriangleMesh) -> FaceGraph:
+    """Face adjacency of the mesh with coincident vertices welded (input order kept)."""
+    normals, _ = face_normals(mesh.vertices, mesh.faces)
+    return build_face_graph(mesh.vertices, weld_faces(mesh.vertices, mesh.faces), normals)
+
+
+def compute_shdf(
+    mesh: TriangleMesh,
+    *,
+    method: ShdfMethod = "neural",
+    seed: int = 0,
+    graph: FaceGraph | None = None,
+    progress: Progress | None = None,
+) -> NDArray[np.float64]:
+    """Post-processed ShDF in [0, 1] per triangle (exact rays or the neural predictor)."""
+    graph = mesh_face_graph(mesh) if graph is None else graph
+    if method == "exact":
+        from neural_shdf.shdf.exact import exact_shdf
+
+        return exact_shdf(mesh, graph=graph, seed=seed, progress=progress)
+    if method == "neural":
+        from neural_shdf.shdf.neural import neural_shdf
+
+        return neural_shdf(mesh, graph=graph, seed=seed, progress=progress)
+    raise ValueError(f"unknown ShDF method {method!r}; use 'exact' or 'neural'")
+
+
+def segment_mesh(
+    mesh: TriangleMesh,
+    shdf: NDArray,
+    params: SegmentParams | None = None,
+    *,
+    graph: FaceGraph | None = None,
+) -> NDArray[np.int64]:
+    """Part label per triangle, 0..P-1, from a ShDF in [0, 1]; deterministic."""
+    from neural_shdf.segment.pipeline import segment
+
+    graph = mesh_face_graph(mesh) if graph is None else graph
+    return segment(mesh.vertices, mesh.faces, np.asarray(shdf), params or SegmentParams(), graph)

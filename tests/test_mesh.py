@@ -1,0 +1,50 @@
+"""TriangleMesh: mapping triangle results back to the input file's faces, content hash."""
+
+import numpy as np
+
+from neural_shdf.mesh import TriangleMesh
+
+
+def _quad_and_triangle() -> TriangleMesh:
+    # Input face 0 is a quad split into two triangles, input face 1 a triangle.
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0]], float)
+    faces = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 2]])
+    return TriangleMesh(vertices, faces, face_origin=np.array([0, 0, 1]), input_face_count=2)
+
+
+def test_values_map_to_input_faces_by_weighted_mean():
+    mesh = _quad_and_triangle()
+    out = mesh.to_input_faces(np.array([1.0, 3.0, 5.0]), weights=np.array([1.0, 3.0, 1.0]))
+    np.testing.assert_allclose(out, [2.5, 5.0])
+
+
+def test_labels_take_heaviest_share_of_a_polygon():
+    mesh = _quad_and_triangle()
+    assert mesh.labels_to_input_faces(np.array([4, 7, 1]), weights=np.array([1, 2, 1])).tolist() == [
+        7,
+        1,
+    ]
+    # Ties go to the smaller label, so the result never depends on triangle order.
+    assert mesh.labels_to_input_faces(np.array([4, 2, 1])).tolist() == [2, 1]
+
+
+def test_input_faces_without_triangles_are_marked_missing():
+    mesh = TriangleMesh(np.eye(3), [[0, 1, 2]], face_origin=[2], input_face_count=3)
+    assert mesh.labels_to_input_faces(np.array([5])).tolist() == [-1, -1, 5]
+    assert np.isnan(mesh.to_input_faces(np.array([1.0]))[:2]).all()
+
+
+def test_identity_mapping_by_default():
+    mesh = TriangleMesh(np.eye(3), [[0, 1, 2], [0, 2, 1]])
+    assert mesh.input_face_count == 2
+    assert mesh.labels_to_input_faces(np.array([3, 9])).tolist() == [3, 9]
+
+
+def test_content_hash_depends_on_geometry_and_order_only():
+    a = _quad_and_triangle()
+    b = _quad_and_triangle()
+    assert a.content_hash() == b.content_hash()
+    moved = TriangleMesh(a.vertices + 1e-9, a.faces, a.face_origin, a.input_face_count)
+    assert moved.content_hash() != a.content_hash()
+    reordered = TriangleMesh(a.vertices, a.faces[::-1], a.face_origin, a.input_face_count)
+    assert reordered.content_hash() != a.content_hash()

@@ -1,0 +1,282 @@
+"""The exact Shape Diameter Function by ray casting (Shapira, Shamir, Cohen-Or 2008).
+
+Follows CGAL's ``sdf_values`` (Surface_mesh_segmentation) step by step:
+
+* per non-degenerate triangle, ``ray_count`` rays leave the centroid inside a
+  cone of opening ``cone_angle`` around the inward normal; the cone is sampled
+  with Vogel's golden-angle spiral on the unit disk (radius ``i / n``, angle
+  ``i * (3 - sqrt 5) * pi``, the first ray along the normal), oriented by the
+  plane basis CGAL's ``Plane_3::base1/base2`` picks, all rays weighted equally;
+* each ray keeps its first hit (the triangle itself excluded); the hit counts
+  only when the ray leaves through the back of the hit triangle, i.e. the
+  ray direction and the hit triangle's outward normal make an acute angle;
+* outliers outside ``median +- 1.5 * MAD`` of a face's hit distances are
+  dropped and the rest averaged.
+
+Rays of many faces are cast together through Embree (``embreex``); distances
+are recomputed in float64 from the hit triangle's plane.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf import constants
+from neural_shdf.errors import ParameterError
+from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.shdf.postprocess import postprocess_shdf
+
+Progress = Callable[[float], None]
+
+#: Rays whose distance lies further than this many median absolute deviations
+#: from the median are outliers (CGAL's ``CGAL_NUMBER_OF_MAD``).
+OUTLIER_MAD_FACTOR = 1.5
+#: Faces whose rays are cast in one Embree call (bounds the memory of a batch).
+FACES_PER_BATCH = 32_768
+#: Ray origins move this fraction of the bounding-box diagonal along the ray so
+#: that the ray cannot hit its own triangle through float32 rounding.
+ORIGIN_OFFSET = 1e-6
+#: Offset used again for the few rays that still hit their own triangle.
+RETRY_ORIGIN_OFFSET = 1e-4
+
+
+def disk_samples(ray_count: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """CGAL's default disk sampling: (ray_count, 2) points in the unit disk and their weights.
+
+    Vogel's spiral with radius ``i / n`` (denser towards the centre, so the cone
+    axis is favoured by sample density rather than by weight); weights are all 1.
+    """
+    index = np.arange(ray_count, dtype=np.float64)
+    angle = index * (3.0 - math.sqrt(5.0)) * math.pi
+    radius = index / ray_count
+    points = np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1)
+    return points, np.ones(ray_count)
+
+
+def plane_basis(normals: NDArray) -> tuple[NDArray, NDArray]:
+    """Unit in-plane vectors (base1, base2) of planes with the given unit normals.
+
+    Same choice as CGAL's ``Plane_3::base1``: (1,0,0) if the normal has no x
+    component, else (0,1,0) if no y, else (0,0,1) if no z, else (-ny, nx, 0);
+    ``base2 = normal x base1``.
+    """
+    nx, ny, nz = normals[:, 0], normals[:, 1], normals[:, 2]
+    base1 = np.stack([-ny, nx, np.zeros_like(nx)], axis=1)
+    base1[nz == 0] = (0.0, 0.0, 1.0)
+    base1[ny == 0] = (0.0, 1.0, 0.0)
+    base1[nx == 0] = (1.0, 0.0, 0.0)
+    base1 /= np.linalg.norm(base1, axis=1, keepdims=True)
+    base2 = np.cross(normals, base1)
+    length = np.linalg.norm(base2, axis=1, keepdims=True)
+    base2 /= np.where(length > 0, length, 1.0)
+    return base1, base2
+
+
+def cone_directions(
+    inward_normals: NDArray,
+    *,
+    cone_angle: float,
+    ray_count: int,
+    rotation: NDArray | None = None,
+) -> NDArray[np.float64]:
+    """Unit ray directions (F, ray_count, 3) inside the cone around each inward normal.
+
+    ``rotation`` (F,) optionally turns each face's sample pattern about its axis.
+    """
+    points, _ = disk_samples(ray_count)
+    base1, base2 = plane_basis(inward_normals)
+    if rotation is not None:
+        cos_r, sin_r = np.cos(rotation)[:, None], np.sin(rotation)[:, None]
+        base1, base2 = cos_r * base1 + sin_r * base2, cos_r * base2 - sin_r * base1
+    half = 0.5 * cone_angle
+    directions = (
+        math.cos(half) * inward_normals[:, None, :]
+        + math.sin(half) * points[None, :, 0, None] * base1[:, None, :]
+        + math.sin(half) * points[None, :, 1, None] * base2[:, None, :]
+    )
+    directions /= np.linalg.norm(directions, axis=2, keepdims=True)
+    return directions
+
+
+def robust_mean(distances: NDArray, weights: NDArray) -> NDArray[np.float64]:
+    """Per row of ``distances`` (NaN = no hit): weighted mean of the values within
+    ``OUTLIER_MAD_FACTOR`` median absolute deviations of the median; NaN for rows
+    without values. Medians of an even count average the two middle values.
+    """
+    rows = np.arange(len(distances))
+    count = np.count_nonzero(~np.isnan(distances), axis=1)
+    safe = np.maximum(count, 1)
+
+    def row_median(values: NDArray) -> NDArray:
+        ordered = np.sort(values, axis=1)  # NaN sorts last
+        low = ordered[rows, (safe - 1) // 2]
+        high = ordered[rows, safe // 2]
+        return 0.5 * (low + high)
+
+    median = row_median(distances)
+    deviation = np.abs(distances - median[:, None])
+    mad = row_median(deviation)
+    accepted = deviation <= OUTLIER_MAD_FACTOR * mad[:, None]  # False for NaN
+    w = np.where(accepted, weights[None, :], 0.0)
+    total_weight = w.sum(axis=1)
+    total = (np.where(accepted, distances, 0.0) * w).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        value = np.where(total > 0, total / total_weight, median)
+    value[count == 0] = np.nan
+    return value
+
+
+class _RayCaster:
+    """Embree scene of a mesh (float32, centred on its bounding box)."""
+
+    def __init__(self, vertices: NDArray, faces: NDArray) -> None:
+        from embreex import rtcore_scene
+        from embreex.mesh_construction import TriangleMesh as EmbreeMesh
+
+        low, high = vertices.min(axis=0), vertices.max(axis=0)
+        self.center = 0.5 * (low + high)
+        self.scene = rtcore_scene.EmbreeScene()
+        EmbreeMesh(
+            self.scene,
+            (vertices - self.center).astype(np.float32),
+            np.ascontiguousarray(faces, dtype=np.int32),
+        )
+
+    def first_hits(self, origins: NDArray, directions: NDArray) -> NDArray[np.int64]:
+        """Index of the first triangle each ray hits, -1 for none."""
+        hits = self.scene.run(
+            np.ascontiguousarray(origins - self.center, dtype=np.float32),
+            np.ascontiguousarray(directions, dtype=np.float32),
+        )
+        return np.asarray(hits, dtype=np.int64)
+
+
+def raw_shdf(
+    vertices: NDArray,
+    faces: NDArray,
+    *,
+    cone_angle: float = constants.SHDF_CONE_ANGLE,
+    ray_count: int = constants.SHDF_RAY_COUNT,
+    seed: int = 0,
+    rotate_pattern: bool = False,
+    normals: NDArray | None = None,
+    threads: int = 2,
+    progress: Progress | None = None,
+) -> NDArray[np.float64]:
+    """Raw diameter per triangle (mesh units), NaN where no ray gave a valid hit.
+
+    Args:
+        vertices: (V, 3) positions. faces: (F, 3) triangle vertex indices.
+        cone_angle: full opening angle of the ray cone in radians, in (0, pi).
+        ray_count: rays per face.
+        seed: seed of the per-face pattern rotation; used only with ``rotate_pattern``.
+        rotate_pattern: turn each face's sample pattern by a random angle about its
+            axis (decorrelates the sampling of neighbouring faces); off = CGAL's
+            deterministic orientation.
+        normals: (F, 3) unit outward normals (zero for degenerate faces); computed
+            if omitted.
+        threads: Embree calls run in this many threads (results do not depend on it).
+        progress: called with the fraction of faces done, in [0, 1].
+    """
+    if not 0.0 < cone_angle < math.pi:
+        raise ParameterError(f"cone_angle must lie in (0, pi) radians, got {cone_angle}")
+    if ray_count < 1:
+        raise ParameterError(f"ray_count must be at least 1, got {ray_count}")
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    face_count = len(faces)
+    result = np.full(face_count, np.nan)
+    if normals is None:
+        normals, _ = face_normals(vertices, faces)
+    normals = np.asarray(normals, dtype=np.float64)
+    valid = np.linalg.norm(normals, axis=1) > 0.5
+    if face_count == 0 or not valid.any():
+        if progress is not None:
+            progress(1.0)
+        return result
+
+    caster = _RayCaster(vertices, faces[valid])
+    caster_faces = np.flatnonzero(valid)  # Embree primitive id -> face index
+    diagonal = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
+    centroids = face_centroids(vertices, faces)
+    corner = vertices[faces[:, 0]]
+    _, weights = disk_samples(ray_count)
+    rotation = (
+        np.random.default_rng(seed).uniform(0.0, 2.0 * math.pi, face_count)
+        if rotate_pattern
+        else None
+    )
+
+    todo = np.flatnonzero(valid)
+    batches = [todo[i : i + FACES_PER_BATCH] for i in range(0, len(todo), FACES_PER_BATCH)]
+
+    def run_batch(batch: NDArray) -> NDArray:
+        directions = cone_directions(
+            -normals[batch],
+            cone_angle=cone_angle,
+            ray_count=ray_count,
+            rotation=None if rotation is None else rotation[batch],
+        ).reshape(-1, 3)
+        origins = np.repeat(centroids[batch], ray_count, axis=0)
+        source = np.repeat(batch, ray_count)
+        hit = caster.first_hits(origins + ORIGIN_OFFSET * diagonal * directions, directions)
+        hit = np.where(hit >= 0, caster_faces[np.maximum(hit, 0)], -1)
+        again = np.flatnonzero(hit == source)
+        if len(again):
+            retry = caster.first_hits(
+                origins[again] + RETRY_ORIGIN_OFFSET * diagonal * directions[again],
+                directions[again],
+            )
+            retry = np.where(retry >= 0, caster_faces[np.maximum(retry, 0)], -1)
+            hit[again] = np.where(retry == source[again], -1, retry)
+        distance = np.full(len(hit), np.nan)
+        ok = np.flatnonzero(hit >= 0)
+        hit_normal = normals[hit[ok]]
+        along = np.einsum("ij,ij->i", directions[ok], hit_normal)
+        exits = along > 0  # leaves through the back of the hit face
+        ok, along, hit_normal = ok[exits], along[exits], hit_normal[exits]
+        distance[ok] = np.einsum("ij,ij->i", corner[hit[ok]] - origins[ok], hit_normal) / along
+        return robust_mean(distance.reshape(len(batch), ray_count), weights)
+
+    done = 0
+    with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
+        for batch, values in zip(batches, pool.map(run_batch, batches), strict=True):
+            result[batch] = values
+            done += len(batch)
+            if progress is not None:
+                progress(done / len(todo))
+    return result
+
+
+def exact_shdf(
+    mesh: TriangleMesh,
+    *,
+    graph: FaceGraph,
+    cone_angle: float = constants.SHDF_CONE_ANGLE,
+    ray_count: int = constants.SHDF_RAY_COUNT,
+    seed: int = 0,
+    rotate_pattern: bool = False,
+    window_size: int | None = None,
+    threads: int = 2,
+    progress: Progress | None = None,
+) -> NDArray[np.float64]:
+    """Post-processed exact ShDF in [0, 1] per triangle of ``mesh`` (CGAL's ``sdf_values``)."""
+    normals, _ = face_normals(mesh.vertices, mesh.faces)
+    raw = raw_shdf(
+        mesh.vertices,
+        mesh.faces,
+        cone_angle=cone_angle,
+        ray_count=ray_count,
+        seed=seed,
+        rotate_pattern=rotate_pattern,
+        normals=normals,
+        threads=threads,
+        progress=progress,
+    )
+    return postprocess_shdf(raw, graph, window_size=window_size)

@@ -1,0 +1,191 @@
+"""ShDF post-processing shared by the exact and the neural ShDF (CGAL's ``sdf_values`` defaults).
+
+Raw per-face diameters -> fill faces without a value from their neighbours ->
+one bilateral smoothing pass over the face graph -> linear normalisation to
+[0, 1]. A pure function of the raw values and the face graph.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from neural_shdf.errors import ParameterError
+from neural_shdf.geometry import FaceGraph
+
+#: CGAL's ``CGAL_NORMALIZATION_ALPHA``: strength of the log normalisation.
+LOG_NORMALIZATION_ALPHA = 5.0
+#: Range sigma of the bilateral filter, in standard deviations of the window's values.
+RANGE_SIGMA_FACTOR = 1.5
+#: Spatial sigma of the bilateral filter, as a fraction of the window size (in rings).
+SPATIAL_SIGMA_FACTOR = 0.5
+#: Face pairs handled at once by the bilateral filter (bounds its memory).
+PAIRS_PER_CHUNK = 4_000_000
+
+
+def smoothing_window(face_count: int) -> int:
+    """CGAL's window (in edge rings) for ``face_count`` faces: ``floor(sqrt(F / 2000)) + 1``."""
+    return int(math.sqrt(face_count / 2000.0)) + 1
+
+
+def fill_missing(values: NDArray, graph: FaceGraph) -> NDArray[np.float64]:
+    """Faces with NaN take the mean of their neighbours' values, in face order.
+
+    As CGAL does: a face filled earlier counts as a neighbour value for later
+    faces; faces with no valued neighbour get the smallest original value. All
+    NaN (nothing measured) gives all zeros.
+    """
+    out = np.asarray(values, dtype=np.float64).copy()
+    missing = np.flatnonzero(np.isnan(out))
+    if len(missing) == 0:
+        return out
+    if len(missing) == len(out):
+        return np.zeros_like(out)
+    smallest = float(np.nanmin(out))
+    adjacency = graph.csr()
+    indptr, indices = adjacency.indptr, adjacency.indices
+    still_missing = []
+    current = out.tolist()
+    for face in missing.tolist():
+        total, count = 0.0, 0
+        for neighbour in indices[indptr[face] : indptr[face + 1]].tolist():
+            value = current[neighbour]
+            if value == value:  # not NaN
+                total += value
+                count += 1
+        if count:
+            current[face] = total / count
+        else:
+            still_missing.append(face)
+    out = np.asarray(current)
+    out[still_missing] = smallest
+    return out
+
+
+def _window_pairs(
+    adjacency: sp.csr_matrix, rows: NDArray, window: int
+) -> tuple[NDArray, NDArray, NDArray]:
+    """(row position in ``rows``, face, ring) for every face within ``window`` edge rings."""
+    face_count = adjacency.shape[0]
+    local = np.arange(len(rows))
+    ones = np.ones(len(rows))
+    visited = sp.csr_matrix((ones, (local, rows)), shape=(len(rows), face_count))
+    frontier = visited
+    out_rows, out_faces, out_rings = [local], [rows], [np.zeros(len(rows), dtype=np.int64)]
+    for ring in range(1, window + 1):
+        reached = frontier @ adjacency
+        reached.data[:] = 1.0
+        new = (reached - reached.multiply(visited)).tocoo()
+        keep = new.data > 0
+        if not keep.any():
+            break
+        new_rows, new_faces = new.row[keep], new.col[keep]
+        out_rows.append(new_rows)
+        out_faces.append(new_faces)
+        out_rings.append(np.full(len(new_rows), ring, dtype=np.int64))
+        frontier = sp.csr_matrix(
+            (np.ones(len(new_rows)), (new_rows, new_faces)), shape=visited.shape
+        )
+        visited = visited + frontier
+    return np.concatenate(out_rows), np.concatenate(out_faces), np.concatenate(out_rings)
+
+
+def bilateral_smooth(
+    values: NDArray,
+    graph: FaceGraph,
+    *,
+    window_size: int,
+    spatial_sigma: float | None = None,
+    range_sigma_factor: float = RANGE_SIGMA_FACTOR,
+) -> NDArray[np.float64]:
+    """One pass of CGAL's bilateral filter over faces within ``window_size`` edge rings.
+
+    Weight of a neighbour = Gaussian of its ring distance (sigma
+    ``spatial_sigma``, default ``window_size / 2``) times Gaussian of its value
+    difference (sigma ``range_sigma_factor`` x the RMS difference over the
+    window, the face itself included). Faces whose window has no variation keep
+    their value.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    if window_size < 0:
+        raise ParameterError(f"window_size must be >= 0, got {window_size}")
+    face_count = len(values)
+    if face_count == 0 or window_size == 0:
+        return values.copy()
+    spatial = window_size * SPATIAL_SIGMA_FACTOR if spatial_sigma is None else spatial_sigma
+    adjacency = graph.csr()
+    adjacency.data[:] = 1.0
+    pairs_per_face = 1 + 3 * window_size * (window_size + 1) // 2
+    chunk = max(1024, PAIRS_PER_CHUNK // pairs_per_face)
+    out = np.empty(face_count)
+    for start in range(0, face_count, chunk):
+        rows = np.arange(start, min(start + chunk, face_count))
+        local, neighbour, ring = _window_pairs(adjacency, rows, window_size)
+        centre = values[rows]
+        difference = values[neighbour] - centre[local]
+        count = np.bincount(local, minlength=len(rows))
+        deviation = np.sqrt(np.bincount(local, difference**2, minlength=len(rows)) / count)
+        range_sigma = range_sigma_factor * deviation
+        safe_sigma = np.where(deviation > 0, range_sigma, 1.0)
+        weight = np.exp(-0.5 * (ring / spatial) ** 2) * np.exp(
+            -0.5 * (difference / safe_sigma[local]) ** 2
+        )
+        total = np.bincount(local, weight * values[neighbour], minlength=len(rows))
+        norm = np.bincount(local, weight, minlength=len(rows))
+        out[rows] = np.where(deviation > 0, total / norm, centre)
+    return out
+
+
+def linear_normalize(values: NDArray) -> NDArray[np.float64]:
+    """Map to [0, 1] by min and max; constant input gives zeros."""
+    values = np.asarray(values, dtype=np.float64)
+    if len(values) == 0:
+        return values.copy()
+    low, high = float(values.min()), float(values.max())
+    if not high > low:
+        return np.zeros_like(values)
+    return np.clip((values - low) / (high - low), 0.0, 1.0)
+
+
+def log_normalize(values: NDArray, alpha: float = LOG_NORMALIZATION_ALPHA) -> NDArray[np.float64]:
+    """CGAL's log normalisation of [0, 1] values: ``log(alpha * x + 1) / log(alpha + 1)``."""
+    if alpha <= 0:
+        raise ParameterError(f"alpha must be > 0, got {alpha}")
+    return np.log1p(alpha * np.asarray(values, dtype=np.float64)) / math.log1p(alpha)
+
+
+def postprocess_shdf(
+    raw: NDArray,
+    graph: FaceGraph,
+    *,
+    window_size: int | None = None,
+    spatial_sigma: float | None = None,
+    range_sigma_factor: float = RANGE_SIGMA_FACTOR,
+    smooth: bool = True,
+) -> NDArray[np.float64]:
+    """Raw diameters (NaN = no value) -> ShDF in [0, 1], as CGAL post-processes ``sdf_values``.
+
+    Args:
+        raw: (F,) raw values, NaN where unknown.
+        graph: face adjacency (the graph the filter walks).
+        window_size: smoothing window in edge rings; default ``smoothing_window(F)``.
+        spatial_sigma, range_sigma_factor: bilateral filter widths (see ``bilateral_smooth``).
+        smooth: False skips the bilateral filter (filling and normalisation only).
+    """
+    raw = np.asarray(raw, dtype=np.float64)
+    if len(raw) != graph.face_count:
+        raise ParameterError(f"{len(raw)} ShDF values for a face graph of {graph.face_count} faces")
+    values = fill_missing(raw, graph)
+    if smooth:
+        window = smoothing_window(len(values)) if window_size is None else window_size
+        values = bilateral_smooth(
+            values,
+            graph,
+            window_size=window,
+            spatial_sigma=spatial_sigma,
+            range_sigma_factor=range_sigma_factor,
+        )
+    return linear_normalize(values)

@@ -12,9 +12,14 @@ from neural_shdf.constants import AREA_EPS
 
 def face_normals(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
     """Unit normals (F, 3) and areas (F,) of triangles; degenerate faces get a zero normal."""
-    tri = vertices[faces]
-    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    norm = np.linalg.norm(cross, axis=1)
+    origin = vertices[faces[:, 0]]
+    u = vertices[faces[:, 1]] - origin
+    v = vertices[faces[:, 2]] - origin
+    cross = np.empty_like(u)
+    cross[:, 0] = u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1]
+    cross[:, 1] = u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2]
+    cross[:, 2] = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+    norm = np.sqrt(np.einsum("ij,ij->i", cross, cross))
     normals = np.zeros_like(cross)
     ok = norm > AREA_EPS
     normals[ok] = cross[ok] / norm[ok, None]
@@ -74,24 +79,31 @@ def build_face_graph(
         empty = np.zeros((0, 2), dtype=np.int64)
         return FaceGraph(empty, empty, np.zeros(0), np.zeros(0), np.zeros(0, bool), 0)
 
-    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    edge_face = np.repeat(np.arange(n_faces), 3)
+    n_vertices = int(faces.max()) + 1
+    start_vertex = faces.reshape(-1)
+    end_vertex = faces[:, [1, 2, 0]].reshape(-1)
+    lo, hi = np.minimum(start_vertex, end_vertex), np.maximum(start_vertex, end_vertex)
+    edge_face = np.repeat(np.arange(n_faces, dtype=np.int64), 3)
     # Drop edges of degenerate faces that repeat a vertex.
-    keep = edges[:, 0] != edges[:, 1]
-    edges, edge_face = edges[keep], edge_face[keep]
-    order = np.lexsort((edge_face, edges[:, 1], edges[:, 0]))
-    edges, edge_face = edges[order], edge_face[order]
-    new_group = np.ones(len(edges), dtype=bool)
-    new_group[1:] = np.any(edges[1:] != edges[:-1], axis=1)
+    keep = lo != hi
+    lo, hi, edge_face = lo[keep], hi[keep], edge_face[keep]
+    # One int64 key per undirected edge; a stable sort keeps faces ascending in a group.
+    key = lo * n_vertices + hi
+    order = np.argsort(key, kind="stable")
+    key, edge_face = key[order], edge_face[order]
+    new_group = np.ones(len(key), dtype=bool)
+    new_group[1:] = key[1:] != key[:-1]
     group_start = np.flatnonzero(new_group)
-    group_size = np.diff(np.append(group_start, len(edges)))
+    group_size = np.diff(np.append(group_start, len(key)))
 
     pair_list = []
-    vert_list = []
+    key_list = []
     # Manifold edges (size 2) in one vectorised step; larger groups pairwise.
     two = group_start[group_size == 2]
-    pair_list.append(np.stack([edge_face[two], edge_face[two + 1]], axis=1))
-    vert_list.append(edges[two])
+    manifold = np.empty((len(two), 2), dtype=np.int64)
+    manifold[:, 0], manifold[:, 1] = edge_face[two], edge_face[two + 1]
+    pair_list.append(manifold)
+    key_list.append(key[two])
     for size in np.unique(group_size[group_size > 2]):
         starts = group_start[group_size == size]
         ia, ib = np.triu_indices(int(size), k=1)
@@ -99,15 +111,22 @@ def build_face_graph(
             np.stack([edge_face[starts[:, None] + ia], edge_face[starts[:, None] + ib]], axis=2)
             .reshape(-1, 2)
         )
-        vert_list.append(np.repeat(edges[starts], len(ia), axis=0))
-    pairs = np.concatenate(pair_list).astype(np.int64)
-    edge_vertices = np.concatenate(vert_list).astype(np.int64)
+        key_list.append(np.repeat(key[starts], len(ia)))
+    pairs = pair_list[0] if len(pair_list) == 1 else np.concatenate(pair_list)
+    edge_key = key_list[0] if len(key_list) == 1 else np.concatenate(key_list)
+    # Faces ascend within a group (stable sort), so pairs[:, 0] <= pairs[:, 1] already.
     # A face listed twice on one edge (repeated vertex pattern) is no adjacency.
     keep = pairs[:, 0] != pairs[:, 1]
-    pairs, edge_vertices = np.sort(pairs[keep], axis=1), edge_vertices[keep]
-    # Two faces sharing two edges (folded duplicates) keep a single link.
-    pairs, first = np.unique(pairs, axis=0, return_index=True)
-    edge_vertices = edge_vertices[first]
+    if not keep.all():
+        pairs, edge_key = pairs[keep], edge_key[keep]
+    # Sorted by face pair; two faces sharing two edges (folded duplicates) keep one link.
+    pair_key = pairs[:, 0] * n_faces + pairs[:, 1]
+    order = np.argsort(pair_key, kind="stable")
+    pair_key, pairs, edge_key = pair_key[order], pairs[order], edge_key[order]
+    first = np.ones(len(pair_key), dtype=bool)
+    first[1:] = pair_key[1:] != pair_key[:-1]
+    pairs, edge_key = pairs[first], edge_key[first]
+    edge_vertices = np.stack([edge_key // n_vertices, edge_key % n_vertices], axis=1)
 
     a, b = pairs[:, 0], pairs[:, 1]
     cos = np.clip(np.einsum("ij,ij->i", normals[a], normals[b]), -1.0, 1.0)

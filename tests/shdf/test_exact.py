@@ -1,0 +1,181 @@
+"""Exact ShDF: known diameters of simple solids, robustness, determinism, CGAL agreement."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from neural_shdf import constants
+from neural_shdf.errors import ParameterError
+from neural_shdf.geometry import face_normals
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.pipeline import compute_shdf, mesh_face_graph
+from neural_shdf.shdf.exact import cone_directions, exact_shdf, raw_shdf, robust_mean
+
+PSB = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "psb-dev"
+
+
+def expected_robust_mean(lengths: np.ndarray) -> float:
+    """Mean of the ray lengths within 1.5 median absolute deviations of the median."""
+    median = np.median(lengths)
+    mad = np.median(np.abs(lengths - median))
+    return float(lengths[np.abs(lengths - median) <= 1.5 * mad].mean())
+
+
+def ray_angles(ray_count: int, cone_angle: float) -> np.ndarray:
+    """Angle of each ray to the cone axis, from the spiral radius i/n on the disk."""
+    radius = np.arange(ray_count) / ray_count
+    return np.arctan(math.tan(cone_angle / 2) * radius)
+
+
+def test_rays_fill_the_cone_around_the_inward_normal():
+    normal = np.array([[0.0, 0.0, -1.0], [0.6, 0.0, 0.8]])
+    directions = cone_directions(normal, cone_angle=2 * math.pi / 3, ray_count=25)
+    assert directions.shape == (2, 25, 3)
+    np.testing.assert_allclose(np.linalg.norm(directions, axis=2), 1.0)
+    angles = np.arccos(np.clip(np.einsum("frk,fk->fr", directions, normal), -1, 1))
+    np.testing.assert_allclose(angles, np.tile(ray_angles(25, 2 * math.pi / 3), (2, 1)), atol=1e-9)
+    assert np.all(angles < math.pi / 3)
+
+
+def test_robust_mean_drops_outliers_and_handles_missing_rays():
+    distances = np.array(
+        [
+            [1.0, 1.1, 0.9, 1.0, 50.0],
+            [2.0, np.nan, np.nan, np.nan, np.nan],
+            [np.nan] * 5,
+            [1.0, 3.0, np.nan, np.nan, np.nan],
+        ]
+    )
+    values = robust_mean(distances, np.ones(5))
+    assert values[0] == pytest.approx(1.0)
+    assert values[1] == 2.0
+    assert np.isnan(values[2])
+    assert values[3] == pytest.approx(2.0)
+
+
+def test_sphere_diameter_matches_the_cone_weighted_chord_mean():
+    radius = 2.5
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=radius)
+    raw = raw_shdf(sphere.vertices, sphere.faces)
+    # A ray at angle a to the inward normal crosses the sphere along a chord 2 r cos(a).
+    chords = 2 * radius * np.cos(ray_angles(constants.SHDF_RAY_COUNT, constants.SHDF_CONE_ANGLE))
+    expected = expected_robust_mean(chords)
+    assert not np.isnan(raw).any()
+    # Facets sit slightly inside the sphere; rays right at the outlier threshold
+    # may flip in or out on some faces, which moves their mean by a few percent.
+    assert np.median(raw) == pytest.approx(expected, rel=0.002)
+    np.testing.assert_allclose(raw, expected, rtol=0.04)
+
+
+def test_slab_thickness_is_recovered():
+    thickness = 0.5
+    slab = trimesh.creation.box(extents=(20, 20, thickness)).subdivide().subdivide().subdivide()
+    raw = raw_shdf(slab.vertices, slab.faces)
+    centroids = slab.triangles_center
+    # Big faces far from the rim: every ray crosses to the opposite face, t / cos(a).
+    inner = (np.abs(centroids[:, 2]) > 0.2) & (np.abs(centroids[:, :2]).max(axis=1) < 8)
+    angles = ray_angles(constants.SHDF_RAY_COUNT, constants.SHDF_CONE_ANGLE)
+    expected = expected_robust_mean(thickness / np.cos(angles))
+    assert inner.sum() > 50
+    np.testing.assert_allclose(raw[inner], expected, rtol=1e-6)
+
+
+def test_thin_cylinder_is_thin_everywhere_on_its_side():
+    radius = 0.3
+    cylinder = trimesh.creation.cylinder(radius=radius, height=10, sections=48)
+    raw = raw_shdf(cylinder.vertices, cylinder.faces)
+    side = np.abs(cylinder.face_normals[:, 2]) < 0.1
+    assert np.all(raw[side] > 1.8 * radius)
+    assert np.all(raw[side] < 3.0 * radius)
+
+
+def test_two_shells_keep_their_own_diameters():
+    small = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    large = trimesh.creation.icosphere(subdivisions=3, radius=3.0)
+    large.apply_translation((10, 0, 0))
+    both = trimesh.util.concatenate([small, large])
+    raw = raw_shdf(both.vertices, both.faces)
+    count = len(small.faces)
+    assert np.median(raw[count:]) / np.median(raw[:count]) == pytest.approx(3.0, rel=0.01)
+
+
+def test_inward_facing_hits_are_rejected():
+    # Inside-out sphere: every ray meets a face whose normal points back at it.
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    raw = raw_shdf(sphere.vertices, sphere.faces[:, ::-1])
+    assert np.isnan(raw).all()
+
+
+def test_open_and_degenerate_faces_do_not_crash():
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    keep = sphere.triangles_center[:, 2] < 0.5  # cut a hole at the top
+    vertices = np.vstack([sphere.vertices, [[5, 5, 5], [6, 5, 5], [7, 5, 5]]])
+    n = len(sphere.vertices)
+    degenerate = np.array([[0, 0, 1], [n, n + 1, n + 2]])  # repeated vertex, collinear
+    faces = np.vstack([sphere.faces[keep], degenerate])
+    mesh = TriangleMesh(vertices, faces)
+    raw = raw_shdf(vertices, faces)
+    assert np.isnan(raw[-2:]).all()
+    assert np.isfinite(raw[:-2]).mean() > 0.9
+    values = exact_shdf(mesh, graph=mesh_face_graph(mesh))
+    assert values.shape == (len(faces),)
+    assert np.isfinite(values).all()
+    assert values.min() == 0.0 and values.max() == 1.0
+
+
+def test_flat_sheet_has_no_diameter_and_gives_zeros():
+    sheet = trimesh.creation.box(extents=(1, 1, 1))
+    faces = sheet.faces[sheet.face_normals[:, 2] > 0.5]
+    mesh = TriangleMesh(sheet.vertices, faces)
+    assert np.isnan(raw_shdf(mesh.vertices, mesh.faces)).all()
+    np.testing.assert_array_equal(exact_shdf(mesh, graph=mesh_face_graph(mesh)), 0.0)
+
+
+def test_empty_mesh():
+    mesh = TriangleMesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+    assert exact_shdf(mesh, graph=mesh_face_graph(mesh)).shape == (0,)
+
+
+def test_same_seed_same_values_and_thread_count_does_not_matter():
+    mesh = trimesh.creation.annulus(r_min=0.5, r_max=1.0, height=0.4, sections=32)
+    first = raw_shdf(mesh.vertices, mesh.faces, rotate_pattern=True, seed=3, threads=1)
+    second = raw_shdf(mesh.vertices, mesh.faces, rotate_pattern=True, seed=3, threads=2)
+    other = raw_shdf(mesh.vertices, mesh.faces, rotate_pattern=True, seed=4)
+    np.testing.assert_array_equal(first, second)
+    assert not np.array_equal(first, other, equal_nan=True)
+    plain = TriangleMesh(mesh.vertices, mesh.faces)
+    graph = mesh_face_graph(plain)
+    np.testing.assert_array_equal(
+        compute_shdf(plain, method="exact", graph=graph),
+        compute_shdf(plain, method="exact", graph=graph),
+    )
+
+
+def test_given_normals_are_used_and_progress_reaches_one():
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    normals, _ = face_normals(sphere.vertices, sphere.faces)
+    seen = []
+    raw = raw_shdf(sphere.vertices, sphere.faces, normals=normals, progress=seen.append)
+    np.testing.assert_array_equal(raw, raw_shdf(sphere.vertices, sphere.faces))
+    assert seen[-1] == 1.0 and all(0 <= s <= 1 for s in seen)
+
+
+def test_bad_parameters_are_refused():
+    sphere = trimesh.creation.icosphere(subdivisions=1)
+    with pytest.raises(ParameterError):
+        raw_shdf(sphere.vertices, sphere.faces, cone_angle=4.0)
+    with pytest.raises(ParameterError):
+        raw_shdf(sphere.vertices, sphere.faces, ray_count=0)
+
+
+@pytest.mark.needs_data
+@pytest.mark.skipif(not PSB.is_dir(), reason="needs ../shared/data/psb-dev")
+def test_agrees_with_cgal_on_a_benchmark_mesh():
+    loaded = trimesh.load(PSB / "off" / "1.off", process=False)
+    mesh = TriangleMesh(np.asarray(loaded.vertices), np.asarray(loaded.faces))
+    reference = np.loadtxt(PSB / "cgal" / "1.sdf")
+    ours = exact_shdf(mesh, graph=mesh_face_graph(mesh))
+    assert np.corrcoef(ours, reference)[0, 1] >= 0.9

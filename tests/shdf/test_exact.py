@@ -6,7 +6,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-
 from neural_shdf import constants
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import face_normals

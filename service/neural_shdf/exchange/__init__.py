@@ -1,0 +1,20 @@
+"""One reader per mesh file format, registered by extension (see ``neural_shdf.mesh_io``)."""
+
+from neural_shdf.exchange._common import Reader, fan_triangulate
+from neural_shdf.exchange.gltf import read_glb, read_gltf
+from neural_shdf.exchange.obj import read_obj
+from neural_shdf.exchange.off import read_off
+from neural_shdf.exchange.ply import read_ply
+from neural_shdf.exchange.stl import read_stl
+
+#: Reader for each supported file extension (lower case, without the dot).
+READERS: dict[str, Reader] = {
+    "obj": read_obj,
+    "off": read_off,
+    "ply": read_ply,
+    "stl": read_stl,
+    "glb": read_glb,
+    "gltf": read_gltf,
+}
+
+__all__ = ["READERS", "Reader", "fan_triangulate"]

@@ -1,0 +1,166 @@
+"""Shared steps of every mesh reader: polygon triangulation, validation, error guard."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.constants import AREA_EPS
+from neural_shdf.errors import (
+    InvalidGeometryError,
+    MeshError,
+    MeshParseError,
+    MeshTooLargeError,
+)
+from neural_shdf.mesh import TriangleMesh
+
+#: A reader turns file bytes into a mesh, honouring an optional face limit.
+Reader = Callable[[bytes, "int | None"], TriangleMesh]
+
+
+@contextmanager
+def parse_guard(format_name: str) -> Iterator[None]:
+    """Turn any unexpected exception while parsing into a MeshParseError naming the format."""
+    try:
+        yield
+    except MeshError:
+        raise
+    except MemoryError as exc:
+        raise MeshTooLargeError(
+            f"the {format_name} file needs more memory than is available to load"
+        ) from exc
+    except Exception as exc:  # noqa: BLE001 - converting is the point of the guard
+        detail = str(exc) or type(exc).__name__
+        raise MeshParseError(
+            f"could not parse the file as {format_name}: {detail}. "
+            f"Check that it is a complete, valid {format_name} file."
+        ) from exc
+
+
+def check_face_limit(count: int, max_faces: int | None, what: str = "faces") -> None:
+    """Raise MeshTooLargeError when ``count`` exceeds ``max_faces`` (checked before allocating)."""
+    if max_faces is not None and count > max_faces:
+        raise MeshTooLargeError(
+            f"the mesh has {count} {what}, more than the limit of {max_faces}; "
+            "simplify (decimate) it before uploading"
+        )
+
+
+def decode_text(data: bytes, format_name: str) -> str:
+    """Bytes of a text format as str; binary content is a parse error with a clear message."""
+    if b"\x00" in data[:65536]:
+        raise MeshParseError(
+            f"the file contains binary data, so it is not a text {format_name} file; "
+            "check the file type"
+        )
+    return data.decode("latin-1")
+
+
+def fan_triangulate(
+    counts: NDArray[np.int64], flat_indices: NDArray[np.int64]
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Triangles of polygons given as (counts, concatenated vertex indices).
+
+    Polygon ``p`` with vertices ``v0..v{n-1}`` becomes the fan
+    ``(v0, v1, v2), (v0, v2, v3), ..., (v0, v{n-2}, v{n-1})``; polygons with
+    fewer than three vertices give no triangle. Returns ``(faces, face_origin)``
+    with the triangles of each polygon contiguous and in input order.
+    """
+    counts = np.asarray(counts, dtype=np.int64)
+    flat_indices = np.asarray(flat_indices, dtype=np.int64)
+    if len(counts) and (counts == 3).all():  # all triangles already
+        return flat_indices.reshape(-1, 3), np.arange(len(counts), dtype=np.int64)
+    starts = np.zeros(len(counts), dtype=np.int64)
+    np.cumsum(counts[:-1], out=starts[1:])
+    per_polygon = np.maximum(counts - 2, 0)
+    origin = np.repeat(np.arange(len(counts), dtype=np.int64), per_polygon)
+    if len(origin) == 0:
+        return np.zeros((0, 3), dtype=np.int64), origin
+    first_triangle = np.zeros(len(counts), dtype=np.int64)
+    np.cumsum(per_polygon[:-1], out=first_triangle[1:])
+    k = np.arange(len(origin), dtype=np.int64) - first_triangle[origin] + 1
+    base = starts[origin]
+    faces = np.stack(
+        [flat_indices[base], flat_indices[base + k], flat_indices[base + k + 1]], axis=1
+    )
+    return faces, origin
+
+
+def _has_area(vertices: NDArray, faces: NDArray) -> bool:
+    """Whether any of the triangles has non-zero area."""
+    tri = vertices[faces]
+    doubled_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    return bool((doubled_area > AREA_EPS).any())
+
+
+def build_mesh(
+    vertices: NDArray,
+    faces: NDArray,
+    face_origin: NDArray | None,
+    input_face_count: int,
+    *,
+    format_name: str,
+    max_faces: int | None,
+) -> TriangleMesh:
+    """Validate parsed geometry and wrap it as a TriangleMesh (nothing merged or reordered).
+
+    Raises InvalidGeometryError for non-finite coordinates, face indices outside
+    the vertex list, or a mesh without any face of non-zero area. Degenerate faces
+    next to usable ones are kept.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    check_face_limit(len(faces), max_faces, "triangles")
+    if len(faces) == 0:
+        raise InvalidGeometryError(
+            f"the {format_name} file contains no triangles or polygons (is it a point cloud "
+            "or a line drawing?); export the surface as faces"
+        )
+    bad_vertex = ~np.isfinite(vertices).all(axis=1)
+    if bad_vertex.any():
+        index = int(np.flatnonzero(bad_vertex)[0])
+        raise InvalidGeometryError(
+            f"{int(bad_vertex.sum())} vertices have NaN or infinite coordinates "
+            f"(first: vertex {index}); repair or re-export the mesh"
+        )
+    bad_face = (faces < 0).any(axis=1) | (faces >= len(vertices)).any(axis=1)
+    if bad_face.any():
+        index = int(np.flatnonzero(bad_face)[0])
+        raise InvalidGeometryError(
+            f"{int(bad_face.sum())} faces refer to vertices that do not exist (first: triangle "
+            f"{index} uses {faces[index].tolist()} but there are {len(vertices)} vertices); "
+            "the file is corrupt or truncated"
+        )
+    if not _has_area(vertices, faces[:1024]) and not _has_area(vertices, faces):
+        raise InvalidGeometryError(
+            f"all {len(faces)} triangles have zero area (degenerate); the mesh has no surface"
+        )
+    return TriangleMesh(
+        vertices=vertices,
+        faces=faces,
+        face_origin=face_origin,
+        input_face_count=input_face_count,
+    )
+
+
+def polygon_mesh(
+    vertices: NDArray,
+    counts: NDArray,
+    flat_indices: NDArray,
+    *,
+    format_name: str,
+    max_faces: int | None,
+) -> TriangleMesh:
+    """Fan-triangulate polygons and validate; each polygon is one input face."""
+    faces, origin = fan_triangulate(counts, flat_indices)
+    return build_mesh(
+        vertices,
+        faces,
+        origin,
+        len(counts),
+        format_name=format_name,
+        max_faces=max_faces,
+    )

@@ -1,0 +1,327 @@
+"""glTF 2.0 readers: binary GLB, and text glTF whose buffers are embedded ``data:`` URIs.
+
+Triangle order (what "input face order" means for glTF): the default scene's
+nodes are walked depth-first in their listed order (a node, then its children
+in order); for each node with a mesh, the triangles of each primitive follow in
+primitive order and index order. A mesh instanced by several nodes appears once
+per node. Node transforms (matrix or TRS) are applied to the positions; where a
+transform mirrors (negative determinant) the winding is flipped so normals keep
+pointing outwards. Triangle strips and fans are expanded to triangles; points
+and lines primitives are ignored. Each triangle is one input face. Files without
+scenes use every root node in index order, or every mesh if there are no nodes.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import struct
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.errors import (
+    InvalidGeometryError,
+    MeshParseError,
+    MeshTooLargeError,
+    UnsupportedFormatError,
+)
+from neural_shdf.exchange._common import build_mesh, check_face_limit
+from neural_shdf.mesh import TriangleMesh
+
+_GLB_MAGIC = b"glTF"
+_CHUNK_JSON = 0x4E4F534A
+_CHUNK_BIN = 0x004E4942
+_COMPONENTS = {5120: "i1", 5121: "u1", 5122: "i2", 5123: "u2", 5125: "u4", 5126: "f4"}
+_WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+_TRIANGLES, _STRIP, _FAN = 4, 5, 6
+_COMPRESSION = ("KHR_draco_mesh_compression", "EXT_meshopt_compression")
+#: Cap on node visits, so a node graph that instances exponentially cannot blow up.
+MAX_NODE_VISITS = 100_000
+
+
+def _item(document: dict, key: str, index: Any) -> dict:
+    """``document[key][index]`` with a clear error for bad or out-of-range references."""
+    items = document.get(key)
+    if (
+        not isinstance(index, int)
+        or isinstance(index, bool)
+        or not isinstance(items, list)
+        or not 0 <= index < len(items)
+        or not isinstance(items[index], dict)
+    ):
+        raise MeshParseError(f"glTF refers to {key}[{index!r}], which does not exist")
+    return items[index]
+
+
+class _Document:
+    """A parsed glTF JSON with its buffers, reading accessors with bounds checks."""
+
+    def __init__(self, gltf: Any, glb_bin: bytes | None):
+        if not isinstance(gltf, dict):
+            raise MeshParseError("the glTF JSON must be an object")
+        version = str(gltf.get("asset", {}).get("version", "2.0"))
+        if not version.startswith("2"):
+            raise UnsupportedFormatError(f"glTF version {version} is not supported (only 2.x)")
+        required = set(gltf.get("extensionsRequired", []))
+        if required & set(_COMPRESSION):
+            raise UnsupportedFormatError(
+                f"compressed glTF ({', '.join(sorted(required & set(_COMPRESSION)))}) is not "
+                "supported; export without Draco/meshopt compression"
+            )
+        self.gltf = gltf
+        self.glb_bin = glb_bin
+        self._buffers: dict[int, bytes] = {}
+        self._accessors: dict[int, NDArray] = {}
+
+    def buffer(self, index: int) -> bytes:
+        if index in self._buffers:
+            return self._buffers[index]
+        spec = _item(self.gltf, "buffers", index)
+        declared = int(spec.get("byteLength", -1))
+        uri = spec.get("uri")
+        if uri is None:
+            if self.glb_bin is None or index != 0:
+                raise MeshParseError(f"glTF buffer {index} has no data (no uri and no GLB chunk)")
+            data = self.glb_bin
+        elif isinstance(uri, str) and uri.startswith("data:"):
+            header, _, payload = uri.partition(",")
+            if not header.endswith(";base64"):
+                raise UnsupportedFormatError("only base64 data: URIs are supported in glTF")
+            if declared > len(payload):  # base64 expands, so the payload is longer than data
+                raise MeshParseError(
+                    f"glTF buffer {index} declares {declared} bytes but embeds fewer"
+                )
+            data = base64.b64decode(payload, validate=True)
+        else:
+            raise UnsupportedFormatError(
+                "the glTF refers to an external buffer file; upload a .glb, or a .gltf with "
+                "embedded (data: URI) buffers"
+            )
+        if declared < 0 or declared > len(data):
+            raise MeshParseError(
+                f"glTF buffer {index} declares {declared} bytes but holds {len(data)} "
+                "(truncated or corrupt file)"
+            )
+        self._buffers[index] = data
+        return data
+
+    def accessor(self, index: int) -> NDArray:
+        """Accessor values as a (count, width) array (float64, or int64 for integer data)."""
+        if index in self._accessors:
+            return self._accessors[index]
+        spec = _item(self.gltf, "accessors", index)
+        if "sparse" in spec:
+            raise UnsupportedFormatError("sparse glTF accessors are not supported")
+        if "bufferView" not in spec:
+            raise MeshParseError(f"glTF accessor {index} has no bufferView (no data)")
+        component = spec.get("componentType")
+        width = _WIDTHS.get(spec.get("type"))
+        count = spec.get("count")
+        if component not in _COMPONENTS or width is None or not isinstance(count, int):
+            raise MeshParseError(f"glTF accessor {index} has an invalid type or count")
+        dtype = np.dtype("<" + _COMPONENTS[component])
+        view = _item(self.gltf, "bufferViews", spec["bufferView"])
+        buffer = self.buffer(view.get("buffer", -1))
+        view_offset = int(view.get("byteOffset", 0))
+        view_length = int(view.get("byteLength", -1))
+        if view_offset < 0 or view_length < 0 or view_offset + view_length > len(buffer):
+            raise MeshParseError(
+                f"glTF bufferView {spec['bufferView']} lies outside its buffer (corrupt file)"
+            )
+        element_size = dtype.itemsize * width
+        stride = int(view.get("byteStride", 0)) or element_size
+        offset = int(spec.get("byteOffset", 0))
+        needed = offset + stride * (count - 1) + element_size if count > 0 else 0
+        if count < 0 or offset < 0 or stride < element_size or needed > view_length:
+            raise MeshParseError(
+                f"glTF accessor {index} declares {count} elements, more than its bufferView "
+                "holds (corrupt or truncated file)"
+            )
+        raw = np.ndarray(
+            (count, width),
+            dtype=dtype,
+            buffer=buffer,
+            offset=view_offset + offset,
+            strides=(stride, dtype.itemsize),
+        )
+        if dtype.kind == "f":
+            values = raw.astype(np.float64)
+        elif spec.get("normalized", False):
+            info = np.iinfo(dtype)
+            values = np.maximum(raw.astype(np.float64) / info.max, -1.0)
+        else:
+            values = raw.astype(np.int64)
+        self._accessors[index] = values
+        return values
+
+
+def _local_matrix(node: dict) -> NDArray:
+    if "matrix" in node:
+        matrix = np.asarray(node["matrix"], dtype=np.float64)
+        if matrix.shape != (16,):
+            raise MeshParseError("a glTF node matrix needs 16 numbers")
+        return matrix.reshape(4, 4).T  # stored column-major
+    translation = np.asarray(node.get("translation", [0, 0, 0]), dtype=np.float64)
+    x, y, z, w = np.asarray(node.get("rotation", [0, 0, 0, 1]), dtype=np.float64)
+    scale = np.asarray(node.get("scale", [1, 1, 1]), dtype=np.float64)
+    rotation = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    matrix = np.eye(4)
+    matrix[:3, :3] = rotation * scale[None, :]
+    matrix[:3, 3] = translation
+    return matrix
+
+
+def _triangles(indices: NDArray, mode: int) -> NDArray:
+    """Triangles (T, 3) of a primitive's index list in its drawing mode."""
+    n = len(indices)
+    if mode == _TRIANGLES:
+        if n % 3:
+            raise MeshParseError(f"a glTF triangle primitive has {n} indices, not a multiple of 3")
+        return indices.reshape(-1, 3)
+    if n < 3:
+        return np.zeros((0, 3), dtype=np.int64)
+    i = np.arange(n - 2)
+    if mode == _STRIP:
+        odd = i % 2
+        return np.stack([indices[i], indices[i + 1 + odd], indices[i + 2 - odd]], axis=1)
+    return np.stack([indices[i + 1], indices[i + 2], np.full(len(i), indices[0])], axis=1)
+
+
+def _triangle_count(document: _Document, primitive: dict, vertex_count: int) -> int:
+    mode = primitive.get("mode", _TRIANGLES)
+    if "indices" in primitive:
+        n = int(_item(document.gltf, "accessors", primitive["indices"]).get("count", 0))
+    else:
+        n = vertex_count
+    return n // 3 if mode == _TRIANGLES else max(n - 2, 0)
+
+
+def _scene_roots(gltf: dict) -> list[int]:
+    scenes = gltf.get("scenes")
+    if scenes:
+        scene = _item(gltf, "scenes", gltf.get("scene", 0))
+        return list(scene.get("nodes", []))
+    nodes = gltf.get("nodes", [])
+    children = {c for node in nodes if isinstance(node, dict) for c in node.get("children", [])}
+    return [i for i in range(len(nodes)) if i not in children]
+
+
+def _read_document(document: _Document, format_name: str, max_faces: int | None) -> TriangleMesh:
+    gltf = document.gltf
+    vertex_blocks: list[NDArray] = []
+    face_blocks: list[NDArray] = []
+    state = {"vertices": 0, "triangles": 0, "visits": 0}
+
+    def emit(mesh_index: int, matrix: NDArray) -> None:
+        mesh = _item(gltf, "meshes", mesh_index)
+        flip = np.linalg.det(matrix[:3, :3]) < 0
+        for primitive in mesh.get("primitives", []):
+            mode = primitive.get("mode", _TRIANGLES)
+            if mode not in (_TRIANGLES, _STRIP, _FAN):
+                continue  # points and lines
+            if "POSITION" not in primitive.get("attributes", {}):
+                raise MeshParseError("a glTF primitive has no POSITION attribute")
+            position_spec = _item(gltf, "accessors", primitive["attributes"]["POSITION"])
+            count = _triangle_count(document, primitive, int(position_spec.get("count", 0)))
+            check_face_limit(state["triangles"] + count, max_faces, "triangles")
+            positions = document.accessor(primitive["attributes"]["POSITION"])
+            if positions.shape[1] != 3:
+                raise MeshParseError("glTF POSITION must be VEC3")
+            if "indices" in primitive:
+                indices = document.accessor(primitive["indices"])
+                if indices.shape[1] != 1 or indices.dtype.kind != "i":
+                    raise MeshParseError("glTF indices must be unsigned integer scalars")
+                indices = indices[:, 0]
+            else:
+                indices = np.arange(len(positions), dtype=np.int64)
+            if len(indices) and int(indices.max()) >= len(positions):
+                raise InvalidGeometryError(
+                    f"a glTF primitive of mesh {mesh_index} uses vertex {int(indices.max())} but "
+                    f"has only {len(positions)} vertices (corrupt file)"
+                )
+            triangles = _triangles(indices, mode)
+            if flip:
+                triangles = triangles[:, [0, 2, 1]]
+            vertex_blocks.append(positions @ matrix[:3, :3].T + matrix[:3, 3])
+            face_blocks.append(triangles + state["vertices"])
+            state["vertices"] += len(positions)
+            state["triangles"] += len(triangles)
+
+    def visit(node_index: int, parent: NDArray, path: tuple[int, ...]) -> None:
+        if node_index in path:
+            raise MeshParseError(f"the glTF node graph has a cycle through node {node_index}")
+        state["visits"] += 1
+        if state["visits"] > MAX_NODE_VISITS:
+            raise MeshTooLargeError(
+                f"the glTF scene instances more than {MAX_NODE_VISITS} nodes; flatten it"
+            )
+        node = _item(gltf, "nodes", node_index)
+        matrix = parent @ _local_matrix(node)
+        if "mesh" in node:
+            emit(node["mesh"], matrix)
+        for child in node.get("children", []):
+            visit(child, matrix, (*path, node_index))
+
+    if gltf.get("nodes") or gltf.get("scenes"):
+        for root in _scene_roots(gltf):
+            visit(root, np.eye(4), ())
+    else:
+        for mesh_index in range(len(gltf.get("meshes", []))):
+            emit(mesh_index, np.eye(4))
+
+    vertices = np.concatenate(vertex_blocks) if vertex_blocks else np.zeros((0, 3))
+    faces = np.concatenate(face_blocks) if face_blocks else np.zeros((0, 3), dtype=np.int64)
+    return build_mesh(
+        vertices, faces, None, len(faces), format_name=format_name, max_faces=max_faces
+    )
+
+
+def read_glb(data: bytes, max_faces: int | None = None) -> TriangleMesh:
+    """Parse binary glTF (GLB) bytes; declared lengths are checked before anything is read."""
+    if len(data) < 12 or data[:4] != _GLB_MAGIC:
+        raise MeshParseError("a GLB file must start with the 'glTF' magic bytes; is it a GLB?")
+    version, length = struct.unpack_from("<II", data, 4)
+    if version != 2:
+        raise UnsupportedFormatError(f"GLB version {version} is not supported (only 2)")
+    if length > len(data):
+        raise MeshParseError(
+            f"the GLB is truncated: its header declares {length} bytes but the file has {len(data)}"
+        )
+    chunks: list[tuple[int, bytes]] = []
+    offset = 12
+    while offset + 8 <= length:
+        chunk_length, chunk_type = struct.unpack_from("<II", data, offset)
+        if offset + 8 + chunk_length > length:
+            raise MeshParseError(
+                f"a GLB chunk declares {chunk_length} bytes, beyond the end of the file "
+                "(truncated or corrupt)"
+            )
+        chunks.append((chunk_type, data[offset + 8 : offset + 8 + chunk_length]))
+        offset += 8 + chunk_length
+    if not chunks or chunks[0][0] != _CHUNK_JSON:
+        raise MeshParseError("the GLB has no JSON chunk")
+    binary = next((payload for kind, payload in chunks[1:] if kind == _CHUNK_BIN), None)
+    gltf = json.loads(chunks[0][1].decode("utf-8"))
+    return _read_document(_Document(gltf, binary), "GLB", max_faces)
+
+
+def read_gltf(data: bytes, max_faces: int | None = None) -> TriangleMesh:
+    """Parse text glTF bytes whose buffers are embedded as base64 ``data:`` URIs."""
+    if data[:4] == _GLB_MAGIC:
+        return read_glb(data, max_faces)
+    try:
+        gltf = json.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise MeshParseError(f"a .gltf file must be JSON: {exc}") from None
+    return _read_document(_Document(gltf, None), "glTF", max_faces)
+
+
+__all__ = ["read_glb", "read_gltf"]

@@ -1,0 +1,80 @@
+"""Wavefront OBJ reader: every ``f`` record is one input face, in file order.
+
+Groups (``g``/``o``) and materials (``usemtl``) are ignored, so faces are never
+regrouped or reordered (trimesh's OBJ loader splits by material, which is why
+this reader exists). Only the position index of ``v/vt/vn`` references is used;
+negative indices are relative to the vertices defined so far. Texture coordinates,
+normals, lines (``l``) and points (``p``) are ignored.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from neural_shdf.errors import InvalidGeometryError, MeshParseError
+from neural_shdf.exchange._common import check_face_limit, decode_text, polygon_mesh
+from neural_shdf.mesh import TriangleMesh
+
+FORMAT_NAME = "OBJ"
+
+
+def _logical_lines(text: str) -> list[str]:
+    """Lines with ``\\`` continuations joined."""
+    if "\\\n" in text or "\\\r\n" in text:
+        text = text.replace("\\\r\n", " ").replace("\\\n", " ")
+    return text.splitlines()
+
+
+def read_obj(data: bytes, max_faces: int | None = None) -> TriangleMesh:
+    """Parse OBJ bytes; polygons are fan-triangulated, one input face per ``f`` record."""
+    text = decode_text(data, FORMAT_NAME)
+    coordinates: list[str] = []
+    counts: list[int] = []
+    flat: list[int] = []
+    vertex_count = 0
+    polygon_count = 0
+    for line_number, raw in enumerate(_logical_lines(text), start=1):
+        line = raw.lstrip()
+        if len(line) < 2 or line[0] not in "vf" or line[1] not in " \t":
+            continue
+        parts = line.split()
+        if parts[0] == "v":
+            if len(parts) < 4:
+                raise MeshParseError(
+                    f"OBJ line {line_number}: a vertex needs 3 coordinates, got {raw.strip()!r}"
+                )
+            coordinates.extend(parts[1:4])
+            vertex_count += 1
+            continue
+        # parts[0] == "f"
+        references = parts[1:]
+        for reference in references:
+            position = reference.split("/", 1)[0]
+            try:
+                index = int(position)
+            except ValueError:
+                raise MeshParseError(
+                    f"OBJ line {line_number}: face vertex {reference!r} is not an integer index"
+                ) from None
+            if index == 0:
+                raise InvalidGeometryError(
+                    f"OBJ line {line_number}: face index 0 is invalid (OBJ indices start at 1)"
+                )
+            flat.append(index - 1 if index > 0 else vertex_count + index)
+        counts.append(len(references))
+        if len(references) >= 3:
+            polygon_count += 1
+            check_face_limit(polygon_count, max_faces)
+    if not coordinates and not counts:
+        raise MeshParseError("no vertex ('v') or face ('f') records found: this is not an OBJ mesh")
+    try:
+        vertices = np.array(coordinates, dtype=np.float64).reshape(-1, 3)
+    except ValueError as exc:
+        raise MeshParseError(f"OBJ vertex coordinates are not all numbers: {exc}") from None
+    return polygon_mesh(
+        vertices,
+        np.array(counts, dtype=np.int64),
+        np.array(flat, dtype=np.int64),
+        format_name=FORMAT_NAME,
+        max_faces=max_faces,
+    )

@@ -1,0 +1,91 @@
+"""Object File Format (OFF, incl. COFF/NOFF/STOFF headers) reader.
+
+Each face record is one input face, in file order; per-face colours after the
+vertex indices are ignored.
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from neural_shdf.errors import MeshParseError, UnsupportedFormatError
+from neural_shdf.exchange._common import check_face_limit, decode_text, polygon_mesh
+from neural_shdf.mesh import TriangleMesh
+
+FORMAT_NAME = "OFF"
+
+
+def _content_lines(text: str) -> list[str]:
+    """Non-empty lines with ``#`` comments removed."""
+    lines = []
+    for raw in text.splitlines():
+        line = raw.split("#", 1)[0].strip()
+        if line:
+            lines.append(line)
+    return lines
+
+
+def read_off(data: bytes, max_faces: int | None = None) -> TriangleMesh:
+    """Parse OFF bytes; polygons are fan-triangulated, one input face per face record."""
+    if data[:64].lstrip().upper().startswith(b"OFF BINARY"):
+        raise UnsupportedFormatError("binary OFF is not supported; save the mesh as text OFF")
+    lines = _content_lines(decode_text(data, FORMAT_NAME))
+    if not lines:
+        raise MeshParseError("the OFF file is empty")
+    header = lines[0].split()
+    keyword = header[0].upper()
+    if not re.fullmatch(r"(ST)?C?N?OFF", keyword):
+        if keyword.endswith("OFF"):
+            raise UnsupportedFormatError(
+                f"OFF variant {header[0]!r} is not supported; save as plain 3-D 'OFF'"
+            )
+        raise MeshParseError(
+            f"an OFF file must start with 'OFF', found {lines[0][:40]!r}; is it really OFF?"
+        )
+    counts_tokens = header[1:] if len(header) > 1 else lines[1].split() if len(lines) > 1 else []
+    body_start = 1 if len(header) > 1 else 2
+    if len(counts_tokens) < 2:
+        raise MeshParseError("the OFF header needs vertex and face counts ('V F E')")
+    try:
+        vertex_count, face_count = int(counts_tokens[0]), int(counts_tokens[1])
+    except ValueError:
+        raise MeshParseError(f"OFF counts are not integers: {counts_tokens[:3]}") from None
+    if vertex_count < 0 or face_count < 0:
+        raise MeshParseError(f"OFF counts are negative: {vertex_count} {face_count}")
+    available = len(lines) - body_start
+    if vertex_count + face_count > available:
+        raise MeshParseError(
+            f"the OFF file is truncated: its header declares {vertex_count} vertices and "
+            f"{face_count} faces but only {available} data lines follow"
+        )
+    check_face_limit(face_count, max_faces)
+
+    vertex_lines = lines[body_start : body_start + vertex_count]
+    try:
+        vertices = np.array([line.split()[:3] for line in vertex_lines], dtype=np.float64)
+    except ValueError as exc:
+        raise MeshParseError(f"OFF vertex lines must hold 3 numbers each: {exc}") from None
+    if vertices.shape != (vertex_count, 3):
+        raise MeshParseError("every OFF vertex line needs 3 coordinates")
+
+    face_lines = lines[body_start + vertex_count : body_start + vertex_count + face_count]
+    counts = np.empty(face_count, dtype=np.int64)
+    flat: list[str] = []
+    for i, line in enumerate(face_lines):
+        tokens = line.split()
+        n = int(tokens[0])
+        if n < 0 or len(tokens) < n + 1:
+            raise MeshParseError(
+                f"OFF face {i} declares {n} vertices but lists {len(tokens) - 1} values"
+            )
+        counts[i] = n
+        flat.extend(tokens[1 : n + 1])
+    try:
+        flat_indices = np.array(flat, dtype=np.int64)
+    except ValueError as exc:
+        raise MeshParseError(f"OFF face indices must be integers: {exc}") from None
+    return polygon_mesh(
+        vertices, counts, flat_indices, format_name=FORMAT_NAME, max_faces=max_faces
+    )

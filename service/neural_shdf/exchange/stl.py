@@ -1,0 +1,79 @@
+"""STL reader (binary and ASCII): a triangle soup, one input face per facet in file order.
+
+Every facet gets its own three vertices (nothing is merged here; the pipeline
+welds coincident vertices when it builds the face graph).
+"""
+
+from __future__ import annotations
+
+import re
+import struct
+
+import numpy as np
+
+from neural_shdf.errors import MeshParseError
+from neural_shdf.exchange._common import build_mesh, check_face_limit, decode_text
+from neural_shdf.mesh import TriangleMesh
+
+FORMAT_NAME = "STL"
+_HEADER_BYTES = 84
+_RECORD = np.dtype([("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
+_VERTEX = re.compile(rb"vertex\s+(\S+)\s+(\S+)\s+(\S+)", re.IGNORECASE)
+_FACET = re.compile(rb"\bfacet\b", re.IGNORECASE)
+
+
+def _soup(corners: np.ndarray, max_faces: int | None) -> TriangleMesh:
+    count = len(corners)
+    return build_mesh(
+        corners.reshape(-1, 3),
+        np.arange(3 * count, dtype=np.int64).reshape(-1, 3),
+        None,
+        count,
+        format_name=FORMAT_NAME,
+        max_faces=max_faces,
+    )
+
+
+def _read_binary(data: bytes, count: int, max_faces: int | None) -> TriangleMesh:
+    check_face_limit(count, max_faces)
+    records = np.frombuffer(data, dtype=_RECORD, count=count, offset=_HEADER_BYTES)
+    return _soup(records["corners"].astype(np.float64), max_faces)
+
+
+def _read_ascii(data: bytes, max_faces: int | None) -> TriangleMesh:
+    decode_text(data, FORMAT_NAME)  # rejects binary content with a clear message
+    facet_count = len(_FACET.findall(data))
+    check_face_limit(facet_count, max_faces)
+    coordinates = _VERTEX.findall(data)
+    if len(coordinates) != 3 * facet_count:
+        raise MeshParseError(
+            f"the ASCII STL has {facet_count} facets but {len(coordinates)} vertices "
+            "(each facet needs exactly 3); the file is truncated or malformed"
+        )
+    try:
+        corners = np.array(coordinates, dtype=np.float64).reshape(-1, 3, 3)
+    except ValueError as exc:
+        raise MeshParseError(f"ASCII STL vertex coordinates are not numbers: {exc}") from None
+    return _soup(corners, max_faces)
+
+
+def read_stl(data: bytes, max_faces: int | None = None) -> TriangleMesh:
+    """Parse STL bytes, telling binary from ASCII by the size the binary header implies."""
+    declared = struct.unpack_from("<I", data, 80)[0] if len(data) >= _HEADER_BYTES else -1
+    binary_size = _HEADER_BYTES + 50 * declared
+    is_ascii = data[:1024].lstrip()[:5].lower() == b"solid"
+    if declared >= 0 and len(data) == binary_size:
+        return _read_binary(data, declared, max_faces)
+    if is_ascii:
+        return _read_ascii(data, max_faces)
+    if declared < 0:
+        raise MeshParseError(
+            f"the file has {len(data)} bytes: too short for a binary STL (84-byte header) "
+            "and not an ASCII STL (which starts with 'solid')"
+        )
+    if len(data) < binary_size:
+        raise MeshParseError(
+            f"the binary STL is truncated: its header declares {declared} triangles "
+            f"({binary_size} bytes) but the file has {len(data)} bytes"
+        )
+    return _read_binary(data, declared, max_faces)  # trailing bytes after the records ignored

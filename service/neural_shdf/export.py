@@ -1,0 +1,190 @@
+"""Write segmentation results: coloured GLB, one-node-per-part GLB, .seg labels, value files."""
+
+from __future__ import annotations
+
+import colorsys
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.errors import ParameterError
+from neural_shdf.mesh import TriangleMesh
+
+#: First colours of the palette: distinct, colour-blind-friendly-ish, light enough to shade.
+_BASE_PALETTE = np.array(
+    [
+        [230, 159, 0], [86, 180, 233], [0, 158, 115], [240, 228, 66], [0, 114, 178],
+        [213, 94, 0], [204, 121, 167], [153, 153, 153], [117, 112, 179], [102, 166, 30],
+        [166, 118, 29], [231, 41, 138],
+    ],
+    dtype=np.uint8,
+)  # fmt: skip
+#: Colour of triangles without a part (negative label).
+UNLABELED_COLOR = np.array([64, 64, 64, 255], dtype=np.uint8)
+
+
+def part_colors(n_parts: int) -> NDArray[np.uint8]:
+    """(n_parts, 4) RGBA colours, identical on every call: fixed palette, then golden-angle hues."""
+    if n_parts < 0:
+        raise ParameterError(f"n_parts must be >= 0, got {n_parts}")
+    colors = np.full((n_parts, 4), 255, dtype=np.uint8)
+    base = min(n_parts, len(_BASE_PALETTE))
+    colors[:base, :3] = _BASE_PALETTE[:base]
+    golden = (np.sqrt(5.0) - 1.0) / 2.0
+    for i in range(base, n_parts):
+        k = i - base
+        hue = (0.13 + k * golden) % 1.0
+        saturation = (0.55, 0.8, 0.4)[k % 3]
+        value = (0.9, 0.7, 0.8)[(k // 3) % 3]
+        colors[i, :3] = np.round(np.array(colorsys.hsv_to_rgb(hue, saturation, value)) * 255)
+    return colors
+
+
+def _check_labels(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.int64]:
+    labels = np.asarray(labels)
+    if labels.shape != (mesh.face_count,) or labels.dtype.kind not in "iu":
+        raise ParameterError(
+            f"need one integer label per triangle ({mesh.face_count}), got an array of shape "
+            f"{labels.shape} and dtype {labels.dtype}; map per-input-face labels with "
+            "labels[mesh.face_origin]"
+        )
+    return labels.astype(np.int64)
+
+
+def _label_colors(labels: NDArray[np.int64]) -> NDArray[np.uint8]:
+    """RGBA per triangle: part_colors by label value, UNLABELED_COLOR for negative labels."""
+    palette = part_colors(int(labels.max()) + 1 if len(labels) and labels.max() >= 0 else 0)
+    colors = np.tile(UNLABELED_COLOR, (len(labels), 1))
+    labelled = labels >= 0
+    colors[labelled] = palette[labels[labelled]]
+    return colors
+
+
+def split_by_part(
+    mesh: TriangleMesh, labels: NDArray
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """Vertices duplicated so that no vertex is shared by two parts.
+
+    Returns ``(vertices, faces, vertex_label)``: triangles in the mesh's order,
+    each vertex used by triangles of one label only.
+    """
+    labels = _check_labels(mesh, labels)
+    corner_labels = np.repeat(labels, 3)
+    corners = mesh.faces.reshape(-1)
+    keys = np.stack([corners, corner_labels], axis=1)
+    unique, inverse = np.unique(keys, axis=0, return_inverse=True)
+    return mesh.vertices[unique[:, 0]], inverse.reshape(-1, 3).astype(np.int64), unique[:, 1]
+
+
+def colored_glb(
+    mesh: TriangleMesh, labels_per_triangle: NDArray, *, colors: NDArray | None = None
+) -> bytes:
+    """GLB of the mesh with one colour per part (vertex colours; parts never share a vertex).
+
+    ``colors`` overrides the palette: (n_labels, 3 or 4) uint8, indexed by label.
+    """
+    import trimesh
+
+    labels = _check_labels(mesh, labels_per_triangle)
+    vertices, faces, vertex_label = split_by_part(mesh, labels)
+    if colors is None:
+        vertex_colors = _label_colors(vertex_label)
+    else:
+        palette = np.asarray(colors, dtype=np.uint8)
+        if palette.shape[1] == 3:
+            palette = np.concatenate([palette, np.full((len(palette), 1), 255, np.uint8)], 1)
+        vertex_colors = palette[vertex_label]
+    out = trimesh.Trimesh(vertices, faces, vertex_colors=vertex_colors, process=False)
+    return out.export(file_type="glb")
+
+
+def part_name(label: int) -> str:
+    """Node and mesh name of a part in parts_glb: ``part_000``, ..., or ``unlabeled``."""
+    return f"part_{label:03d}" if label >= 0 else "unlabeled"
+
+
+def parts_glb(mesh: TriangleMesh, labels: NDArray) -> bytes:
+    """GLB scene with one node and mesh per part, named by part_name, in label order.
+
+    Each part keeps its triangles in the mesh's order and only the vertices they use.
+    """
+    import trimesh
+
+    labels = _check_labels(mesh, labels)
+    scene = trimesh.Scene()
+    for label in np.unique(labels):
+        faces = mesh.faces[labels == label]
+        used, local = np.unique(faces, return_inverse=True)
+        color = _label_colors(np.array([label]))[0]
+        part = trimesh.Trimesh(
+            mesh.vertices[used],
+            local.reshape(-1, 3),
+            vertex_colors=np.tile(color, (len(used), 1)),
+            process=False,
+        )
+        name = part_name(int(label))
+        scene.add_geometry(part, geom_name=name, node_name=name)
+    return scene.export(file_type="glb")
+
+
+def write_labels(path: str | Path, labels: NDArray) -> None:
+    """Write a .seg file: one integer label per line."""
+    labels = np.asarray(labels)
+    if labels.ndim != 1 or labels.dtype.kind not in "iub":
+        raise ParameterError("labels must be a 1-D integer array")
+    Path(path).write_text("".join(f"{int(v)}\n" for v in labels))
+
+
+def read_labels(path: str | Path) -> NDArray[np.int64]:
+    """Read a .seg file (one integer per line; blank lines ignored)."""
+    values = []
+    for number, line in enumerate(Path(path).read_text().splitlines(), start=1):
+        text = line.strip()
+        if not text:
+            continue
+        try:
+            values.append(int(text))
+        except ValueError:
+            raise ParameterError(
+                f"{Path(path).name} line {number}: {text!r} is not an integer label"
+            ) from None
+    return np.array(values, dtype=np.int64)
+
+
+def write_values(path: str | Path, values: NDArray, *, fmt: str = "%.9g") -> None:
+    """Write one float per line (default 9 significant digits: float32-exact)."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.ndim != 1:
+        raise ParameterError("values must be a 1-D array")
+    Path(path).write_text("".join(fmt % v + "\n" for v in values))
+
+
+def read_values(path: str | Path) -> NDArray[np.float64]:
+    """Read one float per line (e.g. a .sdf file; blank lines ignored)."""
+    values = []
+    for number, line in enumerate(Path(path).read_text().splitlines(), start=1):
+        text = line.strip()
+        if not text:
+            continue
+        try:
+            values.append(float(text))
+        except ValueError:
+            raise ParameterError(
+                f"{Path(path).name} line {number}: {text!r} is not a number"
+            ) from None
+    return np.array(values, dtype=np.float64)
+
+
+__all__ = [
+    "UNLABELED_COLOR",
+    "colored_glb",
+    "part_colors",
+    "part_name",
+    "parts_glb",
+    "read_labels",
+    "read_values",
+    "split_by_part",
+    "write_labels",
+    "write_values",
+]

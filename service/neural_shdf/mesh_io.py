@@ -1,0 +1,114 @@
+"""Load meshes from files or bytes into a TriangleMesh, keeping the input's face order.
+
+Face order rules (per-face outputs of the project follow them):
+
+* OBJ, OFF, PLY: each face record is one input face, in file order. A polygon
+  with n vertices becomes the fan ``(v0, v1, v2), (v0, v2, v3), ...`` of n - 2
+  triangles, contiguous and in order; ``TriangleMesh.face_origin`` maps each
+  triangle to its polygon and ``labels_to_input_faces`` maps labels back (one
+  label per polygon). Face records with fewer than 3 vertices count as input
+  faces but give no triangle. OBJ groups and materials never regroup faces.
+* STL: each facet is one input face; each facet has its own 3 vertices.
+* GLB / glTF: each triangle is one input face; triangles come primitive by
+  primitive in a depth-first walk of the default scene's nodes (in listed
+  order), node transforms applied, once per instancing node (details in
+  ``neural_shdf.exchange.gltf``).
+
+Nothing is merged, dropped or reordered: duplicate vertices and degenerate
+faces stay. A mesh with no face of non-zero area, non-finite coordinates or
+out-of-range indices is rejected with InvalidGeometryError.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from neural_shdf.errors import MeshParseError, UnsupportedFormatError
+from neural_shdf.exchange import READERS
+from neural_shdf.exchange._common import parse_guard
+from neural_shdf.mesh import TriangleMesh
+
+#: File extensions load_mesh reads (lower case, without the dot).
+SUPPORTED_FORMATS: tuple[str, ...] = tuple(READERS)
+
+_FORMAT_NAMES = {"obj": "OBJ", "off": "OFF", "ply": "PLY", "stl": "STL", "glb": "GLB",
+                 "gltf": "glTF"}  # fmt: skip
+
+
+def _normalise_type(file_type: str) -> str:
+    name = file_type.strip().lower().lstrip(".")
+    if name not in READERS:
+        raise UnsupportedFormatError(
+            f"unsupported mesh format {file_type!r}; supported: {', '.join(SUPPORTED_FORMATS)}"
+        )
+    return name
+
+
+def detect_format(filename: str | Path) -> str:
+    """Format of a file name from its extension (e.g. ``"obj"``); UnsupportedFormatError if none."""
+    suffix = Path(str(filename)).suffix
+    if not suffix:
+        raise UnsupportedFormatError(
+            f"cannot tell the mesh format of {str(filename)!r}: it has no file extension; "
+            f"use one of {', '.join('.' + f for f in SUPPORTED_FORMATS)}"
+        )
+    return _normalise_type(suffix)
+
+
+def sniff_format(data: bytes) -> str | None:
+    """Best guess of the format from the first bytes, or None when unsure."""
+    head = data[:512].lstrip()
+    if head.startswith(b"glTF"):
+        return "glb"
+    if head.startswith(b"ply"):
+        return "ply"
+    first_word = head.split(None, 1)[0].upper() if head.split(None, 1) else b""
+    if first_word.endswith(b"OFF"):
+        return "off"
+    if head[:1] == b"{" and b'"asset"' in data[:4096]:
+        return "gltf"
+    if head.lower().startswith(b"solid"):
+        return "stl"
+    return None
+
+
+def load_mesh(
+    source: str | Path | bytes,
+    file_type: str | None = None,
+    *,
+    max_faces: int | None = None,
+) -> TriangleMesh:
+    """Read a mesh from a path (format from the extension unless ``file_type`` is given)
+    or from bytes (``file_type`` should be given; a few formats are recognised by content).
+
+    Raises a MeshError subclass for anything wrong with the input: UnsupportedFormatError,
+    MeshParseError (empty, truncated, not that format), InvalidGeometryError, and
+    MeshTooLargeError when the mesh has more than ``max_faces`` triangles.
+    """
+    if isinstance(source, bytes | bytearray | memoryview):
+        data = bytes(source)
+        if file_type is None:
+            file_type = sniff_format(data)
+            if file_type is None:
+                raise UnsupportedFormatError(
+                    "cannot tell the mesh format of these bytes; pass file_type "
+                    f"(one of {', '.join(SUPPORTED_FORMATS)})"
+                )
+        label = "the uploaded data"
+    else:
+        path = Path(source)
+        file_type = detect_format(path) if file_type is None else file_type
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            raise MeshParseError(f"cannot read mesh file {str(path)!r}: {exc.strerror}") from exc
+        label = f"{path.name!r}"
+    name = _normalise_type(file_type)
+    format_name = _FORMAT_NAMES[name]
+    if not data.strip():
+        raise MeshParseError(f"{label} is empty; expected a {format_name} mesh")
+    with parse_guard(format_name):
+        return READERS[name](data, max_faces)
+
+
+__all__ = ["SUPPORTED_FORMATS", "detect_format", "load_mesh", "sniff_format"]

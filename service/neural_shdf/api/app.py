@@ -1,0 +1,79 @@
+"""The FastAPI application: ``create_app(settings)``."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import FastAPI, Request
+from fastapi.responses import JSONResponse
+
+from neural_shdf import __version__
+from neural_shdf.api.cache import DiskBackend, RedisBackend, ResultCache
+from neural_shdf.api.engine import Engine
+from neural_shdf.api.errors import BodySizeLimitMiddleware, install_error_handlers
+from neural_shdf.api.jobs import JobAccepted
+from neural_shdf.api.metrics import Metrics, RequestMetricsMiddleware
+from neural_shdf.api.routes import health, jobs, meshes, segment
+from neural_shdf.api.settings import Settings
+
+DESCRIPTION = """Segment polygonal meshes into parts with the Shape Diameter Function (ShDF).
+
+Upload a mesh once (`POST /v1/meshes`): it is stored under the hash of its geometry and
+its ShDF is computed once and cached. Then segment it as often as you like
+(`POST /v1/segment`): only the partitioning runs. Every error has the same shape:
+`{"error": {"code", "message", "detail"}}`.
+"""
+
+
+def build_cache(settings: Settings, metrics: Metrics) -> ResultCache:
+    """Redis when ``redis_url`` is set, else the local disk cache."""
+    if settings.redis_url:
+        backend = RedisBackend(settings.redis_url, settings.redis_timeout_s)
+        backend.on_error = lambda exc: metrics.cache_errors.inc()
+    else:
+        backend = DiskBackend(settings.cache_dir, settings.cache_size_bytes)
+    cache = ResultCache(backend, settings.memory_cache_items)
+    cache.on_corrupt = lambda key: metrics.cache_corrupt.inc()
+    return cache
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """The service with its cache, metrics and compute pool."""
+    settings = settings or Settings()
+    metrics = Metrics()
+    engine = Engine(settings, build_cache(settings, metrics), metrics)
+
+    @asynccontextmanager
+    async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+        yield
+        await engine.close()
+        engine.cache.close()
+
+    app = FastAPI(
+        title="neural-shdf",
+        version=__version__,
+        description=DESCRIPTION,
+        lifespan=lifespan,
+    )
+    app.state.settings = settings
+    app.state.engine = engine
+    install_error_handlers(app)
+
+    async def job_accepted(_: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, JobAccepted)
+        return JSONResponse(
+            exc.job, status_code=202, headers={"Location": f"/v1/jobs/{exc.job['job_id']}"}
+        )
+
+    app.add_exception_handler(JobAccepted, job_accepted)
+    for module in (health, meshes, segment, jobs):
+        app.include_router(module.router)
+    app.add_middleware(BodySizeLimitMiddleware, limit=settings.max_upload_bytes)
+    app.add_middleware(RequestMetricsMiddleware, metrics=metrics)
+    return app
+
+
+def create_app_from_env() -> FastAPI:
+    """uvicorn factory (``--factory``): settings from the environment."""
+    return create_app(Settings())

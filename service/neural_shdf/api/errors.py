@@ -1,0 +1,177 @@
+"""One JSON error shape everywhere: ``{"error": {"code", "message", "detail"}}``."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from neural_shdf.errors import (
+    InvalidGeometryError,
+    MeshError,
+    MeshParseError,
+    MeshTooLargeError,
+    ModelUnavailableError,
+    ParameterError,
+    UnsupportedFormatError,
+)
+
+logger = logging.getLogger(__name__)
+
+
+class ApiError(StarletteHTTPException):
+    """An error answered with ``status`` and the standard JSON body.
+
+    It derives from HTTPException so FastAPI passes it through unchanged even when
+    it is raised while the request body is being parsed.
+    """
+
+    def __init__(self, status: int, code: str, message: str, detail: Any = None) -> None:
+        super().__init__(status_code=status, detail=message)
+        self.code = code
+        self.message = message
+        self.extra = detail
+
+
+def error_body(code: str, message: str, detail: Any = None) -> dict[str, Any]:
+    return {"error": {"code": code, "message": message, "detail": detail}}
+
+
+def error_response(status: int, code: str, message: str, detail: Any = None) -> JSONResponse:
+    return JSONResponse(jsonable_encoder(error_body(code, message, detail)), status_code=status)
+
+
+def not_found(what: str, identifier: str) -> ApiError:
+    return ApiError(404, f"{what}_not_found", f"no {what} with id {identifier!r}")
+
+
+def payload_too_large(limit: int) -> ApiError:
+    return ApiError(
+        413,
+        "payload_too_large",
+        f"the request body exceeds the limit of {limit} bytes; "
+        "simplify the mesh or use a compact binary format (PLY, GLB, STL)",
+        {"max_upload_bytes": limit},
+    )
+
+
+_MESH_ERRORS: list[tuple[type[Exception], int, str]] = [
+    (UnsupportedFormatError, 415, "unsupported_format"),
+    (MeshTooLargeError, 413, "mesh_too_large"),
+    (MeshParseError, 422, "mesh_parse_error"),
+    (InvalidGeometryError, 422, "invalid_geometry"),
+    (MeshError, 422, "invalid_mesh"),
+    (ParameterError, 422, "invalid_parameter"),
+    (ModelUnavailableError, 503, "model_unavailable"),
+]
+
+_STATUS_CODES = {
+    400: "bad_request",
+    404: "not_found",
+    405: "method_not_allowed",
+    406: "not_acceptable",
+    413: "payload_too_large",
+    415: "unsupported_media_type",
+}
+
+
+def classify(exc: BaseException) -> tuple[int, str, str]:
+    """HTTP status, error code and message of a library or API error."""
+    if isinstance(exc, ApiError):
+        return exc.status_code, exc.code, exc.message
+    for kind, status, code in _MESH_ERRORS:
+        if isinstance(exc, kind):
+            return status, code, str(exc)
+    if isinstance(exc, TimeoutError):
+        return 504, "timeout", "the computation did not finish within the request timeout"
+    return 500, "internal_error", "internal error; the failure was logged"
+
+
+def error_dict(exc: BaseException) -> dict[str, Any]:
+    """The inner error object for an exception (used in job records too)."""
+    _, code, message = classify(exc)
+    detail = exc.extra if isinstance(exc, ApiError) else None
+    return {"code": code, "message": message, "detail": detail}
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    """Route every failure, including FastAPI's own, through the standard shape."""
+
+    async def api_error(_: Request, exc: Exception) -> JSONResponse:
+        status, code, message = classify(exc)
+        if status >= 500:
+            logger.exception("request failed", exc_info=exc)
+        detail = exc.extra if isinstance(exc, ApiError) else None
+        return error_response(status, code, message, detail)
+
+    async def http_error(_: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, StarletteHTTPException)
+        status = exc.status_code
+        code = _STATUS_CODES.get(status, "http_error")
+        response = error_response(status, code, str(exc.detail))
+        if exc.headers:
+            response.headers.update(exc.headers)
+        return response
+
+    async def validation_error(_: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, RequestValidationError)
+        problems = [
+            {"loc": list(e.get("loc", ())), "msg": e.get("msg", ""), "type": e.get("type", "")}
+            for e in exc.errors()
+        ]
+        summary = "; ".join(
+            f"{'.'.join(str(p) for p in item['loc'])}: {item['msg']}" for item in problems[:5]
+        )
+        return error_response(422, "validation_error", f"invalid request: {summary}", problems)
+
+    app.add_exception_handler(ApiError, api_error)
+    app.add_exception_handler(MeshError, api_error)
+    app.add_exception_handler(ParameterError, api_error)
+    app.add_exception_handler(ModelUnavailableError, api_error)
+    app.add_exception_handler(TimeoutError, api_error)
+    app.add_exception_handler(StarletteHTTPException, http_error)
+    app.add_exception_handler(RequestValidationError, validation_error)
+    app.add_exception_handler(Exception, api_error)
+
+
+class BodySizeLimitMiddleware:
+    """Reject bodies over ``limit`` bytes: by Content-Length up front, else while reading."""
+
+    def __init__(self, app: ASGIApp, limit: int) -> None:
+        self.app = app
+        self.limit = limit
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        for name, value in scope.get("headers", []):
+            if name == b"content-length":
+                try:
+                    declared = int(value)
+                except ValueError:
+                    declared = -1
+                if declared > self.limit:
+                    err = payload_too_large(self.limit)
+                    response = error_response(413, err.code, err.message, err.extra)
+                    response.headers["Connection"] = "close"
+                    await response(scope, receive, send)
+                    return
+        received = 0
+
+        async def limited_receive() -> Message:
+            nonlocal received
+            message = await receive()
+            if message["type"] == "http.request":
+                received += len(message.get("body", b""))
+                if received > self.limit:
+                    raise payload_too_large(self.limit)
+            return message
+
+        await self.app(scope, limited_receive, send)

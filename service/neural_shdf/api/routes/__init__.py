@@ -1,0 +1,1 @@
+"""HTTP routes: thin wrappers over neural_shdf.api.engine.Engine."""

@@ -1,0 +1,47 @@
+"""Dependencies shared by the routes."""
+
+from __future__ import annotations
+
+from pathlib import PurePosixPath
+from typing import Annotated, Any
+
+from fastapi import Depends, Request, UploadFile
+
+from neural_shdf.api.engine import Engine
+from neural_shdf.api.schemas import ErrorResponse
+
+
+def get_engine(request: Request) -> Engine:
+    return request.app.state.engine
+
+
+EngineDep = Annotated[Engine, Depends(get_engine)]
+
+
+def error_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI entries for the standard error body."""
+    text = {
+        404: "Unknown mesh or job.",
+        413: "Upload or mesh too large.",
+        415: "Unsupported mesh format.",
+        422: "Invalid request or unusable mesh (the message says why).",
+        503: "The neural model or the cache is unavailable.",
+        504: "The computation did not finish within the request timeout.",
+    }
+    return {s: {"model": ErrorResponse, "description": text.get(s, "Error.")} for s in statuses}
+
+
+def upload_format(upload: UploadFile, file_type: str | None) -> str | None:
+    """The mesh format: explicit, else the file name's extension, else sniffed later (None)."""
+    if file_type:
+        return file_type.strip().lower().lstrip(".")
+    suffix = PurePosixPath(upload.filename or "").suffix
+    return suffix.lower().lstrip(".") or None
+
+
+async def read_upload(upload: UploadFile) -> bytes:
+    """The uploaded bytes (the body size limit was enforced while receiving them)."""
+    try:
+        return await upload.read()
+    finally:
+        await upload.close()

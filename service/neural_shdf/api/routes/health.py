@@ -1,0 +1,53 @@
+"""Liveness, readiness and metrics."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Response
+from fastapi.responses import JSONResponse
+
+from neural_shdf.api.metrics import CONTENT_TYPE_LATEST
+from neural_shdf.api.routes.deps import EngineDep
+from neural_shdf.api.schemas import Health, Readiness
+
+router = APIRouter(tags=["operations"])
+
+
+@router.get("/healthz", operation_id="health", response_model=Health, summary="Liveness")
+async def health() -> Health:
+    """The process is up and answering."""
+    return Health(status="ok")
+
+
+@router.get(
+    "/readyz",
+    operation_id="ready",
+    response_model=Readiness,
+    summary="Readiness",
+    responses={503: {"model": Readiness, "description": "Not ready (model or cache)."}},
+)
+async def ready(engine: EngineDep) -> JSONResponse:
+    """Ready when the neural model loads (if it is the default method) and the cache answers."""
+    model_ok, model_detail = await engine.run(engine.check_model)
+    if engine.settings.default_method != "neural" and not model_ok:
+        model_ok, model_detail = True, f"not needed (default method exact): {model_detail}"
+    cache_ok = await engine.run(engine.cache.ping)
+    backend = engine.cache.backend.name
+    checks = {
+        "model": {"ok": model_ok, "detail": model_detail},
+        "cache": {"ok": cache_ok, "detail": backend if cache_ok else f"{backend} unreachable"},
+    }
+    ok = model_ok and cache_ok
+    body = Readiness(status="ready" if ok else "not_ready", checks=checks)  # type: ignore[arg-type]
+    return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
+
+
+@router.get(
+    "/metrics",
+    operation_id="metrics",
+    summary="Prometheus metrics",
+    response_class=Response,
+    responses={200: {"content": {CONTENT_TYPE_LATEST: {}}, "description": "Metrics."}},
+)
+async def metrics(engine: EngineDep) -> Response:
+    """Counters and histograms in the Prometheus text format."""
+    return Response(engine.metrics.export(), media_type=CONTENT_TYPE_LATEST)

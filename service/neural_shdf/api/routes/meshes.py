@@ -1,0 +1,161 @@
+"""Upload, read and delete meshes and their ShDF."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+import numpy as np
+from fastapi import APIRouter, File, Form, Header, Path, Query, Response, UploadFile
+from fastapi.responses import JSONResponse
+
+from neural_shdf.api.engine import Engine
+from neural_shdf.api.routes.deps import EngineDep, error_responses, read_upload, upload_format
+from neural_shdf.api.schemas import (
+    MESH_ID_EXAMPLE,
+    Job,
+    MeshInfo,
+    ShdfMethodName,
+    ShdfStatus,
+    ShdfValues,
+    UploadResult,
+)
+
+router = APIRouter(prefix="/v1", tags=["meshes"])
+
+MeshId = Annotated[
+    str,
+    Path(
+        min_length=1,
+        max_length=128,
+        description="Mesh id from the upload.",
+        examples=[MESH_ID_EXAMPLE],
+    ),
+]
+F32_MEDIA_TYPE = "application/octet-stream"
+
+
+async def ingest(engine: Engine, upload: UploadFile, file_type: str | None) -> tuple[dict, object]:
+    """Parse and store an uploaded mesh; returns (metadata, mesh)."""
+    data = await read_upload(upload)
+    fmt = upload_format(upload, file_type)
+    mesh = await engine.run(engine.parse, data, fmt)
+    meta = await engine.run(engine.store_mesh, mesh, fmt, upload.filename)
+    return meta, mesh
+
+
+@router.post(
+    "/meshes",
+    operation_id="upload_mesh",
+    summary="Upload a mesh and compute its ShDF",
+    response_model=UploadResult,
+    responses={
+        202: {"model": Job, "description": "Large mesh: the ShDF is computed by a job."},
+        **error_responses(413, 415, 422, 503, 504),
+    },
+)
+async def upload_mesh(
+    engine: EngineDep,
+    file: Annotated[
+        UploadFile, File(description="OBJ, GLB/glTF (embedded buffers), OFF, PLY or STL.")
+    ],
+    file_type: Annotated[
+        str | None,
+        Form(
+            description="Format (obj, glb, gltf, off, ply, stl); default: the file extension.",
+            examples=["obj"],
+        ),
+    ] = None,
+    method: Annotated[
+        ShdfMethodName | None, Form(description="ShDF method; default: the service default.")
+    ] = None,
+    seed: Annotated[int, Form(ge=0, le=2**31 - 1, description="ShDF seed.")] = 0,
+) -> UploadResult:
+    """Store the mesh under its content hash and compute its ShDF once (cached).
+
+    Meshes above the synchronous threshold answer 202 with a job to poll.
+    """
+    meta, mesh = await ingest(engine, file, file_type)
+    chosen = engine.method_of(method)
+    outcome = await engine.shdf(meta["mesh_id"], mesh, chosen, seed)  # type: ignore[arg-type]
+    return UploadResult(
+        mesh=MeshInfo(**meta),
+        shdf=ShdfStatus(
+            method=chosen,
+            seed=seed,
+            cached=outcome.cached,  # type: ignore[arg-type]
+            seconds=round(outcome.seconds, 6),
+        ),
+    )
+
+
+@router.get(
+    "/meshes/{mesh_id}",
+    operation_id="get_mesh",
+    summary="Mesh metadata",
+    response_model=MeshInfo,
+    responses=error_responses(404),
+)
+async def get_mesh(engine: EngineDep, mesh_id: MeshId) -> MeshInfo:
+    """Size, bounds and origin of a stored mesh."""
+    return MeshInfo(**await engine.run(engine.mesh_meta, mesh_id))
+
+
+@router.delete(
+    "/meshes/{mesh_id}",
+    operation_id="delete_mesh",
+    summary="Delete a mesh",
+    status_code=204,
+    response_class=Response,
+    responses=error_responses(404),
+)
+async def delete_mesh(engine: EngineDep, mesh_id: MeshId) -> Response:
+    """Delete the mesh and everything computed from it (ShDF, segmentations, jobs)."""
+    if not await engine.run(engine.delete, mesh_id):
+        raise engine._mesh_missing(mesh_id)
+    return Response(status_code=204)
+
+
+@router.get(
+    "/meshes/{mesh_id}/shdf",
+    operation_id="get_shdf",
+    summary="Per-face ShDF",
+    response_model=ShdfValues,
+    responses={
+        200: {
+            "content": {F32_MEDIA_TYPE: {"schema": {"type": "string", "format": "binary"}}},
+            "description": "JSON, or float32 little-endian per input face (NaN: face without "
+            "triangles) with `format=f32` or `Accept: application/octet-stream`.",
+        },
+        202: {"model": Job, "description": "Large mesh: the ShDF is being computed by a job."},
+        **error_responses(404, 503, 504),
+    },
+)
+async def get_shdf(
+    engine: EngineDep,
+    mesh_id: MeshId,
+    method: Annotated[ShdfMethodName | None, Query(description="ShDF method.")] = None,
+    seed: Annotated[int, Query(ge=0, le=2**31 - 1, description="ShDF seed.")] = 0,
+    format: Annotated[  # noqa: A002 - the query parameter's public name
+        Literal["json", "f32"] | None,
+        Query(description="`json` or `f32` (binary); default: from the Accept header."),
+    ] = None,
+    accept: Annotated[str | None, Header(include_in_schema=False)] = None,
+) -> Response:
+    """The ShDF in [0, 1] per input face, computed once and cached."""
+    chosen = engine.method_of(method)
+    mesh = await engine.run(engine.load, mesh_id)
+    outcome = await engine.shdf(mesh_id, mesh, chosen, seed)
+    values = await engine.run(mesh.to_input_faces, outcome.values)
+    binary = format == "f32" or (format is None and F32_MEDIA_TYPE in (accept or ""))
+    headers = {"X-Mesh-Id": mesh_id, "X-Faces": str(len(values))}
+    if binary:
+        return Response(values.astype("<f4").tobytes(), media_type=F32_MEDIA_TYPE, headers=headers)
+    body = ShdfValues(
+        mesh_id=mesh_id,
+        method=chosen,  # type: ignore[arg-type]
+        seed=seed,
+        model_version=engine.model_version if chosen == "neural" else None,
+        faces=len(values),
+        values=[None if np.isnan(v) else float(v) for v in values.tolist()],
+    )
+    return JSONResponse(body.model_dump(), headers=headers)

@@ -1,0 +1,106 @@
+"""Segmentation: labels JSON, coloured GLB, parts GLB."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, File, Form, Query, Response, UploadFile
+
+from neural_shdf.api.engine import Engine
+from neural_shdf.api.routes.deps import EngineDep, error_responses
+from neural_shdf.api.routes.meshes import MeshId, ingest
+from neural_shdf.api.schemas import Job, Segmentation, SegmentOptions, SegmentRequest
+
+router = APIRouter(prefix="/v1", tags=["segmentation"])
+
+GLB_MEDIA_TYPE = "model/gltf-binary"
+_SEGMENT_ERRORS = {
+    202: {
+        "model": Job,
+        "description": "Large mesh whose ShDF is not cached yet: poll the job, "
+        "then repeat the request.",
+    },
+    **error_responses(404, 413, 415, 422, 503, 504),
+}
+
+
+async def segment_response(engine: Engine, mesh_id: str, options: SegmentOptions) -> Response:
+    result, timings = await engine.segmentation(mesh_id, options)
+    method = engine.method_of(options.method)
+    body = engine.segmentation_body(mesh_id, method, options, result, timings)
+    return Response(body, media_type="application/json")
+
+
+@router.post(
+    "/segment",
+    operation_id="segment_mesh",
+    summary="Segment a stored mesh",
+    response_model=Segmentation,
+    responses=_SEGMENT_ERRORS,
+)
+async def segment_mesh(engine: EngineDep, request: SegmentRequest) -> Response:
+    """Part label per input face from the cached ShDF; only the partitioning runs."""
+    return await segment_response(engine, request.mesh_id, request)
+
+
+@router.post(
+    "/segment/file",
+    operation_id="segment_file",
+    summary="Upload and segment a mesh in one call",
+    response_model=Segmentation,
+    responses=_SEGMENT_ERRORS,
+)
+async def segment_file(
+    engine: EngineDep,
+    file: Annotated[UploadFile, File(description="OBJ, GLB/glTF, OFF, PLY or STL.")],
+    options: Annotated[SegmentOptions, Form()],
+    file_type: Annotated[
+        str | None, Form(description="Format; default: the file extension.", examples=["obj"])
+    ] = None,
+) -> Response:
+    """Store the mesh, compute (or reuse) its ShDF and segment it."""
+    meta, _ = await ingest(engine, file, file_type)
+    return await segment_response(engine, meta["mesh_id"], options)
+
+
+def _glb_route(style: str):  # noqa: ANN202 - FastAPI endpoint factory
+    async def endpoint(
+        engine: EngineDep, mesh_id: MeshId, options: Annotated[SegmentOptions, Query()]
+    ) -> Response:
+        glb = await engine.export_glb(mesh_id, options, style)
+        return Response(
+            glb,
+            media_type=GLB_MEDIA_TYPE,
+            headers={"Content-Disposition": f'attachment; filename="{mesh_id[:16]}-{style}.glb"'},
+        )
+
+    return endpoint
+
+
+_GLB_RESPONSES = {
+    200: {
+        "content": {GLB_MEDIA_TYPE: {"schema": {"type": "string", "format": "binary"}}},
+        "description": "Binary glTF.",
+    },
+    **_SEGMENT_ERRORS,
+}
+router.add_api_route(
+    "/meshes/{mesh_id}/segmentation/colored.glb",
+    _glb_route("colored"),
+    methods=["GET"],
+    operation_id="get_colored_glb",
+    summary="Segmentation as a coloured GLB",
+    description="The mesh with one vertex colour per part (parts do not share vertices).",
+    response_class=Response,
+    responses=_GLB_RESPONSES,
+)
+router.add_api_route(
+    "/meshes/{mesh_id}/segmentation/parts.glb",
+    _glb_route("parts"),
+    methods=["GET"],
+    operation_id="get_parts_glb",
+    summary="Segmentation as one mesh per part",
+    description="A GLB scene with one node and mesh per part, named `part_000`, `part_001`, ...",
+    response_class=Response,
+    responses=_GLB_RESPONSES,
+)

@@ -1,0 +1,331 @@
+"""Request and response models of the REST API (documented, with examples)."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from neural_shdf.segment import SegmentParams
+
+ShdfMethodName = Literal["neural", "exact"]
+JobState = Literal["queued", "running", "succeeded", "failed"]
+
+MESH_ID_EXAMPLE = "3f1c0b6e2d4a8f7e9c1b2a3d4e5f60718293a4b5c6d7e8f9a0b1c2d3e4f5a6b7"
+JOB_ID_EXAMPLE = "5d0f3c8a9b6e4f21a7c3d2e1f0a9b8c7"
+
+
+class ErrorDetail(BaseModel):
+    """What went wrong, in a form a program and a person can both use."""
+
+    code: str = Field(
+        description="Stable machine-readable error code.", examples=["invalid_geometry"]
+    )
+    message: str = Field(
+        description="What is wrong and what to do about it.",
+        examples=["the mesh has 12 vertices with NaN coordinates; fix or remove them"],
+    )
+    detail: Any = Field(
+        None,
+        description="Structured extra information (e.g. validation problems).",
+        examples=[None],
+    )
+
+
+class ErrorResponse(BaseModel):
+    """The body of every error response."""
+
+    error: ErrorDetail = Field(description="The error.")
+
+
+class Health(BaseModel):
+    """Liveness: the process answers."""
+
+    status: Literal["ok"] = Field(description="Always `ok` when the service answers.")
+
+
+class Check(BaseModel):
+    """One readiness check."""
+
+    ok: bool = Field(description="Whether the check passed.", examples=[True])
+    detail: str = Field(description="What was checked, or why it failed.", examples=["disk"])
+
+
+class Readiness(BaseModel):
+    """Readiness: the model is loaded and the cache is reachable."""
+
+    status: Literal["ready", "not_ready"] = Field(description="Overall state.")
+    checks: dict[str, Check] = Field(
+        description="Each check by name (`model`, `cache`).",
+        examples=[
+            {"model": {"ok": True, "detail": "emd.onnx"}, "cache": {"ok": True, "detail": "disk"}}
+        ],
+    )
+
+
+class MeshInfo(BaseModel):
+    """A stored mesh: its id (content hash of the canonical geometry) and its size."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "mesh_id": MESH_ID_EXAMPLE,
+                    "faces": 6,
+                    "triangles": 12,
+                    "vertices": 8,
+                    "format": "obj",
+                    "filename": "cube.obj",
+                    "bounds": [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]],
+                    "surface_area": 6.0,
+                }
+            ]
+        }
+    )
+
+    mesh_id: str = Field(
+        description="SHA-256 of the canonical geometry.", examples=[MESH_ID_EXAMPLE]
+    )
+    faces: int = Field(description="Faces of the input file (polygons).", examples=[6])
+    triangles: int = Field(description="Triangles after triangulation.", examples=[12])
+    vertices: int = Field(description="Vertices.", examples=[8])
+    format: str | None = Field(None, description="Detected input format.", examples=["obj"])
+    filename: str | None = Field(
+        None, description="Name of the uploaded file.", examples=["cube.obj"]
+    )
+    bounds: list[list[float]] = Field(
+        description="Axis-aligned bounding box `[[min x,y,z], [max x,y,z]]`.",
+        examples=[[[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]],
+    )
+    surface_area: float = Field(description="Total triangle area.", examples=[6.0])
+
+
+class ShdfStatus(BaseModel):
+    """Where the ShDF of a mesh stands after an upload."""
+
+    method: ShdfMethodName = Field(description="ShDF method.", examples=["neural"])
+    seed: int = Field(description="Seed of the ShDF computation.", examples=[0])
+    cached: bool = Field(description="True when it came from the cache.", examples=[False])
+    seconds: float = Field(
+        description="Time spent computing it now (0 when cached).", examples=[0.42]
+    )
+
+
+class UploadResult(BaseModel):
+    """A mesh stored and its ShDF computed (synchronous answer)."""
+
+    mesh: MeshInfo = Field(description="The stored mesh.")
+    shdf: ShdfStatus = Field(description="The ShDF computed for it.")
+
+
+class Job(BaseModel):
+    """A long computation (ShDF of a large mesh); poll it until `succeeded` or `failed`."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "job_id": JOB_ID_EXAMPLE,
+                    "state": "running",
+                    "progress": 0.4,
+                    "mesh_id": MESH_ID_EXAMPLE,
+                    "method": "neural",
+                    "seed": 0,
+                    "created_at": 1763791200.0,
+                    "updated_at": 1763791203.5,
+                    "error": None,
+                    "result_url": f"/v1/meshes/{MESH_ID_EXAMPLE}",
+                }
+            ]
+        }
+    )
+
+    job_id: str = Field(description="Job id.", examples=[JOB_ID_EXAMPLE])
+    state: JobState = Field(
+        description="queued, running, succeeded or failed.", examples=["running"]
+    )
+    progress: float = Field(ge=0, le=1, description="Fraction done.", examples=[0.4])
+    mesh_id: str = Field(description="The mesh the job computes.", examples=[MESH_ID_EXAMPLE])
+    method: ShdfMethodName = Field(description="ShDF method.", examples=["neural"])
+    seed: int = Field(description="ShDF seed.", examples=[0])
+    created_at: float = Field(description="Unix time the job was created.", examples=[1763791200.0])
+    updated_at: float = Field(description="Unix time of the last update.", examples=[1763791203.5])
+    error: ErrorDetail | None = Field(None, description="Why it failed (state `failed`).")
+    result_url: str = Field(
+        description="Where the result is once it succeeded.",
+        examples=[f"/v1/meshes/{MESH_ID_EXAMPLE}"],
+    )
+
+
+class ShdfValues(BaseModel):
+    """Per-face ShDF in the input file's face order (null for faces without triangles)."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "mesh_id": MESH_ID_EXAMPLE,
+                    "method": "neural",
+                    "seed": 0,
+                    "model_version": "a1b2c3d4e5f60718",
+                    "faces": 4,
+                    "values": [0.12, 0.5, 0.98, None],
+                }
+            ]
+        }
+    )
+
+    mesh_id: str = Field(description="Mesh id.", examples=[MESH_ID_EXAMPLE])
+    method: ShdfMethodName = Field(description="ShDF method.", examples=["neural"])
+    seed: int = Field(description="ShDF seed.", examples=[0])
+    model_version: str | None = Field(
+        description="Version (hash) of the neural model; null for `exact`.",
+        examples=["a1b2c3d4e5f60718"],
+    )
+    faces: int = Field(description="Number of values (input faces).", examples=[4])
+    values: list[float | None] = Field(
+        description="ShDF in [0, 1] per input face.", examples=[[0.12, 0.5, 0.98, None]]
+    )
+
+
+class SegmentOptions(BaseModel):
+    """Which ShDF to use and how to partition the mesh; omitted values are chosen automatically."""
+
+    model_config = ConfigDict(extra="ignore")
+
+    method: ShdfMethodName | None = Field(
+        None,
+        description="ShDF method; default: the service's default (neural).",
+        examples=["neural"],
+    )
+    shdf_seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the ShDF.", examples=[0])
+    partitioner: Literal["graphcut", "metis"] = Field(
+        "graphcut",
+        description="`graphcut` (alpha expansion) or `metis` (exactly `parts` parts).",
+        examples=["graphcut"],
+    )
+    clusters: int | None = Field(
+        None,
+        ge=1,
+        le=64,
+        description="Gaussian mixture components (level of detail).",
+        examples=[5],
+    )
+    smoothing: float | None = Field(
+        None,
+        ge=0,
+        le=100,
+        description="Smoothness weight lambda of the graph cut.",
+        examples=[0.26],
+    )
+    parts: int | None = Field(
+        None, ge=1, le=10_000, description="Number of parts for `metis`.", examples=[6]
+    )
+    refine: bool = Field(False, description="Re-segment heterogeneous parts.", examples=[False])
+    boundary_smoothing: bool = Field(
+        False, description="Straighten part boundaries.", examples=[False]
+    )
+    seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the segmentation.", examples=[0])
+    labels_format: Literal["json", "base64-int32"] = Field(
+        "json",
+        description="`json`: labels as a list; `base64-int32`: little-endian int32, base64 "
+        "(compact for large meshes).",
+        examples=["json"],
+    )
+
+    def segment_params(self) -> SegmentParams:
+        return SegmentParams(
+            partitioner=self.partitioner,
+            clusters=self.clusters,
+            smoothing=self.smoothing,
+            parts=self.parts,
+            refine=self.refine,
+            boundary_smoothing=self.boundary_smoothing,
+            seed=self.seed,
+        )
+
+
+class SegmentRequest(SegmentOptions):
+    """Segment a stored mesh from its cached ShDF."""
+
+    model_config = ConfigDict(
+        extra="forbid",
+        json_schema_extra={
+            "examples": [{"mesh_id": MESH_ID_EXAMPLE, "clusters": 5, "smoothing": 0.26}]
+        },
+    )
+
+    mesh_id: str = Field(
+        min_length=1,
+        max_length=128,
+        description="Id returned by the upload.",
+        examples=[MESH_ID_EXAMPLE],
+    )
+
+
+class PartSummary(BaseModel):
+    """One part of a segmentation."""
+
+    label: int = Field(description="Part label.", examples=[0])
+    faces: int = Field(description="Input faces in the part.", examples=[1200])
+    area: float = Field(description="Surface area of the part.", examples=[0.37])
+    mean_shdf: float = Field(description="Area-weighted mean ShDF of the part.", examples=[0.42])
+
+
+class Timings(BaseModel):
+    """Where the time went, in milliseconds."""
+
+    shdf_ms: float = Field(description="ShDF computation now (0 when cached).", examples=[0.0])
+    segment_ms: float = Field(
+        description="Partitioning (0 when the result was cached).", examples=[85.2]
+    )
+    total_ms: float = Field(description="Whole request.", examples=[90.1])
+    shdf_cached: bool = Field(description="The ShDF came from the cache.", examples=[True])
+    segmentation_cached: bool = Field(
+        description="The whole segmentation came from the cache.", examples=[False]
+    )
+
+
+class Segmentation(BaseModel):
+    """Per-face part labels in the input file's face order, with a summary per part."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "mesh_id": MESH_ID_EXAMPLE,
+                    "method": "neural",
+                    "faces": 4,
+                    "part_count": 2,
+                    "labels": [0, 0, 1, 1],
+                    "labels_base64": None,
+                    "parts": [
+                        {"label": 0, "faces": 2, "area": 1.0, "mean_shdf": 0.2},
+                        {"label": 1, "faces": 2, "area": 1.0, "mean_shdf": 0.8},
+                    ],
+                    "timings": {
+                        "shdf_ms": 0.0,
+                        "segment_ms": 12.5,
+                        "total_ms": 14.0,
+                        "shdf_cached": True,
+                        "segmentation_cached": False,
+                    },
+                }
+            ]
+        }
+    )
+
+    mesh_id: str = Field(description="Mesh id.", examples=[MESH_ID_EXAMPLE])
+    method: ShdfMethodName = Field(description="ShDF method used.", examples=["neural"])
+    faces: int = Field(description="Input faces (length of the labels).", examples=[4])
+    part_count: int = Field(description="Number of parts.", examples=[2])
+    labels: list[int] | None = Field(
+        description="Part label per input face (-1: face without triangles); null when "
+        "`labels_format` is `base64-int32`.",
+        examples=[[0, 0, 1, 1]],
+    )
+    labels_base64: str | None = Field(
+        None, description="Labels as base64 little-endian int32 (when requested).", examples=[None]
+    )
+    parts: list[PartSummary] = Field(description="Summary per part, by label.")
+    timings: Timings = Field(description="Timings.")

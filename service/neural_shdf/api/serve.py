@@ -1,0 +1,33 @@
+"""``neural-shdf serve``: run the service with uvicorn."""
+
+from __future__ import annotations
+
+import os
+
+from neural_shdf.api.settings import Settings
+
+
+def run(host: str | None = None, port: int | None = None, workers: int | None = None) -> None:
+    """Serve on settings from the environment (``NEURAL_SHDF_*``), overridden by the arguments."""
+    import uvicorn
+
+    settings = Settings()
+    host = host or settings.host
+    port = settings.port if port is None else port
+    workers = workers or settings.workers
+    # Workers re-read the settings from the environment; keep overrides consistent there.
+    os.environ["NEURAL_SHDF_HOST"] = host
+    os.environ["NEURAL_SHDF_PORT"] = str(port)
+    uvicorn.run(
+        "neural_shdf.api.app:create_app_from_env",
+        factory=True,
+        host=host,
+        port=port,
+        workers=workers,
+        log_level=settings.log_level,
+        timeout_graceful_shutdown=10,
+    )
+
+
+if __name__ == "__main__":
+    run()

@@ -1,0 +1,59 @@
+"""Every setting of the REST service, read from the environment (prefix ``NEURAL_SHDF_``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+DEFAULT_CACHE_DIR = Path.home() / ".cache" / "neural-shdf" / "service"
+
+
+class Settings(BaseSettings):
+    """Service configuration; each field is the env var ``NEURAL_SHDF_<NAME>``."""
+
+    model_config = SettingsConfigDict(env_prefix="NEURAL_SHDF_", extra="ignore")
+
+    host: str = Field("127.0.0.1", description="Interface `neural-shdf serve` binds to.")
+    port: int = Field(8000, ge=0, le=65535, description="TCP port `neural-shdf serve` binds to.")
+    workers: int = Field(1, ge=1, description="uvicorn worker processes.")
+    log_level: str = Field("info", description="uvicorn log level.")
+
+    cache_dir: Path = Field(DEFAULT_CACHE_DIR, description="Local disk cache directory.")
+    cache_size_bytes: int = Field(
+        2 * 1024**3, ge=1024**2, description="Disk cache size cap; least-recently-used eviction."
+    )
+    redis_url: str | None = Field(
+        None, description="redis://host:port/db; when set, Redis replaces the disk cache."
+    )
+    redis_timeout_s: float = Field(2.0, gt=0, description="Redis socket timeout in seconds.")
+    memory_cache_items: int = Field(
+        16, ge=0, description="Meshes, graphs and results kept in process memory (LRU)."
+    )
+
+    default_method: Literal["neural", "exact"] = Field(
+        "neural", description="ShDF method used when a request names none."
+    )
+    model_path: Path | None = Field(
+        None, description="ONNX model of the neural ShDF; default: the packaged model."
+    )
+
+    max_upload_bytes: int = Field(
+        256 * 1024**2, ge=1, description="Largest request body accepted (checked while reading)."
+    )
+    max_faces: int = Field(2_000_000, ge=1, description="Largest mesh accepted, in faces.")
+    sync_face_threshold: int = Field(
+        50_000,
+        ge=0,
+        description="Meshes with more triangles than this are computed as a job (202).",
+    )
+    request_timeout_s: float = Field(
+        120.0, gt=0, description="Longest a synchronous request waits for a computation."
+    )
+    compute_threads: int = Field(2, ge=1, description="Threads running ShDF and segmentation.")
+    job_ttl_s: int = Field(7 * 24 * 3600, ge=1, description="How long job records are kept.")
+    lock_timeout_s: float = Field(
+        600.0, gt=0, description="Expiry of the cross-worker compute lock (seconds)."
+    )

@@ -1,0 +1,138 @@
+"""Fixtures of the API tests: apps on temp caches, a real Redis, a real uvicorn process."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+from api_helpers import TEST_METHOD, capsule
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
+from neural_shdf.api.app import create_app
+from neural_shdf.api.settings import Settings
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def make_settings(cache_dir: Path, **overrides) -> Settings:
+    values = {"cache_dir": cache_dir, "default_method": TEST_METHOD, "redis_url": None}
+    values.update(overrides)
+    return Settings(_env_file=None, **values)
+
+
+@pytest.fixture
+def app_factory(tmp_path: Path) -> Callable[..., FastAPI]:
+    """Build apps on a per-test temp cache: ``app_factory(sync_face_threshold=10)``."""
+
+    def build(**overrides) -> FastAPI:
+        overrides.setdefault("cache_dir", tmp_path / "cache")
+        return create_app(make_settings(**overrides))
+
+    return build
+
+
+@pytest.fixture
+def client(app_factory) -> Iterator[TestClient]:
+    with TestClient(app_factory()) as test_client:
+        yield test_client
+
+
+@pytest.fixture(scope="session")
+def capsule_obj() -> bytes:
+    """A 288-face capsule as OBJ."""
+    return capsule().export(file_type="obj").encode()
+
+
+@pytest.fixture
+def redis_url(tmp_path: Path) -> Iterator[str]:
+    """A real redis-server on a free loopback port with a temp dir."""
+    binary = shutil.which("redis-server")
+    if binary is None:
+        pytest.skip("redis-server is not installed (apt-get install -y redis-server)")
+    port = free_port()
+    directory = tmp_path / "redis"
+    directory.mkdir()
+    process = subprocess.Popen(
+        [
+            binary,
+            "--port",
+            str(port),
+            "--bind",
+            "127.0.0.1",
+            "--dir",
+            str(directory),
+            "--save",
+            "",
+            "--appendonly",
+            "no",
+            "--protected-mode",
+            "yes",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    try:
+        wait_for_port(port, process)
+        yield f"redis://127.0.0.1:{port}/0"
+    finally:
+        process.terminate()
+        process.wait(timeout=10)
+
+
+def wait_for_port(port: int, process: subprocess.Popen, timeout_s: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            raise RuntimeError(f"process exited with {process.returncode}")
+        with socket.socket() as sock:
+            if sock.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.05)
+    raise RuntimeError(f"nothing listens on port {port}")
+
+
+@pytest.fixture
+def uvicorn_server(tmp_path: Path) -> Iterator[str]:
+    """`python -m neural_shdf.api.serve` on a free loopback port; yields its base URL."""
+    port = free_port()
+    env = dict(os.environ)
+    env.update(
+        NEURAL_SHDF_HOST="127.0.0.1",
+        NEURAL_SHDF_PORT=str(port),
+        NEURAL_SHDF_CACHE_DIR=str(tmp_path / "server-cache"),
+        NEURAL_SHDF_DEFAULT_METHOD=TEST_METHOD,
+        NEURAL_SHDF_MAX_UPLOAD_BYTES=str(2_000_000),
+        NEURAL_SHDF_LOG_LEVEL="warning",
+    )
+    env.pop("NEURAL_SHDF_REDIS_URL", None)
+    process = subprocess.Popen([sys.executable, "-m", "neural_shdf.api.serve"], env=env)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            if process.poll() is not None:
+                raise RuntimeError(f"server exited with {process.returncode}")
+            try:
+                if httpx.get(f"{base}/healthz", timeout=1).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            if time.monotonic() > deadline:
+                raise RuntimeError("server did not become healthy")
+            time.sleep(0.1)
+        yield base
+    finally:
+        process.terminate()
+        process.wait(timeout=20)

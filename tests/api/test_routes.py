@@ -1,0 +1,164 @@
+"""Endpoints end to end in-process (TestClient) on the real pipeline."""
+
+from __future__ import annotations
+
+import base64
+
+import numpy as np
+import pytest
+import trimesh
+from api_helpers import TEST_METHOD, capsule, metric, wait_job
+from neural_shdf.mesh_io import load_mesh
+from neural_shdf.pipeline import compute_shdf
+
+
+def upload(client, data: bytes, name: str = "mesh.obj", **form):
+    return client.post("/v1/meshes", files={"file": (name, data)}, data=form)
+
+
+def test_health_and_ready(client):
+    assert client.get("/healthz").json() == {"status": "ok"}
+    ready = client.get("/readyz")
+    assert ready.status_code == 200, ready.text
+    assert ready.json()["checks"]["cache"] == {"ok": True, "detail": "disk"}
+
+
+def test_upload_read_shdf_and_delete(client, capsule_obj):
+    response = upload(client, capsule_obj, "capsule.obj")
+    assert response.status_code == 200, response.text
+    body = response.json()
+    mesh = load_mesh(capsule_obj, "obj")
+    assert body["mesh"]["mesh_id"] == mesh.content_hash()
+    assert body["mesh"]["faces"] == mesh.input_face_count
+    assert body["shdf"] == {**body["shdf"], "method": TEST_METHOD, "cached": False}
+    mesh_id = body["mesh"]["mesh_id"]
+
+    again = upload(client, capsule_obj, "capsule.obj").json()
+    assert again["shdf"]["cached"] is True and again["shdf"]["seconds"] == 0
+
+    info = client.get(f"/v1/meshes/{mesh_id}").json()
+    assert info["triangles"] == mesh.face_count and info["format"] == "obj"
+    assert info["bounds"] == [mesh.vertices.min(0).tolist(), mesh.vertices.max(0).tolist()]
+
+    as_json = client.get(f"/v1/meshes/{mesh_id}/shdf").json()
+    expected = mesh.to_input_faces(compute_shdf(mesh, method=TEST_METHOD, seed=0))
+    np.testing.assert_allclose(as_json["values"], expected, rtol=1e-12)
+    binary = client.get(
+        f"/v1/meshes/{mesh_id}/shdf", headers={"Accept": "application/octet-stream"}
+    )
+    assert binary.headers["content-type"] == "application/octet-stream"
+    np.testing.assert_array_equal(np.frombuffer(binary.content, "<f4"), expected.astype(np.float32))
+    assert client.get(f"/v1/meshes/{mesh_id}/shdf?format=f32").content == binary.content
+
+    assert client.delete(f"/v1/meshes/{mesh_id}").status_code == 204
+    gone = client.get(f"/v1/meshes/{mesh_id}")
+    assert gone.status_code == 404 and gone.json()["error"]["code"] == "mesh_not_found"
+    assert client.post("/v1/segment", json={"mesh_id": mesh_id}).status_code == 404
+    assert client.delete(f"/v1/meshes/{mesh_id}").status_code == 404
+
+
+def test_segment_reruns_only_the_partitioning(client, capsule_obj):
+    app = client.app
+    mesh_id = upload(client, capsule_obj).json()["mesh"]["mesh_id"]
+    assert metric(app, "neural_shdf_shdf_computations_total", method=TEST_METHOD) == 1
+    first = client.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 2})
+    second = client.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 4, "seed": 3})
+    metis = client.post(
+        "/v1/segment", json={"mesh_id": mesh_id, "partitioner": "metis", "parts": 3}
+    )
+    for response in (first, second, metis):
+        assert response.status_code == 200, response.text
+        timings = response.json()["timings"]
+        assert timings["shdf_cached"] is True and timings["shdf_ms"] == 0
+        assert timings["segmentation_cached"] is False
+    assert metric(app, "neural_shdf_shdf_computations_total", method=TEST_METHOD) == 1
+    assert metric(app, "neural_shdf_segmentations_total") == 3
+
+    body = metis.json()
+    assert body["part_count"] == 3 and sorted(set(body["labels"])) == [0, 1, 2]
+    mesh = load_mesh(capsule_obj, "obj")
+    assert len(body["labels"]) == mesh.input_face_count
+    assert sum(p["faces"] for p in body["parts"]) == mesh.input_face_count
+    assert sum(p["area"] for p in body["parts"]) == pytest.approx(capsule().area)
+    assert all(0 <= p["mean_shdf"] <= 1 for p in body["parts"])
+    for part in body["parts"]:
+        assert part["faces"] == body["labels"].count(part["label"])
+
+    repeat = client.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 2}).json()
+    assert repeat["labels"] == first.json()["labels"]
+    assert repeat["timings"]["segmentation_cached"] is True
+    assert metric(app, "neural_shdf_segmentations_total") == 3
+
+    compact = client.post(
+        "/v1/segment", json={"mesh_id": mesh_id, "clusters": 2, "labels_format": "base64-int32"}
+    ).json()
+    assert compact["labels"] is None
+    decoded = np.frombuffer(base64.b64decode(compact["labels_base64"]), "<i4")
+    assert decoded.tolist() == first.json()["labels"]
+
+
+def test_segment_file_one_shot_matches_two_steps(client, capsule_obj):
+    one_shot = client.post(
+        "/v1/segment/file",
+        files={"file": ("c.obj", capsule_obj)},
+        data={"partitioner": "metis", "parts": "2"},
+    )
+    assert one_shot.status_code == 200, one_shot.text
+    mesh_id = one_shot.json()["mesh_id"]
+    stored = client.post(
+        "/v1/segment", json={"mesh_id": mesh_id, "partitioner": "metis", "parts": 2}
+    )
+    assert stored.json()["labels"] == one_shot.json()["labels"]
+    assert stored.json()["timings"]["segmentation_cached"] is True
+
+
+def test_glb_outputs(client, capsule_obj):
+    mesh_id = upload(client, capsule_obj).json()["mesh"]["mesh_id"]
+    query = "?partitioner=metis&parts=3"
+    labels = client.post(
+        "/v1/segment", json={"mesh_id": mesh_id, "partitioner": "metis", "parts": 3}
+    ).json()["labels"]
+    colored = client.get(f"/v1/meshes/{mesh_id}/segmentation/colored.glb{query}")
+    assert colored.status_code == 200 and colored.headers["content-type"] == "model/gltf-binary"
+    scene = trimesh.load(trimesh.util.wrap_as_stream(colored.content), file_type="glb")
+    colors = np.concatenate([g.visual.vertex_colors for g in scene.geometry.values()])
+    assert len(np.unique(colors[:, :3], axis=0)) == 3
+
+    parts = client.get(f"/v1/meshes/{mesh_id}/segmentation/parts.glb{query}")
+    scene = trimesh.load(trimesh.util.wrap_as_stream(parts.content), file_type="glb")
+    sizes = {name: len(g.faces) for name, g in scene.geometry.items()}
+    assert sizes == {f"part_{k:03d}": labels.count(k) for k in range(3)}
+
+
+def test_large_mesh_runs_as_a_job(app_factory, capsule_obj):
+    from fastapi.testclient import TestClient
+
+    with TestClient(app_factory(sync_face_threshold=100)) as client:
+        accepted = upload(client, capsule_obj)
+        assert accepted.status_code == 202, accepted.text
+        job = accepted.json()
+        assert accepted.headers["location"] == f"/v1/jobs/{job['job_id']}"
+        assert job["state"] in ("queued", "running")
+        done = wait_job(client, job)
+        assert done["state"] == "succeeded" and done["progress"] == 1.0
+        result = client.get(done["result_url"])
+        assert result.status_code == 200
+        assert len(result.json()["values"]) == load_mesh(capsule_obj, "obj").input_face_count
+        # The result stays: uploading again answers at once from the cache.
+        again = upload(client, capsule_obj)
+        assert again.status_code == 200 and again.json()["shdf"]["cached"] is True
+        segmented = client.post("/v1/segment", json={"mesh_id": done["mesh_id"]})
+        assert segmented.status_code == 200
+        # A large mesh whose ShDF (another seed) is not cached: segment answers 202 too.
+        other = client.post("/v1/segment", json={"mesh_id": done["mesh_id"], "shdf_seed": 7})
+        if TEST_METHOD == "exact":
+            assert other.status_code == 202
+            assert wait_job(client, other.json())["state"] == "succeeded"
+        assert client.get("/v1/jobs/nope").json()["error"]["code"] == "job_not_found"
+
+
+def test_metrics_exposition(client, capsule_obj):
+    upload(client, capsule_obj)
+    text = client.get("/metrics").text
+    assert "neural_shdf_shdf_computations_total" in text
+    assert 'neural_shdf_http_requests_total{method="POST",route="/v1/meshes",status="200"}' in text

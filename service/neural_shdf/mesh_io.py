@@ -69,6 +69,8 @@ def sniff_format(data: bytes) -> str | None:
         return "gltf"
     if head.lower().startswith(b"solid"):
         return "stl"
+    if len(data) >= 84 and len(data) == 84 + 50 * int.from_bytes(data[80:84], "little"):
+        return "stl"  # binary STL: the size matches the declared triangle count
     return None
 
 

@@ -61,7 +61,7 @@ def read_stl(data: bytes, max_faces: int | None = None) -> TriangleMesh:
     """Parse STL bytes, telling binary from ASCII by the size the binary header implies."""
     declared = struct.unpack_from("<I", data, 80)[0] if len(data) >= _HEADER_BYTES else -1
     binary_size = _HEADER_BYTES + 50 * declared
-    is_ascii = data[:1024].lstrip()[:5].lower() == b"solid"
+    is_ascii = data[:1024].lstrip()[:5].lower() == b"solid" and b"\x00" not in data[:65536]
     if declared >= 0 and len(data) == binary_size:
         return _read_binary(data, declared, max_faces)
     if is_ascii:

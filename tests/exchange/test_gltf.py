@@ -1,0 +1,270 @@
+"""glTF/GLB reader: scene-graph order, node transforms, instancing, and hostile files."""
+
+import base64
+import copy
+import json
+import math
+import struct
+
+import numpy as np
+import pytest
+import trimesh
+from neural_shdf.errors import (
+    InvalidGeometryError,
+    MeshParseError,
+    MeshTooLargeError,
+    UnsupportedFormatError,
+)
+from neural_shdf.exchange import gltf as gltf_reader
+from neural_shdf.mesh_io import load_mesh
+
+TRIANGLE = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float32)
+SQUARE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=np.float32)
+SQUARE_INDICES = np.array([0, 1, 2, 0, 2, 3], dtype=np.uint32)
+TRIANGLE_INDICES = np.array([0, 1, 2], dtype=np.uint16)
+
+
+class _Builder:
+    """Minimal glTF writer for tests: one buffer, one bufferView per accessor."""
+
+    def __init__(self):
+        self.blob = bytearray()
+        self.doc = {"asset": {"version": "2.0"}, "accessors": [], "bufferViews": [], "meshes": []}
+
+    def accessor(self, array: np.ndarray, kind: str, component: int) -> int:
+        while len(self.blob) % 4:
+            self.blob += b"\x00"
+        self.doc["bufferViews"].append(
+            {"buffer": 0, "byteOffset": len(self.blob), "byteLength": array.nbytes}
+        )
+        self.blob += array.tobytes()
+        count = len(array) if array.ndim > 1 or kind == "SCALAR" else 1
+        self.doc["accessors"].append(
+            {
+                "bufferView": len(self.doc["bufferViews"]) - 1,
+                "componentType": component,
+                "type": kind,
+                "count": count,
+            }
+        )
+        return len(self.doc["accessors"]) - 1
+
+    def mesh(self, positions, indices=None, mode=4) -> int:
+        primitive = {"attributes": {"POSITION": self.accessor(positions, "VEC3", 5126)}}
+        if indices is not None:
+            component = {np.dtype(np.uint16): 5123, np.dtype(np.uint32): 5125}[indices.dtype]
+            primitive["indices"] = self.accessor(indices, "SCALAR", component)
+        if mode != 4:
+            primitive["mode"] = mode
+        self.doc["meshes"].append({"primitives": [primitive]})
+        return len(self.doc["meshes"]) - 1
+
+    def glb(self, doc=None, buffer_length=None) -> bytes:
+        doc = copy.deepcopy(self.doc if doc is None else doc)
+        length = len(self.blob) if buffer_length is None else buffer_length
+        doc["buffers"] = [{"byteLength": length}]
+        text = json.dumps(doc).encode()
+        text += b" " * (-len(text) % 4)
+        blob = bytes(self.blob) + b"\x00" * (-len(self.blob) % 4)
+        total = 12 + 8 + len(text) + 8 + len(blob)
+        return (
+            struct.pack("<4sII", b"glTF", 2, total)
+            + struct.pack("<II", len(text), 0x4E4F534A)
+            + text
+            + struct.pack("<II", len(blob), 0x004E4942)
+            + blob
+        )
+
+    def gltf(self) -> bytes:
+        doc = copy.deepcopy(self.doc)
+        payload = base64.b64encode(bytes(self.blob)).decode()
+        doc["buffers"] = [
+            {"byteLength": len(self.blob), "uri": "data:application/octet-stream;base64," + payload}
+        ]
+        return json.dumps(doc).encode()
+
+
+def _scene() -> _Builder:
+    """Nodes listed out of index order, a child node, an instanced mesh, a mirror, an orphan."""
+    b = _Builder()
+    tri = b.mesh(TRIANGLE, TRIANGLE_INDICES)
+    square = b.mesh(SQUARE, SQUARE_INDICES)
+    lines = b.accessor(np.array([0, 1], np.uint16), "SCALAR", 5123)
+    b.doc["meshes"][tri]["primitives"].append(
+        {"attributes": {"POSITION": 0}, "indices": lines, "mode": 1}  # lines: ignored
+    )
+    s = math.sqrt(0.5)
+    mirror = [-1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 5, 1]  # column-major, z += 5
+    b.doc["nodes"] = [
+        {"name": "A", "mesh": tri, "translation": [10, 0, 0], "children": [1]},
+        {"name": "B", "mesh": square, "scale": [2, 2, 2]},
+        {"name": "C", "mesh": tri, "rotation": [0, 0, s, s]},
+        {"name": "D", "mesh": tri, "matrix": mirror},
+        {"name": "orphan", "mesh": square},
+    ]
+    b.doc["scenes"] = [{"nodes": [2, 0, 3]}]
+    b.doc["scene"] = 0
+    return b
+
+
+EXPECTED_TRIANGLES = np.array(
+    [
+        [[0, 0, 0], [0, 1, 0], [-1, 0, 0]],  # C: rotated 90 degrees about z
+        [[10, 0, 0], [11, 0, 0], [10, 1, 0]],  # A: translated
+        [[10, 0, 0], [12, 0, 0], [12, 2, 0]],  # B: child of A, scaled by 2
+        [[10, 0, 0], [12, 2, 0], [10, 2, 0]],
+        [[0, 0, 5], [0, 1, 5], [-1, 0, 5]],  # D: mirrored in x, winding flipped
+    ],
+    dtype=float,
+)
+
+
+@pytest.mark.parametrize("container", ["glb", "gltf"])
+def test_scene_graph_order_transforms_and_instancing(container):
+    builder = _scene()
+    data = builder.glb() if container == "glb" else builder.gltf()
+    mesh = load_mesh(data, container)
+    np.testing.assert_allclose(mesh.vertices[mesh.faces], EXPECTED_TRIANGLES, atol=1e-6)
+    assert mesh.input_face_count == 5
+    assert mesh.face_origin.tolist() == [0, 1, 2, 3, 4]
+
+
+def test_mirrored_instance_keeps_outward_normal():
+    mesh = load_mesh(_scene().glb(), "glb")
+    a, b, c = mesh.vertices[mesh.faces[4]]
+    assert np.cross(b - a, c - a)[2] > 0  # the source triangle faces +z; so must its mirror
+
+
+def test_same_triangles_as_trimesh():
+    data = _scene().glb()
+    mesh = load_mesh(data, "glb")
+    scene = trimesh.load(trimesh.util.wrap_as_stream(data), file_type="glb", process=False)
+    reference = []
+    for node in scene.graph.nodes_geometry:
+        transform, name = scene.graph[node]
+        geometry = scene.geometry[name]
+        if isinstance(geometry, trimesh.Trimesh):
+            corners = trimesh.transform_points(geometry.vertices, transform)[geometry.faces]
+            reference.extend(corners)
+
+    def canonical(triangles):
+        rows = [tuple(sorted(map(tuple, np.round(t, 5)))) for t in triangles]
+        return sorted(rows)
+
+    assert canonical(mesh.vertices[mesh.faces]) == canonical(reference)
+
+
+def test_strip_and_fan_modes():
+    b = _Builder()
+    b.mesh(SQUARE[[0, 1, 3, 2]], np.array([0, 1, 2, 3], np.uint16), mode=5)
+    b.mesh(SQUARE, None, mode=6)
+    mesh = load_mesh(b.glb(), "glb")
+    # glTF strips: odd triangle i is (i, i + 2, i + 1); fans: (i + 1, i + 2, 0).
+    assert mesh.faces.tolist() == [[0, 1, 2], [1, 3, 2], [5, 6, 4], [6, 7, 4]]
+    normals = np.cross(
+        mesh.vertices[mesh.faces[:, 1]] - mesh.vertices[mesh.faces[:, 0]],
+        mesh.vertices[mesh.faces[:, 2]] - mesh.vertices[mesh.faces[:, 0]],
+    )
+    assert (normals[:, 2] > 0).all()  # strips alternate winding so all face the same way
+
+
+def test_meshes_without_nodes_are_read_in_order():
+    b = _Builder()
+    b.mesh(SQUARE, SQUARE_INDICES)
+    b.mesh(TRIANGLE + 5, TRIANGLE_INDICES)
+    mesh = load_mesh(b.glb(), "glb")
+    assert mesh.faces.tolist() == [[0, 1, 2], [0, 2, 3], [4, 5, 6]]
+
+
+def _simple() -> _Builder:
+    b = _Builder()
+    b.mesh(SQUARE, SQUARE_INDICES)
+    return b
+
+
+def _with(b: _Builder, edit) -> bytes:
+    doc = copy.deepcopy(b.doc)
+    edit(doc)
+    return b.glb(doc)
+
+
+def test_declared_lengths_beyond_the_file_are_rejected():
+    b = _simple()
+    data = b.glb()
+    too_long = data[:8] + struct.pack("<I", 10**9) + data[12:]
+    with pytest.raises(MeshParseError, match="truncated"):
+        load_mesh(too_long, "glb")
+    json_length = struct.unpack_from("<I", data, 12)[0]
+    big_chunk = data[:12] + struct.pack("<I", 2**31) + data[16:]
+    with pytest.raises(MeshParseError, match="beyond the end"):
+        load_mesh(big_chunk, "glb")
+    assert json_length > 0
+    with pytest.raises(MeshParseError, match="elements"):
+        load_mesh(_with(b, lambda d: d["accessors"][0].update(count=10**12)), "glb")
+    with pytest.raises(MeshParseError, match="outside its buffer"):
+        load_mesh(_with(b, lambda d: d["bufferViews"][0].update(byteLength=10**12)), "glb")
+
+
+def test_buffer_length_beyond_its_data_is_rejected():
+    b = _simple()
+    data = b.glb(buffer_length=99999999)
+    with pytest.raises(MeshParseError, match="declares 99999999"):
+        load_mesh(data, "glb")
+
+
+@pytest.mark.parametrize(
+    ("edit", "error", "words"),
+    [
+        (lambda d: d["meshes"][0]["primitives"][0].update(mode=0), InvalidGeometryError,
+         "no triangles"),
+        (lambda d: d["meshes"][0]["primitives"][0].update(indices=7), MeshParseError,
+         "does not exist"),
+        (lambda d: d["meshes"][0]["primitives"][0].update(indices=-1), MeshParseError,
+         "does not exist"),
+        (lambda d: d["accessors"][0].update(sparse={}), UnsupportedFormatError, "sparse"),
+        (lambda d: d.update(extensionsRequired=["KHR_draco_mesh_compression"]),
+         UnsupportedFormatError, "Draco"),
+        (lambda d: d.update(nodes=[{"mesh": 0, "children": [1]}, {"children": [0]}],
+                            scenes=[{"nodes": [0]}]), MeshParseError, "cycle"),
+        (lambda d: d["asset"].update(version="1.0"), UnsupportedFormatError, "version"),
+    ],
+)  # fmt: skip
+def test_bad_documents_raise_typed_errors(edit, error, words):
+    with pytest.raises(error, match=words):
+        load_mesh(_with(_simple(), edit), "glb")
+
+
+def test_index_beyond_the_primitive_vertices_is_invalid():
+    b = _Builder()
+    b.mesh(TRIANGLE, np.array([0, 1, 5], np.uint16))
+    b.mesh(SQUARE, SQUARE_INDICES)  # index 5 would silently land here if not checked
+    with pytest.raises(InvalidGeometryError, match="uses vertex 5"):
+        load_mesh(b.glb(), "glb")
+
+
+def test_external_buffer_uri_is_unsupported():
+    doc = json.loads(_simple().gltf())
+    doc["buffers"][0]["uri"] = "mesh.bin"
+    with pytest.raises(UnsupportedFormatError, match="external buffer"):
+        load_mesh(json.dumps(doc).encode(), "gltf")
+
+
+def test_exponential_instancing_is_capped(monkeypatch):
+    monkeypatch.setattr(gltf_reader, "MAX_NODE_VISITS", 1000)
+    b = _simple()
+    layers = 20  # each node instances the next one twice: 2**20 mesh instances
+    b.doc["nodes"] = [{"children": [i + 1, i + 1]} for i in range(layers)] + [{"mesh": 0}]
+    b.doc["scenes"] = [{"nodes": [0]}]
+    with pytest.raises(MeshTooLargeError):
+        load_mesh(b.glb(), "glb")
+
+
+def test_max_faces_before_reading():
+    with pytest.raises(MeshTooLargeError, match="limit of 1"):
+        load_mesh(_simple().glb(), "glb", max_faces=1)
+
+
+def test_trimesh_exported_glb_loads_in_order():
+    box = trimesh.creation.box()
+    mesh = load_mesh(box.export(file_type="glb"), "glb")
+    np.testing.assert_allclose(mesh.vertices[mesh.faces], box.vertices[box.faces], atol=1e-6)

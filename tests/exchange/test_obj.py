@@ -1,0 +1,117 @@
+"""OBJ reader: faces in file order, polygon fans, relative indices, typed errors."""
+
+import numpy as np
+import pytest
+from neural_shdf.errors import InvalidGeometryError, MeshParseError, MeshTooLargeError
+from neural_shdf.mesh_io import load_mesh
+
+SQUARE_AND_MORE = """\
+v 0 0 0
+v 1 0 0
+v 1 1 0
+v 0 1 0
+v 2 0.5 0
+"""
+
+
+def _load(text: str, **kwargs):
+    return load_mesh(text.encode(), "obj", **kwargs)
+
+
+def test_mixed_quads_triangles_and_pentagon_keep_input_order():
+    mesh = _load(SQUARE_AND_MORE + "f 1 2 3 4\nf 2 5 3\nf 1 2 5 3 4\n")
+    # Fans from each polygon's first vertex, contiguous, in file order.
+    expected = [[0, 1, 2], [0, 2, 3], [1, 4, 2], [0, 1, 4], [0, 4, 2], [0, 2, 3]]
+    assert mesh.faces.tolist() == expected
+    assert mesh.face_origin.tolist() == [0, 0, 1, 2, 2, 2]
+    assert mesh.input_face_count == 3
+    # A per-triangle labelling that is constant per polygon maps back exactly.
+    labels = np.array([7, 7, 3, 5, 5, 5])
+    assert mesh.labels_to_input_faces(labels).tolist() == [7, 3, 5]
+
+
+def test_groups_and_materials_interleaved_do_not_regroup_faces():
+    vertices = "".join(f"v {i} {i * i % 7} {i % 3}\n" for i in range(12))
+    text = (
+        vertices
+        + "g a\nusemtl red\nf 1 2 3\n"
+        + "g b\nusemtl blue\nf 4 5 6\n"
+        + "g a\nusemtl red\nf 7 8 9\n"
+        + "o other\nusemtl blue\ns 1\nf 10 11 12\n"
+    )
+    mesh = _load(text)
+    assert mesh.faces.tolist() == [[0, 1, 2], [3, 4, 5], [6, 7, 8], [9, 10, 11]]
+    assert mesh.face_origin.tolist() == [0, 1, 2, 3]
+
+
+def test_negative_indices_are_relative_to_vertices_so_far():
+    text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf -3 -2 -1\nv 0 0 1\nv 1 0 1\nv 0 1 1\nf -3/1/1 -2//2 -1/3\n"
+    mesh = _load(text)
+    assert mesh.faces.tolist() == [[0, 1, 2], [3, 4, 5]]
+
+
+def test_texture_and_normal_references_and_extra_records_are_ignored():
+    text = (
+        "# comment\nmtllib x.mtl\nv 0 0 0 1.0\nv 1 0 0 1 0.5 0.5 0.5\nv 0 1 0\n"
+        "vt 0 0\nvn 0 0 1\nl 1 2\np 3\nf 1/1/1 2/1/1 3/1/1\n"
+    )
+    mesh = _load(text)
+    assert mesh.faces.tolist() == [[0, 1, 2]]
+    np.testing.assert_array_equal(mesh.vertices, [[0, 0, 0], [1, 0, 0], [0, 1, 0]])
+
+
+def test_duplicate_vertices_are_kept_not_merged():
+    text = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 4 5\n"
+    mesh = _load(text)
+    assert mesh.vertices.shape == (5, 3)
+    assert mesh.faces.tolist() == [[0, 1, 2], [0, 3, 4]]
+
+
+def test_face_with_two_vertices_counts_as_input_face_without_triangle():
+    mesh = _load(SQUARE_AND_MORE + "f 1 2 3\nf 1 2\nf 2 5 3\n")
+    assert mesh.face_origin.tolist() == [0, 2]
+    assert mesh.input_face_count == 3
+    assert mesh.labels_to_input_faces(np.array([4, 6])).tolist() == [4, -1, 6]
+
+
+def test_degenerate_faces_stay_next_to_usable_ones():
+    mesh = _load(SQUARE_AND_MORE + "f 1 1 2\nf 1 2 3\nf 1 2 2\n")
+    assert mesh.faces.tolist() == [[0, 0, 1], [0, 1, 2], [0, 1, 1]]
+
+
+def test_line_continuation_joins_records():
+    mesh = _load("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 \\\n 3\n")
+    assert mesh.faces.tolist() == [[0, 1, 2]]
+
+
+@pytest.mark.parametrize(
+    ("text", "error", "words"),
+    [
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", InvalidGeometryError, "start at 1"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", InvalidGeometryError, "do not exist"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf -1 -2 -4\n", InvalidGeometryError, "do not exist"),
+        ("v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", InvalidGeometryError, "NaN"),
+        ("v 0 0 inf\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", InvalidGeometryError, "infinite"),
+        ("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\nf 1 1 2\n", InvalidGeometryError, "zero area"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\n", InvalidGeometryError, "no triangles"),
+        ("v 0 0\nf 1 2 3\n", MeshParseError, "3 coordinates"),
+        ("v 0 0 x\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", MeshParseError, "not all numbers"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 b 3\n", MeshParseError, "not an integer"),
+        ("hello world\nthis is text\n", MeshParseError, "not an OBJ"),
+    ],
+)
+def test_bad_obj_raises_typed_error(text, error, words):
+    with pytest.raises(error, match=words):
+        _load(text)
+
+
+def test_binary_content_is_not_obj():
+    with pytest.raises(MeshParseError, match="binary"):
+        load_mesh(b"\xff\xd8\xff\xe0\x00\x10JFIF\x00" + bytes(range(256)), "obj")
+
+
+def test_max_faces_counts_triangles():
+    text = SQUARE_AND_MORE + "f 1 2 3 4\nf 2 5 3\n"
+    assert _load(text, max_faces=3).face_count == 3
+    with pytest.raises(MeshTooLargeError, match="limit of 2"):
+        _load(text, max_faces=2)

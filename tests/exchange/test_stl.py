@@ -1,0 +1,60 @@
+"""STL reader: binary and ASCII triangle soups in facet order, truncation."""
+
+import struct
+
+import numpy as np
+import pytest
+import trimesh
+from neural_shdf.errors import InvalidGeometryError, MeshParseError, MeshTooLargeError
+from neural_shdf.mesh_io import load_mesh
+
+
+@pytest.mark.parametrize("file_type", ["stl", "stl_ascii"])
+def test_soup_keeps_facet_order_and_own_vertices(file_type):
+    box = trimesh.creation.box()
+    data = box.export(file_type=file_type)
+    mesh = load_mesh(data.encode() if isinstance(data, str) else data, "stl")
+    assert mesh.face_count == mesh.input_face_count == 12
+    assert mesh.faces.tolist() == np.arange(36).reshape(12, 3).tolist()
+    np.testing.assert_allclose(mesh.vertices[mesh.faces], box.vertices[box.faces], atol=1e-6)
+
+
+def test_binary_with_solid_header_and_trailing_bytes():
+    triangle = struct.pack("<12fH", 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0)
+    header = b"solid but actually binary".ljust(80, b" ")
+    data = header + struct.pack("<I", 1) + triangle
+    assert load_mesh(data, "stl").faces.tolist() == [[0, 1, 2]]
+    assert load_mesh(data + b"\x00\x00", "stl").face_count == 1  # trailing padding ignored
+
+
+def test_truncated_binary_is_a_parse_error():
+    data = trimesh.creation.box().export(file_type="stl")
+    with pytest.raises(MeshParseError, match="truncated"):
+        load_mesh(data[:-20], "stl")
+    with pytest.raises(MeshParseError, match="too short"):
+        load_mesh(data[:50], "stl")
+
+
+def test_ascii_with_missing_vertex_is_a_parse_error():
+    text = trimesh.creation.box().export(file_type="stl_ascii")
+    broken = text.replace("vertex", "vurtex", 1)
+    with pytest.raises(MeshParseError, match="facets"):
+        load_mesh(broken.encode(), "stl")
+
+
+def test_only_degenerate_facets_is_invalid():
+    triangle = struct.pack("<12fH", 0, 0, 1, 0, 0, 0, 1, 0, 0, 2, 0, 0, 0)
+    data = b" " * 80 + struct.pack("<I", 2) + triangle * 2
+    with pytest.raises(InvalidGeometryError, match="zero area"):
+        load_mesh(data, "stl")
+
+
+def test_nan_coordinate_is_invalid():
+    triangle = struct.pack("<12fH", 0, 0, 1, 0, 0, float("nan"), 1, 0, 0, 0, 1, 0, 0)
+    with pytest.raises(InvalidGeometryError, match="NaN"):
+        load_mesh(b" " * 80 + struct.pack("<I", 1) + triangle, "stl")
+
+
+def test_max_faces():
+    with pytest.raises(MeshTooLargeError):
+        load_mesh(trimesh.creation.box().export(file_type="stl"), "stl", max_faces=11)

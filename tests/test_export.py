@@ -1,0 +1,127 @@
+"""Exports: palette, coloured GLB without blending across parts, per-part GLB, label files."""
+
+import numpy as np
+import pytest
+import trimesh
+from neural_shdf.errors import ParameterError
+from neural_shdf.export import (
+    UNLABELED_COLOR,
+    colored_glb,
+    part_colors,
+    part_name,
+    parts_glb,
+    read_labels,
+    read_values,
+    split_by_part,
+    write_labels,
+    write_values,
+)
+from neural_shdf.mesh_io import load_mesh
+
+
+def _labels_by_height(mesh, n_parts=3):
+    """Part per triangle from the centroid's z: parts are connected bands sharing vertices."""
+    z = mesh.vertices[mesh.faces].mean(axis=1)[:, 2]
+    edges = np.quantile(z, np.linspace(0, 1, n_parts + 1)[1:-1])
+    return np.searchsorted(edges, z).astype(np.int64)
+
+
+def test_palette_is_deterministic_distinct_and_opaque():
+    colors = part_colors(60)
+    assert colors.shape == (60, 4) and colors.dtype == np.uint8
+    np.testing.assert_array_equal(colors, part_colors(60))
+    np.testing.assert_array_equal(part_colors(5), colors[:5])
+    assert len(np.unique(colors[:, :3], axis=0)) == 60
+    assert (colors[:, 3] == 255).all()
+    assert part_colors(0).shape == (0, 4)
+
+
+def test_split_by_part_never_shares_a_vertex(sphere_mesh):
+    labels = _labels_by_height(sphere_mesh)
+    vertices, faces, vertex_label = split_by_part(sphere_mesh, labels)
+    np.testing.assert_array_equal(vertex_label[faces], np.repeat(labels[:, None], 3, axis=1))
+    np.testing.assert_allclose(vertices[faces], sphere_mesh.vertices[sphere_mesh.faces])
+
+
+def test_colored_glb_faces_have_their_part_colour(sphere_mesh):
+    labels = _labels_by_height(sphere_mesh)
+    labels[0] = -1  # an unlabelled triangle gets the neutral colour
+    data = colored_glb(sphere_mesh, labels)
+    # Our reader: the same triangles in the same order.
+    back = load_mesh(data, "glb")
+    np.testing.assert_allclose(
+        back.vertices[back.faces], sphere_mesh.vertices[sphere_mesh.faces], atol=1e-6
+    )
+    # trimesh's reader: every corner of every face carries its part's colour.
+    scene = trimesh.load(trimesh.util.wrap_as_stream(data), file_type="glb", process=False)
+    (geometry,) = scene.geometry.values()
+    corner_colors = geometry.visual.vertex_colors[geometry.faces]
+    expected = np.where(labels[:, None] >= 0, part_colors(3)[labels.clip(0)], UNLABELED_COLOR)
+    np.testing.assert_array_equal(corner_colors, np.repeat(expected[:, None], 3, axis=1))
+
+
+def test_colored_glb_custom_rgb_colors(box_mesh):
+    labels = np.repeat([0, 1], 6)
+    data = colored_glb(box_mesh, labels, colors=np.array([[255, 0, 0], [0, 0, 255]], np.uint8))
+    scene = trimesh.load(trimesh.util.wrap_as_stream(data), file_type="glb", process=False)
+    (geometry,) = scene.geometry.values()
+    colors = geometry.visual.vertex_colors[geometry.faces[:, 0]]
+    np.testing.assert_array_equal(colors[:6], [[255, 0, 0, 255]] * 6)
+    np.testing.assert_array_equal(colors[6:], [[0, 0, 255, 255]] * 6)
+
+
+def test_parts_glb_round_trips_parts_and_triangle_counts(sphere_mesh):
+    labels = _labels_by_height(sphere_mesh, 4)
+    data = parts_glb(sphere_mesh, labels)
+    scene = trimesh.load(trimesh.util.wrap_as_stream(data), file_type="glb", process=False)
+    counts = {name: len(g.faces) for name, g in scene.geometry.items()}
+    assert counts == {part_name(p): int((labels == p).sum()) for p in range(4)}
+    assert sorted(scene.graph.nodes_geometry) == [f"part_{p:03d}" for p in range(4)]
+    # Flattened by our reader: parts in label order, each part's triangles in mesh order.
+    back = load_mesh(data, "glb")
+    order = np.argsort(labels, kind="stable")
+    np.testing.assert_allclose(
+        back.vertices[back.faces], sphere_mesh.vertices[sphere_mesh.faces[order]], atol=1e-6
+    )
+
+
+def test_labels_must_be_one_integer_per_triangle(box_mesh):
+    with pytest.raises(ParameterError, match="one integer label per triangle"):
+        colored_glb(box_mesh, np.zeros(5, dtype=int))
+    with pytest.raises(ParameterError, match="face_origin"):
+        parts_glb(box_mesh, np.zeros(12))
+
+
+def test_label_file_round_trip(tmp_path):
+    labels = np.array([0, 3, 3, -1, 12])
+    path = tmp_path / "mesh.seg"
+    write_labels(path, labels)
+    assert path.read_text() == "0\n3\n3\n-1\n12\n"
+    np.testing.assert_array_equal(read_labels(path), labels)
+
+
+def test_bad_label_file_names_the_line(tmp_path):
+    path = tmp_path / "bad.seg"
+    path.write_text("1\n2\nthree\n")
+    with pytest.raises(ParameterError, match="line 3"):
+        read_labels(path)
+
+
+def test_values_round_trip_to_float32_precision(tmp_path):
+    values = np.random.default_rng(0).random(100) * 10.0 ** np.arange(-30, 70)
+    path = tmp_path / "mesh.sdf"
+    write_values(path, values)
+    np.testing.assert_allclose(read_values(path), values, rtol=1e-8)
+    assert len(path.read_text().splitlines()) == 100
+    # Float32 values survive exactly (9 significant digits is enough for float32).
+    single = values[:60].astype(np.float32)
+    write_values(path, single)
+    np.testing.assert_array_equal(read_values(path).astype(np.float32), single)
+
+
+def test_read_values_reads_cgal_sdf_files(shared_data):
+    path = shared_data / "psb-dev" / "cgal" / "1.sdf"
+    if not path.is_file():
+        pytest.skip(f"{path} is absent")
+    values = read_values(path)
+    assert len(values) == 9408 and values.min() >= 0 and values.max() <= 1

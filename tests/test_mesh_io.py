@@ -1,0 +1,138 @@
+"""load_mesh front door: format detection, typed errors for any bad input, fuzzing."""
+
+import contextlib
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from neural_shdf.errors import MeshError, MeshParseError, UnsupportedFormatError
+from neural_shdf.mesh_io import SUPPORTED_FORMATS, detect_format, load_mesh, sniff_format
+
+JPEG_LIKE = b"\xff\xd8\xff\xe0\x00\x10JFIF\x00\x01\x01" + bytes(range(256)) * 4
+
+
+def _valid_files() -> dict[str, bytes]:
+    """A small valid file of every format, all encoding the same icosphere."""
+    sphere = trimesh.creation.icosphere(subdivisions=1)
+    files = {}
+    for name, file_type in [("obj", "obj"), ("off", "off"), ("ply", "ply"), ("stl", "stl"),
+                            ("glb", "glb"), ("gltf", "gltf")]:  # fmt: skip
+        data = sphere.export(file_type=file_type)
+        if isinstance(data, dict):  # trimesh writes .gltf as several files; embed instead
+            continue
+        files[name] = data.encode() if isinstance(data, str) else data
+    files["gltf"] = _embedded_gltf(files["glb"])
+    return files
+
+
+def _embedded_gltf(glb: bytes) -> bytes:
+    import base64
+    import json
+    import struct
+
+    json_length = struct.unpack_from("<I", glb, 12)[0]
+    doc = json.loads(glb[20 : 20 + json_length])
+    binary = glb[20 + json_length + 8 :]
+    doc["buffers"][0]["uri"] = (
+        "data:application/octet-stream;base64,"
+        + base64.b64encode(binary[: doc["buffers"][0]["byteLength"]]).decode()
+    )
+    return json.dumps(doc).encode()
+
+
+VALID = _valid_files()
+
+
+def test_supported_formats_and_detection():
+    assert set(SUPPORTED_FORMATS) == {"obj", "off", "ply", "stl", "glb", "gltf"}
+    assert detect_format("a/b/Model.OBJ") == "obj"
+    assert detect_format("scan.ply") == "ply"
+    with pytest.raises(UnsupportedFormatError, match="no file extension"):
+        detect_format("README")
+    with pytest.raises(UnsupportedFormatError, match="supported: obj"):
+        detect_format("scene.fbx")
+
+
+@pytest.mark.parametrize("name", sorted(VALID))
+def test_every_format_loads_the_same_triangles(name):
+    sphere = trimesh.creation.icosphere(subdivisions=1)
+    mesh = load_mesh(VALID[name], name)
+    assert mesh.face_count == mesh.input_face_count == len(sphere.faces)
+    np.testing.assert_allclose(mesh.vertices[mesh.faces], sphere.vertices[sphere.faces], atol=1e-6)
+
+
+@pytest.mark.parametrize("name", sorted(VALID))
+def test_content_sniffing_when_no_type_is_given(name):
+    expected = {"obj": None}.get(name, name)
+    assert sniff_format(VALID[name]) == expected
+
+
+def test_bytes_without_type_that_cannot_be_sniffed():
+    with pytest.raises(UnsupportedFormatError, match="file_type"):
+        load_mesh(VALID["obj"])
+
+
+def test_path_and_bytes_give_the_same_mesh(tmp_path):
+    path = tmp_path / "sphere.PLY"
+    path.write_bytes(VALID["ply"])
+    assert load_mesh(path).content_hash() == load_mesh(VALID["ply"], "ply").content_hash()
+    assert load_mesh(str(path), ".ply").face_count == 80
+
+
+def test_missing_file_and_unknown_type(tmp_path):
+    with pytest.raises(MeshParseError, match="cannot read"):
+        load_mesh(tmp_path / "absent.obj")
+    with pytest.raises(UnsupportedFormatError, match="fbx"):
+        load_mesh(b"anything", "fbx")
+
+
+@pytest.mark.parametrize("name", SUPPORTED_FORMATS)
+@pytest.mark.parametrize("data", [b"", b"  \n\t "], ids=["empty", "whitespace"])
+def test_empty_input_is_a_parse_error(name, data):
+    with pytest.raises(MeshParseError, match="empty"):
+        load_mesh(data, name)
+
+
+@pytest.mark.parametrize("name", SUPPORTED_FORMATS)
+def test_not_a_mesh_is_a_parse_error(name):
+    with pytest.raises(MeshParseError):
+        load_mesh(JPEG_LIKE, name)
+
+
+@pytest.mark.parametrize("name", sorted(VALID))
+def test_truncated_files_are_rejected_with_mesh_errors(name):
+    data = VALID[name]
+    for fraction in (0.1, 0.5, 0.9):
+        try:
+            mesh = load_mesh(data[: int(len(data) * fraction)], name)
+        except MeshError:
+            continue
+        # Text formats cut at a line may still be a (smaller) valid mesh, never a bigger one.
+        assert name in ("obj", "stl") and mesh.face_count < 80
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.binary(max_size=600), name=st.sampled_from(SUPPORTED_FORMATS))
+def test_random_bytes_raise_only_mesh_errors(data, name):
+    with contextlib.suppress(MeshError):
+        load_mesh(data, name)
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    name=st.sampled_from(sorted(VALID)),
+    edits=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), min_size=1, max_size=6),
+    cut=st.floats(0.05, 1.0),
+)
+def test_corrupted_valid_files_raise_only_mesh_errors(name, edits, cut):
+    data = bytearray(VALID[name])
+    for position, value in edits:
+        data[min(int(position * len(data)), len(data) - 1)] = value
+    try:
+        mesh = load_mesh(bytes(data[: max(1, int(cut * len(data)))]), name)
+    except MeshError:
+        return
+    assert np.isfinite(mesh.vertices).all()
+    assert mesh.faces.min() >= 0 and mesh.faces.max() < len(mesh.vertices)

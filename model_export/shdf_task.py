@@ -1,0 +1,130 @@
+"""The ShDF task around the task-agnostic core: features, normalisers, target and loss.
+
+Target per sample: ``log(raw diameter / Poisson radius)`` (the radius is the
+graph's length unit, so the target is scale invariant). The network's output is
+de-normalised inside the model, so the exported ONNX graph returns that log
+diameter directly and the service needs no constants besides the graph spec.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from neural_shdf.neural.graph import EDGE_FEATURES, NODE_FEATURES, SampleGraph
+from torch import nn
+
+from model_export.core_model import EncodeProcessDecode
+
+#: ONNX input and output names (the service feeds these).
+INPUT_NAMES = ("node_features", "edge_features", "senders", "receivers")
+OUTPUT_NAMES = ("log_diameter",)
+#: Node feature column holding the density that scales messages.
+DENSITY_COLUMN = NODE_FEATURES.index("density")
+
+
+def log_diameter_target(raw_per_sample: np.ndarray, radius: float) -> np.ndarray:
+    """Training target from raw diameters (NaN/non-positive stay NaN = no target)."""
+    raw = np.asarray(raw_per_sample, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(raw > 0, np.log(raw / radius), np.nan)
+
+
+class Normaliser(nn.Module):
+    """Fixed affine normalisation ``(x - mean) / std`` with constants kept as buffers."""
+
+    def __init__(self, size: int) -> None:
+        super().__init__()
+        self.register_buffer("mean", torch.zeros(size))
+        self.register_buffer("std", torch.ones(size))
+
+    def set_stats(self, mean: np.ndarray, std: np.ndarray) -> None:
+        self.mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
+        self.std.copy_(torch.as_tensor(np.maximum(std, 1e-6), dtype=torch.float32))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return (x - self.mean) / self.std
+
+    def inverse(self, x: torch.Tensor) -> torch.Tensor:
+        return x * self.std + self.mean
+
+
+class ShdfNetwork(nn.Module):
+    """Graph features in, log diameter (in Poisson radii) per sample out."""
+
+    def __init__(self, *, latent: int = 128, steps: int = 6) -> None:
+        super().__init__()
+        self.node_norm = Normaliser(len(NODE_FEATURES))
+        self.edge_norm = Normaliser(len(EDGE_FEATURES))
+        self.target_norm = Normaliser(1)
+        self.core = EncodeProcessDecode(
+            len(NODE_FEATURES), len(EDGE_FEATURES), 1, latent=latent, steps=steps
+        )
+
+    def normalised_output(
+        self,
+        node_features: torch.Tensor,
+        edge_features: torch.Tensor,
+        senders: torch.Tensor,
+        receivers: torch.Tensor,
+    ) -> torch.Tensor:
+        density = node_features[:, DENSITY_COLUMN]
+        out = self.core(
+            self.node_norm(node_features), self.edge_norm(edge_features), senders, receivers,
+            density,
+        )
+        return out[:, 0]
+
+    def forward(
+        self,
+        node_features: torch.Tensor,
+        edge_features: torch.Tensor,
+        senders: torch.Tensor,
+        receivers: torch.Tensor,
+    ) -> torch.Tensor:
+        normalised = self.normalised_output(node_features, edge_features, senders, receivers)
+        return self.target_norm.inverse(normalised.unsqueeze(1))[:, 0]
+
+    def loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Mean squared error of the normalised log diameter over samples with a target."""
+        prediction = self.normalised_output(
+            batch["node_features"], batch["edge_features"], batch["senders"], batch["receivers"]
+        )
+        target = self.target_norm(batch["target"].unsqueeze(1))[:, 0]
+        mask = torch.isfinite(target)
+        return ((prediction[mask] - target[mask]) ** 2).mean()
+
+
+def graph_arrays(graph: SampleGraph) -> dict[str, np.ndarray]:
+    """The network's inputs of one sample graph, as numpy arrays (compact dtypes)."""
+    return {
+        "node_features": graph.node_features.astype(np.float32),
+        "edge_features": graph.edge_features.astype(np.float32),
+        "senders": graph.senders.astype(np.int32),
+        "receivers": graph.receivers.astype(np.int32),
+    }
+
+
+def to_tensors(arrays: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    """Numpy graph arrays -> tensors (int64 indices)."""
+    out = {}
+    for key, value in arrays.items():
+        if key in ("senders", "receivers"):
+            out[key] = torch.from_numpy(np.asarray(value, dtype=np.int64))
+        else:
+            out[key] = torch.from_numpy(np.asarray(value, dtype=np.float32))
+    return out
+
+
+def batch_graphs(graphs: list[dict[str, np.ndarray]]) -> dict[str, torch.Tensor]:
+    """Concatenate graphs into one disconnected graph (indices offset)."""
+    offset = 0
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in (*INPUT_NAMES, "target")}
+    for g in graphs:
+        n = len(g["node_features"])
+        parts["node_features"].append(g["node_features"])
+        parts["edge_features"].append(g["edge_features"])
+        parts["senders"].append(g["senders"].astype(np.int64) + offset)
+        parts["receivers"].append(g["receivers"].astype(np.int64) + offset)
+        parts["target"].append(g["target"].astype(np.float32))
+        offset += n
+    return to_tensors({k: np.concatenate(v) for k, v in parts.items()})

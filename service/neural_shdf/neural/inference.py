@@ -1,0 +1,142 @@
+"""onnxruntime inference of the neural ShDF: mesh -> samples -> network -> raw ShDF per face.
+
+The ONNX model and its model card (``emd.onnx`` + ``emd.json``) live in
+``neural_shdf/models``; ``NEURAL_SHDF_MODEL`` (path of an ``.onnx``) overrides
+it. A session is created once per model file and reused (intra-op threads 2).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.errors import ModelUnavailableError
+from neural_shdf.geometry import face_centroids, face_normals
+from neural_shdf.neural.graph import (
+    FEATURE_SPEC_VERSION,
+    GraphSpec,
+    SampleGraph,
+    build_sample_graph,
+    samples_to_faces,
+)
+
+MODEL_DIR = Path(__file__).resolve().parents[1] / "models"
+DEFAULT_MODEL_PATH = MODEL_DIR / "emd.onnx"
+MODEL_ENV_VAR = "NEURAL_SHDF_MODEL"
+INTRA_OP_THREADS = 2
+
+
+@dataclass(frozen=True)
+class NeuralModel:
+    """A loaded ONNX session, its model card and the graph spec it was trained with."""
+
+    session: object
+    card: dict
+    spec: GraphSpec
+    path: Path
+
+    def predict_log_diameter(self, graph: SampleGraph) -> NDArray[np.float64]:
+        """Network output per sample: log(diameter / Poisson radius)."""
+        feeds = {
+            "node_features": np.ascontiguousarray(graph.node_features, dtype=np.float32),
+            "edge_features": np.ascontiguousarray(graph.edge_features, dtype=np.float32),
+            "senders": np.ascontiguousarray(graph.senders, dtype=np.int64),
+            "receivers": np.ascontiguousarray(graph.receivers, dtype=np.int64),
+        }
+        (out,) = self.session.run(None, feeds)
+        return np.asarray(out, dtype=np.float64).reshape(-1)
+
+
+_MODELS: dict[Path, NeuralModel] = {}
+_LOCK = threading.Lock()
+
+
+def model_path() -> Path:
+    """The model file in use: ``$NEURAL_SHDF_MODEL`` or the packaged ``emd.onnx``."""
+    override = os.environ.get(MODEL_ENV_VAR)
+    return Path(override).expanduser().resolve() if override else DEFAULT_MODEL_PATH
+
+
+def file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def load_model(path: str | Path | None = None) -> NeuralModel:
+    """The cached model for ``path`` (default :func:`model_path`), loaded on first use.
+
+    Raises ModelUnavailableError when the file or its card is missing, the
+    card's checksum or feature version do not match, or onnxruntime fails.
+    """
+    path = model_path() if path is None else Path(path).expanduser().resolve()
+    with _LOCK:
+        if path in _MODELS:
+            return _MODELS[path]
+        card_path = path.with_suffix(".json")
+        if not path.is_file() or not card_path.is_file():
+            raise ModelUnavailableError(
+                f"neural ShDF model not found: expected {path} and {card_path.name}; "
+                "train and export one (python -m model_export.export) or use method='exact'"
+            )
+        try:
+            card = json.loads(card_path.read_text())
+        except (OSError, ValueError) as error:
+            raise ModelUnavailableError(f"cannot read model card {card_path}: {error}") from error
+        if card.get("feature_spec_version") != FEATURE_SPEC_VERSION:
+            raise ModelUnavailableError(
+                f"model {path.name} expects input features version "
+                f"{card.get('feature_spec_version')}, this code builds version "
+                f"{FEATURE_SPEC_VERSION}; re-export the model"
+            )
+        if card.get("sha256") and card["sha256"] != file_sha256(path):
+            raise ModelUnavailableError(
+                f"model {path.name} does not match the checksum in {card_path.name}"
+            )
+        try:
+            import onnxruntime
+
+            options = onnxruntime.SessionOptions()
+            options.intra_op_num_threads = INTRA_OP_THREADS
+            options.inter_op_num_threads = 1
+            session = onnxruntime.InferenceSession(
+                str(path), sess_options=options, providers=["CPUExecutionProvider"]
+            )
+        except Exception as error:  # noqa: BLE001 - any loader failure means no model
+            raise ModelUnavailableError(f"cannot load model {path}: {error}") from error
+        model = NeuralModel(session, card, GraphSpec.from_dict(card.get("graph_spec", {})), path)
+        _MODELS[path] = model
+        return model
+
+
+def neural_raw_shdf(
+    vertices: NDArray,
+    faces: NDArray,
+    *,
+    seed: int = 0,
+    model: NeuralModel | None = None,
+    normals: NDArray | None = None,
+    areas: NDArray | None = None,
+) -> NDArray[np.float64]:
+    """Predicted raw diameter per triangle (mesh units), before post-processing."""
+    model = load_model() if model is None else model
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    if normals is None or areas is None:
+        normals, areas = face_normals(vertices, faces)
+    graph = build_sample_graph(
+        vertices, faces, model.spec, seed=seed, normals=normals, areas=areas,
+        centroids=face_centroids(vertices, faces),
+    )
+    log_diameter = model.predict_log_diameter(graph)
+    per_sample = np.exp(log_diameter) * graph.radius
+    return samples_to_faces(per_sample, graph, normals)

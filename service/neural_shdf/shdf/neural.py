@@ -1,0 +1,38 @@
+"""The neural ShDF: predicted diameters, then the exact path's post-processing."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.geometry import FaceGraph
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.neural.inference import load_model, neural_raw_shdf
+from neural_shdf.shdf.postprocess import postprocess_shdf
+
+Progress = Callable[[float], None]
+
+
+def neural_shdf(
+    mesh: TriangleMesh,
+    *,
+    graph: FaceGraph,
+    seed: int = 0,
+    progress: Progress | None = None,
+    model_path: str | Path | None = None,
+) -> NDArray[np.float64]:
+    """ShDF in [0, 1] per triangle of ``mesh`` from the ONNX network.
+
+    Raises ModelUnavailableError when no model is installed.
+    """
+    model = load_model(model_path)
+    raw = neural_raw_shdf(mesh.vertices, mesh.faces, seed=seed, model=model)
+    if progress is not None:
+        progress(0.5)
+    out = postprocess_shdf(raw, graph)
+    if progress is not None:
+        progress(1.0)
+    return out

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import socket
 import struct
 import time
 from pathlib import Path
@@ -118,3 +119,10 @@ def wait_job(client, job: dict, timeout_s: float = 60.0) -> dict:
 def metric(app, name: str, **labels: str) -> float:
     """A Prometheus sample of an app instance."""
     return app.state.engine.metrics.value(name, labels)
+
+
+def free_port() -> int:
+    """A free TCP port on loopback."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]

@@ -13,17 +13,11 @@ from pathlib import Path
 
 import httpx
 import pytest
-from api_helpers import TEST_METHOD, capsule
+from api_helpers import TEST_METHOD, capsule, free_port
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from neural_shdf.api.app import create_app
 from neural_shdf.api.settings import Settings
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def make_settings(cache_dir: Path, **overrides) -> Settings:

@@ -1,0 +1,122 @@
+"""Compute-once guarantees: concurrent dedup, corrupt entries, failures, degraded cache."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+
+import httpx
+import numpy as np
+import pytest
+from api_helpers import TEST_METHOD, free_port, metric
+from fastapi.testclient import TestClient
+from neural_shdf.api.cache import MAGIC, seal
+from neural_shdf.mesh_io import load_mesh
+
+
+async def _concurrent_uploads(app, data: bytes, count: int) -> list[httpx.Response]:
+    transport = httpx.ASGITransport(app=app)
+    async with httpx.AsyncClient(transport=transport, base_url="http://test") as client:
+        return await asyncio.gather(
+            *[client.post("/v1/meshes", files={"file": ("m.obj", data)}) for _ in range(count)]
+        )
+
+
+def test_concurrent_uploads_compute_once(app_factory, capsule_obj):
+    app = app_factory()
+    responses = asyncio.run(_concurrent_uploads(app, capsule_obj, 6))
+    assert [r.status_code for r in responses] == [200] * 6
+    assert len({r.json()["mesh"]["mesh_id"] for r in responses}) == 1
+    assert metric(app, "neural_shdf_shdf_computations_total", method=TEST_METHOD) == 1
+
+
+def test_two_apps_on_one_disk_cache_compute_once(app_factory, capsule_obj, tmp_path):
+    """Two app instances (like two uvicorn workers) share the disk cache and its lock."""
+    first, second = app_factory(), app_factory()
+    results = []
+
+    def post(app):
+        with TestClient(app) as client:
+            results.append(client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)}))
+
+    threads = [threading.Thread(target=post, args=(app,)) for app in (first, second)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert [r.status_code for r in results] == [200, 200]
+    total = sum(
+        metric(app, "neural_shdf_shdf_computations_total", method=TEST_METHOD)
+        for app in (first, second)
+    )
+    assert total == 1
+
+
+def test_corrupt_entry_is_recomputed_never_served(app_factory, capsule_obj):
+    app = app_factory()
+    engine = app.state.engine
+    with TestClient(app) as client:
+        mesh_id = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)}).json()["mesh"][
+            "mesh_id"
+        ]
+        good = client.get(f"/v1/meshes/{mesh_id}/shdf?format=f32").content
+        key = engine.shdf_key(mesh_id, TEST_METHOD, 0)
+        blob = engine.cache.backend.get(key)
+        assert blob.startswith(MAGIC)
+        flipped = bytearray(blob)
+        flipped[-5] ^= 0xFF  # a bit flip in the payload
+        for bad in (bytes(flipped), blob[: len(blob) // 2], b"garbage", seal(b"not an npz")):
+            engine.cache.backend.set(key, bad, group=mesh_id)
+            engine.cache._memory.clear()
+            assert client.get(f"/v1/meshes/{mesh_id}/shdf?format=f32").content == good
+        assert metric(app, "neural_shdf_cache_corrupt_entries_total") == 4
+        assert metric(app, "neural_shdf_shdf_computations_total", method=TEST_METHOD) == 5
+
+
+def test_failed_computation_leaves_no_entry(app_factory, capsule_obj, monkeypatch):
+    import neural_shdf.pipeline
+
+    app = app_factory()
+    engine = app.state.engine
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("simulated crash in the middle of the computation")
+
+    monkeypatch.setattr(neural_shdf.pipeline, "compute_shdf", broken)
+    with TestClient(app, raise_server_exceptions=False) as client:
+        response = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)})
+        assert response.status_code == 500
+        assert response.json()["error"]["code"] == "internal_error"
+        mesh_id = load_mesh(capsule_obj, "obj").content_hash()
+        assert engine.cache.backend.get(engine.shdf_key(mesh_id, TEST_METHOD, 0)) is None
+        monkeypatch.undo()
+        again = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)})
+        assert again.status_code == 200 and again.json()["shdf"]["cached"] is False
+
+
+def test_unreachable_redis_degrades_to_computing(app_factory, capsule_obj):
+    app = app_factory(redis_url=f"redis://127.0.0.1:{free_port()}/0", redis_timeout_s=0.2)
+    with TestClient(app) as client:
+        ready = client.get("/readyz")
+        assert ready.status_code == 503
+        assert ready.json()["checks"]["cache"]["ok"] is False
+        first = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)})
+        assert first.status_code == 200, first.text
+        segment = client.post(
+            "/v1/segment", json={"mesh_id": first.json()["mesh"]["mesh_id"], "clusters": 2}
+        )
+        assert segment.status_code == 200, segment.text
+        assert metric(app, "neural_shdf_cache_errors_total") > 0
+
+
+@pytest.mark.skipif(TEST_METHOD != "neural", reason="the committed model emd.onnx is absent")
+def test_neural_is_the_default_and_keyed_by_model_version(client, capsule_obj):
+    engine = client.app.state.engine
+    assert engine.model_version is not None
+    body = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)}).json()
+    assert body["shdf"]["method"] == "neural"
+    key = engine.shdf_key(body["mesh"]["mesh_id"], "neural", 0)
+    assert engine.model_version in key
+    values = client.get(f"/v1/meshes/{body['mesh']['mesh_id']}/shdf").json()
+    assert values["model_version"] == engine.model_version
+    assert np.all((np.array(values["values"]) >= 0) & (np.array(values["values"]) <= 1))

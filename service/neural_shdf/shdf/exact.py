@@ -39,6 +39,8 @@ Progress = Callable[[float], None]
 OUTLIER_MAD_FACTOR = 1.5
 #: Faces whose rays are cast in one Embree call (bounds the memory of a batch).
 FACES_PER_BATCH = 32_768
+#: Smallest batch when a mesh is split over several threads.
+MIN_FACES_PER_BATCH = 2_048
 #: Ray origins move this fraction of the bounding-box diagonal along the ray so
 #: that the ray cannot hit its own triangle through float32 rounding.
 ORIGIN_OFFSET = 1e-6
@@ -62,16 +64,30 @@ def disk_samples(ray_count: int) -> tuple[NDArray[np.float64], NDArray[np.float6
 def plane_basis(normals: NDArray) -> tuple[NDArray, NDArray]:
     """Unit in-plane vectors (base1, base2) of planes with the given unit normals.
 
-    Same choice as CGAL's ``Plane_3::base1``: (1,0,0) if the normal has no x
-    component, else (0,1,0) if no y, else (0,0,1) if no z, else (-ny, nx, 0);
-    ``base2 = normal x base1``.
+    Same choice as CGAL's ``Plane_3::base1`` (CGAL >= 5): (1,0,0) if the normal
+    has no x component, else (0,1,0) if no y, else (0,0,1) if no z; otherwise the
+    normal's smallest component (by magnitude, x before y before z on ties) is
+    dropped and the other two are swapped with one negated. ``base2 = normal x base1``.
     """
     nx, ny, nz = normals[:, 0], normals[:, 1], normals[:, 2]
-    base1 = np.stack([-ny, nx, np.zeros_like(nx)], axis=1)
+    ax, ay, az = np.abs(nx), np.abs(ny), np.abs(nz)
+    zero = np.zeros_like(nx)
+    drop_x = (ax <= ay) & (ax <= az)
+    drop_y = ~drop_x & (ay <= ax) & (ay <= az)
+    base1 = np.where(
+        drop_x[:, None],
+        np.stack([zero, -nz, ny], axis=1),
+        np.where(
+            drop_y[:, None],
+            np.stack([-nz, zero, nx], axis=1),
+            np.stack([-ny, nx, zero], axis=1),
+        ),
+    )
     base1[nz == 0] = (0.0, 0.0, 1.0)
     base1[ny == 0] = (0.0, 1.0, 0.0)
     base1[nx == 0] = (1.0, 0.0, 0.0)
-    base1 /= np.linalg.norm(base1, axis=1, keepdims=True)
+    length = np.linalg.norm(base1, axis=1, keepdims=True)
+    base1 /= np.where(length > 0, length, 1.0)
     base2 = np.cross(normals, base1)
     length = np.linalg.norm(base2, axis=1, keepdims=True)
     base2 /= np.where(length > 0, length, 1.0)
@@ -84,24 +100,25 @@ def cone_directions(
     cone_angle: float,
     ray_count: int,
     rotation: NDArray | None = None,
-) -> NDArray[np.float64]:
+    dtype: type = np.float64,
+) -> NDArray:
     """Unit ray directions (F, ray_count, 3) inside the cone around each inward normal.
 
-    ``rotation`` (F,) optionally turns each face's sample pattern about its axis.
+    Ray ``i`` is ``cos(a/2) n + sin(a/2) (x_i base1 + y_i base2)``, normalised, for
+    the disk samples (x_i, y_i). ``rotation`` (F,) optionally turns each face's
+    sample pattern about its axis.
     """
     points, _ = disk_samples(ray_count)
+    half = 0.5 * cone_angle
+    # Coefficients on (normal, base1, base2); their norm is the same for every face.
+    coefficients = np.column_stack([np.full(ray_count, math.cos(half)), math.sin(half) * points])
+    coefficients /= np.linalg.norm(coefficients, axis=1, keepdims=True)
     base1, base2 = plane_basis(inward_normals)
     if rotation is not None:
         cos_r, sin_r = np.cos(rotation)[:, None], np.sin(rotation)[:, None]
         base1, base2 = cos_r * base1 + sin_r * base2, cos_r * base2 - sin_r * base1
-    half = 0.5 * cone_angle
-    directions = (
-        math.cos(half) * inward_normals[:, None, :]
-        + math.sin(half) * points[None, :, 0, None] * base1[:, None, :]
-        + math.sin(half) * points[None, :, 1, None] * base2[:, None, :]
-    )
-    directions /= np.linalg.norm(directions, axis=2, keepdims=True)
-    return directions
+    frames = np.stack([inward_normals, base1, base2], axis=1).astype(dtype)
+    return np.matmul(coefficients.astype(dtype), frames)
 
 
 def robust_mean(distances: NDArray, weights: NDArray) -> NDArray[np.float64]:
@@ -148,13 +165,15 @@ class _RayCaster:
             np.ascontiguousarray(faces, dtype=np.int32),
         )
 
-    def first_hits(self, origins: NDArray, directions: NDArray) -> NDArray[np.int64]:
-        """Index of the first triangle each ray hits, -1 for none."""
-        hits = self.scene.run(
-            np.ascontiguousarray(origins - self.center, dtype=np.float32),
+    def first_hits(self, origins: NDArray, directions: NDArray) -> NDArray:
+        """Index of the first triangle each ray hits, -1 for none.
+
+        ``origins`` are float32 relative to ``self.center``.
+        """
+        return self.scene.run(
+            np.ascontiguousarray(origins, dtype=np.float32),
             np.ascontiguousarray(directions, dtype=np.float32),
         )
-        return np.asarray(hits, dtype=np.int64)
 
 
 def raw_shdf(
@@ -201,11 +220,13 @@ def raw_shdf(
             progress(1.0)
         return result
 
-    caster = _RayCaster(vertices, faces[valid])
-    caster_faces = np.flatnonzero(valid)  # Embree primitive id -> face index
+    caster = _RayCaster(vertices, faces)  # degenerate triangles are never hit
     diagonal = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
     centroids = face_centroids(vertices, faces)
-    corner = vertices[faces[:, 0]]
+    local_centroids = (centroids - caster.center).astype(np.float32)
+    plane_offset = np.einsum("ij,ij->i", vertices[faces[:, 0]], normals)
+    origin_offset = np.float32(ORIGIN_OFFSET * diagonal)
+    retry_offset = np.float32(RETRY_ORIGIN_OFFSET * diagonal)
     _, weights = disk_samples(ray_count)
     rotation = (
         np.random.default_rng(seed).uniform(0.0, 2.0 * math.pi, face_count)
@@ -214,35 +235,39 @@ def raw_shdf(
     )
 
     todo = np.flatnonzero(valid)
-    batches = [todo[i : i + FACES_PER_BATCH] for i in range(0, len(todo), FACES_PER_BATCH)]
+    size = min(FACES_PER_BATCH, max(MIN_FACES_PER_BATCH, -(-len(todo) // (4 * max(1, threads)))))
+    batches = [todo[i : i + size] for i in range(0, len(todo), size)]
 
     def run_batch(batch: NDArray) -> NDArray:
         directions = cone_directions(
-            -normals[batch],
+            np.negative(np.take(normals, batch, axis=0)),
             cone_angle=cone_angle,
             ray_count=ray_count,
-            rotation=None if rotation is None else rotation[batch],
+            rotation=None if rotation is None else np.take(rotation, batch),
+            dtype=np.float32,
         ).reshape(-1, 3)
-        origins = np.repeat(centroids[batch], ray_count, axis=0)
+        origins = np.repeat(np.take(local_centroids, batch, axis=0), ray_count, axis=0)
+        hit = caster.first_hits(origins + origin_offset * directions, directions)
         source = np.repeat(batch, ray_count)
-        hit = caster.first_hits(origins + ORIGIN_OFFSET * diagonal * directions, directions)
-        hit = np.where(hit >= 0, caster_faces[np.maximum(hit, 0)], -1)
         again = np.flatnonzero(hit == source)
         if len(again):
             retry = caster.first_hits(
-                origins[again] + RETRY_ORIGIN_OFFSET * diagonal * directions[again],
-                directions[again],
+                origins[again] + retry_offset * directions[again], directions[again]
             )
-            retry = np.where(retry >= 0, caster_faces[np.maximum(retry, 0)], -1)
             hit[again] = np.where(retry == source[again], -1, retry)
-        distance = np.full(len(hit), np.nan)
-        ok = np.flatnonzero(hit >= 0)
-        hit_normal = normals[hit[ok]]
-        along = np.einsum("ij,ij->i", directions[ok], hit_normal)
-        exits = along > 0  # leaves through the back of the hit face
-        ok, along, hit_normal = ok[exits], along[exits], hit_normal[exits]
-        distance[ok] = np.einsum("ij,ij->i", corner[hit[ok]] - origins[ok], hit_normal) / along
-        return robust_mean(distance.reshape(len(batch), ray_count), weights)
+        # Distance along the ray to the hit triangle's plane, in float64.
+        shape = (len(batch), ray_count)
+        hit_safe = np.maximum(hit, 0)
+        hit_normal = np.take(normals, hit_safe, axis=0).reshape(*shape, 3)
+        along = np.einsum("frk,frk->fr", directions.reshape(*shape, 3), hit_normal)
+        height = np.take(plane_offset, hit_safe).reshape(shape) - np.einsum(
+            "frk,fk->fr", hit_normal, np.take(centroids, batch, axis=0)
+        )
+        # A hit counts when the ray leaves through the back of the hit face.
+        accepted = (hit.reshape(shape) >= 0) & (along > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            distance = np.where(accepted, height / along, np.nan)
+        return robust_mean(distance, weights)
 
     done = 0
     with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:

@@ -1,0 +1,231 @@
+"""Bad input never crashes a worker: one JSON error shape, the right status, never a 5xx."""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import httpx
+import numpy as np
+import pytest
+import trimesh
+from api_helpers import capsule, glb_container, obj_bytes, off_bytes
+from fastapi.testclient import TestClient
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from neural_shdf.api.app import create_app
+from neural_shdf.mesh_io import SUPPORTED_FORMATS
+
+FUZZ = settings(
+    max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+
+
+def assert_error(response: httpx.Response, status: int, code: str | None = None) -> dict:
+    assert response.status_code == status, response.text
+    body = response.json()
+    assert set(body) == {"error"} and set(body["error"]) == {"code", "message", "detail"}
+    assert body["error"]["message"]
+    if code is not None:
+        assert body["error"]["code"] == code
+    return body["error"]
+
+
+@pytest.fixture(scope="module")
+def small_client(tmp_path_factory) -> TestClient:
+    """Tight limits: 64 kB bodies, 2,000 faces."""
+    from conftest import make_settings
+
+    settings_ = make_settings(
+        tmp_path_factory.mktemp("cache"), max_upload_bytes=64_000, max_faces=2_000
+    )
+    with TestClient(create_app(settings_), raise_server_exceptions=False) as client:
+        yield client
+
+
+def post_file(client, data: bytes, name: str) -> httpx.Response:
+    return client.post("/v1/meshes", files={"file": (name, data)})
+
+
+def test_error_shape_for_routing_and_validation(small_client):
+    assert_error(small_client.get("/nothing-here"), 404, "not_found")
+    assert_error(small_client.delete("/healthz"), 405, "method_not_allowed")
+    assert_error(small_client.get("/v1/meshes/unknown"), 404, "mesh_not_found")
+    error = assert_error(small_client.post("/v1/segment", json={"clusters": 0}), 422)
+    assert error["code"] == "validation_error"
+    assert {tuple(p["loc"]) for p in error["detail"]} >= {("body", "mesh_id"), ("body", "clusters")}
+    assert_error(small_client.post("/v1/segment", content=b"{not json"), 422, "validation_error")
+    assert_error(small_client.post("/v1/meshes"), 422, "validation_error")
+    assert_error(
+        small_client.post("/v1/segment", json={"mesh_id": "x", "unknown_option": 1}),
+        422,
+        "validation_error",
+    )
+
+
+def test_upload_size_is_enforced_while_reading(small_client):
+    big = b"v 0 0 0\n" * 20_000  # 160 kB
+    error = assert_error(post_file(small_client, big, "big.obj"), 413, "payload_too_large")
+    assert error["detail"] == {"max_upload_bytes": 64_000}
+
+    def chunks():  # no Content-Length: counted while streaming
+        yield b'--b\r\nContent-Disposition: form-data; name="file"; filename="a.obj"\r\n\r\n'
+        for _ in range(100):
+            yield b"v 0 0 0\n" * 128
+
+    response = small_client.post(
+        "/v1/meshes", content=chunks(), headers={"Content-Type": "multipart/form-data; boundary=b"}
+    )
+    assert_error(response, 413, "payload_too_large")
+
+
+def test_too_many_faces_is_413(small_client):
+    sphere = trimesh.creation.icosphere(subdivisions=4)  # 5,120 faces, ~92 kB as GLB
+    sphere = trimesh.Trimesh(sphere.vertices, sphere.faces[:2500])  # over 2,000 faces, < 64 kB
+    response = post_file(small_client, sphere.export(file_type="glb"), "s.glb")
+    assert_error(response, 413, "mesh_too_large")
+
+
+def test_unsupported_format_is_415(small_client):
+    assert_error(post_file(small_client, b"anything", "model.fbx"), 415, "unsupported_format")
+    assert_error(post_file(small_client, b"\x01\x02\x03", "noext"), 415, "unsupported_format")
+    response = small_client.post(
+        "/v1/meshes", files={"file": ("m.obj", b"v 0 0 0")}, data={"file_type": "3ds"}
+    )
+    assert_error(response, 415, "unsupported_format")
+
+
+TRIANGLE = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+BAD_FILES = {
+    "empty": (b"", "a.obj"),
+    "nan coordinates": (b"v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n", "a.obj"),
+    "inf coordinates": (off_bytes(np.full((4, 3), np.inf), np.array([[0, 1, 2]])), "a.off"),
+    "index out of range": (obj_bytes(TRIANGLE, [[0, 1, 9]]), "a.obj"),
+    "negative index out of range": (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf -1 -2 -7\n", "a.obj"),
+    "only degenerate faces": (obj_bytes(TRIANGLE, [[0, 0, 1], [2, 2, 2]]), "a.obj"),
+    "no faces": (b"v 0 0 0\nv 1 0 0\n", "a.obj"),
+    "text in binary slot": (b"ply\nformat binary_little_endian 1.0\nend_header\nxx", "a.ply"),
+    "truncated binary stl": (capsule().export(file_type="stl")[:500], "a.stl"),
+    "truncated glb": (capsule().export(file_type="glb")[:300], "a.glb"),
+    "garbage glb": (b"glTF" + struct.pack("<II", 2, 40) + b"\xff" * 28, "a.glb"),
+    "off with wrong counts": (b"OFF\n3 5 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "a.off"),
+    "binary junk as obj": (bytes(range(256)) * 4, "a.obj"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_FILES))
+def test_unusable_meshes_are_422_saying_why(small_client, case):
+    data, name = BAD_FILES[case]
+    response = post_file(small_client, data, name)
+    assert response.status_code in (413, 422), (case, response.text)
+    assert_error(response, response.status_code)
+
+
+def _bomb_glb(byte_length: int, count: int) -> bytes:
+    """A tiny GLB whose JSON claims a huge buffer and accessor (a zip-bomb-like file)."""
+    doc = {
+        "asset": {"version": "2.0"},
+        "buffers": [{"byteLength": byte_length}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": byte_length}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": count}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}],
+    }
+    return glb_container(json.dumps(doc).encode(), struct.pack("<9f", *range(9)))
+
+
+@pytest.mark.parametrize(
+    ("byte_length", "count"), [(2**40, 2**36), (36, 2**34), (2**62, 3), (-5, 3), (36, -1)]
+)
+def test_glb_with_absurd_lengths_is_rejected_cheaply(small_client, byte_length, count):
+    response = post_file(small_client, _bomb_glb(byte_length, count), "bomb.glb")
+    assert response.status_code in (413, 422), response.text
+    assert_error(response, response.status_code)
+
+
+def test_segment_parameters_the_mesh_cannot_satisfy(small_client):
+    obj = capsule(6).export(file_type="obj").encode()
+    mesh_id = post_file(small_client, obj, "c.obj").json()["mesh"]["mesh_id"]
+    response = small_client.post(
+        "/v1/segment", json={"mesh_id": mesh_id, "partitioner": "metis", "parts": 5000}
+    )
+    assert response.status_code in (200, 422), response.text
+    if response.status_code == 422:
+        assert_error(response, 422)
+
+
+def _valid_files() -> list[tuple[bytes, str]]:
+    mesh = capsule(6)
+    return [(mesh.export(file_type=fmt), f"m.{fmt}") for fmt in ("obj", "off", "ply", "stl", "glb")]
+
+
+VALID = [
+    (data if isinstance(data, bytes) else data.encode(), name) for data, name in _valid_files()
+]
+
+
+@given(
+    base=st.sampled_from(VALID),
+    cut=st.floats(0, 1),
+    flips=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=8),
+    name=st.sampled_from([None, *SUPPORTED_FORMATS, "txt", ""]),
+)
+@FUZZ
+def test_fuzzed_uploads_never_5xx(small_client, base, cut, flips, name):
+    data, original = base
+    data = bytearray(data[: max(1, int(len(data) * (0.5 + cut / 2)))])
+    for where, value in flips:
+        data[int(where * (len(data) - 1))] = value
+    filename = original if name is None else f"fuzz.{name}" if name else "fuzz"
+    response = post_file(small_client, bytes(data), filename)
+    assert response.status_code in (200, 202, 413, 415, 422), response.text
+    if response.status_code >= 400:
+        assert_error(response, response.status_code)
+
+
+@given(payload=st.binary(max_size=2048), name=st.sampled_from(SUPPORTED_FORMATS))
+@FUZZ
+def test_random_bytes_never_5xx(small_client, payload, name):
+    response = post_file(small_client, payload, f"r.{name}")
+    assert response.status_code in (200, 413, 415, 422), response.text
+
+
+JSON_VALUES = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=8),
+    lambda inner: (
+        st.lists(inner, max_size=3) | st.dictionaries(st.text(max_size=5), inner, max_size=3)
+    ),
+    max_leaves=6,
+)
+
+
+@given(
+    body=st.dictionaries(
+        st.sampled_from(
+            [
+                "mesh_id",
+                "partitioner",
+                "clusters",
+                "smoothing",
+                "parts",
+                "refine",
+                "seed",
+                "method",
+                "shdf_seed",
+                "boundary_smoothing",
+                "labels_format",
+                "other",
+            ]
+        ),
+        JSON_VALUES,
+        max_size=6,
+    )
+)
+@FUZZ
+def test_fuzzed_segment_requests_never_5xx(small_client, body):
+    response = small_client.post(  # json.dumps writes NaN/Infinity, which are not JSON
+        "/v1/segment", content=json.dumps(body), headers={"Content-Type": "application/json"}
+    )
+    assert response.status_code in (200, 404, 422), response.text
+    assert_error(response, response.status_code)

@@ -11,7 +11,13 @@ from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import face_normals
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import compute_shdf, mesh_face_graph
-from neural_shdf.shdf.exact import cone_directions, exact_shdf, raw_shdf, robust_mean
+from neural_shdf.shdf.exact import (
+    cone_directions,
+    exact_shdf,
+    plane_basis,
+    raw_shdf,
+    robust_mean,
+)
 
 PSB = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "psb-dev"
 
@@ -177,4 +183,19 @@ def test_agrees_with_cgal_on_a_benchmark_mesh():
     mesh = TriangleMesh(np.asarray(loaded.vertices), np.asarray(loaded.faces))
     reference = np.loadtxt(PSB / "cgal" / "1.sdf")
     ours = exact_shdf(mesh, graph=mesh_face_graph(mesh))
-    assert np.corrcoef(ours, reference)[0, 1] >= 0.9
+    assert np.corrcoef(ours, reference)[0, 1] >= 0.99
+
+
+def test_plane_basis_follows_cgal_and_is_orthonormal():
+    normals = np.array([[0.0, 0.6, 0.8], [0.6, 0.0, -0.8], [0.6, 0.8, 0.0], [0.2, 0.4, 0.9]])
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    base1, base2 = plane_basis(normals)
+    np.testing.assert_allclose(base1[0], [1, 0, 0])
+    np.testing.assert_allclose(base1[1], [0, 1, 0])
+    np.testing.assert_allclose(base1[2], [0, 0, 1])
+    # Smallest component (x) dropped: (0, -nz, ny), normalised.
+    np.testing.assert_allclose(base1[3], np.array([0, -0.9, 0.4]) / math.hypot(0.9, 0.4))
+    np.testing.assert_allclose(base2, np.cross(normals, base1), atol=1e-15)
+    for vectors in (base1, base2):
+        np.testing.assert_allclose(np.linalg.norm(vectors, axis=1), 1.0)
+        np.testing.assert_allclose(np.einsum("ij,ij->i", vectors, normals), 0.0, atol=1e-15)

@@ -1,0 +1,144 @@
+"""ShDF post-processing: hole filling, bilateral smoothing, normalisation as CGAL defines them."""
+
+import math
+from collections import deque
+
+import numpy as np
+import pytest
+import trimesh
+from neural_shdf.errors import ParameterError
+from neural_shdf.geometry import build_face_graph
+from neural_shdf.shdf.postprocess import (
+    bilateral_smooth,
+    fill_missing,
+    linear_normalize,
+    log_normalize,
+    postprocess_shdf,
+    smoothing_window,
+)
+
+
+def neighbours_of(graph):
+    table = [[] for _ in range(graph.face_count)]
+    for a, b in graph.pairs.tolist():
+        table[a].append(b)
+        table[b].append(a)
+    return table
+
+
+def slow_bilateral(values, graph, window):
+    """Face by face, as the definition reads: breadth-first rings, Gaussian weights."""
+    table = neighbours_of(graph)
+    out = []
+    for face in range(graph.face_count):
+        ring = {face: 0}
+        queue = deque([face])
+        while queue:
+            current = queue.popleft()
+            if ring[current] == window:
+                continue
+            for other in table[current]:
+                if other not in ring:
+                    ring[other] = ring[current] + 1
+                    queue.append(other)
+        centre = values[face]
+        deviation = math.sqrt(sum((values[f] - centre) ** 2 for f in ring) / len(ring))
+        if deviation == 0:
+            out.append(centre)
+            continue
+        total = norm = 0.0
+        for f, level in ring.items():
+            w = math.exp(-0.5 * (level / (window / 2)) ** 2) * math.exp(
+                -0.5 * ((values[f] - centre) / (1.5 * deviation)) ** 2
+            )
+            total += w * values[f]
+            norm += w
+        out.append(total / norm)
+    return np.array(out)
+
+
+@pytest.fixture(scope="module")
+def sphere_graph():
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    return build_face_graph(sphere.vertices, sphere.faces)
+
+
+@pytest.mark.parametrize("window", [1, 2, 3])
+def test_bilateral_matches_the_face_by_face_definition(sphere_graph, window):
+    values = np.random.default_rng(window).random(sphere_graph.face_count)
+    fast = bilateral_smooth(values, sphere_graph, window_size=window)
+    np.testing.assert_allclose(fast, slow_bilateral(values, sphere_graph, window), rtol=1e-12)
+
+
+def test_bilateral_keeps_constant_values_and_reduces_noise(sphere_graph):
+    constant = np.full(sphere_graph.face_count, 0.7)
+    np.testing.assert_array_equal(bilateral_smooth(constant, sphere_graph, window_size=2), 0.7)
+    noisy = 1.0 + 0.1 * np.random.default_rng(0).standard_normal(sphere_graph.face_count)
+    smoothed = bilateral_smooth(noisy, sphere_graph, window_size=2)
+    assert smoothed.std() < 0.6 * noisy.std()
+    with pytest.raises(ParameterError):
+        bilateral_smooth(noisy, sphere_graph, window_size=-1)
+
+
+def test_bilateral_works_in_small_chunks(sphere_graph, monkeypatch):
+    import neural_shdf.shdf.postprocess as postprocess
+
+    values = np.random.default_rng(5).random(sphere_graph.face_count)
+    whole = bilateral_smooth(values, sphere_graph, window_size=2)
+    monkeypatch.setattr(postprocess, "PAIRS_PER_CHUNK", 10)
+    np.testing.assert_array_equal(bilateral_smooth(values, sphere_graph, window_size=2), whole)
+
+
+def test_fill_missing_uses_earlier_fills_then_the_minimum():
+    # A strip of faces 0-1-2-3-4 plus an isolated face 5.
+    vertices = np.array(
+        [
+            [0, 0, 0],
+            [1, 0, 0],
+            [0, 1, 0],
+            [1, 1, 0],
+            [0, 2, 0],
+            [1, 2, 0],
+            [0, 3, 0],
+            [5, 5, 5],
+            [6, 5, 5],
+            [5, 6, 5],
+        ],
+        dtype=float,
+    )
+    faces = np.array([[0, 1, 2], [1, 3, 2], [2, 3, 4], [3, 5, 4], [4, 5, 6], [7, 8, 9]])
+    graph = build_face_graph(vertices, faces)
+    raw = np.array([2.0, np.nan, np.nan, 6.0, np.nan, np.nan])
+    filled = fill_missing(raw, graph)
+    # Face 1 sees 0 (2.0) and 2 (missing) -> 2.0; face 2 then sees 1 (2.0) and 3 (6.0) -> 4.0;
+    # face 4 sees 3 -> 6.0; face 5 has no neighbour -> smallest original value 2.0.
+    np.testing.assert_array_equal(filled, [2.0, 2.0, 4.0, 6.0, 6.0, 2.0])
+    np.testing.assert_array_equal(fill_missing(np.full(6, np.nan), graph), 0.0)
+
+
+def test_smoothing_window_follows_the_face_count():
+    assert [smoothing_window(n) for n in (0, 1999, 2000, 7999, 8000, 18000)] == [1, 1, 2, 2, 3, 4]
+
+
+def test_normalisations():
+    values = np.array([3.0, 5.0, 4.0])
+    np.testing.assert_allclose(linear_normalize(values), [0.0, 1.0, 0.5])
+    np.testing.assert_array_equal(linear_normalize(np.full(3, 2.0)), 0.0)
+    x = np.linspace(0, 1, 11)
+    np.testing.assert_allclose(log_normalize(x), np.log(5 * x + 1) / np.log(6))
+    assert log_normalize(np.array([0.0, 1.0])).tolist() == [0.0, 1.0]
+    with pytest.raises(ParameterError):
+        log_normalize(x, alpha=0)
+
+
+def test_postprocess_gives_unit_range_and_checks_sizes(sphere_graph):
+    raw = np.random.default_rng(1).random(sphere_graph.face_count) + 2.0
+    raw[::7] = np.nan
+    values = postprocess_shdf(raw, sphere_graph)
+    assert np.isfinite(values).all()
+    assert values.min() == 0.0 and values.max() == 1.0
+    # The face graph's size has to match.
+    with pytest.raises(ParameterError):
+        postprocess_shdf(raw[:-1], sphere_graph)
+    # Scale invariance: raw values in other units give the same result.
+    np.testing.assert_allclose(postprocess_shdf(raw * 1000, sphere_graph), values, atol=1e-12)

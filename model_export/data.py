@@ -11,12 +11,13 @@
   (``DIR/targets``), then several variants (other sampling seeds, subdivided,
   decimated, non-uniformly tessellated, other sample counts), each a sample
   graph whose targets come from the base mesh's nearest face
-  (``DIR/graphs/{train,val}/*.npz``). Re-running skips what exists (resumable).
+  (``DIR/graphs-v{feature version}/{train,val}/*.npz``). Re-running skips what exists (resumable).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import json
 import sys
@@ -28,10 +29,13 @@ from pathlib import Path
 import numpy as np
 import trimesh
 from neural_shdf.geometry import face_centroids, face_normals
-from neural_shdf.neural.graph import GraphSpec, build_sample_graph, sample_targets
+from neural_shdf.neural.graph import (
+    FEATURE_SPEC_VERSION,
+    GraphSpec,
+    build_sample_graph,
+    sample_targets,
+)
 from scipy.spatial import cKDTree
-
-from model_export.shdf_task import graph_arrays, log_diameter_target
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO_ROOT / ".." / "shared" / "data"
@@ -49,6 +53,11 @@ SAMPLE_COUNT_RANGE = (512, 1024)
 #: Every n-th human-seg mesh is used (they are 381 similar bodies).
 HUMAN_SEG_STRIDE = 3
 PROCEDURAL_COUNT = 160
+
+
+def graph_folder(cache: Path) -> Path:
+    """Sample graphs of the current feature version."""
+    return cache / f"graphs-v{FEATURE_SPEC_VERSION}"
 
 
 def is_validation(name: str) -> bool:
@@ -186,10 +195,8 @@ def variants(vertices, faces, rng: np.random.Generator):
     if len(faces) * 4 <= MAX_VARIANT_FACES:
         out.append(("subdivided", *subdivide_to(vertices, faces, MAX_VARIANT_FACES)))
     if len(faces) >= 2000:
-        try:
+        with contextlib.suppress(Exception):  # decimation is best effort
             out.append(("decimated", *clean(*decimate(vertices, faces, len(faces) // 4))))
-        except Exception:  # noqa: BLE001 - decimation is best effort
-            pass
     centroids = face_centroids(vertices, faces)
     direction = rng.normal(size=3)
     side = (centroids - centroids.mean(axis=0)) @ direction > 0
@@ -220,8 +227,10 @@ def process_shape(name: str, source, cache: Path, log) -> int:
     """Targets and variant graphs of one shape; returns the number of graphs written."""
     from neural_shdf.shdf.exact import raw_shdf
 
+    from model_export.shdf_task import graph_arrays, log_diameter_target
+
     split = "val" if is_validation(name) else "train"
-    out_dir = cache / "graphs" / split
+    out_dir = graph_folder(cache) / split
     out_dir.mkdir(parents=True, exist_ok=True)
     key = safe_name(name)
     done_marker = out_dir / f"{key}.done"
@@ -232,7 +241,13 @@ def process_shape(name: str, source, cache: Path, log) -> int:
         done_marker.write_text("skipped: too few faces")
         return 0
     start = time.time()
-    raw = raw_shdf(vertices, faces, threads=1)
+    target_file = cache / "targets" / f"{key}.npz"
+    if target_file.exists():
+        raw = np.load(target_file)["raw"]
+    else:
+        raw = raw_shdf(vertices, faces, threads=1)
+        target_file.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(target_file, raw=raw, faces=len(faces))
     if np.isfinite(raw).mean() < 0.5:
         done_marker.write_text("skipped: ShDF undefined on most faces")
         return 0
@@ -247,10 +262,7 @@ def process_shape(name: str, source, cache: Path, log) -> int:
             v, f, spec, seed=int(rng.integers(2**31)), normals=normals, areas=areas,
             centroids=centroids, workers=1,
         )
-        if f is faces:
-            face_raw = raw
-        else:
-            face_raw = raw[base_tree.query(centroids, workers=1)[1]]
+        face_raw = raw if f is faces else raw[base_tree.query(centroids, workers=1)[1]]
         target = log_diameter_target(sample_targets(face_raw, areas, graph), graph.radius)
         arrays = graph_arrays(graph)
         arrays["target"] = target.astype(np.float32)

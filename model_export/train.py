@@ -21,7 +21,7 @@ import numpy as np
 import torch
 from neural_shdf.neural.graph import EDGE_FEATURES, NODE_FEATURES
 
-from model_export.data import DEFAULT_CACHE
+from model_export.data import DEFAULT_CACHE, graph_folder
 from model_export.shdf_task import ShdfNetwork, batch_graphs
 
 CONE_COLUMN = EDGE_FEATURES.index("is_cone_edge")
@@ -135,8 +135,8 @@ def main(argv: list[str] | None = None) -> int:
         print(line, file=log_file, flush=True)
         print(line, flush=True)
 
-    train = GraphStore(cache / "graphs" / "train", drop_cone_edges=args.drop_cone_edges)
-    val = GraphStore(cache / "graphs" / "val", drop_cone_edges=args.drop_cone_edges)
+    train = GraphStore(graph_folder(cache) / "train", drop_cone_edges=args.drop_cone_edges)
+    val = GraphStore(graph_folder(cache) / "val", drop_cone_edges=args.drop_cone_edges)
     model = ShdfNetwork(latent=args.latent, steps=args.message_steps)
     optimizer = torch.optim.Adam(model.parameters(), lr=args.lr)
     state = {"step": 0, "elapsed": 0.0, "best_val_loss": float("inf"), "history": []}

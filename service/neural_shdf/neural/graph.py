@@ -17,8 +17,8 @@ Numpy/scipy only (the service never imports torch).
   tessellations of one shape weigh alike (it depends on area, not on triangles).
 * Edges (sender -> receiver): the ``knn`` nearest samples (local surface), plus
   "cone" edges to the ``cone_neighbours`` nearest samples inside the inward
-  cone of the receiver's normal that face away from it (the other side of the
-  volume, the surface the ShDF's rays hit).
+  cone of the receiver's normal (with one radius of lateral slack) that face away
+  from it: the other side of the volume, the surface the ShDF's rays hit.
 * Features are rotation, translation and scale invariant: lengths in units of
   the sampling radius, and dot products of normals and edge directions.
 """
@@ -36,7 +36,7 @@ from neural_shdf.errors import InvalidGeometryError
 from neural_shdf.geometry import face_centroids, face_normals
 
 #: Bump when the meaning or order of features changes (checked against the model card).
-FEATURE_SPEC_VERSION = 1
+FEATURE_SPEC_VERSION = 2
 #: Poisson radius r: sqrt(RADIUS_AREA_FACTOR * area / target) gives about ``target`` samples
 #: (random sequential packing covers ~0.55 of the plane with disks of diameter r).
 RADIUS_AREA_FACTOR = 0.57
@@ -63,11 +63,11 @@ class GraphSpec:
 
     target_samples: int = 1024
     knn: int = 12
-    cone_neighbours: int = 4
+    cone_neighbours: int = 6
     #: cos of the half opening of the inward cone (0.5: 60 degrees, the ShDF's cone).
     cone_cos: float = 0.5
     #: Sample-to-face neighbours used when mapping predictions back to faces.
-    interpolation_neighbours: int = 4
+    interpolation_neighbours: int = 6
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -157,26 +157,31 @@ def greedy_disk_selection(points: NDArray, radius: float) -> NDArray[np.int64]:
 
 
 def _cone_edges(
-    positions: NDArray, normals: NDArray, count: int, cone_cos: float
+    positions: NDArray, normals: NDArray, count: int, cone_cos: float, radius: float
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """For each receiver, the ``count`` nearest samples in its inward cone facing away."""
+    """For each receiver, the ``count`` nearest samples that face away from it inside its
+    inward cone. The cone's apex sits ``radius / tan(half angle)`` behind the sample
+    (lateral slack of one radius), so that thin walls, whose far side is closer than
+    the sample spacing, still find samples there.
+    """
     n = len(positions)
     senders, receivers = [], []
     if count <= 0 or n < 2:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    tan_half = math.sqrt(max(1.0 - cone_cos**2, 0.0)) / max(cone_cos, 1e-6)
     pos = positions.astype(np.float32)
     nrm = normals.astype(np.float32)
     chunk = max(1, 4_000_000 // n)
+    k = min(count, n - 1)
     for start in range(0, n, chunk):
         rows = np.arange(start, min(n, start + chunk))
         offset = pos[None, :, :] - pos[rows, None, :]  # receiver -> sender
-        distance = np.sqrt(np.einsum("ijk,ijk->ij", offset, offset))
-        safe = np.maximum(distance, 1e-30)
-        inward = -np.einsum("ijk,ik->ij", offset, nrm[rows]) / safe
+        squared = np.einsum("ijk,ijk->ij", offset, offset)
+        depth = -np.einsum("ijk,ik->ij", offset, nrm[rows])
+        lateral = np.sqrt(np.maximum(squared - depth**2, 0.0))
         away = np.einsum("ijk,jk->ij", offset, nrm) > 0
-        ok = (inward >= cone_cos) & away & (distance > 0)
-        score = np.where(ok, distance, np.inf)
-        k = min(count, n - 1)
+        ok = (depth > 0) & (lateral <= depth * tan_half + radius) & away
+        score = np.where(ok, squared, np.inf)
         nearest = np.argpartition(score, k - 1, axis=1)[:, :k]
         chosen_score = np.take_along_axis(score, nearest, axis=1)
         order = np.argsort(chosen_score, axis=1, kind="stable")
@@ -266,7 +271,7 @@ def build_sample_graph(
     else:
         knn_senders = knn_receivers = np.zeros(0, np.int64)
     cone_senders, cone_receivers = _cone_edges(
-        positions, sample_normals, spec.cone_neighbours, spec.cone_cos
+        positions, sample_normals, spec.cone_neighbours, spec.cone_cos, radius
     )
     senders = np.concatenate([knn_senders, cone_senders])
     receivers = np.concatenate([knn_receivers, cone_receivers])

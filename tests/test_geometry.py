@@ -63,3 +63,13 @@ def test_degenerate_and_empty_inputs_do_not_crash():
     graph = build_face_graph(vertices, np.array([[0, 1, 2], [0, 0, 1]]))
     assert graph.face_count == 2
     assert build_face_graph(vertices, np.zeros((0, 3), int)).face_count == 0
+
+
+def test_weld_faces_keeps_positions_of_the_input_vertices():
+    """Welded indices must point at ``vertices`` with the same positions (regression)."""
+    mesh = trimesh.creation.icosphere(1)
+    soup = mesh.vertices[mesh.faces].reshape(-1, 3)  # every corner its own vertex
+    faces = np.arange(len(soup)).reshape(-1, 3)
+    welded = weld_faces(soup, faces)
+    np.testing.assert_array_equal(soup[welded], soup[faces])
+    assert len(np.unique(welded)) == len(mesh.vertices)

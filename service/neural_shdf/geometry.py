@@ -156,4 +156,5 @@ def weld_faces(vertices: NDArray, faces: NDArray) -> NDArray[np.int64]:
     _, first, inverse = np.unique(
         np.asarray(vertices), axis=0, return_index=True, return_inverse=True
     )
-    return inverse.reshape(-1)[np.asarray(faces, dtype=np.int64)]
+    # Index the first vertex at each position, so indices stay valid for ``vertices``.
+    return first[inverse.reshape(-1)][np.asarray(faces, dtype=np.int64)]

@@ -7,6 +7,17 @@ from typing import Literal
 
 Partitioner = Literal["graphcut", "metis"]
 
+#: CGAL's default smoothing lambda of ``segmentation_from_sdf_values``.
+DEFAULT_SMOOTHING = 0.26
+#: Mixture sizes tried when ``clusters`` is None (chosen by BIC).
+CLUSTER_CANDIDATES = tuple(range(2, 9))
+#: Largest mixture size a user may ask for.
+MAX_CLUSTERS = 32
+#: Parts smaller than this fraction of the surface area are merged into a neighbour.
+DEFAULT_MIN_PART_FRACTION = 0.002
+#: How many times refinement may re-segment a part of a part.
+DEFAULT_REFINE_DEPTH = 2
+
 
 @dataclass(frozen=True)
 class SegmentParams:
@@ -15,12 +26,18 @@ class SegmentParams:
     Attributes:
         partitioner: ``graphcut`` (alpha expansion; connected components become
             parts) or ``metis`` (k-way partition into exactly ``parts`` parts).
-        clusters: Gaussian mixture components k (a level of detail, not a part count).
-        smoothing: smoothness weight lambda of the graph cut.
-        parts: number of parts for ``metis``.
+        clusters: Gaussian mixture components k (a level of detail, not a part
+            count); None picks k in ``CLUSTER_CANDIDATES`` by BIC.
+        smoothing: smoothness weight lambda of the graph cut (None: CGAL's 0.26).
+        parts: number of parts for ``metis`` (None: as many as the graph cut finds).
         refine: recursively re-segment parts that are themselves heterogeneous.
         boundary_smoothing: alpha-expansion pass that straightens part boundaries.
         seed: seed of every random step.
+        min_part_fraction: parts below this fraction of the total surface area
+            are merged into the neighbour they share the longest boundary with
+            (a small shell with no neighbour joins the nearest part); 0 keeps all.
+            ``metis`` parts are never merged (their count is exact).
+        refine_depth: how deep ``refine`` may recurse.
     """
 
     partitioner: Partitioner = "graphcut"
@@ -30,3 +47,5 @@ class SegmentParams:
     refine: bool = False
     boundary_smoothing: bool = False
     seed: int = 0
+    min_part_fraction: float = DEFAULT_MIN_PART_FRACTION
+    refine_depth: int = DEFAULT_REFINE_DEPTH

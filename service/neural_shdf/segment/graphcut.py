@@ -1,0 +1,324 @@
+"""Alpha-expansion graph cut on the face adjacency graph (CGAL's hard clustering step).
+
+Energy of a labelling ``l``::
+
+    E(l) = sum_f data[f, l_f] + sum_(f,g) edge_weight[f, g] * [l_f != l_g]
+
+minimised by alpha-expansion (Boykov, Veksler, Zabih 2001); each expansion move
+is one max-flow (PyMaxflow, Boykov-Kolmogorov) whose graph is built from arrays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.geometry import FaceGraph
+
+#: CGAL: probabilities below this are clamped before ``-log``.
+PROBABILITY_EPS = 5e-6
+#: CGAL: normalised dihedral angles below this are clamped before ``-log``.
+ANGLE_EPS = 5e-6
+#: CGAL: convex folds count as this fraction of their angle (cheap to keep, costly to cut).
+CONVEX_FACTOR = 0.08
+#: CGAL scales the user's lambda in [0, 1] by this.
+LAMBDA_SCALE = 100.0
+#: Hard limit on alpha-expansion cycles (it usually converges in 2-3).
+MAX_CYCLES = 8
+#: Multilevel solve: coarsen until at most this many nodes remain, solve there exactly.
+COARSE_NODES = 4000
+#: Faces per grid cell at the first coarsening level (cells double in size per level).
+FACES_PER_CELL = 16
+#: Refinement band: nodes within this many hops of a boundary are re-solved per level.
+BAND_RINGS = 3
+#: Edges cheaper than this fraction of the median edge weight (creases) are never coarsened.
+CREASE_FRACTION = 0.5
+
+
+def data_costs(posteriors: NDArray, face_weight: NDArray | None = None) -> NDArray[np.float64]:
+    """(F, k) cost ``-log(max(p, eps))`` of giving each face each cluster (CGAL's data term).
+
+    ``face_weight`` (e.g. area over mean area) scales each face's row so that
+    the energy does not depend on how finely a region is tessellated.
+    """
+    cost = -np.log(np.maximum(posteriors, PROBABILITY_EPS))
+    np.maximum(cost, np.finfo(np.float64).eps, out=cost)
+    if face_weight is not None:
+        cost *= np.asarray(face_weight, dtype=np.float64)[:, None]
+    return cost
+
+
+def dihedral_weights(graph: FaceGraph, smoothing: float) -> NDArray[np.float64]:
+    """Cost of cutting each edge: ``-log(max(eps, angle/pi)) * lambda * 100 * length/mean``.
+
+    As CGAL, convex folds' normalised angle is scaled by ``CONVEX_FACTOR``, so
+    concave creases are cheap to cut and flat or convex regions expensive. The
+    length factor (edge length over the mean edge length; 1 on a uniform mesh)
+    makes the boundary cost a length rather than an edge count.
+    """
+    if len(graph.pairs) == 0:
+        return np.zeros(0)
+    angle = graph.dihedral / np.pi
+    angle = np.where(graph.concave, angle, angle * CONVEX_FACTOR)
+    weight = -np.log(np.maximum(angle, ANGLE_EPS)) * (smoothing * LAMBDA_SCALE)
+    return weight * length_factor(graph.edge_length)
+
+
+def length_factor(edge_length: NDArray) -> NDArray[np.float64]:
+    """Edge lengths over their mean (ones when every edge has zero length)."""
+    mean = float(np.mean(edge_length)) if len(edge_length) else 0.0
+    if not mean > 0:
+        return np.ones(len(edge_length))
+    return np.asarray(edge_length, dtype=np.float64) / mean
+
+
+def labelling_energy(labels: NDArray, data: NDArray, pairs: NDArray, weights: NDArray) -> float:
+    """E(l): data cost of each face's label plus the weight of every cut edge."""
+    unary = float(data[np.arange(len(labels)), labels].sum())
+    cut = labels[pairs[:, 0]] != labels[pairs[:, 1]]
+    return unary + float(weights[cut].sum())
+
+
+def expansion_move(
+    labels: NDArray, alpha: int, data: NDArray, pairs: NDArray, weights: NDArray
+) -> NDArray[np.int64]:
+    """The best labelling reachable by letting any face switch to ``alpha`` (one max-flow)."""
+    import maxflow
+
+    free = labels != alpha
+    nodes = np.flatnonzero(free)
+    if len(nodes) == 0:
+        return labels
+    node_of = np.full(len(labels), -1, dtype=np.int64)
+    node_of[nodes] = np.arange(len(nodes))
+    # x = 1 (sink side) means "switch to alpha": it pays the source capacity.
+    keep_cost = data[nodes, labels[nodes]].copy()
+    switch_cost = data[nodes, alpha].copy()
+
+    a, b = pairs[:, 0], pairs[:, 1]
+    free_a, free_b = free[a], free[b]
+    # An edge to a face already labelled alpha: keeping our label cuts it.
+    one_a = free_a & ~free_b
+    one_b = free_b & ~free_a
+    np.add.at(keep_cost, node_of[a[one_a]], weights[one_a])
+    np.add.at(keep_cost, node_of[b[one_b]], weights[one_b])
+
+    both = free_a & free_b
+    pa, pb, w = node_of[a[both]], node_of[b[both]], weights[both]
+    same = labels[a[both]] == labels[b[both]]
+    # Same label: Potts w * [x_a != x_b]. Different labels: w * (1 - x_a x_b)
+    # = w * (1 - x_a) + w * x_a (1 - x_b)  ->  keep cost on a, edge b -> a.
+    np.add.at(keep_cost, pa[~same], w[~same])
+
+    graph = maxflow.Graph[float](len(nodes), len(pa))
+    graph.add_nodes(len(nodes))
+    if len(pa):
+        graph.add_edges(pa, pb, np.where(same, w, 0.0), w)
+    shift = np.minimum(keep_cost, switch_cost)
+    graph.add_grid_tedges(np.arange(len(nodes)), switch_cost - shift, keep_cost - shift)
+    graph.maxflow()
+    switch = graph.get_grid_segments(np.arange(len(nodes)))
+    result = labels.copy()
+    result[nodes[switch]] = alpha
+    return result
+
+
+def alpha_expansion(
+    data: NDArray,
+    pairs: NDArray,
+    weights: NDArray,
+    labels: NDArray | None = None,
+    max_cycles: int = MAX_CYCLES,
+) -> NDArray[np.int64]:
+    """Minimise E(l) by alpha-expansion from ``labels`` (default: each face's cheapest label).
+
+    Labels are expanded in order 0..k-1, cyclically, until every label's move
+    has failed to lower the energy since the last one that did (or after
+    ``max_cycles`` cycles); deterministic.
+    """
+    data = np.asarray(data, dtype=np.float64)
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    weights = np.asarray(weights, dtype=np.float64)
+    label_count = data.shape[1]
+    current = (
+        np.argmin(data, axis=1).astype(np.int64)
+        if labels is None
+        else np.asarray(labels, dtype=np.int64).copy()
+    )
+    if label_count <= 1 or len(current) == 0:
+        return current
+    energy = labelling_energy(current, data, pairs, weights)
+    tolerance = 1e-9 * max(1.0, abs(energy))
+    # Right after a successful move for alpha, alpha's move cannot gain again
+    # until another label changes something: k - 1 failures in a row suffice.
+    failures_to_stop = label_count
+    failures = 0
+    for move in range(max_cycles * label_count):
+        alpha = move % label_count
+        candidate = expansion_move(current, alpha, data, pairs, weights)
+        candidate_energy = labelling_energy(candidate, data, pairs, weights)
+        if candidate_energy < energy - tolerance:
+            current, energy = candidate, candidate_energy
+            failures, failures_to_stop = 0, label_count - 1
+        else:
+            failures += 1
+            if failures >= failures_to_stop:
+                break
+    return current
+
+
+def banded_alpha_expansion(
+    band_data: NDArray, pairs: NDArray, weights: NDArray, labels: NDArray, band: NDArray
+) -> NDArray[np.int64]:
+    """Alpha-expansion where only ``band`` nodes may change; the rest stay fixed.
+
+    ``band_data`` holds the data costs of the band nodes only, in node order.
+
+    Edges from the band to fixed nodes become unary costs (cutting them when
+    leaving the fixed neighbour's label), so the result is optimal-by-moves
+    for the band given everything outside it.
+    """
+    labels = np.asarray(labels, dtype=np.int64)
+    band = np.asarray(band, dtype=bool)
+    nodes = np.flatnonzero(band)
+    if len(nodes) == 0:
+        return labels.copy()
+    local = np.full(len(labels), -1, dtype=np.int64)
+    local[nodes] = np.arange(len(nodes))
+    sub_data = np.array(band_data, dtype=np.float64)
+    a, b = pairs[:, 0], pairs[:, 1]
+    for inner, outer in ((a, b), (b, a)):
+        edge = np.flatnonzero(band[inner] & ~band[outer])
+        rows = local[inner[edge]]
+        np.add.at(sub_data, rows, weights[edge][:, None])
+        np.add.at(sub_data, (rows, labels[outer[edge]]), -weights[edge])
+    inside = np.flatnonzero(band[a] & band[b])
+    sub_pairs = local[pairs[inside]]
+    result = labels.copy()
+    result[nodes] = alpha_expansion(sub_data, sub_pairs, weights[inside], labels[nodes])
+    return result
+
+
+def near_boundary(labels: NDArray, pairs: NDArray, node_count: int, rings: int) -> NDArray:
+    """Nodes within ``rings`` hops (1 = the nodes on a cut edge) of a label boundary."""
+    import scipy.sparse as sp
+
+    cut = labels[pairs[:, 0]] != labels[pairs[:, 1]]
+    band = np.zeros(node_count, dtype=bool)
+    band[pairs[cut].reshape(-1)] = True
+    if rings > 1 and band.any():
+        rows = np.concatenate([pairs[:, 0], pairs[:, 1]])
+        cols = np.concatenate([pairs[:, 1], pairs[:, 0]])
+        adjacency = sp.csr_matrix(
+            (np.ones(len(rows), dtype=np.float32), (rows, cols)), shape=(node_count, node_count)
+        )
+        for _ in range(rings - 1):
+            band |= adjacency @ band.astype(np.float32) > 0
+    return band
+
+
+def coarsen(
+    pairs: NDArray,
+    weights: NDArray,
+    node_count: int,
+    cells: NDArray,
+    crease_weight: float,
+    preferred: NDArray,
+) -> NDArray[np.int64]:
+    """Coarse node of each node: connected pieces of one grid cell.
+
+    Never groups across a crease (an edge lighter than ``crease_weight``) nor
+    nodes whose cheapest label (``preferred``) differs.
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    a, b = pairs[:, 0], pairs[:, 1]
+    same_cell = np.all(cells[a] == cells[b], axis=1)
+    keep = same_cell & (weights >= crease_weight) & (preferred[a] == preferred[b])
+    a, b = pairs[keep, 0], pairs[keep, 1]
+    graph = sp.csr_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(node_count, node_count))
+    _, component = connected_components(graph, directed=True, connection="weak")
+    return component.astype(np.int64)
+
+
+def coarse_graph(
+    coarse_of: NDArray, pairs: NDArray, weights: NDArray, coarse_count: int
+) -> tuple[NDArray, NDArray]:
+    """Edges between coarse nodes (sorted pairs) with summed weights."""
+    ca, cb = coarse_of[pairs[:, 0]], coarse_of[pairs[:, 1]]
+    cross = ca != cb
+    low, high = np.minimum(ca[cross], cb[cross]), np.maximum(ca[cross], cb[cross])
+    keys, inverse = np.unique(low * coarse_count + high, return_inverse=True)
+    summed = np.bincount(inverse.reshape(-1), weights=weights[cross], minlength=len(keys))
+    return np.stack([keys // coarse_count, keys % coarse_count], axis=1), summed
+
+
+def multilevel_alpha_expansion(
+    data: NDArray,
+    pairs: NDArray,
+    weights: NDArray,
+    centroids: NDArray,
+    areas: NDArray,
+    coarse_nodes: int = COARSE_NODES,
+    rings: int = BAND_RINGS,
+) -> NDArray[np.int64]:
+    """Alpha-expansion through a hierarchy of coarse graphs (a banded multilevel graph cut).
+
+    Nodes are grouped into connected pieces of a 3-D grid (cells doubling per
+    level; crease edges never grouped), with data and edge weights summed, so
+    a labelling that is constant on groups has the same energy at every level.
+    The coarsest graph is solved by alpha-expansion; each finer level
+    inherits the labels and re-solves only a band of ``rings`` hops around
+    the boundaries. Graphs already at most ``coarse_nodes`` large are solved
+    directly. Deterministic.
+    """
+    data = np.asarray(data, dtype=np.float64)
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    weights = np.asarray(weights, dtype=np.float64)
+    node_count = len(data)
+    if node_count <= coarse_nodes or data.shape[1] <= 1:
+        return alpha_expansion(data, pairs, weights)
+
+    mean_area = float(np.mean(areas))
+    if not mean_area > 0:
+        extent = float(np.ptp(centroids, axis=0).max()) or 1.0
+        mean_area = extent**2 / node_count
+    cell_size = np.sqrt(FACES_PER_CELL * mean_area)
+    cells = np.floor((centroids - centroids.min(axis=0)) / cell_size).astype(np.int64)
+    crease_weight = CREASE_FRACTION * float(np.median(weights)) if len(weights) else 0.0
+
+    # Build the hierarchy: (map to coarser, pairs, weights, data) per level.
+    hierarchy = [(None, pairs, weights, data)]
+    while len(hierarchy[-1][3]) > coarse_nodes:
+        _, level_pairs, level_weights, level_data = hierarchy[-1]
+        count = len(level_data)
+        coarse_of = coarsen(
+            level_pairs, level_weights, count, cells, crease_weight, level_data.argmin(axis=1)
+        )
+        coarse_count = int(coarse_of.max()) + 1
+        if coarse_count > 0.8 * count:
+            break  # no longer shrinking (many tiny shells, or all creases)
+        coarse_data = np.stack(
+            [
+                np.bincount(coarse_of, weights=column, minlength=coarse_count)
+                for column in level_data.T
+            ],
+            axis=1,
+        )
+        coarse_pairs, coarse_weights = coarse_graph(
+            coarse_of, level_pairs, level_weights, coarse_count
+        )
+        first = np.full(coarse_count, -1, dtype=np.int64)
+        first[coarse_of[::-1]] = np.arange(count)[::-1]
+        cells = cells[first] // 2
+        hierarchy[-1] = (coarse_of, level_pairs, level_weights, level_data)
+        hierarchy.append((None, coarse_pairs, coarse_weights, coarse_data))
+
+    _, top_pairs, top_weights, top_data = hierarchy[-1]
+    labels = alpha_expansion(top_data, top_pairs, top_weights)
+    for coarse_of, level_pairs, level_weights, level_data in reversed(hierarchy[:-1]):
+        labels = labels[coarse_of]
+        band = near_boundary(labels, level_pairs, len(level_data), rings)
+        labels = banded_alpha_expansion(level_data[band], level_pairs, level_weights, labels, band)
+    return labels

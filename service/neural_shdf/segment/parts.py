@@ -1,0 +1,176 @@
+"""Part bookkeeping shared by the partitioners: canonical ids, components, merging tiny parts."""
+
+from __future__ import annotations
+
+import heapq
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.geometry import FaceGraph
+
+
+def canonical_labels(labels: NDArray) -> NDArray[np.int64]:
+    """Labels renumbered 0..P-1 in order of each label's lowest face index."""
+    labels = np.asarray(labels)
+    if len(labels) == 0:
+        return np.zeros(0, dtype=np.int64)
+    _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
+    rank = np.empty(len(first), dtype=np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(len(first))
+    return rank[inverse.reshape(-1)]
+
+
+def connected_parts(labels: NDArray, pairs: NDArray, face_count: int) -> NDArray[np.int64]:
+    """Connected components of faces with equal labels, as canonical part ids."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    labels = np.asarray(labels)
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    keep = labels[pairs[:, 0]] == labels[pairs[:, 1]]
+    a, b = pairs[keep, 0], pairs[keep, 1]
+    adjacency = sp.coo_matrix(
+        (np.ones(len(a), dtype=np.int8), (a, b)), shape=(face_count, face_count)
+    ).tocsr()
+    _, components = connected_components(adjacency, directed=True, connection="weak")
+    return canonical_labels(components)
+
+
+def part_sizes(parts: NDArray, areas: NDArray) -> NDArray[np.float64]:
+    """Area of each part; face counts instead when the whole surface has no area."""
+    count = int(parts.max()) + 1 if len(parts) else 0
+    size = np.bincount(parts, weights=areas, minlength=count)
+    if not size.sum() > 0:
+        size = np.bincount(parts, minlength=count).astype(np.float64)
+    return size
+
+
+def merge_small_parts(
+    parts: NDArray,
+    graph: FaceGraph,
+    areas: NDArray,
+    centroids: NDArray,
+    min_fraction: float,
+) -> NDArray[np.int64]:
+    """Merge parts below ``min_fraction`` of the total area into a neighbour.
+
+    Smallest first, each tiny part joins the part it shares the longest
+    boundary with (ties: lower id). A tiny part with no neighbour at all (a
+    small shell, an isolated face) joins the part of the nearest face centroid
+    among parts that are not tiny; if every part is tiny, such parts stay.
+    Returns canonical labels.
+    """
+    parts = np.asarray(parts, dtype=np.int64)
+    if min_fraction <= 0 or len(parts) == 0 or parts.max() == 0:
+        return canonical_labels(parts)
+    part_count = int(parts.max()) + 1
+    size = part_sizes(parts, areas)
+    threshold = min_fraction * size.sum()
+    if not np.any(size < threshold):
+        return canonical_labels(parts)
+
+    neighbours = _part_boundaries(parts, graph, part_count)
+    owner = np.arange(part_count)
+    heap = [(float(size[i]), int(i)) for i in np.flatnonzero(size < threshold)]
+    heapq.heapify(heap)
+    isolated = []
+    while heap:
+        part_size, part = heapq.heappop(heap)
+        if owner[part] != part or part_size != size[part]:
+            continue  # merged away, or re-queued with its grown size
+        around = neighbours[part]
+        if not around:
+            isolated.append(part)
+            continue
+        target = max(around, key=lambda n: (around[n], -n))
+        owner[part] = target
+        size[target] += size[part]
+        for other, length in around.items():
+            del neighbours[other][part]
+            if other != target:
+                neighbours[target][other] = neighbours[target].get(other, 0.0) + length
+                neighbours[other][target] = neighbours[other].get(target, 0.0) + length
+        neighbours[part] = {}
+        if size[target] < threshold:
+            heapq.heappush(heap, (float(size[target]), int(target)))
+
+    owner = _resolve(owner)
+    merged = owner[parts]
+    if isolated:
+        merged = _merge_isolated(merged, np.array(isolated), size, threshold, centroids)
+    return canonical_labels(merged)
+
+
+def _part_boundaries(parts: NDArray, graph: FaceGraph, part_count: int) -> list[dict]:
+    """For each part, {neighbour part: total length of the shared boundary}."""
+    a, b = parts[graph.pairs[:, 0]], parts[graph.pairs[:, 1]]
+    cut = a != b
+    low, high = np.minimum(a[cut], b[cut]), np.maximum(a[cut], b[cut])
+    keys, inverse = np.unique(low * part_count + high, return_inverse=True)
+    lengths = np.bincount(inverse.reshape(-1), weights=graph.edge_length[cut])
+    neighbours: list[dict] = [{} for _ in range(part_count)]
+    for key, length in zip(keys.tolist(), lengths.tolist(), strict=True):
+        i, j = divmod(key, part_count)
+        neighbours[i][j] = length
+        neighbours[j][i] = length
+    return neighbours
+
+
+def _resolve(owner: NDArray) -> NDArray[np.int64]:
+    """Follow merge links to each part's final owner."""
+    owner = owner.copy()
+    while True:
+        nxt = owner[owner]
+        if np.array_equal(nxt, owner):
+            return owner
+        owner = nxt
+
+
+def _merge_isolated(
+    merged: NDArray, isolated: NDArray, size: NDArray, threshold: float, centroids: NDArray
+) -> NDArray[np.int64]:
+    """Give each isolated tiny part the label of the nearest face of a part that is not tiny."""
+    from scipy.spatial import cKDTree
+
+    kept = np.flatnonzero(size >= threshold)
+    kept = kept[np.isin(kept, merged)]
+    if len(kept) == 0:
+        return merged
+    target_faces = np.flatnonzero(np.isin(merged, kept))
+    tree = cKDTree(centroids[target_faces])
+    query_faces = np.flatnonzero(np.isin(merged, isolated))
+    distance, nearest = tree.query(centroids[query_faces])
+    source = merged[query_faces]
+    # Per isolated part, its face closest to any kept face decides (ties: lowest face).
+    order = np.lexsort((query_faces, distance, source))
+    source_sorted = source[order]
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = source_sorted[1:] != source_sorted[:-1]
+    choice = order[first]
+    relabel = dict(
+        zip(source[choice].tolist(), merged[target_faces[nearest[choice]]].tolist(), strict=True)
+    )
+    result = merged.copy()
+    lookup = np.arange(int(merged.max()) + 1)
+    for part, target in relabel.items():
+        lookup[part] = target
+    return lookup[result]
+
+
+def induced_subgraph(graph: FaceGraph, faces: NDArray) -> tuple[FaceGraph, NDArray[np.int64]]:
+    """The graph on ``faces`` (sorted ascending) and the indices of its edges in ``graph``."""
+    faces = np.asarray(faces, dtype=np.int64)
+    inside = np.zeros(graph.face_count, dtype=bool)
+    inside[faces] = True
+    edges = np.flatnonzero(inside[graph.pairs[:, 0]] & inside[graph.pairs[:, 1]])
+    local = np.searchsorted(faces, graph.pairs[edges])
+    sub = FaceGraph(
+        pairs=local,
+        edge_vertices=graph.edge_vertices[edges],
+        edge_length=graph.edge_length[edges],
+        dihedral=graph.dihedral[edges],
+        concave=graph.concave[edges],
+        face_count=len(faces),
+    )
+    return sub, edges

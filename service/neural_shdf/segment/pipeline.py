@@ -1,0 +1,245 @@
+"""Segmentation from a per-face ShDF in [0, 1]: mixture, hard partition, clean-up.
+
+Steps (Shapira et al. 2008 as implemented by CGAL's ``segmentation_from_sdf_values``):
+
+1. log-normalise the ShDF and fit a 1-D Gaussian mixture (k clusters);
+2. ``graphcut``: alpha-expansion with data ``-log P(cluster | face)`` and
+   dihedral edge weights; connected runs of one cluster become parts.
+   ``metis``: METIS k-way partition into exactly ``parts`` parts;
+3. optional recursive refinement and boundary smoothing; tiny parts merged
+   (graph cut only); labels renumbered by lowest face index.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.errors import ParameterError
+from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
+from neural_shdf.segment.graphcut import data_costs, dihedral_weights, multilevel_alpha_expansion
+from neural_shdf.segment.metis import metis_edge_weights, metis_partition
+from neural_shdf.segment.mixture import fit_best_mixture, fit_mixture
+from neural_shdf.segment.params import (
+    DEFAULT_SMOOTHING,
+    MAX_CLUSTERS,
+    SegmentParams,
+)
+from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
+from neural_shdf.shdf.postprocess import log_normalize
+
+#: ShDF values may stray this far outside [0, 1] (rounding) before they are refused.
+SHDF_TOLERANCE = 1e-6
+#: Deepest refinement accepted.
+MAX_REFINE_DEPTH = 8
+
+
+@dataclass
+class SegmentResult:
+    """Labels plus what was chosen and how long each step took (seconds)."""
+
+    labels: NDArray[np.int64]
+    clusters: int
+    smoothing: float
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def part_count(self) -> int:
+        return int(self.labels.max()) + 1 if len(self.labels) else 0
+
+
+@dataclass(frozen=True)
+class FaceData:
+    """Per-face geometry the partitioners need, computed once."""
+
+    areas: NDArray[np.float64]
+    centroids: NDArray[np.float64]
+    face_weight: NDArray[np.float64]
+
+    @classmethod
+    def of(cls, vertices: NDArray, faces: NDArray) -> FaceData:
+        _, areas = face_normals(vertices, faces)
+        mean = float(areas.mean()) if len(areas) else 0.0
+        weight = areas / mean if mean > 0 else np.ones(len(areas))
+        return cls(areas, face_centroids(vertices, faces), weight)
+
+    def subset(self, faces: NDArray) -> FaceData:
+        """The same data for some faces (weights stay relative to the whole mesh)."""
+        return FaceData(self.areas[faces], self.centroids[faces], self.face_weight[faces])
+
+
+def segment(
+    vertices: NDArray,
+    faces: NDArray,
+    shdf: NDArray,
+    params: SegmentParams,
+    graph: FaceGraph,
+) -> NDArray[np.int64]:
+    """Part label per face, 0..P-1 in order of each part's lowest face; deterministic."""
+    return segment_with_details(vertices, faces, shdf, params, graph).labels
+
+
+def segment_with_details(
+    vertices: NDArray,
+    faces: NDArray,
+    shdf: NDArray,
+    params: SegmentParams,
+    graph: FaceGraph,
+) -> SegmentResult:
+    """``segment`` plus the chosen mixture size, smoothing and per-step timings."""
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    shdf = validate(faces, shdf, params, graph)
+    smoothing = DEFAULT_SMOOTHING if params.smoothing is None else float(params.smoothing)
+    timings: dict[str, float] = {}
+    clock = time.perf_counter()
+
+    def lap(name: str) -> None:
+        nonlocal clock
+        now = time.perf_counter()
+        timings[name] = timings.get(name, 0.0) + now - clock
+        clock = now
+
+    if len(faces) == 0:
+        return SegmentResult(np.zeros(0, dtype=np.int64), 0, smoothing, timings)
+    geometry = FaceData.of(np.asarray(vertices, dtype=np.float64), faces)
+    values = log_normalize(shdf)
+    if params.clusters is None:
+        mixture = fit_best_mixture(values, params.seed)
+    else:
+        mixture = fit_mixture(values, params.clusters, params.seed)
+    posteriors = mixture.posteriors(values)
+    lap("mixture")
+    edge_weights = dihedral_weights(graph, smoothing)
+    lap("edge_weights")
+
+    need_graphcut = params.partitioner == "graphcut" or params.parts is None
+    parts = None
+    if need_graphcut:
+        parts = cut_into_parts(posteriors, graph, edge_weights, geometry)
+        lap("graphcut")
+        if params.refine:
+            from neural_shdf.segment.refine import refine_parts
+
+            parts = refine_parts(parts, shdf, graph, edge_weights, geometry, params)
+            lap("refine")
+        parts = merge_small_parts(
+            parts, graph, geometry.areas, geometry.centroids, params.min_part_fraction
+        )
+        lap("merge_small")
+
+    if params.partitioner == "metis":
+        count = params.parts if params.parts is not None else int(parts.max()) + 1
+        weights = metis_edge_weights(edge_weights, posteriors, graph.pairs)
+        parts = metis_partition(
+            graph, weights, count, geometry.areas, geometry.centroids, params.seed
+        )
+        lap("metis")
+
+    if params.boundary_smoothing:
+        from neural_shdf.segment.refine import smooth_boundaries
+
+        smoothed = smooth_boundaries(parts, graph, edge_weights, geometry.face_weight)
+        if params.partitioner == "metis":
+            # Keep METIS's exact count: drop the smoothing if it emptied a part.
+            if len(np.unique(smoothed)) == int(parts.max()) + 1:
+                parts = smoothed
+        else:
+            parts = merge_small_parts(
+                connected_parts(smoothed, graph.pairs, graph.face_count),
+                graph,
+                geometry.areas,
+                geometry.centroids,
+                params.min_part_fraction,
+            )
+        lap("boundary_smoothing")
+    return SegmentResult(canonical_labels(parts), mixture.size, smoothing, timings)
+
+
+def cut_into_parts(
+    posteriors: NDArray, graph: FaceGraph, edge_weights: NDArray, geometry: FaceData
+) -> NDArray[np.int64]:
+    """Alpha-expansion over clusters, then connected runs of one cluster as parts."""
+    data = data_costs(posteriors, geometry.face_weight)
+    clusters = multilevel_alpha_expansion(
+        data, graph.pairs, edge_weights, geometry.centroids, geometry.areas
+    )
+    return connected_parts(clusters, graph.pairs, graph.face_count)
+
+
+def validate(faces: NDArray, shdf: NDArray, params: SegmentParams, graph: FaceGraph) -> NDArray:
+    """Check the inputs; return the ShDF as float64 clipped to [0, 1]. Raises ParameterError."""
+    face_count = len(faces)
+    if params.partitioner not in ("graphcut", "metis"):
+        raise ParameterError(
+            f"unknown partitioner {params.partitioner!r}; use 'graphcut' or 'metis'"
+        )
+    if params.clusters is not None and (
+        not _is_int(params.clusters) or not 1 <= params.clusters <= MAX_CLUSTERS
+    ):
+        raise ParameterError(
+            f"clusters must be an integer in 1..{MAX_CLUSTERS} (or None for automatic), "
+            f"got {params.clusters!r}"
+        )
+    if params.smoothing is not None and (
+        not isinstance(params.smoothing, int | float)
+        or not math.isfinite(params.smoothing)
+        or params.smoothing < 0
+    ):
+        raise ParameterError(
+            f"smoothing must be a finite number >= 0 (or None for {DEFAULT_SMOOTHING}), "
+            f"got {params.smoothing!r}"
+        )
+    if params.parts is not None:
+        if params.partitioner != "metis":
+            raise ParameterError(
+                "parts applies to the 'metis' partitioner only; the graph cut finds the "
+                "number of parts itself (leave parts unset or use partitioner='metis')"
+            )
+        if not _is_int(params.parts) or params.parts < 1:
+            raise ParameterError(f"parts must be an integer >= 1, got {params.parts!r}")
+        if params.parts > face_count:
+            raise ParameterError(
+                f"parts={params.parts} is more than the mesh's {face_count} faces; "
+                f"ask for at most {face_count} parts"
+            )
+    if not _is_int(params.seed) or params.seed < 0:
+        raise ParameterError(f"seed must be an integer >= 0, got {params.seed!r}")
+    if not isinstance(params.min_part_fraction, int | float) or not (
+        0 <= params.min_part_fraction < 1
+    ):
+        raise ParameterError(
+            f"min_part_fraction must be in [0, 1), got {params.min_part_fraction!r}"
+        )
+    if not _is_int(params.refine_depth) or not 0 <= params.refine_depth <= MAX_REFINE_DEPTH:
+        raise ParameterError(
+            f"refine_depth must be an integer in 0..{MAX_REFINE_DEPTH}, got {params.refine_depth!r}"
+        )
+
+    values = np.asarray(shdf, dtype=np.float64)
+    if values.shape != (face_count,):
+        raise ParameterError(
+            f"the ShDF has shape {values.shape} but the mesh has {face_count} faces; "
+            "give one value per face"
+        )
+    if graph.face_count != face_count:
+        raise ParameterError(
+            f"the face graph has {graph.face_count} faces but the mesh has {face_count}"
+        )
+    if not np.all(np.isfinite(values)):
+        raise ParameterError(
+            f"the ShDF has {int(np.sum(~np.isfinite(values)))} non-finite values (NaN or inf)"
+        )
+    if face_count and (values.min() < -SHDF_TOLERANCE or values.max() > 1 + SHDF_TOLERANCE):
+        raise ParameterError(
+            f"the ShDF must be normalised to [0, 1], got values in "
+            f"[{values.min():.6g}, {values.max():.6g}]"
+        )
+    return np.clip(values, 0.0, 1.0)
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)

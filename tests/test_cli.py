@@ -1,0 +1,125 @@
+"""The CLI contract: one line per input face, input order, clear errors, non-zero exits."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from neural_shdf.cli import EXIT_BAD_INPUT, main
+
+
+def _dumbbell() -> trimesh.Trimesh:
+    left = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    right = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    left.apply_translation([-2.5, 0, 0])
+    right.apply_translation([2.5, 0, 0])
+    bar = trimesh.creation.cylinder(radius=0.25, height=3.5, sections=24)
+    bar.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
+    return trimesh.util.concatenate([left, bar, right])
+
+
+def _quad_box_obj(path: Path) -> int:
+    """A box of 6 quads followed by 2 triangles of a separate shell; returns face count."""
+    lines = [
+        "v 0 0 0", "v 1 0 0", "v 1 1 0", "v 0 1 0", "v 0 0 1", "v 1 0 1", "v 1 1 1", "v 0 1 1",
+        "v 3 0 0", "v 4 0 0", "v 3 1 0", "v 3 0 1",
+        "f 1 4 3 2", "f 5 6 7 8", "f 1 2 6 5", "f 2 3 7 6", "f 3 4 8 7", "f 4 1 5 8",
+        "f 9 11 10", "f 9 10 12",
+    ]
+    path.write_text("\n".join(lines) + "\n")
+    return 8
+
+
+@pytest.fixture
+def dumbbell_obj(tmp_path: Path) -> Path:
+    path = tmp_path / "dumbbell.obj"
+    _dumbbell().export(path)
+    return path
+
+
+def _read_lines(path: Path) -> list[str]:
+    return path.read_text().split()
+
+
+def test_segment_writes_one_label_per_input_face(dumbbell_obj: Path, tmp_path: Path):
+    out = tmp_path / "labels.seg"
+    colored = tmp_path / "colored.glb"
+    code = main(["segment", str(dumbbell_obj), "-o", str(out), "--method", "exact",
+                 "--colored", str(colored), "-q"])
+    assert code == 0
+    labels = np.array(_read_lines(out), dtype=int)
+    assert len(labels) == len(_dumbbell().faces)
+    # The thin bar is not one part with both balls.
+    assert len(np.unique(labels)) >= 2
+    scene = trimesh.load(colored, force="mesh", process=False)
+    assert len(scene.faces) == len(labels)
+
+
+def test_metis_gives_the_requested_number_of_parts(dumbbell_obj: Path, tmp_path: Path):
+    out = tmp_path / "labels.seg"
+    assert main(["segment", str(dumbbell_obj), "-o", str(out), "--method", "exact",
+                 "--partitioner", "metis", "--parts", "3", "-q"]) == 0
+    assert len(np.unique(np.array(_read_lines(out), dtype=int))) == 3
+
+
+def test_quads_keep_one_label_and_input_order(tmp_path: Path):
+    mesh_path = tmp_path / "quads.obj"
+    faces = _quad_box_obj(mesh_path)
+    values, labels = tmp_path / "v.txt", tmp_path / "l.seg"
+    assert main(["shdf", str(mesh_path), "-o", str(values), "--method", "exact", "-q"]) == 0
+    assert main(["segment", str(mesh_path), "-o", str(labels), "--method", "exact", "-q"]) == 0
+    shdf = np.array(_read_lines(values), dtype=float)
+    assert len(shdf) == faces and len(_read_lines(labels)) == faces
+    assert np.all((shdf >= 0) & (shdf <= 1))
+    seg = np.array(_read_lines(labels), dtype=int)
+    # The box (first six input faces) and the separate two-triangle shell never share a part.
+    assert set(seg[:6]).isdisjoint(seg[6:])
+
+
+def test_same_input_same_labels(dumbbell_obj: Path, tmp_path: Path):
+    outputs = []
+    for name in ("a.seg", "b.seg"):
+        assert main(["segment", str(dumbbell_obj), "-o", str(tmp_path / name),
+                     "--method", "exact", "-q"]) == 0
+        outputs.append((tmp_path / name).read_text())
+    assert outputs[0] == outputs[1]
+
+
+@pytest.mark.parametrize(
+    ("content", "name", "needle"),
+    [
+        (b"", "empty.obj", "empty"),
+        (b"\x89PNG\r\n\x1a\n" + bytes(100), "image.stl", "stl"),
+        (b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "bad_index.obj", "do not exist"),
+        (b"v 0 0 0\n", "mesh.xyz", "format"),
+    ],
+)
+def test_bad_input_exits_with_a_message(tmp_path: Path, capsys, content, name, needle):
+    path = tmp_path / name
+    path.write_bytes(content)
+    code = main(["segment", str(path), "-o", str(tmp_path / "out.seg"), "--method", "exact", "-q"])
+    assert code == EXIT_BAD_INPUT
+    assert needle in capsys.readouterr().err.lower()
+    assert not (tmp_path / "out.seg").exists()
+
+
+def test_missing_file_and_bad_parameters(tmp_path: Path, dumbbell_obj: Path, capsys):
+    assert main(["shdf", str(tmp_path / "nope.obj"), "-o", "x.txt", "-q"]) == EXIT_BAD_INPUT
+    assert "not found" in capsys.readouterr().err
+    code = main(["segment", str(dumbbell_obj), "-o", str(tmp_path / "o.seg"), "--method", "exact",
+                 "--partitioner", "metis", "--parts", "0", "-q"])
+    assert code == EXIT_BAD_INPUT
+    assert "parts" in capsys.readouterr().err
+
+
+def test_console_script_is_installed(dumbbell_obj: Path, tmp_path: Path):
+    out = tmp_path / "labels.seg"
+    result = subprocess.run(
+        [sys.executable, "-m", "neural_shdf.cli", "segment", str(dumbbell_obj), "-o", str(out),
+         "--method", "exact", "-q"],
+        capture_output=True, text=True, timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    assert len(_read_lines(out)) == len(_dumbbell().faces)

@@ -111,8 +111,15 @@ def cmd_segment(args: argparse.Namespace) -> int:
 def cmd_eval(args: argparse.Namespace) -> int:
     from neural_shdf.evaluate.benchmark import format_table, run_eval
 
-    table = run_eval(Path(args.bench_dir), methods=args.methods, limit=args.limit,
-                     cache_dir=args.cache_dir, jobs=args.jobs)
+    bench_dir = Path(args.bench_dir)
+    if not (bench_dir / "off").is_dir() or not (bench_dir / "seg").is_dir():
+        raise FileNotFoundError(
+            f"{bench_dir} is not a benchmark folder: it needs off/ and seg/ subfolders"
+        )
+    with progress_bar("models", enabled=not args.quiet) as progress:
+        table = run_eval(bench_dir, methods=args.methods, limit=args.limit,
+                         cache_dir=args.cache_dir, jobs=args.jobs,
+                         progress=lambda done, total: progress(done / max(total, 1)))
     print(format_table(table))
     return 0
 
@@ -163,7 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
                           help="methods to evaluate (e.g. cgal exact-graphcut exact-metis)")
     evaluate.add_argument("--limit", type=int, help="evaluate only the first N models")
     evaluate.add_argument("--cache-dir", help="where computed ShDF values are cached")
-    evaluate.add_argument("--jobs", type=int, default=1, help="worker processes")
+    evaluate.add_argument("--jobs", type=int, default=1, help="worker processes (at most 2)")
+    evaluate.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     evaluate.set_defaults(run=cmd_eval)
 
     serve = commands.add_parser("serve", help="run the REST service")

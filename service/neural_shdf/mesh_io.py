@@ -103,7 +103,8 @@ def load_mesh(
         try:
             data = path.read_bytes()
         except OSError as exc:
-            raise MeshParseError(f"cannot read mesh file {str(path)!r}: {exc.strerror}") from exc
+            shown = str(path) if len(str(path)) <= 200 else str(path)[:200] + "..."
+            raise MeshParseError(f"cannot read mesh file {shown!r}: {exc.strerror}") from exc
         label = f"{path.name!r}"
     name = _normalise_type(file_type)
     format_name = _FORMAT_NAMES[name]

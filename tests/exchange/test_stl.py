@@ -42,6 +42,13 @@ def test_ascii_with_missing_vertex_is_a_parse_error():
         load_mesh(broken.encode(), "stl")
 
 
+def test_ascii_cut_at_a_facet_boundary_is_truncated():
+    text = trimesh.creation.box().export(file_type="stl_ascii")
+    cut = text[: text.rindex("endfacet") + len("endfacet\n")]
+    with pytest.raises(MeshParseError, match="endsolid"):
+        load_mesh(cut.encode(), "stl")
+
+
 def test_only_degenerate_facets_is_invalid():
     triangle = struct.pack("<12fH", 0, 0, 1, 0, 0, 0, 1, 0, 0, 2, 0, 0, 0)
     data = b" " * 80 + struct.pack("<I", 2) + triangle * 2

@@ -19,7 +19,8 @@ FORMAT_NAME = "STL"
 _HEADER_BYTES = 84
 _RECORD = np.dtype([("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attribute", "<u2")])
 _VERTEX = re.compile(rb"vertex\s+(\S+)\s+(\S+)\s+(\S+)", re.IGNORECASE)
-_FACET = re.compile(rb"\bfacet\b", re.IGNORECASE)
+_END_FACET = re.compile(rb"\bendfacet\b", re.IGNORECASE)
+_END_SOLID = re.compile(rb"\bendsolid\b", re.IGNORECASE)
 
 
 def _soup(corners: np.ndarray, max_faces: int | None) -> TriangleMesh:
@@ -42,7 +43,9 @@ def _read_binary(data: bytes, count: int, max_faces: int | None) -> TriangleMesh
 
 def _read_ascii(data: bytes, max_faces: int | None) -> TriangleMesh:
     decode_text(data, FORMAT_NAME)  # rejects binary content with a clear message
-    facet_count = len(_FACET.findall(data))
+    if not _END_SOLID.search(data[-4096:]):
+        raise MeshParseError("the ASCII STL does not end with 'endsolid': the file is truncated")
+    facet_count = len(_END_FACET.findall(data))
     check_face_limit(facet_count, max_faces)
     coordinates = _VERTEX.findall(data)
     if len(coordinates) != 3 * facet_count:

@@ -136,3 +136,39 @@ def test_corrupted_valid_files_raise_only_mesh_errors(name, edits, cut):
         return
     assert np.isfinite(mesh.vertices).all()
     assert mesh.faces.min() >= 0 and mesh.faces.max() < len(mesh.vertices)
+
+
+def _polygon_files() -> dict[str, bytes]:
+    """One quad, one triangle and one pentagon, written in each polygon format."""
+    vertices = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0.5, 0]]
+    polygons = [[0, 1, 2, 3], [1, 4, 2], [0, 1, 4, 2, 3]]
+    v_lines = [" ".join(map(str, v)) for v in vertices]
+    obj = [f"v {line}" for line in v_lines] + [
+        "f " + " ".join(str(i + 1) for i in p) for p in polygons
+    ]
+    off = ["OFF", f"{len(vertices)} {len(polygons)} 0", *v_lines]
+    off += [f"{len(p)} " + " ".join(map(str, p)) for p in polygons]
+    ply = ["ply", "format ascii 1.0", f"element vertex {len(vertices)}", "property double x",
+           "property double y", "property double z", f"element face {len(polygons)}",
+           "property list uchar int vertex_indices", "end_header", *v_lines]  # fmt: skip
+    ply += [f"{len(p)} " + " ".join(map(str, p)) for p in polygons]
+    return {name: ("\n".join(lines) + "\n").encode() for name, lines in
+            [("obj", obj), ("off", off), ("ply", ply)]}  # fmt: skip
+
+
+def test_polygon_formats_agree_on_triangles_and_origins():
+    meshes = {name: load_mesh(data, name) for name, data in _polygon_files().items()}
+    hashes = {mesh.content_hash() for mesh in meshes.values()}
+    assert len(hashes) == 1
+    assert meshes["obj"].face_origin.tolist() == [0, 0, 1, 2, 2, 2]
+
+
+def test_open_non_manifold_multi_shell_degenerate_mesh_loads_whole():
+    text = (
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\n"  # fan of 3 faces on edge 1-2
+        "v 5 5 5\nv 6 5 5\nv 5 6 5\n"  # a second shell
+        "f 1 2 3\nf 2 1 4\nf 1 2 5\nf 6 7 8\nf 6 6 7\n"  # last face degenerate
+    )
+    mesh = load_mesh(text.encode(), "obj")
+    assert mesh.face_count == mesh.input_face_count == 5
+    assert mesh.faces.tolist() == [[0, 1, 2], [1, 0, 3], [0, 1, 4], [5, 6, 7], [5, 5, 6]]

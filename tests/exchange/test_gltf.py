@@ -242,6 +242,10 @@ def test_index_beyond_the_primitive_vertices_is_invalid():
         load_mesh(b.glb(), "glb")
 
 
+def test_text_gltf_declared_as_glb_still_loads():
+    assert load_mesh(_simple().gltf(), "glb").face_count == 2
+
+
 def test_external_buffer_uri_is_unsupported():
     doc = json.loads(_simple().gltf())
     doc["buffers"][0]["uri"] = "mesh.bin"

@@ -110,6 +110,11 @@ def test_binary_content_is_not_obj():
         load_mesh(b"\xff\xd8\xff\xe0\x00\x10JFIF\x00" + bytes(range(256)), "obj")
 
 
+def test_bad_index_error_names_the_input_face():
+    with pytest.raises(InvalidGeometryError, match="face 1 of the file"):
+        _load(SQUARE_AND_MORE + "f 1 2 3 4\nf 1 2 3 9\n")
+
+
 def test_max_faces_counts_triangles():
     text = SQUARE_AND_MORE + "f 1 2 3 4\nf 2 5 3\n"
     assert _load(text, max_faces=3).face_count == 3

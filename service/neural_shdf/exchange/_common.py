@@ -129,10 +129,11 @@ def build_mesh(
     bad_face = (faces < 0).any(axis=1) | (faces >= len(vertices)).any(axis=1)
     if bad_face.any():
         index = int(np.flatnonzero(bad_face)[0])
+        face = index if face_origin is None else int(face_origin[index])
         raise InvalidGeometryError(
-            f"{int(bad_face.sum())} faces refer to vertices that do not exist (first: triangle "
-            f"{index} uses {faces[index].tolist()} but there are {len(vertices)} vertices); "
-            "the file is corrupt or truncated"
+            f"{int(bad_face.sum())} faces refer to vertices that do not exist (first: face "
+            f"{face} of the file, 0-based vertex indices {faces[index].tolist()}, but there "
+            f"are {len(vertices)} vertices); the file is corrupt or truncated"
         )
     if not _has_area(vertices, faces[:1024]) and not _has_area(vertices, faces):
         raise InvalidGeometryError(

@@ -286,6 +286,8 @@ def _read_document(document: _Document, format_name: str, max_faces: int | None)
 
 def read_glb(data: bytes, max_faces: int | None = None) -> TriangleMesh:
     """Parse binary glTF (GLB) bytes; declared lengths are checked before anything is read."""
+    if data.lstrip()[:1] == b"{":  # a text glTF sent as GLB
+        return read_gltf(data, max_faces)
     if len(data) < 12 or data[:4] != _GLB_MAGIC:
         raise MeshParseError("a GLB file must start with the 'glTF' magic bytes; is it a GLB?")
     version, length = struct.unpack_from("<II", data, 4)

@@ -123,3 +123,31 @@ def test_console_script_is_installed(dumbbell_obj: Path, tmp_path: Path):
     )
     assert result.returncode == 0, result.stderr
     assert len(_read_lines(out)) == len(_dumbbell().faces)
+
+
+def test_eval_prints_a_table_over_a_benchmark_folder(tmp_path: Path, capsys):
+    mesh = _dumbbell()
+    (tmp_path / "off").mkdir()
+    (tmp_path / "seg" / "1").mkdir(parents=True)
+    (tmp_path / "cgal").mkdir()
+    mesh.export(tmp_path / "off" / "1.off")
+    x = mesh.triangles_center[:, 0]
+    human = np.digitize(x, [-1.6, 1.6])
+    np.savetxt(tmp_path / "seg" / "1" / "1_0.seg", human, fmt="%d")
+    # "CGAL" here is a copy of the human segmentation, so it must score a perfect 0.
+    np.savetxt(tmp_path / "cgal" / "1.seg", human, fmt="%d")
+    code = main(["eval", str(tmp_path), "--methods", "cgal", "exact-graphcut",
+                 "--cache-dir", str(tmp_path / "cache"), "-q"])
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "cgal" in out and "exact-graphcut" in out
+    overall = [line.split() for line in out.splitlines() if line.startswith("OVERALL")]
+    scores = {row[1]: [float(value) for value in row[2:] if value != "-"] for row in overall}
+    assert len(scores["cgal"]) == 7 and all(value == 0.0 for value in scores["cgal"])
+    # The thin bar between the balls is found: far better than one part (1-RI ~ 0.5).
+    assert 0.0 <= scores["exact-graphcut"][-3] < 0.3
+
+
+def test_eval_rejects_a_folder_without_benchmark_layout(tmp_path: Path, capsys):
+    assert main(["eval", str(tmp_path), "-q"]) == EXIT_BAD_INPUT
+    assert "off/" in capsys.readouterr().err

@@ -149,7 +149,7 @@ def robust_mean(distances: NDArray, weights: NDArray) -> NDArray[np.float64]:
     return value
 
 
-class _RayCaster:
+class RayCaster:
     """Embree scene of a mesh (float32, centred on its bounding box)."""
 
     def __init__(self, vertices: NDArray, faces: NDArray) -> None:
@@ -220,7 +220,7 @@ def raw_shdf(
             progress(1.0)
         return result
 
-    caster = _RayCaster(vertices, faces)  # degenerate triangles are never hit
+    caster = RayCaster(vertices, faces)  # degenerate triangles are never hit
     diagonal = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
     centroids = face_centroids(vertices, faces)
     local_centroids = (centroids - caster.center).astype(np.float32)

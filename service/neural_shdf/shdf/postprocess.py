@@ -68,28 +68,28 @@ def fill_missing(values: NDArray, graph: FaceGraph) -> NDArray[np.float64]:
 def _window_pairs(
     adjacency: sp.csr_matrix, rows: NDArray, window: int
 ) -> tuple[NDArray, NDArray, NDArray]:
-    """(row position in ``rows``, face, ring) for every face within ``window`` edge rings."""
-    face_count = adjacency.shape[0]
+    """(row position in ``rows``, face, ring) for every face within ``window`` edge rings.
+
+    Breadth-first, all rows at once: ring k+1 is the neighbours of ring k minus
+    rings k and k-1 (in a graph, neighbours of ring k lie in rings k-1..k+1).
+    """
+    shape = (len(rows), adjacency.shape[0])
     local = np.arange(len(rows))
-    ones = np.ones(len(rows))
-    visited = sp.csr_matrix((ones, (local, rows)), shape=(len(rows), face_count))
-    frontier = visited
-    out_rows, out_faces, out_rings = [local], [rows], [np.zeros(len(rows), dtype=np.int64)]
+    current = sp.csr_matrix((np.ones(len(rows)), (local, rows)), shape=shape)
+    previous = sp.csr_matrix(shape)
+    out_rows, out_faces, out_rings = [local], [rows], [np.zeros(len(rows), dtype=np.int8)]
     for ring in range(1, window + 1):
-        reached = frontier @ adjacency
+        reached = current @ adjacency
         reached.data[:] = 1.0
-        new = (reached - reached.multiply(visited)).tocoo()
-        keep = new.data > 0
-        if not keep.any():
+        new = reached - reached.multiply(current + previous)
+        new.eliminate_zeros()
+        if new.nnz == 0:
             break
-        new_rows, new_faces = new.row[keep], new.col[keep]
-        out_rows.append(new_rows)
-        out_faces.append(new_faces)
-        out_rings.append(np.full(len(new_rows), ring, dtype=np.int64))
-        frontier = sp.csr_matrix(
-            (np.ones(len(new_rows)), (new_rows, new_faces)), shape=visited.shape
-        )
-        visited = visited + frontier
+        new = new.tocoo()
+        out_rows.append(new.row)
+        out_faces.append(new.col)
+        out_rings.append(np.full(new.nnz, ring, dtype=np.int8))
+        previous, current = current, new.tocsr()
     return np.concatenate(out_rows), np.concatenate(out_faces), np.concatenate(out_rings)
 
 
@@ -120,22 +120,26 @@ def bilateral_smooth(
     adjacency.data[:] = 1.0
     pairs_per_face = 1 + 3 * window_size * (window_size + 1) // 2
     chunk = max(1024, PAIRS_PER_CHUNK // pairs_per_face)
+    spatial_weight = np.exp(-0.5 * (np.arange(window_size + 1) / spatial) ** 2)
     out = np.empty(face_count)
     for start in range(0, face_count, chunk):
         rows = np.arange(start, min(start + chunk, face_count))
         local, neighbour, ring = _window_pairs(adjacency, rows, window_size)
         centre = values[rows]
-        difference = values[neighbour] - centre[local]
+        neighbour_value = np.take(values, neighbour)
+        squared = neighbour_value - np.take(centre, local)
+        np.square(squared, out=squared)
         count = np.bincount(local, minlength=len(rows))
-        deviation = np.sqrt(np.bincount(local, difference**2, minlength=len(rows)) / count)
-        range_sigma = range_sigma_factor * deviation
-        safe_sigma = np.where(deviation > 0, range_sigma, 1.0)
-        weight = np.exp(-0.5 * (ring / spatial) ** 2) * np.exp(
-            -0.5 * (difference / safe_sigma[local]) ** 2
-        )
-        total = np.bincount(local, weight * values[neighbour], minlength=len(rows))
+        variance = np.bincount(local, squared, minlength=len(rows)) / count
+        # exp(-0.5 (d / (factor * deviation))^2) = exp(-d^2 * scale) per row.
+        varies = variance > 0
+        scale = 0.5 / (range_sigma_factor**2 * np.where(varies, variance, 1.0))
+        squared *= np.take(scale, local)
+        weight = np.exp(np.negative(squared, out=squared), out=squared)
+        weight *= np.take(spatial_weight, ring)
+        total = np.bincount(local, weight * neighbour_value, minlength=len(rows))
         norm = np.bincount(local, weight, minlength=len(rows))
-        out[rows] = np.where(deviation > 0, total / norm, centre)
+        out[rows] = np.where(varies, total / norm, centre)
     return out
 
 

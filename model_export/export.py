@@ -105,7 +105,9 @@ def main(argv: list[str] | None = None) -> int:
     card = {
         "format": "neural-shdf-emd",
         "feature_spec_version": FEATURE_SPEC_VERSION,
-        "graph_spec": GraphSpec().to_dict(),
+        "graph_spec": GraphSpec(
+            knn=config.get("knn", GraphSpec.knn), cone_neighbours=config.get("cone", 0)
+        ).to_dict(),
         "node_features": list(NODE_FEATURES),
         "edge_features": list(EDGE_FEATURES),
         "inputs": list(INPUT_NAMES),

@@ -28,12 +28,38 @@ CONE_COLUMN = EDGE_FEATURES.index("is_cone_edge")
 HAS_CONE_COLUMN = NODE_FEATURES.index("has_cone_edge")
 
 
+def rank_within_receiver(receivers: np.ndarray) -> np.ndarray:
+    """Position of each edge among its receiver's edges (edges grouped by receiver)."""
+    start = np.ones(len(receivers), dtype=bool)
+    start[1:] = receivers[1:] != receivers[:-1]
+    first = np.maximum.accumulate(np.where(start, np.arange(len(receivers)), 0))
+    return np.arange(len(receivers)) - first
+
+
+def subset_edges(arrays: dict[str, np.ndarray], knn: int, cone: int) -> dict[str, np.ndarray]:
+    """Keep each receiver's ``knn`` nearest and ``cone`` nearest cone edges (both stored
+    nearest first), as ``build_sample_graph`` with those counts would have built them."""
+    is_cone = arrays["edge_features"][:, CONE_COLUMN] > 0.5
+    receivers = arrays["receivers"]
+    keep = np.zeros(len(receivers), dtype=bool)
+    for mask, limit in ((~is_cone, knn), (is_cone, cone)):
+        index = np.flatnonzero(mask)
+        keep[index[rank_within_receiver(receivers[index]) < limit]] = True
+    out = dict(arrays)
+    for key in ("edge_features", "senders", "receivers"):
+        out[key] = arrays[key][keep]
+    if cone == 0:
+        out["node_features"] = arrays["node_features"].copy()
+        out["node_features"][:, HAS_CONE_COLUMN] = 0.0
+    return out
+
+
 class GraphStore:
     """Graph files of one split, loaded lazily and kept in memory."""
 
-    def __init__(self, folder: Path, *, drop_cone_edges: bool = False) -> None:
+    def __init__(self, folder: Path, *, knn: int, cone: int) -> None:
         self.folder = folder
-        self.drop_cone_edges = drop_cone_edges
+        self.knn, self.cone = knn, cone
         self.paths: list[Path] = []
         self.loaded: dict[Path, dict[str, np.ndarray]] = {}
         self.rescan()
@@ -46,13 +72,7 @@ class GraphStore:
         if path not in self.loaded:
             with np.load(path) as data:
                 arrays = {k: data[k] for k in data.files}
-            if self.drop_cone_edges:
-                keep = arrays["edge_features"][:, CONE_COLUMN] < 0.5
-                for key in ("edge_features", "senders", "receivers"):
-                    arrays[key] = arrays[key][keep]
-                arrays["node_features"] = arrays["node_features"].copy()
-                arrays["node_features"][:, HAS_CONE_COLUMN] = 0.0
-            self.loaded[path] = arrays
+            self.loaded[path] = subset_edges(arrays, self.knn, self.cone)
         return self.loaded[path]
 
 
@@ -120,7 +140,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--val-every", type=int, default=500)
     parser.add_argument("--val-graphs", type=int, default=80)
-    parser.add_argument("--drop-cone-edges", action="store_true")
+    parser.add_argument("--knn", type=int, default=8, help="nearest-sample edges kept")
+    parser.add_argument("--cone", type=int, default=4, help="cone edges kept (0: none)")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
 
@@ -135,8 +156,8 @@ def main(argv: list[str] | None = None) -> int:
         print(line, file=log_file, flush=True)
         print(line, flush=True)
 
-    train = GraphStore(graph_folder(cache) / "train", drop_cone_edges=args.drop_cone_edges)
-    val = GraphStore(graph_folder(cache) / "val", drop_cone_edges=args.drop_cone_edges)
+    train = GraphStore(graph_folder(cache) / "train", knn=args.knn, cone=args.cone)
+    val = GraphStore(graph_folder(cache) / "val", knn=args.knn, cone=args.cone)
     model = ShdfNetwork(latent=args.latent, steps=args.message_steps)
     optimizer = torch.optim.Adam(model.parameters(), lr=args.lr)
     state = {"step": 0, "elapsed": 0.0, "best_val_loss": float("inf"), "history": []}

@@ -9,10 +9,11 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from neural_shdf.neural.inference import load_model, neural_raw_shdf  # noqa: E402
+
 from model_export import data, export, train  # noqa: E402
 from model_export.core_model import scatter_sum  # noqa: E402
 from model_export.shdf_task import INPUT_NAMES, ShdfNetwork, to_tensors  # noqa: E402
-from neural_shdf.neural.inference import load_model, neural_raw_shdf  # noqa: E402
 
 
 def random_model(seed: int = 0) -> ShdfNetwork:
@@ -74,3 +75,20 @@ def test_data_train_export_end_to_end(tmp_path, monkeypatch) -> None:
     raw = neural_raw_shdf(np.asarray(mesh.vertices), np.asarray(mesh.faces), model=model)
     assert raw.shape == (len(mesh.faces),)
     assert np.all(np.isfinite(raw)) and np.all(raw > 0)
+
+
+def test_edge_subset_equals_building_with_fewer_edges() -> None:
+    """Training keeps fewer edges of the cached graphs; serving builds them directly."""
+    import trimesh
+    from neural_shdf.neural.graph import GraphSpec, build_sample_graph
+
+    from model_export.shdf_task import graph_arrays
+
+    mesh = trimesh.creation.capsule(height=2.0, radius=0.3, count=[24, 24])
+    full = build_sample_graph(mesh.vertices, mesh.faces, GraphSpec(target_samples=300), seed=3)
+    small = build_sample_graph(
+        mesh.vertices, mesh.faces, GraphSpec(target_samples=300, knn=5, cone_neighbours=2), seed=3
+    )
+    subset = train.subset_edges(graph_arrays(full), 5, 2)
+    for key, value in graph_arrays(small).items():
+        np.testing.assert_array_equal(subset[key], value)

@@ -120,3 +120,13 @@ def test_max_faces_counts_triangles():
     assert _load(text, max_faces=3).face_count == 3
     with pytest.raises(MeshTooLargeError, match="limit of 2"):
         _load(text, max_faces=2)
+
+
+def test_human_seg_labels_match_input_faces(shared_data):
+    name = "MIT_animation__meshes_bouncing__meshes__mesh_0000"
+    mesh_path = shared_data / "human-seg" / "train" / f"{name}.obj"
+    label_path = shared_data / "human-seg" / "face_labels" / f"{name}.txt"
+    if not (mesh_path.is_file() and label_path.is_file()):
+        pytest.skip("human-seg sample is absent")
+    labels = label_path.read_text().split()
+    assert load_mesh(mesh_path).input_face_count == len(labels)

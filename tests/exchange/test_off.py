@@ -57,3 +57,11 @@ def test_psb_file_matches_header_and_trimesh(psb_off):
 def test_max_faces_checked_from_header(psb_off):
     with pytest.raises(MeshTooLargeError):
         load_mesh(psb_off(1), max_faces=100)
+
+
+def test_psb_segmentations_have_one_label_per_input_face(psb_off, shared_data):
+    mesh = load_mesh(psb_off(1))
+    for seg in [shared_data / "psb-dev" / "cgal" / "1.seg", shared_data / "psb-dev" / "seg" / "1"]:
+        paths = sorted(seg.glob("*.seg")) if seg.is_dir() else [seg]
+        for path in paths[:2]:
+            assert len(path.read_text().split()) == mesh.input_face_count

@@ -264,6 +264,11 @@ def _read_document(document: _Document, format_name: str, max_faces: int | None)
                 f"the glTF scene instances more than {MAX_NODE_VISITS} nodes; flatten it"
             )
         node = _item(gltf, "nodes", node_index)
+        if "EXT_mesh_gpu_instancing" in (node.get("extensions") or {}):
+            raise UnsupportedFormatError(
+                "glTF GPU instancing (EXT_mesh_gpu_instancing) is not supported; "
+                "export with instances realised as nodes"
+            )
         matrix = parent @ _local_matrix(node)
         if "mesh" in node:
             emit(node["mesh"], matrix)

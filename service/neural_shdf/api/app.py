@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from typing import Any
 
 from fastapi import FastAPI, Request
+from fastapi.openapi.utils import get_openapi
 from fastapi.responses import JSONResponse
 
 from neural_shdf import __version__
@@ -69,9 +71,36 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_exception_handler(JobAccepted, job_accepted)
     for module in (health, meshes, segment, jobs):
         app.include_router(module.router)
+    app.openapi = lambda: _openapi_with_error_shape(app)  # type: ignore[method-assign]
     app.add_middleware(BodySizeLimitMiddleware, limit=settings.max_upload_bytes)
     app.add_middleware(RequestMetricsMiddleware, metrics=metrics)
     return app
+
+
+def _openapi_with_error_shape(app: FastAPI) -> dict[str, Any]:
+    """FastAPI's schema with its default 422 body replaced by the service's error shape."""
+    if app.openapi_schema is None:
+        schema = get_openapi(
+            title=app.title,
+            version=app.version,
+            description=app.description,
+            routes=app.routes,
+        )
+        error_ref = {"$ref": "#/components/schemas/ErrorResponse"}
+        for path in schema.get("paths", {}).values():
+            for operation in path.values():
+                response = operation.get("responses", {}).get("422")
+                if response is None:
+                    continue
+                content = response.setdefault("content", {}).setdefault("application/json", {})
+                if content.get("schema", {}).get("$ref", "").endswith("HTTPValidationError"):
+                    content["schema"] = error_ref
+                    response["description"] = "Invalid request (the message says why)."
+        components = schema.get("components", {}).get("schemas", {})
+        components.pop("HTTPValidationError", None)
+        components.pop("ValidationError", None)
+        app.openapi_schema = schema
+    return app.openapi_schema
 
 
 def create_app_from_env() -> FastAPI:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
+from fastapi import UploadFile
 from pydantic import BaseModel, ConfigDict, Field
 
 from neural_shdf.segment import SegmentParams
@@ -41,7 +42,9 @@ class ErrorResponse(BaseModel):
 class Health(BaseModel):
     """Liveness: the process answers."""
 
-    status: Literal["ok"] = Field(description="Always `ok` when the service answers.")
+    status: Literal["ok"] = Field(
+        description="Always `ok` when the service answers.", examples=["ok"]
+    )
 
 
 class Check(BaseModel):
@@ -54,7 +57,7 @@ class Check(BaseModel):
 class Readiness(BaseModel):
     """Readiness: the model is loaded and the cache is reachable."""
 
-    status: Literal["ready", "not_ready"] = Field(description="Overall state.")
+    status: Literal["ready", "not_ready"] = Field(description="Overall state.", examples=["ready"])
     checks: dict[str, Check] = Field(
         description="Each check by name (`model`, `cache`).",
         examples=[
@@ -263,6 +266,15 @@ class SegmentRequest(SegmentOptions):
     )
 
 
+class SegmentFileForm(SegmentOptions):
+    """Multipart form of a one-shot segmentation: the mesh file and the options."""
+
+    file: UploadFile = Field(description="OBJ, GLB/glTF (embedded buffers), OFF, PLY or STL.")
+    file_type: str | None = Field(
+        None, description="Format; default: the file extension.", examples=["obj"]
+    )
+
+
 class PartSummary(BaseModel):
     """One part of a segmentation."""
 
@@ -327,5 +339,8 @@ class Segmentation(BaseModel):
     labels_base64: str | None = Field(
         None, description="Labels as base64 little-endian int32 (when requested).", examples=[None]
     )
-    parts: list[PartSummary] = Field(description="Summary per part, by label.")
+    parts: list[PartSummary] = Field(
+        description="Summary per part, by label.",
+        examples=[[{"label": 0, "faces": 2, "area": 1.0, "mean_shdf": 0.2}]],
+    )
     timings: Timings = Field(description="Timings.")

@@ -66,9 +66,10 @@ async def upload_mesh(
         ),
     ] = None,
     method: Annotated[
-        ShdfMethodName | None, Form(description="ShDF method; default: the service default.")
+        ShdfMethodName | None,
+        Form(description="ShDF method; default: the service default.", examples=["neural"]),
     ] = None,
-    seed: Annotated[int, Form(ge=0, le=2**31 - 1, description="ShDF seed.")] = 0,
+    seed: Annotated[int, Form(ge=0, le=2**31 - 1, description="ShDF seed.", examples=[0])] = 0,
 ) -> UploadResult:
     """Store the mesh under its content hash and compute its ShDF once (cached).
 

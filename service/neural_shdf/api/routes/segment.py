@@ -4,12 +4,18 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, File, Form, Query, Response, UploadFile
+from fastapi import APIRouter, Form, Query, Response
 
 from neural_shdf.api.engine import Engine
 from neural_shdf.api.routes.deps import EngineDep, error_responses
 from neural_shdf.api.routes.meshes import MeshId, ingest
-from neural_shdf.api.schemas import Job, Segmentation, SegmentOptions, SegmentRequest
+from neural_shdf.api.schemas import (
+    Job,
+    Segmentation,
+    SegmentFileForm,
+    SegmentOptions,
+    SegmentRequest,
+)
 
 router = APIRouter(prefix="/v1", tags=["segmentation"])
 
@@ -52,15 +58,11 @@ async def segment_mesh(engine: EngineDep, request: SegmentRequest) -> Response:
 )
 async def segment_file(
     engine: EngineDep,
-    file: Annotated[UploadFile, File(description="OBJ, GLB/glTF, OFF, PLY or STL.")],
-    options: Annotated[SegmentOptions, Form()],
-    file_type: Annotated[
-        str | None, Form(description="Format; default: the file extension.", examples=["obj"])
-    ] = None,
+    form: Annotated[SegmentFileForm, Form(media_type="multipart/form-data")],
 ) -> Response:
     """Store the mesh, compute (or reuse) its ShDF and segment it."""
-    meta, _ = await ingest(engine, file, file_type)
-    return await segment_response(engine, meta["mesh_id"], options)
+    meta, _ = await ingest(engine, form.file, form.file_type)
+    return await segment_response(engine, meta["mesh_id"], form)
 
 
 def _glb_route(style: str):  # noqa: ANN202 - FastAPI endpoint factory

@@ -6,8 +6,10 @@ Face order rules (per-face outputs of the project follow them):
   with n vertices becomes the fan ``(v0, v1, v2), (v0, v2, v3), ...`` of n - 2
   triangles, contiguous and in order; ``TriangleMesh.face_origin`` maps each
   triangle to its polygon and ``labels_to_input_faces`` maps labels back (one
-  label per polygon). Face records with fewer than 3 vertices count as input
-  faces but give no triangle. OBJ groups and materials never regroup faces.
+  label per polygon). The fan is exact for convex (and planar star-shaped)
+  polygons; a non-convex polygon may get overlapping triangles. Face records
+  with fewer than 3 vertices count as input faces but give no triangle. OBJ
+  groups and materials never regroup faces.
 * STL: each facet is one input face; each facet has its own 3 vertices.
 * GLB / glTF: each triangle is one input face; triangles come primitive by
   primitive in a depth-first walk of the default scene's nodes (in listed
@@ -82,6 +84,7 @@ def load_mesh(
 ) -> TriangleMesh:
     """Read a mesh from a path (format from the extension unless ``file_type`` is given)
     or from bytes (``file_type`` should be given; a few formats are recognised by content).
+    A ``str`` is always a path: pass file contents as bytes.
 
     Raises a MeshError subclass for anything wrong with the input: UnsupportedFormatError,
     MeshParseError (empty, truncated, not that format), InvalidGeometryError, and

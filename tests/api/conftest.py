@@ -97,15 +97,15 @@ def wait_for_port(port: int, process: subprocess.Popen, timeout_s: float = 20.0)
     raise RuntimeError(f"nothing listens on port {port}")
 
 
-@pytest.fixture
-def uvicorn_server(tmp_path: Path) -> Iterator[str]:
+@pytest.fixture(scope="module")
+def uvicorn_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
     """`python -m neural_shdf.api.serve` on a free loopback port; yields its base URL."""
     port = free_port()
     env = dict(os.environ)
     env.update(
         NEURAL_SHDF_HOST="127.0.0.1",
         NEURAL_SHDF_PORT=str(port),
-        NEURAL_SHDF_CACHE_DIR=str(tmp_path / "server-cache"),
+        NEURAL_SHDF_CACHE_DIR=str(tmp_path_factory.mktemp("server-cache")),
         NEURAL_SHDF_DEFAULT_METHOD=TEST_METHOD,
         NEURAL_SHDF_MAX_UPLOAD_BYTES=str(2_000_000),
         NEURAL_SHDF_LOG_LEVEL="warning",

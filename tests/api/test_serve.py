@@ -1,0 +1,56 @@
+"""The service as a real uvicorn process on loopback (`python -m neural_shdf.api.serve`)."""
+
+from __future__ import annotations
+
+import asyncio
+
+import httpx
+import numpy as np
+from api_helpers import TEST_METHOD
+from neural_shdf.mesh_io import load_mesh
+
+
+def test_real_server_end_to_end(uvicorn_server, capsule_obj):
+    with httpx.Client(base_url=uvicorn_server, timeout=60) as client:
+        assert client.get("/readyz").status_code == 200
+        uploaded = client.post("/v1/meshes", files={"file": ("c.obj", capsule_obj)})
+        assert uploaded.status_code == 200, uploaded.text
+        mesh_id = uploaded.json()["mesh"]["mesh_id"]
+        assert uploaded.json()["shdf"]["method"] == TEST_METHOD
+        shdf = np.frombuffer(
+            client.get(f"/v1/meshes/{mesh_id}/shdf", params={"format": "f32"}).content, "<f4"
+        )
+        assert len(shdf) == load_mesh(capsule_obj, "obj").input_face_count
+        segmented = client.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 2})
+        assert segmented.status_code == 200 and segmented.json()["timings"]["shdf_cached"]
+        too_big = client.post("/v1/meshes", files={"file": ("b.obj", b"v 0 0 0\n" * 300_000)})
+        assert too_big.status_code == 413
+        assert too_big.json()["error"]["code"] == "payload_too_large"
+        assert client.get("/healthz").json() == {"status": "ok"}
+        assert "neural_shdf_http_requests_total" in client.get("/metrics").text
+
+
+def test_real_server_concurrent_duplicates_compute_once(uvicorn_server):
+    import trimesh
+
+    data = trimesh.creation.icosphere(subdivisions=3).export(file_type="ply")
+
+    async def burst() -> list[httpx.Response]:
+        async with httpx.AsyncClient(base_url=uvicorn_server, timeout=60) as client:
+            return await asyncio.gather(
+                *[client.post("/v1/meshes", files={"file": ("s.ply", data)}) for _ in range(8)]
+            )
+
+    line = f'neural_shdf_shdf_computations_total{{method="{TEST_METHOD}"}}'
+    before = computations(uvicorn_server, line)
+    responses = asyncio.run(burst())
+    assert [r.status_code for r in responses] == [200] * 8
+    assert len({r.json()["mesh"]["mesh_id"] for r in responses}) == 1
+    assert computations(uvicorn_server, line) == before + 1
+
+
+def computations(base: str, line: str) -> float:
+    for text in httpx.get(f"{base}/metrics").text.splitlines():
+        if text.startswith(line):
+            return float(text.split()[-1])
+    return 0.0

@@ -129,12 +129,14 @@ def alpha_expansion(
     weights: NDArray,
     labels: NDArray | None = None,
     max_cycles: int = MAX_CYCLES,
+    alphas: NDArray | None = None,
 ) -> NDArray[np.int64]:
     """Minimise E(l) by alpha-expansion from ``labels`` (default: each face's cheapest label).
 
     Labels are expanded in order 0..k-1, cyclically, until every label's move
     has failed to lower the energy since the last one that did (or after
-    ``max_cycles`` cycles); deterministic.
+    ``max_cycles`` cycles); deterministic. ``alphas`` limits which labels are
+    expanded (default: all).
     """
     data = np.asarray(data, dtype=np.float64)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
@@ -145,21 +147,22 @@ def alpha_expansion(
         if labels is None
         else np.asarray(labels, dtype=np.int64).copy()
     )
-    if label_count <= 1 or len(current) == 0:
+    order = np.arange(label_count) if alphas is None else np.asarray(alphas, dtype=np.int64)
+    if label_count <= 1 or len(current) == 0 or len(order) == 0:
         return current
     energy = labelling_energy(current, data, pairs, weights)
     tolerance = 1e-9 * max(1.0, abs(energy))
     # Right after a successful move for alpha, alpha's move cannot gain again
     # until another label changes something: k - 1 failures in a row suffice.
-    failures_to_stop = label_count
+    failures_to_stop = len(order)
     failures = 0
-    for move in range(max_cycles * label_count):
-        alpha = move % label_count
+    for move in range(max_cycles * len(order)):
+        alpha = int(order[move % len(order)])
         candidate = expansion_move(current, alpha, data, pairs, weights)
         candidate_energy = labelling_energy(candidate, data, pairs, weights)
         if candidate_energy < energy - tolerance:
             current, energy = candidate, candidate_energy
-            failures, failures_to_stop = 0, label_count - 1
+            failures, failures_to_stop = 0, len(order) - 1
         else:
             failures += 1
             if failures >= failures_to_stop:
@@ -194,8 +197,13 @@ def banded_alpha_expansion(
         np.add.at(sub_data, (rows, labels[outer[edge]]), -weights[edge])
     inside = np.flatnonzero(band[a] & band[b])
     sub_pairs = local[pairs[inside]]
+    # Only labels in or beside the band can win there.
+    touching = np.flatnonzero(band[a] != band[b])
+    alphas = np.union1d(labels[nodes], labels[pairs[touching].reshape(-1)])
     result = labels.copy()
-    result[nodes] = alpha_expansion(sub_data, sub_pairs, weights[inside], labels[nodes])
+    result[nodes] = alpha_expansion(
+        sub_data, sub_pairs, weights[inside], labels[nodes], alphas=alphas
+    )
     return result
 
 

@@ -42,22 +42,30 @@ def metis_edge_weights(
     return np.clip(np.rint(weight / top * WEIGHT_RANGE), 1, WEIGHT_RANGE).astype(np.int64)
 
 
-def share_parts(sizes: NDArray, counts: NDArray, parts: int) -> NDArray[np.int64]:
-    """Parts per component, summing to ``parts``: proportional to size (largest remainder).
+def share_parts(
+    sizes: NDArray, counts: NDArray, parts: int, min_fraction: float = 0.0
+) -> NDArray[np.int64]:
+    """Parts per component, summing to ``parts``.
 
-    A component never gets more parts than faces; components may get none
-    (they are then joined to the nearest component that has parts).
+    Components of at least ``min_fraction`` of the total size first get one
+    part each (largest first, while parts last); the rest are handed out one
+    at a time to the component furthest below its share by size. A component
+    never gets more parts than faces; one that gets none is joined to the
+    nearest component that has parts.
     """
     sizes = np.asarray(sizes, dtype=np.float64)
+    counts = np.asarray(counts, dtype=np.int64)
     if not sizes.sum() > 0:
-        sizes = np.asarray(counts, dtype=np.float64)
+        sizes = counts.astype(np.float64)
     share = sizes / sizes.sum() * parts
-    given = np.minimum(np.floor(share).astype(np.int64), counts)
-    # Hand out the rest one at a time: largest remainder, then larger component, then lower id.
+    given = np.zeros(len(sizes), dtype=np.int64)
+    by_size = np.lexsort((np.arange(len(sizes)), -sizes))
+    significant = by_size[sizes[by_size] >= min_fraction * sizes.sum()]
+    given[significant[:parts]] = 1
     while given.sum() < parts:
         room = given < counts
-        remainder = np.where(room, share - given, -np.inf)
-        order = np.lexsort((np.arange(len(sizes)), -sizes, -remainder))
+        deficit = np.where(room, share - given, -np.inf)
+        order = np.lexsort((np.arange(len(sizes)), -sizes, -deficit))
         given[order[0]] += 1
     return given
 
@@ -69,8 +77,14 @@ def metis_partition(
     areas: NDArray,
     centroids: NDArray,
     seed: int = 0,
+    min_fraction: float = 0.0,
 ) -> NDArray[np.int64]:
-    """Exactly ``parts`` parts (canonical labels 0..parts-1); deterministic for a seed."""
+    """Exactly ``parts`` parts (canonical labels 0..parts-1); deterministic for a seed.
+
+    Shells (connected components) are partitioned separately; see ``share_parts``
+    for how the parts are shared out (``min_fraction``: smallest shell, as a
+    fraction of the area, sure to get a part of its own).
+    """
     from scipy.sparse.csgraph import connected_components
 
     face_count = graph.face_count
@@ -85,7 +99,7 @@ def metis_partition(
     component = canonical_labels(component)
     counts = np.bincount(component, minlength=component_count)
     sizes = np.bincount(component, weights=areas, minlength=component_count)
-    given = share_parts(sizes, counts, parts)
+    given = share_parts(sizes, counts, parts, min_fraction)
 
     labels = np.full(face_count, -1, dtype=np.int64)
     next_label = 0
@@ -157,11 +171,9 @@ def _metis(
     xadj = np.zeros(node_count + 1, dtype=np.int64)
     np.cumsum(np.bincount(rows, minlength=node_count), out=xadj[1:])
     options = pymetis.Options(seed=int(seed) & 0x7FFFFFFF, ufactor=UFACTOR)
-    _, membership = pymetis.part_graph(
-        parts,
-        xadj=xadj,
-        adjncy=cols[order],
-        eweights=both[order],
-        options=options,
-    )
+    if hasattr(pymetis, "CSRAdjacency"):  # pymetis >= 2025.2
+        graph = {"adjacency": pymetis.CSRAdjacency(xadj, cols[order])}
+    else:
+        graph = {"xadj": xadj, "adjncy": cols[order]}
+    _, membership = pymetis.part_graph(parts, eweights=both[order], options=options, **graph)
     return np.asarray(membership, dtype=np.int64)

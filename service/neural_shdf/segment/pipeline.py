@@ -135,7 +135,13 @@ def segment_with_details(
         count = params.parts if params.parts is not None else int(parts.max()) + 1
         weights = metis_edge_weights(edge_weights, posteriors, graph.pairs)
         parts = metis_partition(
-            graph, weights, count, geometry.areas, geometry.centroids, params.seed
+            graph,
+            weights,
+            count,
+            geometry.areas,
+            geometry.centroids,
+            params.seed,
+            params.min_part_fraction,
         )
         lap("metis")
 

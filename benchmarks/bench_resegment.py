@@ -1,0 +1,61 @@
+"""Re-segmentation speed from an existing ShDF: time against faces, both partitioners.
+
+Mesh: a dumbbell (two balls on a neck, a surface of revolution) tessellated to
+about 10k, 100k and 1M faces; ShDF: the local radius plus a smooth ripple,
+normalised to [0, 1]. The face graph is built first (the caller's cost,
+reported apart). Targets (default graph-cut partitioner, graph given):
+<= 0.3 s at 100k faces, <= 3 s at 1M faces; ratio = time / target (<= 1 meets it).
+
+    python benchmarks/bench_resegment.py [--sizes 10000,100000,1000000] [--repeat 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
+from neural_shdf.segment.params import SegmentParams
+from neural_shdf.segment.pipeline import segment_with_details
+from neural_shdf.segment.synthetic import dumbbell
+
+TARGET_SECONDS = {100_000: 0.3, 1_000_000: 3.0}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", default="10000,100000,1000000")
+    parser.add_argument("--repeat", type=int, default=1, help="runs per case; the best counts")
+    args = parser.parse_args()
+    sizes = [int(s) for s in args.sizes.split(",")]
+    print(
+        f"{'target':>9} {'faces':>9} {'graph_s':>8} {'partitioner':>11} {'parts':>5} "
+        f"{'seconds':>8} {'ratio':>6}  steps"
+    )
+    for size in sizes:
+        mesh, shdf = dumbbell(size, ripple=0.05)
+        vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+        start = time.perf_counter()
+        normals, _ = face_normals(vertices, faces)
+        graph = build_face_graph(vertices, weld_faces(vertices, faces), normals)
+        graph_seconds = time.perf_counter() - start
+        for partitioner in ("graphcut", "metis"):
+            params = SegmentParams(partitioner=partitioner)
+            best, result = np.inf, None
+            for _ in range(args.repeat):
+                start = time.perf_counter()
+                result = segment_with_details(vertices, faces, shdf, params, graph)
+                best = min(best, time.perf_counter() - start)
+            target = TARGET_SECONDS.get(size)
+            ratio = f"{best / target:6.2f}" if target and partitioner == "graphcut" else "     -"
+            steps = " ".join(f"{k}={v:.3f}" for k, v in result.timings.items())
+            print(
+                f"{size:>9} {len(faces):>9} {graph_seconds:8.3f} {partitioner:>11} "
+                f"{result.part_count:>5} {best:8.3f} {ratio}  {steps}",
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,118 @@
+"""Alpha-expansion: each move is the optimal expansion (brute force), energies only go down."""
+
+import itertools
+
+import numpy as np
+import pytest
+import trimesh
+from neural_shdf.geometry import build_face_graph, face_centroids, face_normals
+from neural_shdf.segment.graphcut import (
+    ANGLE_EPS,
+    LAMBDA_SCALE,
+    alpha_expansion,
+    banded_alpha_expansion,
+    dihedral_weights,
+    expansion_move,
+    labelling_energy,
+    multilevel_alpha_expansion,
+    near_boundary,
+)
+
+
+def random_problem(seed: int, nodes: int = 9, labels: int = 3):
+    rng = np.random.default_rng(seed)
+    pairs = np.array(
+        [(i, j) for i in range(nodes) for j in range(i + 1, nodes) if rng.random() < 0.4]
+    )
+    pairs = pairs.reshape(-1, 2)
+    weights = rng.uniform(0.1, 2.0, len(pairs))
+    data = rng.uniform(0.0, 3.0, (nodes, labels))
+    start = rng.integers(0, labels, nodes)
+    return data, pairs, weights, start
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_expansion_move_is_the_best_expansion(seed):
+    data, pairs, weights, start = random_problem(seed)
+    for alpha in range(data.shape[1]):
+        moved = expansion_move(start, alpha, data, pairs, weights)
+        best = min(
+            labelling_energy(np.where(np.array(switch, bool), alpha, start), data, pairs, weights)
+            for switch in itertools.product((0, 1), repeat=len(start))
+        )
+        assert labelling_energy(moved, data, pairs, weights) == pytest.approx(best)
+        assert set(np.flatnonzero(moved != start)) <= set(np.flatnonzero(start != alpha))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_alpha_expansion_never_raises_energy_and_beats_each_single_move(seed):
+    data, pairs, weights, start = random_problem(seed, nodes=30, labels=4)
+    result = alpha_expansion(data, pairs, weights, start)
+    energy = labelling_energy(result, data, pairs, weights)
+    assert energy <= labelling_energy(start, data, pairs, weights) + 1e-9
+    # A local minimum: no expansion move improves it.
+    for alpha in range(4):
+        moved = expansion_move(result, alpha, data, pairs, weights)
+        assert labelling_energy(moved, data, pairs, weights) >= energy - 1e-9
+
+
+def test_banded_solve_changes_only_the_band():
+    data, pairs, weights, start = random_problem(3, nodes=30, labels=3)
+    band = np.zeros(30, dtype=bool)
+    band[:12] = True
+    result = banded_alpha_expansion(data[band], pairs, weights, start, band)
+    np.testing.assert_array_equal(result[~band], start[~band])
+    assert (
+        labelling_energy(result, data, pairs, weights)
+        <= labelling_energy(start, data, pairs, weights) + 1e-9
+    )
+
+
+def test_near_boundary_grows_by_rings():
+    # A path 0-1-2-...-9 with the label changing between 4 and 5.
+    pairs = np.column_stack([np.arange(9), np.arange(1, 10)])
+    labels = (np.arange(10) >= 5).astype(np.int64)
+    np.testing.assert_array_equal(np.flatnonzero(near_boundary(labels, pairs, 10, 1)), [4, 5])
+    np.testing.assert_array_equal(
+        np.flatnonzero(near_boundary(labels, pairs, 10, 3)), [2, 3, 4, 5, 6, 7]
+    )
+
+
+def test_dihedral_weights_follow_cgal():
+    from neural_shdf.geometry import FaceGraph
+
+    angles = np.array([0.0, np.pi / 2, np.pi / 2])
+    graph = FaceGraph(
+        pairs=np.array([[0, 1], [1, 2], [2, 3]]),
+        edge_vertices=np.zeros((3, 2), dtype=np.int64),
+        edge_length=np.ones(3),
+        dihedral=angles,
+        concave=np.array([False, True, False]),
+        face_count=4,
+    )
+    weights = dihedral_weights(graph, 0.26)
+    scale = 0.26 * LAMBDA_SCALE
+    np.testing.assert_allclose(
+        weights, [-np.log(ANGLE_EPS) * scale, -np.log(0.5) * scale, -np.log(0.5 * 0.08) * scale]
+    )
+    assert weights[1] < weights[2] < weights[0]  # concave folds are the cheapest cuts
+
+
+def test_multilevel_is_close_to_the_direct_solution_on_a_sphere():
+    mesh = trimesh.creation.icosphere(5)  # 20480 faces, several coarse levels
+    normals, areas = face_normals(mesh.vertices, mesh.faces)
+    graph = build_face_graph(mesh.vertices, mesh.faces, normals)
+    centroids = face_centroids(mesh.vertices, mesh.faces)
+    # Two clusters by height, noisy: the best cut is near the equator.
+    rng = np.random.default_rng(0)
+    p_top = np.clip(0.5 + 0.5 * centroids[:, 2] + rng.normal(0, 0.2, len(centroids)), 0.01, 0.99)
+    data = -np.log(np.column_stack([1 - p_top, p_top]))
+    weights = dihedral_weights(graph, 0.02)
+    direct = alpha_expansion(data, graph.pairs, weights)
+    multilevel = multilevel_alpha_expansion(
+        data, graph.pairs, weights, centroids, areas, coarse_nodes=1000
+    )
+    e_direct = labelling_energy(direct, data, graph.pairs, weights)
+    e_multi = labelling_energy(multilevel, data, graph.pairs, weights)
+    assert e_multi <= 1.05 * e_direct
+    assert np.mean(multilevel == direct) > 0.95

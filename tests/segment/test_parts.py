@@ -1,0 +1,64 @@
+"""Canonical labels, connected parts, and merging of tiny parts."""
+
+import numpy as np
+from neural_shdf.geometry import FaceGraph
+from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
+
+
+def path_graph(count: int, lengths=None) -> FaceGraph:
+    pairs = np.column_stack([np.arange(count - 1), np.arange(1, count)])
+    return FaceGraph(
+        pairs=pairs,
+        edge_vertices=np.zeros_like(pairs),
+        edge_length=np.ones(count - 1) if lengths is None else np.asarray(lengths, float),
+        dihedral=np.zeros(count - 1),
+        concave=np.zeros(count - 1, bool),
+        face_count=count,
+    )
+
+
+def test_canonical_labels_number_parts_by_lowest_face():
+    np.testing.assert_array_equal(canonical_labels([7, 7, 3, 9, 3, 7]), [0, 0, 1, 2, 1, 0])
+
+
+def test_connected_parts_split_a_label_that_is_not_connected():
+    graph = path_graph(6)
+    np.testing.assert_array_equal(
+        connected_parts(np.array([1, 1, 2, 2, 1, 1]), graph.pairs, 6), [0, 0, 1, 1, 2, 2]
+    )
+
+
+def test_tiny_part_joins_the_neighbour_with_the_longest_boundary():
+    # Faces 0-1 | 2 | 3-4-5 on a path; face 2 touches 1 (length 1) and 3 (length 2).
+    graph = path_graph(6, lengths=[1, 1, 2, 1, 1])
+    parts = np.array([0, 0, 1, 2, 2, 2])
+    areas = np.array([1.0, 1.0, 0.01, 1.0, 1.0, 1.0])
+    merged = merge_small_parts(parts, graph, areas, np.zeros((6, 3)), 0.05)
+    np.testing.assert_array_equal(merged, [0, 0, 1, 1, 1, 1])
+
+
+def test_isolated_tiny_shell_joins_the_nearest_part_and_zero_fraction_keeps_all():
+    # Faces 0-1-2 connected, faces 3 and 4 isolated tiny shells; 3 is near 0, 4 near 2.
+    graph = path_graph(3)
+    graph = FaceGraph(
+        graph.pairs, graph.edge_vertices, graph.edge_length, graph.dihedral, graph.concave, 5
+    )
+    parts = np.array([0, 0, 1, 2, 3])
+    areas = np.array([1.0, 1.0, 1.0, 0.001, 0.001])
+    centroids = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [-0.5, 0, 0], [2.5, 0, 0]], float)
+    merged = merge_small_parts(parts, graph, areas, centroids, 0.01)
+    np.testing.assert_array_equal(merged, [0, 0, 1, 0, 1])
+    np.testing.assert_array_equal(merge_small_parts(parts, graph, areas, centroids, 0.0), parts)
+
+
+def test_all_tiny_shells_stay_apart():
+    graph = FaceGraph(
+        np.zeros((0, 2), np.int64),
+        np.zeros((0, 2), np.int64),
+        np.zeros(0),
+        np.zeros(0),
+        np.zeros(0, bool),
+        4,
+    )
+    merged = merge_small_parts(np.arange(4), graph, np.ones(4), np.eye(4, 3), 0.3)
+    np.testing.assert_array_equal(merged, np.arange(4))

@@ -1,0 +1,189 @@
+"""segment(): dumbbell separation, exact METIS counts, determinism, messy meshes, errors."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import trimesh
+from neural_shdf.errors import ParameterError
+from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
+from neural_shdf.segment.params import SegmentParams
+from neural_shdf.segment.pipeline import segment, segment_with_details
+from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
+
+
+def graph_of(vertices, faces):
+    normals, _ = face_normals(vertices, faces)
+    return build_face_graph(vertices, weld_faces(vertices, faces), normals)
+
+
+@pytest.fixture(scope="module")
+def dumbbell_case():
+    mesh, shdf = dumbbell(6000)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    return vertices, faces, shdf, graph_of(vertices, faces), mesh.triangles_center[:, 2]
+
+
+def assert_canonical(labels):
+    assert labels.dtype == np.int64
+    _, first = np.unique(labels, return_index=True)
+    assert np.array_equal(np.unique(labels), np.arange(len(first)))
+    assert np.all(np.diff(first) > 0)
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        SegmentParams(),
+        SegmentParams(clusters=3),
+        SegmentParams(refine=True, boundary_smoothing=True),
+    ],
+)
+def test_graphcut_separates_the_neck_from_the_balls(dumbbell_case, params):
+    vertices, faces, shdf, graph, z = dumbbell_case
+    labels = segment(vertices, faces, shdf, params, graph)
+    assert_canonical(labels)
+    neck = np.abs(z) < JUNCTION_Z - 0.1
+    left, right = z < -JUNCTION_Z - 0.1, z > JUNCTION_Z + 0.1
+    neck_label = np.bincount(labels[neck]).argmax()
+    assert np.mean(labels[neck] == neck_label) > 0.95
+    for ball in (left, right):
+        assert not np.any(labels[ball] == neck_label)
+        assert np.mean(labels[ball] == np.bincount(labels[ball]).argmax()) > 0.95
+    # The cut sits at the concave junctions, within a few rings.
+    cut = labels[graph.pairs[:, 0]] != labels[graph.pairs[:, 1]]
+    cut_z = np.abs(z[graph.pairs[cut]].mean(axis=1))
+    assert np.all(np.abs(cut_z - JUNCTION_Z) < 0.2)
+
+
+@pytest.mark.parametrize("parts", [2, 3, 6])
+def test_metis_returns_exactly_the_requested_parts(dumbbell_case, parts):
+    vertices, faces, shdf, graph, _ = dumbbell_case
+    labels = segment(vertices, faces, shdf, SegmentParams(partitioner="metis", parts=parts), graph)
+    assert_canonical(labels)
+    assert labels.max() + 1 == parts
+
+
+def test_metis_without_parts_uses_the_graph_cut_count(dumbbell_case):
+    vertices, faces, shdf, graph, _ = dumbbell_case
+    cut = segment(vertices, faces, shdf, SegmentParams(), graph)
+    labels = segment(vertices, faces, shdf, SegmentParams(partitioner="metis"), graph)
+    assert labels.max() == cut.max()
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        SegmentParams(),
+        SegmentParams(partitioner="metis", parts=4, boundary_smoothing=True),
+        SegmentParams(refine=True, boundary_smoothing=True, seed=5),
+    ],
+)
+def test_labels_are_deterministic(dumbbell_case, params):
+    vertices, faces, shdf, graph, _ = dumbbell_case
+    first = segment(vertices, faces, shdf, params, graph)
+    second = segment(vertices.copy(), faces.copy(), shdf.copy(), params, graph_of(vertices, faces))
+    np.testing.assert_array_equal(first, second)
+
+
+def test_constant_shdf_gives_one_part(dumbbell_case):
+    vertices, faces, _, graph, _ = dumbbell_case
+    result = segment_with_details(vertices, faces, np.full(len(faces), 0.5), SegmentParams(), graph)
+    assert result.clusters == 1
+    np.testing.assert_array_equal(result.labels, 0)
+
+
+def test_multi_shell_mesh_with_isolated_and_degenerate_faces():
+    a = trimesh.creation.icosphere(3)
+    b = trimesh.creation.icosphere(3, radius=0.4)
+    b.apply_translation([3, 0, 0])
+    far = np.array([[10.0, 0, 0], [10, 0.01, 0], [10, 0, 0.01], [20, 0, 0]])
+    vertices = np.concatenate([a.vertices, b.vertices, far])
+    n, m = len(a.vertices), len(b.vertices)
+    extra = np.array(
+        [[n + m, n + m + 1, n + m + 2], [n + m, n + m, n + m + 3]]
+    )  # lone + degenerate
+    faces = np.concatenate([a.faces, b.faces + n, extra])
+    shdf = np.concatenate([np.full(len(a.faces), 1.0), np.full(len(b.faces), 0.3), [0.0, 0.0]])
+    graph = graph_of(vertices, faces)
+    for params in (
+        SegmentParams(),
+        SegmentParams(partitioner="metis", parts=3),
+        SegmentParams(refine=True, boundary_smoothing=True),
+    ):
+        labels = segment(vertices, faces, shdf, params, graph)
+        assert_canonical(labels)
+        assert len(labels) == len(faces)
+        # The two spheres never share a part.
+        assert not set(labels[: len(a.faces)]) & set(labels[len(a.faces) : -2])
+    # Graph cut: the tiny lone faces join the nearest big part instead of standing alone.
+    labels = segment(vertices, faces, shdf, SegmentParams(), graph)
+    assert labels.max() + 1 == 2
+
+
+def test_empty_mesh():
+    graph = graph_of(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
+    labels = segment(
+        np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0), SegmentParams(), graph
+    )
+    assert labels.shape == (0,)
+
+
+@pytest.mark.parametrize(
+    "changes, message",
+    [
+        ({"partitioner": "kmeans"}, "unknown partitioner"),
+        ({"clusters": 0}, "clusters must be an integer"),
+        ({"clusters": 2.5}, "clusters must be an integer"),
+        ({"smoothing": -1.0}, "smoothing must be a finite number"),
+        ({"smoothing": float("nan")}, "smoothing must be a finite number"),
+        ({"parts": 3}, "parts applies to the 'metis' partitioner only"),
+        ({"partitioner": "metis", "parts": 0}, "parts must be an integer >= 1"),
+        ({"partitioner": "metis", "parts": 10**9}, "more than the mesh's"),
+        ({"seed": -1}, "seed must be"),
+        ({"min_part_fraction": 1.5}, "min_part_fraction"),
+        ({"refine_depth": 99}, "refine_depth"),
+    ],
+)
+def test_invalid_params_raise_parameter_error(dumbbell_case, changes, message):
+    vertices, faces, shdf, graph, _ = dumbbell_case
+    with pytest.raises(ParameterError, match=message):
+        segment(vertices, faces, shdf, replace(SegmentParams(), **changes), graph)
+
+
+@pytest.mark.parametrize(
+    "shdf_of, message",
+    [
+        (lambda n: np.zeros(n + 1), "one value per face"),
+        (lambda n: np.full(n, np.nan), "non-finite"),
+        (lambda n: np.full(n, 2.0), "normalised to \\[0, 1\\]"),
+    ],
+)
+def test_invalid_shdf_raises_parameter_error(dumbbell_case, shdf_of, message):
+    vertices, faces, _, graph, _ = dumbbell_case
+    with pytest.raises(ParameterError, match=message):
+        segment(vertices, faces, shdf_of(len(faces)), SegmentParams(), graph)
+
+
+@pytest.mark.needs_data
+@pytest.mark.parametrize("model_id", [1, 61, 361])
+def test_part_count_comparable_to_cgal_on_psb(shared_data, psb_off, model_id):
+    """With CGAL's own ShDF, the default graph cut finds about as many parts as CGAL."""
+    from neural_shdf.segment.parts import connected_parts, merge_small_parts
+
+    mesh = trimesh.load(psb_off(model_id), process=False)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    shdf = np.loadtxt(shared_data / "psb-dev" / "cgal" / f"{model_id}.sdf")
+    cgal = np.loadtxt(shared_data / "psb-dev" / "cgal" / f"{model_id}.seg").astype(np.int64)
+    graph = graph_of(vertices, faces)
+    ours = segment(vertices, faces, shdf, SegmentParams(), graph)
+    _, areas = face_normals(vertices, faces)
+    cgal_parts = merge_small_parts(
+        connected_parts(cgal, graph.pairs, len(faces)),
+        graph,
+        areas,
+        np.asarray(mesh.triangles_center),
+        SegmentParams().min_part_fraction,
+    )
+    ratio = (ours.max() + 1) / (cgal_parts.max() + 1)
+    assert 0.5 <= ratio <= 2.0

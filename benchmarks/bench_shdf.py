@@ -110,7 +110,7 @@ def best_of(repeat: int, action):
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dense", action="store_true", help="also the dense-dev scans (slow)")
-    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--threads", type=int, default=None, help="default: one per CPU")
     parser.add_argument("--repeat", type=int, default=3, help="best of N runs per mesh")
     parser.add_argument("--psb", type=int, nargs="*", default=[1, 21, 281], help="psb-dev ids")
     args = parser.parse_args(argv)
@@ -127,7 +127,8 @@ def main(argv: list[str] | None = None) -> int:
 
     per_face = cgal_ms_per_face()
     print(
-        f"cpus {os.cpu_count()}  load {os.getloadavg()[0]:.1f}  threads {args.threads}  "
+        f"cpus {os.cpu_count()}  load {os.getloadavg()[0]:.1f}  "
+        f"threads {args.threads or os.cpu_count()}  "
         f"CGAL {per_face * 1000:.0f} ms per 1000 faces (psb-dev mean)"
     )
     header = (

@@ -82,39 +82,42 @@ def main(argv: list[str] | None = None) -> int:
         ids = ids[: args.limit]
     timings = cgal_timings()
     print(
-        f"{'id':>4} {'category':<10} {'faces':>7} {'pearson':>8} {'ours_ms':>8} "
-        f"{'cgal_ms':>8} {'ratio':>6}"
+        f"{'id':>4} {'category':<10} {'faces':>7} {'pearson':>9} {'max_diff':>8} "
+        f"{'>0.01':>6} {'ours_ms':>8} {'cpu_ms':>8} {'cgal_ms':>8} {'ratio':>6}"
     )
     rows = []
     for mesh_id in ids:
         mesh = load_off(DATA / "off" / f"{mesh_id}.off")
         reference = np.loadtxt(DATA / "cgal" / f"{mesh_id}.sdf")
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), time.process_time()
         graph = mesh_face_graph(mesh)
         ours = mesh.to_input_faces(exact_shdf(mesh, graph=graph))
         elapsed_ms = 1000.0 * (time.perf_counter() - start)
+        cpu_ms = 1000.0 * (time.process_time() - cpu_start)
         pearson = float(np.corrcoef(ours, reference)[0, 1])
+        difference = np.abs(ours - reference)
         cgal_ms = timings.get(mesh_id, float("nan"))
         rows.append((mesh_id, pearson))
         print(
-            f"{mesh_id:>4} {category_of(mesh_id):<10} {mesh.face_count:>7} {pearson:>8.4f} "
-            f"{elapsed_ms:>8.1f} {cgal_ms:>8.1f} {elapsed_ms / cgal_ms:>6.3f}",
+            f"{mesh_id:>4} {category_of(mesh_id):<10} {mesh.face_count:>7} {pearson:>9.6f} "
+            f"{difference.max():>8.4f} {np.mean(difference > 0.01):>6.4f} {elapsed_ms:>8.1f} "
+            f"{cpu_ms:>8.1f} {cgal_ms:>8.1f} {elapsed_ms / cgal_ms:>6.3f}",
             flush=True,
         )
     values = np.array([p for _, p in rows])
     print(
-        f"\nmeshes {len(values)}  median pearson {np.median(values):.4f}  "
-        f"mean {values.mean():.4f}  min {values.min():.4f} "
+        f"\nmeshes {len(values)}  median pearson {np.median(values):.6f}  "
+        f"mean {values.mean():.6f}  min {values.min():.6f} "
         f"(id {rows[int(values.argmin())][0]})"
     )
-    print(f"\n{'category':<10} {'n':>2} {'median':>7} {'min':>7} {'max':>7}")
+    print(f"\n{'category':<10} {'n':>2} {'median':>9} {'min':>9} {'max':>9}")
     by_category: dict[str, list[float]] = {}
     for mesh_id, pearson in rows:
         by_category.setdefault(category_of(mesh_id), []).append(pearson)
     for name, found in by_category.items():
         print(
-            f"{name:<10} {len(found):>2} {np.median(found):>7.4f} {min(found):>7.4f} "
-            f"{max(found):>7.4f}"
+            f"{name:<10} {len(found):>2} {np.median(found):>9.6f} {min(found):>9.6f} "
+            f"{max(found):>9.6f}"
         )
     return 0
 

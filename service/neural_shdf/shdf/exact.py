@@ -20,6 +20,7 @@ are recomputed in float64 from the hit triangle's plane.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
@@ -185,7 +186,7 @@ def raw_shdf(
     seed: int = 0,
     rotate_pattern: bool = False,
     normals: NDArray | None = None,
-    threads: int = 2,
+    threads: int | None = None,
     progress: Progress | None = None,
 ) -> NDArray[np.float64]:
     """Raw diameter per triangle (mesh units), NaN where no ray gave a valid hit.
@@ -200,7 +201,8 @@ def raw_shdf(
             deterministic orientation.
         normals: (F, 3) unit outward normals (zero for degenerate faces); computed
             if omitted.
-        threads: Embree calls run in this many threads (results do not depend on it).
+        threads: batches run in this many threads, default one per CPU (the result
+            does not depend on it).
         progress: called with the fraction of faces done, in [0, 1].
     """
     if not 0.0 < cone_angle < math.pi:
@@ -235,7 +237,8 @@ def raw_shdf(
     )
 
     todo = np.flatnonzero(valid)
-    size = min(FACES_PER_BATCH, max(MIN_FACES_PER_BATCH, -(-len(todo) // (4 * max(1, threads)))))
+    threads = max(1, os.cpu_count() or 1) if threads is None else max(1, threads)
+    size = min(FACES_PER_BATCH, max(MIN_FACES_PER_BATCH, -(-len(todo) // (4 * threads))))
     batches = [todo[i : i + size] for i in range(0, len(todo), size)]
 
     def run_batch(batch: NDArray) -> NDArray:
@@ -270,7 +273,7 @@ def raw_shdf(
         return robust_mean(distance, weights)
 
     done = 0
-    with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:
+    with ThreadPoolExecutor(max_workers=threads) as pool:
         for batch, values in zip(batches, pool.map(run_batch, batches), strict=True):
             result[batch] = values
             done += len(batch)
@@ -288,7 +291,7 @@ def exact_shdf(
     seed: int = 0,
     rotate_pattern: bool = False,
     window_size: int | None = None,
-    threads: int = 2,
+    threads: int | None = None,
     progress: Progress | None = None,
 ) -> NDArray[np.float64]:
     """Post-processed exact ShDF in [0, 1] per triangle of ``mesh`` (CGAL's ``sdf_values``)."""

@@ -229,3 +229,25 @@ def test_fuzzed_segment_requests_never_5xx(small_client, body):
     )
     assert response.status_code in (200, 404, 422), response.text
     assert_error(response, response.status_code)
+
+
+def test_stalled_body_times_out_with_408(app_factory):
+    import asyncio
+
+    app = app_factory(body_read_timeout_s=0.2)
+
+    async def slow_body():
+        yield b'--b\r\nContent-Disposition: form-data; name="file"; filename="a.obj"\r\n\r\n'
+        await asyncio.sleep(1.0)
+        yield b"v 0 0 0\r\n--b--\r\n"
+
+    async def send() -> httpx.Response:
+        transport = httpx.ASGITransport(app=app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://t") as client:
+            return await client.post(
+                "/v1/meshes",
+                content=slow_body(),
+                headers={"Content-Type": "multipart/form-data; boundary=b"},
+            )
+
+    assert_error(asyncio.run(send()), 408, "request_timeout")

@@ -72,7 +72,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for module in (health, meshes, segment, jobs):
         app.include_router(module.router)
     app.openapi = lambda: _openapi_with_error_shape(app)  # type: ignore[method-assign]
-    app.add_middleware(BodySizeLimitMiddleware, limit=settings.max_upload_bytes)
+    app.add_middleware(
+        BodySizeLimitMiddleware,
+        limit=settings.max_upload_bytes,
+        read_timeout_s=settings.body_read_timeout_s,
+    )
     app.add_middleware(RequestMetricsMiddleware, metrics=metrics)
     return app
 

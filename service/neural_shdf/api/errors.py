@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import logging
 from typing import Any
 
@@ -141,11 +142,13 @@ def install_error_handlers(app: FastAPI) -> None:
 
 
 class BodySizeLimitMiddleware:
-    """Reject bodies over ``limit`` bytes: by Content-Length up front, else while reading."""
+    """Reject bodies over ``limit`` bytes (by Content-Length up front, else while reading)
+    and clients that stall for ``read_timeout_s`` between two body chunks (408)."""
 
-    def __init__(self, app: ASGIApp, limit: int) -> None:
+    def __init__(self, app: ASGIApp, limit: int, read_timeout_s: float = 60.0) -> None:
         self.app = app
         self.limit = limit
+        self.read_timeout_s = read_timeout_s
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
@@ -164,11 +167,22 @@ class BodySizeLimitMiddleware:
                     await response(scope, receive, send)
                     return
         received = 0
+        body_done = False
 
         async def limited_receive() -> Message:
-            nonlocal received
-            message = await receive()
+            nonlocal received, body_done
+            if body_done:  # after the body, receive() waits for a disconnect: no timeout
+                return await receive()
+            try:
+                message = await asyncio.wait_for(receive(), self.read_timeout_s)
+            except TimeoutError:
+                raise ApiError(
+                    408,
+                    "request_timeout",
+                    f"the request body stalled for more than {self.read_timeout_s:g} s",
+                ) from None
             if message["type"] == "http.request":
+                body_done = not message.get("more_body", False)
                 received += len(message.get("body", b""))
                 if received > self.limit:
                     raise payload_too_large(self.limit)

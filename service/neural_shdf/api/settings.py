@@ -52,6 +52,9 @@ class Settings(BaseSettings):
     request_timeout_s: float = Field(
         120.0, gt=0, description="Longest a synchronous request waits for a computation."
     )
+    body_read_timeout_s: float = Field(
+        60.0, gt=0, description="Longest pause between two chunks of a request body (408)."
+    )
     compute_threads: int = Field(2, ge=1, description="Threads running ShDF and segmentation.")
     job_ttl_s: int = Field(7 * 24 * 3600, ge=1, description="How long job records are kept.")
     lock_timeout_s: float = Field(

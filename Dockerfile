@@ -1,0 +1,30 @@
+# neural-shdf REST service: the same `pip install .` as CI and the README, as a non-root user.
+FROM python:3.11-slim
+
+ENV PYTHONDONTWRITEBYTECODE=1 \
+    PYTHONUNBUFFERED=1 \
+    PIP_NO_CACHE_DIR=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1
+
+RUN useradd --create-home --uid 10001 --shell /usr/sbin/nologin neural-shdf
+
+WORKDIR /src
+COPY pyproject.toml README.md ./
+COPY service ./service
+COPY model_export ./model_export
+# The committed ONNX model (service/neural_shdf/models/emd.onnx) is package data: installed here.
+RUN pip install . && rm -rf /src
+
+USER neural-shdf
+WORKDIR /home/neural-shdf
+ENV NEURAL_SHDF_HOST=0.0.0.0 \
+    NEURAL_SHDF_PORT=8000 \
+    NEURAL_SHDF_CACHE_DIR=/home/neural-shdf/.cache/neural-shdf/service
+RUN mkdir -p "$NEURAL_SHDF_CACHE_DIR"
+VOLUME ["/home/neural-shdf/.cache/neural-shdf"]
+EXPOSE 8000
+
+HEALTHCHECK --interval=30s --timeout=5s --start-period=30s --retries=3 \
+    CMD ["python", "-c", "import os, urllib.request; urllib.request.urlopen('http://127.0.0.1:%s/healthz' % os.environ.get('NEURAL_SHDF_PORT', '8000'), timeout=4)"]
+
+CMD ["neural-shdf", "serve"]

@@ -199,3 +199,11 @@ def test_plane_basis_follows_cgal_and_is_orthonormal():
     for vectors in (base1, base2):
         np.testing.assert_allclose(np.linalg.norm(vectors, axis=1), 1.0)
         np.testing.assert_allclose(np.einsum("ij,ij->i", vectors, normals), 0.0, atol=1e-15)
+
+
+def test_exact_shdf_progress_rises_to_one():
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    mesh = TriangleMesh(sphere.vertices, sphere.faces)
+    seen = []
+    exact_shdf(mesh, graph=mesh_face_graph(mesh), progress=seen.append)
+    assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) >= 2

@@ -45,6 +45,8 @@ MIN_FACES_PER_BATCH = 2_048
 #: Ray origins move this fraction of the bounding-box diagonal along the ray so
 #: that the ray cannot hit its own triangle through float32 rounding.
 ORIGIN_OFFSET = 1e-6
+#: Share of ``exact_shdf``'s progress reported by the ray casting.
+RAY_SHARE = 0.9
 #: Offset used again for the few rays that still hit their own triangle.
 RETRY_ORIGIN_OFFSET = 1e-4
 
@@ -294,7 +296,12 @@ def exact_shdf(
     threads: int | None = None,
     progress: Progress | None = None,
 ) -> NDArray[np.float64]:
-    """Post-processed exact ShDF in [0, 1] per triangle of ``mesh`` (CGAL's ``sdf_values``)."""
+    """Post-processed exact ShDF in [0, 1] per triangle of ``mesh`` (CGAL's ``sdf_values``).
+
+    ``graph`` is the face adjacency the smoothing walks (``pipeline.mesh_face_graph``);
+    the other parameters are those of ``raw_shdf`` and ``postprocess_shdf``.
+    Progress: ray casting reports up to 0.9, post-processing the rest.
+    """
     normals, _ = face_normals(mesh.vertices, mesh.faces)
     raw = raw_shdf(
         mesh.vertices,
@@ -305,6 +312,9 @@ def exact_shdf(
         rotate_pattern=rotate_pattern,
         normals=normals,
         threads=threads,
-        progress=progress,
+        progress=None if progress is None else (lambda done: progress(RAY_SHARE * done)),
     )
-    return postprocess_shdf(raw, graph, window_size=window_size)
+    values = postprocess_shdf(raw, graph, window_size=window_size)
+    if progress is not None:
+        progress(1.0)
+    return values

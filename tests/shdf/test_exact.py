@@ -1,7 +1,6 @@
 """Exact ShDF: known diameters of simple solids, robustness, determinism, CGAL agreement."""
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,8 +17,6 @@ from neural_shdf.shdf.exact import (
     raw_shdf,
     robust_mean,
 )
-
-PSB = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "psb-dev"
 
 
 def expected_robust_mean(lengths: np.ndarray) -> float:
@@ -177,11 +174,10 @@ def test_bad_parameters_are_refused():
 
 
 @pytest.mark.needs_data
-@pytest.mark.skipif(not PSB.is_dir(), reason="needs ../shared/data/psb-dev")
-def test_agrees_with_cgal_on_a_benchmark_mesh():
-    loaded = trimesh.load(PSB / "off" / "1.off", process=False)
+def test_agrees_with_cgal_on_a_benchmark_mesh(psb_off, shared_data):
+    loaded = trimesh.load(psb_off(1), process=False)
     mesh = TriangleMesh(np.asarray(loaded.vertices), np.asarray(loaded.faces))
-    reference = np.loadtxt(PSB / "cgal" / "1.sdf")
+    reference = np.loadtxt(shared_data / "psb-dev" / "cgal" / "1.sdf")
     ours = exact_shdf(mesh, graph=mesh_face_graph(mesh))
     assert np.corrcoef(ours, reference)[0, 1] >= 0.99
 

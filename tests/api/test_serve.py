@@ -54,3 +54,35 @@ def computations(base: str, line: str) -> float:
         if text.startswith(line):
             return float(text.split()[-1])
     return 0.0
+
+
+def test_docker_healthcheck_command_passes_against_the_server(uvicorn_server):
+    """The Dockerfile's HEALTHCHECK command, run as is against a live server."""
+    import json
+    import os
+    import re
+    import subprocess
+    import sys
+
+    from api_helpers import REPO_ROOT
+
+    dockerfile = (REPO_ROOT / "Dockerfile").read_text()
+    assert re.search(r"^FROM python:3\.11-slim", dockerfile, re.M)
+    assert re.search(r"^USER (?!root)\S+", dockerfile, re.M)
+    assert "RUN pip install ." in dockerfile
+    assert re.search(r'^CMD \["neural-shdf", "serve"\]', dockerfile, re.M)
+    assert "NEURAL_SHDF_HOST=0.0.0.0" in dockerfile
+    command = json.loads(re.search(r"HEALTHCHECK .*?CMD (\[[^\n]*\])", dockerfile, re.S).group(1))
+    assert command[0] == "python"
+    port = uvicorn_server.rsplit(":", 1)[1]
+    env = {**os.environ, "NEURAL_SHDF_PORT": port}
+    assert subprocess.run([sys.executable, *command[1:]], env=env, timeout=30).returncode == 0
+    env["NEURAL_SHDF_PORT"] = "1"  # nothing listens there: the check must fail
+    assert (
+        subprocess.run(
+            [sys.executable, *command[1:]], env=env, timeout=30, capture_output=True
+        ).returncode
+        != 0
+    )
+    ignored = (REPO_ROOT / ".dockerignore").read_text().split()
+    assert not {"service", "pyproject.toml", "README.md"} & set(ignored)

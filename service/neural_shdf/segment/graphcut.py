@@ -31,6 +31,8 @@ COARSE_NODES = 4000
 FACES_PER_CELL = 16
 #: Refinement band: nodes within this many hops of a boundary are re-solved per level.
 BAND_RINGS = 3
+#: Expansion cycles per band solve (the coarse level already placed the labels).
+BAND_CYCLES = 1
 #: Edges cheaper than this fraction of the median edge weight (creases) are never coarsened.
 CREASE_FRACTION = 0.5
 
@@ -171,7 +173,12 @@ def alpha_expansion(
 
 
 def banded_alpha_expansion(
-    band_data: NDArray, pairs: NDArray, weights: NDArray, labels: NDArray, band: NDArray
+    band_data: NDArray,
+    pairs: NDArray,
+    weights: NDArray,
+    labels: NDArray,
+    band: NDArray,
+    max_cycles: int = MAX_CYCLES,
 ) -> NDArray[np.int64]:
     """Alpha-expansion where only ``band`` nodes may change; the rest stay fixed.
 
@@ -202,7 +209,7 @@ def banded_alpha_expansion(
     alphas = np.union1d(labels[nodes], labels[pairs[touching].reshape(-1)])
     result = labels.copy()
     result[nodes] = alpha_expansion(
-        sub_data, sub_pairs, weights[inside], labels[nodes], alphas=alphas
+        sub_data, sub_pairs, weights[inside], labels[nodes], max_cycles, alphas
     )
     return result
 
@@ -242,8 +249,11 @@ def coarsen(
     from scipy.sparse.csgraph import connected_components
 
     a, b = pairs[:, 0], pairs[:, 1]
-    same_cell = np.all(cells[a] == cells[b], axis=1)
-    keep = same_cell & (weights >= crease_weight) & (preferred[a] == preferred[b])
+    span = cells.max(axis=0) + 1 if len(cells) else np.ones(3, dtype=np.int64)
+    cell_key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+    keep = (
+        (cell_key[a] == cell_key[b]) & (weights >= crease_weight) & (preferred[a] == preferred[b])
+    )
     a, b = pairs[keep, 0], pairs[keep, 1]
     graph = sp.csr_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(node_count, node_count))
     _, component = connected_components(graph, directed=True, connection="weak")
@@ -254,12 +264,17 @@ def coarse_graph(
     coarse_of: NDArray, pairs: NDArray, weights: NDArray, coarse_count: int
 ) -> tuple[NDArray, NDArray]:
     """Edges between coarse nodes (sorted pairs) with summed weights."""
+    import scipy.sparse as sp
+
     ca, cb = coarse_of[pairs[:, 0]], coarse_of[pairs[:, 1]]
     cross = ca != cb
     low, high = np.minimum(ca[cross], cb[cross]), np.maximum(ca[cross], cb[cross])
-    keys, inverse = np.unique(low * coarse_count + high, return_inverse=True)
-    summed = np.bincount(inverse.reshape(-1), weights=weights[cross], minlength=len(keys))
-    return np.stack([keys // coarse_count, keys % coarse_count], axis=1), summed
+    # CSR conversion sums duplicate (low, high) entries in linear time.
+    summed = sp.csr_matrix((weights[cross], (low, high)), shape=(coarse_count, coarse_count))
+    summed.sum_duplicates()
+    rows = np.repeat(np.arange(coarse_count, dtype=np.int64), np.diff(summed.indptr))
+    coarse_pairs = np.stack([rows, summed.indices.astype(np.int64)], axis=1)
+    return coarse_pairs, np.asarray(summed.data, dtype=np.float64)
 
 
 def multilevel_alpha_expansion(
@@ -328,5 +343,7 @@ def multilevel_alpha_expansion(
     for coarse_of, level_pairs, level_weights, level_data in reversed(hierarchy[:-1]):
         labels = labels[coarse_of]
         band = near_boundary(labels, level_pairs, len(level_data), rings)
-        labels = banded_alpha_expansion(level_data[band], level_pairs, level_weights, labels, band)
+        labels = banded_alpha_expansion(
+            level_data[band], level_pairs, level_weights, labels, band, BAND_CYCLES
+        )
     return labels

@@ -106,6 +106,7 @@ def segment_with_details(
     if len(faces) == 0:
         return SegmentResult(np.zeros(0, dtype=np.int64), 0, smoothing, timings)
     geometry = FaceData.of(np.asarray(vertices, dtype=np.float64), faces)
+    lap("face_data")
     values = log_normalize(shdf)
     if params.clusters is None:
         mixture = fit_best_mixture(values, params.seed)

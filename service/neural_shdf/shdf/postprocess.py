@@ -85,11 +85,10 @@ def _window_pairs(
         new.eliminate_zeros()
         if new.nnz == 0:
             break
-        new = new.tocoo()
-        out_rows.append(new.row)
-        out_faces.append(new.col)
+        out_rows.append(np.repeat(local, np.diff(new.indptr)))
+        out_faces.append(new.indices)
         out_rings.append(np.full(new.nnz, ring, dtype=np.int8))
-        previous, current = current, new.tocsr()
+        previous, current = current, new
     return np.concatenate(out_rows), np.concatenate(out_faces), np.concatenate(out_rings)
 
 

@@ -78,6 +78,15 @@ class SegmentResult:
     part_mean_shdf: NDArray[np.float64]
     segment_seconds: float
 
+    @functools.cached_property
+    def labels_json(self) -> str:
+        """The labels as a JSON array, serialised once per result (the hot path's main cost)."""
+        return json.dumps(self.labels.tolist(), separators=(",", ":"))
+
+    @functools.cached_property
+    def labels_base64(self) -> str:
+        return base64.b64encode(self.labels.astype("<i4").tobytes()).decode()
+
     def arrays(self) -> dict[str, NDArray]:
         data = asdict(self)
         data["segment_seconds"] = np.array(self.segment_seconds)
@@ -434,7 +443,11 @@ class Engine:
         start = time.perf_counter()
         method = self.method_of(options.method)
         key = self.segment_key(mesh_id, method, options)
-        result = await self.run(self.cached_segmentation, key)
+        result = self.cache.recall(key)  # memory hit: no thread hop
+        if result is None:
+            result = await self.run(self.cached_segmentation, key)
+        else:
+            self._hit("segmentation", True)
         shdf_cached, shdf_seconds, segmentation_cached = True, 0.0, result is not None
         if result is None:
             mesh = await self.run(self.load, mesh_id)
@@ -460,12 +473,7 @@ class Engine:
         timings: dict[str, Any],
     ) -> bytes:
         """The JSON response, serialised directly (no per-label model validation)."""
-        labels: list[int] | None = None
-        encoded: str | None = None
-        if options.labels_format == "base64-int32":
-            encoded = base64.b64encode(result.labels.astype("<i4").tobytes()).decode()
-        else:
-            labels = result.labels.tolist()
+        compact = options.labels_format == "base64-int32"
         parts = [
             {"label": i, "faces": int(f), "area": float(a), "mean_shdf": float(m)}
             for i, (f, a, m) in enumerate(
@@ -477,12 +485,13 @@ class Engine:
             "method": method,
             "faces": len(result.labels),
             "part_count": len(parts),
-            "labels": labels,
-            "labels_base64": encoded,
+            "labels_base64": result.labels_base64 if compact else None,
             "parts": parts,
             "timings": timings,
         }
-        return json.dumps(body, separators=(",", ":")).encode()
+        labels = "null" if compact else result.labels_json
+        rest = json.dumps(body, separators=(",", ":"))
+        return f'{{"labels":{labels},{rest[1:]}'.encode()
 
     async def export_glb(self, mesh_id: str, options: SegmentOptions, style: str) -> bytes:
         from neural_shdf.export import colored_glb, parts_glb

@@ -11,7 +11,8 @@ from neural_shdf.api.engine import Engine
 from neural_shdf.api.schemas import ErrorResponse
 
 
-def get_engine(request: Request) -> Engine:
+async def get_engine(request: Request) -> Engine:
+    """The app's engine (async: FastAPI would run a sync dependency in a thread)."""
     return request.app.state.engine
 
 

@@ -131,7 +131,7 @@ def rand_index_error(
     disagree = (
         np.sum(table.sum(axis=1) ** 2) + np.sum(table.sum(axis=0) ** 2) - 2 * np.sum(table**2)
     )
-    return float(max(disagree, 0.0) / total_pairs)
+    return float(min(max(disagree / total_pairs, 0.0), 1.0))
 
 
 def consistency_errors(

@@ -86,6 +86,16 @@ def test_labels_are_deterministic(dumbbell_case, params):
     np.testing.assert_array_equal(first, second)
 
 
+def test_reference_faces_make_part_counts_independent_of_tessellation():
+    counts = []
+    for faces_wanted in (3000, 60000):
+        mesh, shdf = dumbbell(faces_wanted)
+        vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+        params = SegmentParams(reference_faces=3000)
+        counts.append(segment(vertices, faces, shdf, params, graph_of(vertices, faces)).max() + 1)
+    assert counts == [3, 3]
+
+
 def test_constant_shdf_gives_one_part(dumbbell_case):
     vertices, faces, _, graph, _ = dumbbell_case
     result = segment_with_details(vertices, faces, np.full(len(faces), 0.5), SegmentParams(), graph)
@@ -143,6 +153,7 @@ def test_empty_mesh():
         ({"seed": -1}, "seed must be"),
         ({"min_part_fraction": 1.5}, "min_part_fraction"),
         ({"refine_depth": 99}, "refine_depth"),
+        ({"reference_faces": 0}, "reference_faces"),
     ],
 )
 def test_invalid_params_raise_parameter_error(dumbbell_case, changes, message):

@@ -38,6 +38,12 @@ class SegmentParams:
             (a small shell with no neighbour joins the nearest part); 0 keeps all.
             ``metis`` parts are never merged (their count is exact).
         refine_depth: how deep ``refine`` may recurse.
+        reference_faces: resolution normalisation of the graph cut. CGAL's
+            energy counts data per face and smoothness per edge, so a finer
+            tessellation of the same shape gets more parts. When set, edge
+            weights are scaled by ``sqrt(faces / reference_faces)``, so any
+            tessellation segments like one with ``reference_faces`` faces
+            (e.g. 10000). None: CGAL's behaviour.
     """
 
     partitioner: Partitioner = "graphcut"
@@ -49,3 +55,4 @@ class SegmentParams:
     seed: int = 0
     min_part_fraction: float = DEFAULT_MIN_PART_FRACTION
     refine_depth: int = DEFAULT_REFINE_DEPTH
+    reference_faces: int | None = None

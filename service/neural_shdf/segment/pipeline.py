@@ -115,6 +115,8 @@ def segment_with_details(
     posteriors = mixture.posteriors(values)
     lap("mixture")
     edge_weights = dihedral_weights(graph, smoothing)
+    if params.reference_faces is not None:
+        edge_weights *= np.sqrt(len(faces) / params.reference_faces)
     lap("edge_weights")
 
     need_graphcut = params.partitioner == "graphcut" or params.parts is None
@@ -213,6 +215,12 @@ def validate(faces: NDArray, shdf: NDArray, params: SegmentParams, graph: FaceGr
                 f"parts={params.parts} is more than the mesh's {face_count} faces; "
                 f"ask for at most {face_count} parts"
             )
+    if params.reference_faces is not None and (
+        not _is_int(params.reference_faces) or params.reference_faces < 1
+    ):
+        raise ParameterError(
+            f"reference_faces must be an integer >= 1 (or None), got {params.reference_faces!r}"
+        )
     if not _is_int(params.seed) or params.seed < 0:
         raise ParameterError(f"seed must be an integer >= 0, got {params.seed!r}")
     if not isinstance(params.min_part_fraction, int | float) or not (

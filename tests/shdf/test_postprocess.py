@@ -63,10 +63,11 @@ def sphere_graph():
     return build_face_graph(sphere.vertices, sphere.faces)
 
 
+@pytest.mark.parametrize("compiled", [True, False])
 @pytest.mark.parametrize("window", [1, 2, 3])
-def test_bilateral_matches_the_face_by_face_definition(sphere_graph, window):
+def test_bilateral_matches_the_face_by_face_definition(sphere_graph, window, compiled):
     values = np.random.default_rng(window).random(sphere_graph.face_count)
-    fast = bilateral_smooth(values, sphere_graph, window_size=window)
+    fast = bilateral_smooth(values, sphere_graph, window_size=window, compiled=compiled)
     np.testing.assert_allclose(fast, slow_bilateral(values, sphere_graph, window), rtol=1e-12)
 
 
@@ -84,9 +85,10 @@ def test_bilateral_works_in_small_chunks(sphere_graph, monkeypatch):
     import neural_shdf.shdf.postprocess as postprocess
 
     values = np.random.default_rng(5).random(sphere_graph.face_count)
-    whole = bilateral_smooth(values, sphere_graph, window_size=2)
+    whole = bilateral_smooth(values, sphere_graph, window_size=2, compiled=False)
     monkeypatch.setattr(postprocess, "PAIRS_PER_CHUNK", 10)
-    np.testing.assert_array_equal(bilateral_smooth(values, sphere_graph, window_size=2), whole)
+    chunked = bilateral_smooth(values, sphere_graph, window_size=2, compiled=False)
+    np.testing.assert_array_equal(chunked, whole)
 
 
 def test_fill_missing_uses_earlier_fills_then_the_minimum():

@@ -11,7 +11,8 @@
   (``DIR/targets``), then several variants (other sampling seeds, subdivided,
   decimated, non-uniformly tessellated, other sample counts), each a sample
   graph whose targets come from the base mesh's nearest face
-  (``DIR/graphs-v{feature version}/{train,val}/*.npz``). Re-running skips what exists (resumable).
+  (``DIR/graphs-v{GRAPH_FILE_VERSION}/{train,val}/*.npz``). Re-running skips what
+  exists (resumable).
 """
 
 from __future__ import annotations
@@ -30,7 +31,6 @@ import numpy as np
 import trimesh
 from neural_shdf.geometry import face_centroids, face_normals
 from neural_shdf.neural.graph import (
-    FEATURE_SPEC_VERSION,
     GraphSpec,
     build_sample_graph,
     sample_targets,
@@ -55,9 +55,14 @@ HUMAN_SEG_STRIDE = 3
 PROCEDURAL_COUNT = 160
 
 
+#: Cached graph files stay valid while only node features change (training recomputes
+#: them from the density column and the edges); bump when edges or their features change.
+GRAPH_FILE_VERSION = 2
+
+
 def graph_folder(cache: Path) -> Path:
-    """Sample graphs of the current feature version."""
-    return cache / f"graphs-v{FEATURE_SPEC_VERSION}"
+    """Cached sample graphs of the current graph file version."""
+    return cache / f"graphs-v{GRAPH_FILE_VERSION}"
 
 
 def is_validation(name: str) -> bool:

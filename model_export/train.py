@@ -19,13 +19,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from neural_shdf.neural.graph import EDGE_FEATURES, NODE_FEATURES
+from neural_shdf.neural.graph import EDGE_FEATURES, NODE_FEATURES, node_feature_array
 
 from model_export.data import DEFAULT_CACHE, graph_folder
 from model_export.shdf_task import ShdfNetwork, batch_graphs
 
 CONE_COLUMN = EDGE_FEATURES.index("is_cone_edge")
-HAS_CONE_COLUMN = NODE_FEATURES.index("has_cone_edge")
+DENSITY_COLUMN = NODE_FEATURES.index("density")
 
 
 def rank_within_receiver(receivers: np.ndarray) -> np.ndarray:
@@ -38,7 +38,9 @@ def rank_within_receiver(receivers: np.ndarray) -> np.ndarray:
 
 def subset_edges(arrays: dict[str, np.ndarray], knn: int, cone: int) -> dict[str, np.ndarray]:
     """Keep each receiver's ``knn`` nearest and ``cone`` nearest cone edges (both stored
-    nearest first), as ``build_sample_graph`` with those counts would have built them."""
+    nearest first) and recompute the node features, as ``build_sample_graph`` with
+    those counts would have built them (cached graphs of an older node-feature
+    version work too: only their density column is read)."""
     is_cone = arrays["edge_features"][:, CONE_COLUMN] > 0.5
     receivers = arrays["receivers"]
     keep = np.zeros(len(receivers), dtype=bool)
@@ -48,9 +50,8 @@ def subset_edges(arrays: dict[str, np.ndarray], knn: int, cone: int) -> dict[str
     out = dict(arrays)
     for key in ("edge_features", "senders", "receivers"):
         out[key] = arrays[key][keep]
-    if cone == 0:
-        out["node_features"] = arrays["node_features"].copy()
-        out["node_features"][:, HAS_CONE_COLUMN] = 0.0
+    density = arrays["node_features"][:, DENSITY_COLUMN].astype(np.float64)
+    out["node_features"] = node_feature_array(density, out["edge_features"], out["receivers"])
     return out
 
 

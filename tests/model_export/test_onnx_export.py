@@ -9,6 +9,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
+from neural_shdf.neural.graph import NODE_FEATURES  # noqa: E402
 from neural_shdf.neural.inference import load_model, neural_raw_shdf  # noqa: E402
 
 from model_export import data, export, train  # noqa: E402
@@ -19,7 +20,7 @@ from model_export.shdf_task import INPUT_NAMES, ShdfNetwork, to_tensors  # noqa:
 def random_model(seed: int = 0) -> ShdfNetwork:
     torch.manual_seed(seed)
     model = ShdfNetwork(latent=32, steps=3)
-    model.node_norm.set_stats(np.full(3, 0.5), np.full(3, 2.0))
+    model.node_norm.set_stats(np.full(len(NODE_FEATURES), 0.5), np.full(len(NODE_FEATURES), 2.0))
     model.target_norm.set_stats(np.array([1.5]), np.array([0.7]))
     return model.eval()
 

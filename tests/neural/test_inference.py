@@ -5,13 +5,9 @@ from __future__ import annotations
 import json
 import shutil
 
-import numpy as np
 import pytest
-import trimesh
 from neural_shdf.errors import ModelUnavailableError
-from neural_shdf.mesh import TriangleMesh
-from neural_shdf.neural.inference import DEFAULT_MODEL_PATH, load_model, neural_raw_shdf
-from neural_shdf.pipeline import compute_shdf, mesh_face_graph
+from neural_shdf.neural.inference import DEFAULT_MODEL_PATH, load_model
 
 
 def test_missing_model_raises_a_clear_error(tmp_path) -> None:

@@ -36,7 +36,7 @@ from neural_shdf.errors import InvalidGeometryError
 from neural_shdf.geometry import face_centroids, face_normals
 
 #: Bump when the meaning or order of features changes (checked against the model card).
-FEATURE_SPEC_VERSION = 2
+FEATURE_SPEC_VERSION = 3
 #: Poisson radius r: sqrt(RADIUS_AREA_FACTOR * area / target) gives about ``target`` samples
 #: (random sequential packing covers ~0.55 of the plane with disks of diameter r).
 RADIUS_AREA_FACTOR = 0.57
@@ -44,8 +44,17 @@ RADIUS_AREA_FACTOR = 0.57
 CANDIDATES_PER_SAMPLE = 12
 #: Radius (in Poisson radii) of the neighbourhood whose surface area gives the density.
 DENSITY_RADIUS = 1.5
-#: Node features: density, log density, has-cone-edge flag.
-NODE_FEATURES = ("density", "log_density", "has_cone_edge")
+#: Node features: density, and statistics of the sample's cone edges (a ray-free
+#: first guess of the diameter the network refines); logs of lengths in radii.
+NODE_FEATURES = (
+    "density",
+    "log_density",
+    "has_cone_edge",
+    "cone_edge_count",
+    "log_min_cone_distance",
+    "log_mean_cone_distance",
+    "log_mean_cone_depth",
+)
 #: Edge features, lengths in units of the sampling radius.
 EDGE_FEATURES = (
     "distance",
@@ -218,6 +227,43 @@ def edge_feature_array(
     ).astype(np.float32)
 
 
+def node_feature_array(
+    density: NDArray, edge_features: NDArray, receivers: NDArray
+) -> NDArray[np.float32]:
+    """Node features (see ``NODE_FEATURES``) from the density and the edge features."""
+    # Rounded to float32 first, as training reads it back from float32 graph files.
+    density = np.asarray(density, dtype=np.float32).astype(np.float64)
+    n = len(density)
+    cone = edge_features[:, EDGE_FEATURES.index("is_cone_edge")] > 0.5
+    to = np.asarray(receivers)[cone]
+    distance = edge_features[cone, EDGE_FEATURES.index("distance")].astype(np.float64)
+    facing = -edge_features[cone, EDGE_FEATURES.index("receiver_normal_dot_direction")]
+    depth = distance * facing.astype(np.float64)
+    count = np.bincount(to, minlength=n).astype(np.float64)
+    safe = np.maximum(count, 1.0)
+    min_distance = np.full(n, np.inf)
+    np.minimum.at(min_distance, to, distance)
+    has = count > 0
+    mean_distance = np.bincount(to, distance, minlength=n) / safe
+    mean_depth = np.bincount(to, depth, minlength=n) / safe
+
+    def log_or_zero(values: NDArray) -> NDArray:
+        return np.where(has, np.log(np.where(has, values, 1.0) + 1e-3), 0.0)
+
+    return np.stack(
+        [
+            density,
+            np.log(density + 1e-3),
+            has.astype(np.float64),
+            count,
+            log_or_zero(min_distance),
+            log_or_zero(mean_distance),
+            log_or_zero(mean_depth),
+        ],
+        axis=1,
+    ).astype(np.float32)
+
+
 def build_sample_graph(
     vertices: NDArray,
     faces: NDArray,
@@ -279,11 +325,7 @@ def build_sample_graph(
     edge_features = edge_feature_array(
         positions, sample_normals, senders, receivers, is_cone, radius
     )
-    has_cone = np.zeros(n)
-    has_cone[cone_receivers] = 1.0
-    node_features = np.stack(
-        [density, np.log(density + 1e-3), has_cone], axis=1
-    ).astype(np.float32)
+    node_features = node_feature_array(density, edge_features, receivers)
     return SampleGraph(
         positions=positions,
         normals=sample_normals,

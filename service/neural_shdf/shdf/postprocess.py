@@ -196,9 +196,18 @@ def _bilateral_parallel(indptr, indices, values, window_size, spatial_weight, fa
         )
 
 
+def _compile(cache: bool) -> tuple:
+    return (
+        numba.njit(cache=cache, nogil=True)(_bilateral_faces),
+        numba.njit(cache=cache, parallel=True)(_bilateral_parallel),
+    )
+
+
 if numba is not None:
-    _bilateral_faces = numba.njit(cache=True, nogil=True)(_bilateral_faces)
-    _bilateral_parallel = numba.njit(cache=True, parallel=True)(_bilateral_parallel)
+    try:
+        _bilateral_faces, _bilateral_parallel = _compile(cache=True)
+    except RuntimeError:  # no writable cache folder (read-only install): compile per process
+        _bilateral_faces, _bilateral_parallel = _compile(cache=False)
 
 
 def bilateral_smooth(

@@ -81,6 +81,14 @@ def test_bilateral_keeps_constant_values_and_reduces_noise(sphere_graph):
         bilateral_smooth(noisy, sphere_graph, window_size=-1)
 
 
+def test_bilateral_threads_do_not_change_the_result(sphere_graph):
+    values = np.random.default_rng(7).random(sphere_graph.face_count)
+    one = bilateral_smooth(values, sphere_graph, window_size=3, threads=1)
+    np.testing.assert_array_equal(
+        bilateral_smooth(values, sphere_graph, window_size=3, threads=3), one
+    )
+
+
 def test_bilateral_works_in_small_chunks(sphere_graph, monkeypatch):
     import neural_shdf.shdf.postprocess as postprocess
 

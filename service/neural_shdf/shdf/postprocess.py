@@ -8,6 +8,8 @@ one bilateral smoothing pass over the face graph -> linear normalisation to
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import scipy.sparse as sp
@@ -184,30 +186,11 @@ def _bilateral_faces(
         out[face] = total / norm
 
 
-def _bilateral_parallel(indptr, indices, values, window_size, spatial_weight, factor, out):
-    """Splits the faces into blocks filtered in parallel (compiled)."""
-    face_count = len(values)
-    blocks = max(1, min(64, face_count // 256))
-    for block in numba.prange(blocks):
-        first = block * face_count // blocks
-        last = (block + 1) * face_count // blocks
-        _bilateral_faces(
-            first, last, indptr, indices, values, window_size, spatial_weight, factor, out
-        )
-
-
-def _compile(cache: bool) -> tuple:
-    return (
-        numba.njit(cache=cache, nogil=True)(_bilateral_faces),
-        numba.njit(cache=cache, parallel=True)(_bilateral_parallel),
-    )
-
-
 if numba is not None:
     try:
-        _bilateral_faces, _bilateral_parallel = _compile(cache=True)
+        _bilateral_faces = numba.njit(cache=True, nogil=True)(_bilateral_faces)
     except RuntimeError:  # no writable cache folder (read-only install): compile per process
-        _bilateral_faces, _bilateral_parallel = _compile(cache=False)
+        _bilateral_faces = numba.njit(nogil=True)(_bilateral_faces)
 
 
 def bilateral_smooth(
@@ -218,6 +201,7 @@ def bilateral_smooth(
     spatial_sigma: float | None = None,
     range_sigma_factor: float = RANGE_SIGMA_FACTOR,
     compiled: bool = True,
+    threads: int | None = None,
 ) -> NDArray[np.float64]:
     """One pass of CGAL's bilateral filter over faces within ``window_size`` edge rings.
 
@@ -226,7 +210,8 @@ def bilateral_smooth(
     difference (sigma ``range_sigma_factor`` x the RMS difference over the
     window, the face itself included). Faces whose window has no variation keep
     their value. ``compiled`` uses the numba kernel when numba is installed
-    (same result to rounding; the numpy path is several times slower).
+    (same result to rounding; the numpy path is several times slower), in
+    ``threads`` threads (default one per CPU; the result does not depend on it).
     """
     values = np.asarray(values, dtype=np.float64)
     if window_size < 0:
@@ -239,16 +224,29 @@ def bilateral_smooth(
     adjacency = graph.csr()
     adjacency.data[:] = 1.0
     if compiled and numba is not None:
+        # Python threads over blocks of faces (the kernel releases the GIL); numba's
+        # own parallel layer is avoided because it is not safe under concurrent callers.
         out = np.empty(face_count)
-        _bilateral_parallel(
-            adjacency.indptr.astype(np.int64),
-            adjacency.indices.astype(np.int64),
-            values,
-            int(window_size),
-            spatial_weight,
-            float(range_sigma_factor),
-            out,
-        )
+        indptr = adjacency.indptr.astype(np.int64)
+        indices = adjacency.indices.astype(np.int64)
+        workers = max(1, os.cpu_count() or 1) if threads is None else max(1, threads)
+        bounds = np.linspace(0, face_count, min(4 * workers, face_count) + 1).astype(int)
+
+        def run(block: int) -> None:
+            _bilateral_faces(
+                bounds[block],
+                bounds[block + 1],
+                indptr,
+                indices,
+                values,
+                int(window_size),
+                spatial_weight,
+                float(range_sigma_factor),
+                out,
+            )
+
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            list(pool.map(run, range(len(bounds) - 1)))
         return out
     return _bilateral_vectorised(values, adjacency, window_size, spatial_weight, range_sigma_factor)
 

@@ -120,3 +120,19 @@ def test_neural_is_the_default_and_keyed_by_model_version(client, capsule_obj):
     values = client.get(f"/v1/meshes/{body['mesh']['mesh_id']}/shdf").json()
     assert values["model_version"] == engine.model_version
     assert np.all((np.array(values["values"]) >= 0) & (np.array(values["values"]) <= 1))
+
+
+def test_missing_model_is_reported_not_crashed(app_factory, capsule_obj, monkeypatch, tmp_path):
+    missing = tmp_path / "absent.onnx"
+    monkeypatch.setenv("NEURAL_SHDF_MODEL", str(missing))  # the library reads it too
+    app = app_factory(default_method="neural", model=missing)
+    with TestClient(app) as client:
+        ready = client.get("/readyz")
+        assert ready.status_code == 503 and ready.json()["checks"]["model"]["ok"] is False
+        response = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)})
+        assert response.status_code == 503, response.text
+        assert response.json()["error"]["code"] == "model_unavailable"
+        exact = client.post(
+            "/v1/meshes", files={"file": ("m.obj", capsule_obj)}, data={"method": "exact"}
+        )
+        assert exact.status_code == 200

@@ -12,6 +12,7 @@ import asyncio
 import base64
 import functools
 import hashlib
+import inspect
 import json
 import logging
 import threading
@@ -39,23 +40,31 @@ from neural_shdf.mesh import TriangleMesh
 logger = logging.getLogger(__name__)
 T = TypeVar("T")
 
-PACKAGED_MODEL = Path(__file__).resolve().parents[1] / "models" / "emd.onnx"
-
 
 def model_path(settings: Settings) -> Path:
-    return settings.model_path or PACKAGED_MODEL
+    """The neural model file: the setting, else the library's choice (env or packaged)."""
+    from neural_shdf.neural.inference import model_path as library_model_path
+
+    return settings.model.expanduser().resolve() if settings.model else library_model_path()
 
 
 def model_version(path: Path) -> str | None:
-    """Short hash of the model card and weights; None when the model file is absent."""
-    if not path.is_file():
-        return None
-    digest = hashlib.sha256()
-    for candidate in (path.with_suffix(".json"), path.parent / f"{path.stem}.card.json", path):
-        if candidate.is_file():
-            digest.update(candidate.name.encode())
-            digest.update(candidate.read_bytes())
-    return digest.hexdigest()[:16]
+    """Short hash of the model card (which holds the weights' checksum and feature version);
+    of the weights when there is no card; None when the model is absent."""
+    card = path.with_suffix(".json")
+    if card.is_file():
+        return hashlib.sha256(card.read_bytes()).hexdigest()[:16]
+    if path.is_file():
+        from neural_shdf.neural.inference import file_sha256
+
+        return file_sha256(path)[:16]
+    return None
+
+
+def _accepts_model_path() -> bool:
+    from neural_shdf.pipeline import compute_shdf
+
+    return "model_path" in inspect.signature(compute_shdf).parameters
 
 
 @dataclass(frozen=True)
@@ -326,14 +335,18 @@ class Engine:
             def progress(fraction: float) -> None:
                 self._progress[key] = float(fraction)
 
+            extra = {}
+            if method == "neural" and _accepts_model_path():
+                extra["model_path"] = self.model_path
             start = time.perf_counter()
             try:
                 values = compute_shdf(
                     mesh,
-                    method=method,
+                    method=method,  # type: ignore[arg-type]
                     seed=seed,
                     graph=graph,
-                    progress=progress,  # type: ignore[arg-type]
+                    progress=progress,
+                    **extra,
                 )
             finally:
                 self._progress.pop(key, None)
@@ -503,18 +516,14 @@ class Engine:
 
     # -- lifecycle ---------------------------------------------------------------
     def check_model(self) -> tuple[bool, str]:
-        """Whether the neural model loads (cheap after the first call)."""
-        if not self.model_path.is_file():
-            return False, f"model file {self.model_path} is absent"
-        try:
-            from neural_shdf.shdf import neural as neural_module
+        """Whether the neural model loads (cached by the library after the first call)."""
+        from neural_shdf.neural.inference import load_model
 
-            loader = getattr(neural_module, "load_model", None)
-            if loader is not None:
-                loader()
-            return True, self.model_path.name
+        try:
+            load_model(self.model_path)
         except Exception as exc:  # noqa: BLE001 - reported by /readyz
-            return False, f"model failed to load: {exc}"
+            return False, str(exc)
+        return True, self.model_path.name
 
     async def close(self) -> None:
         for task in list(self._background):

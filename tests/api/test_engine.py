@@ -136,3 +136,41 @@ def test_missing_model_is_reported_not_crashed(app_factory, capsule_obj, monkeyp
             "/v1/meshes", files={"file": ("m.obj", capsule_obj)}, data={"method": "exact"}
         )
         assert exact.status_code == 200
+
+
+def test_long_computation_never_blocks_polling_or_cached_reads(
+    app_factory, capsule_obj, monkeypatch
+):
+    import neural_shdf.pipeline
+    from api_helpers import capsule, wait_job
+
+    real = neural_shdf.pipeline.compute_shdf
+    release = threading.Event()
+
+    def slow(mesh, **kwargs):
+        kwargs["progress"](0.5)
+        assert release.wait(30)
+        return real(mesh, **kwargs)
+
+    app = app_factory(compute_threads=1, sync_face_threshold=300)
+    with TestClient(app) as client:
+        small = client.post("/v1/meshes", files={"file": ("s.obj", capsule_obj)})
+        small_id = small.json()["mesh"]["mesh_id"]
+        cached = client.post("/v1/segment", json={"mesh_id": small_id}).json()
+        monkeypatch.setattr(neural_shdf.pipeline, "compute_shdf", slow)
+        big = capsule(16).export(file_type="obj").encode()  # 480 faces: a job
+        job = client.post("/v1/meshes", files={"file": ("b.obj", big)}).json()
+        try:
+            for _ in range(100):  # the job reports its progress while the compute thread is busy
+                polled = client.get(f"/v1/jobs/{job['job_id']}").json()
+                if polled["progress"] == 0.5:
+                    break
+                threading.Event().wait(0.05)
+            assert polled["state"] == "running" and polled["progress"] == 0.5
+            assert client.get("/healthz").status_code == 200
+            app.state.engine.cache._memory.clear()  # read the disk cache (I/O pool)
+            again = client.post("/v1/segment", json={"mesh_id": small_id}).json()
+            assert again["labels"] == cached["labels"]
+        finally:
+            release.set()
+        assert wait_job(client, job)["state"] == "succeeded"

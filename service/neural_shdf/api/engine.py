@@ -168,7 +168,8 @@ class Engine:
         self.cache = cache
         self.metrics = metrics
         self.jobs = JobStore(cache, settings.job_ttl_s)
-        self.executor = ThreadPoolExecutor(settings.compute_threads, thread_name_prefix="shdf")
+        self.executor = ThreadPoolExecutor(settings.compute_threads, thread_name_prefix="compute")
+        self.io_executor = ThreadPoolExecutor(settings.io_threads, thread_name_prefix="io")
         self.model_path = model_path(settings)
         self.model_version = model_version(self.model_path)
         self._inflight: dict[str, asyncio.Future[Any]] = {}
@@ -179,9 +180,15 @@ class Engine:
 
     # -- plumbing --------------------------------------------------------------
     async def run(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
-        """Run ``fn`` on the compute thread pool."""
+        """Run a CPU-heavy ``fn`` on the compute thread pool."""
         loop = asyncio.get_running_loop()
         return await loop.run_in_executor(self.executor, functools.partial(fn, *args, **kwargs))
+
+    async def io(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+        """Run a short blocking step (cache I/O, bookkeeping) on the I/O thread pool, so it
+        never waits behind long computations."""
+        loop = asyncio.get_running_loop()
+        return await loop.run_in_executor(self.io_executor, functools.partial(fn, *args, **kwargs))
 
     async def single_flight(self, key: str, fn: Callable[[], T]) -> T:
         """Run ``fn`` once per key at a time in this process; concurrent callers share it."""
@@ -369,7 +376,7 @@ class Engine:
     ) -> ShdfOutcome:
         """The cached ShDF, else computed once; large meshes raise JobAccepted (202)."""
         key = self.shdf_key(mesh_id, method, seed)
-        values = await self.run(self.cached_shdf, key)
+        values = await self.io(self.cached_shdf, key)
         if values is not None:
             return ShdfOutcome(values, True, 0.0)
         if allow_job and mesh.face_count > self.settings.sync_face_threshold:
@@ -380,7 +387,7 @@ class Engine:
     async def start_job(
         self, key: str, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
     ) -> dict[str, Any]:
-        job = await self.run(self.jobs.create, mesh_id, method, seed)
+        job = await self.io(self.jobs.create, mesh_id, method, seed)
         compute = functools.partial(self._compute_shdf, key, mesh_id, mesh, method, seed)
         task = asyncio.create_task(self._run_job(job, key, compute))
         self._background.add(task)
@@ -392,19 +399,19 @@ class Engine:
     ) -> None:
         self.metrics.jobs_running.inc()
         try:
-            await self.run(self.jobs.update, job, state="running")
+            await self.io(self.jobs.update, job, state="running")
             work = asyncio.ensure_future(self.single_flight(key, compute))
             while not work.done():
                 await asyncio.wait({work}, timeout=0.5)
                 progress = self._progress.get(key)
                 if progress is not None and not work.done():
-                    await self.run(self.jobs.update, job, progress=min(progress, 0.99))
+                    await self.io(self.jobs.update, job, progress=min(progress, 0.99))
             work.result()
-            await self.run(self.jobs.update, job, state="succeeded", progress=1.0)
+            await self.io(self.jobs.update, job, state="succeeded", progress=1.0)
         except Exception as exc:  # noqa: BLE001 - a failed job is recorded, not raised
             if not isinstance(exc, ApiError | ValueError | RuntimeError):
                 logger.exception("job %s failed", job["job_id"])
-            await self.run(self.jobs.update, job, state="failed", error=error_dict(exc))
+            await self.io(self.jobs.update, job, state="failed", error=error_dict(exc))
         finally:
             self.metrics.jobs_running.dec()
 
@@ -458,12 +465,12 @@ class Engine:
         key = self.segment_key(mesh_id, method, options)
         result = self.cache.recall(key)  # memory hit: no thread hop
         if result is None:
-            result = await self.run(self.cached_segmentation, key)
+            result = await self.io(self.cached_segmentation, key)
         else:
             self._hit("segmentation", True)
         shdf_cached, shdf_seconds, segmentation_cached = True, 0.0, result is not None
         if result is None:
-            mesh = await self.run(self.load, mesh_id)
+            mesh = await self.io(self.load, mesh_id)
             outcome = await self.shdf(mesh_id, mesh, method, options.shdf_seed)
             shdf_cached, shdf_seconds = outcome.cached, outcome.seconds
             compute = functools.partial(self._segment, key, mesh_id, mesh, outcome.values, options)
@@ -510,7 +517,7 @@ class Engine:
         from neural_shdf.export import colored_glb, parts_glb
 
         result, _ = await self.segmentation(mesh_id, options)
-        mesh = await self.run(self.load, mesh_id)
+        mesh = await self.io(self.load, mesh_id)
         writer = colored_glb if style == "colored" else parts_glb
         return await self.run(writer, mesh, result.triangle_labels.astype(np.int64))
 
@@ -529,3 +536,4 @@ class Engine:
         for task in list(self._background):
             task.cancel()
         self.executor.shutdown(wait=False, cancel_futures=True)
+        self.io_executor.shutdown(wait=False, cancel_futures=True)

@@ -58,6 +58,9 @@ class Settings(BaseSettings):
         60.0, gt=0, description="Longest pause between two chunks of a request body (408)."
     )
     compute_threads: int = Field(2, ge=1, description="Threads running ShDF and segmentation.")
+    io_threads: int = Field(
+        8, ge=1, description="Threads for cache I/O (never blocked by computations)."
+    )
     job_ttl_s: int = Field(7 * 24 * 3600, ge=1, description="How long job records are kept.")
     lock_timeout_s: float = Field(
         600.0, gt=0, description="Expiry of the cross-worker compute lock (seconds)."

@@ -27,10 +27,10 @@ async def health() -> Health:
 )
 async def ready(engine: EngineDep) -> JSONResponse:
     """Ready when the neural model loads (if it is the default method) and the cache answers."""
-    model_ok, model_detail = await engine.run(engine.check_model)
+    model_ok, model_detail = await engine.io(engine.check_model)
     if engine.settings.default_method != "neural" and not model_ok:
         model_ok, model_detail = True, f"not needed (default method exact): {model_detail}"
-    cache_ok = await engine.run(engine.cache.ping)
+    cache_ok = await engine.io(engine.cache.ping)
     backend = engine.cache.backend.name
     checks = {
         "model": {"ok": model_ok, "detail": model_detail},

@@ -26,4 +26,4 @@ async def get_job(
     ],
 ) -> Job:
     """Poll until `succeeded` (then fetch `result_url`) or `failed` (see `error`)."""
-    return Job(**await engine.run(engine.job, job_id))
+    return Job(**await engine.io(engine.job, job_id))

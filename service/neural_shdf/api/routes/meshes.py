@@ -39,7 +39,7 @@ async def ingest(engine: Engine, upload: UploadFile, file_type: str | None) -> t
     data = await read_upload(upload)
     fmt = upload_format(upload, file_type)
     mesh = await engine.run(engine.parse, data, fmt)
-    meta = await engine.run(engine.store_mesh, mesh, fmt, upload.filename)
+    meta = await engine.io(engine.store_mesh, mesh, fmt, upload.filename)
     return meta, mesh
 
 
@@ -98,7 +98,7 @@ async def upload_mesh(
 )
 async def get_mesh(engine: EngineDep, mesh_id: MeshId) -> MeshInfo:
     """Size, bounds and origin of a stored mesh."""
-    return MeshInfo(**await engine.run(engine.mesh_meta, mesh_id))
+    return MeshInfo(**await engine.io(engine.mesh_meta, mesh_id))
 
 
 @router.delete(
@@ -111,7 +111,7 @@ async def get_mesh(engine: EngineDep, mesh_id: MeshId) -> MeshInfo:
 )
 async def delete_mesh(engine: EngineDep, mesh_id: MeshId) -> Response:
     """Delete the mesh and everything computed from it (ShDF, segmentations, jobs)."""
-    if not await engine.run(engine.delete, mesh_id):
+    if not await engine.io(engine.delete, mesh_id):
         raise engine._mesh_missing(mesh_id)
     return Response(status_code=204)
 
@@ -144,9 +144,9 @@ async def get_shdf(
 ) -> Response:
     """The ShDF in [0, 1] per input face, computed once and cached."""
     chosen = engine.method_of(method)
-    mesh = await engine.run(engine.load, mesh_id)
+    mesh = await engine.io(engine.load, mesh_id)
     outcome = await engine.shdf(mesh_id, mesh, chosen, seed)
-    values = await engine.run(mesh.to_input_faces, outcome.values)
+    values = await engine.io(mesh.to_input_faces, outcome.values)
     binary = format == "f32" or (format is None and F32_MEDIA_TYPE in (accept or ""))
     headers = {"X-Mesh-Id": mesh_id, "X-Faces": str(len(values))}
     if binary:

@@ -8,6 +8,7 @@ from fastapi import UploadFile
 from pydantic import BaseModel, ConfigDict, Field
 
 from neural_shdf.segment import SegmentParams
+from neural_shdf.segment.params import MAX_CLUSTERS
 
 ShdfMethodName = Literal["neural", "exact"]
 JobState = Literal["queued", "running", "succeeded", "failed"]
@@ -210,8 +211,8 @@ class SegmentOptions(BaseModel):
     clusters: int | None = Field(
         None,
         ge=1,
-        le=64,
-        description="Gaussian mixture components (level of detail).",
+        le=MAX_CLUSTERS,
+        description="Gaussian mixture components (level of detail); none: chosen by BIC.",
         examples=[5],
     )
     smoothing: float | None = Field(

@@ -264,11 +264,11 @@ def process_shape(name: str, source, cache: Path, log) -> int:
         normals, areas = face_normals(v, f)
         centroids = face_centroids(v, f)
         graph = build_sample_graph(
-            v, f, spec, seed=int(rng.integers(2**31)), normals=normals, areas=areas,
-            centroids=centroids, workers=1,
+            v, f, spec, seed=int(rng.integers(2**31)), normals=normals, areas=areas, workers=1
         )
         face_raw = raw if f is faces else raw[base_tree.query(centroids, workers=1)[1]]
-        target = log_diameter_target(sample_targets(face_raw, areas, graph), graph.radius)
+        per_sample = sample_targets(face_raw, areas, centroids, graph)
+        target = log_diameter_target(per_sample, graph.radius)
         arrays = graph_arrays(graph)
         arrays["target"] = target.astype(np.float32)
         np.savez(out_dir / f"{key}__{index}_{label}.npz", **arrays)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 from neural_shdf.errors import InvalidGeometryError
-from neural_shdf.geometry import face_normals
+from neural_shdf.geometry import face_centroids, face_normals
 from neural_shdf.neural.graph import (
     EDGE_FEATURES,
     GraphSpec,
@@ -90,32 +90,50 @@ def test_features_are_rotation_and_scale_invariant() -> None:
 
 
 def test_samples_to_faces_keeps_walls_apart() -> None:
-    slab = trimesh.creation.box(extents=(4.0, 4.0, 0.6)).subdivide().subdivide()
+    slab = trimesh.creation.box(extents=(4.0, 4.0, 0.6))
+    for _ in range(4):
+        slab = slab.subdivide()
     graph = build_sample_graph(slab.vertices, slab.faces, SPEC, seed=0)
     normals, _ = face_normals(slab.vertices, slab.faces)
-    top = graph.normals[:, 2] > 0.99
-    values = np.where(top, 1.0, 0.0)
-    faces = samples_to_faces(values, graph, normals)
-    top_faces = normals[:, 2] > 0.99
-    bottom_faces = normals[:, 2] < -0.99
+    bottom = graph.normals[:, 2] < -0.99
+    values = np.where(bottom, 0.0, 1.0)
+    faces = samples_to_faces(values, graph, slab.faces)
+    centroids = face_centroids(slab.vertices, slab.faces)
+    inner = np.all(np.abs(centroids[:, :2]) < 1.2, axis=1)  # away from the slab's sides
+    top_faces = (normals[:, 2] > 0.99) & inner
+    bottom_faces = (normals[:, 2] < -0.99) & inner
     np.testing.assert_allclose(faces[top_faces], 1.0)
     np.testing.assert_allclose(faces[bottom_faces], 0.0)
-    constant = samples_to_faces(np.full(graph.sample_count, 2.5), graph, normals)
-    np.testing.assert_allclose(constant, 2.5)
+    constant = samples_to_faces(np.full(graph.sample_count, 2.5), graph, slab.faces)
+    np.testing.assert_allclose(constant, 2.5, rtol=1e-6)
 
 
 def test_sample_targets_are_area_weighted_means() -> None:
     sphere = trimesh.creation.icosphere(subdivisions=3)
     graph = build_sample_graph(sphere.vertices, sphere.faces, SPEC, seed=0)
     _, areas = face_normals(sphere.vertices, sphere.faces)
+    centroids = face_centroids(sphere.vertices, sphere.faces)
     values = np.random.default_rng(0).random(len(sphere.faces))
     values[::7] = np.nan
-    targets = sample_targets(values, areas, graph)
-    nearest = graph.face_samples[:, 0]
+    targets = sample_targets(values, areas, centroids, graph)
+    distance = np.linalg.norm(centroids[:, None] - graph.positions[None], axis=2)
+    nearest = distance.argmin(axis=1)
     sample = int(nearest[1])
     mine = (nearest == sample) & np.isfinite(values)
     expected = np.sum(areas[mine] * values[mine]) / np.sum(areas[mine])
     assert targets[sample] == pytest.approx(expected)
+
+
+def test_flipped_faces_do_not_flip_sample_normals() -> None:
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    faces = sphere.faces.copy()
+    flipped = np.random.default_rng(1).random(len(faces)) < 0.2
+    faces[flipped] = faces[flipped][:, ::-1]
+    damaged = build_sample_graph(sphere.vertices, faces, SPEC, seed=4)
+    assert np.any(flipped[damaged.face_ids])
+    # Sample normals still point out of the unit sphere (20 % would not, uncorrected).
+    outward = np.einsum("ij,ij->i", damaged.normals, damaged.positions)
+    assert np.mean(outward > 0) >= 0.98
 
 
 def test_degenerate_mesh_is_rejected() -> None:

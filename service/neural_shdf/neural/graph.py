@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from neural_shdf.errors import InvalidGeometryError
-from neural_shdf.geometry import face_centroids, face_normals
+from neural_shdf.geometry import face_normals
 
 #: Bump when the meaning or order of features changes (checked against the model card).
 FEATURE_SPEC_VERSION = 3
@@ -76,7 +76,7 @@ class GraphSpec:
     #: cos of the half opening of the inward cone (0.5: 60 degrees, the ShDF's cone).
     cone_cos: float = 0.5
     #: Sample-to-face neighbours used when mapping predictions back to faces.
-    interpolation_neighbours: int = 6
+    interpolation_neighbours: int = 4
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -99,8 +99,10 @@ class SampleGraph:
         node_features: (N, len(NODE_FEATURES)) float32.
         edge_features: (E, len(EDGE_FEATURES)) float32.
         radius: Poisson radius, the length unit of features and targets.
-        face_samples: (F, k) nearest samples of each face (k = interpolation_neighbours).
-        face_sample_distance: (F, k) their distances.
+        vertex_samples: (V, k) nearest samples of each mesh vertex
+            (k = interpolation_neighbours), for mapping predictions back.
+        vertex_sample_distance: (V, k) their distances.
+        vertex_normals: (V, 3) unit area-weighted vertex normals (zero if undefined).
     """
 
     positions: NDArray[np.float64]
@@ -112,8 +114,9 @@ class SampleGraph:
     node_features: NDArray[np.float32]
     edge_features: NDArray[np.float32]
     radius: float
-    face_samples: NDArray[np.int64]
-    face_sample_distance: NDArray[np.float64]
+    vertex_samples: NDArray[np.int64]
+    vertex_sample_distance: NDArray[np.float64]
+    vertex_normals: NDArray[np.float64]
 
     @property
     def sample_count(self) -> int:
@@ -264,6 +267,25 @@ def node_feature_array(
     ).astype(np.float32)
 
 
+def vertex_normal_sums(
+    vertex_count: int, faces: NDArray, normals: NDArray, areas: NDArray
+) -> NDArray[np.float64]:
+    """Area-weighted sums of the normals of the faces around each vertex (not unit)."""
+    corners = faces.reshape(-1)
+    out = np.empty((vertex_count, 3))
+    for axis in range(3):
+        out[:, axis] = np.bincount(
+            corners, weights=np.repeat(normals[:, axis] * areas, 3), minlength=vertex_count
+        )
+    return out
+
+
+def unit_rows(vectors: NDArray) -> NDArray[np.float64]:
+    """Rows scaled to unit length; zero rows stay zero."""
+    length = np.linalg.norm(vectors, axis=1, keepdims=True)
+    return np.divide(vectors, length, out=np.zeros_like(vectors), where=length > 0)
+
+
 def build_sample_graph(
     vertices: NDArray,
     faces: NDArray,
@@ -272,7 +294,6 @@ def build_sample_graph(
     seed: int = 0,
     normals: NDArray | None = None,
     areas: NDArray | None = None,
-    centroids: NDArray | None = None,
     workers: int = 2,
 ) -> SampleGraph:
     """Samples, density, edges and features of a triangle mesh (full resolution)."""
@@ -281,6 +302,7 @@ def build_sample_graph(
     faces = np.asarray(faces, dtype=np.int64)
     if normals is None or areas is None:
         normals, areas = face_normals(vertices, faces)
+    normal_sums = vertex_normal_sums(len(vertices), faces, normals, areas)
     total_area = float(areas.sum())
     if not total_area > 0 or not np.isfinite(total_area):
         raise InvalidGeometryError("the mesh has no surface area: every triangle is degenerate")
@@ -291,17 +313,23 @@ def build_sample_graph(
     )
     kept = greedy_disk_selection(candidates, radius)
     positions, face_ids = candidates[kept], candidate_faces[kept]
+    # A sample on a face whose winding disagrees with its surroundings takes the
+    # surroundings' side (flipped faces); on clean meshes this changes nothing.
     sample_normals = normals[face_ids]
+    around = normal_sums[faces[face_ids]].sum(axis=1) - 3.0 * (
+        normals[face_ids] * areas[face_ids, None]
+    )  # the faces around the sample's face, without it
+    flip = np.einsum("ij,ij->i", sample_normals, around) < 0
+    sample_normals[flip] *= -1.0
     n = len(positions)
 
-    # Full-resolution neighbourhoods: each face's nearest samples (density, mapping back).
-    if centroids is None:
-        centroids = face_centroids(vertices, faces)
+    # Full-resolution neighbourhoods: each vertex's nearest samples (mapping back).
     tree = cKDTree(positions)
-    k_faces = max(1, min(spec.interpolation_neighbours, n))
-    face_distance, face_samples = tree.query(centroids, k=k_faces, workers=workers)
-    face_distance = np.asarray(face_distance, dtype=np.float64).reshape(len(faces), k_faces)
-    face_samples = np.asarray(face_samples, dtype=np.int64).reshape(len(faces), k_faces)
+    k_near_samples = max(1, min(spec.interpolation_neighbours, n))
+    vertex_distance, vertex_samples = tree.query(vertices, k=k_near_samples, workers=workers)
+    shape = (len(vertices), k_near_samples)
+    vertex_distance = np.asarray(vertex_distance, dtype=np.float64).reshape(shape)
+    vertex_samples = np.asarray(vertex_samples, dtype=np.int64).reshape(shape)
     near_count = cKDTree(candidates).query_ball_point(
         positions, DENSITY_RADIUS * radius, return_length=True, workers=workers
     )
@@ -336,40 +364,55 @@ def build_sample_graph(
         node_features=node_features,
         edge_features=edge_features,
         radius=radius,
-        face_samples=face_samples,
-        face_sample_distance=face_distance,
+        vertex_samples=vertex_samples,
+        vertex_sample_distance=vertex_distance,
+        vertex_normals=unit_rows(normal_sums),
     )
 
 
 def samples_to_faces(
-    sample_values: NDArray,
-    graph: SampleGraph,
-    face_normals_: NDArray,
+    sample_values: NDArray, graph: SampleGraph, faces: NDArray
 ) -> NDArray[np.float64]:
-    """Per-face values from per-sample values: inverse-distance weights of the nearest
-    samples, times their normal agreement with the face (the other side of a thin
-    wall does not leak in). Faces with no agreeing sample take the nearest sample's value.
+    """Per-face values from per-sample values.
+
+    Each vertex takes the inverse-distance weighted mean of its nearest samples,
+    weighted also by their normals' agreement with the vertex normal (the other
+    side of a thin wall or a facing part does not leak in; a vertex with no
+    agreeing sample takes its nearest sample's value); a face takes the mean of
+    its three vertices.
     """
-    values = np.asarray(sample_values, dtype=np.float64)
-    idx = graph.face_samples
-    agree = np.einsum("fkj,fj->fk", graph.normals[idx], face_normals_)
-    weight = np.clip(agree, 0.0, None) / (graph.face_sample_distance + 0.05 * graph.radius)
-    total = weight.sum(axis=1)
-    mixed = np.einsum("fk,fk->f", weight, values[idx])
-    nearest = values[idx[:, 0]]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(total > 1e-12, mixed / np.where(total > 0, total, 1.0), nearest)
+    values = np.asarray(sample_values, dtype=np.float32)
+    sample_normals = graph.normals.astype(np.float32)
+    normals = graph.vertex_normals.astype(np.float32)
+    offset = np.float32(0.05 * graph.radius)
+    total = np.zeros(len(normals), dtype=np.float32)
+    mixed = np.zeros(len(normals), dtype=np.float32)
+    for column in range(graph.vertex_samples.shape[1]):  # one neighbour rank at a time
+        sample = graph.vertex_samples[:, column]
+        sn = sample_normals[sample]
+        agree = sn[:, 0] * normals[:, 0] + sn[:, 1] * normals[:, 1] + sn[:, 2] * normals[:, 2]
+        weight = np.maximum(agree, 0.0) / (
+            graph.vertex_sample_distance[:, column].astype(np.float32) + offset
+        )
+        total += weight
+        mixed += weight * values[sample]
+    nearest = values[graph.vertex_samples[:, 0]]
+    safe = np.where(total > 1e-12, total, 1.0)
+    per_vertex = np.where(total > 1e-12, mixed / safe, nearest)
+    faces = np.asarray(faces)
+    face_values = per_vertex[faces[:, 0]] + per_vertex[faces[:, 1]] + per_vertex[faces[:, 2]]
+    return face_values.astype(np.float64) / 3.0
 
 
 def sample_targets(
-    face_values: NDArray, areas: NDArray, graph: SampleGraph
+    face_values: NDArray, areas: NDArray, centroids: NDArray, graph: SampleGraph
 ) -> NDArray[np.float64]:
     """Training target per sample: area-weighted mean of the face values (NaN ignored)
-    over the faces nearest to it, else the value of the sample's own face; NaN where
-    neither has a value."""
+    over the faces whose centroid is nearest to it, else the value of the sample's
+    own face; NaN where neither has a value."""
     values = np.asarray(face_values, dtype=np.float64)
     ok = np.isfinite(values)
-    nearest = graph.face_samples[:, 0]
+    nearest = cKDTree(graph.positions).query(centroids, workers=1)[1]
     n = graph.sample_count
     total = np.bincount(nearest[ok], weights=areas[ok] * values[ok], minlength=n)
     weight = np.bincount(nearest[ok], weights=areas[ok], minlength=n)

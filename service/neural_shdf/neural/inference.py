@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.errors import ModelUnavailableError
-from neural_shdf.geometry import face_centroids, face_normals
+from neural_shdf.geometry import face_normals
 from neural_shdf.neural.graph import (
     FEATURE_SPEC_VERSION,
     GraphSpec,
@@ -133,10 +133,7 @@ def neural_raw_shdf(
     faces = np.asarray(faces, dtype=np.int64)
     if normals is None or areas is None:
         normals, areas = face_normals(vertices, faces)
-    graph = build_sample_graph(
-        vertices, faces, model.spec, seed=seed, normals=normals, areas=areas,
-        centroids=face_centroids(vertices, faces),
-    )
+    graph = build_sample_graph(vertices, faces, model.spec, seed=seed, normals=normals, areas=areas)
     log_diameter = model.predict_log_diameter(graph)
     per_sample = np.exp(log_diameter) * graph.radius
-    return samples_to_faces(per_sample, graph, normals)
+    return samples_to_faces(per_sample, graph, faces)

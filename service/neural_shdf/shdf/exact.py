@@ -13,8 +13,12 @@ Follows CGAL's ``sdf_values`` (Surface_mesh_segmentation) step by step:
 * outliers outside ``median +- 1.5 * MAD`` of a face's hit distances are
   dropped and the rest averaged.
 
-Rays of many faces are cast together through Embree (``embreex``); distances
-are recomputed in float64 from the hit triangle's plane.
+Rays of many faces are cast together through Embree (``embreex``, float32,
+in Morton order of the faces, in several threads); distances are recomputed in
+float64 from the hit triangle's plane. Ray origins sit ``ORIGIN_OFFSET`` x the
+bounding-box diagonal along the ray, so hits closer than that are not seen:
+where coplanar faces overlap, CGAL may record near-zero distances (depending
+on the rounding of the centroid) that this implementation does not.
 """
 
 from __future__ import annotations

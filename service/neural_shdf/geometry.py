@@ -28,7 +28,8 @@ def face_normals(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
 
 def face_centroids(vertices: NDArray, faces: NDArray) -> NDArray:
     """Centroids (F, 3) of triangles."""
-    return vertices[faces].mean(axis=1)
+    faces = np.asarray(faces)
+    return (vertices[faces[:, 0]] + vertices[faces[:, 1]] + vertices[faces[:, 2]]) / 3.0
 
 
 @dataclass(frozen=True)

@@ -57,7 +57,7 @@ PROCEDURAL_COUNT = 160
 
 #: Cached graph files stay valid while only node features change (training recomputes
 #: them from the density column and the edges); bump when edges or their features change.
-GRAPH_FILE_VERSION = 2
+GRAPH_FILE_VERSION = 3
 
 
 def graph_folder(cache: Path) -> Path:

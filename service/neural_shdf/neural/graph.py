@@ -36,7 +36,7 @@ from neural_shdf.errors import InvalidGeometryError
 from neural_shdf.geometry import face_normals
 
 #: Bump when the meaning or order of features changes (checked against the model card).
-FEATURE_SPEC_VERSION = 3
+FEATURE_SPEC_VERSION = 4
 #: Poisson radius r: sqrt(RADIUS_AREA_FACTOR * area / target) gives about ``target`` samples
 #: (random sequential packing covers ~0.55 of the plane with disks of diameter r).
 RADIUS_AREA_FACTOR = 0.57
@@ -174,7 +174,9 @@ def _cone_edges(
     """For each receiver, the ``count`` nearest samples that face away from it inside its
     inward cone. The cone's apex sits ``radius / tan(half angle)`` behind the sample
     (lateral slack of one radius), so that thin walls, whose far side is closer than
-    the sample spacing, still find samples there.
+    the sample spacing, still find samples there; the sender's normal must turn by
+    more than the cone's half angle from the receiver's, so that neighbours on the
+    same convex surface do not count as its far side.
     """
     n = len(positions)
     senders, receivers = [], []
@@ -192,7 +194,8 @@ def _cone_edges(
         depth = -np.einsum("ijk,ik->ij", offset, nrm[rows])
         lateral = np.sqrt(np.maximum(squared - depth**2, 0.0))
         away = np.einsum("ijk,jk->ij", offset, nrm) > 0
-        ok = (depth > 0) & (lateral <= depth * tan_half + radius) & away
+        opposed = np.einsum("ik,jk->ij", nrm[rows], nrm) <= cone_cos
+        ok = (depth > 0) & (lateral <= depth * tan_half + radius) & away & opposed
         score = np.where(ok, squared, np.inf)
         nearest = np.argpartition(score, k - 1, axis=1)[:, :k]
         chosen_score = np.take_along_axis(score, nearest, axis=1)

@@ -154,7 +154,8 @@ def test_large_mesh_runs_as_a_job(app_factory, capsule_obj):
         if TEST_METHOD == "exact":
             assert other.status_code == 202
             assert wait_job(client, other.json())["state"] == "succeeded"
-        assert client.get("/v1/jobs/nope").json()["error"]["code"] == "job_not_found"
+        unknown = client.get("/v1/jobs/" + "0" * 32).json()
+        assert unknown["error"]["code"] == "job_not_found"
 
 
 def test_metrics_exposition(client, capsule_obj):

@@ -101,6 +101,16 @@ def error_dict(exc: BaseException) -> dict[str, Any]:
     return {"code": code, "message": message, "detail": detail}
 
 
+def allowed_methods(app: FastAPI, path: str) -> list[str]:
+    """Every method some route serves at ``path``."""
+    methods: set[str] = set()
+    for route in app.routes:
+        regex = getattr(route, "path_regex", None)
+        if regex is not None and regex.match(path):
+            methods |= set(getattr(route, "methods", None) or ())
+    return sorted(methods)
+
+
 def install_error_handlers(app: FastAPI) -> None:
     """Route every failure, including FastAPI's own, through the standard shape."""
 
@@ -111,13 +121,15 @@ def install_error_handlers(app: FastAPI) -> None:
         detail = exc.extra if isinstance(exc, ApiError) else None
         return error_response(status, code, message, detail)
 
-    async def http_error(_: Request, exc: Exception) -> JSONResponse:
+    async def http_error(request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, StarletteHTTPException)
         status = exc.status_code
         code = _STATUS_CODES.get(status, "http_error")
         response = error_response(status, code, str(exc.detail))
         if exc.headers:
             response.headers.update(exc.headers)
+        if status == 405:  # Starlette names only the first matching route's methods
+            response.headers["Allow"] = ", ".join(allowed_methods(app, request.url.path))
         return response
 
     async def validation_error(_: Request, exc: Exception) -> JSONResponse:

@@ -14,6 +14,8 @@ ShdfMethodName = Literal["neural", "exact"]
 JobState = Literal["queued", "running", "succeeded", "failed"]
 
 MESH_ID_EXAMPLE = "3f1c0b6e2d4a8f7e9c1b2a3d4e5f60718293a4b5c6d7e8f9a0b1c2d3e4f5a6b7"
+MESH_ID_PATTERN = "^[0-9a-f]{64}$"
+JOB_ID_PATTERN = "^[0-9a-f]{32}$"
 JOB_ID_EXAMPLE = "5d0f3c8a9b6e4f21a7c3d2e1f0a9b8c7"
 
 
@@ -260,9 +262,8 @@ class SegmentRequest(SegmentOptions):
     )
 
     mesh_id: str = Field(
-        min_length=1,
-        max_length=128,
-        description="Id returned by the upload.",
+        pattern=MESH_ID_PATTERN,
+        description="Id returned by the upload (64 hex digits).",
         examples=[MESH_ID_EXAMPLE],
     )
 

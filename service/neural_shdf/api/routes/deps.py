@@ -22,6 +22,8 @@ EngineDep = Annotated[Engine, Depends(get_engine)]
 def error_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
     """OpenAPI entries for the standard error body."""
     text = {
+        400: "Malformed request body (not parseable as JSON or multipart).",
+        408: "The client stalled while sending the body.",
         404: "Unknown mesh or job.",
         413: "Upload or mesh too large.",
         415: "Unsupported mesh format.",

@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Path
 
 from neural_shdf.api.routes.deps import EngineDep, error_responses
-from neural_shdf.api.schemas import JOB_ID_EXAMPLE, Job
+from neural_shdf.api.schemas import JOB_ID_EXAMPLE, JOB_ID_PATTERN, Job
 
 router = APIRouter(prefix="/v1", tags=["jobs"])
 
@@ -22,7 +22,7 @@ router = APIRouter(prefix="/v1", tags=["jobs"])
 async def get_job(
     engine: EngineDep,
     job_id: Annotated[
-        str, Path(min_length=1, max_length=64, description="Job id.", examples=[JOB_ID_EXAMPLE])
+        str, Path(pattern=JOB_ID_PATTERN, description="Job id.", examples=[JOB_ID_EXAMPLE])
     ],
 ) -> Job:
     """Poll until `succeeded` (then fetch `result_url`) or `failed` (see `error`)."""

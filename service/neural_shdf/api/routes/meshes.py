@@ -12,6 +12,7 @@ from neural_shdf.api.engine import Engine
 from neural_shdf.api.routes.deps import EngineDep, error_responses, read_upload, upload_format
 from neural_shdf.api.schemas import (
     MESH_ID_EXAMPLE,
+    MESH_ID_PATTERN,
     Job,
     MeshInfo,
     ShdfMethodName,
@@ -25,9 +26,8 @@ router = APIRouter(prefix="/v1", tags=["meshes"])
 MeshId = Annotated[
     str,
     Path(
-        min_length=1,
-        max_length=128,
-        description="Mesh id from the upload.",
+        pattern=MESH_ID_PATTERN,
+        description="Mesh id from the upload (64 hex digits).",
         examples=[MESH_ID_EXAMPLE],
     ),
 ]
@@ -50,7 +50,7 @@ async def ingest(engine: Engine, upload: UploadFile, file_type: str | None) -> t
     response_model=UploadResult,
     responses={
         202: {"model": Job, "description": "Large mesh: the ShDF is computed by a job."},
-        **error_responses(413, 415, 422, 503, 504),
+        **error_responses(400, 408, 413, 415, 422, 503, 504),
     },
 )
 async def upload_mesh(

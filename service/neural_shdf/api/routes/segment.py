@@ -26,7 +26,7 @@ _SEGMENT_ERRORS = {
         "description": "Large mesh whose ShDF is not cached yet: poll the job, "
         "then repeat the request.",
     },
-    **error_responses(404, 413, 415, 422, 503, 504),
+    **error_responses(400, 404, 408, 413, 415, 422, 503, 504),
 }
 
 

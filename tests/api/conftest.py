@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import socket
@@ -97,20 +98,22 @@ def wait_for_port(port: int, process: subprocess.Popen, timeout_s: float = 20.0)
     raise RuntimeError(f"nothing listens on port {port}")
 
 
-@pytest.fixture(scope="module")
-def uvicorn_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+@contextlib.contextmanager
+def running_server(cache_dir: Path, workers: int = 1) -> Iterator[str]:
     """`python -m neural_shdf.api.serve` on a free loopback port; yields its base URL."""
     port = free_port()
     env = dict(os.environ)
     env.update(
         NEURAL_SHDF_HOST="127.0.0.1",
         NEURAL_SHDF_PORT=str(port),
-        NEURAL_SHDF_CACHE_DIR=str(tmp_path_factory.mktemp("server-cache")),
+        NEURAL_SHDF_WORKERS=str(workers),
+        NEURAL_SHDF_CACHE_DIR=str(cache_dir),
         NEURAL_SHDF_DEFAULT_METHOD=TEST_METHOD,
         NEURAL_SHDF_MAX_UPLOAD_BYTES=str(2_000_000),
         NEURAL_SHDF_LOG_LEVEL="warning",
     )
     env.pop("NEURAL_SHDF_REDIS_URL", None)
+    env.pop("PROMETHEUS_MULTIPROC_DIR", None)
     process = subprocess.Popen([sys.executable, "-m", "neural_shdf.api.serve"], env=env)
     base = f"http://127.0.0.1:{port}"
     try:
@@ -129,4 +132,18 @@ def uvicorn_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
         yield base
     finally:
         process.terminate()
-        process.wait(timeout=20)
+        process.wait(timeout=30)
+
+
+@pytest.fixture(scope="module")
+def uvicorn_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """One uvicorn worker on loopback."""
+    with running_server(tmp_path_factory.mktemp("server-cache")) as base:
+        yield base
+
+
+@pytest.fixture(scope="module")
+def two_worker_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    """Two uvicorn worker processes sharing one disk cache."""
+    with running_server(tmp_path_factory.mktemp("server-cache"), workers=2) as base:
+        yield base

@@ -49,6 +49,31 @@ def test_real_server_concurrent_duplicates_compute_once(uvicorn_server):
     assert computations(uvicorn_server, line) == before + 1
 
 
+def test_two_workers_compute_once_and_report_one_metrics_view(two_worker_server):
+    """Two processes behind one port: the disk cache's lock dedups across them, and
+    /metrics (multiprocess mode) sums both workers."""
+    import trimesh
+
+    data = trimesh.creation.icosphere(subdivisions=3).export(file_type="stl")
+    line = f'neural_shdf_shdf_computations_total{{method="{TEST_METHOD}"}}'
+
+    async def burst() -> list[httpx.Response]:
+        # Separate connections so that both workers get requests.
+        clients = [httpx.AsyncClient(base_url=two_worker_server, timeout=60) for _ in range(8)]
+        try:
+            return await asyncio.gather(
+                *[c.post("/v1/meshes", files={"file": ("s.stl", data)}) for c in clients]
+            )
+        finally:
+            await asyncio.gather(*[c.aclose() for c in clients])
+
+    responses = asyncio.run(burst())
+    assert [r.status_code for r in responses] == [200] * 8
+    assert computations(two_worker_server, line) == 1
+    requests = 'neural_shdf_http_requests_total{method="POST",route="/v1/meshes",status="200"}'
+    assert computations(two_worker_server, requests) == 8
+
+
 def computations(base: str, line: str) -> float:
     for text in httpx.get(f"{base}/metrics").text.splitlines():
         if text.startswith(line):

@@ -1,7 +1,13 @@
-"""Prometheus metrics of one app instance (own registry, so several apps can coexist)."""
+"""Prometheus metrics of one app instance (own registry, so several apps can coexist).
+
+With several uvicorn workers, ``neural-shdf serve`` sets ``PROMETHEUS_MULTIPROC_DIR``
+(prometheus-client's multiprocess mode): every worker writes its samples there and
+``/metrics`` on any worker reports the sum over all of them.
+"""
 
 from __future__ import annotations
 
+import os
 import time
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
@@ -61,7 +67,10 @@ class Metrics:
             registry=r,
         )
         self.jobs_running = Gauge(
-            "neural_shdf_jobs_running", "Jobs running in this process.", registry=r
+            "neural_shdf_jobs_running",
+            "Jobs running (summed over live workers).",
+            registry=r,
+            multiprocess_mode="livesum",
         )
 
     def value(self, name: str, labels: dict[str, str] | None = None) -> float:
@@ -69,6 +78,13 @@ class Metrics:
         return self.registry.get_sample_value(name, labels or {}) or 0.0
 
     def export(self) -> bytes:
+        """The text exposition: this app's registry, or all workers' in multiprocess mode."""
+        if os.environ.get("PROMETHEUS_MULTIPROC_DIR"):
+            from prometheus_client import multiprocess
+
+            registry = CollectorRegistry()
+            multiprocess.MultiProcessCollector(registry)
+            return generate_latest(registry)
         return generate_latest(self.registry)
 
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 
 from neural_shdf.api.settings import Settings
 
@@ -18,15 +20,25 @@ def run(host: str | None = None, port: int | None = None, workers: int | None = 
     # Workers re-read the settings from the environment; keep overrides consistent there.
     os.environ["NEURAL_SHDF_HOST"] = host
     os.environ["NEURAL_SHDF_PORT"] = str(port)
-    uvicorn.run(
-        "neural_shdf.api.app:create_app_from_env",
-        factory=True,
-        host=host,
-        port=port,
-        workers=workers,
-        log_level=settings.log_level,
-        timeout_graceful_shutdown=10,
-    )
+    metrics_dir = None
+    if workers > 1 and not os.environ.get("PROMETHEUS_MULTIPROC_DIR"):
+        # One /metrics for all workers (prometheus-client multiprocess mode); a fresh
+        # directory per start, as that mode requires.
+        metrics_dir = tempfile.mkdtemp(prefix="neural-shdf-metrics-")
+        os.environ["PROMETHEUS_MULTIPROC_DIR"] = metrics_dir
+    try:
+        uvicorn.run(
+            "neural_shdf.api.app:create_app_from_env",
+            factory=True,
+            host=host,
+            port=port,
+            workers=workers,
+            log_level=settings.log_level,
+            timeout_graceful_shutdown=10,
+        )
+    finally:
+        if metrics_dir is not None:
+            shutil.rmtree(metrics_dir, ignore_errors=True)
 
 
 if __name__ == "__main__":

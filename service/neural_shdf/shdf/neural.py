@@ -1,4 +1,11 @@
-"""The neural ShDF: predicted diameters, then the exact path's post-processing."""
+"""The neural ShDF: predicted diameters, then the exact path's post-processing.
+
+The predictions are interpolated from a few thousand surface samples, so they
+are already smooth at the sampling scale; by default the post-processing
+therefore skips its bilateral pass (``smooth=False``: filling and the same
+linear normalisation), which on dense meshes would cost far more than the
+prediction (its window grows with the face count) while changing little.
+"""
 
 from __future__ import annotations
 
@@ -23,16 +30,18 @@ def neural_shdf(
     seed: int = 0,
     progress: Progress | None = None,
     model_path: str | Path | None = None,
+    smooth: bool = False,
 ) -> NDArray[np.float64]:
     """ShDF in [0, 1] per triangle of ``mesh`` from the ONNX network.
 
-    Raises ModelUnavailableError when no model is installed.
+    ``seed`` picks the surface samples; ``smooth`` adds the bilateral pass of
+    ``postprocess_shdf``. Raises ModelUnavailableError when no model is installed.
     """
     model = load_model(model_path)
     raw = neural_raw_shdf(mesh.vertices, mesh.faces, seed=seed, model=model)
     if progress is not None:
         progress(0.5)
-    out = postprocess_shdf(raw, graph)
+    out = postprocess_shdf(raw, graph, smooth=smooth)
     if progress is not None:
         progress(1.0)
     return out

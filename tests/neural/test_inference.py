@@ -5,9 +5,13 @@ from __future__ import annotations
 import json
 import shutil
 
+import numpy as np
 import pytest
+import trimesh
 from neural_shdf.errors import ModelUnavailableError
-from neural_shdf.neural.inference import DEFAULT_MODEL_PATH, load_model
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.neural.inference import DEFAULT_MODEL_PATH, load_model, neural_raw_shdf
+from neural_shdf.pipeline import compute_shdf, mesh_face_graph
 
 
 def test_missing_model_raises_a_clear_error(tmp_path) -> None:
@@ -35,3 +39,45 @@ def test_tampered_model_is_refused(tmp_path) -> None:
     shutil.copy(DEFAULT_MODEL_PATH.with_suffix(".json"), copy.with_suffix(".json"))
     with pytest.raises(ModelUnavailableError, match="checksum"):
         load_model(copy)
+
+
+def two_shells() -> tuple[TriangleMesh, np.ndarray]:
+    """A sphere of radius 1 and, beside it, a capsule of radius 0.1; True on capsule faces."""
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    capsule = trimesh.creation.capsule(height=2.0, radius=0.1, count=[32, 32])
+    capsule.apply_translation([2.5, 0.0, 0.0])
+    both = trimesh.util.concatenate([sphere, capsule])
+    thin = np.arange(len(both.faces)) >= len(sphere.faces)
+    return TriangleMesh(np.asarray(both.vertices), np.asarray(both.faces)), thin
+
+
+@pytest.fixture(scope="module")
+def committed_model():
+    if not DEFAULT_MODEL_PATH.exists():
+        pytest.skip("no committed model")
+    return load_model()
+
+
+def test_committed_model_tells_thin_from_thick(committed_model) -> None:
+    mesh, thin = two_shells()
+    values = compute_shdf(mesh, method="neural", seed=0)
+    assert values.shape == (mesh.face_count,)
+    assert np.all((values >= 0) & (values <= 1))
+    assert np.median(values[thin]) < 0.5 * np.median(values[~thin])
+    raw = neural_raw_shdf(mesh.vertices, mesh.faces, model=committed_model)
+    # Diameters in mesh units: sphere about 2 x 0.85 (cone average), capsule about 0.2.
+    assert 1.0 < np.median(raw[~thin]) < 2.4
+    assert 0.08 < np.median(raw[thin]) < 0.35
+
+
+def test_committed_model_known_values(committed_model) -> None:
+    """Stored outputs of the committed model on a fixed mesh and seed (update on re-export)."""
+    mesh, _ = two_shells()
+    raw = neural_raw_shdf(mesh.vertices, mesh.faces, seed=0, model=committed_model)
+    faces = [0, 1000, 4000, 5119, 5120, 6000, 7000]
+    np.testing.assert_allclose(raw[faces], EXPECTED_RAW, rtol=1e-4)
+    again = compute_shdf(mesh, method="neural", seed=0, graph=mesh_face_graph(mesh))
+    np.testing.assert_allclose(again, compute_shdf(mesh, method="neural", seed=0))
+
+
+EXPECTED_RAW = [0.0] * 7

@@ -36,7 +36,7 @@ from neural_shdf.errors import InvalidGeometryError
 from neural_shdf.geometry import face_normals
 
 #: Bump when the meaning or order of features changes (checked against the model card).
-FEATURE_SPEC_VERSION = 4
+FEATURE_SPEC_VERSION = 5
 #: Poisson radius r: sqrt(RADIUS_AREA_FACTOR * area / target) gives about ``target`` samples
 #: (random sequential packing covers ~0.55 of the plane with disks of diameter r).
 RADIUS_AREA_FACTOR = 0.57
@@ -237,8 +237,13 @@ def node_feature_array(
     density: NDArray, edge_features: NDArray, receivers: NDArray
 ) -> NDArray[np.float32]:
     """Node features (see ``NODE_FEATURES``) from the density and the edge features."""
-    # Rounded to float32 first, as training reads it back from float32 graph files.
+    # Rounded to float32 first, as training reads it back from float32 graph files;
+    # relative to the median, so that a mesh stored twice (duplicated shells) looks
+    # like the mesh stored once, while thin walls still stand out.
     density = np.asarray(density, dtype=np.float32).astype(np.float64)
+    if len(density):  # lower median: an element, so that normalising twice changes nothing
+        median = float(np.partition(density, (len(density) - 1) // 2)[(len(density) - 1) // 2])
+        density = (density / max(median, 1e-6)).astype(np.float32).astype(np.float64)
     n = len(density)
     cone = edge_features[:, EDGE_FEATURES.index("is_cone_edge")] > 0.5
     to = np.asarray(receivers)[cone]

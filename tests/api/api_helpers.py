@@ -126,3 +126,12 @@ def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return sock.getsockname()[1]
+
+
+def make_settings(cache_dir: Path, **overrides):
+    """Service settings for tests: a temp cache, the test method, no Redis, no env file."""
+    from neural_shdf.api.settings import Settings
+
+    values = {"cache_dir": cache_dir, "default_method": TEST_METHOD, "redis_url": None}
+    values.update(overrides)
+    return Settings(_env_file=None, **values)

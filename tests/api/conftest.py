@@ -14,17 +14,10 @@ from pathlib import Path
 
 import httpx
 import pytest
-from api_helpers import TEST_METHOD, capsule, free_port
+from api_helpers import TEST_METHOD, capsule, free_port, make_settings
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 from neural_shdf.api.app import create_app
-from neural_shdf.api.settings import Settings
-
-
-def make_settings(cache_dir: Path, **overrides) -> Settings:
-    values = {"cache_dir": cache_dir, "default_method": TEST_METHOD, "redis_url": None}
-    values.update(overrides)
-    return Settings(_env_file=None, **values)
 
 
 @pytest.fixture

@@ -9,7 +9,7 @@ import httpx
 import numpy as np
 import pytest
 import trimesh
-from api_helpers import capsule, glb_container, obj_bytes, off_bytes
+from api_helpers import capsule, glb_container, make_settings, obj_bytes, off_bytes
 from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -34,8 +34,6 @@ def assert_error(response: httpx.Response, status: int, code: str | None = None)
 @pytest.fixture(scope="module")
 def small_client(tmp_path_factory) -> TestClient:
     """Tight limits: 64 kB bodies, 2,000 faces."""
-    from conftest import make_settings
-
     settings_ = make_settings(
         tmp_path_factory.mktemp("cache"), max_upload_bytes=64_000, max_faces=2_000
     )

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from api_helpers import REPO_ROOT
+from api_helpers import REPO_ROOT, make_settings
 from hypothesis import HealthCheck, settings
 
 schemathesis = pytest.importorskip("schemathesis", reason="schemathesis is not installed")
@@ -13,8 +13,6 @@ from neural_shdf.api.app import create_app  # noqa: E402
 
 @pytest.fixture
 def api_schema(tmp_path):
-    from conftest import make_settings
-
     schema = schemathesis.openapi.from_path(REPO_ROOT / "openapi" / "openapi.json")
     schema.app = create_app(make_settings(tmp_path / "cache", max_upload_bytes=200_000))
     return schema

@@ -3,7 +3,7 @@
 Meshes: a torus at ~10k and ~100k faces and an icosphere at ~20k (generated),
 a few psb-dev meshes (CGAL's own time for them is in ``cgal/timings.csv``),
 and with ``--dense`` the 100k-460k-face scans in ``../shared/data/dense-dev``.
-Columns: ray casting alone (Embree, same rays), the whole raw ShDF, the
+Columns: ray casting alone (Embree, same rays, one thread), the whole raw ShDF, the
 post-processing, the total; rays/s from wall-clock and from CPU time (the CPU
 figure is less disturbed by other jobs on a shared machine, but counts both
 threads); the ratio of our total to CGAL's time: measured for psb-dev meshes,
@@ -132,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
         f"CGAL {per_face * 1000:.0f} ms per 1000 faces (psb-dev mean)"
     )
     header = (
-        f"{'mesh':<22} {'faces':>7} {'Mrays':>6} {'embree_s':>8} {'raw_s':>7} "
+        f"{'mesh':<22} {'faces':>7} {'Mrays':>6} {'embree1t':>8} {'raw_s':>7} "
         f"{'post_s':>7} {'total_s':>7} {'Mray/s':>7} {'Mray/cpu_s':>10} "
         f"{'ms/kface':>8} {'cgal_s':>7} {'ratio':>6}"
     )

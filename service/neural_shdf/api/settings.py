@@ -43,7 +43,10 @@ class Settings(BaseSettings):
     )
 
     max_upload_bytes: int = Field(
-        256 * 1024**2, ge=1, description="Largest request body accepted (checked while reading)."
+        128 * 1024**2,
+        ge=1,
+        description="Largest request body accepted (checked while reading). Text OBJ "
+        "parsing peaks at about 13x the file size in memory; size workers accordingly.",
     )
     max_faces: int = Field(2_000_000, ge=1, description="Largest mesh accepted, in faces.")
     sync_face_threshold: int = Field(

@@ -17,6 +17,7 @@ import pytest
 from api_helpers import TEST_METHOD, capsule, free_port, make_settings
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
+
 from neural_shdf.api.app import create_app
 
 

@@ -60,3 +60,30 @@ def test_duplicate_vertices_segment_like_shared_ones(client):
     reference = segment_file(client, shared, "shared.obj", **options)["labels"]
     assert segment_file(client, split, "split.obj", **options)["labels"] == reference
     assert segment_file(client, stl, "soup.stl", **options)["labels"] == reference
+
+
+def test_every_format_gives_the_same_segmentation(client):
+    """OBJ, OFF, PLY, STL, GLB and glTF (embedded buffers) of one surface: same labels."""
+    import trimesh
+
+    shape = capsule(8)
+    shape = trimesh.Trimesh(shape.vertices.astype(np.float32).astype(float), shape.faces)
+    files = {
+        "m.obj": obj_bytes(shape.vertices, shape.faces.tolist()),
+        "m.off": shape.export(file_type="off"),
+        "m.ply": shape.export(file_type="ply"),
+        "m.stl": shape.export(file_type="stl"),
+        "m.glb": shape.export(file_type="glb"),
+        "m.gltf": trimesh.exchange.gltf.export_gltf(shape, embed_buffers=True)["model.gltf"],
+    }
+    options = {"partitioner": "metis", "parts": "2"}
+    results = {
+        name: segment_file(
+            client, data if isinstance(data, bytes) else data.encode(), name, **options
+        )
+        for name, data in files.items()
+    }
+    reference = results["m.obj"]["labels"]
+    assert len(reference) == len(shape.faces)
+    for name, body in results.items():
+        assert body["labels"] == reference, name

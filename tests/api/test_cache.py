@@ -8,6 +8,7 @@ from api_helpers import TEST_METHOD, metric
 from fastapi.testclient import TestClient
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
 from neural_shdf.api.cache import (
     CorruptEntryError,
     DiskBackend,

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from api_helpers import TEST_METHOD, free_port, metric
 from fastapi.testclient import TestClient
+
 from neural_shdf.api.cache import MAGIC, seal
 from neural_shdf.mesh_io import load_mesh
 
@@ -141,8 +142,9 @@ def test_missing_model_is_reported_not_crashed(app_factory, capsule_obj, monkeyp
 def test_long_computation_never_blocks_polling_or_cached_reads(
     app_factory, capsule_obj, monkeypatch
 ):
-    import neural_shdf.pipeline
     from api_helpers import capsule, wait_job
+
+    import neural_shdf.pipeline
 
     real = neural_shdf.pipeline.compute_shdf
     release = threading.Event()

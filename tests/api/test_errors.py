@@ -13,6 +13,7 @@ from api_helpers import capsule, glb_container, make_settings, obj_bytes, off_by
 from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+
 from neural_shdf.api.app import create_app
 from neural_shdf.mesh_io import SUPPORTED_FORMATS
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 from api_helpers import REPO_ROOT
+
 from neural_shdf.api.openapi import openapi_document, render
 
 COMMITTED = REPO_ROOT / "openapi" / "openapi.json"

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 from api_helpers import TEST_METHOD, capsule, metric, wait_job
+
 from neural_shdf.mesh_io import load_mesh
 from neural_shdf.pipeline import compute_shdf
 

@@ -7,6 +7,7 @@ import asyncio
 import httpx
 import numpy as np
 from api_helpers import TEST_METHOD
+
 from neural_shdf.mesh_io import load_mesh
 
 

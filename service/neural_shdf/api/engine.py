@@ -175,8 +175,7 @@ class Engine:
         self._inflight: dict[str, asyncio.Future[Any]] = {}
         self._progress: dict[str, float] = {}
         self._background: set[asyncio.Task[Any]] = set()
-        self._graph_locks: dict[str, threading.Lock] = {}
-        self._graph_guard = threading.Lock()
+        self._graph_locks = [threading.Lock() for _ in range(64)]  # striped by mesh id
 
     # -- plumbing --------------------------------------------------------------
     async def run(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
@@ -252,7 +251,8 @@ class Engine:
         mesh_id = mesh.content_hash()
         meta_key = f"{mesh_id}:meta"
         meta = self.cache.get_json(meta_key)
-        if meta is None or self.cache.get_arrays(f"{mesh_id}:mesh") is None:
+        stored = self.cache.recall(f"{mesh_id}:mesh") is not None
+        if meta is None or not (stored or self.cache.get_arrays(f"{mesh_id}:mesh") is not None):
             _, area = face_normals(mesh.vertices, mesh.faces)
             meta = {
                 "mesh_id": mesh_id,
@@ -306,9 +306,7 @@ class Engine:
         from neural_shdf.pipeline import mesh_face_graph
 
         key = f"{mesh_id}:graph"
-        with self._graph_guard:
-            lock = self._graph_locks.setdefault(key, threading.Lock())
-        with lock:
+        with self._graph_locks[hash(key) % len(self._graph_locks)]:
             graph = self.cache.recall(key)
             if graph is None:
                 graph = mesh_face_graph(mesh)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import socket
 import struct
 import time
@@ -12,8 +13,12 @@ import numpy as np
 import trimesh
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
-MODEL_FILE = REPO_ROOT / "service" / "neural_shdf" / "models" / "emd.onnx"
-#: The ShDF method the tests use: neural when the committed model exists, else exact.
+#: The committed model, unless NEURAL_SHDF_MODEL points the library (and so the tests) elsewhere.
+MODEL_FILE = Path(
+    os.environ.get("NEURAL_SHDF_MODEL")
+    or REPO_ROOT / "service" / "neural_shdf" / "models" / "emd.onnx"
+)
+#: The ShDF method the tests use: neural when the model exists, else exact.
 TEST_METHOD = "neural" if MODEL_FILE.is_file() else "exact"
 
 

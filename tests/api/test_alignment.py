@@ -8,6 +8,10 @@ from api_helpers import capsule, glb_two_nodes, obj_bytes, parts_within_blocks, 
 
 
 def segment_file(client, data: bytes, name: str, **options) -> dict:
+    """One-shot segmentation with the exact ShDF: deterministic and independent of how
+    vertices are shared, so the same surface in any layout must give the same labels
+    (the neural ShDF samples the surface and may differ slightly between layouts)."""
+    options.setdefault("method", "exact")
     response = client.post("/v1/segment/file", files={"file": (name, data)}, data=options)
     assert response.status_code == 200, response.text
     return response.json()

@@ -176,3 +176,26 @@ def test_long_computation_never_blocks_polling_or_cached_reads(
         finally:
             release.set()
         assert wait_job(client, job)["state"] == "succeeded"
+
+
+@pytest.mark.parametrize(
+    ("labels", "dtype"),
+    [([0, -1, 5, 127], "int8"), ([0, 128, -1], "int16"), ([2**15, 0], "int32"), ([], "int8")],
+)
+def test_compact_labels_use_the_narrowest_integer(labels, dtype):
+    import base64
+
+    from neural_shdf.api.engine import SegmentResult
+
+    result = SegmentResult(
+        labels=np.array(labels, dtype=np.int32),
+        triangle_labels=np.array(labels, dtype=np.int32),
+        part_faces=np.zeros(0, np.int64),
+        part_area=np.zeros(0),
+        part_mean_shdf=np.zeros(0),
+        segment_seconds=0.0,
+    )
+    encoded, name = result.labels_base64
+    assert name == dtype
+    decoded = np.frombuffer(base64.b64decode(encoded), np.dtype(dtype).newbyteorder("<"))
+    assert decoded.tolist() == labels

@@ -91,10 +91,11 @@ def test_segment_reruns_only_the_partitioning(client, capsule_obj):
     assert metric(app, "neural_shdf_segmentations_total") == 3
 
     compact = client.post(
-        "/v1/segment", json={"mesh_id": mesh_id, "clusters": 2, "labels_format": "base64-int32"}
+        "/v1/segment", json={"mesh_id": mesh_id, "clusters": 2, "labels_format": "base64"}
     ).json()
     assert compact["labels"] is None
-    decoded = np.frombuffer(base64.b64decode(compact["labels_base64"]), "<i4")
+    assert compact["labels_dtype"] == "int8"
+    decoded = np.frombuffer(base64.b64decode(compact["labels_base64"]), "<i1")
     assert decoded.tolist() == first.json()["labels"]
 
 

@@ -93,8 +93,12 @@ class SegmentResult:
         return json.dumps(self.labels.tolist(), separators=(",", ":"))
 
     @functools.cached_property
-    def labels_base64(self) -> str:
-        return base64.b64encode(self.labels.astype("<i4").tobytes()).decode()
+    def labels_base64(self) -> tuple[str, str]:
+        """(base64 of the labels as the narrowest little-endian integers, their dtype name)."""
+        top = int(self.labels.max()) if len(self.labels) else 0
+        dtype = "int8" if top < 2**7 else "int16" if top < 2**15 else "int32"
+        packed = self.labels.astype(np.dtype(dtype).newbyteorder("<")).tobytes()
+        return base64.b64encode(packed).decode(), dtype
 
     def arrays(self) -> dict[str, NDArray]:
         data = asdict(self)
@@ -491,7 +495,7 @@ class Engine:
         timings: dict[str, Any],
     ) -> bytes:
         """The JSON response, serialised directly (no per-label model validation)."""
-        compact = options.labels_format == "base64-int32"
+        compact = options.labels_format == "base64"
         parts = [
             {"label": i, "faces": int(f), "area": float(a), "mean_shdf": float(m)}
             for i, (f, a, m) in enumerate(
@@ -503,7 +507,8 @@ class Engine:
             "method": method,
             "faces": len(result.labels),
             "part_count": len(parts),
-            "labels_base64": result.labels_base64 if compact else None,
+            "labels_base64": result.labels_base64[0] if compact else None,
+            "labels_dtype": result.labels_base64[1] if compact else None,
             "parts": parts,
             "timings": timings,
         }

@@ -232,10 +232,11 @@ class SegmentOptions(BaseModel):
         False, description="Straighten part boundaries.", examples=[False]
     )
     seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the segmentation.", examples=[0])
-    labels_format: Literal["json", "base64-int32"] = Field(
+    labels_format: Literal["json", "base64"] = Field(
         "json",
-        description="`json`: labels as a list; `base64-int32`: little-endian int32, base64 "
-        "(compact for large meshes).",
+        description="`json`: labels as a list; `base64`: the labels as little-endian "
+        "integers of the smallest width that holds them (`labels_dtype`), base64-encoded: "
+        "1.33 bytes per face below 128 parts, decoded with one `numpy.frombuffer` call.",
         examples=["json"],
     )
 
@@ -313,6 +314,7 @@ class Segmentation(BaseModel):
                     "part_count": 2,
                     "labels": [0, 0, 1, 1],
                     "labels_base64": None,
+                    "labels_dtype": None,
                     "parts": [
                         {"label": 0, "faces": 2, "area": 1.0, "mean_shdf": 0.2},
                         {"label": 1, "faces": 2, "area": 1.0, "mean_shdf": 0.8},
@@ -335,11 +337,18 @@ class Segmentation(BaseModel):
     part_count: int = Field(description="Number of parts.", examples=[2])
     labels: list[int] | None = Field(
         description="Part label per input face (-1: face without triangles); null when "
-        "`labels_format` is `base64-int32`.",
+        "`labels_format` is `base64`.",
         examples=[[0, 0, 1, 1]],
     )
     labels_base64: str | None = Field(
-        None, description="Labels as base64 little-endian int32 (when requested).", examples=[None]
+        None,
+        description="Labels as base64 little-endian integers (with `labels_format=base64`).",
+        examples=["AAABAQ=="],
+    )
+    labels_dtype: Literal["int8", "int16", "int32"] | None = Field(
+        None,
+        description="Integer type of `labels_base64` (little-endian).",
+        examples=["int8"],
     )
     parts: list[PartSummary] = Field(
         description="Summary per part, by label.",

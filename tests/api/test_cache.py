@@ -69,11 +69,12 @@ def test_entries_survive_a_restart(tmp_path):
 
 
 def test_redis_backend_round_trip_lock_and_groups(redis_url):
-    cache = ResultCache(RedisBackend(redis_url, 2.0), memory_items=0)
+    cache = ResultCache(RedisBackend(redis_url, 2.0, ttl_s=100), memory_items=0)
     assert cache.ping()
     cache.put_arrays("m1:shdf", {"shdf": np.linspace(0, 1, 7)}, group="m1")
     cache.put_json("m1:meta", {"faces": 7}, group="m1")
     np.testing.assert_array_equal(cache.get_arrays("m1:shdf")["shdf"], np.linspace(0, 1, 7))
+    assert 0 < cache.backend._redis.ttl("neural-shdf:m1:meta") <= 100  # entries expire
     with cache.lock("m1:shdf", timeout=5):
         pass
     cache.backend.set("m1:bad", b"corrupt", group="m1")

@@ -31,7 +31,9 @@ its ShDF is computed once and cached. Then segment it as often as you like
 def build_cache(settings: Settings, metrics: Metrics) -> ResultCache:
     """Redis when ``redis_url`` is set, else the local disk cache."""
     if settings.redis_url:
-        backend = RedisBackend(settings.redis_url, settings.redis_timeout_s)
+        backend = RedisBackend(
+            settings.redis_url, settings.redis_timeout_s, ttl_s=settings.redis_ttl_s
+        )
         backend.on_error = lambda exc: metrics.cache_errors.inc()
     else:
         backend = DiskBackend(settings.cache_dir, settings.cache_size_bytes)

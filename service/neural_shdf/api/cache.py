@@ -135,7 +135,13 @@ class RedisBackend:
 
     name = "redis"
 
-    def __init__(self, url: str, timeout_s: float, namespace: str = "neural-shdf") -> None:
+    def __init__(
+        self,
+        url: str,
+        timeout_s: float,
+        namespace: str = "neural-shdf",
+        ttl_s: float | None = None,
+    ) -> None:
         import redis
 
         self._redis = redis.Redis.from_url(
@@ -143,6 +149,7 @@ class RedisBackend:
         )
         self._errors = (redis.RedisError, OSError)
         self._ns = namespace
+        self._ttl_s = ttl_s
         self._local_locks: dict[str, threading.Lock] = {}
         self._local_guard = threading.Lock()
         self.on_error: Callable[[Exception], None] = lambda exc: None
@@ -163,10 +170,14 @@ class RedisBackend:
 
     def set(self, key: str, value: bytes, *, group: str, expire: float | None = None) -> None:
         # SET is atomic: readers see the old value or the whole new one.
+        expire = expire or self._ttl_s
+        seconds = max(1, int(expire)) if expire else None
         try:
             pipe = self._redis.pipeline(transaction=True)
-            pipe.set(self._key(key), value, ex=int(expire) if expire else None)
+            pipe.set(self._key(key), value, ex=seconds)
             pipe.sadd(self._key(f"group:{group}"), key)
+            if self._ttl_s:
+                pipe.expire(self._key(f"group:{group}"), max(1, int(self._ttl_s)))
             pipe.execute()
         except self._errors as exc:
             self._failed(exc)

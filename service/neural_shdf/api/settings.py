@@ -29,6 +29,12 @@ class Settings(BaseSettings):
         None, description="redis://host:port/db; when set, Redis replaces the disk cache."
     )
     redis_timeout_s: float = Field(2.0, gt=0, description="Redis socket timeout in seconds.")
+    redis_ttl_s: float | None = Field(
+        30 * 24 * 3600,
+        gt=0,
+        description="Expiry of Redis entries (refreshed on write); size Redis with "
+        "maxmemory-policy allkeys-lru as well.",
+    )
     memory_cache_items: int = Field(
         16, ge=0, description="Meshes, graphs and results kept in process memory (LRU)."
     )

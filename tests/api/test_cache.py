@@ -104,5 +104,9 @@ def test_replica_b_segments_what_replica_a_uploaded(app_factory, redis_url, caps
         assert from_a["labels"] == from_b.json()["labels"]
         assert from_a["timings"]["segmentation_cached"] is True
         assert a.delete(f"/v1/meshes/{mesh_id}").status_code == 204
-        b.app.state.engine.cache._memory.clear()
+        # B's memory still holds the mesh and the segmentation: it must not serve them.
         assert b.get(f"/v1/meshes/{mesh_id}").status_code == 404
+        gone = b.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 3})
+        assert gone.status_code == 404
+        other = b.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 2})
+        assert other.status_code == 404

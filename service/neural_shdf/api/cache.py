@@ -72,6 +72,7 @@ class Backend(Protocol):
     name: str
 
     def get(self, key: str) -> bytes | None: ...
+    def exists(self, key: str) -> bool | None: ...  # None: the store cannot tell now
     def set(self, key: str, value: bytes, *, group: str, expire: float | None = None) -> None: ...
     def delete(self, key: str) -> None: ...
     def delete_group(self, group: str) -> int: ...
@@ -100,6 +101,9 @@ class DiskBackend:
     def get(self, key: str) -> bytes | None:
         value = self._cache.get(key, default=None, retry=True)
         return value if isinstance(value, bytes) else None
+
+    def exists(self, key: str) -> bool | None:
+        return key in self._cache
 
     def set(self, key: str, value: bytes, *, group: str, expire: float | None = None) -> None:
         # diskcache writes the value file first, then commits the SQLite row in one
@@ -164,6 +168,13 @@ class RedisBackend:
     def get(self, key: str) -> bytes | None:
         try:
             return self._redis.get(self._key(key))
+        except self._errors as exc:
+            self._failed(exc)
+            return None
+
+    def exists(self, key: str) -> bool | None:
+        try:
+            return bool(self._redis.exists(self._key(key)))
         except self._errors as exc:
             self._failed(exc)
             return None

@@ -279,11 +279,20 @@ class Engine:
             raise self._mesh_missing(mesh_id)
         return meta
 
+    def still_stored(self, mesh_id: str) -> bool:
+        """Whether the shared cache still holds the mesh: a deletion through another
+        worker or replica must not be hidden by this process's memory. An unreachable
+        cache cannot tell: then memory is trusted (degraded mode)."""
+        if self.cache.backend.exists(f"{mesh_id}:meta") is not False:
+            return True
+        self.cache.forget_group(mesh_id)
+        return False
+
     def load(self, mesh_id: str) -> TriangleMesh:
         """The stored mesh (memory first, then the shared cache)."""
         key = f"{mesh_id}:mesh"
         mesh = self.cache.recall(key)
-        if mesh is not None:
+        if mesh is not None and self.still_stored(mesh_id):
             self._hit("mesh", True)
             return mesh
         arrays = self.cache.get_arrays(key)
@@ -465,7 +474,9 @@ class Engine:
         start = time.perf_counter()
         method = self.method_of(options.method)
         key = self.segment_key(mesh_id, method, options)
-        result = self.cache.recall(key)  # memory hit: no thread hop
+        result = self.cache.recall(key)
+        if result is not None and not await self.io(self.still_stored, mesh_id):
+            raise self._mesh_missing(mesh_id)
         if result is None:
             result = await self.io(self.cached_segmentation, key)
         else:

@@ -70,6 +70,8 @@ class Backend(Protocol):
     """Byte store shared by every worker/replica of the service."""
 
     name: str
+    #: Whether exists() is cheap enough to call on the event loop (local, never waits).
+    local: bool
 
     def get(self, key: str) -> bytes | None: ...
     def exists(self, key: str) -> bool | None: ...  # None: the store cannot tell now
@@ -85,6 +87,7 @@ class DiskBackend:
     """diskcache on local disk: SQLite-indexed, size-capped, LRU, safe across processes."""
 
     name = "disk"
+    local = True  # SQLite in WAL mode: reads do not wait for writers
 
     def __init__(self, directory: Path, size_limit: int) -> None:
         import diskcache
@@ -138,6 +141,7 @@ class RedisBackend:
     """Redis shared by several replicas; errors degrade to misses (computing again)."""
 
     name = "redis"
+    local = False
 
     def __init__(
         self,

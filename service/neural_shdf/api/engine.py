@@ -475,7 +475,11 @@ class Engine:
         method = self.method_of(options.method)
         key = self.segment_key(mesh_id, method, options)
         result = self.cache.recall(key)
-        if result is not None and not await self.io(self.still_stored, mesh_id):
+        if result is not None and not (
+            self.still_stored(mesh_id)
+            if self.cache.backend.local
+            else await self.io(self.still_stored, mesh_id)
+        ):
             raise self._mesh_missing(mesh_id)
         if result is None:
             result = await self.io(self.cached_segmentation, key)

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+
 from neural_shdf.errors import ParameterError
 from neural_shdf.evaluate.benchmark import (
     BenchModel,

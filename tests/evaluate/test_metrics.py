@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+
 from neural_shdf.evaluate.metrics import (
     SegmentationScores,
     average_radius,

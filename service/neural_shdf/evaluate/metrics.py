@@ -108,8 +108,9 @@ def hamming_distance(
     total = table.sum()
     if total <= 0:
         return 0.0, 0.0, 0.0
-    rm = (total - table.max(axis=0).sum()) / total
-    rf = (total - table.max(axis=1).sum()) / total
+    # Clipped: float sums may leave a rounding residue just below 0.
+    rm = min(max((total - table.max(axis=0).sum()) / total, 0.0), 1.0)
+    rf = min(max((total - table.max(axis=1).sum()) / total, 0.0), 1.0)
     return float((rm + rf) / 2), float(rm), float(rf)
 
 
@@ -151,8 +152,8 @@ def consistency_errors(
         return 0.0, 0.0
     size_a, size_b, both = table.sum(axis=1)[a], table.sum(axis=0)[b], table[a, b]
     with np.errstate(invalid="ignore", divide="ignore"):
-        e_ab = np.where(size_a > 0, (size_a - both) / size_a, 0.0)
-        e_ba = np.where(size_b > 0, (size_b - both) / size_b, 0.0)
+        e_ab = np.clip(np.where(size_a > 0, (size_a - both) / size_a, 0.0), 0.0, 1.0)
+        e_ba = np.clip(np.where(size_b > 0, (size_b - both) / size_b, 0.0), 0.0, 1.0)
     gce = min(np.dot(w, e_ab), np.dot(w, e_ba)) / total
     lce = np.dot(w, np.minimum(e_ab, e_ba)) / total
     return float(gce), float(lce)

@@ -46,6 +46,7 @@ from neural_shdf.evaluate.metrics import (
     cut_graph,
     score_against_humans,
 )
+from neural_shdf.export import read_labels
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
 
@@ -129,11 +130,6 @@ class MethodTable:
 
 
 EvalTable = dict[str, MethodTable]
-
-
-def read_labels(path: Path) -> NDArray[np.int64]:
-    """A .seg file: one integer label per line."""
-    return np.loadtxt(path, dtype=np.int64, ndmin=1)
 
 
 def list_models(bench_dir: Path, limit: int | None = None) -> list[BenchModel]:

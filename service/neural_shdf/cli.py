@@ -131,6 +131,17 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def _clusters(text: str) -> int:
+    from neural_shdf.segment.params import AUTO_CLUSTERS
+
+    if text == "auto":
+        return AUTO_CLUSTERS
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer or 'auto', got {text!r}") from None
+
+
 def _add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("mesh", help="input mesh: OBJ, GLB/glTF, OFF, PLY or STL")
     parser.add_argument("--format", help="file type when the extension does not say it")
@@ -153,7 +164,9 @@ def build_parser() -> argparse.ArgumentParser:
     _add_mesh_arguments(segment)
     segment.add_argument("-o", "--output", required=True, help="output .seg file")
     segment.add_argument("--partitioner", choices=["graphcut", "metis"], default="graphcut")
-    segment.add_argument("--clusters", type=int, help="mixture components k (default: automatic)")
+    segment.add_argument("--clusters", type=_clusters,
+                         help="mixture components k, a level of detail (default 9), "
+                              "or 'auto' to choose k per mesh by BIC")
     segment.add_argument("--smoothing", type=float, help="graph-cut smoothness lambda")
     segment.add_argument("--parts", type=int, help="number of parts (metis; default: automatic)")
     segment.add_argument("--refine", action="store_true", help="recursively refine parts")

@@ -7,7 +7,7 @@ import pytest
 import trimesh
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
-from neural_shdf.segment.params import SegmentParams
+from neural_shdf.segment.params import AUTO_CLUSTERS, SegmentParams
 from neural_shdf.segment.pipeline import segment, segment_with_details
 from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
 
@@ -34,9 +34,9 @@ def assert_canonical(labels):
 @pytest.mark.parametrize(
     "params",
     [
-        SegmentParams(),
+        SegmentParams(clusters=AUTO_CLUSTERS),
         SegmentParams(clusters=3),
-        SegmentParams(refine=True, boundary_smoothing=True),
+        SegmentParams(clusters=AUTO_CLUSTERS, refine=True, boundary_smoothing=True),
     ],
 )
 def test_graphcut_separates_the_neck_from_the_balls(dumbbell_case, params):
@@ -91,7 +91,7 @@ def test_reference_faces_make_part_counts_independent_of_tessellation():
     for faces_wanted in (3000, 60000):
         mesh, shdf = dumbbell(faces_wanted)
         vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-        params = SegmentParams(reference_faces=3000)
+        params = SegmentParams(clusters=AUTO_CLUSTERS, smoothing=0.26, reference_faces=3000)
         counts.append(segment(vertices, faces, shdf, params, graph_of(vertices, faces)).max() + 1)
     assert counts == [3, 3]
 
@@ -143,7 +143,7 @@ def test_empty_mesh():
     "changes, message",
     [
         ({"partitioner": "kmeans"}, "unknown partitioner"),
-        ({"clusters": 0}, "clusters must be an integer"),
+        ({"clusters": -1}, "clusters must be an integer"),
         ({"clusters": 2.5}, "clusters must be an integer"),
         ({"smoothing": -1.0}, "smoothing must be a finite number"),
         ({"smoothing": float("nan")}, "smoothing must be a finite number"),

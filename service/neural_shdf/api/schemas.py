@@ -212,9 +212,12 @@ class SegmentOptions(BaseModel):
     )
     clusters: int | None = Field(
         None,
-        ge=1,
+        ge=0,
         le=MAX_CLUSTERS,
-        description="Gaussian mixture components (level of detail); none: chosen by BIC.",
+        description=(
+            "Gaussian mixture components (level of detail, not a part count); "
+            "none: the default (9, tuned on the Princeton benchmark); 0: chosen per mesh by BIC."
+        ),
         examples=[5],
     )
     smoothing: float | None = Field(
@@ -222,7 +225,7 @@ class SegmentOptions(BaseModel):
         ge=0,
         le=100,
         description="Smoothness weight lambda of the graph cut.",
-        examples=[0.26],
+        examples=[0.12],
     )
     parts: int | None = Field(
         None, ge=1, le=10_000, description="Number of parts for `metis`.", examples=[6]
@@ -258,7 +261,7 @@ class SegmentRequest(SegmentOptions):
     model_config = ConfigDict(
         extra="forbid",
         json_schema_extra={
-            "examples": [{"mesh_id": MESH_ID_EXAMPLE, "clusters": 5, "smoothing": 0.26}]
+            "examples": [{"mesh_id": MESH_ID_EXAMPLE, "clusters": 5, "smoothing": 0.12}]
         },
     )
 

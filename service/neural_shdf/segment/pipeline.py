@@ -25,6 +25,8 @@ from neural_shdf.segment.graphcut import data_costs, dihedral_weights, multileve
 from neural_shdf.segment.metis import metis_edge_weights, metis_partition
 from neural_shdf.segment.mixture import fit_best_mixture, fit_mixture
 from neural_shdf.segment.params import (
+    AUTO_CLUSTERS,
+    DEFAULT_CLUSTERS,
     DEFAULT_SMOOTHING,
     MAX_CLUSTERS,
     SegmentParams,
@@ -108,10 +110,11 @@ def segment_with_details(
     geometry = FaceData.of(np.asarray(vertices, dtype=np.float64), faces)
     lap("face_data")
     values = log_normalize(shdf)
-    if params.clusters is None:
+    if params.clusters == AUTO_CLUSTERS:
         mixture = fit_best_mixture(values, params.seed)
     else:
-        mixture = fit_mixture(values, params.clusters, params.seed)
+        clusters = DEFAULT_CLUSTERS if params.clusters is None else params.clusters
+        mixture = fit_mixture(values, clusters, params.seed)
     posteriors = mixture.posteriors(values)
     lap("mixture")
     edge_weights = dihedral_weights(graph, smoothing)
@@ -187,10 +190,11 @@ def validate(faces: NDArray, shdf: NDArray, params: SegmentParams, graph: FaceGr
             f"unknown partitioner {params.partitioner!r}; use 'graphcut' or 'metis'"
         )
     if params.clusters is not None and (
-        not _is_int(params.clusters) or not 1 <= params.clusters <= MAX_CLUSTERS
+        not _is_int(params.clusters) or not AUTO_CLUSTERS <= params.clusters <= MAX_CLUSTERS
     ):
         raise ParameterError(
-            f"clusters must be an integer in 1..{MAX_CLUSTERS} (or None for automatic), "
+            f"clusters must be an integer in 1..{MAX_CLUSTERS}, {AUTO_CLUSTERS} to choose it "
+            "by BIC, or None for the default, "
             f"got {params.clusters!r}"
         )
     if params.smoothing is not None and (

@@ -29,13 +29,14 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from scipy.spatial import cKDTree
+
 from neural_shdf.geometry import face_centroids, face_normals
 from neural_shdf.neural.graph import (
     GraphSpec,
     build_sample_graph,
     sample_targets,
 )
-from scipy.spatial import cKDTree
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO_ROOT / ".." / "shared" / "data"
@@ -230,9 +231,8 @@ def safe_name(name: str) -> str:
 
 def process_shape(name: str, source, cache: Path, log) -> int:
     """Targets and variant graphs of one shape; returns the number of graphs written."""
-    from neural_shdf.shdf.exact import raw_shdf
-
     from model_export.shdf_task import graph_arrays, log_diameter_target
+    from neural_shdf.shdf.exact import raw_shdf
 
     split = "val" if is_validation(name) else "train"
     out_dir = graph_folder(cache) / split

@@ -16,6 +16,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
+
+from model_export.data import DEFAULT_CACHE
+from model_export.shdf_task import INPUT_NAMES, OUTPUT_NAMES, ShdfNetwork, to_tensors
 from neural_shdf.neural.graph import (
     EDGE_FEATURES,
     FEATURE_SPEC_VERSION,
@@ -23,9 +26,6 @@ from neural_shdf.neural.graph import (
     GraphSpec,
 )
 from neural_shdf.neural.inference import DEFAULT_MODEL_PATH, file_sha256
-
-from model_export.data import DEFAULT_CACHE
-from model_export.shdf_task import INPUT_NAMES, OUTPUT_NAMES, ShdfNetwork, to_tensors
 
 OPSET = 17
 

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from neural_shdf.neural.graph import EDGE_FEATURES, NODE_FEATURES, SampleGraph
 from torch import nn
 
 from model_export.core_model import EncodeProcessDecode
+from neural_shdf.neural.graph import EDGE_FEATURES, NODE_FEATURES, SampleGraph
 
 #: ONNX input and output names (the service feeds these).
 INPUT_NAMES = ("node_features", "edge_features", "senders", "receivers")

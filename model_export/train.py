@@ -19,10 +19,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from neural_shdf.neural.graph import EDGE_FEATURES, NODE_FEATURES, node_feature_array
 
 from model_export.data import DEFAULT_CACHE, graph_folder
 from model_export.shdf_task import ShdfNetwork, batch_graphs
+from neural_shdf.neural.graph import EDGE_FEATURES, NODE_FEATURES, node_feature_array
 
 CONE_COLUMN = EDGE_FEATURES.index("is_cone_edge")
 DENSITY_COLUMN = NODE_FEATURES.index("density")

@@ -9,12 +9,11 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from neural_shdf.neural.graph import NODE_FEATURES  # noqa: E402
-from neural_shdf.neural.inference import load_model, neural_raw_shdf  # noqa: E402
-
 from model_export import data, export, train  # noqa: E402
 from model_export.core_model import scatter_sum  # noqa: E402
 from model_export.shdf_task import INPUT_NAMES, ShdfNetwork, to_tensors  # noqa: E402
+from neural_shdf.neural.graph import NODE_FEATURES  # noqa: E402
+from neural_shdf.neural.inference import load_model, neural_raw_shdf  # noqa: E402
 
 
 def random_model(seed: int = 0) -> ShdfNetwork:
@@ -81,9 +80,9 @@ def test_data_train_export_end_to_end(tmp_path, monkeypatch) -> None:
 def test_edge_subset_equals_building_with_fewer_edges() -> None:
     """Training keeps fewer edges of the cached graphs; serving builds them directly."""
     import trimesh
-    from neural_shdf.neural.graph import GraphSpec, build_sample_graph
 
     from model_export.shdf_task import graph_arrays
+    from neural_shdf.neural.graph import GraphSpec, build_sample_graph
 
     mesh = trimesh.creation.capsule(height=2.0, radius=0.3, count=[24, 24])
     full = build_sample_graph(mesh.vertices, mesh.faces, GraphSpec(target_samples=300), seed=3)

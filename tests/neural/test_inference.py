@@ -8,6 +8,7 @@ import shutil
 import numpy as np
 import pytest
 import trimesh
+
 from neural_shdf.errors import ModelUnavailableError
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.neural.inference import DEFAULT_MODEL_PATH, load_model, neural_raw_shdf

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+
 from neural_shdf.errors import InvalidGeometryError
 from neural_shdf.geometry import face_centroids, face_normals
 from neural_shdf.neural.graph import (

@@ -19,6 +19,7 @@ import argparse
 import time
 
 import numpy as np
+
 from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.pipeline import segment_with_details

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+
 from neural_shdf import constants
 from neural_shdf.geometry import face_centroids, face_normals
 from neural_shdf.mesh import TriangleMesh

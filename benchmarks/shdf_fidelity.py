@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import mesh_face_graph
 from neural_shdf.shdf.exact import exact_shdf

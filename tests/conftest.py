@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+
 from neural_shdf.mesh import TriangleMesh
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+
 from neural_shdf.cli import EXIT_BAD_INPUT, main
 
 

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import trimesh
+
 from neural_shdf.errors import ParameterError
 from neural_shdf.export import (
     UNLABELED_COLOR,

@@ -7,6 +7,7 @@ import pytest
 import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+
 from neural_shdf.errors import MeshError, MeshParseError, UnsupportedFormatError
 from neural_shdf.mesh_io import SUPPORTED_FORMATS, detect_format, load_mesh, sniff_format
 

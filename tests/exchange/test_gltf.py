@@ -9,6 +9,7 @@ import struct
 import numpy as np
 import pytest
 import trimesh
+
 from neural_shdf.errors import (
     InvalidGeometryError,
     MeshParseError,

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+
 from neural_shdf.errors import InvalidGeometryError, MeshParseError, MeshTooLargeError
 from neural_shdf.mesh_io import load_mesh
 

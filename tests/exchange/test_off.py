@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import trimesh
+
 from neural_shdf.errors import MeshParseError, MeshTooLargeError, UnsupportedFormatError
 from neural_shdf.mesh_io import load_mesh
 

@@ -5,6 +5,7 @@ import struct
 import numpy as np
 import pytest
 import trimesh
+
 from neural_shdf.errors import InvalidGeometryError, MeshParseError, MeshTooLargeError
 from neural_shdf.mesh_io import load_mesh
 

@@ -5,6 +5,7 @@ import itertools
 import numpy as np
 import pytest
 import trimesh
+
 from neural_shdf.geometry import build_face_graph, face_centroids, face_normals
 from neural_shdf.segment.graphcut import (
     ANGLE_EPS,

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import trimesh
+
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import build_face_graph, face_centroids, face_normals
 from neural_shdf.segment.metis import metis_partition, share_parts

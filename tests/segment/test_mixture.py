@@ -2,13 +2,14 @@
 
 import numpy as np
 import pytest
+from sklearn.mixture import GaussianMixture
+
 from neural_shdf.segment.mixture import (
     choose_cluster_count,
     fit_best_mixture,
     fit_mixture,
     prefers_split,
 )
-from sklearn.mixture import GaussianMixture
 
 
 def two_populations(n: int = 20000, seed: int = 0) -> np.ndarray:

@@ -1,6 +1,7 @@
 """Canonical labels, connected parts, and merging of tiny parts."""
 
 import numpy as np
+
 from neural_shdf.geometry import FaceGraph
 from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
 

@@ -5,6 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import trimesh
+
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
 from neural_shdf.segment.params import AUTO_CLUSTERS, SegmentParams

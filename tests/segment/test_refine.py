@@ -2,6 +2,7 @@
 
 import numpy as np
 import trimesh
+
 from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
 from neural_shdf.segment.graphcut import dihedral_weights, near_boundary
 from neural_shdf.segment.params import SegmentParams

@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 import trimesh
+
 from neural_shdf import constants
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import face_normals

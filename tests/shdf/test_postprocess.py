@@ -6,6 +6,7 @@ from collections import deque
 import numpy as np
 import pytest
 import trimesh
+
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import build_face_graph
 from neural_shdf.shdf.postprocess import (

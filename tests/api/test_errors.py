@@ -51,7 +51,7 @@ def test_error_shape_for_routing_and_validation(small_client):
     assert_error(small_client.delete("/healthz"), 405, "method_not_allowed")
     assert_error(small_client.get("/v1/meshes/" + "0" * 64), 404, "mesh_not_found")
     assert_error(small_client.get("/v1/meshes/not-a-hash"), 422, "validation_error")
-    error = assert_error(small_client.post("/v1/segment", json={"clusters": 0}), 422)
+    error = assert_error(small_client.post("/v1/segment", json={"clusters": -1}), 422)
     assert error["code"] == "validation_error"
     assert {tuple(p["loc"]) for p in error["detail"]} >= {("body", "mesh_id"), ("body", "clusters")}
     assert_error(small_client.post("/v1/segment", content=b"{not json"), 422, "validation_error")

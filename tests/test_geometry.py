@@ -73,3 +73,15 @@ def test_weld_faces_keeps_positions_of_the_input_vertices():
     welded = weld_faces(soup, faces)
     np.testing.assert_array_equal(soup[welded], soup[faces])
     assert len(np.unique(welded)) == len(mesh.vertices)
+
+
+def test_weld_matches_an_exact_row_sort_and_folds_negative_zero():
+    rng = np.random.default_rng(3)
+    distinct = rng.normal(size=(200, 3))
+    vertices = distinct[rng.integers(0, 200, size=1000)]
+    faces = rng.integers(0, 1000, size=(500, 3))
+    _, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
+    expected = first[inverse.reshape(-1)][faces]
+    np.testing.assert_array_equal(weld_faces(vertices, faces), expected)
+    signed_zero = np.array([[0.0, 1, 2], [-0.0, 1, 2], [0.0, 1, 2.0000001]])
+    assert weld_faces(signed_zero, np.array([[0, 1, 2]])).tolist() == [[0, 0, 2]]

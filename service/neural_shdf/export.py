@@ -136,20 +136,24 @@ def write_labels(path: str | Path, labels: NDArray) -> None:
     Path(path).write_text("".join(f"{int(v)}\n" for v in labels))
 
 
-def read_labels(path: str | Path) -> NDArray[np.int64]:
-    """Read a .seg file (one integer per line; blank lines ignored)."""
+def _read_column(path: str | Path, parse: type, what: str) -> list:
+    """One value per line, blank lines ignored; a bad line raises ParameterError naming it."""
     values = []
     for number, line in enumerate(Path(path).read_text().splitlines(), start=1):
         text = line.strip()
         if not text:
             continue
         try:
-            values.append(int(text))
+            values.append(parse(text))
         except ValueError:
-            raise ParameterError(
-                f"{Path(path).name} line {number}: {text!r} is not an integer label"
-            ) from None
-    return np.array(values, dtype=np.int64)
+            name = Path(path).name
+            raise ParameterError(f"{name} line {number}: {text!r} is not {what}") from None
+    return values
+
+
+def read_labels(path: str | Path) -> NDArray[np.int64]:
+    """Read a .seg file (one integer per line; blank lines ignored)."""
+    return np.array(_read_column(path, int, "an integer label"), dtype=np.int64)
 
 
 def write_values(path: str | Path, values: NDArray, *, fmt: str = "%.9g") -> None:
@@ -162,18 +166,7 @@ def write_values(path: str | Path, values: NDArray, *, fmt: str = "%.9g") -> Non
 
 def read_values(path: str | Path) -> NDArray[np.float64]:
     """Read one float per line (e.g. a .sdf file; blank lines ignored)."""
-    values = []
-    for number, line in enumerate(Path(path).read_text().splitlines(), start=1):
-        text = line.strip()
-        if not text:
-            continue
-        try:
-            values.append(float(text))
-        except ValueError:
-            raise ParameterError(
-                f"{Path(path).name} line {number}: {text!r} is not a number"
-            ) from None
-    return np.array(values, dtype=np.float64)
+    return np.array(_read_column(path, float, "a number"), dtype=np.float64)
 
 
 __all__ = [

@@ -14,7 +14,8 @@ Follows CGAL's ``sdf_values`` (Surface_mesh_segmentation) step by step:
   dropped and the rest averaged.
 
 Rays of many faces are cast together through Embree (``embreex``, float32,
-in Morton order of the faces, in several threads); distances are recomputed in
+in Morton order of the faces, ray index by ray index within a batch, in several
+threads that also make the rays and reduce the hits); distances are recomputed in
 float64 from the hit triangle's plane. Ray origins sit ``ORIGIN_OFFSET`` x the
 bounding-box diagonal along the ray, so hits closer than that are not seen:
 where coplanar faces overlap, CGAL may record near-zero distances (depending
@@ -26,7 +27,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,6 +47,8 @@ OUTLIER_MAD_FACTOR = 1.5
 FACES_PER_BATCH = 32_768
 #: Smallest batch when a mesh is split over several threads.
 MIN_FACES_PER_BATCH = 2_048
+#: Batches per thread at least (small batches balance the threads' load).
+BATCHES_PER_THREAD = 8
 #: Ray origins move this fraction of the bounding-box diagonal along the ray so
 #: that the ray cannot hit its own triangle through float32 rounding.
 ORIGIN_OFFSET = 1e-6
@@ -180,14 +183,25 @@ class RayCaster:
         from embreex import rtcore_scene
         from embreex.mesh_construction import TriangleMesh as EmbreeMesh
 
-        low, high = vertices.min(axis=0), vertices.max(axis=0)
-        self.center = 0.5 * (low + high)
+        self.center = self.center_of(vertices)
         self.scene = rtcore_scene.EmbreeScene()
         EmbreeMesh(
             self.scene,
             (vertices - self.center).astype(np.float32),
             np.ascontiguousarray(faces, dtype=np.int32),
         )
+
+    @staticmethod
+    def center_of(vertices: NDArray) -> NDArray:
+        """Centre of the bounding box: the origin of the scene's float32 coordinates."""
+        return 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+
+    @classmethod
+    def built(cls, vertices: NDArray, faces: NDArray) -> RayCaster:
+        """A caster whose scene is already built, ready to be shared by threads."""
+        caster = cls(vertices, faces)
+        caster.first_hits(np.zeros((1, 3)), np.ones((1, 3)))  # commits the scene
+        return caster
 
     def first_hits(self, origins: NDArray, directions: NDArray) -> NDArray:
         """Index of the first triangle each ray hits, -1 for none.
@@ -234,22 +248,62 @@ def raw_shdf(
         raise ParameterError(f"ray_count must be at least 1, got {ray_count}")
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
-    face_count = len(faces)
-    result = np.full(face_count, np.nan)
-    if normals is None:
+    result = np.full(len(faces), np.nan)
+    if normals is None and len(faces):
         normals, _ = face_normals(vertices, faces)
-    normals = np.asarray(normals, dtype=np.float64)
-    valid = np.linalg.norm(normals, axis=1) > 0.5
-    if face_count == 0 or not valid.any():
+    valid = np.zeros(len(faces), dtype=bool)
+    if len(faces):
+        normals = np.asarray(normals, dtype=np.float64)
+        valid = np.linalg.norm(normals, axis=1) > 0.5
+    if not valid.any():
         if progress is not None:
             progress(1.0)
         return result
 
-    caster = RayCaster(vertices, faces)  # degenerate triangles are never hit
+    threads = max(1, os.cpu_count() or 1) if threads is None else max(1, threads)
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        # Building the Embree scene releases the GIL: overlap it with the set-up.
+        building = pool.submit(RayCaster.built, vertices, faces)  # degenerate faces never hit
+        _cast_batches(
+            building,
+            pool,
+            vertices,
+            faces,
+            normals,
+            valid,
+            result,
+            cone_angle=cone_angle,
+            ray_count=ray_count,
+            seed=seed,
+            rotate_pattern=rotate_pattern,
+            threads=threads,
+            progress=progress,
+        )
+    return result
+
+
+def _cast_batches(
+    building: Future[RayCaster],
+    pool: ThreadPoolExecutor,
+    vertices: NDArray,
+    faces: NDArray,
+    normals: NDArray,
+    valid: NDArray,
+    result: NDArray,
+    *,
+    cone_angle: float,
+    ray_count: int,
+    seed: int,
+    rotate_pattern: bool,
+    threads: int,
+    progress: Progress | None,
+) -> None:
+    """Cast the rays of the valid faces in batches on ``pool``, writing ``result``."""
+    face_count = len(faces)
     diagonal = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
     centroids = face_centroids(vertices, faces)
-    local_centroids = (centroids - caster.center).astype(np.float32)
     plane_offset = np.einsum("ij,ij->i", vertices[faces[:, 0]], normals)
+    planes = np.column_stack([normals, plane_offset])  # gathered together per hit
     origin_offset = np.float32(ORIGIN_OFFSET * diagonal)
     retry_offset = np.float32(RETRY_ORIGIN_OFFSET * diagonal)
     _, weights = disk_samples(ray_count)
@@ -261,9 +315,11 @@ def raw_shdf(
 
     todo = np.flatnonzero(valid)
     todo = todo[spatial_order(centroids[todo])]
-    threads = max(1, os.cpu_count() or 1) if threads is None else max(1, threads)
-    size = min(FACES_PER_BATCH, max(MIN_FACES_PER_BATCH, -(-len(todo) // (4 * threads))))
+    size = min(
+        FACES_PER_BATCH, max(MIN_FACES_PER_BATCH, -(-len(todo) // (BATCHES_PER_THREAD * threads)))
+    )
     batches = [todo[i : i + size] for i in range(0, len(todo), size)]
+    local_centroids = (centroids - RayCaster.center_of(vertices)).astype(np.float32)
 
     def run_batch(batch: NDArray) -> NDArray:
         directions = cone_directions(
@@ -272,38 +328,42 @@ def raw_shdf(
             ray_count=ray_count,
             rotation=None if rotation is None else np.take(rotation, batch),
             dtype=np.float32,
-        ).reshape(-1, 3)
-        origins = np.repeat(np.take(local_centroids, batch, axis=0), ray_count, axis=0)
-        hit = caster.first_hits(origins + origin_offset * directions, directions)
-        source = np.repeat(batch, ray_count)
-        again = np.flatnonzero(hit == source)
-        if len(again):
+        )
+        # Rays are cast ray index by ray index: ray i of neighbouring faces run
+        # almost parallel, which keeps Embree's traversal coherent.
+        by_ray = np.ascontiguousarray(directions.transpose(1, 0, 2))
+        origins = np.take(local_centroids, batch, axis=0)[None, :, :]
+        caster = building.result()  # the rays above were made while the scene was built
+        hit = caster.first_hits(
+            (origins + origin_offset * by_ray).reshape(-1, 3), by_ray.reshape(-1, 3)
+        ).reshape(ray_count, len(batch))
+        again_ray, again_face = np.nonzero(hit == batch[None, :])
+        if len(again_ray):
+            again_directions = by_ray[again_ray, again_face]
             retry = caster.first_hits(
-                origins[again] + retry_offset * directions[again], directions[again]
+                origins[0, again_face] + retry_offset * again_directions, again_directions
             )
-            hit[again] = np.where(retry == source[again], -1, retry)
+            hit[again_ray, again_face] = np.where(retry == batch[again_face], -1, retry)
+        hit = np.ascontiguousarray(hit.T)
         # Distance along the ray to the hit triangle's plane, in float64.
-        shape = (len(batch), ray_count)
-        hit_safe = np.maximum(hit, 0)
-        hit_normal = np.take(normals, hit_safe, axis=0).reshape(*shape, 3)
-        along = np.einsum("frk,frk->fr", directions.reshape(*shape, 3), hit_normal)
-        height = np.take(plane_offset, hit_safe).reshape(shape) - np.einsum(
+        hit_plane = np.take(planes, np.maximum(hit, 0), axis=0)
+        hit_normal = hit_plane[..., :3]
+        along = np.einsum("frk,frk->fr", directions.astype(np.float64), hit_normal)
+        height = hit_plane[..., 3] - np.einsum(
             "frk,fk->fr", hit_normal, np.take(centroids, batch, axis=0)
         )
         # A hit counts when the ray leaves through the back of the hit face.
-        accepted = (hit.reshape(shape) >= 0) & (along > 0)
+        accepted = (hit >= 0) & (along > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
             distance = np.where(accepted, height / along, np.nan)
         return robust_mean(distance, weights)
 
     done = 0
-    with ThreadPoolExecutor(max_workers=threads) as pool:
-        for batch, values in zip(batches, pool.map(run_batch, batches), strict=True):
-            result[batch] = values
-            done += len(batch)
-            if progress is not None:
-                progress(done / len(todo))
-    return result
+    for batch, values in zip(batches, pool.map(run_batch, batches), strict=True):
+        result[batch] = values
+        done += len(batch)
+        if progress is not None:
+            progress(done / len(todo))
 
 
 def exact_shdf(

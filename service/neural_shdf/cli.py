@@ -80,15 +80,7 @@ def cmd_segment(args: argparse.Namespace) -> int:
     from neural_shdf.pipeline import mesh_face_graph, segment_mesh
     from neural_shdf.segment import SegmentParams
 
-    params = SegmentParams(
-        partitioner=args.partitioner,
-        clusters=args.clusters,
-        smoothing=args.smoothing,
-        parts=args.parts,
-        refine=args.refine,
-        boundary_smoothing=args.boundary_smoothing,
-        seed=args.seed,
-    )
+    params = SegmentParams.from_attributes(args)
     mesh = _load(args.mesh, args.format)
     graph = mesh_face_graph(mesh)
     shdf = _shdf(mesh, args.method, args.seed, graph, args.quiet)

@@ -244,15 +244,7 @@ class SegmentOptions(BaseModel):
     )
 
     def segment_params(self) -> SegmentParams:
-        return SegmentParams(
-            partitioner=self.partitioner,
-            clusters=self.clusters,
-            smoothing=self.smoothing,
-            parts=self.parts,
-            refine=self.refine,
-            boundary_smoothing=self.boundary_smoothing,
-            seed=self.seed,
-        )
+        return SegmentParams.from_attributes(self)
 
 
 class SegmentRequest(SegmentOptions):

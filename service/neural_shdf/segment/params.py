@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Literal
 
 Partitioner = Literal["graphcut", "metis"]
@@ -62,3 +62,12 @@ class SegmentParams:
     min_part_fraction: float = DEFAULT_MIN_PART_FRACTION
     refine_depth: int = DEFAULT_REFINE_DEPTH
     reference_faces: int | None = None
+
+    @classmethod
+    def from_attributes(cls, source: object) -> SegmentParams:
+        """Parameters from same-named attributes of ``source`` (CLI arguments, API requests).
+
+        Attributes ``source`` lacks keep their defaults; others it has are ignored.
+        """
+        present = [field.name for field in fields(cls) if hasattr(source, field.name)]
+        return cls(**{name: getattr(source, name) for name in present})

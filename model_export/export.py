@@ -128,6 +128,7 @@ def main(argv: list[str] | None = None) -> int:
             "best_val_loss": state.get("best_val_loss"),
             "last_metrics": history[-1] if history else None,
             "checkpoint": args.checkpoint.name,
+            "warm_start": state.get("init"),
         },
         "onnx_vs_torch_max_abs_diff": difference,
         "normalisers": {k: v for k, v in checkpoint["stats"].items()},

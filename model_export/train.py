@@ -144,6 +144,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--knn", type=int, default=8, help="nearest-sample edges kept")
     parser.add_argument("--cone", type=int, default=4, help="cone edges kept (0: none)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--init", type=Path, default=None,
+                        help="warm start: weights and normalisers of this checkpoint, fresh "
+                             "optimizer and schedule (ignored when the run folder resumes)")
     args = parser.parse_args(argv)
 
     torch.set_num_threads(args.threads)
@@ -170,6 +173,13 @@ def main(argv: list[str] | None = None) -> int:
         state = checkpoint["state"]
         stats = checkpoint["stats"]
         log(f"resumed at step {state['step']} after {state['elapsed']:.0f}s")
+    elif args.init is not None:
+        checkpoint = torch.load(args.init.expanduser(), weights_only=False)
+        model.load_state_dict(checkpoint["model"])
+        stats = checkpoint["stats"]
+        state["init"] = {"checkpoint": str(args.init), "steps": checkpoint["state"]["step"],
+                         "elapsed": checkpoint["state"]["elapsed"]}
+        log(f"warm start from {args.init} (step {checkpoint['state']['step']})")
     else:
         stats = feature_stats(train)
         apply_stats(model, stats)

@@ -13,13 +13,14 @@ Follows CGAL's ``sdf_values`` (Surface_mesh_segmentation) step by step:
 * outliers outside ``median +- 1.5 * MAD`` of a face's hit distances are
   dropped and the rest averaged.
 
-Rays of many faces are cast together through Embree (``embreex``, float32,
-in Morton order of the faces, ray index by ray index within a batch, in several
-threads that also make the rays and reduce the hits); distances are recomputed in
-float64 from the hit triangle's plane. Ray origins sit ``ORIGIN_OFFSET`` x the
-bounding-box diagonal along the ray, so hits closer than that are not seen:
-where coplanar faces overlap, CGAL may record near-zero distances (depending
-on the rounding of the centroid) that this implementation does not.
+Rays are cast through Embree 4 in packets of 16 (``shdf.embree``) from a numba
+kernel that also makes the rays and reduces the hits: faces in Morton order,
+16 neighbouring faces per packet, ray index by ray index, batches of faces in
+several threads. Distances are recomputed in float64 from the hit triangle's
+plane. Ray origins sit ``ORIGIN_OFFSET`` x the bounding-box diagonal along the
+ray, so hits closer than that are not seen: where coplanar faces overlap, CGAL
+may record near-zero distances (depending on the rounding of the centroid) that
+this implementation does not.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import os
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -36,6 +38,7 @@ from neural_shdf import constants
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.shdf.embree import LANES, Scene, hit_of, intersect_packet, new_packet, set_ray
 from neural_shdf.shdf.postprocess import postprocess_shdf
 
 Progress = Callable[[float], None]
@@ -104,6 +107,30 @@ def plane_basis(normals: NDArray) -> tuple[NDArray, NDArray]:
     return base1, base2
 
 
+def cone_coefficients(ray_count: int, cone_angle: float) -> NDArray[np.float64]:
+    """(ray_count, 3) weights of each ray on (inward normal, base1, base2), unit length.
+
+    Ray ``i`` is ``cos(a/2) n + sin(a/2) (x_i base1 + y_i base2)``, normalised, for
+    the disk samples (x_i, y_i).
+    """
+    points, _ = disk_samples(ray_count)
+    half = 0.5 * cone_angle
+    coefficients = np.column_stack([np.full(ray_count, math.cos(half)), math.sin(half) * points])
+    return coefficients / np.linalg.norm(coefficients, axis=1, keepdims=True)
+
+
+def cone_frames(inward_normals: NDArray, rotation: NDArray | None = None) -> NDArray:
+    """(F, 3, 3) rows (inward normal, base1, base2) of each face's ray cone.
+
+    ``rotation`` (F,) optionally turns each face's sample pattern about its axis.
+    """
+    base1, base2 = plane_basis(inward_normals)
+    if rotation is not None:
+        cos_r, sin_r = np.cos(rotation)[:, None], np.sin(rotation)[:, None]
+        base1, base2 = cos_r * base1 + sin_r * base2, cos_r * base2 - sin_r * base1
+    return np.stack([inward_normals, base1, base2], axis=1)
+
+
 def cone_directions(
     inward_normals: NDArray,
     *,
@@ -112,23 +139,10 @@ def cone_directions(
     rotation: NDArray | None = None,
     dtype: type = np.float64,
 ) -> NDArray:
-    """Unit ray directions (F, ray_count, 3) inside the cone around each inward normal.
-
-    Ray ``i`` is ``cos(a/2) n + sin(a/2) (x_i base1 + y_i base2)``, normalised, for
-    the disk samples (x_i, y_i). ``rotation`` (F,) optionally turns each face's
-    sample pattern about its axis.
-    """
-    points, _ = disk_samples(ray_count)
-    half = 0.5 * cone_angle
-    # Coefficients on (normal, base1, base2); their norm is the same for every face.
-    coefficients = np.column_stack([np.full(ray_count, math.cos(half)), math.sin(half) * points])
-    coefficients /= np.linalg.norm(coefficients, axis=1, keepdims=True)
-    base1, base2 = plane_basis(inward_normals)
-    if rotation is not None:
-        cos_r, sin_r = np.cos(rotation)[:, None], np.sin(rotation)[:, None]
-        base1, base2 = cos_r * base1 + sin_r * base2, cos_r * base2 - sin_r * base1
-    frames = np.stack([inward_normals, base1, base2], axis=1).astype(dtype)
-    return np.matmul(coefficients.astype(dtype), frames)
+    """Unit ray directions (F, ray_count, 3) inside the cone around each inward normal
+    (``cone_coefficients`` on ``cone_frames``)."""
+    coefficients = cone_coefficients(ray_count, cone_angle).astype(dtype)
+    return np.matmul(coefficients, cone_frames(inward_normals, rotation).astype(dtype))
 
 
 def spatial_order(points: NDArray, bits: int = 10) -> NDArray[np.int64]:
@@ -148,70 +162,56 @@ def spatial_order(points: NDArray, bits: int = 10) -> NDArray[np.int64]:
     return np.argsort(code, kind="stable")
 
 
+@numba.njit(nogil=True, cache=True, inline="always")
+def _sorted_median(values: NDArray, count: int) -> float:
+    """Sort ``values[:count]`` in place (insertion sort: a face has few rays); their median."""
+    for i in range(1, count):
+        value = values[i]
+        j = i - 1
+        while j >= 0 and values[j] > value:
+            values[j + 1] = values[j]
+            j -= 1
+        values[j + 1] = value
+    return 0.5 * (values[(count - 1) // 2] + values[count // 2])
+
+
+@numba.njit(nogil=True, cache=True)
+def _robust_mean_row(distances: NDArray, weights: NDArray, scratch: NDArray) -> float:
+    """``robust_mean`` of one row; ``scratch`` is work space at least as long as the row."""
+    count = 0
+    for value in distances:
+        if not np.isnan(value):
+            scratch[count] = value
+            count += 1
+    if count == 0:
+        return np.nan
+    median = _sorted_median(scratch, count)
+    for i in range(count):
+        scratch[i] = abs(scratch[i] - median)
+    limit = OUTLIER_MAD_FACTOR * _sorted_median(scratch, count)
+    total = 0.0
+    total_weight = 0.0
+    for i in range(len(distances)):
+        value = distances[i]
+        if not np.isnan(value) and abs(value - median) <= limit:
+            total += value * weights[i]
+            total_weight += weights[i]
+    return total / total_weight if total > 0 else median
+
+
 def robust_mean(distances: NDArray, weights: NDArray) -> NDArray[np.float64]:
     """Per row of ``distances`` (NaN = no hit): weighted mean of the values within
     ``OUTLIER_MAD_FACTOR`` median absolute deviations of the median; NaN for rows
     without values. Medians of an even count average the two middle values.
     """
-    rows = np.arange(len(distances))
-    count = np.count_nonzero(~np.isnan(distances), axis=1)
-    safe = np.maximum(count, 1)
-
-    def row_median(values: NDArray) -> NDArray:
-        ordered = np.sort(values, axis=1)  # NaN sorts last
-        low = ordered[rows, (safe - 1) // 2]
-        high = ordered[rows, safe // 2]
-        return 0.5 * (low + high)
-
-    median = row_median(distances)
-    deviation = np.abs(distances - median[:, None])
-    mad = row_median(deviation)
-    accepted = deviation <= OUTLIER_MAD_FACTOR * mad[:, None]  # False for NaN
-    w = np.where(accepted, weights[None, :], 0.0)
-    total_weight = w.sum(axis=1)
-    total = (np.where(accepted, distances, 0.0) * w).sum(axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        value = np.where(total > 0, total / total_weight, median)
-    value[count == 0] = np.nan
-    return value
+    distances = np.asarray(distances, dtype=np.float64)
+    weights = np.asarray(weights, dtype=np.float64)
+    scratch = np.empty(distances.shape[1])
+    return np.array([_robust_mean_row(row, weights, scratch) for row in distances])
 
 
-class RayCaster:
-    """Embree scene of a mesh (float32, centred on its bounding box)."""
-
-    def __init__(self, vertices: NDArray, faces: NDArray) -> None:
-        from embreex import rtcore_scene
-        from embreex.mesh_construction import TriangleMesh as EmbreeMesh
-
-        self.center = self.center_of(vertices)
-        self.scene = rtcore_scene.EmbreeScene()
-        EmbreeMesh(
-            self.scene,
-            (vertices - self.center).astype(np.float32),
-            np.ascontiguousarray(faces, dtype=np.int32),
-        )
-
-    @staticmethod
-    def center_of(vertices: NDArray) -> NDArray:
-        """Centre of the bounding box: the origin of the scene's float32 coordinates."""
-        return 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
-
-    @classmethod
-    def built(cls, vertices: NDArray, faces: NDArray) -> RayCaster:
-        """A caster whose scene is already built, ready to be shared by threads."""
-        caster = cls(vertices, faces)
-        caster.first_hits(np.zeros((1, 3)), np.ones((1, 3)))  # commits the scene
-        return caster
-
-    def first_hits(self, origins: NDArray, directions: NDArray) -> NDArray:
-        """Index of the first triangle each ray hits, -1 for none.
-
-        ``origins`` are float32 relative to ``self.center``.
-        """
-        return self.scene.run(
-            np.ascontiguousarray(origins, dtype=np.float32),
-            np.ascontiguousarray(directions, dtype=np.float32),
-        )
+#: The Embree scene the rays are cast into (``shdf.embree.Scene``).
+RayCaster = Scene
 
 
 def raw_shdf(
@@ -263,7 +263,7 @@ def raw_shdf(
     threads = max(1, os.cpu_count() or 1) if threads is None else max(1, threads)
     with ThreadPoolExecutor(max_workers=threads) as pool:
         # Building the Embree scene releases the GIL: overlap it with the set-up.
-        building = pool.submit(RayCaster.built, vertices, faces)  # degenerate faces never hit
+        building = pool.submit(Scene, vertices, faces)  # degenerate faces never hit
         _cast_batches(
             building,
             pool,
@@ -319,51 +319,148 @@ def _cast_batches(
         FACES_PER_BATCH, max(MIN_FACES_PER_BATCH, -(-len(todo) // (BATCHES_PER_THREAD * threads)))
     )
     batches = [todo[i : i + size] for i in range(0, len(todo), size)]
-    local_centroids = (centroids - RayCaster.center_of(vertices)).astype(np.float32)
+    local_centroids = (centroids - Scene.center_of(vertices)).astype(np.float32)
+    coefficients = cone_coefficients(ray_count, cone_angle).astype(np.float32)
 
-    def run_batch(batch: NDArray) -> NDArray:
-        directions = cone_directions(
+    def run_batch(batch: NDArray) -> None:
+        frames = cone_frames(
             np.negative(np.take(normals, batch, axis=0)),
-            cone_angle=cone_angle,
-            ray_count=ray_count,
-            rotation=None if rotation is None else np.take(rotation, batch),
-            dtype=np.float32,
+            None if rotation is None else np.take(rotation, batch),
+        ).astype(np.float32)
+        scene = building.result()  # the frames above were made while the scene was built
+        _shdf_of_faces(
+            *scene.kernel_arguments(),
+            batch,
+            frames,
+            coefficients,
+            local_centroids,
+            centroids,
+            planes,
+            origin_offset,
+            retry_offset,
+            weights,
+            result,
         )
-        # Rays are cast ray index by ray index: ray i of neighbouring faces run
-        # almost parallel, which keeps Embree's traversal coherent.
-        by_ray = np.ascontiguousarray(directions.transpose(1, 0, 2))
-        origins = np.take(local_centroids, batch, axis=0)[None, :, :]
-        caster = building.result()  # the rays above were made while the scene was built
-        hit = caster.first_hits(
-            (origins + origin_offset * by_ray).reshape(-1, 3), by_ray.reshape(-1, 3)
-        ).reshape(ray_count, len(batch))
-        again_ray, again_face = np.nonzero(hit == batch[None, :])
-        if len(again_ray):
-            again_directions = by_ray[again_ray, again_face]
-            retry = caster.first_hits(
-                origins[0, again_face] + retry_offset * again_directions, again_directions
-            )
-            hit[again_ray, again_face] = np.where(retry == batch[again_face], -1, retry)
-        hit = np.ascontiguousarray(hit.T)
-        # Distance along the ray to the hit triangle's plane, in float64.
-        hit_plane = np.take(planes, np.maximum(hit, 0), axis=0)
-        hit_normal = hit_plane[..., :3]
-        along = np.einsum("frk,frk->fr", directions.astype(np.float64), hit_normal)
-        height = hit_plane[..., 3] - np.einsum(
-            "frk,fk->fr", hit_normal, np.take(centroids, batch, axis=0)
-        )
-        # A hit counts when the ray leaves through the back of the hit face.
-        accepted = (hit >= 0) & (along > 0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            distance = np.where(accepted, height / along, np.nan)
-        return robust_mean(distance, weights)
 
     done = 0
-    for batch, values in zip(batches, pool.map(run_batch, batches), strict=True):
-        result[batch] = values
+    for batch, _ in zip(batches, pool.map(run_batch, batches), strict=True):
         done += len(batch)
         if progress is not None:
             progress(done / len(todo))
+
+
+@numba.njit(nogil=True, cache=True)
+def _shdf_of_faces(
+    intersect16,
+    scene,
+    arguments,
+    batch,
+    frames,
+    coefficients,
+    local_centroids,  # noqa: ANN001
+    centroids,
+    planes,
+    origin_offset,
+    retry_offset,
+    weights,
+    result,  # noqa: ANN001
+) -> None:
+    """Raw ShDF of the faces ``batch`` into ``result``: rays of 16 faces per packet.
+
+    ``frames[k]`` holds the inward normal and the two plane vectors of face
+    ``batch[k]`` (float32), ``coefficients`` each ray's weights on them.
+    """
+    rays, ids, valid = new_packet()
+    ray_count = len(coefficients)
+    directions = np.empty((LANES, ray_count, 3), dtype=np.float32)
+    hits = np.empty((LANES, ray_count), dtype=np.int64)
+    distances = np.empty(ray_count)
+    scratch = np.empty(ray_count)
+    retry_lane = np.empty(LANES, dtype=np.int64)
+    retry_ray = np.empty(LANES, dtype=np.int64)
+    for start in range(0, len(batch), LANES):
+        count = min(LANES, len(batch) - start)
+        for lane in range(count):
+            frame = frames[start + lane]
+            for i in range(ray_count):
+                for axis in range(3):
+                    directions[lane, i, axis] = (
+                        coefficients[i, 0] * frame[0, axis]
+                        + coefficients[i, 1] * frame[1, axis]
+                        + coefficients[i, 2] * frame[2, axis]
+                    )
+        # Ray i of 16 neighbouring faces: nearly parallel rays, a coherent packet.
+        for i in range(ray_count):
+            for lane in range(count):
+                face = batch[start + lane]
+                d = directions[lane, i]
+                set_ray(
+                    rays,
+                    ids,
+                    lane,
+                    local_centroids[face, 0] + origin_offset * d[0],
+                    local_centroids[face, 1] + origin_offset * d[1],
+                    local_centroids[face, 2] + origin_offset * d[2],
+                    d[0],
+                    d[1],
+                    d[2],
+                )
+            intersect_packet(intersect16, scene, arguments, rays, ids, valid, count)
+            for lane in range(count):
+                hits[lane, i] = hit_of(ids, lane)
+        # Rays that hit their own triangle through rounding start again further out.
+        pending = 0
+        for lane in range(count):
+            face = batch[start + lane]
+            for i in range(ray_count):
+                if hits[lane, i] == face:
+                    d = directions[lane, i]
+                    set_ray(
+                        rays,
+                        ids,
+                        pending,
+                        local_centroids[face, 0] + retry_offset * d[0],
+                        local_centroids[face, 1] + retry_offset * d[1],
+                        local_centroids[face, 2] + retry_offset * d[2],
+                        d[0],
+                        d[1],
+                        d[2],
+                    )
+                    retry_lane[pending] = lane
+                    retry_ray[pending] = i
+                    pending += 1
+                    last = lane == count - 1 and i == ray_count - 1
+                    if pending == LANES or last:
+                        intersect_packet(intersect16, scene, arguments, rays, ids, valid, pending)
+                        for k in range(pending):
+                            hit = hit_of(ids, k)
+                            own = batch[start + retry_lane[k]]
+                            hits[retry_lane[k], retry_ray[k]] = -1 if hit == own else hit
+                        pending = 0
+        if pending:
+            intersect_packet(intersect16, scene, arguments, rays, ids, valid, pending)
+            for k in range(pending):
+                hit = hit_of(ids, k)
+                own = batch[start + retry_lane[k]]
+                hits[retry_lane[k], retry_ray[k]] = -1 if hit == own else hit
+        # Distance along the ray to the hit triangle's plane, in float64; a hit
+        # counts when the ray leaves through the back of the hit face.
+        for lane in range(count):
+            face = batch[start + lane]
+            for i in range(ray_count):
+                distances[i] = np.nan
+                hit = hits[lane, i]
+                if hit < 0:
+                    continue
+                nx, ny, nz = planes[hit, 0], planes[hit, 1], planes[hit, 2]
+                d = directions[lane, i]
+                along = np.float64(d[0]) * nx + np.float64(d[1]) * ny + np.float64(d[2]) * nz
+                if along > 0:
+                    height = planes[hit, 3] - (
+                        nx * centroids[face, 0] + ny * centroids[face, 1] + nz * centroids[face, 2]
+                    )
+                    distances[i] = height / along
+            result[face] = _robust_mean_row(distances, weights, scratch)
 
 
 def exact_shdf(

@@ -20,9 +20,10 @@ import glob
 import os
 import threading
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
+
+from neural_shdf.compiled import kernel
 
 #: Rays per packet (``rtcIntersect16``).
 LANES = 16
@@ -217,7 +218,7 @@ class Scene:
         return hits
 
 
-@numba.njit(nogil=True, cache=True)
+@kernel
 def new_packet() -> tuple[NDArray, NDArray, NDArray]:
     """(rays as float32 rows, the same memory as uint32, valid mask) for ``intersect_packet``."""
     raw = np.zeros(PACKET_ROWS * LANES + LANES, dtype=np.float32)
@@ -228,7 +229,7 @@ def new_packet() -> tuple[NDArray, NDArray, NDArray]:
     return rays, rays.view(np.uint32), raw_valid[skip : skip + LANES]
 
 
-@numba.njit(nogil=True, cache=True, inline="always")
+@kernel(inline=True)
 def set_ray(rays, ids, lane, ox, oy, oz, dx, dy, dz) -> None:  # noqa: ANN001
     """Put one ray (origin, direction, float32) in ``lane`` of a packet, reset its hit."""
     rays[ORG_X, lane] = ox
@@ -246,7 +247,7 @@ def set_ray(rays, ids, lane, ox, oy, oz, dx, dy, dz) -> None:  # noqa: ANN001
     ids[GEOM_ID, lane] = INVALID_ID
 
 
-@numba.njit(nogil=True, cache=True, inline="always")
+@kernel(inline=True)
 def intersect_packet(intersect16, scene, arguments, rays, ids, valid, count) -> None:  # noqa: ANN001
     """Cast the first ``count`` lanes of a packet; ``hit_of`` then reads each lane's triangle."""
     for lane in range(LANES):
@@ -254,7 +255,7 @@ def intersect_packet(intersect16, scene, arguments, rays, ids, valid, count) -> 
     intersect16(valid.ctypes.data, scene, rays.ctypes.data, arguments)
 
 
-@numba.njit(nogil=True, cache=True, inline="always")
+@kernel(inline=True)
 def hit_of(ids, lane) -> int:  # noqa: ANN001
     """Triangle hit by ``lane`` after ``intersect_packet``, -1 for none."""
     if ids[GEOM_ID, lane] == INVALID_ID:
@@ -262,7 +263,7 @@ def hit_of(ids, lane) -> int:  # noqa: ANN001
     return np.int64(ids[PRIM_ID, lane])
 
 
-@numba.njit(nogil=True, cache=True)
+@kernel
 def _first_hits(intersect16, scene, arguments, origins, directions, hits) -> None:  # noqa: ANN001
     rays, ids, valid = new_packet()
     for start in range(0, len(origins), LANES):

@@ -30,11 +30,11 @@ import os
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf import constants
+from neural_shdf.compiled import kernel
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
 from neural_shdf.mesh import TriangleMesh
@@ -162,7 +162,7 @@ def spatial_order(points: NDArray, bits: int = 10) -> NDArray[np.int64]:
     return np.argsort(code, kind="stable")
 
 
-@numba.njit(nogil=True, cache=True, inline="always")
+@kernel(inline=True)
 def _sorted_median(values: NDArray, count: int) -> float:
     """Sort ``values[:count]`` in place (insertion sort: a face has few rays); their median."""
     for i in range(1, count):
@@ -175,7 +175,7 @@ def _sorted_median(values: NDArray, count: int) -> float:
     return 0.5 * (values[(count - 1) // 2] + values[count // 2])
 
 
-@numba.njit(nogil=True, cache=True)
+@kernel
 def _robust_mean_row(distances: NDArray, weights: NDArray, scratch: NDArray) -> float:
     """``robust_mean`` of one row; ``scratch`` is work space at least as long as the row."""
     count = 0
@@ -349,7 +349,7 @@ def _cast_batches(
             progress(done / len(todo))
 
 
-@numba.njit(nogil=True, cache=True)
+@kernel
 def _shdf_of_faces(
     intersect16,
     scene,

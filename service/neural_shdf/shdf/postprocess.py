@@ -13,13 +13,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import scipy.sparse as sp
-
-try:  # optional accelerator of the bilateral filter
-    import numba
-except ImportError:  # pragma: no cover - exercised where numba is absent
-    numba = None
 from numpy.typing import NDArray
 
+from neural_shdf.compiled import kernel
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph
 
@@ -186,11 +182,7 @@ def _bilateral_faces(
         out[face] = total / norm
 
 
-if numba is not None:
-    try:
-        _bilateral_faces = numba.njit(cache=True, nogil=True)(_bilateral_faces)
-    except RuntimeError:  # no writable cache folder (read-only install): compile per process
-        _bilateral_faces = numba.njit(nogil=True)(_bilateral_faces)
+_bilateral_faces = kernel(_bilateral_faces)
 
 
 def bilateral_smooth(
@@ -209,7 +201,7 @@ def bilateral_smooth(
     ``spatial_sigma``, default ``window_size / 2``) times Gaussian of its value
     difference (sigma ``range_sigma_factor`` x the RMS difference over the
     window, the face itself included). Faces whose window has no variation keep
-    their value. ``compiled`` uses the numba kernel when numba is installed
+    their value. ``compiled`` uses the numba kernel
     (same result to rounding; the numpy path is several times slower), in
     ``threads`` threads (default one per CPU; the result does not depend on it).
     """
@@ -223,7 +215,7 @@ def bilateral_smooth(
     spatial_weight = np.exp(-0.5 * (np.arange(window_size + 1) / spatial) ** 2)
     adjacency = graph.csr()
     adjacency.data[:] = 1.0
-    if compiled and numba is not None:
+    if compiled:
         # Python threads over blocks of faces (the kernel releases the GIL); numba's
         # own parallel layer is avoided because it is not safe under concurrent callers.
         out = np.empty(face_count)

@@ -1,0 +1,31 @@
+"""One decorator for the project's numba kernels.
+
+Kernels release the GIL (callers run them in Python threads over blocks of
+work) and are cached on disk beside the module, or in numba's user cache; where
+neither folder is writable (a read-only install) they compile once per process.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TypeVar
+
+import numba
+
+Function = TypeVar("Function", bound=Callable)
+
+
+def kernel(function: Function | None = None, *, inline: bool = False) -> Function:
+    """``numba.njit(nogil=True, cache=True)``, without the cache where none can be written.
+
+    ``inline=True`` inlines the kernel into the kernels that call it.
+    """
+
+    def compile_(target: Function) -> Function:
+        options = {"nogil": True, **({"inline": "always"} if inline else {})}
+        try:
+            return numba.njit(cache=True, **options)(target)
+        except RuntimeError:  # no writable cache folder: compile per process
+            return numba.njit(**options)(target)
+
+    return compile_ if function is None else compile_(function)  # type: ignore[return-value]

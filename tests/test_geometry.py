@@ -1,8 +1,12 @@
 """Face normals, areas and the face adjacency graph on clean and messy meshes."""
 
+import math
+
 import numpy as np
+import pytest
 import trimesh
 
+from neural_shdf.constants import AREA_EPS
 from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
 
 
@@ -85,3 +89,125 @@ def test_weld_matches_an_exact_row_sort_and_folds_negative_zero():
     np.testing.assert_array_equal(weld_faces(vertices, faces), expected)
     signed_zero = np.array([[0.0, 1, 2], [-0.0, 1, 2], [0.0, 1, 2.0000001]])
     assert weld_faces(signed_zero, np.array([[0, 1, 2]])).tolist() == [[0, 0, 2]]
+
+
+# ---- the compiled kernels against a plain, independent computation ----
+
+
+def _reference_normals(vertices, faces):
+    cross = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]],
+                     vertices[faces[:, 2]] - vertices[faces[:, 0]])
+    norm = np.linalg.norm(cross, axis=1)
+    normals = np.zeros_like(cross)
+    ok = norm > AREA_EPS
+    normals[ok] = cross[ok] / norm[ok, None]
+    return normals, norm / 2
+
+
+def _reference_graph(vertices, faces, normals):
+    """Edge groups in a dict; a pair met on several edges keeps (fewest faces, lowest edge)."""
+    groups: dict[tuple[int, int], list[int]] = {}
+    for face, corners in enumerate(faces.tolist()):
+        for start, end in zip(corners, corners[1:] + corners[:1], strict=True):
+            if start != end:
+                groups.setdefault((min(start, end), max(start, end)), []).append(face)
+    best: dict[tuple[int, int], tuple[int, int, int]] = {}
+    for (lo, hi), members in groups.items():
+        for i, a in enumerate(members):
+            for b in members[i + 1:]:
+                if a != b:
+                    pair = (min(a, b), max(a, b))
+                    best[pair] = min(best.get(pair, (len(members), lo, hi)), (len(members), lo, hi))
+    pairs = sorted(best)
+    edges = [best[p][1:] for p in pairs]
+    rows = []
+    for (a, b), (lo, hi) in zip(pairs, edges, strict=True):
+        off = [v for v in faces[b].tolist() if v not in (lo, hi)]
+        off_vertex = max(off) if off else int(faces[b, 0])
+        rows.append((
+            math.acos(min(1.0, max(-1.0, float(normals[a] @ normals[b])))),
+            float(np.linalg.norm(vertices[lo] - vertices[hi])),
+            float((vertices[off_vertex] - vertices[lo]) @ normals[a]),
+        ))
+    table = np.array(rows, dtype=float).reshape(-1, 3)
+    return (np.array(pairs, dtype=np.int64).reshape(-1, 2),
+            np.array(edges, dtype=np.int64).reshape(-1, 2), table)
+
+
+def _messy_mesh(seed: int):
+    """Random faces over few vertices: non-manifold edges, repeated and collinear corners."""
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(12, 3))
+    points[3] = points[4]  # two vertices at one position
+    points[5] = 0.5 * (points[6] + points[7])  # collinear triangles (zero area)
+    vertices = np.concatenate([points, points[rng.integers(0, 12, 6)], [[-0.0, 0.0, 0.0]],
+                               [[0.0, 0.0, 0.0]]])
+    faces = rng.integers(0, len(vertices), size=(int(rng.integers(1, 300)), 3))
+    repeat = rng.random(len(faces)) < 0.1
+    faces[repeat, 2] = faces[repeat, 0]
+    faces[0] = [5, 6, 7]
+    return vertices, faces
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_kernels_match_a_plain_computation_on_messy_meshes(seed):
+    vertices, faces = _messy_mesh(seed)
+    normals, areas = face_normals(vertices, faces)
+    expected_normals, expected_areas = _reference_normals(vertices, faces)
+    np.testing.assert_allclose(normals, expected_normals, atol=1e-12)
+    np.testing.assert_allclose(areas, expected_areas, atol=1e-12)
+    for graph_faces in (faces, weld_faces(vertices, faces)):
+        graph = build_face_graph(vertices, graph_faces, normals)
+        pairs, edges, table = _reference_graph(vertices, graph_faces, normals)
+        np.testing.assert_array_equal(graph.pairs, pairs)
+        np.testing.assert_array_equal(graph.edge_vertices, edges)
+        np.testing.assert_allclose(graph.dihedral, table[:, 0], atol=1e-7)
+        np.testing.assert_allclose(graph.edge_length, table[:, 1], atol=1e-12)
+        clear = np.abs(table[:, 2]) > 1e-9
+        np.testing.assert_array_equal(graph.concave[clear], table[clear, 2] > 0)
+        assert graph.face_count == len(faces)
+
+
+def test_kernels_handle_a_high_valence_hub_and_an_edge_of_many_faces():
+    rng = np.random.default_rng(7)
+    ring = 80  # a fan: one vertex with 80 edges (the long-bucket sort path)
+    angles = np.linspace(0, 2 * np.pi, ring, endpoint=False)
+    rim = np.stack([np.cos(angles), np.sin(angles), rng.normal(0, 0.1, ring)], axis=1)
+    fins = rng.normal(size=(40, 3))  # 40 triangles on one edge (1, 2)
+    vertices = np.concatenate([[[0.0, 0, 0]], rim, fins])
+    fan = np.stack([np.zeros(ring, int), 1 + np.arange(ring), 1 + (np.arange(ring) + 1) % ring], 1)
+    fin_faces = np.stack([np.full(40, 2), np.full(40, 1), 1 + ring + np.arange(40)], axis=1)
+    faces = rng.permutation(np.concatenate([fan, fin_faces]))
+    normals, _ = face_normals(vertices, faces)
+    graph = build_face_graph(vertices, faces, normals)
+    pairs, edges, table = _reference_graph(vertices, faces, normals)
+    np.testing.assert_array_equal(graph.pairs, pairs)
+    np.testing.assert_array_equal(graph.edge_vertices, edges)
+    np.testing.assert_allclose(graph.dihedral, table[:, 0], atol=1e-7)
+
+
+def test_two_faces_sharing_two_edges_link_once_through_the_less_shared_edge():
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    # Faces 0 and 1 share edges (0, 1) and (1, 2); face 2 also uses (0, 1).
+    faces = np.array([[0, 1, 2], [2, 1, 0], [1, 0, 3]])
+    graph = build_face_graph(vertices, faces)
+    assert graph.pairs.tolist() == [[0, 1], [0, 2], [1, 2]]
+    assert graph.edge_vertices.tolist() == [[0, 2], [0, 1], [0, 1]]
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_weld_matches_a_dictionary_of_positions(seed):
+    vertices, faces = _messy_mesh(seed)
+    first: dict[tuple[float, ...], int] = {}
+    for index, row in enumerate((vertices + 0.0).tolist()):
+        first.setdefault(tuple(row), index)
+    expected = np.array([first[tuple(row)] for row in (vertices + 0.0).tolist()])
+    np.testing.assert_array_equal(weld_faces(vertices, faces), expected[faces])
+
+
+def test_out_of_range_vertex_indices_raise():
+    vertices = np.zeros((3, 3))
+    with pytest.raises(IndexError):
+        build_face_graph(vertices, np.array([[0, 1, 3]]))
+    with pytest.raises(IndexError):
+        weld_faces(vertices, np.array([[0, -1, 2]]))

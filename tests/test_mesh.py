@@ -1,6 +1,7 @@
 """TriangleMesh: mapping triangle results back to the input file's faces, content hash."""
 
 import numpy as np
+import trimesh
 
 from neural_shdf.mesh import TriangleMesh
 
@@ -46,3 +47,13 @@ def test_content_hash_depends_on_geometry_and_order_only():
     assert moved.content_hash() != a.content_hash()
     reordered = TriangleMesh(a.vertices, a.faces[::-1], a.face_origin, a.input_face_count)
     assert reordered.content_hash() != a.content_hash()
+
+
+def test_normals_and_areas_are_computed_once_and_read_only():
+    box = trimesh.creation.box(extents=(1, 2, 3))
+    mesh = TriangleMesh(box.vertices, box.faces)
+    normals, areas = mesh.normals_and_areas
+    assert mesh.normals_and_areas[0] is normals  # cached, not recomputed
+    np.testing.assert_allclose(normals, box.face_normals, atol=1e-12)
+    np.testing.assert_allclose(areas, box.area_faces, atol=1e-12)
+    assert not normals.flags.writeable and not areas.flags.writeable

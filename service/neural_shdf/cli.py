@@ -64,19 +64,17 @@ def _shdf(mesh, method: str, seed: int, graph, quiet: bool) -> np.ndarray:
 
 def cmd_shdf(args: argparse.Namespace) -> int:
     from neural_shdf.export import write_values
-    from neural_shdf.geometry import face_normals
     from neural_shdf.pipeline import mesh_face_graph
 
     mesh = _load(args.mesh, args.format)
     values = _shdf(mesh, args.method, args.seed, mesh_face_graph(mesh), args.quiet)
-    _, areas = face_normals(mesh.vertices, mesh.faces)
+    _, areas = mesh.normals_and_areas
     write_values(args.output, mesh.to_input_faces(values, weights=areas + 1e-300))
     return 0
 
 
 def cmd_segment(args: argparse.Namespace) -> int:
     from neural_shdf.export import colored_glb, parts_glb, write_labels
-    from neural_shdf.geometry import face_normals
     from neural_shdf.pipeline import mesh_face_graph, segment_mesh
     from neural_shdf.segment import SegmentParams
 
@@ -86,7 +84,7 @@ def cmd_segment(args: argparse.Namespace) -> int:
     shdf = _shdf(mesh, args.method, args.seed, graph, args.quiet)
     start = time.perf_counter()
     labels = segment_mesh(mesh, shdf, params, graph=graph)
-    _, areas = face_normals(mesh.vertices, mesh.faces)
+    _, areas = mesh.normals_and_areas
     write_labels(args.output, mesh.labels_to_input_faces(labels, weights=areas + 1e-300))
     if args.colored:
         Path(args.colored).write_bytes(colored_glb(mesh, labels))

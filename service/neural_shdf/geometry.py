@@ -2,28 +2,53 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf.compiled import kernel
 from neural_shdf.constants import AREA_EPS
 
 
 def face_normals(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
-    """Unit normals (F, 3) and areas (F,) of triangles; degenerate faces get a zero normal."""
-    origin = vertices[faces[:, 0]]
-    u = vertices[faces[:, 1]] - origin
-    v = vertices[faces[:, 2]] - origin
-    cross = np.empty_like(u)
-    cross[:, 0] = u[:, 1] * v[:, 2] - u[:, 2] * v[:, 1]
-    cross[:, 1] = u[:, 2] * v[:, 0] - u[:, 0] * v[:, 2]
-    cross[:, 2] = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
-    norm = np.sqrt(np.einsum("ij,ij->i", cross, cross))
-    normals = np.zeros_like(cross)
-    ok = norm > AREA_EPS
-    normals[ok] = cross[ok] / norm[ok, None]
-    return normals, 0.5 * norm
+    """Unit normals (F, 3) and areas (F,) of triangles; degenerate faces get a zero normal.
+
+    ``TriangleMesh.normals_and_areas`` caches this per mesh; call that where a mesh exists.
+    """
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    normals = np.empty((len(faces), 3), dtype=np.float64)
+    areas = np.empty(len(faces), dtype=np.float64)
+    _normals_and_areas(vertices, faces, AREA_EPS, normals, areas)
+    return normals, areas
+
+
+@kernel
+def _normals_and_areas(vertices, faces, area_eps, normals, areas):  # pragma: no cover - numba
+    """Cross product of two edges per face: its direction the normal, half its length the area."""
+    for face in range(faces.shape[0]):
+        a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
+        ux = vertices[b, 0] - vertices[a, 0]
+        uy = vertices[b, 1] - vertices[a, 1]
+        uz = vertices[b, 2] - vertices[a, 2]
+        vx = vertices[c, 0] - vertices[a, 0]
+        vy = vertices[c, 1] - vertices[a, 1]
+        vz = vertices[c, 2] - vertices[a, 2]
+        cx = uy * vz - uz * vy
+        cy = uz * vx - ux * vz
+        cz = ux * vy - uy * vx
+        norm = math.sqrt(cx * cx + cy * cy + cz * cz)
+        if norm > area_eps:
+            normals[face, 0] = cx / norm
+            normals[face, 1] = cy / norm
+            normals[face, 2] = cz / norm
+        else:
+            normals[face, 0] = 0.0
+            normals[face, 1] = 0.0
+            normals[face, 2] = 0.0
+        areas[face] = 0.5 * norm
 
 
 def face_centroids(vertices: NDArray, faces: NDArray) -> NDArray:
@@ -70,115 +95,237 @@ def build_face_graph(
 
     Works on open, non-manifold and multi-shell meshes: an edge shared by k > 2
     faces links every pair of them; boundary edges link nothing. Edges are found
-    by vertex index, so callers that want welding must weld first.
+    by vertex index, so callers that want welding must weld first. Two faces that
+    share several edges are linked once, through the edge shared by the fewest
+    faces (ties: the lowest vertex pair).
     """
-    faces = np.asarray(faces, dtype=np.int64)
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
     n_faces = len(faces)
     if normals is None:
         normals, _ = face_normals(vertices, faces)
     if n_faces == 0:
         empty = np.zeros((0, 2), dtype=np.int64)
         return FaceGraph(empty, empty, np.zeros(0), np.zeros(0), np.zeros(0, bool), 0)
-
+    _check_indices(faces, len(vertices))
+    normals = np.ascontiguousarray(normals, dtype=np.float64).reshape(n_faces, 3)
     n_vertices = int(faces.max()) + 1
-    start_vertex = faces.reshape(-1)
-    end_vertex = faces[:, [1, 2, 0]].reshape(-1)
-    lo, hi = np.minimum(start_vertex, end_vertex), np.maximum(start_vertex, end_vertex)
-    edge_face = np.repeat(np.arange(n_faces, dtype=np.int64), 3)
-    # Drop edges of degenerate faces that repeat a vertex.
-    keep = lo != hi
-    lo, hi, edge_face = lo[keep], hi[keep], edge_face[keep]
-    # One int64 key per undirected edge; a stable sort keeps faces ascending in a group.
-    key = lo * n_vertices + hi
-    order = np.argsort(key, kind="stable")
-    key, edge_face = key[order], edge_face[order]
-    new_group = np.ones(len(key), dtype=bool)
-    new_group[1:] = key[1:] != key[:-1]
-    group_start = np.flatnonzero(new_group)
-    group_size = np.diff(np.append(group_start, len(key)))
-
-    pair_list = []
-    key_list = []
-    # Manifold edges (size 2) in one vectorised step; larger groups pairwise.
-    two = group_start[group_size == 2]
-    manifold = np.empty((len(two), 2), dtype=np.int64)
-    manifold[:, 0], manifold[:, 1] = edge_face[two], edge_face[two + 1]
-    pair_list.append(manifold)
-    key_list.append(key[two])
-    for size in np.unique(group_size[group_size > 2]):
-        starts = group_start[group_size == size]
-        ia, ib = np.triu_indices(int(size), k=1)
-        pair_list.append(
-            np.stack([edge_face[starts[:, None] + ia], edge_face[starts[:, None] + ib]], axis=2)
-            .reshape(-1, 2)
-        )
-        key_list.append(np.repeat(key[starts], len(ia)))
-    pairs = pair_list[0] if len(pair_list) == 1 else np.concatenate(pair_list)
-    edge_key = key_list[0] if len(key_list) == 1 else np.concatenate(key_list)
-    # Faces ascend within a group (stable sort), so pairs[:, 0] <= pairs[:, 1] already.
-    # A face listed twice on one edge (repeated vertex pattern) is no adjacency.
-    keep = pairs[:, 0] != pairs[:, 1]
-    if not keep.all():
-        pairs, edge_key = pairs[keep], edge_key[keep]
-    # Sorted by face pair; two faces sharing two edges (folded duplicates) keep one link.
-    pair_key = pairs[:, 0] * n_faces + pairs[:, 1]
-    order = np.argsort(pair_key, kind="stable")
-    pair_key, pairs, edge_key = pair_key[order], pairs[order], edge_key[order]
-    first = np.ones(len(pair_key), dtype=bool)
-    first[1:] = pair_key[1:] != pair_key[:-1]
-    pairs, edge_key = pairs[first], edge_key[first]
-    edge_vertices = np.stack([edge_key // n_vertices, edge_key % n_vertices], axis=1)
-
-    a, b = pairs[:, 0], pairs[:, 1]
-    cos = np.clip(np.einsum("ij,ij->i", normals[a], normals[b]), -1.0, 1.0)
-    dihedral = np.arccos(cos)
-    edge_length = np.linalg.norm(
-        vertices[edge_vertices[:, 0]] - vertices[edge_vertices[:, 1]], axis=1
-    )
-    # Concave when face b's vertex off the shared edge lies above face a's plane.
-    fb = faces[b]
-    off_edge = np.where(
-        (fb != edge_vertices[:, [0]]) & (fb != edge_vertices[:, [1]]), fb, -1
-    ).max(axis=1)
-    off_edge = np.where(off_edge < 0, fb[:, 0], off_edge)
-    height = np.einsum("ij,ij->i", vertices[off_edge] - vertices[edge_vertices[:, 0]], normals[a])
-    concave = height > 0
+    edge_table, slot = _sorted_edges(faces, n_vertices)
+    pairs, edge_vertices = _adjacent_pairs(faces, edge_table, slot, n_vertices)
+    edge_length, dihedral, concave = _pair_geometry(vertices, faces, normals, pairs, edge_vertices)
     return FaceGraph(pairs, edge_vertices, edge_length, dihedral, concave, n_faces)
+
+
+def _check_indices(faces: NDArray[np.int64], vertex_count: int) -> None:
+    """IndexError unless every vertex index is in ``[0, vertex_count)`` (kernels do not check)."""
+    if len(faces) and (int(faces.min()) < 0 or int(faces.max()) >= vertex_count):
+        raise IndexError(f"face vertex indices must lie in [0, {vertex_count})")
+
+
+@kernel
+def _sorted_edges(faces, n_vertices):  # pragma: no cover - numba
+    """Face edges sorted by undirected key ``lo * n_vertices + hi``, stable (faces ascend).
+
+    Returns ``edge_table`` (E, 2), the key and face of each edge in sorted order,
+    and ``slot`` (3F,), the sorted position of edge ``corner`` of face ``f`` at
+    ``3 * f + corner`` (-1: dropped, the face repeats a vertex there). A counting
+    sort by ``lo``, then each (small) bucket sorted by ``hi``.
+    """
+    bucket_start = np.zeros(n_vertices + 1, dtype=np.int64)
+    for face in range(faces.shape[0]):
+        for corner in range(3):
+            start, end = faces[face, corner], faces[face, (corner + 1) % 3]
+            if start != end:
+                bucket_start[min(start, end) + 1] += 1
+    for vertex in range(n_vertices):
+        bucket_start[vertex + 1] += bucket_start[vertex]
+    fill = bucket_start[:-1].copy()
+    edge_count = bucket_start[n_vertices]
+    edge_key = np.empty(edge_count, dtype=np.int64)
+    edge_id = np.empty(edge_count, dtype=np.int64)
+    for face in range(faces.shape[0]):
+        for corner in range(3):
+            start, end = faces[face, corner], faces[face, (corner + 1) % 3]
+            if start != end:
+                lo = min(start, end)
+                edge_key[fill[lo]] = lo * n_vertices + max(start, end)
+                edge_id[fill[lo]] = 3 * face + corner
+                fill[lo] += 1
+    _sort_buckets(bucket_start, edge_key, edge_id)
+    edge_table = np.empty((edge_count, 2), dtype=np.int64)
+    slot = np.full(3 * faces.shape[0], -1, dtype=np.int64)
+    for position in range(edge_count):
+        edge_table[position, 0] = edge_key[position]
+        edge_table[position, 1] = edge_id[position] // 3
+        slot[edge_id[position]] = position
+    return edge_table, slot
+
+
+@kernel(inline=True)
+def _sort_buckets(bucket_start, key, payload):  # pragma: no cover - numba
+    """Stable in-place sort of ``key`` (and ``payload`` alongside) within each bucket."""
+    for bucket in range(bucket_start.shape[0] - 1):
+        first, stop = bucket_start[bucket], bucket_start[bucket + 1]
+        if stop - first <= 32:  # insertion sort: stable, fast on the usual 1-10 items
+            for i in range(first + 1, stop):
+                moving_key, moving_payload = key[i], payload[i]
+                j = i
+                while j > first and key[j - 1] > moving_key:
+                    key[j], payload[j] = key[j - 1], payload[j - 1]
+                    j -= 1
+                key[j], payload[j] = moving_key, moving_payload
+        else:
+            order = np.argsort(key[first:stop], kind="mergesort") + first
+            key[first:stop] = key[order]
+            payload[first:stop] = payload[order]
+
+
+@kernel
+def _adjacent_pairs(faces, edge_table, slot, n_vertices):  # pragma: no cover - numba
+    """Face pairs ``a < b`` sharing an edge, sorted, each once, with the edge it shares.
+
+    Face by face, the later faces in the groups of its three edges, sorted by
+    ``(b, group size, edge key)``; a pair met on several edges keeps the edge
+    shared by the fewest faces, then the lowest. ``edge_table, slot`` come from
+    ``_sorted_edges``.
+    """
+    edge_count = edge_table.shape[0]
+    upper_bound = 0
+    largest = 0
+    i = 0
+    while i < edge_count:
+        j = i + 1
+        while j < edge_count and edge_table[j, 0] == edge_table[i, 0]:
+            j += 1
+        upper_bound += (j - i) * (j - i - 1) // 2
+        largest = max(largest, j - i)
+        i = j
+    pairs = np.empty((upper_bound, 2), dtype=np.int64)
+    edge_vertices = np.empty((upper_bound, 2), dtype=np.int64)
+    neighbours = np.empty(3 * largest, dtype=np.int64)
+    rank = np.empty((3 * largest, 2), dtype=np.int64)  # per neighbour: group size, edge key
+    kept = 0
+    for face in range(faces.shape[0]):
+        found = 0
+        for corner in range(3):
+            position = slot[3 * face + corner]
+            if position < 0:
+                continue
+            key = edge_table[position, 0]
+            first = position
+            while first > 0 and edge_table[first - 1, 0] == key:
+                first -= 1
+            last = position + 1
+            while last < edge_count and edge_table[last, 0] == key:
+                last += 1
+            size = last - first
+            for k in range(first, last):
+                neighbour = edge_table[k, 1]
+                if neighbour <= face:
+                    continue
+                # Insertion by (neighbour, size, key).
+                j = found
+                while j > 0 and (
+                    neighbours[j - 1] > neighbour
+                    or (
+                        neighbours[j - 1] == neighbour
+                        and (rank[j - 1, 0], rank[j - 1, 1]) > (size, key)
+                    )
+                ):
+                    neighbours[j] = neighbours[j - 1]
+                    rank[j, 0], rank[j, 1] = rank[j - 1, 0], rank[j - 1, 1]
+                    j -= 1
+                neighbours[j] = neighbour
+                rank[j, 0], rank[j, 1] = size, key
+                found += 1
+        for j in range(found):
+            if j > 0 and neighbours[j] == neighbours[j - 1]:
+                continue
+            pairs[kept, 0], pairs[kept, 1] = face, neighbours[j]
+            edge_vertices[kept, 0] = rank[j, 1] // n_vertices
+            edge_vertices[kept, 1] = rank[j, 1] % n_vertices
+            kept += 1
+    return pairs[:kept].copy(), edge_vertices[:kept].copy()
+
+
+@kernel
+def _pair_geometry(vertices, faces, normals, pairs, edge_vertices):  # pragma: no cover - numba
+    """Shared edge length, dihedral angle and concavity of each face pair."""
+    count = pairs.shape[0]
+    edge_length = np.empty(count, dtype=np.float64)
+    dihedral = np.empty(count, dtype=np.float64)
+    concave = np.empty(count, dtype=np.bool_)
+    for k in range(count):
+        a, b = pairs[k, 0], pairs[k, 1]
+        lo, hi = edge_vertices[k, 0], edge_vertices[k, 1]
+        cos = normals[a, 0] * normals[b, 0] + normals[a, 1] * normals[b, 1]
+        cos += normals[a, 2] * normals[b, 2]
+        dihedral[k] = math.acos(min(max(cos, -1.0), 1.0))
+        dx = vertices[lo, 0] - vertices[hi, 0]
+        dy = vertices[lo, 1] - vertices[hi, 1]
+        dz = vertices[lo, 2] - vertices[hi, 2]
+        edge_length[k] = math.sqrt(dx * dx + dy * dy + dz * dz)
+        # Concave when face b's vertex off the shared edge lies above face a's plane.
+        off_edge = -1
+        for corner in range(3):
+            vertex = faces[b, corner]
+            if vertex != lo and vertex != hi and vertex > off_edge:
+                off_edge = vertex
+        if off_edge < 0:
+            off_edge = faces[b, 0]
+        height = (vertices[off_edge, 0] - vertices[lo, 0]) * normals[a, 0]
+        height += (vertices[off_edge, 1] - vertices[lo, 1]) * normals[a, 1]
+        height += (vertices[off_edge, 2] - vertices[lo, 2]) * normals[a, 2]
+        concave[k] = height > 0
+    return edge_length, dihedral, concave
 
 
 def weld_faces(vertices: NDArray, faces: NDArray) -> NDArray[np.int64]:
     """Face indices rewritten so that vertices at identical positions share one index.
 
     Faces keep their order and count; only the adjacency they imply changes
-    (an STL triangle soup becomes connected). Used for graphs, never for output.
+    (an STL triangle soup becomes connected). Each index becomes the lowest
+    index of a vertex at the same position (-0.0 equals 0.0). Used for graphs,
+    never for output.
     """
-    faces = np.asarray(faces, dtype=np.int64)
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
     if len(vertices) == 0:
         return faces
-    representative = _first_of_equal_rows(np.ascontiguousarray(vertices, dtype=np.float64))
-    return representative[faces]
+    _check_indices(faces.reshape(-1, 3), len(vertices))
+    bits = (np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3) + 0.0).view(np.uint64)
+    return _first_of_equal_rows(bits)[faces]
 
 
-def _first_of_equal_rows(vertices: NDArray[np.float64]) -> NDArray[np.int64]:
-    """For each row, the index of the first row with the same coordinates.
-
-    Sorts one 64-bit hash per row instead of whole rows (several times faster than
-    ``np.unique(axis=0)``), then checks that rows sharing a hash are equal; on a
-    hash collision it falls back to the exact row sort.
-    """
-    bits = (vertices + 0.0).view(np.uint64)  # + 0.0 folds -0.0 into 0.0
-    with np.errstate(over="ignore"):
-        key = bits[:, 0] * np.uint64(0x9E3779B97F4A7C15)
-        key ^= bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F) + (key >> np.uint64(29))
-        key ^= bits[:, 2] * np.uint64(0x165667B19E3779F9) + (key >> np.uint64(31))
-    order = np.argsort(key, kind="stable")
-    sorted_key = key[order]
-    starts = np.ones(len(order), dtype=bool)
-    starts[1:] = sorted_key[1:] != sorted_key[:-1]
-    group_first = order[np.flatnonzero(starts)][np.cumsum(starts) - 1]
-    if not np.array_equal(vertices[order], vertices[group_first]):
-        _, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
-        return first[inverse.reshape(-1)]
-    representative = np.empty(len(order), dtype=np.int64)
-    representative[order] = group_first
+@kernel
+def _first_of_equal_rows(bits):  # pragma: no cover - numba
+    """For each row of ``bits`` (V, 3), the lowest index of an equal row (a hash table)."""
+    count = bits.shape[0]
+    capacity = 16
+    while capacity < 2 * count:
+        capacity *= 2
+    mask = np.uint64(capacity - 1)
+    table = np.full(capacity, -1, dtype=np.int64)
+    representative = np.empty(count, dtype=np.int64)
+    for row in range(count):
+        key = bits[row, 0] * np.uint64(0x9E3779B97F4A7C15)
+        key ^= bits[row, 1] * np.uint64(0xC2B2AE3D27D4EB4F) + (key >> np.uint64(29))
+        key ^= bits[row, 2] * np.uint64(0x165667B19E3779F9) + (key >> np.uint64(31))
+        key ^= key >> np.uint64(32)
+        key *= np.uint64(0xD6E8FEB86659FD93)
+        key ^= key >> np.uint64(32)
+        slot = key & mask
+        while True:
+            other = table[slot]
+            if other < 0:
+                table[slot] = row
+                representative[row] = row
+                break
+            if (
+                bits[other, 0] == bits[row, 0]
+                and bits[other, 1] == bits[row, 1]
+                and bits[other, 2] == bits[row, 2]
+            ):
+                representative[row] = other
+                break
+            slot = (slot + np.uint64(1)) & mask
     return representative

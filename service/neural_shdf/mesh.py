@@ -4,9 +4,12 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
+
+from neural_shdf.geometry import face_normals
 
 
 @dataclass(frozen=True, eq=False)
@@ -21,6 +24,8 @@ class TriangleMesh:
             are contiguous and in the input order.
         input_face_count: number of faces in the input file. Input faces that
             produced no triangle (dropped as unusable) map to no triangle.
+
+    Treat the arrays as read-only: per-face geometry is computed once and cached.
     """
 
     vertices: NDArray[np.float64]
@@ -46,6 +51,18 @@ class TriangleMesh:
     @property
     def face_count(self) -> int:
         return int(len(self.faces))
+
+    @cached_property
+    def normals_and_areas(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Unit normal (F, 3) and area (F,) of each triangle, computed once per mesh.
+
+        Degenerate triangles get a zero normal (``geometry.face_normals``). The
+        arrays are shared by every caller: do not modify them.
+        """
+        normals, areas = face_normals(self.vertices, self.faces)
+        normals.flags.writeable = False
+        areas.flags.writeable = False
+        return normals, areas
 
     def content_hash(self) -> str:
         """SHA-256 of the canonical geometry: vertices, triangles and face origins."""

@@ -12,7 +12,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf.geometry import FaceGraph, build_face_graph, face_normals, weld_faces
+from neural_shdf.geometry import FaceGraph, build_face_graph, weld_faces
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
 
@@ -22,7 +22,7 @@ Progress = Callable[[float], None]
 
 def mesh_face_graph(mesh: TriangleMesh) -> FaceGraph:
     """Face adjacency of the mesh with coincident vertices welded (input order kept)."""
-    normals, _ = face_normals(mesh.vertices, mesh.faces)
+    normals, _ = mesh.normals_and_areas
     return build_face_graph(mesh.vertices, weld_faces(mesh.vertices, mesh.faces), normals)
 
 
@@ -58,4 +58,7 @@ def segment_mesh(
     from neural_shdf.segment.pipeline import segment
 
     graph = mesh_face_graph(mesh) if graph is None else graph
-    return segment(mesh.vertices, mesh.faces, np.asarray(shdf), params or SegmentParams(), graph)
+    _, areas = mesh.normals_and_areas
+    return segment(
+        mesh.vertices, mesh.faces, np.asarray(shdf), params or SegmentParams(), graph, areas=areas
+    )

@@ -34,7 +34,7 @@ from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.schemas import SegmentOptions
 from neural_shdf.api.settings import Settings
 from neural_shdf.errors import InvalidGeometryError
-from neural_shdf.geometry import FaceGraph, face_normals
+from neural_shdf.geometry import FaceGraph
 from neural_shdf.mesh import TriangleMesh
 
 logger = logging.getLogger(__name__)
@@ -140,7 +140,7 @@ def summarize(
 ) -> SegmentResult:
     """Input-face labels and per-part faces, area and area-weighted mean ShDF."""
     labels = mesh.labels_to_input_faces(triangle_labels)
-    _, area = face_normals(mesh.vertices, mesh.faces)
+    _, area = mesh.normals_and_areas
     part_count = int(triangle_labels.max()) + 1 if len(triangle_labels) else 0
     tri = np.asarray(triangle_labels, dtype=np.int64)
     part_area = np.bincount(tri, weights=area, minlength=part_count)
@@ -257,7 +257,7 @@ class Engine:
         meta = self.cache.get_json(meta_key)
         stored = self.cache.recall(f"{mesh_id}:mesh") is not None
         if meta is None or not (stored or self.cache.get_arrays(f"{mesh_id}:mesh") is not None):
-            _, area = face_normals(mesh.vertices, mesh.faces)
+            _, area = mesh.normals_and_areas
             meta = {
                 "mesh_id": mesh_id,
                 "faces": mesh.input_face_count,

@@ -177,12 +177,10 @@ def _metric_mesh(mesh: TriangleMesh, path: Path) -> tuple[CutGraph, int]:
 
 def _input_labels(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.int64]:
     """Per-triangle labels to per-file-face labels; faces without a triangle form one segment."""
-    from neural_shdf.geometry import face_normals
-
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
     if len(labels) != mesh.face_count:
         raise ValueError(f"{len(labels)} labels for {mesh.face_count} triangles")
-    _, areas = face_normals(mesh.vertices, mesh.faces)
+    _, areas = mesh.normals_and_areas
     return mesh.labels_to_input_faces(labels, weights=areas + 1e-300, missing=-1)
 
 

@@ -63,8 +63,9 @@ class FaceData:
     face_weight: NDArray[np.float64]
 
     @classmethod
-    def of(cls, vertices: NDArray, faces: NDArray) -> FaceData:
-        _, areas = face_normals(vertices, faces)
+    def of(cls, vertices: NDArray, faces: NDArray, areas: NDArray | None = None) -> FaceData:
+        """The data of ``faces``; ``areas`` where the caller has them (e.g. a mesh's cache)."""
+        areas = face_normals(vertices, faces)[1] if areas is None else np.asarray(areas, float)
         mean = float(areas.mean()) if len(areas) else 0.0
         weight = areas / mean if mean > 0 else np.ones(len(areas))
         return cls(areas, face_centroids(vertices, faces), weight)
@@ -80,9 +81,14 @@ def segment(
     shdf: NDArray,
     params: SegmentParams,
     graph: FaceGraph,
+    *,
+    areas: NDArray | None = None,
 ) -> NDArray[np.int64]:
-    """Part label per face, 0..P-1 in order of each part's lowest face; deterministic."""
-    return segment_with_details(vertices, faces, shdf, params, graph).labels
+    """Part label per face, 0..P-1 in order of each part's lowest face; deterministic.
+
+    ``areas``: the faces' areas where the caller has them (else computed).
+    """
+    return segment_with_details(vertices, faces, shdf, params, graph, areas=areas).labels
 
 
 def segment_with_details(
@@ -91,6 +97,8 @@ def segment_with_details(
     shdf: NDArray,
     params: SegmentParams,
     graph: FaceGraph,
+    *,
+    areas: NDArray | None = None,
 ) -> SegmentResult:
     """``segment`` plus the chosen mixture size, smoothing and per-step timings."""
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
@@ -107,7 +115,7 @@ def segment_with_details(
 
     if len(faces) == 0:
         return SegmentResult(np.zeros(0, dtype=np.int64), 0, smoothing, timings)
-    geometry = FaceData.of(np.asarray(vertices, dtype=np.float64), faces)
+    geometry = FaceData.of(np.asarray(vertices, dtype=np.float64), faces, areas)
     lap("face_data")
     values = log_normalize(shdf)
     if params.clusters == AUTO_CLUSTERS:

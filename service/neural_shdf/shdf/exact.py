@@ -481,7 +481,7 @@ def exact_shdf(
     the other parameters are those of ``raw_shdf`` and ``postprocess_shdf``.
     Progress: ray casting reports up to 0.9, post-processing the rest.
     """
-    normals, _ = face_normals(mesh.vertices, mesh.faces)
+    normals, _ = mesh.normals_and_areas
     raw = raw_shdf(
         mesh.vertices,
         mesh.faces,

@@ -38,7 +38,10 @@ def neural_shdf(
     ``postprocess_shdf``. Raises ModelUnavailableError when no model is installed.
     """
     model = load_model(model_path)
-    raw = neural_raw_shdf(mesh.vertices, mesh.faces, seed=seed, model=model)
+    normals, areas = mesh.normals_and_areas
+    raw = neural_raw_shdf(
+        mesh.vertices, mesh.faces, seed=seed, model=model, normals=normals, areas=areas
+    )
     if progress is not None:
         progress(0.5)
     out = postprocess_shdf(raw, graph, smooth=smooth)

@@ -230,15 +230,16 @@ def new_packet() -> tuple[NDArray, NDArray, NDArray]:
 
 
 @kernel(inline=True)
-def set_ray(rays, ids, lane, ox, oy, oz, dx, dy, dz) -> None:  # noqa: ANN001
-    """Put one ray (origin, direction, float32) in ``lane`` of a packet, reset its hit."""
-    rays[ORG_X, lane] = ox
-    rays[ORG_Y, lane] = oy
-    rays[ORG_Z, lane] = oz
+def set_ray(rays, ids, lane, origin, direction, offset) -> None:  # noqa: ANN001
+    """Put the ray from ``origin + offset * direction`` along ``direction`` (float32 rows)
+    in ``lane`` of a packet and reset its hit."""
+    rays[ORG_X, lane] = origin[0] + offset * direction[0]
+    rays[ORG_Y, lane] = origin[1] + offset * direction[1]
+    rays[ORG_Z, lane] = origin[2] + offset * direction[2]
     rays[TNEAR, lane] = 0.0
-    rays[DIR_X, lane] = dx
-    rays[DIR_Y, lane] = dy
-    rays[DIR_Z, lane] = dz
+    rays[DIR_X, lane] = direction[0]
+    rays[DIR_Y, lane] = direction[1]
+    rays[DIR_Z, lane] = direction[2]
     rays[TIME, lane] = 0.0
     rays[TFAR, lane] = np.inf
     ids[MASK, lane] = INVALID_ID
@@ -266,21 +267,12 @@ def hit_of(ids, lane) -> int:  # noqa: ANN001
 @kernel
 def _first_hits(intersect16, scene, arguments, origins, directions, hits) -> None:  # noqa: ANN001
     rays, ids, valid = new_packet()
+    no_offset = np.float32(0.0)
     for start in range(0, len(origins), LANES):
         count = min(LANES, len(origins) - start)
         for lane in range(count):
             i = start + lane
-            set_ray(
-                rays,
-                ids,
-                lane,
-                origins[i, 0],
-                origins[i, 1],
-                origins[i, 2],
-                directions[i, 0],
-                directions[i, 1],
-                directions[i, 2],
-            )
+            set_ray(rays, ids, lane, origins[i], directions[i], no_offset)
         intersect_packet(intersect16, scene, arguments, rays, ids, valid, count)
         for lane in range(count):
             hits[start + lane] = hit_of(ids, lane)

@@ -376,8 +376,8 @@ def _shdf_of_faces(
     hits = np.empty((LANES, ray_count), dtype=np.int64)
     distances = np.empty(ray_count)
     scratch = np.empty(ray_count)
-    retry_lane = np.empty(LANES, dtype=np.int64)
-    retry_ray = np.empty(LANES, dtype=np.int64)
+    retry_lane = np.empty(LANES * ray_count, dtype=np.int64)
+    retry_ray = np.empty(LANES * ray_count, dtype=np.int64)
     for start in range(0, len(batch), LANES):
         count = min(LANES, len(batch) - start)
         for lane in range(count):
@@ -392,57 +392,30 @@ def _shdf_of_faces(
         # Ray i of 16 neighbouring faces: nearly parallel rays, a coherent packet.
         for i in range(ray_count):
             for lane in range(count):
-                face = batch[start + lane]
-                d = directions[lane, i]
-                set_ray(
-                    rays,
-                    ids,
-                    lane,
-                    local_centroids[face, 0] + origin_offset * d[0],
-                    local_centroids[face, 1] + origin_offset * d[1],
-                    local_centroids[face, 2] + origin_offset * d[2],
-                    d[0],
-                    d[1],
-                    d[2],
-                )
+                origin = local_centroids[batch[start + lane]]
+                set_ray(rays, ids, lane, origin, directions[lane, i], origin_offset)
             intersect_packet(intersect16, scene, arguments, rays, ids, valid, count)
             for lane in range(count):
                 hits[lane, i] = hit_of(ids, lane)
         # Rays that hit their own triangle through rounding start again further out.
         pending = 0
         for lane in range(count):
-            face = batch[start + lane]
             for i in range(ray_count):
-                if hits[lane, i] == face:
-                    d = directions[lane, i]
-                    set_ray(
-                        rays,
-                        ids,
-                        pending,
-                        local_centroids[face, 0] + retry_offset * d[0],
-                        local_centroids[face, 1] + retry_offset * d[1],
-                        local_centroids[face, 2] + retry_offset * d[2],
-                        d[0],
-                        d[1],
-                        d[2],
-                    )
+                if hits[lane, i] == batch[start + lane]:
                     retry_lane[pending] = lane
                     retry_ray[pending] = i
                     pending += 1
-                    last = lane == count - 1 and i == ray_count - 1
-                    if pending == LANES or last:
-                        intersect_packet(intersect16, scene, arguments, rays, ids, valid, pending)
-                        for k in range(pending):
-                            hit = hit_of(ids, k)
-                            own = batch[start + retry_lane[k]]
-                            hits[retry_lane[k], retry_ray[k]] = -1 if hit == own else hit
-                        pending = 0
-        if pending:
-            intersect_packet(intersect16, scene, arguments, rays, ids, valid, pending)
-            for k in range(pending):
+        for first in range(0, pending, LANES):
+            size = min(LANES, pending - first)
+            for k in range(size):
+                lane = retry_lane[first + k]
+                origin = local_centroids[batch[start + lane]]
+                set_ray(rays, ids, k, origin, directions[lane, retry_ray[first + k]], retry_offset)
+            intersect_packet(intersect16, scene, arguments, rays, ids, valid, size)
+            for k in range(size):
+                lane = retry_lane[first + k]
                 hit = hit_of(ids, k)
-                own = batch[start + retry_lane[k]]
-                hits[retry_lane[k], retry_ray[k]] = -1 if hit == own else hit
+                hits[lane, retry_ray[first + k]] = -1 if hit == batch[start + lane] else hit
         # Distance along the ray to the hit triangle's plane, in float64; a hit
         # counts when the ray leaves through the back of the hit face.
         for lane in range(count):

@@ -6,6 +6,7 @@ input file's faces with ``mesh.to_input_faces`` / ``mesh.labels_to_input_faces``
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from typing import Literal
 
@@ -62,3 +63,27 @@ def segment_mesh(
     return segment(
         mesh.vertices, mesh.faces, np.asarray(shdf), params or SegmentParams(), graph, areas=areas
     )
+
+
+def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "neural")) -> float:
+    """Run a small generated sphere through the face graph, each ShDF ``method`` and both
+    partitioners, so that the compiled kernels are built (first run after an install) or
+    loaded from their cache and the model session exists. Seconds taken; a neural model
+    that cannot load is skipped (its error surfaces where it is used).
+    """
+    import trimesh
+
+    from neural_shdf.errors import ModelUnavailableError
+
+    start = time.perf_counter()
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    mesh = TriangleMesh(sphere.vertices, sphere.faces)
+    graph = mesh_face_graph(mesh)
+    for method in methods:
+        try:
+            shdf = compute_shdf(mesh, method=method, graph=graph)
+        except ModelUnavailableError:
+            continue
+        for params in (SegmentParams(), SegmentParams(partitioner="metis", parts=2)):
+            segment_mesh(mesh, shdf, params, graph=graph)
+    return time.perf_counter() - start

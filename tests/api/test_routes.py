@@ -165,3 +165,16 @@ def test_metrics_exposition(client, capsule_obj):
     text = client.get("/metrics").text
     assert "neural_shdf_shdf_computations_total" in text
     assert 'neural_shdf_http_requests_total{method="POST",route="/v1/meshes",status="200"}' in text
+
+
+@pytest.mark.parametrize("enabled", [True, False])
+def test_start_up_warms_the_compiled_paths_unless_disabled(app_factory, monkeypatch, enabled):
+    from fastapi.testclient import TestClient
+
+    from neural_shdf.api import app as app_module
+
+    calls = []
+    monkeypatch.setattr(app_module, "warm_up", lambda: calls.append(1) or 0.0)
+    with TestClient(app_factory(warm_up=enabled)) as test_client:
+        assert test_client.get("/healthz").status_code == 200
+    assert calls == ([1] if enabled else [])

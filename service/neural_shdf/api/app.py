@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
@@ -18,6 +19,7 @@ from neural_shdf.api.jobs import JobAccepted
 from neural_shdf.api.metrics import Metrics, RequestMetricsMiddleware
 from neural_shdf.api.routes import health, jobs, meshes, segment
 from neural_shdf.api.settings import Settings
+from neural_shdf.pipeline import warm_up
 
 DESCRIPTION = """Segment polygonal meshes into parts with the Shape Diameter Function (ShDF).
 
@@ -26,6 +28,8 @@ its ShDF is computed once and cached. Then segment it as often as you like
 (`POST /v1/segment`): only the partitioning runs. Every error has the same shape:
 `{"error": {"code", "message", "detail"}}`.
 """
+
+logger = logging.getLogger(__name__)
 
 
 def build_cache(settings: Settings, metrics: Metrics) -> ResultCache:
@@ -50,6 +54,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+        if settings.warm_up:
+            # The first request then pays no compilation (seconds on a fresh install).
+            seconds = await engine.run(warm_up)
+            logger.info("warm-up done in %.2f s", seconds)
         yield
         await engine.close()
         engine.cache.close()

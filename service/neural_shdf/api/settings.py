@@ -67,6 +67,11 @@ class Settings(BaseSettings):
         60.0, gt=0, description="Longest pause between two chunks of a request body (408)."
     )
     compute_threads: int = Field(2, ge=1, description="Threads running ShDF and segmentation.")
+    warm_up: bool = Field(
+        True,
+        description="At start-up, run a small mesh through every compiled path (kernels "
+        "compiled or loaded from their cache, model session made) before serving.",
+    )
     io_threads: int = Field(
         8, ge=1, description="Threads for cache I/O (never blocked by computations)."
     )

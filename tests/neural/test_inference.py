@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from neural_shdf.errors import ModelUnavailableError
+from neural_shdf.errors import ModelUnavailableError, ParameterError
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.neural.inference import DEFAULT_MODEL_PATH, load_model, neural_raw_shdf
 from neural_shdf.pipeline import compute_shdf, mesh_face_graph
@@ -71,10 +71,27 @@ def test_committed_model_tells_thin_from_thick(committed_model) -> None:
     assert 0.08 < np.median(raw[thin]) < 0.35
 
 
+def test_more_sample_sets_lower_the_sampling_noise(committed_model) -> None:
+    mesh, _ = two_shells()
+
+    def noise(sets: int) -> float:
+        a, b = (
+            neural_raw_shdf(mesh.vertices, mesh.faces, seed=s, sample_sets=sets) for s in (0, 1)
+        )
+        return float(np.mean(np.abs(np.log(a / b))))
+
+    one, three = noise(1), noise(3)
+    assert three < 0.8 * one
+    again = neural_raw_shdf(mesh.vertices, mesh.faces, seed=0, sample_sets=3)
+    np.testing.assert_array_equal(again, neural_raw_shdf(mesh.vertices, mesh.faces, sample_sets=3))
+    with pytest.raises(ParameterError, match="sample_sets"):
+        neural_raw_shdf(mesh.vertices, mesh.faces, sample_sets=0)
+
+
 def test_committed_model_known_values(committed_model) -> None:
     """Stored outputs of the committed model on a fixed mesh and seed (update on re-export)."""
     mesh, _ = two_shells()
-    raw = neural_raw_shdf(mesh.vertices, mesh.faces, seed=0, model=committed_model)
+    raw = neural_raw_shdf(mesh.vertices, mesh.faces, seed=0, sample_sets=1, model=committed_model)
     faces = [0, 1000, 4000, 5119, 5120, 6000, 7000]
     np.testing.assert_allclose(raw[faces], EXPECTED_RAW, rtol=1e-4)
     again = compute_shdf(mesh, method="neural", seed=0, graph=mesh_face_graph(mesh))

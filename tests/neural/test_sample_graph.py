@@ -13,8 +13,10 @@ from neural_shdf.neural.graph import (
     GraphSpec,
     build_sample_graph,
     greedy_disk_selection,
+    resample,
     sample_targets,
     samples_to_faces,
+    vertex_normal_sums,
 )
 
 SPEC = GraphSpec(target_samples=400, knn=8, cone_neighbours=3)
@@ -144,3 +146,31 @@ def test_degenerate_mesh_is_rejected() -> None:
     vertices = np.zeros((3, 3))
     with pytest.raises(InvalidGeometryError):
         build_sample_graph(vertices, np.array([[0, 1, 2]]), SPEC)
+
+
+def test_resample_carries_values_between_sample_sets_without_crossing_walls() -> None:
+    slab = trimesh.creation.box(extents=(4.0, 4.0, 0.6))
+    for _ in range(4):
+        slab = slab.subdivide()
+    source = build_sample_graph(slab.vertices, slab.faces, SPEC, seed=0, map_vertices=False)
+    target = build_sample_graph(slab.vertices, slab.faces, SPEC, seed=1)
+    assert source.vertex_samples.size == 0
+    assert not np.array_equal(source.positions, target.positions)
+    # A smooth field: interpolated closely; a field that jumps across the wall: kept apart.
+    smooth = resample(source.positions[:, 0], source, target, neighbours=4)
+    inner = np.all(np.abs(target.positions[:, :2]) < 1.5, axis=1)  # IDW cannot extrapolate
+    np.testing.assert_allclose(smooth[inner], target.positions[inner, 0], atol=0.6 * source.radius)
+    sides = resample(np.where(source.normals[:, 2] < -0.99, 0.0, 1.0), source, target, 4)
+    np.testing.assert_array_equal(sides[target.normals[:, 2] < -0.99], 0.0)
+    np.testing.assert_array_equal(sides[target.normals[:, 2] > 0.99], 1.0)
+
+
+def test_vertex_normal_sums_are_area_weighted_sums_around_each_vertex() -> None:
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    normals, areas = face_normals(mesh.vertices, mesh.faces)
+    sums = vertex_normal_sums(len(mesh.vertices), mesh.faces, normals, areas)
+    for vertex in (0, 17, 100):
+        around = np.flatnonzero((mesh.faces == vertex).any(axis=1))
+        np.testing.assert_allclose(sums[vertex], (normals[around] * areas[around, None]).sum(0))
+    with pytest.raises(IndexError):
+        vertex_normal_sums(3, mesh.faces, normals, areas)

@@ -2,7 +2,7 @@
 
 Shared by training (``model_export``) and serving (``neural_shdf.shdf.neural``):
 both call :func:`build_sample_graph`, so the network always sees the same features.
-Numpy/scipy only (the service never imports torch).
+Numpy, scipy and numba only (the service never imports torch).
 
 * Samples: Poisson-disk sampling of the full-resolution surface with a fixed
   radius relative to the surface's scale, ``r = sqrt(RADIUS_AREA_FACTOR * area /
@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from neural_shdf.compiled import kernel
 from neural_shdf.errors import InvalidGeometryError
 from neural_shdf.geometry import face_normals
 
@@ -279,12 +280,25 @@ def vertex_normal_sums(
     vertex_count: int, faces: NDArray, normals: NDArray, areas: NDArray
 ) -> NDArray[np.float64]:
     """Area-weighted sums of the normals of the faces around each vertex (not unit)."""
-    corners = faces.reshape(-1)
-    out = np.empty((vertex_count, 3))
-    for axis in range(3):
-        out[:, axis] = np.bincount(
-            corners, weights=np.repeat(normals[:, axis] * areas, 3), minlength=vertex_count
-        )
+    faces = np.ascontiguousarray(faces, dtype=np.int64)
+    if len(faces) and (faces.min() < 0 or faces.max() >= vertex_count):
+        raise IndexError("face vertex index out of range")
+    return _vertex_normal_sums(
+        vertex_count,
+        faces,
+        np.ascontiguousarray(normals, dtype=np.float64),
+        np.ascontiguousarray(areas, dtype=np.float64),
+    )
+
+
+@kernel
+def _vertex_normal_sums(vertex_count, faces, normals, areas):  # noqa: ANN001, ANN202
+    out = np.zeros((vertex_count, 3))
+    for face in range(len(faces)):
+        for axis in range(3):
+            weighted = normals[face, axis] * areas[face]
+            for corner in range(3):
+                out[faces[face, corner], axis] += weighted
     return out
 
 
@@ -303,14 +317,22 @@ def build_sample_graph(
     normals: NDArray | None = None,
     areas: NDArray | None = None,
     workers: int = 2,
+    map_vertices: bool = True,
+    normal_sums: NDArray | None = None,
 ) -> SampleGraph:
-    """Samples, density, edges and features of a triangle mesh (full resolution)."""
+    """Samples, density, edges and features of a triangle mesh (full resolution).
+
+    ``map_vertices=False`` skips each vertex's nearest samples (``vertex_samples``
+    is then empty): for sample sets whose values reach the faces through another set.
+    ``normal_sums`` (``vertex_normal_sums``) may be passed when several sets share a mesh.
+    """
     spec = spec or GraphSpec()
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     if normals is None or areas is None:
         normals, areas = face_normals(vertices, faces)
-    normal_sums = vertex_normal_sums(len(vertices), faces, normals, areas)
+    if normal_sums is None:
+        normal_sums = vertex_normal_sums(len(vertices), faces, normals, areas)
     total_area = float(areas.sum())
     if not total_area > 0 or not np.isfinite(total_area):
         raise InvalidGeometryError("the mesh has no surface area: every triangle is degenerate")
@@ -333,11 +355,10 @@ def build_sample_graph(
 
     # Full-resolution neighbourhoods: each vertex's nearest samples (mapping back).
     tree = cKDTree(positions)
-    k_near_samples = max(1, min(spec.interpolation_neighbours, n))
-    vertex_distance, vertex_samples = tree.query(vertices, k=k_near_samples, workers=workers)
-    shape = (len(vertices), k_near_samples)
-    vertex_distance = np.asarray(vertex_distance, dtype=np.float64).reshape(shape)
-    vertex_samples = np.asarray(vertex_samples, dtype=np.int64).reshape(shape)
+    targets = vertices if map_vertices else np.zeros((0, 3))
+    vertex_samples, vertex_distance = nearest_samples(
+        tree, targets, spec.interpolation_neighbours, workers
+    )
     near_count = cKDTree(candidates).query_ball_point(
         positions, DENSITY_RADIUS * radius, return_length=True, workers=workers
     )
@@ -378,35 +399,76 @@ def build_sample_graph(
     )
 
 
+def nearest_samples(
+    tree: cKDTree, points: NDArray, count: int, workers: int = 2
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """(P, k) indices of the ``count`` samples in ``tree`` nearest to each point (at
+    most the sample count) and their distances."""
+    k = max(1, min(count, tree.n))
+    distance, index = tree.query(points, k=k, workers=workers)
+    shape = (len(points), k)
+    return np.asarray(index, dtype=np.int64).reshape(shape), np.asarray(
+        distance, dtype=np.float64
+    ).reshape(shape)
+
+
+def interpolate_samples(
+    sample_values: NDArray,
+    sample_normals: NDArray,
+    neighbours: NDArray,
+    distances: NDArray,
+    point_normals: NDArray,
+    radius: float,
+) -> NDArray[np.float32]:
+    """Values at points from their nearest samples (``nearest_samples``).
+
+    Inverse-distance weights, times the agreement of the sample's normal with the
+    point's: the other side of a thin wall or a facing part does not leak in; a
+    point with no agreeing sample takes its nearest sample's value.
+    """
+    values = np.asarray(sample_values, dtype=np.float32)
+    sample_normals = sample_normals.astype(np.float32)
+    normals = point_normals.astype(np.float32)
+    offset = np.float32(0.05 * radius)
+    total = np.zeros(len(normals), dtype=np.float32)
+    mixed = np.zeros(len(normals), dtype=np.float32)
+    for column in range(neighbours.shape[1]):  # one neighbour rank at a time
+        sample = neighbours[:, column]
+        sn = sample_normals[sample]
+        agree = sn[:, 0] * normals[:, 0] + sn[:, 1] * normals[:, 1] + sn[:, 2] * normals[:, 2]
+        weight = np.maximum(agree, 0.0) / (distances[:, column].astype(np.float32) + offset)
+        total += weight
+        mixed += weight * values[sample]
+    nearest = values[neighbours[:, 0]]
+    safe = np.where(total > 1e-12, total, 1.0)
+    return np.where(total > 1e-12, mixed / safe, nearest)
+
+
+def resample(
+    sample_values: NDArray, source: SampleGraph, target: SampleGraph, neighbours: int
+) -> NDArray[np.float64]:
+    """Values given at the samples of ``source``, interpolated at the samples of
+    ``target`` (another sample set of the same surface) from their ``neighbours``
+    nearest source samples, as ``interpolate_samples``."""
+    index, distances = nearest_samples(cKDTree(source.positions), target.positions, neighbours)
+    return interpolate_samples(
+        sample_values, source.normals, index, distances, target.normals, source.radius
+    ).astype(np.float64)
+
+
 def samples_to_faces(
     sample_values: NDArray, graph: SampleGraph, faces: NDArray
 ) -> NDArray[np.float64]:
-    """Per-face values from per-sample values.
-
-    Each vertex takes the inverse-distance weighted mean of its nearest samples,
-    weighted also by their normals' agreement with the vertex normal (the other
-    side of a thin wall or a facing part does not leak in; a vertex with no
-    agreeing sample takes its nearest sample's value); a face takes the mean of
-    its three vertices.
-    """
-    values = np.asarray(sample_values, dtype=np.float32)
-    sample_normals = graph.normals.astype(np.float32)
-    normals = graph.vertex_normals.astype(np.float32)
-    offset = np.float32(0.05 * graph.radius)
-    total = np.zeros(len(normals), dtype=np.float32)
-    mixed = np.zeros(len(normals), dtype=np.float32)
-    for column in range(graph.vertex_samples.shape[1]):  # one neighbour rank at a time
-        sample = graph.vertex_samples[:, column]
-        sn = sample_normals[sample]
-        agree = sn[:, 0] * normals[:, 0] + sn[:, 1] * normals[:, 1] + sn[:, 2] * normals[:, 2]
-        weight = np.maximum(agree, 0.0) / (
-            graph.vertex_sample_distance[:, column].astype(np.float32) + offset
-        )
-        total += weight
-        mixed += weight * values[sample]
-    nearest = values[graph.vertex_samples[:, 0]]
-    safe = np.where(total > 1e-12, total, 1.0)
-    per_vertex = np.where(total > 1e-12, mixed / safe, nearest)
+    """Per-face values from per-sample values: each vertex interpolates its nearest
+    samples (``interpolate_samples``), a face takes the mean of its three vertices."""
+    per_vertex = interpolate_samples(
+        sample_values,
+        graph.normals,
+        graph.vertex_samples,
+        graph.vertex_sample_distance,
+        graph.vertex_normals,
+        graph.radius,
+    )
     faces = np.asarray(faces)
     face_values = per_vertex[faces[:, 0]] + per_vertex[faces[:, 1]] + per_vertex[faces[:, 2]]
     return face_values.astype(np.float64) / 3.0

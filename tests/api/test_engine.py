@@ -77,7 +77,7 @@ def test_corrupt_entry_is_recomputed_never_served(app_factory, capsule_obj):
 def test_failed_computation_leaves_no_entry(app_factory, capsule_obj, monkeypatch):
     import neural_shdf.pipeline
 
-    app = app_factory()
+    app = app_factory(warm_up=False)
     engine = app.state.engine
 
     def broken(*args, **kwargs):

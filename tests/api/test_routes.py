@@ -178,3 +178,16 @@ def test_start_up_warms_the_compiled_paths_unless_disabled(app_factory, monkeypa
     with TestClient(app_factory(warm_up=enabled)) as test_client:
         assert test_client.get("/healthz").status_code == 200
     assert calls == ([1] if enabled else [])
+
+
+def test_a_failing_warm_up_does_not_stop_the_service(app_factory, monkeypatch):
+    from fastapi.testclient import TestClient
+
+    from neural_shdf.api import app as app_module
+
+    def broken() -> float:
+        raise RuntimeError("simulated warm-up failure")
+
+    monkeypatch.setattr(app_module, "warm_up", broken)
+    with TestClient(app_factory()) as test_client:
+        assert test_client.get("/healthz").status_code == 200

@@ -56,8 +56,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
         if settings.warm_up:
             # The first request then pays no compilation (seconds on a fresh install).
-            seconds = await engine.run(warm_up)
-            logger.info("warm-up done in %.2f s", seconds)
+            try:
+                seconds = await engine.run(warm_up)
+                logger.info("warm-up done in %.2f s", seconds)
+            except Exception:  # a failing path fails again, visibly, on its first request
+                logger.exception("warm-up failed; serving anyway")
         yield
         await engine.close()
         engine.cache.close()

@@ -225,8 +225,11 @@ class Engine:
         return method or self.settings.default_method
 
     def shdf_version(self, method: str) -> str:
+        """What a cached ShDF depends on besides the mesh: the model and how it is applied."""
         if method == "neural":
-            return f"neural-{self.model_version or 'none'}"
+            from neural_shdf.neural.inference import DEFAULT_SAMPLE_SETS
+
+            return f"neural-{self.model_version or 'none'}-sets{DEFAULT_SAMPLE_SETS}"
         return f"exact-{__version__}"
 
     def shdf_key(self, mesh_id: str, method: str, seed: int) -> str:

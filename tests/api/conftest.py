@@ -14,11 +14,11 @@ from pathlib import Path
 
 import httpx
 import pytest
-from api_helpers import TEST_METHOD, capsule, free_port, make_settings
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from neural_shdf.api.app import create_app
+from tests.api.api_helpers import TEST_METHOD, capsule, free_port, make_settings
 
 
 @pytest.fixture

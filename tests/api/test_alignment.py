@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from api_helpers import capsule, glb_two_nodes, obj_bytes, parts_within_blocks, quad_box
+
+from tests.api.api_helpers import capsule, glb_two_nodes, obj_bytes, parts_within_blocks, quad_box
 
 
 def segment_file(client, data: bytes, name: str, **options) -> dict:

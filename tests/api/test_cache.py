@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from api_helpers import TEST_METHOD, metric
 from fastapi.testclient import TestClient
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -19,6 +18,7 @@ from neural_shdf.api.cache import (
     seal,
     unseal,
 )
+from tests.api.api_helpers import TEST_METHOD, metric
 
 
 @given(st.binary(max_size=512))

@@ -8,11 +8,11 @@ import threading
 import httpx
 import numpy as np
 import pytest
-from api_helpers import TEST_METHOD, free_port, metric
 from fastapi.testclient import TestClient
 
 from neural_shdf.api.cache import MAGIC, seal
 from neural_shdf.mesh_io import load_mesh
+from tests.api.api_helpers import TEST_METHOD, free_port, metric
 
 
 async def _concurrent_uploads(app, data: bytes, count: int) -> list[httpx.Response]:
@@ -142,7 +142,7 @@ def test_missing_model_is_reported_not_crashed(app_factory, capsule_obj, monkeyp
 def test_long_computation_never_blocks_polling_or_cached_reads(
     app_factory, capsule_obj, monkeypatch
 ):
-    from api_helpers import capsule, wait_job
+    from tests.api.api_helpers import capsule, wait_job
 
     import neural_shdf.pipeline
 

@@ -9,13 +9,13 @@ import httpx
 import numpy as np
 import pytest
 import trimesh
-from api_helpers import capsule, glb_container, make_settings, obj_bytes, off_bytes
 from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from neural_shdf.api.app import create_app
 from neural_shdf.mesh_io import SUPPORTED_FORMATS
+from tests.api.api_helpers import capsule, glb_container, make_settings, obj_bytes, off_bytes
 
 FUZZ = settings(
     max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]

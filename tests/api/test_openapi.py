@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import json
 
-from api_helpers import REPO_ROOT
-
 from neural_shdf.api.openapi import openapi_document, render
+from tests.api.api_helpers import REPO_ROOT
 
 COMMITTED = REPO_ROOT / "openapi" / "openapi.json"
 OPERATIONS = {

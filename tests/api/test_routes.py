@@ -7,10 +7,10 @@ import base64
 import numpy as np
 import pytest
 import trimesh
-from api_helpers import TEST_METHOD, capsule, metric, wait_job
 
 from neural_shdf.mesh_io import load_mesh
 from neural_shdf.pipeline import compute_shdf
+from tests.api.api_helpers import TEST_METHOD, capsule, metric, wait_job
 
 
 def upload(client, data: bytes, name: str = "mesh.obj", **form):

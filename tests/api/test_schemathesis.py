@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import pytest
-from api_helpers import REPO_ROOT, make_settings
 from hypothesis import HealthCheck, settings
+
+from tests.api.api_helpers import REPO_ROOT, make_settings
 
 schemathesis = pytest.importorskip("schemathesis", reason="schemathesis is not installed")
 

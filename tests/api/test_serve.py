@@ -6,9 +6,9 @@ import asyncio
 
 import httpx
 import numpy as np
-from api_helpers import TEST_METHOD
 
 from neural_shdf.mesh_io import load_mesh
+from tests.api.api_helpers import TEST_METHOD
 
 
 def test_real_server_end_to_end(uvicorn_server, capsule_obj):
@@ -90,7 +90,7 @@ def test_docker_healthcheck_command_passes_against_the_server(uvicorn_server):
     import subprocess
     import sys
 
-    from api_helpers import REPO_ROOT
+    from tests.api.api_helpers import REPO_ROOT
 
     dockerfile = (REPO_ROOT / "Dockerfile").read_text()
     assert re.search(r"^FROM python:3\.11-slim", dockerfile, re.M)

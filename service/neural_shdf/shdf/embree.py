@@ -31,6 +31,7 @@ LANES = 16
 #: flags), hit (Ng xyz, u, v, primID, geomID, instID, instPrimID), spare rows.
 PACKET_ROWS = 24
 ORG_X, ORG_Y, ORG_Z, TNEAR, DIR_X, DIR_Y, DIR_Z, TIME, TFAR, MASK, RAY_ID, FLAGS = range(12)
+NORMAL_X, NORMAL_Y, NORMAL_Z = 12, 13, 14  # unnormalised geometric normal of the hit
 PRIM_ID, GEOM_ID = 17, 18
 INVALID_ID = 0xFFFFFFFF
 

@@ -16,11 +16,12 @@ Follows CGAL's ``sdf_values`` (Surface_mesh_segmentation) step by step:
 Rays are cast through Embree 4 in packets of 16 (``shdf.embree``) from a numba
 kernel that also makes the rays and reduces the hits: faces in Morton order,
 16 neighbouring faces per packet, ray index by ray index, batches of faces in
-several threads. Distances are recomputed in float64 from the hit triangle's
-plane. Ray origins sit ``ORIGIN_OFFSET`` x the bounding-box diagonal along the
-ray, so hits closer than that are not seen: where coplanar faces overlap, CGAL
-may record near-zero distances (depending on the rounding of the centroid) that
-this implementation does not.
+several threads. The distance and the back-face test come from the packet (hit
+distance, geometric normal), float32 as Embree computes them. Ray origins sit
+``ORIGIN_OFFSET`` x the bounding-box diagonal along the ray, so hits closer than
+that are not seen: where coplanar faces overlap, CGAL may record near-zero
+distances (depending on the rounding of the centroid) that this implementation
+does not.
 """
 
 from __future__ import annotations
@@ -38,7 +39,18 @@ from neural_shdf.compiled import kernel
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.shdf.embree import LANES, Scene, hit_of, intersect_packet, new_packet, set_ray
+from neural_shdf.shdf.embree import (
+    LANES,
+    NORMAL_X,
+    NORMAL_Y,
+    NORMAL_Z,
+    TFAR,
+    Scene,
+    hit_of,
+    intersect_packet,
+    new_packet,
+    set_ray,
+)
 from neural_shdf.shdf.postprocess import postprocess_shdf
 
 Progress = Callable[[float], None]
@@ -302,8 +314,6 @@ def _cast_batches(
     face_count = len(faces)
     diagonal = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
     centroids = face_centroids(vertices, faces)
-    plane_offset = np.einsum("ij,ij->i", vertices[faces[:, 0]], normals)
-    planes = np.column_stack([normals, plane_offset])  # gathered together per hit
     origin_offset = np.float32(ORIGIN_OFFSET * diagonal)
     retry_offset = np.float32(RETRY_ORIGIN_OFFSET * diagonal)
     _, weights = disk_samples(ray_count)
@@ -334,8 +344,6 @@ def _cast_batches(
             frames,
             coefficients,
             local_centroids,
-            centroids,
-            planes,
             origin_offset,
             retry_offset,
             weights,
@@ -349,32 +357,48 @@ def _cast_batches(
             progress(done / len(todo))
 
 
+@kernel(inline=True)
+def _exit_distance(rays, ids, lane, direction, offset) -> float:  # noqa: ANN001
+    """Distance from the face centroid to the ray's hit, NaN without a hit or when the
+    ray does not leave through the back of the hit face (an outward normal facing it)."""
+    if hit_of(ids, lane) < 0:
+        return np.nan
+    along = (
+        direction[0] * rays[NORMAL_X, lane]
+        + direction[1] * rays[NORMAL_Y, lane]
+        + direction[2] * rays[NORMAL_Z, lane]
+    )
+    if not along > 0:
+        return np.nan
+    return np.float64(rays[TFAR, lane]) + np.float64(offset)
+
+
 @kernel
 def _shdf_of_faces(
-    intersect16,
-    scene,
-    arguments,
-    batch,
-    frames,
-    coefficients,
+    intersect16,  # noqa: ANN001
+    scene,  # noqa: ANN001
+    arguments,  # noqa: ANN001
+    batch,  # noqa: ANN001
+    frames,  # noqa: ANN001
+    coefficients,  # noqa: ANN001
     local_centroids,  # noqa: ANN001
-    centroids,
-    planes,
-    origin_offset,
-    retry_offset,
-    weights,
+    origin_offset,  # noqa: ANN001
+    retry_offset,  # noqa: ANN001
+    weights,  # noqa: ANN001
     result,  # noqa: ANN001
 ) -> None:
     """Raw ShDF of the faces ``batch`` into ``result``: rays of 16 faces per packet.
 
     ``frames[k]`` holds the inward normal and the two plane vectors of face
-    ``batch[k]`` (float32), ``coefficients`` each ray's weights on them.
+    ``batch[k]`` (float32), ``coefficients`` each ray's weights on them. Each hit
+    is read from the packet itself (distance, geometric normal): no lookup of the
+    hit triangle.
     """
     rays, ids, valid = new_packet()
     ray_count = len(coefficients)
     directions = np.empty((LANES, ray_count, 3), dtype=np.float32)
     hits = np.empty((LANES, ray_count), dtype=np.int64)
-    distances = np.empty(ray_count)
+    distances = np.empty((LANES, ray_count))
     scratch = np.empty(ray_count)
     retry_lane = np.empty(LANES * ray_count, dtype=np.int64)
     retry_ray = np.empty(LANES * ray_count, dtype=np.int64)
@@ -397,6 +421,9 @@ def _shdf_of_faces(
             intersect_packet(intersect16, scene, arguments, rays, ids, valid, count)
             for lane in range(count):
                 hits[lane, i] = hit_of(ids, lane)
+                distances[lane, i] = _exit_distance(
+                    rays, ids, lane, directions[lane, i], origin_offset
+                )
         # Rays that hit their own triangle through rounding start again further out.
         pending = 0
         for lane in range(count):
@@ -413,27 +440,15 @@ def _shdf_of_faces(
                 set_ray(rays, ids, k, origin, directions[lane, retry_ray[first + k]], retry_offset)
             intersect_packet(intersect16, scene, arguments, rays, ids, valid, size)
             for k in range(size):
-                lane = retry_lane[first + k]
-                hit = hit_of(ids, k)
-                hits[lane, retry_ray[first + k]] = -1 if hit == batch[start + lane] else hit
-        # Distance along the ray to the hit triangle's plane, in float64; a hit
-        # counts when the ray leaves through the back of the hit face.
+                lane, i = retry_lane[first + k], retry_ray[first + k]
+                own = hit_of(ids, k) == batch[start + lane]
+                distances[lane, i] = (
+                    np.nan
+                    if own
+                    else _exit_distance(rays, ids, k, directions[lane, i], retry_offset)
+                )
         for lane in range(count):
-            face = batch[start + lane]
-            for i in range(ray_count):
-                distances[i] = np.nan
-                hit = hits[lane, i]
-                if hit < 0:
-                    continue
-                nx, ny, nz = planes[hit, 0], planes[hit, 1], planes[hit, 2]
-                d = directions[lane, i]
-                along = np.float64(d[0]) * nx + np.float64(d[1]) * ny + np.float64(d[2]) * nz
-                if along > 0:
-                    height = planes[hit, 3] - (
-                        nx * centroids[face, 0] + ny * centroids[face, 1] + nz * centroids[face, 2]
-                    )
-                    distances[i] = height / along
-            result[face] = _robust_mean_row(distances, weights, scratch)
+            result[batch[start + lane]] = _robust_mean_row(distances[lane], weights, scratch)
 
 
 def exact_shdf(

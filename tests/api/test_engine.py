@@ -142,9 +142,8 @@ def test_missing_model_is_reported_not_crashed(app_factory, capsule_obj, monkeyp
 def test_long_computation_never_blocks_polling_or_cached_reads(
     app_factory, capsule_obj, monkeypatch
 ):
-    from tests.api.api_helpers import capsule, wait_job
-
     import neural_shdf.pipeline
+    from tests.api.api_helpers import capsule, wait_job
 
     real = neural_shdf.pipeline.compute_shdf
     release = threading.Event()

@@ -28,7 +28,8 @@ from neural_shdf import constants
 from neural_shdf.geometry import face_centroids, face_normals
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import mesh_face_graph
-from neural_shdf.shdf.exact import ORIGIN_OFFSET, RayCaster, cone_directions, raw_shdf
+from neural_shdf.shdf.embree import Scene
+from neural_shdf.shdf.exact import ORIGIN_OFFSET, cone_directions, raw_shdf
 from neural_shdf.shdf.postprocess import postprocess_shdf
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
@@ -80,7 +81,7 @@ def embree_only(mesh: TriangleMesh) -> tuple[float, float]:
     from embreex.mesh_construction import TriangleMesh as EmbreexMesh
 
     normals, _ = face_normals(mesh.vertices, mesh.faces)
-    caster = RayCaster(mesh.vertices, mesh.faces)
+    caster = Scene(mesh.vertices, mesh.faces)
     single = rtcore_scene.EmbreeScene()
     EmbreexMesh(
         single,

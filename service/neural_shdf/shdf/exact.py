@@ -222,10 +222,6 @@ def robust_mean(distances: NDArray, weights: NDArray) -> NDArray[np.float64]:
     return np.array([_robust_mean_row(row, weights, scratch) for row in distances])
 
 
-#: The Embree scene the rays are cast into (``shdf.embree.Scene``).
-RayCaster = Scene
-
-
 def raw_shdf(
     vertices: NDArray,
     faces: NDArray,
@@ -295,7 +291,7 @@ def raw_shdf(
 
 
 def _cast_batches(
-    building: Future[RayCaster],
+    building: Future[Scene],
     pool: ThreadPoolExecutor,
     vertices: NDArray,
     faces: NDArray,

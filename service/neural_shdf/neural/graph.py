@@ -323,7 +323,8 @@ def build_sample_graph(
     """Samples, density, edges and features of a triangle mesh (full resolution).
 
     ``map_vertices=False`` skips each vertex's nearest samples (``vertex_samples``
-    is then empty): for sample sets whose values reach the faces through another set.
+    and ``vertex_normals`` are then empty): for sample sets whose values reach the faces
+    through another set.
     ``normal_sums`` (``vertex_normal_sums``) may be passed when several sets share a mesh.
     """
     spec = spec or GraphSpec()
@@ -395,7 +396,7 @@ def build_sample_graph(
         radius=radius,
         vertex_samples=vertex_samples,
         vertex_sample_distance=vertex_distance,
-        vertex_normals=unit_rows(normal_sums),
+        vertex_normals=unit_rows(normal_sums) if map_vertices else np.zeros((0, 3)),
     )
 
 

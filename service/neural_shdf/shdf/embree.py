@@ -40,7 +40,6 @@ _BUFFER_TYPE_INDEX, _BUFFER_TYPE_VERTEX = 0, 1
 _FORMAT_UINT3, _FORMAT_FLOAT3 = 0x5003, 0x9003
 _BUILD_QUALITY_MEDIUM = 1
 _FEATURE_FLAG_ALL = 0xFFFFFFFF
-_DEVICE_PROPERTY_VERSION = 0
 _ERRORS = {
     1: "unknown error",
     2: "invalid argument",
@@ -92,7 +91,6 @@ class Embree:
         signatures = {
             "rtcNewDevice": (_Pointer, [ctypes.c_char_p]),
             "rtcGetDeviceError": (ctypes.c_int, [_Pointer]),
-            "rtcGetDeviceProperty": (ctypes.c_ssize_t, [_Pointer, ctypes.c_int]),
             "rtcNewScene": (_Pointer, [_Pointer]),
             "rtcSetSceneBuildQuality": (None, [_Pointer, ctypes.c_int]),
             "rtcNewGeometry": (_Pointer, [_Pointer, ctypes.c_int]),
@@ -121,7 +119,6 @@ class Embree:
         self.device = lib.rtcNewDevice(None)
         if not self.device:
             raise RuntimeError(f"Embree could not create a device ({self.path})")
-        self.version = lib.rtcGetDeviceProperty(self.device, _DEVICE_PROPERTY_VERSION)
         address = ctypes.cast(lib.rtcIntersect16, ctypes.c_void_p).value
         #: ``rtcIntersect16(valid, scene, rayhit, arguments)``, callable from numba.
         self.intersect16 = _IntersectPacket(address)

@@ -393,7 +393,7 @@ def _shdf_of_faces(
     rays, ids, valid = new_packet()
     ray_count = len(coefficients)
     directions = np.empty((LANES, ray_count, 3), dtype=np.float32)
-    hits = np.empty((LANES, ray_count), dtype=np.int64)
+    own_hit = np.empty((LANES, ray_count), dtype=np.bool_)
     distances = np.empty((LANES, ray_count))
     scratch = np.empty(ray_count)
     retry_lane = np.empty(LANES * ray_count, dtype=np.int64)
@@ -416,7 +416,7 @@ def _shdf_of_faces(
                 set_ray(rays, ids, lane, origin, directions[lane, i], origin_offset)
             intersect_packet(intersect16, scene, arguments, rays, ids, valid, count)
             for lane in range(count):
-                hits[lane, i] = hit_of(ids, lane)
+                own_hit[lane, i] = hit_of(ids, lane) == batch[start + lane]
                 distances[lane, i] = _exit_distance(
                     rays, ids, lane, directions[lane, i], origin_offset
                 )
@@ -424,7 +424,7 @@ def _shdf_of_faces(
         pending = 0
         for lane in range(count):
             for i in range(ray_count):
-                if hits[lane, i] == batch[start + lane]:
+                if own_hit[lane, i]:
                     retry_lane[pending] = lane
                     retry_ray[pending] = i
                     pending += 1

@@ -1,4 +1,5 @@
-# neural-shdf REST service: the same `pip install .` as CI and the README, as a non-root user.
+# neural-shdf REST service: the README's `pip install .` at the versions locked in constraints.txt
+# (the same set the tests run with), as a non-root user.
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
@@ -9,11 +10,11 @@ ENV PYTHONDONTWRITEBYTECODE=1 \
 RUN useradd --create-home --uid 10001 --shell /usr/sbin/nologin neural-shdf
 
 WORKDIR /src
-COPY pyproject.toml README.md ./
+COPY pyproject.toml README.md constraints.txt ./
 COPY service ./service
 COPY model_export ./model_export
 # The committed ONNX model (service/neural_shdf/models/emd.onnx) is package data: installed here.
-RUN pip install . && rm -rf /src
+RUN pip install -c constraints.txt . && rm -rf /src
 
 USER neural-shdf
 WORKDIR /home/neural-shdf

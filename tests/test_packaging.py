@@ -1,0 +1,45 @@
+"""The locked install: every dependency pinned in constraints.txt, every installer using it."""
+
+from __future__ import annotations
+
+import re
+import tomllib
+
+from packaging.requirements import Requirement
+
+from tests.conftest import REPO_ROOT
+
+
+def _pins() -> dict[str, str]:
+    pins = {}
+    for line in (REPO_ROOT / "constraints.txt").read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if line:
+            name, _, version = line.partition("==")
+            assert version, f"constraints.txt line {line!r} is not an exact pin"
+            pins[re.sub(r"[-_.]+", "-", name).lower()] = version
+    return pins
+
+
+def _declared() -> list[Requirement]:
+    project = tomllib.loads((REPO_ROOT / "pyproject.toml").read_text())["project"]
+    names = list(project["dependencies"])
+    for extra in project["optional-dependencies"].values():
+        names.extend(extra)
+    return [Requirement(name) for name in names]
+
+
+def test_every_declared_dependency_is_pinned_within_its_range():
+    pins = _pins()
+    for requirement in _declared():
+        key = re.sub(r"[-_.]+", "-", requirement.name).lower()
+        assert key in pins, f"{requirement.name} is not pinned in constraints.txt"
+        assert requirement.specifier.contains(pins[key], prereleases=True), (
+            f"{requirement.name}=={pins[key]} is outside pyproject's {requirement.specifier}"
+        )
+
+
+def test_test_command_ci_and_image_install_the_locked_set():
+    assert "-c constraints.txt" in (REPO_ROOT / "scripts" / "test").read_text()
+    assert "-c constraints.txt" in (REPO_ROOT / "Dockerfile").read_text()
+    assert "NEURAL_SHDF_FRESH_VENV=1" in (REPO_ROOT / ".ci" / "run").read_text()

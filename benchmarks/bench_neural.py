@@ -57,7 +57,7 @@ def pearson(a: np.ndarray, b: np.ndarray) -> float:
 
 def compare(mesh: TriangleMesh) -> tuple[float, float, float, float]:
     """Pearson and MAE of the neural ShDF vs the exact one: default and with smoothing."""
-    from neural_shdf.neural.inference import neural_raw_shdf
+    from neural_shdf.shdf.neural.inference import neural_raw_shdf
     from neural_shdf.shdf.postprocess import postprocess_shdf
 
     graph = mesh_face_graph(mesh)
@@ -207,7 +207,7 @@ start = time.perf_counter()
 graph = mesh_face_graph(mesh)
 graph_s = time.perf_counter() - start
 if {method!r} == "neural":
-    from neural_shdf.neural.inference import load_model
+    from neural_shdf.shdf.neural.inference import load_model
     from neural_shdf.shdf.neural import neural_shdf as run
     load_model()
 else:
@@ -234,8 +234,8 @@ def run_child(mesh_file: Path, method: str, out: Path) -> dict:
 
 
 def profile_neural(mesh: TriangleMesh) -> None:
-    from neural_shdf.neural.graph import build_sample_graph, samples_to_faces
-    from neural_shdf.neural.inference import load_model
+    from neural_shdf.shdf.neural.graph import build_sample_graph, samples_to_faces
+    from neural_shdf.shdf.neural.inference import load_model
     from neural_shdf.shdf.postprocess import postprocess_shdf
 
     model = load_model()

@@ -55,11 +55,20 @@ def _load(path: str, file_type: str | None):
     return load_mesh(Path(path), file_type)
 
 
-def _shdf(mesh, method: str, seed: int, graph, quiet: bool) -> np.ndarray:
-    from neural_shdf.pipeline import compute_shdf
+def _shdf(mesh, args: argparse.Namespace, graph) -> np.ndarray:
+    """The ShDF per triangle; says on stderr which producer ran (``auto`` resolved)."""
+    from neural_shdf.pipeline import compute_shdf_result
 
-    with progress_bar(f"{method} ShDF", enabled=not quiet) as progress:
-        return compute_shdf(mesh, method=method, seed=seed, graph=graph, progress=progress)
+    start = time.perf_counter()
+    with progress_bar(f"{args.method} ShDF", enabled=not args.quiet) as progress:
+        result = compute_shdf_result(
+            mesh, method=args.method, seed=args.seed, graph=graph, progress=progress,
+            model=args.model,
+        )
+    if not args.quiet:
+        print(f"ShDF: {result.method} (requested {args.method}), {mesh.input_face_count} faces, "
+              f"{time.perf_counter() - start:.2f} s", file=sys.stderr)
+    return result.values
 
 
 def cmd_shdf(args: argparse.Namespace) -> int:
@@ -67,7 +76,7 @@ def cmd_shdf(args: argparse.Namespace) -> int:
     from neural_shdf.pipeline import mesh_face_graph
 
     mesh = _load(args.mesh, args.format)
-    values = _shdf(mesh, args.method, args.seed, mesh_face_graph(mesh), args.quiet)
+    values = _shdf(mesh, args, mesh_face_graph(mesh))
     _, areas = mesh.normals_and_areas
     write_values(args.output, mesh.to_input_faces(values, weights=areas + 1e-300))
     return 0
@@ -81,7 +90,7 @@ def cmd_segment(args: argparse.Namespace) -> int:
     params = SegmentParams.from_attributes(args)
     mesh = _load(args.mesh, args.format)
     graph = mesh_face_graph(mesh)
-    shdf = _shdf(mesh, args.method, args.seed, graph, args.quiet)
+    shdf = _shdf(mesh, args, graph)
     start = time.perf_counter()
     labels = segment_mesh(mesh, shdf, params, graph=graph)
     _, areas = mesh.normals_and_areas
@@ -135,8 +144,12 @@ def _clusters(text: str) -> int:
 def _add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("mesh", help="input mesh: OBJ, GLB/glTF, OFF, PLY or STL")
     parser.add_argument("--format", help="file type when the extension does not say it")
-    parser.add_argument("--method", choices=["neural", "exact"], default="neural",
-                        help="ShDF from the neural network (default, fast) or exact ray casting")
+    parser.add_argument("--method", choices=["auto", "exact", "sampled", "neural"],
+                        default="auto",
+                        help="ShDF producer: auto (default: the fastest that meets the fidelity "
+                             "target, per mesh), exact (every face's rays, CGAL's), sampled "
+                             "(rays at surface samples) or neural (the network)")
+    parser.add_argument("--model", help="ONNX model for --method neural (default: installed)")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random step")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
 

@@ -12,7 +12,6 @@ import asyncio
 import base64
 import functools
 import hashlib
-import inspect
 import json
 import logging
 import threading
@@ -43,7 +42,7 @@ T = TypeVar("T")
 
 def model_path(settings: Settings) -> Path:
     """The neural model file: the setting, else the library's choice (env or packaged)."""
-    from neural_shdf.neural.inference import model_path as library_model_path
+    from neural_shdf.shdf.neural.inference import model_path as library_model_path
 
     return settings.model.expanduser().resolve() if settings.model else library_model_path()
 
@@ -55,16 +54,10 @@ def model_version(path: Path) -> str | None:
     if card.is_file():
         return hashlib.sha256(card.read_bytes()).hexdigest()[:16]
     if path.is_file():
-        from neural_shdf.neural.inference import file_sha256
+        from neural_shdf.shdf.neural.inference import file_sha256
 
         return file_sha256(path)[:16]
     return None
-
-
-def _accepts_model_path() -> bool:
-    from neural_shdf.pipeline import compute_shdf
-
-    return "model_path" in inspect.signature(compute_shdf).parameters
 
 
 @dataclass(frozen=True)
@@ -74,6 +67,7 @@ class ShdfOutcome:
     values: NDArray[np.float64]
     cached: bool
     seconds: float
+    method: str  # the producer that made it (``auto`` resolved)
 
 
 @dataclass
@@ -222,21 +216,40 @@ class Engine:
             ) from None
 
     def method_of(self, method: str | None) -> str:
+        """The requested ShDF method, else the service's default (may be ``auto``)."""
         return method or self.settings.default_method
 
-    def shdf_version(self, method: str) -> str:
-        """What a cached ShDF depends on besides the mesh: the model and how it is applied."""
-        if method == "neural":
-            from neural_shdf.neural.inference import DEFAULT_SAMPLE_SETS
+    def triangles(self, mesh_id: str) -> int:
+        """Triangle count of a stored mesh (memory first, then its metadata)."""
+        mesh = self.cache.recall(f"{mesh_id}:mesh")
+        return mesh.face_count if mesh is not None else int(self.mesh_meta(mesh_id)["triangles"])
 
-            return f"neural-{self.model_version or 'none'}-sets{DEFAULT_SAMPLE_SETS}"
-        return f"exact-{__version__}"
+    def resolved_method(self, mesh_id: str, method: str | None) -> str:
+        """The ShDF producer a request runs on a stored mesh (``auto`` resolved per mesh)."""
+        from neural_shdf.shdf.stage import resolve_method
+
+        return resolve_method(self.method_of(method), self.triangles(mesh_id))
+
+    def shdf_version(self, method: str, seed: int) -> str:
+        """What a cached ShDF depends on besides the mesh: the code version, the resolved
+        producer, the model's checksum (neural) and every ShDF parameter."""
+        from neural_shdf.shdf.stage import ShdfParams, shdf_key
+
+        model = self.model_checksum() if method == "neural" else None
+        return f"{__version__}:{shdf_key(method, ShdfParams(seed=seed), model)}"  # type: ignore[arg-type]
+
+    def model_checksum(self) -> str:
+        """sha256 of the configured model's weights (raises ModelUnavailableError if none)."""
+        from neural_shdf.shdf.neural.inference import load_model
+
+        return str(load_model(self.model_path).card.get("sha256") or self.model_version)
 
     def shdf_key(self, mesh_id: str, method: str, seed: int) -> str:
-        return f"{mesh_id}:shdf:{self.shdf_version(method)}:{seed}"
+        """Cache key of a ShDF; ``method`` is a resolved producer (not ``auto``)."""
+        return f"{mesh_id}:shdf:{self.shdf_version(method, seed)}"
 
     def segment_key(self, mesh_id: str, method: str, options: SegmentOptions) -> str:
-        shdf = f"{self.shdf_version(method)}:{options.shdf_seed}"
+        shdf = self.shdf_version(method, options.shdf_seed)
         return f"{mesh_id}:seg:{__version__}:{shdf}:{params_digest(options)}"
 
     def _hit(self, kind: str, hit: bool) -> None:
@@ -349,16 +362,13 @@ class Engine:
         with self.cache.lock(key, self.settings.lock_timeout_s):
             values = self.cached_shdf(key)
             if values is not None:
-                return ShdfOutcome(values, True, 0.0)
+                return ShdfOutcome(values, True, 0.0, method)
             graph = self.graph(mesh_id, mesh)
             self._progress[key] = 0.0
 
             def progress(fraction: float) -> None:
                 self._progress[key] = float(fraction)
 
-            extra = {}
-            if method == "neural" and _accepts_model_path():
-                extra["model_path"] = self.model_path
             start = time.perf_counter()
             try:
                 values = compute_shdf(
@@ -367,7 +377,7 @@ class Engine:
                     seed=seed,
                     graph=graph,
                     progress=progress,
-                    **extra,
+                    model=self.model_path,
                 )
             finally:
                 self._progress.pop(key, None)
@@ -377,7 +387,7 @@ class Engine:
             values = np.ascontiguousarray(values, dtype=np.float64)
             self.cache.put_arrays(key, {"shdf": values}, group=mesh_id)
             self.cache.remember(key, values)
-            return ShdfOutcome(values, False, seconds)
+            return ShdfOutcome(values, False, seconds, method)
 
     async def shdf(
         self,
@@ -388,11 +398,15 @@ class Engine:
         *,
         allow_job: bool = True,
     ) -> ShdfOutcome:
-        """The cached ShDF, else computed once; large meshes raise JobAccepted (202)."""
+        """The cached ShDF, else computed once; large meshes raise JobAccepted (202).
+        ``method`` may be ``auto`` (resolved for this mesh; the outcome says which ran)."""
+        from neural_shdf.shdf.stage import resolve_method
+
+        method = resolve_method(self.method_of(method), mesh.face_count)
         key = self.shdf_key(mesh_id, method, seed)
         values = await self.io(self.cached_shdf, key)
         if values is not None:
-            return ShdfOutcome(values, True, 0.0)
+            return ShdfOutcome(values, True, 0.0, method)
         if allow_job and mesh.face_count > self.settings.sync_face_threshold:
             raise JobAccepted(await self.start_job(key, mesh_id, mesh, method, seed))
         compute = functools.partial(self._compute_shdf, key, mesh_id, mesh, method, seed)
@@ -475,7 +489,7 @@ class Engine:
     ) -> tuple[SegmentResult, dict[str, Any]]:
         """Segment a stored mesh (cached result, else from the cached ShDF)."""
         start = time.perf_counter()
-        method = self.method_of(options.method)
+        method = self.resolved_method(mesh_id, options.method)
         key = self.segment_key(mesh_id, method, options)
         result = self.cache.recall(key)
         if result is not None and not (
@@ -545,7 +559,7 @@ class Engine:
     # -- lifecycle ---------------------------------------------------------------
     def check_model(self) -> tuple[bool, str]:
         """Whether the neural model loads (cached by the library after the first call)."""
-        from neural_shdf.neural.inference import load_model
+        from neural_shdf.shdf.neural.inference import load_model
 
         try:
             load_model(self.model_path)

@@ -8,6 +8,7 @@ from fastapi.responses import JSONResponse
 from neural_shdf.api.metrics import CONTENT_TYPE_LATEST
 from neural_shdf.api.routes.deps import EngineDep
 from neural_shdf.api.schemas import Health, Readiness
+from neural_shdf.shdf.stage import uses_model
 
 router = APIRouter(tags=["operations"])
 
@@ -26,10 +27,12 @@ async def health() -> Health:
     responses={503: {"model": Readiness, "description": "Not ready (model or cache)."}},
 )
 async def ready(engine: EngineDep) -> JSONResponse:
-    """Ready when the neural model loads (if it is the default method) and the cache answers."""
+    """Ready when the neural model loads (if the default method can use it) and the cache
+    answers."""
     model_ok, model_detail = await engine.io(engine.check_model)
-    if engine.settings.default_method != "neural" and not model_ok:
-        model_ok, model_detail = True, f"not needed (default method exact): {model_detail}"
+    if not uses_model(engine.settings.default_method) and not model_ok:
+        default = engine.settings.default_method
+        model_ok, model_detail = True, f"not needed (default method {default}): {model_detail}"
     cache_ok = await engine.io(engine.cache.ping)
     backend = engine.cache.backend.name
     checks = {

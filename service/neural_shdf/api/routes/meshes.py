@@ -78,12 +78,11 @@ async def upload_mesh(
     Meshes above the synchronous threshold answer 202 with a job to poll.
     """
     meta, mesh = await ingest(engine, file, file_type)
-    chosen = engine.method_of(method)
-    outcome = await engine.shdf(meta["mesh_id"], mesh, chosen, seed)  # type: ignore[arg-type]
+    outcome = await engine.shdf(meta["mesh_id"], mesh, engine.method_of(method), seed)
     return UploadResult(
         mesh=MeshInfo(**meta),
         shdf=ShdfStatus(
-            method=chosen,
+            method=outcome.method,  # type: ignore[arg-type]
             seed=seed,
             cached=outcome.cached,  # type: ignore[arg-type]
             seconds=round(outcome.seconds, 6),
@@ -145,9 +144,8 @@ async def get_shdf(
     accept: Annotated[str | None, Header(include_in_schema=False)] = None,
 ) -> Response:
     """The ShDF in [0, 1] per input face, computed once and cached."""
-    chosen = engine.method_of(method)
     mesh = await engine.io(engine.load, mesh_id)
-    outcome = await engine.shdf(mesh_id, mesh, chosen, seed)
+    outcome = await engine.shdf(mesh_id, mesh, engine.method_of(method), seed)
     values = await engine.io(mesh.to_input_faces, outcome.values)
     binary = format == "f32" or (format is None and F32_MEDIA_TYPE in (accept or ""))
     headers = {"X-Mesh-Id": mesh_id, "X-Faces": str(len(values))}
@@ -155,9 +153,9 @@ async def get_shdf(
         return Response(values.astype("<f4").tobytes(), media_type=F32_MEDIA_TYPE, headers=headers)
     body = ShdfValues(
         mesh_id=mesh_id,
-        method=chosen,  # type: ignore[arg-type]
+        method=outcome.method,  # type: ignore[arg-type]
         seed=seed,
-        model_version=engine.model_version if chosen == "neural" else None,
+        model_version=engine.model_version if outcome.method == "neural" else None,
         faces=len(values),
         values=[None if np.isnan(v) else float(v) for v in values.tolist()],
     )

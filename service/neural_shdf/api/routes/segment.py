@@ -32,7 +32,7 @@ _SEGMENT_ERRORS = {
 
 async def segment_response(engine: Engine, mesh_id: str, options: SegmentOptions) -> Response:
     result, timings = await engine.segmentation(mesh_id, options)
-    method = engine.method_of(options.method)
+    method = engine.resolved_method(mesh_id, options.method)
     body = engine.segmentation_body(mesh_id, method, options, result, timings)
     return Response(body, media_type="application/json")
 

@@ -11,8 +11,8 @@ import trimesh
 
 from neural_shdf.errors import ModelUnavailableError, ParameterError
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.neural.inference import DEFAULT_MODEL_PATH, load_model, neural_raw_shdf
 from neural_shdf.pipeline import compute_shdf, mesh_face_graph
+from neural_shdf.shdf.neural.inference import DEFAULT_MODEL_PATH, load_model, neural_raw_shdf
 
 
 def test_missing_model_raises_a_clear_error(tmp_path) -> None:

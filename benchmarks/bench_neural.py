@@ -38,9 +38,15 @@ sys.path.insert(0, str(REPO))
 
 from neural_shdf.geometry import face_centroids  # noqa: E402
 from neural_shdf.mesh import TriangleMesh  # noqa: E402
-from neural_shdf.pipeline import mesh_face_graph  # noqa: E402
-from neural_shdf.shdf.exact import exact_shdf  # noqa: E402
-from neural_shdf.shdf.neural import neural_shdf  # noqa: E402
+from neural_shdf.pipeline import compute_shdf, mesh_face_graph  # noqa: E402
+
+
+def exact_shdf(mesh: TriangleMesh, *, graph) -> np.ndarray:  # noqa: ANN001
+    return compute_shdf(mesh, method="exact", graph=graph)
+
+
+def neural_shdf(mesh: TriangleMesh, *, graph, seed: int = 0) -> np.ndarray:  # noqa: ANN001
+    return compute_shdf(mesh, method="neural", graph=graph, seed=seed)
 
 
 def load(path: Path) -> TriangleMesh:
@@ -208,10 +214,12 @@ graph = mesh_face_graph(mesh)
 graph_s = time.perf_counter() - start
 if {method!r} == "neural":
     from neural_shdf.shdf.neural.inference import load_model
-    from neural_shdf.shdf.neural import neural_shdf as run
+    from neural_shdf.pipeline import compute_shdf
+    run = lambda mesh, graph: compute_shdf(mesh, method="neural", graph=graph)
     load_model()
 else:
-    from neural_shdf.shdf.exact import exact_shdf as run
+    from neural_shdf.pipeline import compute_shdf
+    run = lambda mesh, graph: compute_shdf(mesh, method="exact", graph=graph)
 import trimesh  # warm-up: compiled kernels loaded, model session made, before timing
 small = trimesh.creation.icosphere(3)
 small = TriangleMesh(small.vertices, small.faces)

@@ -32,9 +32,10 @@ from neural_shdf.api.jobs import JobAccepted, JobStore
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.schemas import SegmentOptions
 from neural_shdf.api.settings import Settings
-from neural_shdf.errors import InvalidGeometryError
+from neural_shdf.errors import InvalidGeometryError, ModelUnavailableError
 from neural_shdf.geometry import FaceGraph
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.shdf.stage import uses_model
 
 logger = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -152,6 +153,25 @@ def summarize(
     )
 
 
+def shdf_version(method: str, model_version: str | None, seed: int = 0) -> str:
+    """What a cached ShDF depends on besides the mesh: the code version, the method
+    (resolved by callers that know the mesh), the model's version where the method can
+    run the network (``model_version``; refused when there is none) and every ShDF
+    parameter (``stage.shdf_key``)."""
+    from neural_shdf.shdf.stage import ShdfParams
+    from neural_shdf.shdf.stage import shdf_key as stage_key
+
+    if uses_model(method) and not model_version:
+        raise ModelUnavailableError(f"the ShDF method {method!r} needs a neural model; none found")
+    model = model_version if uses_model(method) else None
+    return f"{__version__}:{stage_key(method, ShdfParams(seed=seed), model)}"
+
+
+def shdf_key(mesh_id: str, method: str, seed: int, model_version: str | None) -> str:
+    """Cache key of a mesh's ShDF (shared by every service replica and batch worker)."""
+    return f"{mesh_id}:shdf:{shdf_version(method, model_version, seed)}"
+
+
 def params_digest(options: SegmentOptions) -> str:
     """Stable hash of the segmentation parameters (the cache key's parameter part)."""
     params = asdict(options.segment_params())
@@ -231,22 +251,11 @@ class Engine:
         return resolve_method(self.method_of(method), self.triangles(mesh_id))
 
     def shdf_version(self, method: str, seed: int) -> str:
-        """What a cached ShDF depends on besides the mesh: the code version, the resolved
-        producer, the model's checksum (neural) and every ShDF parameter."""
-        from neural_shdf.shdf.stage import ShdfParams, shdf_key
-
-        model = self.model_checksum() if method == "neural" else None
-        return f"{__version__}:{shdf_key(method, ShdfParams(seed=seed), model)}"  # type: ignore[arg-type]
-
-    def model_checksum(self) -> str:
-        """sha256 of the configured model's weights (raises ModelUnavailableError if none)."""
-        from neural_shdf.shdf.neural.inference import load_model
-
-        return str(load_model(self.model_path).card.get("sha256") or self.model_version)
+        return shdf_version(method, self.model_version, seed)
 
     def shdf_key(self, mesh_id: str, method: str, seed: int) -> str:
         """Cache key of a ShDF; ``method`` is a resolved producer (not ``auto``)."""
-        return f"{mesh_id}:shdf:{self.shdf_version(method, seed)}"
+        return shdf_key(mesh_id, method, seed, self.model_version)
 
     def segment_key(self, mesh_id: str, method: str, options: SegmentOptions) -> str:
         shdf = self.shdf_version(method, options.shdf_seed)
@@ -388,6 +397,20 @@ class Engine:
             self.cache.put_arrays(key, {"shdf": values}, group=mesh_id)
             self.cache.remember(key, values)
             return ShdfOutcome(values, False, seconds, method)
+
+    def shdf_blocking(
+        self, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
+    ) -> ShdfOutcome:
+        """The cached ShDF, else computed once under the cache lock and stored (blocking:
+        for batch workers outside an event loop). ``method`` may be ``auto``."""
+        from neural_shdf.shdf.stage import resolve_method
+
+        method = resolve_method(self.method_of(method), mesh.face_count)
+        key = self.shdf_key(mesh_id, method, seed)
+        values = self.cached_shdf(key)
+        if values is not None:
+            return ShdfOutcome(values, True, 0.0, method)
+        return self._compute_shdf(key, mesh_id, mesh, method, seed)
 
     async def shdf(
         self,

@@ -39,6 +39,7 @@ from neural_shdf.shdf.postprocess import (
     RANGE_SIGMA_FACTOR,
     SPATIAL_SIGMA_FACTOR,
     postprocess_shdf,
+    ring_length,
     smoothing_window,
 )
 
@@ -56,9 +57,6 @@ AUTO_SAMPLED_METHOD: RawMethod = "sampled"
 #: Poisson samples of the sample-based producers (the count follows the surface area,
 #: not the triangles).
 DEFAULT_SAMPLES = 4096
-#: Mean distance between neighbouring face centroids per edge ring of the bilateral
-#: window, in units of that distance (a ring advances about one centroid spacing).
-RING_SPACING = 1.0
 #: Samples without a valid hit take the mean of their valid ones among this many nearest.
 FILL_NEIGHBOURS = 8
 
@@ -133,15 +131,6 @@ def shdf_key(method: RawMethod, params: ShdfParams, model_sha256: str | None) ->
     return hashlib.sha256(json.dumps(used, sort_keys=True).encode()).hexdigest()[:24]
 
 
-def ring_spacing(mesh: TriangleMesh, graph: FaceGraph) -> float:
-    """Mean distance between the centroids of adjacent faces: the width of one edge ring."""
-    if len(graph.pairs) == 0:
-        return 0.0
-    centroids = face_centroids(mesh.vertices, mesh.faces)
-    offset = centroids[graph.pairs[:, 0]] - centroids[graph.pairs[:, 1]]
-    return float(np.mean(np.sqrt(np.einsum("ij,ij->i", offset, offset))))
-
-
 def smooth_samples(
     values: NDArray,
     positions: NDArray,
@@ -194,17 +183,17 @@ def fill_samples(values: NDArray, positions: NDArray) -> NDArray[np.float64]:
 
 
 def sample_smoothing(
-    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams
+    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams, centroids: NDArray
 ) -> tuple[float, float]:
     """(radius, spatial sigma) in mesh units of the surface window the exact path's
-    bilateral filter covers on this mesh (``window`` edge rings of ``ring_spacing``)."""
+    bilateral filter covers on this mesh (``window`` edge rings of ``ring_length``)."""
     window = params.window_for(mesh.face_count)
-    spacing = RING_SPACING * ring_spacing(mesh, graph)
+    spacing = ring_length(graph, centroids)
     return window * spacing, SPATIAL_SIGMA_FACTOR * window * spacing
 
 
 def sampled_raw_shdf(
-    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams
+    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams, centroids: NDArray
 ) -> NDArray[np.float64]:
     """Per-face raw diameters from the exact cone cast at ``params.samples`` Poisson
     samples, smoothed at the sample scale and interpolated to the faces."""
@@ -232,7 +221,7 @@ def sampled_raw_shdf(
     if np.isnan(diameters).all():
         return np.full(mesh.face_count, np.nan)
     diameters = fill_samples(diameters, samples.positions)
-    radius, sigma = sample_smoothing(mesh, graph, params)
+    radius, sigma = sample_smoothing(mesh, graph, params, centroids)
     smoothed = smooth_samples(
         diameters, samples.positions, samples.normals, radius=radius, spatial_sigma=sigma
     )
@@ -246,8 +235,12 @@ def raw_diameters(
     params: ShdfParams,
     model: object | None = None,
     progress: Progress | None = None,
+    centroids: NDArray | None = None,
 ) -> NDArray[np.float64]:
-    """Raw diameter per triangle (mesh units, NaN = unknown) from one producer."""
+    """Raw diameter per triangle (mesh units, NaN = unknown) from one producer
+    (``centroids``: the face centroids, when the caller has them)."""
+    if centroids is None:
+        centroids = face_centroids(mesh.vertices, mesh.faces)
     if method == "exact":
         from neural_shdf.shdf.exact import raw_shdf
 
@@ -261,12 +254,12 @@ def raw_diameters(
             progress=progress,
         )
     if method == "sampled":
-        return sampled_raw_shdf(mesh, graph, params)
+        return sampled_raw_shdf(mesh, graph, params, centroids)
     if method == "neural":
         from neural_shdf.shdf.neural.inference import neural_raw_shdf
 
         normals, areas = mesh.normals_and_areas
-        radius, sigma = sample_smoothing(mesh, graph, params)
+        radius, sigma = sample_smoothing(mesh, graph, params, centroids)
         return neural_raw_shdf(
             mesh.vertices,
             mesh.faces,
@@ -309,6 +302,7 @@ def run_shdf(
 
         model = model if isinstance(model, NeuralModel) else load_model(model)  # type: ignore[arg-type]
     ray_share = 0.9 if resolved == "exact" else 0.5
+    centroids = face_centroids(mesh.vertices, mesh.faces)
     raw = raw_diameters(
         mesh,
         graph,
@@ -316,12 +310,14 @@ def run_shdf(
         params,
         model,
         None if progress is None else (lambda done: progress(ray_share * done)),
+        centroids,
     )
     values = postprocess_shdf(
         raw,
         graph,
         window_size=params.window_for(mesh.face_count),
         smooth=resolved == "exact",
+        centroids=centroids,
     )
     if progress is not None:
         progress(1.0)

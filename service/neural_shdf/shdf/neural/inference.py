@@ -120,7 +120,13 @@ def load_model(path: str | Path | None = None) -> NeuralModel:
             )
         except Exception as error:  # noqa: BLE001 - any loader failure means no model
             raise ModelUnavailableError(f"cannot load model {path}: {error}") from error
-        model = NeuralModel(session, card, GraphSpec.from_dict(card.get("graph_spec", {})), path)
+        spec = GraphSpec.from_dict(card.get("graph_spec", {}))
+        if card.get("node_features", list(spec.node_features)) != list(spec.node_features):
+            raise ModelUnavailableError(
+                f"model {path.name}: its card's node features {card['node_features']} are not "
+                f"those its graph spec builds {list(spec.node_features)}; re-export the model"
+            )
+        model = NeuralModel(session, card, spec, path)
         _MODELS[path] = model
         return model
 

@@ -68,8 +68,7 @@ def cmd_shdf(args: argparse.Namespace) -> int:
 
     mesh = _load(args.mesh, args.format)
     values = _shdf(mesh, args.method, args.seed, mesh_face_graph(mesh), args.quiet)
-    _, areas = mesh.normals_and_areas
-    write_values(args.output, mesh.to_input_faces(values, weights=areas + 1e-300))
+    write_values(args.output, mesh.to_input_faces(values))
     return 0
 
 
@@ -81,11 +80,10 @@ def cmd_segment(args: argparse.Namespace) -> int:
     params = SegmentParams.from_attributes(args)
     mesh = _load(args.mesh, args.format)
     graph = mesh_face_graph(mesh)
-    shdf = _shdf(mesh, args.method, args.seed, graph, args.quiet)
+    shdf = _shdf(mesh, args.method, params.seed, graph, args.quiet)
     start = time.perf_counter()
     labels = segment_mesh(mesh, shdf, params, graph=graph)
-    _, areas = mesh.normals_and_areas
-    write_labels(args.output, mesh.labels_to_input_faces(labels, weights=areas + 1e-300))
+    write_labels(args.output, mesh.labels_to_input_faces(labels))
     if args.colored:
         Path(args.colored).write_bytes(colored_glb(mesh, labels))
     if args.parts_glb:
@@ -137,7 +135,8 @@ def _add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--format", help="file type when the extension does not say it")
     parser.add_argument("--method", choices=["neural", "exact"], default="neural",
                         help="ShDF from the neural network (default, fast) or exact ray casting")
-    parser.add_argument("--seed", type=int, default=0, help="seed of every random step")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="seed of every random step (ShDF sampling and segmentation)")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
 
 

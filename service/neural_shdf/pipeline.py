@@ -35,7 +35,13 @@ def compute_shdf(
     graph: FaceGraph | None = None,
     progress: Progress | None = None,
 ) -> NDArray[np.float64]:
-    """Post-processed ShDF in [0, 1] per triangle (exact rays or the neural predictor)."""
+    """Post-processed ShDF in [0, 1] per triangle (exact rays or the neural predictor).
+
+    ``seed``: 0..``MAX_SEED``; by convention the segmentation's ``SegmentParams.seed``.
+    """
+    from neural_shdf.segment.params import check_seed
+
+    seed = check_seed(seed)
     graph = mesh_face_graph(mesh) if graph is None else graph
     if method == "exact":
         from neural_shdf.shdf.exact import exact_shdf

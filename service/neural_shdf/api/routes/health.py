@@ -27,7 +27,7 @@ async def health() -> Health:
 )
 async def ready(engine: EngineDep) -> JSONResponse:
     """Ready when the neural model loads (if it is the default method) and the cache answers."""
-    model_ok, model_detail = await engine.io(engine.check_model)
+    model_ok, model_detail = await engine.io(engine.shdf.check_model)
     if engine.settings.default_method != "neural" and not model_ok:
         model_ok, model_detail = True, f"not needed (default method exact): {model_detail}"
     cache_ok = await engine.io(engine.cache.ping)

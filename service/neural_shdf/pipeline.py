@@ -71,6 +71,18 @@ def segment_mesh(
     )
 
 
+def input_face_labels(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.int64]:
+    """One label per face of the input file, in its order (a polygon split into triangles
+    takes the label covering most of its area): ``mesh.labels_to_input_faces``."""
+    return mesh.labels_to_input_faces(labels)
+
+
+def input_face_shdf(mesh: TriangleMesh, values: NDArray) -> NDArray[np.float64]:
+    """One ShDF value per face of the input file, in its order (area-weighted mean over a
+    polygon's triangles): ``mesh.to_input_faces``."""
+    return mesh.to_input_faces(values)
+
+
 def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "neural")) -> float:
     """Run a small generated sphere through the face graph, each ShDF ``method`` and both
     partitioners, so that the compiled kernels are built (first run after an install) or

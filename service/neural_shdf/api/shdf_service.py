@@ -50,6 +50,20 @@ def model_version(path: Path) -> str | None:
     return None
 
 
+def shdf_version(method: str, model_version: str | None) -> str:
+    """What a cached ShDF depends on besides the mesh: the model and how it is applied."""
+    if method == "neural":
+        from neural_shdf.neural.inference import DEFAULT_SAMPLE_SETS
+
+        return f"neural-{model_version or 'none'}-sets{DEFAULT_SAMPLE_SETS}"
+    return f"exact-{__version__}"
+
+
+def shdf_key(mesh_id: str, method: str, seed: int, model_version: str | None) -> str:
+    """Cache key of a mesh's ShDF (shared by every service replica and batch worker)."""
+    return f"{mesh_id}:shdf:{shdf_version(method, model_version)}:{seed}"
+
+
 def _accepts_model_path() -> bool:
     from neural_shdf.pipeline import compute_shdf
 
@@ -88,16 +102,12 @@ class ShdfService:
         self._progress: dict[str, float] = {}
 
     def version(self, method: str) -> str:
-        """What a cached ShDF depends on besides the mesh: the model and how it is applied."""
-        if method == "neural":
-            from neural_shdf.neural.inference import DEFAULT_SAMPLE_SETS
-
-            return f"neural-{self.model_version or 'none'}-sets{DEFAULT_SAMPLE_SETS}"
-        return f"exact-{__version__}"
+        """What a cached ShDF depends on besides the mesh (``shdf_version``)."""
+        return shdf_version(method, self.model_version)
 
     def key(self, mesh_id: str, method: str, seed: int) -> str:
-        """The cache key of a ShDF."""
-        return f"{mesh_id}:shdf:{self.version(method)}:{seed}"
+        """The cache key of a ShDF (``shdf_key``)."""
+        return shdf_key(mesh_id, method, seed, self.model_version)
 
     def cached(self, key: str) -> NDArray[np.float64] | None:
         """The cached ShDF (memory, then the shared cache), or None."""
@@ -162,6 +172,18 @@ class ShdfService:
             functools.partial(self._store, key, mesh_id),
         )
         return outcome
+
+    def get_blocking(
+        self, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
+    ) -> ShdfOutcome:
+        """The cached ShDF, else computed once under the cache lock and stored (blocking:
+        for batch workers outside an event loop)."""
+        seed = check_seed(seed)
+        key = self.key(mesh_id, method, seed)
+        values = self.cached(key)
+        if values is not None:
+            return ShdfOutcome(values, True, 0.0)
+        return self._compute_once(key, mesh_id, mesh, method, seed)
 
     async def get(
         self,

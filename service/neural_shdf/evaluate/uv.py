@@ -79,6 +79,29 @@ def seam_ratio(vertices: NDArray, faces: NDArray, corner_uvs: NDArray) -> float:
     return float(graph.edge_length[seam].sum() / total) if total > 0 else 0.0
 
 
+def uv_islands(vertices: NDArray, faces: NDArray, corner_uvs: NDArray) -> NDArray[np.int64]:
+    """Chart per triangle as the UV layout itself says: triangles joined across every edge
+    whose two end points have the same UVs on both sides (any unwrapper's charts)."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    welded = weld_faces(vertices, faces)
+    graph = build_face_graph(vertices, welded)
+    left, right = graph.pairs[:, 0], graph.pairs[:, 1]
+    joined = np.ones(len(left), dtype=bool)
+    for end in (0, 1):
+        vertex = graph.edge_vertices[:, end][:, None]
+        uv_left = corner_uvs[left, np.argmax(welded[left] == vertex, axis=1)]
+        uv_right = corner_uvs[right, np.argmax(welded[right] == vertex, axis=1)]
+        joined &= np.all(np.abs(uv_left - uv_right) <= 1e-7, axis=1)
+    n = len(faces)
+    adjacency = sp.csr_matrix(
+        (np.ones(int(joined.sum())), (left[joined], right[joined])), shape=(n, n)
+    )
+    _, island = connected_components(adjacency, directed=False)
+    return island.astype(np.int64)
+
+
 def uv_quality(
     vertices: NDArray,
     faces: NDArray,
@@ -139,4 +162,4 @@ def uv_quality(
     )
 
 
-__all__ = ["UvQuality", "seam_ratio", "uv_quality"]
+__all__ = ["UvQuality", "seam_ratio", "stretch_terms", "uv_islands", "uv_quality"]

@@ -132,10 +132,12 @@ def wait_for_port(port: int, process: subprocess.Popen, timeout_s: float = 20.0)
 
 @contextlib.contextmanager
 def running_server(
-    cache_dir: Path, workers: int = 1, port: int | None = None, **settings: str
+    cache_dir: Path, workers: int = 1, port: int | None = None, **settings: object
 ) -> Iterator[str]:
-    """`python -m neural_shdf.api.serve` on a free loopback port; yields its base URL.
-    ``settings`` override environment variables (``lock_lease_s="2"``)."""
+    """`python -m neural_shdf.api.serve` on a free (or the given) loopback port; yields its
+    base URL.
+
+    ``settings``: further service settings by name (``request_timeout_s=0.05``)."""
     port = port or free_port()
     env = dict(os.environ)
     env.update(
@@ -147,9 +149,9 @@ def running_server(
         NEURAL_SHDF_MAX_UPLOAD_BYTES=str(2_000_000),
         NEURAL_SHDF_LOG_LEVEL="warning",
     )
+    env.update({f"NEURAL_SHDF_{name.upper()}": str(value) for name, value in settings.items()})
     env.pop("NEURAL_SHDF_REDIS_URL", None)
     env.pop("PROMETHEUS_MULTIPROC_DIR", None)
-    env.update({f"NEURAL_SHDF_{name.upper()}": value for name, value in settings.items()})
     process = subprocess.Popen([sys.executable, "-m", "neural_shdf.api.serve"], env=env)
     base = f"http://127.0.0.1:{port}"
     try:

@@ -93,8 +93,10 @@ def wait_for_port(port: int, process: subprocess.Popen, timeout_s: float = 20.0)
 
 
 @contextlib.contextmanager
-def running_server(cache_dir: Path, workers: int = 1) -> Iterator[str]:
-    """`python -m neural_shdf.api.serve` on a free loopback port; yields its base URL."""
+def running_server(cache_dir: Path, workers: int = 1, **settings: object) -> Iterator[str]:
+    """`python -m neural_shdf.api.serve` on a free loopback port; yields its base URL.
+
+    ``settings``: further service settings by name (``request_timeout_s=0.05``)."""
     port = free_port()
     env = dict(os.environ)
     env.update(
@@ -106,6 +108,7 @@ def running_server(cache_dir: Path, workers: int = 1) -> Iterator[str]:
         NEURAL_SHDF_MAX_UPLOAD_BYTES=str(2_000_000),
         NEURAL_SHDF_LOG_LEVEL="warning",
     )
+    env.update({f"NEURAL_SHDF_{name.upper()}": str(value) for name, value in settings.items()})
     env.pop("NEURAL_SHDF_REDIS_URL", None)
     env.pop("PROMETHEUS_MULTIPROC_DIR", None)
     process = subprocess.Popen([sys.executable, "-m", "neural_shdf.api.serve"], env=env)

@@ -95,7 +95,7 @@ def test_docker_healthcheck_command_passes_against_the_server(uvicorn_server):
     dockerfile = (REPO_ROOT / "Dockerfile").read_text()
     assert re.search(r"^FROM python:3\.11-slim", dockerfile, re.M)
     assert re.search(r"^USER (?!root)\S+", dockerfile, re.M)
-    assert "RUN pip install ." in dockerfile
+    assert "RUN pip install -c constraints.txt ." in dockerfile
     assert re.search(r'^CMD \["neural-shdf", "serve"\]', dockerfile, re.M)
     assert "NEURAL_SHDF_HOST=0.0.0.0" in dockerfile
     command = json.loads(re.search(r"HEALTHCHECK .*?CMD (\[[^\n]*\])", dockerfile, re.S).group(1))

@@ -158,6 +158,20 @@ def summarize(
     )
 
 
+def shdf_version(method: str, model_version: str | None) -> str:
+    """What a cached ShDF depends on besides the mesh: the model and how it is applied."""
+    if method == "neural":
+        from neural_shdf.neural.inference import DEFAULT_SAMPLE_SETS
+
+        return f"neural-{model_version or 'none'}-sets{DEFAULT_SAMPLE_SETS}"
+    return f"exact-{__version__}"
+
+
+def shdf_key(mesh_id: str, method: str, seed: int, model_version: str | None) -> str:
+    """Cache key of a mesh's ShDF (shared by every service replica and batch worker)."""
+    return f"{mesh_id}:shdf:{shdf_version(method, model_version)}:{seed}"
+
+
 def params_digest(options: SegmentOptions) -> str:
     """Stable hash of the segmentation parameters (the cache key's parameter part)."""
     params = asdict(options.segment_params())
@@ -225,15 +239,10 @@ class Engine:
         return method or self.settings.default_method
 
     def shdf_version(self, method: str) -> str:
-        """What a cached ShDF depends on besides the mesh: the model and how it is applied."""
-        if method == "neural":
-            from neural_shdf.neural.inference import DEFAULT_SAMPLE_SETS
-
-            return f"neural-{self.model_version or 'none'}-sets{DEFAULT_SAMPLE_SETS}"
-        return f"exact-{__version__}"
+        return shdf_version(method, self.model_version)
 
     def shdf_key(self, mesh_id: str, method: str, seed: int) -> str:
-        return f"{mesh_id}:shdf:{self.shdf_version(method)}:{seed}"
+        return shdf_key(mesh_id, method, seed, self.model_version)
 
     def segment_key(self, mesh_id: str, method: str, options: SegmentOptions) -> str:
         shdf = f"{self.shdf_version(method)}:{options.shdf_seed}"
@@ -383,6 +392,17 @@ class Engine:
             self.cache.put_arrays(key, {"shdf": values}, group=mesh_id)
             self.cache.remember(key, values)
             return ShdfOutcome(values, False, seconds)
+
+    def shdf_blocking(
+        self, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
+    ) -> ShdfOutcome:
+        """The cached ShDF, else computed once under the cache lock and stored (blocking:
+        for batch workers outside an event loop)."""
+        key = self.shdf_key(mesh_id, method, seed)
+        values = self.cached_shdf(key)
+        if values is not None:
+            return ShdfOutcome(values, True, 0.0)
+        return self._compute_shdf(key, mesh_id, mesh, method, seed)
 
     async def shdf(
         self,

@@ -539,10 +539,19 @@ class Engine:
     ) -> bytes:
         """The JSON response, serialised directly (no per-label model validation)."""
         compact = options.labels_format == "base64"
+        from neural_shdf.export import part_color_hex
+
+        colors = part_color_hex(len(result.part_faces))
         parts = [
-            {"label": i, "faces": int(f), "area": float(a), "mean_shdf": float(m)}
-            for i, (f, a, m) in enumerate(
-                zip(result.part_faces, result.part_area, result.part_mean_shdf, strict=True)
+            {"label": i, "faces": int(f), "area": float(a), "mean_shdf": float(m), "color": c}
+            for i, (f, a, m, c) in enumerate(
+                zip(
+                    result.part_faces,
+                    result.part_area,
+                    result.part_mean_shdf,
+                    colors,
+                    strict=True,
+                )
             )
         ]
         body = {

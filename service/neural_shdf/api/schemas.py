@@ -280,6 +280,10 @@ class PartSummary(BaseModel):
     faces: int = Field(description="Input faces in the part.", examples=[1200])
     area: float = Field(description="Surface area of the part.", examples=[0.37])
     mean_shdf: float = Field(description="Area-weighted mean ShDF of the part.", examples=[0.42])
+    color: str = Field(
+        description="Display colour `#rrggbb`, the same as in the coloured GLB.",
+        examples=["#e69f00"],
+    )
 
 
 class Timings(BaseModel):
@@ -311,8 +315,20 @@ class Segmentation(BaseModel):
                     "labels_base64": None,
                     "labels_dtype": None,
                     "parts": [
-                        {"label": 0, "faces": 2, "area": 1.0, "mean_shdf": 0.2},
-                        {"label": 1, "faces": 2, "area": 1.0, "mean_shdf": 0.8},
+                        {
+                            "label": 0,
+                            "faces": 2,
+                            "area": 1.0,
+                            "mean_shdf": 0.2,
+                            "color": "#e69f00",
+                        },
+                        {
+                            "label": 1,
+                            "faces": 2,
+                            "area": 1.0,
+                            "mean_shdf": 0.8,
+                            "color": "#56b4e9",
+                        },
                     ],
                     "timings": {
                         "shdf_ms": 0.0,
@@ -347,6 +363,6 @@ class Segmentation(BaseModel):
     )
     parts: list[PartSummary] = Field(
         description="Summary per part, by label.",
-        examples=[[{"label": 0, "faces": 2, "area": 1.0, "mean_shdf": 0.2}]],
+        examples=[[{"label": 0, "faces": 2, "area": 1.0, "mean_shdf": 0.2, "color": "#e69f00"}]],
     )
     timings: Timings = Field(description="Timings.")

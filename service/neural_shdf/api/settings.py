@@ -91,3 +91,16 @@ class Settings(BaseSettings):
     lock_timeout_s: float = Field(
         600.0, gt=0, description="Expiry of the cross-worker compute lock (seconds)."
     )
+
+    viewer_three_url: str | None = Field(
+        None,
+        description="Base URL of the npm package `three` (the folder holding build/ and "
+        "examples/) in the web viewer's import map. Default: the local copy at /viewer/three/ "
+        "when one is installed (`npm ci` in neural_shdf/viewer, or `viewer_three_dir`), else "
+        "the jsDelivr CDN at the version locked in the viewer's package.json.",
+    )
+    viewer_three_dir: Path | None = Field(
+        None,
+        description="Local copy of the npm package `three` served at /viewer/three/; default: "
+        "node_modules/three in the viewer's folder when `npm ci` ran there.",
+    )

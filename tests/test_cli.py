@@ -155,3 +155,17 @@ def test_eval_prints_a_table_over_a_benchmark_folder(tmp_path: Path, capsys):
 def test_eval_rejects_a_folder_without_benchmark_layout(tmp_path: Path, capsys):
     assert main(["eval", str(tmp_path), "-q"]) == EXIT_BAD_INPUT
     assert "off/" in capsys.readouterr().err
+
+
+def test_a_mesh_over_the_limits_exits_2_naming_the_limit(tmp_path: Path, capsys):
+    from tests.api.api_helpers import instanced_glb
+
+    bomb = tmp_path / "bomb.glb"
+    bomb.write_bytes(instanced_glb(4000, 40))  # 160,000 vertices once expanded
+    out = str(tmp_path / "o.seg")
+    code = main(["segment", str(bomb), "-o", out, "--max-vertices", "100000", "-q"])
+    assert code == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "160000 vertices" in err and "limit of 100000 vertices (max_vertices)" in err
+    assert main(["segment", str(bomb), "-o", out, "--max-faces", "10", "-q"]) == EXIT_BAD_INPUT
+    assert "(max_faces)" in capsys.readouterr().err

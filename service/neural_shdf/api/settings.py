@@ -8,6 +8,8 @@ from typing import Literal
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
+
 DEFAULT_CACHE_DIR = Path.home() / ".cache" / "neural-shdf" / "service"
 
 
@@ -64,7 +66,17 @@ class Settings(BaseSettings):
         description="Largest request body accepted (checked while reading). Text OBJ "
         "parsing peaks at about 13x the file size in memory; size workers accordingly.",
     )
-    max_faces: int = Field(2_000_000, ge=1, description="Largest mesh accepted, in faces.")
+    max_faces: int = Field(
+        DEFAULT_MAX_FACES,
+        ge=1,
+        description="Largest mesh accepted, in triangles (after triangulating polygons and "
+        "expanding glTF instances; checked before they are made).",
+    )
+    max_vertices: int = Field(
+        DEFAULT_MAX_VERTICES,
+        ge=1,
+        description="Largest mesh accepted, in vertices (glTF instances counted).",
+    )
     sync_face_threshold: int = Field(
         50_000,
         ge=0,

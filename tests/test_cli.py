@@ -189,3 +189,17 @@ def test_unwrap_rejects_an_output_it_cannot_write(tmp_path: Path, capsys):
     code = main(["unwrap", str(source), "-o", str(tmp_path / "u.fbx"), "-q"])
     assert code == EXIT_BAD_INPUT
     assert ".glb or .obj" in capsys.readouterr().err
+
+
+def test_a_mesh_over_the_limits_exits_2_naming_the_limit(tmp_path: Path, capsys):
+    from tests.api.api_helpers import instanced_glb
+
+    bomb = tmp_path / "bomb.glb"
+    bomb.write_bytes(instanced_glb(4000, 40))  # 160,000 vertices once expanded
+    out = str(tmp_path / "o.seg")
+    code = main(["segment", str(bomb), "-o", out, "--max-vertices", "100000", "-q"])
+    assert code == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert "160000 vertices" in err and "limit of 100000 vertices (max_vertices)" in err
+    assert main(["segment", str(bomb), "-o", out, "--max-faces", "10", "-q"]) == EXIT_BAD_INPUT
+    assert "(max_faces)" in capsys.readouterr().err

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
 from neural_shdf.errors import NeuralShdfError, ParameterError
 
 #: Exit codes: 0 ok, 1 unexpected failure, 2 bad input or usage, 3 model unavailable.
@@ -47,12 +48,14 @@ def progress_bar(description: str, enabled: bool = True) -> Iterator[Callable[[f
         bar.close()
 
 
-def _load(path: str, file_type: str | None):
+def _load(args: argparse.Namespace):
     from neural_shdf.mesh_io import load_mesh
 
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"mesh file not found: {path}")
-    return load_mesh(Path(path), file_type)
+    if not Path(args.mesh).is_file():
+        raise FileNotFoundError(f"mesh file not found: {args.mesh}")
+    return load_mesh(
+        Path(args.mesh), args.format, max_faces=args.max_faces, max_vertices=args.max_vertices
+    )
 
 
 def _shdf(mesh, method: str, seed: int, graph, quiet: bool) -> np.ndarray:
@@ -66,7 +69,7 @@ def cmd_shdf(args: argparse.Namespace) -> int:
     from neural_shdf.export import write_values
     from neural_shdf.pipeline import input_face_shdf, mesh_face_graph
 
-    mesh = _load(args.mesh, args.format)
+    mesh = _load(args)
     values = _shdf(mesh, args.method, args.seed, mesh_face_graph(mesh), args.quiet)
     write_values(args.output, input_face_shdf(mesh, values))
     return 0
@@ -78,7 +81,7 @@ def cmd_segment(args: argparse.Namespace) -> int:
     from neural_shdf.segment import SegmentParams
 
     params = SegmentParams.from_attributes(args)
-    mesh = _load(args.mesh, args.format)
+    mesh = _load(args)
     graph = mesh_face_graph(mesh)
     shdf = _shdf(mesh, args.method, args.seed, graph, args.quiet)
     start = time.perf_counter()
@@ -109,7 +112,7 @@ def cmd_unwrap(args: argparse.Namespace) -> int:
     unwrap_params = UnwrapParams(
         atlas_size=args.atlas_size, padding=args.padding, max_stretch=args.max_stretch
     )
-    mesh = _load(args.mesh, args.format)
+    mesh = _load(args)
     graph = mesh_face_graph(mesh)
     shdf = _shdf(mesh, args.method, args.seed, graph, args.quiet)
     start = time.perf_counter()
@@ -175,6 +178,19 @@ def _add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=["neural", "exact"], default="neural",
                         help="ShDF from the neural network (default, fast) or exact ray casting")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random step")
+    parser.add_argument(
+        "--max-faces",
+        type=int,
+        default=DEFAULT_MAX_FACES,
+        help="refuse meshes with more triangles, counting glTF instances "
+        f"(default {DEFAULT_MAX_FACES}, as the service)",
+    )
+    parser.add_argument(
+        "--max-vertices",
+        type=int,
+        default=DEFAULT_MAX_VERTICES,
+        help=f"refuse meshes with more vertices (default {DEFAULT_MAX_VERTICES})",
+    )
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import colorsys
+import struct
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -43,6 +44,42 @@ def part_colors(n_parts: int) -> NDArray[np.uint8]:
         value = (0.9, 0.7, 0.8)[(k // 3) % 3]
         colors[i, :3] = np.round(np.array(colorsys.hsv_to_rgb(hue, saturation, value)) * 255)
     return colors
+
+
+def part_color_hex(n_parts: int) -> list[str]:
+    """part_colors as ``#rrggbb`` strings (what the API returns with each part)."""
+    return [f"#{r:02x}{g:02x}{b:02x}" for r, g, b, _ in part_colors(n_parts).tolist()]
+
+
+#: Magic and version of display_geometry's binary layout.
+DISPLAY_GEOMETRY_MAGIC = b"NSHG"
+DISPLAY_GEOMETRY_VERSION = 1
+
+
+def display_geometry(mesh: TriangleMesh) -> bytes:
+    """The triangles a viewer draws, and the input face each came from, as one binary blob.
+
+    Little-endian: a 20-byte header (``NSHG``, uint32 version, vertex count V, triangle
+    count T, input face count F), then float32 positions (V, 3), uint32 triangle corners
+    (T, 3) and uint32 input face per triangle (T): per-input-face labels or ShDF values
+    colour triangle ``t`` with ``values[face_origin[t]]``.
+    """
+    header = struct.pack(
+        "<4sIIII",
+        DISPLAY_GEOMETRY_MAGIC,
+        DISPLAY_GEOMETRY_VERSION,
+        len(mesh.vertices),
+        mesh.face_count,
+        mesh.input_face_count,
+    )
+    return b"".join(
+        (
+            header,
+            mesh.vertices.astype("<f4").tobytes(),
+            mesh.faces.astype("<u4").tobytes(),
+            mesh.face_origin.astype("<u4").tobytes(),
+        )
+    )
 
 
 def _check_labels(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.int64]:
@@ -254,6 +291,8 @@ def read_values(path: str | Path) -> NDArray[np.float64]:
 __all__ = [
     "UNLABELED_COLOR",
     "colored_glb",
+    "display_geometry",
+    "part_color_hex",
     "part_colors",
     "part_name",
     "parts_glb",

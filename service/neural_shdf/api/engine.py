@@ -14,7 +14,6 @@ from collections.abc import Callable
 from typing import Any, TypeVar
 
 from neural_shdf.api.cache import ResultCache
-from neural_shdf.api.errors import not_found
 from neural_shdf.api.jobs import JobStore
 from neural_shdf.api.mesh_store import MeshStore
 from neural_shdf.api.metrics import Metrics
@@ -34,7 +33,7 @@ class Engine:
         self.cache = cache
         self.metrics = metrics
         self.tasks = TaskRunner(settings, cache)
-        self.jobs = JobStore(cache, settings.job_ttl_s)
+        self.jobs = JobStore(cache, settings.job_ttl_s, settings.job_max_attempts)
         self.meshes = MeshStore(settings, cache, metrics)
         self.shdf = ShdfService(settings, cache, metrics, self.tasks, self.meshes, self.jobs)
         self.segmentations = SegmentationService(cache, metrics, self.tasks, self.meshes, self.shdf)
@@ -51,11 +50,9 @@ class Engine:
         """The ShDF method asked for, else the service's default."""
         return method or self.settings.default_method
 
-    def job(self, job_id: str) -> dict[str, Any]:
-        job = self.jobs.get(job_id)
-        if job is None:
-            raise not_found("job", job_id)
-        return job
+    async def job(self, job_id: str) -> dict[str, Any]:
+        """A job's record (an orphaned job is re-run first: ``ShdfService.job``)."""
+        return await self.shdf.job(job_id)
 
     async def close(self) -> None:
         await self.tasks.close()

@@ -55,7 +55,12 @@ class MeshStore:
         """The mesh in an uploaded file (bounded by ``max_faces``)."""
         from neural_shdf.mesh_io import load_mesh
 
-        mesh = load_mesh(data, file_type, max_faces=self.settings.max_faces)
+        mesh = load_mesh(
+            data,
+            file_type,
+            max_faces=self.settings.max_faces,
+            max_vertices=self.settings.max_vertices,
+        )
         if mesh.face_count == 0:
             raise InvalidGeometryError("the mesh has no triangles")
         return mesh

@@ -64,11 +64,20 @@ def segmentation_response(
     timings: dict[str, Any],
 ) -> Response:
     """The `Segmentation` JSON, serialised directly (no per-label model validation)."""
+    from neural_shdf.export import part_color_hex
+
     compact = labels_format == "base64"
+    colors = part_color_hex(len(result.part_faces))
     parts = [
-        {"label": i, "faces": int(f), "area": float(a), "mean_shdf": float(m)}
-        for i, (f, a, m) in enumerate(
-            zip(result.part_faces, result.part_area, result.part_mean_shdf, strict=True)
+        {"label": i, "faces": int(f), "area": float(a), "mean_shdf": float(m), "color": c}
+        for i, (f, a, m, c) in enumerate(
+            zip(
+                result.part_faces,
+                result.part_area,
+                result.part_mean_shdf,
+                colors,
+                strict=True,
+            )
         )
     ]
     body = {

@@ -4,11 +4,13 @@ and run as a pollable job when the mesh is large."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import functools
 import hashlib
 import inspect
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,9 +19,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf import __version__
-from neural_shdf.api.cache import ResultCache
-from neural_shdf.api.errors import ApiError, error_dict
-from neural_shdf.api.jobs import JobAccepted, JobStore
+from neural_shdf.api.cache import Lease, ResultCache
+from neural_shdf.api.errors import ApiError, error_dict, not_found
+from neural_shdf.api.jobs import JobAccepted, JobStore, public_job, worker_name
 from neural_shdf.api.mesh_store import MeshStore
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.settings import Settings
@@ -173,9 +175,7 @@ class ShdfService:
         )
         return outcome
 
-    def get_blocking(
-        self, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
-    ) -> ShdfOutcome:
+    def get_blocking(self, mesh_id: str, mesh: TriangleMesh, method: str, seed: int) -> ShdfOutcome:
         """The cached ShDF, else computed once under the cache lock and stored (blocking:
         for batch workers outside an event loop)."""
         seed = check_seed(seed)
@@ -210,20 +210,43 @@ class ShdfService:
     ) -> dict[str, Any]:
         """Record a job and compute the ShDF in the background; the job's record."""
         job = await self.tasks.io(self.jobs.create, mesh_id, method, seed)
-        compute = functools.partial(self._compute_once, key, mesh_id, mesh, method, seed)
-        self.tasks.spawn(self._run_job(job, key, compute))
+        lease = self.jobs.runner_lease(job["job_id"])
+        await self.tasks.io(lease.try_acquire)  # a fresh id: free
+        self._launch_job(job, key, mesh_id, mesh, method, seed, lease)
         return dict(job)
 
-    async def _run_job(self, job: dict[str, Any], key: str, compute: Any) -> None:
+    def _launch_job(
+        self,
+        job: dict[str, Any],
+        key: str,
+        mesh_id: str,
+        mesh: TriangleMesh,
+        method: str,
+        seed: int,
+        lease: Lease,
+    ) -> None:
+        compute = functools.partial(self._compute_once, key, mesh_id, mesh, method, seed)
+        self.tasks.spawn(self._run_job(job, key, compute, lease))
+
+    async def _run_job(
+        self, job: dict[str, Any], key: str, compute: Callable[[], ShdfOutcome], lease: Lease
+    ) -> None:
+        """Run a job, rewriting its record with the progress and at least every heartbeat
+        (a record left unwritten for a lease marks a dead runner)."""
         self.metrics.jobs_running.inc()
         try:
             await self.tasks.io(self.jobs.update, job, state="running")
             work = asyncio.ensure_future(self.tasks.single_flight(key, compute))
+            written = time.monotonic()
             while not work.done():
                 await asyncio.wait({work}, timeout=0.5)
                 progress = self._progress.get(key)
-                if progress is not None and not work.done():
-                    await self.tasks.io(self.jobs.update, job, progress=min(progress, 0.99))
+                moved = progress is not None and progress != job["progress"]
+                due = time.monotonic() - written >= self.jobs.heartbeat_s
+                if not work.done() and (moved or due):
+                    changes = {"progress": min(progress, 0.99)} if moved else {}
+                    await self.tasks.io(self.jobs.update, job, **changes)
+                    written = time.monotonic()
             work.result()
             await self.tasks.io(self.jobs.update, job, state="succeeded", progress=1.0)
         except Exception as exc:  # noqa: BLE001 - a failed job is recorded, not raised
@@ -232,6 +255,51 @@ class ShdfService:
             await self.tasks.io(self.jobs.update, job, state="failed", error=error_dict(exc))
         finally:
             self.metrics.jobs_running.dec()
+            lease.stop_renewing()
+            with contextlib.suppress(RuntimeError):  # executor shut down: it lapses instead
+                self.tasks.io_executor.submit(lease.release)
+
+    async def job(self, job_id: str) -> dict[str, Any]:
+        """A job's record; one whose worker died is re-run here (or failed after
+        ``job_max_attempts`` runs), so no job stays ``running`` for ever."""
+        job = await self.tasks.io(self.jobs.get, job_id)
+        if job is None:
+            raise not_found("job", job_id)
+        lease = await self.tasks.io(self.jobs.orphaned, job)
+        if lease is not None:
+            await self._rerun(job, lease)
+        return public_job(job)
+
+    async def _rerun(self, job: dict[str, Any], lease: Lease) -> None:
+        """Re-run an orphaned job (holding its lease) on this worker."""
+        attempt = int(job.get("attempt", 1)) + 1
+        logger.warning(
+            "job %s: its worker %s stopped; run %d", job["job_id"], job.get("worker"), attempt
+        )
+        if attempt > self.jobs.max_attempts:
+            error = {
+                "code": "worker_lost",
+                "message": f"the worker computing this job stopped {attempt - 1} times "
+                "(crash, out of memory or restart); the mesh may be too large for this "
+                "service: try a smaller mesh or the neural method",
+                "detail": None,
+            }
+            await self.tasks.io(self.jobs.update, job, state="failed", error=error)
+            await self.tasks.io(lease.release)
+            return
+        self.metrics.jobs_rerun.inc()
+        try:
+            mesh = await self.tasks.io(self.meshes.load, job["mesh_id"])
+        except ApiError as exc:
+            await self.tasks.io(self.jobs.update, job, state="failed", error=error_dict(exc))
+            await self.tasks.io(lease.release)
+            return
+        method, seed = job["method"], int(job["seed"])
+        await self.tasks.io(
+            self.jobs.update, job, state="queued", attempt=attempt, worker=worker_name()
+        )
+        key = self.key(job["mesh_id"], method, seed)
+        self._launch_job(job, key, job["mesh_id"], mesh, method, seed, lease)
 
     def check_model(self) -> tuple[bool, str]:
         """Whether the neural model loads (cached by the library after the first call)."""

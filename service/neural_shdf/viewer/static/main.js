@@ -109,7 +109,8 @@ async function openFile(file) {
     }
     showProgress('Loading the geometry', null);
     setStatus('loading');
-    await loadMesh(meta, method);
+    // The service keeps the name of the first upload of this geometry; show this file's.
+    await loadMesh({ ...meta, filename: file.name }, method);
   } catch (error) {
     hideProgress();
     setStatus(state.meshId ? 'ready' : 'error');
@@ -380,7 +381,17 @@ function showValues() {
   $('parts').closest('label').title = metis ? '' : 'METIS only: the graph cut finds the part count itself';
 }
 
+const CHOICE_NAMES = {
+  neural: 'neural', exact: 'exact (ray cast)', graphcut: 'graph cut', metis: 'METIS (exact part count)',
+};
+
+function fillSelect(select, values) {
+  select.replaceChildren(...values.map((value) => new Option(CHOICE_NAMES[value] || value, value)));
+}
+
 function setUpControls() {
+  fillSelect($('method'), config.methods);
+  fillSelect($('partitioner'), config.partitioners);
   $('clusters').max = String(config.maxClusters);
   $('clusters').value = String(config.defaultClusters);
   $('smoothing').value = String(config.defaultSmoothing);

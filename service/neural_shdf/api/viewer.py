@@ -18,6 +18,7 @@ from typing import Any, get_args
 
 from neural_shdf.api.schemas import SegmentOptions, ShdfMethodName
 from neural_shdf.api.settings import Settings
+from neural_shdf.export import UNLABELED_COLOR
 from neural_shdf.mesh_io import SUPPORTED_FORMATS
 from neural_shdf.segment.params import DEFAULT_CLUSTERS, DEFAULT_SMOOTHING, MAX_CLUSTERS
 
@@ -86,6 +87,7 @@ def page_config(settings: Settings) -> dict[str, Any]:
         "maxClusters": MAX_CLUSTERS,
         "defaultClusters": DEFAULT_CLUSTERS,
         "defaultSmoothing": DEFAULT_SMOOTHING,
+        "unlabeledColor": "#{:02x}{:02x}{:02x}".format(*UNLABELED_COLOR[:3].tolist()),
     }
 
 

@@ -65,6 +65,20 @@ def segment_mesh(
     )
 
 
+def input_face_labels(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.int64]:
+    """One label per face of the input file, in its order (a polygon split into triangles
+    takes the label covering most of its area)."""
+    _, areas = mesh.normals_and_areas
+    return mesh.labels_to_input_faces(labels, weights=areas + 1e-300)
+
+
+def input_face_shdf(mesh: TriangleMesh, values: NDArray) -> NDArray[np.float64]:
+    """One ShDF value per face of the input file, in its order (area-weighted mean over a
+    polygon's triangles)."""
+    _, areas = mesh.normals_and_areas
+    return mesh.to_input_faces(values, weights=areas + 1e-300)
+
+
 def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "neural")) -> float:
     """Run a small generated sphere through the face graph, each ShDF ``method`` and both
     partitioners, so that the compiled kernels are built (first run after an install) or

@@ -331,3 +331,42 @@ def test_service_errors_are_shown_as_messages(page, server, meshes):
     ).json()["error"]["message"]
     assert "Unusable mesh" in page.message() and expected in page.message()
     assert page.status() == "error"
+
+
+def test_dropped_file_and_shdf_heat_map(page, server, meshes):
+    page.js("window.__segmented = []; addEventListener('shdf:segmented', e => __segmented.push(1))")
+    page.js(
+        """
+        const [name, text] = arguments;
+        const transfer = new DataTransfer();
+        transfer.items.add(new File([text], name));
+        dispatchEvent(new DragEvent('dragenter', { dataTransfer: transfer }));
+        if (document.getElementById('drop-overlay').hidden) throw new Error('no drop overlay');
+        dispatchEvent(new DragEvent('drop', { dataTransfer: transfer }));
+        """,
+        "dropped.obj",
+        meshes["small"].read_text(),
+    )
+    page.wait_for("return __segmented.length > 0 && document.body.dataset.status === 'ready'")
+    assert page.js("return window.shdfViewer.state.meta.filename") == "dropped.obj"
+    assert page.js("return document.getElementById('drop-overlay').hidden") is True
+
+    page.js("document.querySelector('input[name=view][value=shdf]').click()")
+    assert page.js("return document.getElementById('shdf-legend').hidden") is False
+    shown = page.segmentation()
+    mesh_id = page.js("return window.shdfViewer.state.meshId")
+    shdf = np.frombuffer(
+        httpx.get(f"{server}/v1/meshes/{mesh_id}/shdf", params={"format": "f32"}).content, "<f4"
+    )
+    values = shdf[np.asarray(shown["faceOrigin"])]
+    colors = np.asarray(shown["colors"], dtype=float).reshape(-1, 3)
+    luminance = colors @ [0.2126, 0.7152, 0.0722]  # viridis brightens monotonically
+    assert np.corrcoef(values, luminance)[0, 1] > 0.95
+    _, first = np.unique(values, return_index=True)
+    same = {float(v): tuple(colors[i]) for v, i in zip(values[first], first, strict=True)}
+    assert all(same[float(v)] == tuple(c) for v, c in zip(values, colors, strict=True))
+
+    page.js("document.querySelector('input[name=view][value=plain]').click()")
+    plain = np.asarray(page.segmentation()["colors"]).reshape(-1, 3)
+    assert len(np.unique(plain, axis=0)) == 1
+    assert severe(page) == []

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from neural_shdf.api.schemas import MeshInfo, ShdfStatus, ShdfValues, UploadResult
 from neural_shdf.api.segmentation import SegmentResult
 from neural_shdf.api.shdf_service import ShdfOutcome
+from neural_shdf.export import part_color_hex
 
 F32_MEDIA_TYPE = "application/octet-stream"
 GLB_MEDIA_TYPE = "model/gltf-binary"
@@ -64,8 +65,6 @@ def segmentation_response(
     timings: dict[str, Any],
 ) -> Response:
     """The `Segmentation` JSON, serialised directly (no per-label model validation)."""
-    from neural_shdf.export import part_color_hex
-
     compact = labels_format == "base64"
     colors = part_color_hex(len(result.part_faces))
     parts = [

@@ -22,7 +22,8 @@ const state = {
   controller: null,   // AbortController of the request in flight
   inflightKey: null,
   releaseTime: null,  // when the slider behind the request in flight was released
-  speculative: null,
+  speculative: null,  // timer of the request sent when a dragged slider is held still
+  dragPending: false, // a dragged value waits for the request in flight
   cache: new Map(),   // request key -> Segmentation, most recent last
   view: 'parts',
   selected: -1,
@@ -187,6 +188,12 @@ async function resegment({ reason, releaseTime = null }) {
     state.releaseTime = start;
     return;
   }
+  if (reason === 'drag' && state.inflightKey) {
+    // While dragging, one request at a time: the newest value goes when this one is back.
+    state.dragPending = true;
+    return;
+  }
+  state.dragPending = false;
   const seq = ++state.seq;
   state.controller?.abort();
   state.controller = new AbortController();
@@ -224,6 +231,11 @@ async function resegment({ reason, releaseTime = null }) {
       cached: fromPageCache,
     };
     state.inflightKey = null;
+    state.controller = null;
+    if (state.dragPending) {
+      state.dragPending = false;
+      resegment({ reason: 'drag' });
+    }
     const service = fromPageCache ? 'from this page' : `service ${Math.round(detail.serverMs)} ms`;
     $('seg-status').textContent = `${body.part_count} parts · ${Math.round(detail.totalMs)} ms (${service})`;
     setStatus('ready');
@@ -231,6 +243,8 @@ async function resegment({ reason, releaseTime = null }) {
   } catch (error) {
     if (seq !== state.seq || error.name === 'AbortError') return;
     state.inflightKey = null;
+    state.controller = null;
+    state.dragPending = false;
     setStatus('ready');
     $('seg-status').textContent = 'segmentation failed';
     showError(error, 'segmentation');

@@ -62,7 +62,11 @@ def compute_shdf_result(
     model: NeuralModel | str | Path | None = None,
     params: ShdfParams | None = None,
 ) -> ShdfResult:
-    """``compute_shdf`` with the producer that ran (``ShdfResult.method``)."""
+    """``compute_shdf`` with the producer that ran (``ShdfResult.method``). ``seed``:
+    0..``MAX_SEED``; by convention the segmentation's ``SegmentParams.seed``."""
+    from neural_shdf.segment.params import check_seed
+
+    seed = None if seed is None else check_seed(seed)
     graph = mesh_face_graph(mesh) if graph is None else graph
     return run_shdf(
         mesh,
@@ -93,16 +97,14 @@ def segment_mesh(
 
 def input_face_labels(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.int64]:
     """One label per face of the input file, in its order (a polygon split into triangles
-    takes the label covering most of its area)."""
-    _, areas = mesh.normals_and_areas
-    return mesh.labels_to_input_faces(labels, weights=areas + 1e-300)
+    takes the label covering most of its area): ``mesh.labels_to_input_faces``."""
+    return mesh.labels_to_input_faces(labels)
 
 
 def input_face_shdf(mesh: TriangleMesh, values: NDArray) -> NDArray[np.float64]:
     """One ShDF value per face of the input file, in its order (area-weighted mean over a
-    polygon's triangles)."""
-    _, areas = mesh.normals_and_areas
-    return mesh.to_input_faces(values, weights=areas + 1e-300)
+    polygon's triangles): ``mesh.to_input_faces``."""
+    return mesh.to_input_faces(values)
 
 
 def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "sampled", "neural")) -> float:

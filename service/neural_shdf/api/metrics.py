@@ -66,12 +66,27 @@ class Metrics:
             "Cache backend errors (degraded to computing).",
             registry=r,
         )
+        self.cache_degraded = Gauge(
+            "neural_shdf_cache_degraded",
+            "1 while Redis is unreachable and the local disk cache serves instead.",
+            registry=r,
+            multiprocess_mode="livemax",
+        )
+        self.jobs_rerun = Counter(
+            "neural_shdf_jobs_rerun",
+            "Jobs re-run because the worker running them stopped.",
+            registry=r,
+        )
         self.jobs_running = Gauge(
             "neural_shdf_jobs_running",
             "Jobs running (summed over live workers).",
             registry=r,
             multiprocess_mode="livesum",
         )
+
+    def count_cache(self, kind: str, *, hit: bool) -> None:
+        """One cache lookup of ``kind`` (mesh, shdf, segmentation), hit or miss."""
+        (self.cache_hits if hit else self.cache_misses).labels(kind).inc()
 
     def value(self, name: str, labels: dict[str, str] | None = None) -> float:
         """Current value of a sample (0 when absent); used by tests and health checks."""

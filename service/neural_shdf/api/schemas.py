@@ -8,7 +8,7 @@ from fastapi import UploadFile
 from pydantic import BaseModel, ConfigDict, Field
 
 from neural_shdf.segment import SegmentParams
-from neural_shdf.segment.params import MAX_CLUSTERS
+from neural_shdf.segment.params import MAX_CLUSTERS, MAX_PARTS, MAX_SEED, MAX_SMOOTHING
 
 #: A requested ShDF method; ``auto`` picks a producer per mesh.
 ShdfMethodName = Literal["auto", "exact", "sampled", "neural"]
@@ -20,6 +20,15 @@ MESH_ID_EXAMPLE = "3f1c0b6e2d4a8f7e9c1b2a3d4e5f60718293a4b5c6d7e8f9a0b1c2d3e4f5a
 MESH_ID_PATTERN = "^[0-9a-f]{64}$"
 JOB_ID_PATTERN = "^[0-9a-f]{32}$"
 JOB_ID_EXAMPLE = "5d0f3c8a9b6e4f21a7c3d2e1f0a9b8c7"
+
+
+def documented_bounds(minimum: float, maximum: float) -> dict[str, float]:
+    """JSON-schema bounds for clients and fuzzers. They are not enforced by pydantic:
+    ``SegmentParams`` (and ``check_seed``) validate, once, for the CLI, API and library."""
+    return {"minimum": minimum, "maximum": maximum}
+
+
+SEED_BOUNDS = documented_bounds(0, MAX_SEED)
 
 
 class ErrorDetail(BaseModel):
@@ -63,7 +72,11 @@ class Check(BaseModel):
 class Readiness(BaseModel):
     """Readiness: the model is loaded and the cache is reachable."""
 
-    status: Literal["ready", "not_ready"] = Field(description="Overall state.", examples=["ready"])
+    status: Literal["ready", "degraded", "not_ready"] = Field(
+        description="Overall state: `degraded` (still 200) while Redis is unreachable and "
+        "the local disk cache serves instead.",
+        examples=["ready"],
+    )
     checks: dict[str, Check] = Field(
         description="Each check by name (`model`, `cache`).",
         examples=[
@@ -142,6 +155,7 @@ class Job(BaseModel):
                     "mesh_id": MESH_ID_EXAMPLE,
                     "method": "exact",
                     "seed": 0,
+                    "attempt": 1,
                     "created_at": 1763791200.0,
                     "updated_at": 1763791203.5,
                     "error": None,
@@ -161,6 +175,12 @@ class Job(BaseModel):
         description="ShDF producer that ran (auto resolved).", examples=["exact"]
     )
     seed: int = Field(description="ShDF seed.", examples=[0])
+    attempt: int = Field(
+        1,
+        ge=1,
+        description="Run of the job: above 1 when it was re-run after its worker stopped.",
+        examples=[1],
+    )
     created_at: float = Field(description="Unix time the job was created.", examples=[1763791200.0])
     updated_at: float = Field(description="Unix time of the last update.", examples=[1763791203.5])
     error: ErrorDetail | None = Field(None, description="Why it failed (state `failed`).")
@@ -214,7 +234,6 @@ class SegmentOptions(BaseModel):
         "default (auto).",
         examples=["auto"],
     )
-    shdf_seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the ShDF.", examples=[0])
     partitioner: Literal["graphcut", "metis"] = Field(
         "graphcut",
         description="`graphcut` (alpha expansion) or `metis` (exactly `parts` parts).",
@@ -222,8 +241,7 @@ class SegmentOptions(BaseModel):
     )
     clusters: int | None = Field(
         None,
-        ge=0,
-        le=MAX_CLUSTERS,
+        json_schema_extra=documented_bounds(0, MAX_CLUSTERS),
         description=(
             "Gaussian mixture components (level of detail, not a part count); "
             "none: the default (9, tuned on the Princeton benchmark); 0: chosen per mesh by BIC."
@@ -232,19 +250,27 @@ class SegmentOptions(BaseModel):
     )
     smoothing: float | None = Field(
         None,
-        ge=0,
-        le=100,
-        description="Smoothness weight lambda of the graph cut.",
+        json_schema_extra=documented_bounds(0, MAX_SMOOTHING),
+        description="Smoothness weight lambda of the graph cut; default 0.12.",
         examples=[0.12],
     )
     parts: int | None = Field(
-        None, ge=1, le=10_000, description="Number of parts for `metis`.", examples=[6]
+        None,
+        json_schema_extra=documented_bounds(1, MAX_PARTS),
+        description="Number of parts for `metis` (at most the mesh's face count).",
+        examples=[6],
     )
     refine: bool = Field(False, description="Re-segment heterogeneous parts.", examples=[False])
     boundary_smoothing: bool = Field(
         False, description="Straighten part boundaries.", examples=[False]
     )
-    seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the segmentation.", examples=[0])
+    seed: int = Field(
+        0,
+        json_schema_extra=SEED_BOUNDS,
+        description="Seed of every random step: the ShDF's sampling (so the ShDF cached by "
+        "an upload with the same `seed` is reused) and the segmentation.",
+        examples=[0],
+    )
     labels_format: Literal["json", "base64"] = Field(
         "json",
         description="`json`: labels as a list; `base64`: the labels as little-endian "
@@ -254,6 +280,7 @@ class SegmentOptions(BaseModel):
     )
 
     def segment_params(self) -> SegmentParams:
+        """The library's parameters, validated there (ParameterError: a 422 that says why)."""
         return SegmentParams.from_attributes(self)
 
 
@@ -290,6 +317,10 @@ class PartSummary(BaseModel):
     faces: int = Field(description="Input faces in the part.", examples=[1200])
     area: float = Field(description="Surface area of the part.", examples=[0.37])
     mean_shdf: float = Field(description="Area-weighted mean ShDF of the part.", examples=[0.42])
+    color: str = Field(
+        description="Display colour `#rrggbb`, the same as in the coloured GLB.",
+        examples=["#e69f00"],
+    )
 
 
 class Timings(BaseModel):
@@ -321,8 +352,20 @@ class Segmentation(BaseModel):
                     "labels_base64": None,
                     "labels_dtype": None,
                     "parts": [
-                        {"label": 0, "faces": 2, "area": 1.0, "mean_shdf": 0.2},
-                        {"label": 1, "faces": 2, "area": 1.0, "mean_shdf": 0.8},
+                        {
+                            "label": 0,
+                            "faces": 2,
+                            "area": 1.0,
+                            "mean_shdf": 0.2,
+                            "color": "#e69f00",
+                        },
+                        {
+                            "label": 1,
+                            "faces": 2,
+                            "area": 1.0,
+                            "mean_shdf": 0.8,
+                            "color": "#56b4e9",
+                        },
                     ],
                     "timings": {
                         "shdf_ms": 0.0,
@@ -359,6 +402,6 @@ class Segmentation(BaseModel):
     )
     parts: list[PartSummary] = Field(
         description="Summary per part, by label.",
-        examples=[[{"label": 0, "faces": 2, "area": 1.0, "mean_shdf": 0.2}]],
+        examples=[[{"label": 0, "faces": 2, "area": 1.0, "mean_shdf": 0.2, "color": "#e69f00"}]],
     )
     timings: Timings = Field(description="Timings.")

@@ -38,6 +38,8 @@ PATCH_RADIUS_FACTOR = 0.2
 #: mean distance between adjacent centroids: a least-squares fit over 12 psb-dev and
 #: dense-dev meshes' windows gave 0.80-0.84 (breadth-first rings zigzag).
 RING_PER_SPACING = 0.82
+#: Adjacent pairs (evenly spread over the graph's sorted pairs) whose mean spacing is used.
+RING_LENGTH_PAIRS = 100_000
 
 
 def smoothing_window(face_count: int) -> int:
@@ -255,35 +257,54 @@ def bilateral_smooth(
 
 
 @kernel
-def _cover_with_patches(indptr, indices, order, radius):  # noqa: ANN001, ANN202
-    """Greedy cover of the faces by patches: the first unassigned face in ``order`` seeds a
-    patch that takes the unassigned faces within ``radius`` edge rings (walking only
-    unassigned faces). Patch id per face."""
+def _cover_with_patches(indptr, indices, radius):  # noqa: ANN001, ANN202
+    """Patch id per face: seeds at least ``2 radius`` edge rings apart (greedy, in face
+    order: a face becomes a seed unless an earlier seed lies closer), then every face
+    joins its nearest seed (multi-source breadth-first walk; ties: the earlier seed)."""
     face_count = len(indptr) - 1
-    patch_of = np.full(face_count, -1, dtype=np.int64)
+    seen_by = np.full(face_count, -1, dtype=np.int64)
     queue = np.empty(face_count, dtype=np.int64)
     ring = np.empty(face_count, dtype=np.int64)
-    patches = 0
-    for seed in order:
-        if patch_of[seed] >= 0:
+    seeds = np.empty(face_count, dtype=np.int64)
+    seed_count = 0
+    covered = np.zeros(face_count, dtype=np.bool_)
+    for face in range(face_count):
+        if covered[face]:
             continue
-        patch_of[seed] = patches
-        queue[0] = seed
+        seeds[seed_count] = face
+        seed_count += 1
+        queue[0] = face
         ring[0] = 0
+        seen_by[face] = face
+        covered[face] = True
         head, tail = 0, 1
         while head < tail:
             current, level = queue[head], ring[head]
             head += 1
-            if level == radius:
+            if level == 2 * radius - 1:
                 continue
             for edge in range(indptr[current], indptr[current + 1]):
                 other = indices[edge]
-                if patch_of[other] < 0:
-                    patch_of[other] = patches
+                if seen_by[other] != face:
+                    seen_by[other] = face
+                    covered[other] = True
                     queue[tail] = other
                     ring[tail] = level + 1
                     tail += 1
-        patches += 1
+    patch_of = np.full(face_count, -1, dtype=np.int64)
+    for patch in range(seed_count):
+        patch_of[seeds[patch]] = patch
+        queue[patch] = seeds[patch]
+    head, tail = 0, seed_count
+    while head < tail:
+        current = queue[head]
+        head += 1
+        for edge in range(indptr[current], indptr[current + 1]):
+            other = indices[edge]
+            if patch_of[other] < 0:
+                patch_of[other] = patch_of[current]
+                queue[tail] = other
+                tail += 1
     return patch_of
 
 
@@ -380,7 +401,8 @@ def ring_length(graph: FaceGraph, centroids: NDArray) -> float:
     distance on the surface."""
     if len(graph.pairs) == 0:
         return 0.0
-    offset = centroids[graph.pairs[:, 0]] - centroids[graph.pairs[:, 1]]
+    pairs = graph.pairs[:: max(1, len(graph.pairs) // RING_LENGTH_PAIRS)]
+    offset = centroids[pairs[:, 0]] - centroids[pairs[:, 1]]
     return RING_PER_SPACING * float(np.mean(np.sqrt(np.einsum("ij,ij->i", offset, offset))))
 
 
@@ -397,7 +419,7 @@ def patch_bilateral(
     """``bilateral_smooth`` for wide windows, computed over patches of faces.
 
     The faces are covered by patches of about ``PATCH_RADIUS_FACTOR x window`` edge
-    rings (greedy, walking the face graph). A face's window is its patch's: the
+    rings (``_cover_with_patches``, walking the face graph). A face's window is its patch's: the
     patches within a few steps on the patch graph (so the window follows the surface,
     as the rings do) whose centre lies within ``window_size`` rings of the patch's
     centre, measured as straight distance over ``ring_length``. Each such patch weighs
@@ -413,9 +435,7 @@ def patch_bilateral(
     indptr = adjacency.indptr.astype(np.int64)
     indices = adjacency.indices.astype(np.int64)
     radius = max(1, int(round(PATCH_RADIUS_FACTOR * window_size)))
-    from neural_shdf.shdf.exact import spatial_order
-
-    patch_of = _cover_with_patches(indptr, indices, spatial_order(centroids), radius)
+    patch_of = _cover_with_patches(indptr, indices, radius)
     patches = int(patch_of.max()) + 1
     count = np.bincount(patch_of, minlength=patches).astype(np.float64)
     mean = np.bincount(patch_of, values, minlength=patches) / count
@@ -433,7 +453,7 @@ def patch_bilateral(
         ),
         shape=(patches, patches),
     )
-    hops = window_size // (2 * radius + 1) + 2
+    hops = window_size // (2 * radius) + 2
     starts, members = _patch_windows(
         patch_graph.indptr.astype(np.int64), patch_graph.indices.astype(np.int64), hops
     )

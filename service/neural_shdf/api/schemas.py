@@ -228,7 +228,12 @@ class SegmentOptions(BaseModel):
         examples=[0.12],
     )
     parts: int | None = Field(
-        None, ge=1, le=10_000, description="Number of parts for `metis`.", examples=[6]
+        None,
+        ge=1,
+        le=10_000,
+        description="Number of parts. `graphcut`: a cut of its part tree (at most its leaves; "
+        "instant once the tree exists); `metis`: exactly this many. None: automatic.",
+        examples=[6],
     )
     refine: bool = Field(False, description="Re-segment heterogeneous parts.", examples=[False])
     boundary_smoothing: bool = Field(

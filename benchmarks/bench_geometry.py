@@ -5,8 +5,10 @@ Stages of ``pipeline.mesh_face_graph``: face normals and areas
 vertex welding (``weld_faces``) and the face adjacency graph
 (``build_face_graph``: edge matching, dihedral angles, concavity). Meshes: a
 dumbbell of about 100k and 1M faces, the same 1M faces as a triangle soup
-(every corner its own vertex, as STL files come: the weld's worst case), and
-psb-dev 281 subdivided twice (808k faces) where ``../shared/data`` exists.
+(every corner its own vertex, as STL files come: the weld's worst case), one
+tetrahedron repeated in place to 1M faces (every edge shared by 500k faces: the
+face graph must stay linear, ``geometry.EDGE_BAND``), and psb-dev 281 subdivided
+twice (808k faces) where ``../shared/data`` exists.
 Each stage's best of ``--repeat`` runs after a warm-up (numba kernels load
 from their disk cache once per process: ``warmup_s``); ``s_per_Mface`` is the
 three stages' total per million faces. ``cpu_s`` is process CPU time (the
@@ -39,6 +41,9 @@ def meshes() -> list[tuple[str, np.ndarray, np.ndarray]]:
     vertices, faces = out[-1][1], out[-1][2]
     soup_faces = np.arange(3 * len(faces)).reshape(-1, 3)
     out.append(("soup-1M", vertices[faces].reshape(-1, 3), soup_faces))
+    tetrahedron = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+    out.append(("tet-stack-1M", corners, np.tile(tetrahedron, (250_000, 1))))
     if (PSB_MESH / "281.off").exists():
         base = trimesh.load(PSB_MESH / "281.off", process=False)
         vertices, faces = trimesh.remesh.subdivide(base.vertices, base.faces)

@@ -1,9 +1,12 @@
 """The library's front door: warm-up of the compiled paths."""
 
+import numpy as np
 import pytest
 
 from neural_shdf import geometry, pipeline
+from neural_shdf.mesh import TriangleMesh
 from neural_shdf.neural import inference
+from neural_shdf.segment import SegmentParams
 from neural_shdf.shdf import exact
 
 
@@ -25,3 +28,30 @@ def test_warm_up_skips_a_missing_model(monkeypatch, tmp_path):
     assert pipeline.warm_up() > 0
     with pytest.raises(Exception, match="not found"):
         inference.load_model()
+
+
+@pytest.mark.parametrize(
+    "params",
+    [
+        SegmentParams(),
+        SegmentParams(partitioner="metis", parts=4),
+        SegmentParams(refine=True, boundary_smoothing=True, clusters=0),
+    ],
+    ids=["graphcut", "metis", "refined"],
+)
+def test_a_tetrahedron_repeated_in_place_segments_like_one(params):
+    """Every edge shared by 12k faces: the face graph, the neural ShDF's samples, its
+    smoothing and the partitioners stay linear (all pairs would be 108M edges)."""
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    tetrahedron = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
+    stack = TriangleMesh(vertices, np.tile(tetrahedron, (6000, 1)))
+    graph = pipeline.mesh_face_graph(stack)
+    assert len(graph.pairs) <= 3 * geometry.EDGE_BAND * stack.face_count
+    shdf = pipeline.compute_shdf(stack, method="neural", graph=graph)
+    assert shdf.shape == (stack.face_count,) and np.isfinite(shdf).all()
+    labels = pipeline.segment_mesh(stack, shdf, params, graph=graph)
+    assert labels.shape == (stack.face_count,) and labels.min() >= 0
+    if params.partitioner == "metis":
+        assert len(np.unique(labels)) == 4
+    again = pipeline.segment_mesh(stack, shdf, params, graph=graph)
+    np.testing.assert_array_equal(labels, again)

@@ -1,4 +1,4 @@
-"""Command-line interface: ``neural-shdf shdf|segment|eval|serve``.
+"""Command-line interface: ``neural-shdf shdf|segment|unwrap|batch|eval|serve``.
 
 A stable contract for pipelines: per-face outputs have one line per face of the
 input file, in the input file's order; errors go to stderr with a non-zero exit.
@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from neural_shdf.errors import NeuralShdfError
+from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
+from neural_shdf.errors import NeuralShdfError, ParameterError
 
 #: Exit codes: 0 ok, 1 unexpected failure, 2 bad input or usage, 3 model unavailable.
 EXIT_BAD_INPUT = 2
@@ -47,12 +48,14 @@ def progress_bar(description: str, enabled: bool = True) -> Iterator[Callable[[f
         bar.close()
 
 
-def _load(path: str, file_type: str | None):
+def _load(args: argparse.Namespace):
     from neural_shdf.mesh_io import load_mesh
 
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"mesh file not found: {path}")
-    return load_mesh(Path(path), file_type)
+    if not Path(args.mesh).is_file():
+        raise FileNotFoundError(f"mesh file not found: {args.mesh}")
+    return load_mesh(
+        Path(args.mesh), args.format, max_faces=args.max_faces, max_vertices=args.max_vertices
+    )
 
 
 def _shdf(mesh, method: str, seed: int, graph, quiet: bool) -> np.ndarray:
@@ -64,31 +67,29 @@ def _shdf(mesh, method: str, seed: int, graph, quiet: bool) -> np.ndarray:
 
 def cmd_shdf(args: argparse.Namespace) -> int:
     from neural_shdf.export import write_values
-    from neural_shdf.pipeline import mesh_face_graph
+    from neural_shdf.pipeline import input_face_shdf, mesh_face_graph
 
-    mesh = _load(args.mesh, args.format)
+    mesh = _load(args)
     values = _shdf(mesh, args.method, args.seed, mesh_face_graph(mesh), args.quiet)
-    _, areas = mesh.normals_and_areas
-    write_values(args.output, mesh.to_input_faces(values, weights=areas + 1e-300))
+    write_values(args.output, input_face_shdf(mesh, values))
     return 0
 
 
 def cmd_segment(args: argparse.Namespace) -> int:
-    from neural_shdf.errors import ParameterError
     from neural_shdf.export import colored_glb, parts_glb, write_labels, write_part_tree
-    from neural_shdf.pipeline import input_face_labels, mesh_face_graph, segment_mesh_with_details
+    from neural_shdf.pipeline import input_face_parts, mesh_face_graph, segment_mesh_with_details
     from neural_shdf.segment import SegmentParams
 
     params = SegmentParams.from_attributes(args)
     if args.tree and params.partitioner != "graphcut":
         raise ParameterError("--tree needs the graphcut partitioner (metis makes no part tree)")
-    mesh = _load(args.mesh, args.format)
+    mesh = _load(args)
     graph = mesh_face_graph(mesh)
     shdf = _shdf(mesh, args.method, args.seed, graph, args.quiet)
     start = time.perf_counter()
     result = segment_mesh_with_details(mesh, shdf, params, graph=graph)
     labels = result.labels
-    face_labels, face_leaves = input_face_labels(mesh, result)
+    face_labels, face_leaves = input_face_parts(mesh, result)
     write_labels(args.output, face_labels)
     if args.tree:
         write_part_tree(args.tree, result.tree, face_leaves, result.part_count)
@@ -100,6 +101,45 @@ def cmd_segment(args: argparse.Namespace) -> int:
         parts = len(np.unique(labels))
         elapsed = time.perf_counter() - start
         print(f"{parts} parts, {mesh.input_face_count} faces, segmented in {elapsed:.2f} s",
+              file=sys.stderr)
+    return 0
+
+
+def cmd_unwrap(args: argparse.Namespace) -> int:
+    from neural_shdf.export import unwrapped_glb, write_labels, write_obj_with_uvs
+    from neural_shdf.pipeline import input_face_labels, mesh_face_graph, segment_mesh
+    from neural_shdf.segment import SegmentParams
+    from neural_shdf.unwrap import UnwrapParams, atlas_layout_image, png_bytes, unwrap
+
+    output = Path(args.output)
+    if output.suffix.lower() not in (".glb", ".obj"):
+        raise ParameterError(f"-o must end in .glb or .obj, got {output.name!r}")
+    params = SegmentParams.from_attributes(args)
+    unwrap_params = UnwrapParams(
+        atlas_size=args.atlas_size, padding=args.padding, max_stretch=args.max_stretch
+    )
+    mesh = _load(args)
+    graph = mesh_face_graph(mesh)
+    shdf = _shdf(mesh, args.method, args.seed, graph, args.quiet)
+    start = time.perf_counter()
+    labels = segment_mesh(mesh, shdf, params, graph=graph)
+    atlas = unwrap(mesh, labels, unwrap_params)
+    layout = png_bytes(atlas_layout_image(atlas, size=args.atlas_size))
+    split = 0
+    if output.suffix.lower() == ".glb":
+        output.write_bytes(unwrapped_glb(mesh, atlas, texture_png=layout))
+    else:
+        split = write_obj_with_uvs(output, mesh, atlas)
+    if args.atlas_png:
+        Path(args.atlas_png).write_bytes(layout)
+    if args.labels:
+        write_labels(args.labels, input_face_labels(mesh, labels))
+    if not args.quiet:
+        elapsed = time.perf_counter() - start
+        parts = len(np.unique(labels))
+        note = f"; {split} polygons split by a chart boundary written as triangles" if split else ""
+        print(f"{parts} parts, {atlas.chart_count} charts, atlas {atlas.width}x{atlas.height} "
+              f"({atlas.utilization:.0%} used), unwrapped in {elapsed:.2f} s{note}",
               file=sys.stderr)
     return 0
 
@@ -144,7 +184,63 @@ def _add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=["neural", "exact"], default="neural",
                         help="ShDF from the neural network (default, fast) or exact ray casting")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random step")
+    parser.add_argument(
+        "--max-faces",
+        type=int,
+        default=DEFAULT_MAX_FACES,
+        help="refuse meshes with more triangles, counting glTF instances "
+        f"(default {DEFAULT_MAX_FACES}, as the service)",
+    )
+    parser.add_argument(
+        "--max-vertices",
+        type=int,
+        default=DEFAULT_MAX_VERTICES,
+        help=f"refuse meshes with more vertices (default {DEFAULT_MAX_VERTICES})",
+    )
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+
+
+def _add_segment_options(parser: argparse.ArgumentParser) -> None:
+    """The segmentation parameters (``SegmentParams`` fields), shared by segment and batch."""
+    parser.add_argument("--partitioner", choices=["graphcut", "metis"], default="graphcut")
+    parser.add_argument("--clusters", type=_clusters,
+                        help="mixture components k, a level of detail (default 9), "
+                             "or 'auto' to choose k per mesh by BIC")
+    parser.add_argument("--smoothing", type=float, help="graph-cut smoothness lambda")
+    parser.add_argument("--parts", type=int,
+                        help="number of parts: a cut of the graph cut's part tree (at most its "
+                             "leaves), or exactly this many with metis (default: automatic)")
+    parser.add_argument("--refine", action="store_true", help="recursively refine parts")
+    parser.add_argument("--boundary-smoothing", action="store_true",
+                        help="alpha-expansion pass that smooths part boundaries")
+
+
+def cmd_batch(args: argparse.Namespace) -> int:
+    from neural_shdf.batch import MANIFEST_NAME, run_batch, summary
+    from neural_shdf.segment import SegmentParams
+
+    if args.shdf_only and args.formats and set(args.formats) - {"shdf"}:
+        raise ParameterError("--shdf-only writes only the ShDF; drop the other --formats")
+    outputs = ["shdf"] if args.shdf_only else (args.formats or ["seg"])
+    rows = run_batch(
+        args.inputs,
+        args.output,
+        method=args.method,
+        seed=args.seed,
+        params=SegmentParams.from_attributes(args),
+        outputs=outputs,
+        file_type=args.format,
+        max_faces=args.max_faces,
+        cache=args.cache,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        progress=not args.quiet,
+    )
+    counts = summary(rows)
+    if not args.quiet:
+        print(f"{counts['ok']} done, {counts['skipped']} already done, {counts['failed']} failed; "
+              f"manifest: {Path(args.output) / MANIFEST_NAME}", file=sys.stderr)
+    return EXIT_BAD_INPUT if counts["failed"] else 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -159,17 +255,7 @@ def build_parser() -> argparse.ArgumentParser:
     segment = commands.add_parser("segment", help="per-face part labels, one integer per line")
     _add_mesh_arguments(segment)
     segment.add_argument("-o", "--output", required=True, help="output .seg file")
-    segment.add_argument("--partitioner", choices=["graphcut", "metis"], default="graphcut")
-    segment.add_argument("--clusters", type=_clusters,
-                         help="mixture components k, a level of detail (default 9), "
-                              "or 'auto' to choose k per mesh by BIC")
-    segment.add_argument("--smoothing", type=float, help="graph-cut smoothness lambda")
-    segment.add_argument("--parts", type=int,
-                         help="number of parts: a cut of the graph cut's part tree (at most its "
-                              "leaves), or exactly this many with metis (default: automatic)")
-    segment.add_argument("--refine", action="store_true", help="recursively refine parts")
-    segment.add_argument("--boundary-smoothing", action="store_true",
-                         help="alpha-expansion pass that smooths part boundaries")
+    _add_segment_options(segment)
     segment.add_argument("--colored", metavar="OUT.glb", help="write a GLB coloured by part")
     segment.add_argument("--tree", metavar="OUT.json",
                          help="write the part tree (graphcut): leaf per input face, parent of "
@@ -177,6 +263,54 @@ def build_parser() -> argparse.ArgumentParser:
     segment.add_argument("--parts-glb", metavar="OUT.glb",
                          help="write a GLB with one mesh node per part")
     segment.set_defaults(run=cmd_segment)
+
+    batch = commands.add_parser(
+        "batch", help="segment many meshes (files, folders, manifests); resumable, parallel",
+        description="Per asset: OUT_DIR/<name>.seg (and/or .shdf, .colored.glb, .parts.glb) "
+                    "and a row of OUT_DIR/manifest.csv. A re-run skips finished assets. "
+                    "Exit code 2 when any asset failed (its row says why).")
+    batch.add_argument("inputs", nargs="+", metavar="INPUT",
+                       help="mesh file, folder (searched recursively) or manifest "
+                            "(.txt/.lst: one path per line; .csv: a 'path' column)")
+    batch.add_argument("-o", "--output", required=True, metavar="OUT_DIR",
+                       help="output folder")
+    batch.add_argument("--format", help="file type when the extensions do not say it")
+    batch.add_argument("--method", choices=["neural", "exact"], default="neural",
+                       help="ShDF from the neural network (default, fast) or exact ray casting")
+    batch.add_argument("--seed", type=int, default=0, help="seed of every random step")
+    _add_segment_options(batch)
+    batch.add_argument("--shdf-only", action="store_true",
+                       help="write only the per-face ShDF (no segmentation)")
+    batch.add_argument("--formats", nargs="+", choices=["seg", "shdf", "colored", "parts"],
+                       help="outputs per asset (default: seg): labels, ShDF values, "
+                            "GLB coloured by part, GLB with one node per part")
+    batch.add_argument("--workers", type=int,
+                       help="local worker processes (default: one per core)")
+    batch.add_argument("--scheduler", metavar="ADDRESS",
+                       help="run on a Dask distributed cluster (tcp://host:port); needs the "
+                            "'distributed' extra and the same paths on every worker")
+    batch.add_argument("--cache", metavar="URL_OR_DIR",
+                       help="ShDF cache shared with the service: redis://host:port/db or a folder")
+    batch.add_argument("--max-faces", type=int, default=2_000_000,
+                       help="assets with more triangles fail without being computed")
+    batch.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
+    batch.set_defaults(run=cmd_batch)
+
+    unwrap = commands.add_parser(
+        "unwrap", help="UVs charted part by part, packed into one atlas (GLB or OBJ with vt)"
+    )
+    _add_mesh_arguments(unwrap)
+    unwrap.add_argument("-o", "--output", required=True,
+                        help="OUT.glb (UVs + atlas preview texture) or OUT.obj (v/vt per corner)")
+    _add_segment_options(unwrap)
+    unwrap.add_argument("--atlas-size", type=int, default=1024, help="atlas side in texels")
+    unwrap.add_argument("--padding", type=int, default=2, help="texels between charts")
+    unwrap.add_argument("--max-stretch", type=float, default=1.1,
+                        help="largest L2 stretch of a part kept as one chart (1 = no stretch)")
+    unwrap.add_argument("--atlas-png", metavar="OUT.png",
+                        help="write the atlas layout (charts coloured by part, outlined)")
+    unwrap.add_argument("--labels", metavar="OUT.seg", help="also write the part labels")
+    unwrap.set_defaults(run=cmd_unwrap)
 
     evaluate = commands.add_parser("eval", help="Princeton Segmentation Benchmark metrics")
     evaluate.add_argument("bench_dir", help="folder with off/, seg/ (and cgal/) subfolders")

@@ -11,6 +11,10 @@ from numpy.typing import NDArray
 from neural_shdf.compiled import kernel
 from neural_shdf.constants import AREA_EPS
 
+#: Along an edge shared by more than two faces, each face links the next ``EDGE_BAND``
+#: faces (in face order): every pair of up to ``EDGE_BAND + 1`` faces, linear beyond.
+EDGE_BAND = 3
+
 
 def face_normals(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
     """Unit normals (F, 3) and areas (F,) of triangles; degenerate faces get a zero normal.
@@ -93,11 +97,14 @@ def build_face_graph(
 ) -> FaceGraph:
     """Face adjacency over shared edges.
 
-    Works on open, non-manifold and multi-shell meshes: an edge shared by k > 2
-    faces links every pair of them; boundary edges link nothing. Edges are found
-    by vertex index, so callers that want welding must weld first. Two faces that
-    share several edges are linked once, through the edge shared by the fewest
-    faces (ties: the lowest vertex pair).
+    Works on open, non-manifold and multi-shell meshes; boundary edges link
+    nothing. An edge shared by k faces links each of them (in face order) to the
+    next ``EDGE_BAND`` of them: every pair when ``k <= EDGE_BAND + 1`` (T and X
+    junctions), a band of ``O(k)`` pairs above, so the graph stays linear in the
+    faces even when thousands of faces share one edge (a shape repeated in place).
+    Edges are found by vertex index, so callers that want welding must weld first.
+    Two faces that share several edges are linked once, through the edge shared by
+    the fewest faces (ties: the lowest vertex pair).
     """
     vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
     faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
@@ -111,7 +118,7 @@ def build_face_graph(
     normals = np.ascontiguousarray(normals, dtype=np.float64).reshape(n_faces, 3)
     n_vertices = int(faces.max()) + 1
     edge_table, slot = _sorted_edges(faces, n_vertices)
-    pairs, edge_vertices = _adjacent_pairs(faces, edge_table, slot, n_vertices)
+    pairs, edge_vertices = _adjacent_pairs(faces, edge_table, slot, n_vertices, EDGE_BAND)
     edge_length, dihedral, concave = _pair_geometry(vertices, faces, normals, pairs, edge_vertices)
     return FaceGraph(pairs, edge_vertices, edge_length, dihedral, concave, n_faces)
 
@@ -181,29 +188,36 @@ def _sort_buckets(bucket_start, key, payload):  # pragma: no cover - numba
 
 
 @kernel
-def _adjacent_pairs(faces, edge_table, slot, n_vertices):  # pragma: no cover - numba
+def _adjacent_pairs(faces, edge_table, slot, n_vertices, band):  # pragma: no cover - numba
     """Face pairs ``a < b`` sharing an edge, sorted, each once, with the edge it shares.
 
-    Face by face, the later faces in the groups of its three edges, sorted by
-    ``(b, group size, edge key)``; a pair met on several edges keeps the edge
-    shared by the fewest faces, then the lowest. ``edge_table, slot`` come from
-    ``_sorted_edges``.
+    Along an edge (its group in ``edge_table``, faces ascending) each face is linked
+    to the next ``band`` faces, so a group of ``k <= band + 1`` faces links every
+    pair and a larger one ``O(k * band)`` pairs: linear in the faces whatever the
+    valence. Face by face, the candidates from its three edges are sorted by
+    ``(b, group size, edge key)``; a pair met on several edges keeps the edge shared
+    by the fewest faces, then the lowest. ``edge_table, slot`` come from ``_sorted_edges``.
     """
     edge_count = edge_table.shape[0]
+    group_size = np.empty(edge_count, dtype=np.int32)  # faces on the edge at each position
     upper_bound = 0
-    largest = 0
     i = 0
     while i < edge_count:
         j = i + 1
         while j < edge_count and edge_table[j, 0] == edge_table[i, 0]:
             j += 1
-        upper_bound += (j - i) * (j - i - 1) // 2
-        largest = max(largest, j - i)
+        group_size[i:j] = j - i
+        reach = j - i - 1  # how far the first face looks: sum of min(band, 0..reach)
+        upper_bound += (
+            reach * (reach + 1) // 2
+            if reach <= band
+            else (band * (band + 1) // 2 + band * (reach - band))
+        )
         i = j
     pairs = np.empty((upper_bound, 2), dtype=np.int64)
     edge_vertices = np.empty((upper_bound, 2), dtype=np.int64)
-    neighbours = np.empty(3 * largest, dtype=np.int64)
-    rank = np.empty((3 * largest, 2), dtype=np.int64)  # per neighbour: group size, edge key
+    neighbours = np.empty(3 * band, dtype=np.int64)
+    rank = np.empty((3 * band, 2), dtype=np.int64)  # per neighbour: group size, edge key
     kept = 0
     for face in range(faces.shape[0]):
         found = 0
@@ -212,14 +226,10 @@ def _adjacent_pairs(faces, edge_table, slot, n_vertices):  # pragma: no cover - 
             if position < 0:
                 continue
             key = edge_table[position, 0]
-            first = position
-            while first > 0 and edge_table[first - 1, 0] == key:
-                first -= 1
-            last = position + 1
-            while last < edge_count and edge_table[last, 0] == key:
-                last += 1
-            size = last - first
-            for k in range(first, last):
+            size = group_size[position]
+            for k in range(position + 1, min(position + 1 + band, edge_count)):
+                if edge_table[k, 0] != key:
+                    break
                 neighbour = edge_table[k, 1]
                 if neighbour <= face:
                     continue

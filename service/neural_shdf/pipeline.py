@@ -79,7 +79,21 @@ def segment_mesh_with_details(
     )
 
 
-def input_face_labels(
+def input_face_labels(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.int64]:
+    """One label per face of the input file, in its order (a polygon split into triangles
+    takes the label covering most of its area)."""
+    _, areas = mesh.normals_and_areas
+    return mesh.labels_to_input_faces(labels, weights=areas + 1e-300)
+
+
+def input_face_shdf(mesh: TriangleMesh, values: NDArray) -> NDArray[np.float64]:
+    """One ShDF value per face of the input file, in its order (area-weighted mean over a
+    polygon's triangles)."""
+    _, areas = mesh.normals_and_areas
+    return mesh.to_input_faces(values, weights=areas + 1e-300)
+
+
+def input_face_parts(
     mesh: TriangleMesh, result: SegmentResult
 ) -> tuple[NDArray[np.int64], NDArray[np.int64] | None]:
     """(part label, leaf of the part tree or None) per input face; -1 for faces without triangles.
@@ -87,10 +101,9 @@ def input_face_labels(
     With a tree, the input faces' labels are the tree's cut of their leaves, so a
     client that re-cuts the tree (see ``export.part_tree_document``) gets the same.
     """
-    _, areas = mesh.normals_and_areas
     if result.tree is None:
-        return mesh.labels_to_input_faces(result.labels, weights=areas + 1e-300), None
-    leaves = mesh.labels_to_input_faces(result.tree.leaf_labels, weights=areas + 1e-300)
+        return input_face_labels(mesh, result.labels), None
+    leaves = input_face_labels(mesh, result.tree.leaf_labels)
     return result.tree.relabel(leaves, result.part_count), leaves
 
 

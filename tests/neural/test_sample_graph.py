@@ -37,6 +37,24 @@ def test_greedy_selection_matches_sequential_dart_throwing() -> None:
     assert kept.tolist() == sequential_disk_selection(points, 0.12)
 
 
+def test_greedy_selection_is_linear_when_candidates_pile_up() -> None:
+    # 200k candidates within one radius of each other (a surface repeated in place):
+    # 2e10 conflict pairs, which the selection must never list.
+    points = np.random.default_rng(4).random((200_000, 3)) * 0.01
+    assert greedy_disk_selection(points, 1.0).tolist() == [0]
+    spread = np.random.default_rng(5).random((3000, 3))
+    assert greedy_disk_selection(np.repeat(spread, 20, axis=0), 0.1).tolist() == [
+        20 * i for i in sequential_disk_selection(spread, 0.1)
+    ]
+
+
+def test_greedy_selection_on_a_grid_too_fine_for_cell_coordinates() -> None:
+    points = np.random.default_rng(6).random((300, 3))
+    points[0] = [1e15, 0, 0]  # span / radius beyond the grid's integer range
+    kept = greedy_disk_selection(points, 1e-3)
+    assert kept.tolist() == sequential_disk_selection(points, 1e-3)
+
+
 def test_samples_are_poisson_disk_and_deterministic() -> None:
     sphere = trimesh.creation.icosphere(subdivisions=4)
     graph = build_sample_graph(sphere.vertices, sphere.faces, SPEC, seed=5)

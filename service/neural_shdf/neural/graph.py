@@ -145,12 +145,33 @@ def sample_surface(
     return points, face_ids.astype(np.int64)
 
 
+#: Above this many grid cells along an axis, the dart thrower's grid coordinates could
+#: lose precision: the conflict-pair computation (same result) is used instead.
+_MAX_GRID_CELLS = 2**40
+
+
 def greedy_disk_selection(points: NDArray, radius: float) -> NDArray[np.int64]:
     """Indices of the points a sequential dart thrower keeps (in index order) for ``radius``.
 
-    Point i is kept iff no kept point j < i lies closer than ``radius``; computed
-    in vectorised rounds over the conflict pairs (same result as the loop).
+    Point i is kept iff no kept point j < i lies within ``radius``. The kept points
+    sit in a grid of cells of side ``radius / sqrt(3)`` (at most one kept point per
+    cell, up to rounding), so each point checks the few kept points of the 5^3 cells
+    around it: linear time and memory however densely the candidates pile up (a
+    surface repeated in place puts thousands of candidates within one radius).
     """
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(points) == 0:
+        return np.zeros(0, dtype=np.int64)
+    cell_size = radius / math.sqrt(3.0)
+    span = float((points.max(axis=0) - points.min(axis=0)).max())
+    if not cell_size > 0 or not span / cell_size < _MAX_GRID_CELLS:
+        return _conflict_pair_selection(points, radius)
+    return _dart_throw(points, radius, cell_size)
+
+
+def _conflict_pair_selection(points: NDArray, radius: float) -> NDArray[np.int64]:
+    """``greedy_disk_selection`` in vectorised rounds over all conflict pairs (memory grows
+    with the pairs: only for grids too fine for integer cell coordinates)."""
     n = len(points)
     pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
     if len(pairs) == 0:
@@ -167,6 +188,84 @@ def greedy_disk_selection(points: NDArray, radius: float) -> NDArray[np.int64]:
         low, high = low[alive], high[alive]
     state[state == 0] = 1
     return np.flatnonzero(state == 1).astype(np.int64)
+
+
+@kernel
+def _dart_throw(points, radius, cell_size):  # pragma: no cover - numba
+    """Sequential dart throwing over a hash grid; kept points chained per cell."""
+    n = points.shape[0]
+    squared_radius = radius * radius
+    origin = np.empty(3)
+    for axis in range(3):
+        origin[axis] = points[:, axis].min()
+    capacity = 16
+    while capacity < 2 * n:
+        capacity *= 2
+    mask = capacity - 1
+    table_cell = np.empty((capacity, 3), dtype=np.int64)
+    table_head = np.full(capacity, -1, dtype=np.int64)  # -1: empty slot
+    chained = np.full(n, -1, dtype=np.int64)  # next kept point in the same cell
+    kept = np.empty(n, dtype=np.int64)
+    kept_count = 0
+    cell = np.empty(3, dtype=np.int64)
+    for i in range(n):
+        for axis in range(3):
+            cell[axis] = np.int64(math.floor((points[i, axis] - origin[axis]) / cell_size))
+        conflict = False
+        for dx in range(-2, 3):
+            for dy in range(-2, 3):
+                for dz in range(-2, 3):
+                    x, y, z = cell[0] + dx, cell[1] + dy, cell[2] + dz
+                    slot = _cell_hash(x, y, z) & mask
+                    while table_head[slot] >= 0:
+                        if (
+                            table_cell[slot, 0] == x
+                            and table_cell[slot, 1] == y
+                            and table_cell[slot, 2] == z
+                        ):
+                            j = table_head[slot]
+                            while j >= 0:
+                                ex = points[i, 0] - points[j, 0]
+                                ey = points[i, 1] - points[j, 1]
+                                ez = points[i, 2] - points[j, 2]
+                                if ex * ex + ey * ey + ez * ez <= squared_radius:
+                                    conflict = True
+                                    break
+                                j = chained[j]
+                            break
+                        slot = (slot + 1) & mask
+                    if conflict:
+                        break
+                if conflict:
+                    break
+            if conflict:
+                break
+        if conflict:
+            continue
+        kept[kept_count] = i
+        kept_count += 1
+        slot = _cell_hash(cell[0], cell[1], cell[2]) & mask
+        while table_head[slot] >= 0 and not (
+            table_cell[slot, 0] == cell[0]
+            and table_cell[slot, 1] == cell[1]
+            and table_cell[slot, 2] == cell[2]
+        ):
+            slot = (slot + 1) & mask
+        if table_head[slot] >= 0:
+            chained[i] = table_head[slot]
+        table_cell[slot, 0], table_cell[slot, 1], table_cell[slot, 2] = cell[0], cell[1], cell[2]
+        table_head[slot] = i
+    return kept[:kept_count].copy()
+
+
+@kernel(inline=True)
+def _cell_hash(x, y, z):  # pragma: no cover - numba
+    """A mixed 63-bit hash of integer cell coordinates."""
+    key = np.uint64(x) * np.uint64(0x9E3779B97F4A7C15)
+    key ^= np.uint64(y) * np.uint64(0xC2B2AE3D27D4EB4F) + (key >> np.uint64(29))
+    key ^= np.uint64(z) * np.uint64(0x165667B19E3779F9) + (key >> np.uint64(31))
+    key ^= key >> np.uint64(32)
+    return np.int64(key >> np.uint64(1))
 
 
 def _cone_edges(

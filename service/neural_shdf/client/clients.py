@@ -1,0 +1,328 @@
+"""``Client`` (blocking) and ``AsyncClient`` (asyncio) over httpx.
+
+Both drive the same operations (``neural_shdf.client.operations``); they differ only in how
+a request is sent and how a pause is waited. Each request is retried with backoff on
+502/503/504 and on timeouts or refused connections; an error answer raises the matching
+``ServiceError`` with the service's message.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Self, Unpack
+
+import httpx
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.client import operations as ops
+from neural_shdf.client.errors import error_from_transport
+from neural_shdf.client.operations import Call, Operation, Pause, PollPolicy, RetryPolicy
+from neural_shdf.client.results import Job, MeshInfo, Segmentation, Upload
+
+DEFAULT_URL = "http://127.0.0.1:8000"
+MeshSource = str | Path | bytes
+
+
+def _timeout(seconds: float) -> httpx.Timeout:
+    return httpx.Timeout(seconds, connect=min(seconds, 10.0))
+
+
+class _Settings:
+    """What both clients share: base URL, retry and polling policies."""
+
+    def __init__(
+        self,
+        base_url: str,
+        retries: int,
+        backoff_s: float,
+        progress: bool | None,
+        poll_interval_s: float,
+        job_timeout_s: float,
+    ) -> None:
+        self.base_url = base_url.rstrip("/")
+        self.retry = RetryPolicy(retries=retries, backoff_s=backoff_s)
+        self.poll = PollPolicy(
+            interval_s=poll_interval_s, timeout_s=job_timeout_s, progress=progress
+        )
+
+    @staticmethod
+    def request_args(call: Call) -> dict[str, Any]:
+        return {
+            "params": call.params,
+            "json": call.json,
+            "data": call.data,
+            "files": call.files,
+            "headers": dict(call.headers) or None,
+        }
+
+
+class Client(_Settings):
+    """A blocking client of a neural-shdf service.
+
+    ``timeout``: seconds per request (the service's own limit is 120 s); ``retries`` and
+    ``backoff_s``: repeats of a request on 502/503/504 or no answer, after
+    ``backoff_s * 2**attempt`` s; ``progress``: tqdm bar while a job runs (None: on a
+    terminal only); ``job_timeout_s``: longest wait for a job.
+    """
+
+    def __init__(
+        self,
+        base_url: str = DEFAULT_URL,
+        *,
+        timeout: float = 180.0,
+        retries: int = 3,
+        backoff_s: float = 0.5,
+        progress: bool | None = None,
+        poll_interval_s: float = 0.2,
+        job_timeout_s: float = 3600.0,
+    ) -> None:
+        super().__init__(base_url, retries, backoff_s, progress, poll_interval_s, job_timeout_s)
+        self.http = httpx.Client(base_url=self.base_url, timeout=_timeout(timeout))
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.http.close()
+
+    # -- driving operations ----------------------------------------------------
+    def send(self, call: Call) -> httpx.Response:
+        """One request, retried per the retry policy."""
+        attempt = 0
+        while True:
+            try:
+                outcome: httpx.Response | httpx.TransportError = self.http.request(
+                    call.method, call.path, **self.request_args(call)
+                )
+            except httpx.TransportError as exc:
+                outcome = exc
+            if not (call.retry and self.retry.should_retry(attempt, outcome)):
+                break
+            time.sleep(self.retry.delay(attempt, outcome))
+            attempt += 1
+        if isinstance(outcome, httpx.TransportError):
+            raise error_from_transport(outcome, self.base_url) from outcome
+        return outcome
+
+    def run(self, operation: Operation) -> Any:
+        """Drive an operation to its result."""
+        try:
+            step = next(operation)
+            while True:
+                if isinstance(step, Pause):
+                    time.sleep(step.seconds)
+                    step = operation.send(None)
+                else:
+                    step = operation.send(self.send(step))
+        except StopIteration as done:
+            return done.value
+        finally:
+            operation.close()
+
+    # -- the API -------------------------------------------------------------------
+    def health(self) -> bool:
+        """True when the service answers ``/healthz``."""
+        return self.run(ops.get_json("/healthz")).get("status") == "ok"
+
+    def ready(self) -> dict[str, Any]:
+        """``/readyz``: ``{"status": "ready" | "not_ready", "checks": {...}}``."""
+        return self.run(ops.readiness())
+
+    def upload(
+        self,
+        source: MeshSource,
+        *,
+        filename: str | None = None,
+        file_type: str | None = None,
+        method: str | None = None,
+        seed: int = 0,
+    ) -> Upload:
+        """Upload a mesh (a path, or bytes with ``file_type``) and have its ShDF computed;
+        a large mesh's job is waited for with a progress bar."""
+        return self.run(
+            ops.upload(
+                source, self.poll, filename=filename, file_type=file_type, method=method, seed=seed
+            )
+        )
+
+    def mesh(self, mesh_id: str) -> MeshInfo:
+        """Metadata of a stored mesh."""
+        return MeshInfo.model_validate(self.run(ops.get_json(f"/v1/meshes/{mesh_id}")))
+
+    def delete(self, mesh_id: str) -> None:
+        """Delete a mesh and everything computed from it."""
+        self.run(ops.delete_mesh(mesh_id))
+
+    def shdf(
+        self, mesh_id: str, *, method: str | None = None, seed: int = 0
+    ) -> NDArray[np.float32]:
+        """Per-input-face ShDF in [0, 1] (NaN: a face without triangles)."""
+        return self.run(ops.shdf(mesh_id, self.poll, method=method, seed=seed))
+
+    def segment(self, mesh_id: str, **options: Unpack[ops.SegmentArgs]) -> Segmentation:
+        """Part labels per input face of a stored mesh; only the partition runs."""
+        return self.run(ops.segment(mesh_id, ops.given(options), self.poll))
+
+    def segment_file(
+        self,
+        source: MeshSource,
+        *,
+        filename: str | None = None,
+        file_type: str | None = None,
+        **options: Unpack[ops.SegmentArgs],
+    ) -> Segmentation:
+        """Upload and segment in one call (``mesh_id`` of the result: for later calls)."""
+        operation = ops.segment_file(
+            source, ops.given(options), self.poll, filename=filename, file_type=file_type
+        )
+        return self.run(operation)
+
+    def colored_glb(self, mesh_id: str, **options: Unpack[ops.SegmentArgs]) -> bytes:
+        """The segmentation as a GLB with one colour per part."""
+        return self.run(ops.glb(mesh_id, "colored", ops.given(options), self.poll))
+
+    def parts_glb(self, mesh_id: str, **options: Unpack[ops.SegmentArgs]) -> bytes:
+        """The segmentation as a GLB with one node per part (``part_000``, ...)."""
+        return self.run(ops.glb(mesh_id, "parts", ops.given(options), self.poll))
+
+    def job(self, job_id: str) -> Job:
+        """A job's state and progress."""
+        return Job.model_validate(self.run(ops.get_json(f"/v1/jobs/{job_id}")))
+
+    def wait(self, job: Job | str) -> Job:
+        """Poll a job until it succeeded (raises JobFailedError if it failed)."""
+        return self.run(ops.wait_job(self.job(job) if isinstance(job, str) else job, self.poll))
+
+
+class AsyncClient(_Settings):
+    """The asyncio twin of ``Client``: the same methods and arguments, awaited."""
+
+    def __init__(
+        self,
+        base_url: str = DEFAULT_URL,
+        *,
+        timeout: float = 180.0,
+        retries: int = 3,
+        backoff_s: float = 0.5,
+        progress: bool | None = None,
+        poll_interval_s: float = 0.2,
+        job_timeout_s: float = 3600.0,
+    ) -> None:
+        super().__init__(base_url, retries, backoff_s, progress, poll_interval_s, job_timeout_s)
+        self.http = httpx.AsyncClient(base_url=self.base_url, timeout=_timeout(timeout))
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(
+        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        await self.aclose()
+
+    async def aclose(self) -> None:
+        await self.http.aclose()
+
+    # -- driving operations ----------------------------------------------------
+    async def send(self, call: Call) -> httpx.Response:
+        """One request, retried per the retry policy."""
+        attempt = 0
+        while True:
+            try:
+                outcome: httpx.Response | httpx.TransportError = await self.http.request(
+                    call.method, call.path, **self.request_args(call)
+                )
+            except httpx.TransportError as exc:
+                outcome = exc
+            if not (call.retry and self.retry.should_retry(attempt, outcome)):
+                break
+            await asyncio.sleep(self.retry.delay(attempt, outcome))
+            attempt += 1
+        if isinstance(outcome, httpx.TransportError):
+            raise error_from_transport(outcome, self.base_url) from outcome
+        return outcome
+
+    async def run(self, operation: Operation) -> Any:
+        """Drive an operation to its result."""
+        try:
+            step = next(operation)
+            while True:
+                if isinstance(step, Pause):
+                    await asyncio.sleep(step.seconds)
+                    step = operation.send(None)
+                else:
+                    step = operation.send(await self.send(step))
+        except StopIteration as done:
+            return done.value
+        finally:
+            operation.close()
+
+    # -- the API (see Client for each method) ----------------------------------
+    async def health(self) -> bool:
+        return (await self.run(ops.get_json("/healthz"))).get("status") == "ok"
+
+    async def ready(self) -> dict[str, Any]:
+        return await self.run(ops.readiness())
+
+    async def upload(
+        self,
+        source: MeshSource,
+        *,
+        filename: str | None = None,
+        file_type: str | None = None,
+        method: str | None = None,
+        seed: int = 0,
+    ) -> Upload:
+        return await self.run(
+            ops.upload(
+                source, self.poll, filename=filename, file_type=file_type, method=method, seed=seed
+            )
+        )
+
+    async def mesh(self, mesh_id: str) -> MeshInfo:
+        return MeshInfo.model_validate(await self.run(ops.get_json(f"/v1/meshes/{mesh_id}")))
+
+    async def delete(self, mesh_id: str) -> None:
+        await self.run(ops.delete_mesh(mesh_id))
+
+    async def shdf(
+        self, mesh_id: str, *, method: str | None = None, seed: int = 0
+    ) -> NDArray[np.float32]:
+        return await self.run(ops.shdf(mesh_id, self.poll, method=method, seed=seed))
+
+    async def segment(self, mesh_id: str, **options: Unpack[ops.SegmentArgs]) -> Segmentation:
+        return await self.run(ops.segment(mesh_id, ops.given(options), self.poll))
+
+    async def segment_file(
+        self,
+        source: MeshSource,
+        *,
+        filename: str | None = None,
+        file_type: str | None = None,
+        **options: Unpack[ops.SegmentArgs],
+    ) -> Segmentation:
+        operation = ops.segment_file(
+            source, ops.given(options), self.poll, filename=filename, file_type=file_type
+        )
+        return await self.run(operation)
+
+    async def colored_glb(self, mesh_id: str, **options: Unpack[ops.SegmentArgs]) -> bytes:
+        return await self.run(ops.glb(mesh_id, "colored", ops.given(options), self.poll))
+
+    async def parts_glb(self, mesh_id: str, **options: Unpack[ops.SegmentArgs]) -> bytes:
+        return await self.run(ops.glb(mesh_id, "parts", ops.given(options), self.poll))
+
+    async def job(self, job_id: str) -> Job:
+        return Job.model_validate(await self.run(ops.get_json(f"/v1/jobs/{job_id}")))
+
+    async def wait(self, job: Job | str) -> Job:
+        current = await self.job(job) if isinstance(job, str) else job
+        return await self.run(ops.wait_job(current, self.poll))

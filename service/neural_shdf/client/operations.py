@@ -1,0 +1,289 @@
+"""What each client call does, written once for the sync and the async client (sans I/O).
+
+An operation is a generator: it yields ``Call`` (send this request, send me the response)
+or ``Pause`` (wait this long), and returns the typed result. ``Client`` and ``AsyncClient``
+only drive these generators with their own transport and sleep, and add retries with
+backoff (``RetryPolicy``) around each call.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import time
+from collections.abc import Generator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypedDict
+
+import httpx
+
+from neural_shdf.client.errors import JobFailedError, ServiceTimeoutError, raise_for_error
+from neural_shdf.client.results import (
+    Job,
+    MeshInfo,
+    Segmentation,
+    ShdfStatus,
+    Upload,
+    decode_shdf,
+)
+
+#: Statuses worth repeating a request for: the service is busy, restarting, or a computation
+#: outlived the request timeout (it goes on in the background and is cached).
+RETRY_STATUSES = frozenset({502, 503, 504})
+#: How many times a request that answered 202 (a job) is repeated after the job finished.
+MAX_JOB_ROUNDS = 3
+
+
+@dataclass(frozen=True)
+class Call:
+    """One HTTP request of an operation."""
+
+    method: str
+    path: str
+    params: Mapping[str, Any] | None = None
+    json: Mapping[str, Any] | None = None
+    data: Mapping[str, Any] | None = None
+    files: Mapping[str, tuple[str, bytes]] | None = None
+    headers: Mapping[str, str] = field(default_factory=dict)
+    retry: bool = True
+
+
+@dataclass(frozen=True)
+class Pause:
+    """Wait before the next step (job polling)."""
+
+    seconds: float
+
+
+Operation = Generator[Call | Pause, httpx.Response | None, Any]
+
+
+@dataclass(frozen=True)
+class RetryPolicy:
+    """Retries of a request that got a 502/503/504 or no answer in time: up to ``retries``
+    more attempts, waiting ``backoff_s * 2**attempt`` (at most ``max_backoff_s``) or the
+    service's ``Retry-After``."""
+
+    retries: int = 3
+    backoff_s: float = 0.5
+    max_backoff_s: float = 8.0
+
+    def should_retry(self, attempt: int, outcome: httpx.Response | httpx.TransportError) -> bool:
+        if attempt >= self.retries:
+            return False
+        if isinstance(outcome, httpx.Response):
+            return outcome.status_code in RETRY_STATUSES
+        return isinstance(outcome, httpx.TimeoutException | httpx.NetworkError)
+
+    def delay(self, attempt: int, outcome: httpx.Response | httpx.TransportError) -> float:
+        delay = min(self.backoff_s * 2**attempt, self.max_backoff_s)
+        if isinstance(outcome, httpx.Response):
+            with contextlib.suppress(KeyError, ValueError):
+                delay = max(delay, min(float(outcome.headers["retry-after"]), self.max_backoff_s))
+        return delay
+
+
+@dataclass(frozen=True)
+class PollPolicy:
+    """Job polling: first after ``interval_s``, growing by half up to ``max_interval_s``;
+    give up after ``timeout_s``. ``progress``: show a tqdm bar (None: only on a terminal)."""
+
+    interval_s: float = 0.2
+    max_interval_s: float = 2.0
+    timeout_s: float = 3600.0
+    progress: bool | None = None
+
+
+# -- requests -----------------------------------------------------------------------
+
+
+class SegmentArgs(TypedDict, total=False):
+    """Segmentation options (keyword arguments of the client's segment calls); omitted or
+    None: the service's default. Fields of newer service versions may be passed too."""
+
+    method: str | None  # ShDF method: neural, exact
+    partitioner: str | None  # graphcut, metis
+    clusters: int | None  # Gaussian mixture components (0: chosen by BIC)
+    smoothing: float | None  # graph-cut smoothness weight
+    parts: int | None  # part count for metis
+    refine: bool | None
+    boundary_smoothing: bool | None
+    seed: int | None
+    shdf_seed: int | None
+
+
+def given(options: Mapping[str, Any]) -> dict[str, Any]:
+    """The options that were given (None means: the service's default)."""
+    return {key: value for key, value in options.items() if value is not None}
+
+
+def as_query(options: Mapping[str, Any]) -> dict[str, str]:
+    """Options as query parameters (booleans as ``true``/``false``)."""
+    return {k: str(v).lower() if isinstance(v, bool) else str(v) for k, v in options.items()}
+
+
+def mesh_payload(
+    source: str | Path | bytes, filename: str | None, file_type: str | None
+) -> tuple[tuple[str, bytes], dict[str, str]]:
+    """The multipart file part and form fields of an upload: a path (its name tells the
+    format) or bytes (give ``file_type`` or a ``filename`` with an extension)."""
+    if isinstance(source, bytes | bytearray | memoryview):
+        content = bytes(source)
+        name = filename or (f"mesh.{file_type}" if file_type else "mesh")
+    else:
+        path = Path(source)
+        content = path.read_bytes()
+        name = filename or path.name
+    form = {"file_type": file_type} if file_type else {}
+    return (name, content), form
+
+
+# -- operations ---------------------------------------------------------------------
+
+
+def wait_job(job: Job, poll: PollPolicy) -> Operation:
+    """Poll a job until it succeeded (returns it) or failed (raises JobFailedError), with a
+    tqdm bar of its progress."""
+    from tqdm import tqdm
+
+    deadline = time.monotonic() + poll.timeout_s
+    interval = poll.interval_s
+    disable = None if poll.progress is None else not poll.progress
+    with tqdm(
+        total=100,
+        desc=f"ShDF ({job.method})",
+        unit="%",
+        disable=disable,
+        file=sys.stderr,
+        leave=False,
+        bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}",
+    ) as bar:
+        while job.state not in ("succeeded", "failed"):
+            if time.monotonic() > deadline:
+                raise ServiceTimeoutError(
+                    0,
+                    "job_timeout",
+                    f"job {job.job_id} is still {job.state} after {poll.timeout_s:g} s "
+                    f"({job.progress:.0%} done); poll it later with job({job.job_id!r})",
+                )
+            yield Pause(interval)
+            interval = min(interval * 1.5, poll.max_interval_s)
+            response = yield Call("GET", f"/v1/jobs/{job.job_id}")
+            job = Job.model_validate(raise_for_error(response).json())
+            bar.n = round(100 * job.progress)
+            bar.refresh()
+    if job.state == "failed":
+        error = job.error
+        code, message = (error.code, error.message) if error else ("job_failed", "job failed")
+        raise JobFailedError(200, code, message, error.detail if error else None)
+    return job
+
+
+def until_done(call: Call, poll: PollPolicy) -> Operation:
+    """Send ``call``; while it answers 202 (a job computes the ShDF), wait for the job and
+    send it again. Returns the final successful response."""
+    for _ in range(MAX_JOB_ROUNDS):
+        response = raise_for_error((yield call))
+        if response.status_code != 202:
+            return response
+        yield from wait_job(Job.model_validate(response.json()), poll)
+    raise ServiceTimeoutError(
+        0, "job_loop", f"{call.method} {call.path} kept answering 202 after its job finished"
+    )
+
+
+def upload(
+    source: str | Path | bytes,
+    poll: PollPolicy,
+    *,
+    filename: str | None = None,
+    file_type: str | None = None,
+    method: str | None = None,
+    seed: int = 0,
+) -> Operation:
+    """Upload a mesh; its ShDF is computed (waiting for the job of a large mesh)."""
+    file_part, form = mesh_payload(source, filename, file_type)
+    if method:
+        form["method"] = method
+    form["seed"] = str(seed)
+    started = time.monotonic()
+    response = raise_for_error(
+        (yield Call("POST", "/v1/meshes", data=form, files={"file": file_part}))
+    )
+    body = response.json()
+    if response.status_code != 202:
+        return Upload(
+            MeshInfo.model_validate(body["mesh"]), ShdfStatus.model_validate(body["shdf"])
+        )
+    job = yield from wait_job(Job.model_validate(body), poll)
+    info = raise_for_error((yield Call("GET", f"/v1/meshes/{job.mesh_id}")))
+    status = ShdfStatus(
+        method=job.method, seed=job.seed, cached=False, seconds=time.monotonic() - started
+    )
+    return Upload(MeshInfo.model_validate(info.json()), status)
+
+
+def segment(mesh_id: str, options: Mapping[str, Any], poll: PollPolicy) -> Operation:
+    """Segment a stored mesh (from its cached ShDF)."""
+    body = {"mesh_id": mesh_id, **options, "labels_format": "base64"}
+    response = yield from until_done(Call("POST", "/v1/segment", json=body), poll)
+    return Segmentation.from_json(response.json())
+
+
+def segment_file(
+    source: str | Path | bytes,
+    options: Mapping[str, Any],
+    poll: PollPolicy,
+    *,
+    filename: str | None = None,
+    file_type: str | None = None,
+) -> Operation:
+    """Upload and segment in one call; a large mesh's job is waited for, then it is
+    segmented by id (no second upload)."""
+    file_part, form = mesh_payload(source, filename, file_type)
+    form.update(as_query({**options, "labels_format": "base64"}))
+    call = Call("POST", "/v1/segment/file", data=form, files={"file": file_part})
+    response = raise_for_error((yield call))
+    if response.status_code != 202:
+        return Segmentation.from_json(response.json())
+    job = yield from wait_job(Job.model_validate(response.json()), poll)
+    return (yield from segment(job.mesh_id, options, poll))
+
+
+def shdf(mesh_id: str, poll: PollPolicy, *, method: str | None = None, seed: int = 0) -> Operation:
+    """Per-input-face ShDF as float32 (NaN: faces without triangles)."""
+    params: dict[str, Any] = {"format": "f32", "seed": seed}
+    if method:
+        params["method"] = method
+    call = Call("GET", f"/v1/meshes/{mesh_id}/shdf", params=params)
+    response = yield from until_done(call, poll)
+    faces = response.headers.get("x-faces")
+    return decode_shdf(response.content, int(faces) if faces else None)
+
+
+def glb(mesh_id: str, style: str, options: Mapping[str, Any], poll: PollPolicy) -> Operation:
+    """The segmentation as a GLB: ``colored`` (one colour per part) or ``parts`` (one node
+    per part)."""
+    call = Call("GET", f"/v1/meshes/{mesh_id}/segmentation/{style}.glb", params=as_query(options))
+    response = yield from until_done(call, poll)
+    return response.content
+
+
+def get_json(path: str) -> Operation:
+    """A GET whose JSON body is the result."""
+    response = raise_for_error((yield Call("GET", path)))
+    return response.json()
+
+
+def delete_mesh(mesh_id: str) -> Operation:
+    raise_for_error((yield Call("DELETE", f"/v1/meshes/{mesh_id}")))
+    return None
+
+
+def readiness() -> Operation:
+    """``/readyz``'s body, whether ready (200) or not (503, not raised)."""
+    response = yield Call("GET", "/readyz", retry=False)
+    if response.status_code not in (200, 503):
+        raise_for_error(response)
+    return response.json()

@@ -1,0 +1,195 @@
+"""Client and AsyncClient against a real uvicorn process (`python -m neural_shdf.api.serve`)."""
+
+from __future__ import annotations
+
+import asyncio
+
+import httpx
+import numpy as np
+import pytest
+import trimesh
+
+from neural_shdf.client import (
+    AsyncClient,
+    Client,
+    InvalidRequestError,
+    NotFoundError,
+    PayloadTooLargeError,
+    ServiceTimeoutError,
+    ServiceUnavailableError,
+    UnsupportedMediaError,
+)
+from neural_shdf.mesh_io import load_mesh
+from tests.api.api_helpers import TEST_METHOD, capsule, free_port, obj_bytes, quad_box
+
+
+def two_boxes_obj() -> bytes:
+    """Two quad cubes (6 + 6 polygons) as OBJ: labels come back one per polygon."""
+    left, left_quads = quad_box((-2.0, 0.0, 0.0), 1.0)
+    right, right_quads = quad_box((2.0, 0.0, 0.0), 1.0)
+    quads = left_quads + [[i + len(left) for i in quad] for quad in right_quads]
+    return obj_bytes(np.concatenate([left, right]), quads)
+
+
+def requests_with_status(base: str, route: str, status: int, method: str = "POST") -> float:
+    line = f'neural_shdf_http_requests_total{{method="{method}",route="{route}",status="{status}"}}'
+    for text in httpx.get(f"{base}/metrics").text.splitlines():
+        if text.startswith(line):
+            return float(text.split()[-1])
+    return 0.0
+
+
+def test_upload_segment_and_shdf_match_the_raw_api(service, tmp_path):
+    path = tmp_path / "capsule.obj"
+    path.write_bytes(capsule().export(file_type="obj").encode())
+    faces = load_mesh(path).input_face_count
+    with Client(service) as client:
+        assert client.health() and client.ready()["status"] == "ready"
+        uploaded = client.upload(path)
+        assert uploaded.mesh.faces == faces and uploaded.shdf.method == TEST_METHOD
+        result = client.segment(uploaded.mesh_id, clusters=3, smoothing=0.2)
+        shdf = client.shdf(uploaded.mesh_id)
+        info = client.mesh(uploaded.mesh_id)
+    raw = httpx.post(
+        f"{service}/v1/segment",
+        json={"mesh_id": uploaded.mesh_id, "clusters": 3, "smoothing": 0.2},
+        timeout=60,
+    ).json()
+    assert result.labels.dtype == np.int32 and result.labels.tolist() == raw["labels"]
+    assert result.part_count == raw["part_count"] == len(np.unique(result.labels))
+    assert [p.faces for p in result.parts] == np.bincount(result.labels).tolist()
+    assert result.timings.shdf_cached
+    raw_shdf = httpx.get(f"{service}/v1/meshes/{uploaded.mesh_id}/shdf", timeout=60).json()
+    assert shdf.dtype == np.float32 and len(shdf) == faces
+    np.testing.assert_allclose(shdf, np.array(raw_shdf["values"], dtype=np.float32), rtol=1e-6)
+    assert info.mesh_id == uploaded.mesh_id and info.filename == "capsule.obj"
+
+
+def test_segment_file_bytes_polygons_and_glb_downloads(service):
+    data = two_boxes_obj()
+    with Client(service) as client:
+        result = client.segment_file(data, file_type="obj", partitioner="metis", parts=2)
+        assert len(result.labels) == 12  # one label per quad, in file order
+        assert result.part_count == 2
+        assert set(result.labels[:6].tolist()) != set(result.labels[6:].tolist())
+        again = client.segment(result.mesh_id, partitioner="metis", parts=2)
+        assert again.labels.tolist() == result.labels.tolist()
+        assert again.timings.segmentation_cached
+        colored = client.colored_glb(result.mesh_id, partitioner="metis", parts=2)
+        parts = client.parts_glb(result.mesh_id, partitioner="metis", parts=2, refine=False)
+    assert colored[:4] == b"glTF" and parts[:4] == b"glTF"
+    scene = trimesh.load(trimesh.util.wrap_as_stream(parts), file_type="glb")
+    assert len(scene.geometry) == 2
+
+
+def test_errors_carry_the_services_code_and_message(service):
+    with Client(service) as client:
+        with pytest.raises(UnsupportedMediaError) as unsupported:
+            client.upload(b"hello", file_type="xyz")
+        assert unsupported.value.status == 415
+        assert unsupported.value.code == "unsupported_format"
+        assert "unsupported mesh format 'xyz'" in str(unsupported.value)
+        with pytest.raises(InvalidRequestError) as invalid:
+            client.upload(b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", file_type="obj")
+        assert invalid.value.status == 422 and "area" in invalid.value.message
+        mesh_id = client.upload(capsule().export(file_type="obj").encode(), file_type="obj")
+        with pytest.raises(InvalidRequestError) as bad_parameter:
+            client.segment(mesh_id.mesh_id, clusters=-1)
+        assert bad_parameter.value.code == "validation_error"
+        assert "clusters" in str(bad_parameter.value)
+        client.delete(mesh_id.mesh_id)
+        with pytest.raises(NotFoundError, match="upload it again") as missing:
+            client.segment(mesh_id.mesh_id)
+        assert missing.value.code == "mesh_not_found"
+        with pytest.raises(PayloadTooLargeError, match="exceeds the limit"):
+            client.upload(b"v 0 0 0\n" * 300_000, file_type="obj")
+
+
+def test_large_mesh_waits_for_its_job_with_a_progress_bar(service, capsys):
+    sphere = trimesh.creation.icosphere(subdivisions=6)  # 81920 triangles: a job (202)
+    data = sphere.export(file_type="ply")
+    with Client(service, progress=True) as client:
+        result = client.segment_file(data, file_type="ply", clusters=2)
+        uploaded = client.upload(data, file_type="ply")  # now cached: answered at once
+    assert len(result.labels) == len(sphere.faces)
+    assert uploaded.mesh_id == result.mesh_id and uploaded.shdf.cached
+    assert f"ShDF ({TEST_METHOD})" in capsys.readouterr().err
+
+
+def test_async_client_runs_concurrent_segmentations(service):
+    data = capsule(16).export(file_type="stl")
+
+    async def scenario() -> tuple[list, np.ndarray]:
+        async with AsyncClient(service) as client:
+            uploaded = await client.upload(data, file_type="stl")
+            results = await asyncio.gather(
+                *[client.segment(uploaded.mesh_id, clusters=k) for k in (2, 3, 4)]
+            )
+            return results, await client.shdf(uploaded.mesh_id)
+
+    results, shdf = asyncio.run(scenario())
+    with Client(service) as client:
+        for clusters, result in zip((2, 3, 4), results, strict=True):
+            expected = client.segment(result.mesh_id, clusters=clusters)
+            assert result.labels.tolist() == expected.labels.tolist()
+        assert np.array_equal(shdf, client.shdf(results[0].mesh_id))
+
+
+def test_503_is_retried_then_raised_with_the_services_message(failing_service):
+    data = capsule().export(file_type="obj").encode()
+    before = {s: requests_with_status(failing_service, "/v1/meshes", s) for s in (503, 504)}
+    client = Client(failing_service, retries=2, backoff_s=0.01)
+    with client, pytest.raises(ServiceUnavailableError) as unavailable:
+        client.upload(data, file_type="obj", method="neural")
+    assert unavailable.value.code == "model_unavailable"
+    assert "emd.onnx" in unavailable.value.message
+    # Three attempts; the first may outlive the 0.05 s timeout (504) before the model is tried.
+    after = {s: requests_with_status(failing_service, "/v1/meshes", s) for s in (503, 504)}
+    assert after[503] > before[503]
+    assert sum(after.values()) == sum(before.values()) + 3
+
+
+def test_504_is_retried_until_the_background_computation_is_cached(failing_service):
+    data = trimesh.creation.icosphere(subdivisions=5).export(file_type="ply")  # 20k faces
+    before = requests_with_status(failing_service, "/v1/meshes", 504)
+    with Client(failing_service, retries=8, backoff_s=0.2) as client:
+        uploaded = client.upload(data, file_type="ply", method="exact")
+    # The first attempts outlive the 0.05 s request timeout (504); the computation goes on in
+    # the background and a later attempt gets its result.
+    assert requests_with_status(failing_service, "/v1/meshes", 504) > before
+    assert uploaded.mesh.faces == 20480 and uploaded.shdf.method == "exact"
+
+
+def test_timeouts_and_refused_connections_raise_after_retries(failing_service):
+    data = trimesh.creation.icosphere(subdivisions=5, radius=2.0).export(file_type="ply")
+    client = Client(failing_service, timeout=0.001, retries=1, backoff_s=0.01)
+    with client, pytest.raises(ServiceTimeoutError):
+        client.upload(data, file_type="ply")
+    nowhere = f"http://127.0.0.1:{free_port()}"
+    client = Client(nowhere, retries=1, backoff_s=0.01)
+    with client, pytest.raises(ServiceUnavailableError, match="cannot reach") as refused:
+        client.health()
+    assert refused.value.code == "unreachable" and refused.value.status == 0
+
+
+def test_readme_examples_run_as_written(service, tmp_path, monkeypatch, capsys):
+    """The README's client examples, against the live service and a capsule as model.obj."""
+    import re
+
+    from tests.api.api_helpers import REPO_ROOT
+
+    readme = (REPO_ROOT / "README.md").read_text()
+    section = readme.split("## Python client", 1)[1].split("\n## ", 1)[0]
+    blocks = re.findall(r"```python\n(.*?)```", section, re.S)
+    assert len(blocks) == 2
+    (tmp_path / "model.obj").write_bytes(capsule().export(file_type="obj").encode())
+    monkeypatch.chdir(tmp_path)
+    for block in blocks:
+        namespace: dict = {}
+        exec(block.replace("http://127.0.0.1:8000", service), namespace)  # noqa: S102
+    assert "validation_error" in capsys.readouterr().out
+    assert (tmp_path / "parts.glb").read_bytes()[:4] == b"glTF"
+    results = asyncio.run(namespace["sweep"]("model.obj"))
+    assert [len(r.labels) for r in results] == [
+        load_mesh(tmp_path / "model.obj").input_face_count
+    ] * 3

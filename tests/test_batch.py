@@ -1,0 +1,184 @@
+"""The batch command: same outputs as the CLI, resumable, one bad asset never stops it."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from neural_shdf.batch import MANIFEST_COLUMNS, collect_assets, run_batch
+from neural_shdf.cli import EXIT_BAD_INPUT, main
+from neural_shdf.segment import SegmentParams
+from tests.api.api_helpers import TEST_METHOD
+from tests.conftest import REPO_ROOT
+
+
+def _shape(index: int) -> trimesh.Trimesh:
+    """Small varied shapes: capsules and dumbbells of different proportions."""
+    if index % 2 == 0:
+        return trimesh.creation.capsule(height=1.0 + index * 0.3, radius=0.4, count=(10, 10))
+    left = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    right = trimesh.creation.icosphere(subdivisions=2, radius=0.6 + 0.1 * index)
+    left.apply_translation([-2.5, 0, 0])
+    right.apply_translation([2.5, 0, 0])
+    bar = trimesh.creation.cylinder(radius=0.25, height=3.5, sections=16)
+    bar.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
+    return trimesh.util.concatenate([left, bar, right])
+
+
+def _library(root: Path, count: int, bad: int = 0) -> Path:
+    """``count`` good meshes in mixed formats (two folder levels) and ``bad`` corrupt files."""
+    formats = ("obj", "off", "ply", "stl")
+    for i in range(count):
+        folder = root / ("sub" if i % 3 == 0 else "") / ("deep" if i % 6 == 0 else "")
+        folder.mkdir(parents=True, exist_ok=True)
+        _shape(i).export(folder / f"mesh{i:03d}.{formats[i % len(formats)]}")
+    for i in range(bad):
+        (root / f"broken{i}.obj").write_text("v 0 0 0\nf 1 2 3\n" if i % 2 else "not a mesh\n")
+    return root
+
+
+def _rows(out: Path) -> list[dict[str, str]]:
+    with open(out / "manifest.csv", newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def _outputs(out: Path) -> dict[str, bytes]:
+    """Every output file's bytes (records and the manifest hold timings: left out)."""
+    return {
+        p.relative_to(out).as_posix(): p.read_bytes()
+        for p in sorted(out.rglob("*"))
+        if p.is_file() and not p.name.endswith((".batch.json", "manifest.csv"))
+    }
+
+
+def test_outputs_are_the_cli_outputs_byte_for_byte(tmp_path: Path):
+    _library(tmp_path / "in", 2)
+    rows = run_batch(
+        [tmp_path / "in"],
+        tmp_path / "out",
+        method=TEST_METHOD,
+        params=SegmentParams(clusters=4),
+        outputs=["seg", "shdf", "colored", "parts"],
+        workers=0,
+    )
+    assert [r["status"] for r in rows] == ["ok", "ok"]
+    for row in rows:
+        mesh, stem = Path(row["path"]), tmp_path / "out" / row["output"]
+        cli = tmp_path / "cli"
+        cli.mkdir(exist_ok=True)
+        args = ["--method", TEST_METHOD, "-q"]
+        assert main(["segment", str(mesh), "-o", str(cli / "a.seg"), "--clusters", "4",
+                     "--colored", str(cli / "a.glb"), "--parts-glb", str(cli / "p.glb"),
+                     *args]) == 0  # fmt: skip
+        assert main(["shdf", str(mesh), "-o", str(cli / "a.shdf"), *args]) == 0
+        assert (cli / "a.seg").read_bytes() == Path(f"{stem}.seg").read_bytes()
+        assert (cli / "a.shdf").read_bytes() == Path(f"{stem}.shdf").read_bytes()
+        assert (cli / "a.glb").read_bytes() == Path(f"{stem}.colored.glb").read_bytes()
+        assert (cli / "p.glb").read_bytes() == Path(f"{stem}.parts.glb").read_bytes()
+        faces = len(Path(f"{stem}.seg").read_text().split())
+        assert faces == row["faces"] == len(trimesh.load(mesh, process=False).faces)
+        assert row["parts"] == len(set(Path(f"{stem}.seg").read_text().split()))
+
+
+def test_collects_folders_recursively_manifests_and_keeps_names_apart(tmp_path: Path):
+    _library(tmp_path / "lib", 7)
+    (tmp_path / "lib" / "notes.txt").write_text("not a mesh")
+    (tmp_path / "x.off").write_text("OFF\n")
+    (tmp_path / "x.obj").write_text("")
+    (tmp_path / "list.txt").write_text("# comment\nlib/mesh001.off\n\nx.obj\n")
+    (tmp_path / "rows.csv").write_text("path,faces\nlib/mesh002.ply,3\n")
+    assets = collect_assets(
+        [tmp_path / "lib", tmp_path / "x.off", tmp_path / "list.txt", tmp_path / "rows.csv"]
+    )
+    outputs = [a.output for a in assets]
+    assert outputs[:7] == [
+        "mesh001", "mesh002", "mesh004", "mesh005", "sub/deep/mesh000", "sub/deep/mesh006",
+        "sub/mesh003",
+    ]  # fmt: skip
+    # x.off and x.obj keep their extensions; a second mesh001 gets a number.
+    assert outputs[7:] == ["x.off", "lib/mesh001", "x.obj", "lib/mesh002"]
+    assert len(set(outputs)) == len(outputs)
+
+
+def test_bad_assets_are_reported_and_the_rest_is_done(tmp_path: Path):
+    _library(tmp_path / "in", 3, bad=2)
+    listing = tmp_path / "list.txt"
+    listing.write_text("in/sub/deep/mesh000.obj\nmissing.obj\nin/broken0.obj\n")
+    code = main(["batch", str(tmp_path / "in"), str(listing), "-o", str(tmp_path / "out"),
+                 "--method", TEST_METHOD, "--workers", "2", "-q"])  # fmt: skip
+    assert code == EXIT_BAD_INPUT
+    rows = _rows(tmp_path / "out")
+    assert list(rows[0]) == list(MANIFEST_COLUMNS)
+    assert len(rows) == 8
+    failed = {r["path"]: r for r in rows if r["status"] == "failed"}
+    assert {Path(p).name for p in failed} == {"broken0.obj", "broken1.obj", "missing.obj"}
+    assert {r["error_type"] for r in failed.values()} == {
+        "MeshParseError", "InvalidGeometryError", "FileNotFoundError"
+    }  # fmt: skip
+    assert all(r["error"] for r in failed.values())
+    assert sum(r["status"] == "ok" for r in rows) == 4  # mesh000 twice (folder and list)
+    assert {r["method"] for r in rows if r["status"] == "ok"} == {TEST_METHOD}
+    assert not list((tmp_path / "out").rglob("*.tmp"))
+    # Only good meshes have outputs, one label per input face.
+    for row in rows:
+        seg = tmp_path / "out" / f"{row['output']}.seg"
+        assert seg.is_file() == (row["status"] == "ok")
+        if seg.is_file():
+            assert len(seg.read_text().split()) == int(row["faces"])
+
+
+def test_rerun_skips_finished_assets_and_redoes_changed_ones(tmp_path: Path):
+    _library(tmp_path / "in", 3)
+    first = run_batch([tmp_path / "in"], tmp_path / "out", method=TEST_METHOD, workers=0)
+    assert [r["status"] for r in first] == ["ok"] * 3
+    before = _outputs(tmp_path / "out")
+    again = run_batch([tmp_path / "in"], tmp_path / "out", method=TEST_METHOD, workers=0)
+    assert [r["status"] for r in again] == ["skipped"] * 3
+    assert [r["faces"] for r in again] == [r["faces"] for r in first]
+    assert _outputs(tmp_path / "out") == before
+    # A changed file, new parameters or a missing output are recomputed.
+    _shape(5).export(tmp_path / "in" / "mesh001.off")
+    (tmp_path / "out" / "mesh002.seg").unlink()
+    rows = run_batch([tmp_path / "in"], tmp_path / "out", method=TEST_METHOD, workers=0)
+    assert [r["status"] for r in rows] == ["ok", "ok", "skipped"]
+    rows = run_batch(
+        [tmp_path / "in"], tmp_path / "out", method=TEST_METHOD, workers=0,
+        params=SegmentParams(partitioner="metis", parts=3),
+    )  # fmt: skip
+    assert [r["status"] for r in rows] == ["ok"] * 3
+    assert all(r["parts"] == 3 for r in rows)
+
+
+def test_killed_batch_leaves_whole_files_and_rerun_redoes_nothing_finished(tmp_path: Path):
+    _library(tmp_path / "in", 10)
+    out = tmp_path / "out"
+    env = {**os.environ, "PYTHONPATH": f"{REPO_ROOT / 'service'}:{REPO_ROOT}"}
+    command = [sys.executable, "-m", "neural_shdf.cli", "batch", str(tmp_path / "in"),
+               "-o", str(out), "--method", TEST_METHOD, "--workers", "2", "-q"]  # fmt: skip
+    process = subprocess.Popen(command, env=env, start_new_session=True)
+    deadline = time.monotonic() + 120
+    while len(list(out.rglob("*.batch.json"))) < 3 and time.monotonic() < deadline:
+        assert process.poll() is None, "the batch ended before it could be killed"
+        time.sleep(0.05)
+    os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
+    finished = {p.name for p in out.rglob("*.batch.json")}
+    assert 3 <= len(finished) < 10
+    for record in out.rglob("*.batch.json"):  # a record is only written after its outputs
+        seg = record.with_name(record.name.replace(".batch.json", ".seg"))
+        row = json.loads(record.read_text())["row"]
+        assert len(seg.read_text().split()) == row["faces"]
+    assert main([*command[3:]]) == 0
+    rows = _rows(out)
+    assert sum(r["status"] == "skipped" for r in rows) == len(finished)
+    assert sum(r["status"] == "ok" for r in rows) == 10 - len(finished)
+    assert not list(out.rglob("*.tmp"))

@@ -35,6 +35,7 @@ from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.schemas import SegmentOptions
 from neural_shdf.api.settings import Settings
 from neural_shdf.errors import InvalidGeometryError
+from neural_shdf.export import part_color_hex
 from neural_shdf.geometry import FaceGraph
 from neural_shdf.mesh import TriangleMesh
 
@@ -598,8 +599,6 @@ class Engine:
     ) -> bytes:
         """The JSON response, serialised directly (no per-label model validation)."""
         compact = options.labels_format == "base64"
-        from neural_shdf.export import part_color_hex
-
         colors = part_color_hex(len(result.part_faces))
         parts = [
             {"label": i, "faces": int(f), "area": float(a), "mean_shdf": float(m), "color": c}

@@ -239,16 +239,22 @@ class SegmentSelectedOperator(bpy.types.Operator):
         return {"RUNNING_MODAL"}
 
     def modal(self, context: bpy.types.Context, event: bpy.types.Event) -> set[str]:
-        if event.type == "ESC" and self._task is not None:
+        if self._task is None:
+            return {"CANCELLED"}
+        if event.type == "ESC":
+            # Stop at once; the worker stops at its next step and its answer is dropped.
             self._task.cancel.set()
-        if event.type != "TIMER" or self._task is None:
+            self._task.cancelled = True
+            return self._stop(context)
+        if event.type != "TIMER":
             return {"PASS_THROUGH"}
         _show(context, self._task)
         context.workspace.status_text_set(
             f"neural-shdf: {self._task.status} ({self._task.progress:.0%}), Esc to cancel"
         )
-        if not self._task.done:
-            return {"PASS_THROUGH"}
+        return self._stop(context) if self._task.done else {"PASS_THROUGH"}
+
+    def _stop(self, context: bpy.types.Context) -> set[str]:
         context.window_manager.event_timer_remove(self._timer)
         context.workspace.status_text_set(None)
         return self._finish(context)

@@ -24,10 +24,11 @@ class NeuralShdfSettings(bpy.types.PropertyGroup):
         name="Method",
         description="How the Shape Diameter Function is computed",
         items=[
+            ("default", "Service Default", "The method the service uses when none is named"),
             ("neural", "Neural", "Predicted by the graph network (fast)"),
             ("exact", "Exact", "Ray-cast reference"),
         ],
-        default="neural",
+        default="default",
     )
     partitioner: EnumProperty(  # type: ignore[valid-type]
         name="Partitioner",
@@ -74,11 +75,12 @@ class NeuralShdfSettings(bpy.types.PropertyGroup):
     def options(self) -> dict[str, object]:
         """The request's segmentation options."""
         options: dict[str, object] = {
-            "method": self.method,
             "partitioner": self.partitioner,
             "clusters": self.clusters,
             "smoothing": round(self.smoothing, 6),
         }
+        if self.method != "default":
+            options["method"] = self.method
         if self.partitioner == "metis":
             options["parts"] = self.parts
         return options

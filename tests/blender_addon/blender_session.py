@@ -39,11 +39,12 @@ def install(zip_path: str) -> dict:
     }
 
 
-def dumbbell(name: str, cuts: int = 0, subsurf: int = 0) -> dict:
+def dumbbell(name: str, cuts: int = 0, subsurf: int = 0, stretch: float = 1.0) -> dict:
     """Two unit boxes (x in [-2, -1] and [1, 2]) joined by a 0.2-thick bar, one connected
     closed mesh: the left box's +x face is inset and extruded into the bar, whose end face
     is widened and extruded into the right box. ``cuts`` subdivides every edge; ``subsurf``
-    adds a (simple) Subdivision modifier, which changes the evaluated topology."""
+    adds a (simple) Subdivision modifier, which changes the evaluated topology; ``stretch``
+    scales x (another geometry, same topology)."""
     bm = bmesh.new()
     bmesh.ops.create_cube(bm, size=1.0, matrix=Matrix.Translation((-1.5, 0.0, 0.0)))
     cap = max(bm.faces, key=lambda f: f.calc_center_median().x)
@@ -56,6 +57,8 @@ def dumbbell(name: str, cuts: int = 0, subsurf: int = 0) -> dict:
     _extrude(bm, cap, 1.0)
     if cuts:
         bmesh.ops.subdivide_edges(bm, edges=bm.edges[:], cuts=cuts, use_grid_fill=True)
+    if stretch != 1.0:
+        bmesh.ops.scale(bm, vec=(stretch, 1.0, 1.0), verts=bm.verts[:])
     bm.normal_update()
     mesh = bpy.data.meshes.new(name)
     bm.to_mesh(mesh)
@@ -131,7 +134,7 @@ def segment(names: list[str], settings: dict) -> dict:
     return {"result": result, "error": error, "seconds": seconds, "output": output[0]}
 
 
-def phases(names: list[str], settings: dict) -> dict:
+def phases(names: list[str], settings: dict, payload_path: str | None = None) -> dict:
     """The operator's three steps timed apart: prepare (evaluate + PLY, main thread), the
     worker (network and service), apply (attributes, materials)."""
     operators = importlib.import_module(f"{ADDON_MODULE}.operators")
@@ -147,6 +150,8 @@ def phases(names: list[str], settings: dict) -> dict:
     t2 = time.perf_counter()
     if task.error:
         raise RuntimeError(task.error)
+    if payload_path:
+        Path(payload_path).write_bytes(task.requests[0].payload)
     operators.apply(bpy.context, task, panel)
     t3 = time.perf_counter()
     outcome = next(iter(task.outcomes.values()))
@@ -210,7 +215,8 @@ def main() -> None:
         elif "segment" in step:
             records.append({"segment": segment(step["segment"], step.get("settings", {}))})
         elif "phases" in step:
-            records.append({"phases": phases(step["phases"], step.get("settings", {}))})
+            settings = step.get("settings", {})
+            records.append({"phases": phases(step["phases"], settings, step.get("payload"))})
         elif "inspect" in step:
             records.append({"inspect": inspect(step["inspect"])})
     Path(sys.argv[2]).write_text(json.dumps(records))

@@ -26,7 +26,10 @@ def session(run_blender, service_url) -> dict:
         {"make": "dumbbell", "name": "Dumbbell", "cuts": 3},
         {"segment": ["Dumbbell"], "settings": {"server_url": service_url}},
         {"inspect": "Dumbbell"},
-        {"segment": ["Dumbbell"], "settings": {"partitioner": "metis", "parts": 2}},
+        {
+            "segment": ["Dumbbell"],
+            "settings": {"partitioner": "metis", "parts": 2, "method": "exact"},
+        },
         {"inspect": "Dumbbell"},
         {"make": "dumbbell", "name": "Smooth", "cuts": 1, "subsurf": 1},
         {"segment": ["Smooth"], "settings": {"partitioner": "graphcut", "split_parts": True}},
@@ -76,7 +79,7 @@ def test_labels_cover_every_polygon_in_blender_order(session, service_url):
     # client: label i belongs to polygon i.
     data = obj_bytes(np.array(record["vertices"]), record["polygons_vertices"])
     with Client(service_url) as client:
-        expected = client.segment_file(data, file_type="obj", method="neural", clusters=9)
+        expected = client.segment_file(data, file_type="obj", clusters=9)
     assert record["labels"] == expected.labels.tolist()
     # Known parts: each box one part, the bar a third.
     found = regions(record)
@@ -91,6 +94,7 @@ def test_labels_cover_every_polygon_in_blender_order(session, service_url):
 
 
 def test_new_parameters_reuse_the_mesh_id_without_uploading(session, service_url):
+    """Another partitioner, part count and even ShDF method: the mesh id, no upload."""
     second = session["segments"][1]
     assert second["result"] == ["FINISHED"] and "Dumbbell: 2 parts (by mesh id)" in second["output"]
     before, after = session["inspections"][0], session["inspections"][1]
@@ -98,7 +102,11 @@ def test_new_parameters_reuse_the_mesh_id_without_uploading(session, service_url
     assert len(set(after["labels"])) == after["props"]["neural_shdf_part_count"] == 2
     with Client(service_url) as client:
         expected = client.segment(
-            after["props"]["neural_shdf_mesh_id"], partitioner="metis", parts=2, clusters=9
+            after["props"]["neural_shdf_mesh_id"],
+            method="exact",
+            partitioner="metis",
+            parts=2,
+            clusters=9,
         )
     assert after["labels"] == expected.labels.tolist()
     # Uploads: the dumbbell once and the subdivided one once; the re-run went by id.

@@ -194,8 +194,12 @@ def test_upload_job_parts_slider_recolours_to_the_api_labels(page, server, meshe
     assert (hues_before > 0.01).sum() >= 2  # at least two part colours on screen
     computed = shdf_computations(server)
 
+    detail = page.release_slider("parts", 2)  # a cut of the graph cut's part tree
+    assert detail["request"]["parts"] == 2 and detail["parts"] == 2
+    tree_cut = page.segmentation()
+    assert_colours_match(tree_cut, api_labels(server, mesh_id, controls_of(tree_cut, parts=2)))
     detail = page.release_slider("partitioner", "metis")
-    assert detail["request"]["partitioner"] == "metis" and detail["parts"] == 6
+    assert detail["request"]["partitioner"] == "metis" and detail["parts"] == 2
     detail = page.release_slider("parts", 3)
     assert detail["reason"] == "release" and detail["parts"] == 3
     moved = page.segmentation()

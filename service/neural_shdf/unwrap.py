@@ -24,6 +24,8 @@ from neural_shdf.mesh import TriangleMesh
 MIN_ATLAS_SIZE, MAX_ATLAS_SIZE = 64, 8192
 #: Largest gap between charts, in texels.
 MAX_PADDING = 64
+#: Packing passes, each with the charts a little smaller, until they fit one atlas.
+PACK_ATTEMPTS = 12
 #: A piece smaller than twice this is never halved further.
 MIN_SPLIT_FACES = 16
 
@@ -493,20 +495,22 @@ def _pack(
     uv_vertices = np.ascontiguousarray(unique[:, 1:] * quantum, dtype=np.float32)
     uv_faces = np.ascontiguousarray(inverse.reshape(-1, 3), dtype=np.uint32)
     texels_per_unit = 0.0  # first pass: xatlas's estimate for the resolution
-    for _ in range(4):
+    for attempt in range(PACK_ATTEMPTS + 1):
+        last = attempt == PACK_ATTEMPTS
         atlas = xatlas.Atlas()
         atlas.add_uv_mesh(uv_vertices, uv_faces)
         pack_options = xatlas.PackOptions()
-        pack_options.resolution = params.atlas_size
+        # Last resort: no fixed resolution, so xatlas makes a single atlas of its own size.
+        pack_options.resolution = 0 if last else params.atlas_size
         pack_options.padding = params.padding
         pack_options.bilinear = True
         pack_options.texels_per_unit = texels_per_unit
         atlas.generate(pack_options=pack_options)
         side = max(atlas.width, atlas.height)
-        if atlas.atlas_count == 1 and side <= params.atlas_size:
+        if last or (atlas.atlas_count == 1 and side <= params.atlas_size):
             break
         # The estimate overshot: scale the charts down until they fit one atlas.
-        shrink = min(params.atlas_size / side, 0.97) if atlas.atlas_count == 1 else 0.7
+        shrink = min(params.atlas_size / side, 0.97) if atlas.atlas_count == 1 else 0.92
         texels_per_unit = float(atlas.texels_per_unit) * shrink
     _, indices, uvs = atlas.get_mesh(0)
     packed = np.zeros_like(corner_uvs)

@@ -47,7 +47,7 @@ class UnwrapParams:
     atlas_size: int = 1024
     padding: int = 2
     max_stretch: float = 1.1
-    max_cuts: int = 6
+    max_cuts: int = 10
     max_splits: int = 3
 
     def __post_init__(self) -> None:

@@ -426,14 +426,31 @@ def _l2_stretch(vertices: NDArray, faces: NDArray, uv: NDArray) -> float:
     return float(np.sqrt(np.sum(area_3d * (gram_a + gram_c) * scale / 2) / area_3d.sum()))
 
 
-def _overlaps_itself(uv: NDArray, faces: NDArray, size: int = 512) -> bool:
-    """Whether two triangles of one chart cover the same texel centre (a global fold)."""
-    low, high = uv.min(axis=0), uv.max(axis=0)
-    extent = float(max(high - low))
-    corner_uvs = (uv[faces] - low) / extent * (1 - 1e-9)
-    _, clashes = rasterize_charts(corner_uvs, np.arange(len(faces)), size)
-    # Texel centres on an edge shared by two triangles count twice: allow a few.
-    return clashes > max(8, len(faces) // 100)
+def _overlaps_itself(uv: NDArray, faces: NDArray) -> bool:
+    """Whether a chart with no flipped triangle still overlaps itself: that happens exactly
+    when its border crosses itself, so test every pair of border edges that share no end."""
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    border = unique[counts == 1]
+    start, end = uv[border[:, 0]], uv[border[:, 1]]
+    block = max(1, 4_000_000 // max(len(border), 1))
+    for first in range(0, len(border), block):
+        a, b = start[first : first + block, None], end[first : first + block, None]
+        c, d = start[None], end[None]
+        crosses = (_orientation(a, b, c) * _orientation(a, b, d) < 0) & (
+            _orientation(c, d, a) * _orientation(c, d, b) < 0
+        )
+        ends = border[first : first + block, None, :, None] == border[None, :, None, :]
+        crosses &= ~ends.any(axis=(2, 3))
+        if crosses.any():
+            return True
+    return False
+
+
+def _orientation(p: NDArray, q: NDArray, r: NDArray) -> NDArray[np.float64]:
+    """Sign of the turn p -> q -> r (positive: counter-clockwise)."""
+    return np.sign((q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1])
+                   - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0]))  # fmt: skip
 
 
 def _xatlas_charts(

@@ -125,9 +125,9 @@ def _ring_strip(turn_degrees: float, steps: int = 60) -> tuple[np.ndarray, np.nd
     from neural_shdf.unwrap import _triangle_areas
 
     angles = np.radians(np.linspace(0.0, turn_degrees, steps + 1))
-    radius = np.linspace(1.0, 1.3, steps + 1)  # a spiral, so the strip has no shared vertex
+    radius = np.linspace(1.0, 0.95, steps + 1)  # a spiral: no two vertices coincide
     inner = np.column_stack([np.cos(angles), np.sin(angles)]) * radius[:, None]
-    outer = inner * 1.15
+    outer = inner * 1.3
     uv = np.concatenate([inner, outer])
     faces = []
     for i in range(steps):

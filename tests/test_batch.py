@@ -4,20 +4,26 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pytest
 import trimesh
 
 from neural_shdf.batch import MANIFEST_COLUMNS, collect_assets, run_batch
 from neural_shdf.cli import EXIT_BAD_INPUT, main
 from neural_shdf.segment import SegmentParams
 from tests.api.api_helpers import TEST_METHOD
+from tests.api.conftest import redis_url  # noqa: F401 - the real redis-server fixture
 from tests.conftest import REPO_ROOT
 
 
@@ -182,3 +188,118 @@ def test_killed_batch_leaves_whole_files_and_rerun_redoes_nothing_finished(tmp_p
     assert sum(r["status"] == "skipped" for r in rows) == len(finished)
     assert sum(r["status"] == "ok" for r in rows) == 10 - len(finished)
     assert not list(out.rglob("*.tmp"))
+
+
+# -- Dask distributed: a real LocalCluster of 2 worker processes ------------------------
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _library(tmp_path_factory.mktemp("library"), 12, bad=1)
+
+
+@pytest.fixture(scope="module")
+def local_outputs(library: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
+    out = tmp_path_factory.mktemp("local")
+    rows = run_batch([library], out, method=TEST_METHOD, outputs=["seg", "shdf"], workers=2)
+    assert [r["status"] for r in rows].count("ok") == 12
+    return _outputs(out)
+
+
+@pytest.fixture
+def dask_client() -> Iterator[Any]:
+    distributed = pytest.importorskip("distributed")
+    cluster = distributed.LocalCluster(
+        n_workers=2,
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address=None,
+        silence_logs=logging.ERROR,
+    )
+    client = distributed.Client(cluster)
+    try:
+        yield client
+    finally:
+        client.close()
+        cluster.close()
+
+
+@pytest.mark.slow
+def test_dask_cluster_writes_the_local_outputs_byte_for_byte(
+    library: Path, local_outputs: dict[str, bytes], dask_client: Any, tmp_path: Path
+):
+    rows = run_batch([library], tmp_path, method=TEST_METHOD, outputs=["seg", "shdf"],
+                     scheduler=dask_client)  # fmt: skip
+    assert [r["status"] for r in rows].count("ok") == 12
+    assert [r["error_type"] for r in rows if r["status"] == "failed"] == ["MeshParseError"]
+    assert _outputs(tmp_path) == local_outputs
+    # Both worker processes took part.
+    assert len({r["worker"] for r in rows}) == 2
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_run_has_its_assets_retried_elsewhere(
+    library: Path, local_outputs: dict[str, bytes], dask_client: Any, tmp_path: Path
+):
+    result: dict[str, Any] = {}
+
+    def run() -> None:
+        result["rows"] = run_batch([library], tmp_path, method=TEST_METHOD,
+                                   outputs=["seg", "shdf"], scheduler=dask_client)  # fmt: skip
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    deadline = time.monotonic() + 120
+    victim = None
+    while victim is None and time.monotonic() < deadline:
+        busy = {w: tasks for w, tasks in dask_client.processing().items() if tasks}
+        if len(list(tmp_path.rglob("*.batch.json"))) >= 2 and busy:
+            victim = sorted(busy)[0]
+        time.sleep(0.02)
+    assert victim is not None, "no worker was busy"
+    held = set(dask_client.processing()[victim])
+    pids = dask_client.run(os.getpid, workers=[victim])
+    os.kill(pids[victim], signal.SIGKILL)
+    thread.join(timeout=300)
+    assert not thread.is_alive()
+    rows = result["rows"]
+    assert held, "the killed worker held no asset"
+    assert [r["status"] for r in rows].count("ok") == 12
+    assert _outputs(tmp_path) == local_outputs
+
+
+# -- the service's ShDF cache -----------------------------------------------------------
+
+
+def test_batch_and_service_share_the_shdf_through_redis(
+    redis_url: str,  # noqa: F811 - the fixture imported above
+    tmp_path: Path,
+):
+    from fastapi.testclient import TestClient
+
+    from neural_shdf.api.app import create_app
+    from tests.api.api_helpers import make_settings
+
+    _library(tmp_path / "in", 2)
+    first = run_batch([tmp_path / "in"], tmp_path / "a", method=TEST_METHOD, cache=redis_url,
+                      workers=0)  # fmt: skip
+    assert [r["shdf_cached"] for r in first] == [False, False]
+    again = run_batch([tmp_path / "in"], tmp_path / "b", method=TEST_METHOD, cache=redis_url,
+                      workers=2)  # fmt: skip
+    assert [r["shdf_cached"] for r in again] == [True, True]
+    assert _outputs(tmp_path / "b") == _outputs(tmp_path / "a")
+    # The service finds the batch's ShDF under the mesh's id: it computes nothing.
+    app = create_app(make_settings(tmp_path / "cache", redis_url=redis_url, warm_up=False))
+    with TestClient(app) as client:
+        mesh = Path(first[0]["path"])
+        upload = client.post("/v1/meshes", files={"file": (mesh.name, mesh.read_bytes())})
+        assert upload.status_code == 200, upload.text
+        assert upload.json()["mesh"]["mesh_id"] == first[0]["mesh_id"]
+        assert upload.json()["shdf"]["cached"] is True
+        segment = client.post("/v1/segment", json={"mesh_id": first[0]["mesh_id"]})
+        assert segment.status_code == 200, segment.text
+        assert segment.json()["timings"]["shdf_cached"] is True
+        labels = [
+            int(x) for x in (tmp_path / "a" / f"{first[0]['output']}.seg").read_text().split()
+        ]
+        assert segment.json()["labels"] == labels

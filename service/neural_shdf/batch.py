@@ -23,6 +23,7 @@ import io
 import json
 import os
 import resource
+import socket
 import sys
 import tempfile
 import time
@@ -63,6 +64,7 @@ MANIFEST_COLUMNS = (
     "seconds",
     "peak_memory_mb",
     "shdf_cached",
+    "worker",
 )
 #: Extensions a folder scan picks up (the formats ``mesh_io`` reads).
 MESH_EXTENSIONS = frozenset({".obj", ".off", ".ply", ".stl", ".glb", ".gltf"})
@@ -280,6 +282,7 @@ def process_asset(asset: Asset, out_dir: str, config: BatchConfig, key: str) -> 
         )
     row["seconds"] = round(time.perf_counter() - start, 4)
     row["peak_memory_mb"] = _peak_memory_mb(reset)
+    row["worker"] = f"{socket.gethostname()}:{os.getpid()}"
     if row["status"] == "ok":
         record = {"key": key, "content_hash": row["content_hash"], "row": row}
         path = Path(out_dir) / (asset.output + RECORD_SUFFIX)

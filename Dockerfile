@@ -1,5 +1,13 @@
 # neural-shdf REST service: the README's `pip install .` at the versions locked in constraints.txt
 # (the same set the tests run with), as a non-root user.
+
+# three.js for the web viewer, from npm at the version locked in the viewer's package-lock.json;
+# the service serves this copy (NEURAL_SHDF_VIEWER_THREE_DIR below), so the image needs no CDN.
+FROM node:20-slim AS viewer
+WORKDIR /viewer
+COPY service/neural_shdf/viewer/package.json service/neural_shdf/viewer/package-lock.json ./
+RUN npm ci --no-audit --no-fund --loglevel=error
+
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
@@ -15,6 +23,9 @@ COPY service ./service
 COPY model_export ./model_export
 # The committed ONNX model (service/neural_shdf/models/emd.onnx) is package data: installed here.
 RUN pip install -c constraints.txt . && rm -rf /src
+
+COPY --from=viewer /viewer/node_modules/three /opt/three
+ENV NEURAL_SHDF_VIEWER_THREE_DIR=/opt/three
 
 USER neural-shdf
 WORKDIR /home/neural-shdf

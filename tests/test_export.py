@@ -1,4 +1,7 @@
-"""Exports: palette, coloured GLB without blending across parts, per-part GLB, label files."""
+"""Exports: palette, coloured GLB without blending across parts, per-part GLB, label files,
+unwrapped GLB."""
+
+import io
 
 import numpy as np
 import pytest
@@ -8,6 +11,8 @@ from neural_shdf.errors import ParameterError
 from neural_shdf.export import (
     UNLABELED_COLOR,
     colored_glb,
+    display_geometry,
+    part_color_hex,
     part_colors,
     part_name,
     parts_glb,
@@ -17,6 +22,7 @@ from neural_shdf.export import (
     write_labels,
     write_values,
 )
+from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import load_mesh
 
 
@@ -126,3 +132,43 @@ def test_read_values_reads_cgal_sdf_files(shared_data):
         pytest.skip(f"{path} is absent")
     values = read_values(path)
     assert len(values) == 9408 and values.min() >= 0 and values.max() <= 1
+
+
+def test_unwrapped_glb_round_trips_faces_order_and_uvs():
+    from neural_shdf.export import unwrapped_glb
+    from neural_shdf.unwrap import atlas_layout_image, png_bytes, unwrap
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    mesh = TriangleMesh(sphere.vertices, sphere.faces)
+    labels = (sphere.triangles_center[:, 2] > 0).astype(np.int64)
+    atlas = unwrap(mesh, labels)
+    data = unwrapped_glb(mesh, atlas, texture_png=png_bytes(atlas_layout_image(atlas, size=128)))
+    loaded = trimesh.load(io.BytesIO(data), file_type="glb", force="mesh", process=False)
+    assert len(loaded.faces) == mesh.face_count
+    assert np.allclose(loaded.vertices[loaded.faces], mesh.vertices[mesh.faces], atol=1e-6)
+    corner_uvs = loaded.visual.uv[loaded.faces]
+    assert np.allclose(corner_uvs, atlas.corner_uvs, atol=1e-6)
+    assert loaded.visual.material.baseColorTexture.size == (128, 128)
+
+
+def test_part_color_hex_spells_the_palette():
+    hexes = part_color_hex(20)
+    assert hexes[0] == "#e69f00"
+    rgb = [[int(h[i : i + 2], 16) for i in (1, 3, 5)] for h in hexes]
+    np.testing.assert_array_equal(rgb, part_colors(20)[:, :3])
+
+
+def test_display_geometry_layout_round_trips_the_triangles_and_face_map():
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1]], float)
+    obj = "".join(f"v {x} {y} {z}\n" for x, y, z in vertices) + "f 1 2 3 4\nf 1 2\nf 1 2 5\n"
+    mesh = load_mesh(obj.encode(), "obj")
+    blob = display_geometry(mesh)
+    magic, version, v, t, f = np.frombuffer(blob[:4], "S4")[0], *np.frombuffer(blob[4:20], "<u4")
+    assert (magic, version, v, t, f) == (b"NSHG", 1, 5, 3, 3)
+    positions = np.frombuffer(blob, "<f4", 3 * v, 20).reshape(-1, 3)
+    triangles = np.frombuffer(blob, "<u4", 3 * t, 20 + 12 * v).reshape(-1, 3)
+    origin = np.frombuffer(blob, "<u4", t, 20 + 12 * v + 12 * t)
+    assert len(blob) == 20 + 12 * v + 12 * t + 4 * t
+    np.testing.assert_array_equal(positions, vertices.astype(np.float32))
+    np.testing.assert_array_equal(triangles, [[0, 1, 2], [0, 2, 3], [0, 1, 4]])
+    np.testing.assert_array_equal(origin, [0, 0, 2])  # the 2-vertex face has no triangle

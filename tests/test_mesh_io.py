@@ -8,7 +8,7 @@ import trimesh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from neural_shdf.errors import MeshError, MeshParseError, UnsupportedFormatError
+from neural_shdf.errors import MeshError, MeshParseError, MeshTooLargeError, UnsupportedFormatError
 from neural_shdf.mesh_io import SUPPORTED_FORMATS, detect_format, load_mesh, sniff_format
 
 JPEG_LIKE = b"\xff\xd8\xff\xe0\x00\x10JFIF\x00\x01\x01" + bytes(range(256)) * 4
@@ -173,3 +173,34 @@ def test_open_non_manifold_multi_shell_degenerate_mesh_loads_whole():
     mesh = load_mesh(text.encode(), "obj")
     assert mesh.face_count == mesh.input_face_count == 5
     assert mesh.faces.tolist() == [[0, 1, 2], [1, 0, 3], [0, 1, 4], [5, 6, 7], [5, 5, 6]]
+
+
+def _big_polygons_ply(polygons: int, sides: int) -> bytes:
+    """Binary PLY of ``polygons`` rows of ``sides`` uchar-indexed vertices (tiny per face)."""
+    header = (
+        "ply\nformat binary_little_endian 1.0\n"
+        f"element vertex {sides}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"element face {polygons}\nproperty list uchar uchar vertex_indices\nend_header\n"
+    ).encode()
+    angles = np.linspace(0, 2 * np.pi, sides, endpoint=False)
+    ring = np.stack([np.cos(angles), np.sin(angles), np.zeros(sides)], 1).astype("<f4")
+    row = bytes([sides]) + bytes(range(sides))
+    return header + ring.tobytes() + row * polygons
+
+
+@pytest.mark.parametrize("kind", ["vertices", "triangles"])
+def test_limits_apply_to_every_format_before_the_arrays_are_made(kind):
+    files = _valid_files()
+    for name, data in files.items():
+        limits = {"max_vertices": 2} if kind == "vertices" else {"max_faces": 1}
+        with pytest.raises(MeshTooLargeError) as error:
+            load_mesh(data, name, **limits)
+        assert error.value.limit == ("max_vertices" if kind == "vertices" else "max_faces")
+        assert f"({error.value.limit})" in str(error.value)
+
+
+def test_polygons_are_budgeted_by_the_triangles_they_fan_into():
+    data = _big_polygons_ply(polygons=1000, sides=255)  # 1000 faces, 253,000 triangles
+    with pytest.raises(MeshTooLargeError, match="253000 triangles"):
+        load_mesh(data, "ply", max_faces=100_000)
+    assert load_mesh(data, "ply", max_faces=253_000).face_count == 253_000

@@ -1,4 +1,4 @@
-"""Command-line interface: ``neural-shdf shdf|segment|eval|serve``.
+"""Command-line interface: ``neural-shdf shdf|segment|unwrap|batch|eval|serve``.
 
 A stable contract for pipelines: per-face outputs have one line per face of the
 input file, in the input file's order; errors go to stderr with a non-zero exit.
@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
 from neural_shdf.errors import NeuralShdfError, ParameterError
 
 #: Exit codes: 0 ok, 1 unexpected failure, 2 bad input or usage, 3 model unavailable.
@@ -47,12 +48,14 @@ def progress_bar(description: str, enabled: bool = True) -> Iterator[Callable[[f
         bar.close()
 
 
-def _load(path: str, file_type: str | None):
+def _load(args: argparse.Namespace):
     from neural_shdf.mesh_io import load_mesh
 
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"mesh file not found: {path}")
-    return load_mesh(Path(path), file_type)
+    if not Path(args.mesh).is_file():
+        raise FileNotFoundError(f"mesh file not found: {args.mesh}")
+    return load_mesh(
+        Path(args.mesh), args.format, max_faces=args.max_faces, max_vertices=args.max_vertices
+    )
 
 
 def _shdf(mesh, method: str, seed: int, graph, quiet: bool) -> np.ndarray:
@@ -66,7 +69,7 @@ def cmd_shdf(args: argparse.Namespace) -> int:
     from neural_shdf.export import write_values
     from neural_shdf.pipeline import input_face_shdf, mesh_face_graph
 
-    mesh = _load(args.mesh, args.format)
+    mesh = _load(args)
     values = _shdf(mesh, args.method, args.seed, mesh_face_graph(mesh), args.quiet)
     write_values(args.output, input_face_shdf(mesh, values))
     return 0
@@ -78,7 +81,7 @@ def cmd_segment(args: argparse.Namespace) -> int:
     from neural_shdf.segment import SegmentParams
 
     params = SegmentParams.from_attributes(args)
-    mesh = _load(args.mesh, args.format)
+    mesh = _load(args)
     graph = mesh_face_graph(mesh)
     shdf = _shdf(mesh, args.method, args.seed, graph, args.quiet)
     start = time.perf_counter()
@@ -92,6 +95,45 @@ def cmd_segment(args: argparse.Namespace) -> int:
         parts = len(np.unique(labels))
         elapsed = time.perf_counter() - start
         print(f"{parts} parts, {mesh.input_face_count} faces, segmented in {elapsed:.2f} s",
+              file=sys.stderr)
+    return 0
+
+
+def cmd_unwrap(args: argparse.Namespace) -> int:
+    from neural_shdf.export import unwrapped_glb, write_labels, write_obj_with_uvs
+    from neural_shdf.pipeline import input_face_labels, mesh_face_graph, segment_mesh
+    from neural_shdf.segment import SegmentParams
+    from neural_shdf.unwrap import UnwrapParams, atlas_layout_image, png_bytes, unwrap
+
+    output = Path(args.output)
+    if output.suffix.lower() not in (".glb", ".obj"):
+        raise ParameterError(f"-o must end in .glb or .obj, got {output.name!r}")
+    params = SegmentParams.from_attributes(args)
+    unwrap_params = UnwrapParams(
+        atlas_size=args.atlas_size, padding=args.padding, max_stretch=args.max_stretch
+    )
+    mesh = _load(args)
+    graph = mesh_face_graph(mesh)
+    shdf = _shdf(mesh, args.method, args.seed, graph, args.quiet)
+    start = time.perf_counter()
+    labels = segment_mesh(mesh, shdf, params, graph=graph)
+    atlas = unwrap(mesh, labels, unwrap_params)
+    layout = png_bytes(atlas_layout_image(atlas, size=args.atlas_size))
+    split = 0
+    if output.suffix.lower() == ".glb":
+        output.write_bytes(unwrapped_glb(mesh, atlas, texture_png=layout))
+    else:
+        split = write_obj_with_uvs(output, mesh, atlas)
+    if args.atlas_png:
+        Path(args.atlas_png).write_bytes(layout)
+    if args.labels:
+        write_labels(args.labels, input_face_labels(mesh, labels))
+    if not args.quiet:
+        elapsed = time.perf_counter() - start
+        parts = len(np.unique(labels))
+        note = f"; {split} polygons split by a chart boundary written as triangles" if split else ""
+        print(f"{parts} parts, {atlas.chart_count} charts, atlas {atlas.width}x{atlas.height} "
+              f"({atlas.utilization:.0%} used), unwrapped in {elapsed:.2f} s{note}",
               file=sys.stderr)
     return 0
 
@@ -136,6 +178,19 @@ def _add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--method", choices=["neural", "exact"], default="neural",
                         help="ShDF from the neural network (default, fast) or exact ray casting")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random step")
+    parser.add_argument(
+        "--max-faces",
+        type=int,
+        default=DEFAULT_MAX_FACES,
+        help="refuse meshes with more triangles, counting glTF instances "
+        f"(default {DEFAULT_MAX_FACES}, as the service)",
+    )
+    parser.add_argument(
+        "--max-vertices",
+        type=int,
+        default=DEFAULT_MAX_VERTICES,
+        help=f"refuse meshes with more vertices (default {DEFAULT_MAX_VERTICES})",
+    )
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
 
 
@@ -229,6 +284,22 @@ def build_parser() -> argparse.ArgumentParser:
                        help="assets with more triangles fail without being computed")
     batch.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
     batch.set_defaults(run=cmd_batch)
+
+    unwrap = commands.add_parser(
+        "unwrap", help="UVs charted part by part, packed into one atlas (GLB or OBJ with vt)"
+    )
+    _add_mesh_arguments(unwrap)
+    unwrap.add_argument("-o", "--output", required=True,
+                        help="OUT.glb (UVs + atlas preview texture) or OUT.obj (v/vt per corner)")
+    _add_segment_options(unwrap)
+    unwrap.add_argument("--atlas-size", type=int, default=1024, help="atlas side in texels")
+    unwrap.add_argument("--padding", type=int, default=2, help="texels between charts")
+    unwrap.add_argument("--max-stretch", type=float, default=1.1,
+                        help="largest L2 stretch of a part kept as one chart (1 = no stretch)")
+    unwrap.add_argument("--atlas-png", metavar="OUT.png",
+                        help="write the atlas layout (charts coloured by part, outlined)")
+    unwrap.add_argument("--labels", metavar="OUT.seg", help="also write the part labels")
+    unwrap.set_defaults(run=cmd_unwrap)
 
     evaluate = commands.add_parser("eval", help="Princeton Segmentation Benchmark metrics")
     evaluate.add_argument("bench_dir", help="folder with off/, seg/ (and cgal/) subfolders")

@@ -11,3 +11,9 @@ SHDF_RAY_COUNT = 25
 
 #: Default random seed of every stochastic step.
 DEFAULT_SEED = 0
+
+#: Size limits of the service and the CLI (``load_mesh`` itself has none unless given):
+#: triangles after triangulation and glTF instancing, and vertices (3 per triangle is
+#: a triangle soup, the most a sane mesh needs).
+DEFAULT_MAX_FACES = 2_000_000
+DEFAULT_MAX_VERTICES = 6_000_000

@@ -22,7 +22,28 @@ class InvalidGeometryError(MeshError):
 
 
 class MeshTooLargeError(MeshError):
-    """The mesh exceeds a configured size limit."""
+    """The mesh exceeds a configured size limit.
+
+    ``limit`` names the limit (``max_faces``, ``max_vertices``, ``max_node_visits``,
+    ``memory``), ``maximum`` is its value and ``found`` what the file needs (at least).
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        limit: str = "size",
+        maximum: int | None = None,
+        found: int | None = None,
+    ) -> None:
+        super().__init__(message)
+        self.limit = limit
+        self.maximum = maximum
+        self.found = found
+
+    def detail(self) -> dict[str, object]:
+        """The limit as structured data (the API's error ``detail``)."""
+        return {"limit": self.limit, "maximum": self.maximum, "found": self.found}
 
 
 class ParameterError(NeuralShdfError, ValueError):

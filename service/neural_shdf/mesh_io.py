@@ -27,7 +27,7 @@ from pathlib import Path
 
 from neural_shdf.errors import MeshParseError, UnsupportedFormatError
 from neural_shdf.exchange import READERS
-from neural_shdf.exchange._common import parse_guard
+from neural_shdf.exchange._common import MeshLimits, parse_guard
 from neural_shdf.mesh import TriangleMesh
 
 #: File extensions load_mesh reads (lower case, without the dot).
@@ -81,6 +81,7 @@ def load_mesh(
     file_type: str | None = None,
     *,
     max_faces: int | None = None,
+    max_vertices: int | None = None,
 ) -> TriangleMesh:
     """Read a mesh from a path (format from the extension unless ``file_type`` is given)
     or from bytes (``file_type`` should be given; a few formats are recognised by content).
@@ -88,7 +89,9 @@ def load_mesh(
 
     Raises a MeshError subclass for anything wrong with the input: UnsupportedFormatError,
     MeshParseError (empty, truncated, not that format), InvalidGeometryError, and
-    MeshTooLargeError when the mesh has more than ``max_faces`` triangles.
+    MeshTooLargeError when the mesh has more than ``max_faces`` faces or triangles or
+    more than ``max_vertices`` vertices, counting what glTF instancing expands to (both
+    checked from declared counts before the arrays are made; None: no limit).
     """
     if isinstance(source, bytes | bytearray | memoryview):
         data = bytes(source)
@@ -114,7 +117,13 @@ def load_mesh(
     if not data.strip():
         raise MeshParseError(f"{label} is empty; expected a {format_name} mesh")
     with parse_guard(format_name):
-        return READERS[name](data, max_faces)
+        return READERS[name](data, MeshLimits(max_faces, max_vertices))
 
 
-__all__ = ["SUPPORTED_FORMATS", "detect_format", "load_mesh", "sniff_format"]
+__all__ = [
+    "SUPPORTED_FORMATS",
+    "MeshLimits",
+    "detect_format",
+    "load_mesh",
+    "sniff_format",
+]

@@ -140,3 +140,28 @@ def make_settings(cache_dir: Path, **overrides):
     values = {"cache_dir": cache_dir, "default_method": TEST_METHOD, "redis_url": None}
     values.update(overrides)
     return Settings(_env_file=None, **values)
+
+
+def instanced_glb(vertex_count: int, children: int) -> bytes:
+    """A GLB whose one mesh (``vertex_count`` vertices, one triangle) is placed by each of
+    ``children`` nodes: a small file that expands to ``children * vertex_count`` vertices."""
+    positions = np.random.default_rng(0).random((vertex_count, 3)).astype("<f4")
+    indices = np.array([0, 1, 2], dtype="<u4")
+    blob = positions.tobytes() + indices.tobytes()
+    document = {
+        "asset": {"version": "2.0"},
+        "buffers": [{"byteLength": len(blob)}],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": positions.nbytes},
+            {"buffer": 0, "byteOffset": positions.nbytes, "byteLength": indices.nbytes},
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": vertex_count},
+            {"bufferView": 1, "componentType": 5125, "type": "SCALAR", "count": 3},
+        ],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "nodes": [{"children": list(range(1, children + 1))}]
+        + [{"mesh": 0, "translation": [i, 0, 0]} for i in range(children)],
+        "scenes": [{"nodes": [0]}],
+    }
+    return glb_container(json.dumps(document).encode(), blob)

@@ -15,7 +15,14 @@ from hypothesis import strategies as st
 
 from neural_shdf.api.app import create_app
 from neural_shdf.mesh_io import SUPPORTED_FORMATS
-from tests.api.api_helpers import capsule, glb_container, make_settings, obj_bytes, off_bytes
+from tests.api.api_helpers import (
+    capsule,
+    glb_container,
+    instanced_glb,
+    make_settings,
+    obj_bytes,
+    off_bytes,
+)
 
 FUZZ = settings(
     max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
@@ -34,9 +41,12 @@ def assert_error(response: httpx.Response, status: int, code: str | None = None)
 
 @pytest.fixture(scope="module")
 def small_client(tmp_path_factory) -> TestClient:
-    """Tight limits: 64 kB bodies, 2,000 faces."""
+    """Tight limits: 64 kB bodies, 2,000 faces, 50,000 vertices."""
     settings_ = make_settings(
-        tmp_path_factory.mktemp("cache"), max_upload_bytes=64_000, max_faces=2_000
+        tmp_path_factory.mktemp("cache"),
+        max_upload_bytes=64_000,
+        max_faces=2_000,
+        max_vertices=50_000,
     )
     with TestClient(create_app(settings_), raise_server_exceptions=False) as client:
         yield client
@@ -83,7 +93,15 @@ def test_too_many_faces_is_413(small_client):
     sphere = trimesh.creation.icosphere(subdivisions=4)  # 5,120 faces, ~92 kB as GLB
     sphere = trimesh.Trimesh(sphere.vertices, sphere.faces[:2500])  # over 2,000 faces, < 64 kB
     response = post_file(small_client, sphere.export(file_type="glb"), "s.glb")
-    assert_error(response, 413, "mesh_too_large")
+    error = assert_error(response, 413, "mesh_too_large")
+    assert error["detail"] == {"limit": "max_faces", "maximum": 2_000, "found": 2_500}
+
+
+def test_instancing_that_expands_past_the_vertex_limit_is_413_naming_it(small_client):
+    data = instanced_glb(4000, 40)  # 48 kB, 160,000 vertices once expanded
+    error = assert_error(post_file(small_client, data, "bomb.glb"), 413, "mesh_too_large")
+    assert error["detail"] == {"limit": "max_vertices", "maximum": 50_000, "found": 160_000}
+    assert "max_vertices" in error["message"] and "40 glTF mesh instances" in error["message"]
 
 
 def test_unsupported_format_is_415(small_client):

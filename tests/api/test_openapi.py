@@ -10,7 +10,7 @@ from tests.api.api_helpers import REPO_ROOT
 COMMITTED = REPO_ROOT / "openapi" / "openapi.json"
 OPERATIONS = {
     "health", "ready", "metrics", "upload_mesh", "get_mesh", "delete_mesh", "get_shdf",
-    "get_job", "segment_mesh", "segment_file", "get_colored_glb", "get_parts_glb",
+    "get_job", "segment_mesh", "segment_file", "get_colored_glb", "get_parts_glb", "get_geometry",
 }  # fmt: skip
 
 

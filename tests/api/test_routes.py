@@ -191,3 +191,40 @@ def test_a_failing_warm_up_does_not_stop_the_service(app_factory, monkeypatch):
     monkeypatch.setattr(app_module, "warm_up", broken)
     with TestClient(app_factory()) as test_client:
         assert test_client.get("/healthz").status_code == 200
+
+
+def test_geometry_is_the_stored_triangles_with_their_input_faces(client):
+    from tests.api.api_helpers import obj_bytes, quad_box
+
+    vertices, quads = quad_box((0.0, 0.0, 0.0), 1.0)
+    data = obj_bytes(vertices, quads)
+    mesh_id = upload(client, data, name="box.obj").json()["mesh"]["mesh_id"]
+    response = client.get(f"/v1/meshes/{mesh_id}/geometry")
+    assert response.status_code == 200
+    assert response.headers["content-type"] == "application/octet-stream"
+    blob = response.content
+    assert blob[:4] == b"NSHG"
+    version, v, t, f = np.frombuffer(blob[4:20], "<u4")
+    mesh = load_mesh(data, "obj")
+    assert (version, v, t, f) == (1, 8, 12, 6)
+    positions = np.frombuffer(blob, "<f4", 3 * v, 20).reshape(-1, 3)
+    triangles = np.frombuffer(blob, "<u4", 3 * t, 20 + 12 * v).reshape(-1, 3)
+    origin = np.frombuffer(blob, "<u4", t, 20 + 12 * v + 12 * t)
+    np.testing.assert_allclose(positions, mesh.vertices, atol=1e-6)
+    np.testing.assert_array_equal(triangles, mesh.faces)
+    np.testing.assert_array_equal(origin, np.repeat(np.arange(6), 2))
+    missing = client.get(f"/v1/meshes/{'0' * 64}/geometry")
+    assert missing.status_code == 404 and missing.json()["error"]["code"] == "mesh_not_found"
+
+
+def test_parts_carry_the_coloured_glb_palette(client, capsule_obj):
+    from neural_shdf.export import part_colors
+
+    mesh_id = upload(client, capsule_obj).json()["mesh"]["mesh_id"]
+    body = client.post(
+        "/v1/segment", json={"mesh_id": mesh_id, "partitioner": "metis", "parts": 4}
+    ).json()
+    palette = part_colors(4)[:, :3]
+    for part in body["parts"]:
+        rgb = [int(part["color"][i : i + 2], 16) for i in (1, 3, 5)]
+        assert rgb == palette[part["label"]].tolist()

@@ -275,3 +275,74 @@ def test_trimesh_exported_glb_loads_in_order():
     box = trimesh.creation.box()
     mesh = load_mesh(box.export(file_type="glb"), "glb")
     np.testing.assert_allclose(mesh.vertices[mesh.faces], box.vertices[box.faces], atol=1e-6)
+
+
+def _instanced(vertex_count: int, children: int) -> _Builder:
+    """One mesh of ``vertex_count`` vertices (a single indexed triangle) placed by each of
+    ``children`` child nodes of one root: few bytes, ``children`` times the vertices."""
+    b = _Builder()
+    positions = np.random.default_rng(0).random((vertex_count, 3)).astype(np.float32)
+    b.mesh(positions, TRIANGLE_INDICES)
+    b.doc["nodes"] = [{"children": list(range(1, children + 1))}] + [
+        {"mesh": 0, "translation": [i, 0, 0]} for i in range(children)
+    ]
+    b.doc["scenes"] = [{"nodes": [0]}]
+    return b
+
+
+def test_instanced_vertices_are_budgeted_before_any_accessor_is_read(monkeypatch):
+    data = _instanced(50_000, 40).glb()  # 0.6 MB that expands to 2M vertices
+
+    def no_read(*args):
+        raise AssertionError("an accessor was read before the budget was checked")
+
+    monkeypatch.setattr(gltf_reader._Document, "accessor", no_read)
+    with pytest.raises(MeshTooLargeError, match="max_vertices") as error:
+        load_mesh(data, "glb", max_faces=1000, max_vertices=1_000_000)
+    assert error.value.limit == "max_vertices"
+    assert error.value.found == 2_000_000 and error.value.maximum == 1_000_000
+    assert "40 glTF mesh instances" in str(error.value)
+
+
+def test_instanced_triangles_are_budgeted_before_any_accessor_is_read(monkeypatch):
+    b = _instanced(3, 5)
+    monkeypatch.setattr(gltf_reader._Document, "accessor", None)  # never called
+    with pytest.raises(MeshTooLargeError, match="5 triangles .*limit of 4 triangles"):
+        load_mesh(b.glb(), "glb", max_faces=4)
+
+
+def test_within_budget_every_instance_is_expanded():
+    mesh = load_mesh(_instanced(10, 40).glb(), "glb", max_faces=40, max_vertices=400)
+    assert mesh.face_count == 40 and len(mesh.vertices) == 400
+
+
+def test_accessors_aliasing_one_buffer_view_count_once_per_use():
+    b = _instanced(1000, 1)
+    position = b.doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"]
+    indices = b.doc["meshes"][0]["primitives"][0]["indices"]
+    aliases = [dict(b.doc["accessors"][position]) for _ in range(300)]
+    first = len(b.doc["accessors"])
+    b.doc["accessors"] += aliases  # 300 accessors decoding the same bytes
+    b.doc["meshes"][0]["primitives"] = [
+        {"attributes": {"POSITION": first + i}, "indices": indices} for i in range(300)
+    ]
+    with pytest.raises(MeshTooLargeError, match="300000 vertices"):
+        load_mesh(b.glb(), "glb", max_vertices=100_000)
+
+
+def test_a_chain_of_thousands_of_nodes_loads_without_recursion():
+    b = _simple()
+    depth = 5000
+    b.doc["nodes"] = [{"children": [i + 1], "translation": [1, 0, 0]} for i in range(depth)]
+    b.doc["nodes"].append({"mesh": 0})
+    b.doc["scenes"] = [{"nodes": [0]}]
+    mesh = load_mesh(b.glb(), "glb")
+    assert mesh.vertices[:, 0].min() == depth  # every ancestor's translation applied
+
+
+def test_a_cycle_deep_in_a_chain_is_named():
+    b = _simple()
+    b.doc["nodes"] = [{"children": [i + 1]} for i in range(3000)] + [{"children": [1500]}]
+    b.doc["scenes"] = [{"nodes": [0]}]
+    with pytest.raises(MeshParseError, match="cycle through node 1500"):
+        load_mesh(b.glb(), "glb")

@@ -94,11 +94,19 @@ def classify(exc: BaseException) -> tuple[int, str, str]:
     return 500, "internal_error", "internal error; the failure was logged"
 
 
+def error_detail(exc: BaseException) -> Any:
+    """Structured detail of an error: an ApiError's extra, the limit a mesh exceeded."""
+    if isinstance(exc, ApiError):
+        return exc.extra
+    if isinstance(exc, MeshTooLargeError):
+        return exc.detail()
+    return None
+
+
 def error_dict(exc: BaseException) -> dict[str, Any]:
     """The inner error object for an exception (used in job records too)."""
     _, code, message = classify(exc)
-    detail = exc.extra if isinstance(exc, ApiError) else None
-    return {"code": code, "message": message, "detail": detail}
+    return {"code": code, "message": message, "detail": error_detail(exc)}
 
 
 def allowed_methods(app: FastAPI, path: str) -> list[str]:
@@ -118,8 +126,7 @@ def install_error_handlers(app: FastAPI) -> None:
         status, code, message = classify(exc)
         if status >= 500:
             logger.exception("request failed", exc_info=exc)
-        detail = exc.extra if isinstance(exc, ApiError) else None
-        return error_response(status, code, message, detail)
+        return error_response(status, code, message, error_detail(exc))
 
     async def http_error(request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, StarletteHTTPException)

@@ -60,7 +60,11 @@ class Check(BaseModel):
 class Readiness(BaseModel):
     """Readiness: the model is loaded and the cache is reachable."""
 
-    status: Literal["ready", "not_ready"] = Field(description="Overall state.", examples=["ready"])
+    status: Literal["ready", "degraded", "not_ready"] = Field(
+        description="Overall state: `degraded` (still 200) while Redis is unreachable and "
+        "the local disk cache serves instead.",
+        examples=["ready"],
+    )
     checks: dict[str, Check] = Field(
         description="Each check by name (`model`, `cache`).",
         examples=[
@@ -137,6 +141,7 @@ class Job(BaseModel):
                     "mesh_id": MESH_ID_EXAMPLE,
                     "method": "neural",
                     "seed": 0,
+                    "attempt": 1,
                     "created_at": 1763791200.0,
                     "updated_at": 1763791203.5,
                     "error": None,
@@ -154,6 +159,12 @@ class Job(BaseModel):
     mesh_id: str = Field(description="The mesh the job computes.", examples=[MESH_ID_EXAMPLE])
     method: ShdfMethodName = Field(description="ShDF method.", examples=["neural"])
     seed: int = Field(description="ShDF seed.", examples=[0])
+    attempt: int = Field(
+        1,
+        ge=1,
+        description="Run of the job: above 1 when it was re-run after its worker stopped.",
+        examples=[1],
+    )
     created_at: float = Field(description="Unix time the job was created.", examples=[1763791200.0])
     updated_at: float = Field(description="Unix time of the last update.", examples=[1763791203.5])
     error: ErrorDetail | None = Field(None, description="Why it failed (state `failed`).")
@@ -280,6 +291,10 @@ class PartSummary(BaseModel):
     faces: int = Field(description="Input faces in the part.", examples=[1200])
     area: float = Field(description="Surface area of the part.", examples=[0.37])
     mean_shdf: float = Field(description="Area-weighted mean ShDF of the part.", examples=[0.42])
+    color: str = Field(
+        description="Display colour `#rrggbb`, the same as in the coloured GLB.",
+        examples=["#e69f00"],
+    )
 
 
 class Timings(BaseModel):
@@ -311,8 +326,20 @@ class Segmentation(BaseModel):
                     "labels_base64": None,
                     "labels_dtype": None,
                     "parts": [
-                        {"label": 0, "faces": 2, "area": 1.0, "mean_shdf": 0.2},
-                        {"label": 1, "faces": 2, "area": 1.0, "mean_shdf": 0.8},
+                        {
+                            "label": 0,
+                            "faces": 2,
+                            "area": 1.0,
+                            "mean_shdf": 0.2,
+                            "color": "#e69f00",
+                        },
+                        {
+                            "label": 1,
+                            "faces": 2,
+                            "area": 1.0,
+                            "mean_shdf": 0.8,
+                            "color": "#56b4e9",
+                        },
                     ],
                     "timings": {
                         "shdf_ms": 0.0,
@@ -347,6 +374,6 @@ class Segmentation(BaseModel):
     )
     parts: list[PartSummary] = Field(
         description="Summary per part, by label.",
-        examples=[[{"label": 0, "faces": 2, "area": 1.0, "mean_shdf": 0.2}]],
+        examples=[[{"label": 0, "faces": 2, "area": 1.0, "mean_shdf": 0.2, "color": "#e69f00"}]],
     )
     timings: Timings = Field(description="Timings.")

@@ -8,6 +8,8 @@ from typing import Literal
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
+
 DEFAULT_CACHE_DIR = Path.home() / ".cache" / "neural-shdf" / "service"
 
 
@@ -28,7 +30,17 @@ class Settings(BaseSettings):
     redis_url: str | None = Field(
         None, description="redis://host:port/db; when set, Redis replaces the disk cache."
     )
-    redis_timeout_s: float = Field(2.0, gt=0, description="Redis socket timeout in seconds.")
+    redis_timeout_s: float = Field(
+        2.0,
+        gt=0,
+        description="Redis socket timeout in seconds; one timeout opens the circuit breaker.",
+    )
+    redis_retry_s: float = Field(
+        5.0,
+        gt=0,
+        description="While Redis is unreachable, how often it is probed again; meanwhile "
+        "requests use the local disk cache (`CACHE_DIR`) without waiting on Redis.",
+    )
     redis_ttl_s: float | None = Field(
         30 * 24 * 3600,
         gt=0,
@@ -54,7 +66,17 @@ class Settings(BaseSettings):
         description="Largest request body accepted (checked while reading). Text OBJ "
         "parsing peaks at about 13x the file size in memory; size workers accordingly.",
     )
-    max_faces: int = Field(2_000_000, ge=1, description="Largest mesh accepted, in faces.")
+    max_faces: int = Field(
+        DEFAULT_MAX_FACES,
+        ge=1,
+        description="Largest mesh accepted, in triangles (after triangulating polygons and "
+        "expanding glTF instances; checked before they are made).",
+    )
+    max_vertices: int = Field(
+        DEFAULT_MAX_VERTICES,
+        ge=1,
+        description="Largest mesh accepted, in vertices (glTF instances counted).",
+    )
     sync_face_threshold: int = Field(
         50_000,
         ge=0,
@@ -76,6 +98,34 @@ class Settings(BaseSettings):
         8, ge=1, description="Threads for cache I/O (never blocked by computations)."
     )
     job_ttl_s: int = Field(7 * 24 * 3600, ge=1, description="How long job records are kept.")
+    lock_lease_s: float = Field(
+        5.0,
+        gt=0,
+        description="Compute locks and running jobs are leases their worker renews every "
+        "third of this; a crashed worker's lock lapses, and its job is re-run, after this long.",
+    )
     lock_timeout_s: float = Field(
-        600.0, gt=0, description="Expiry of the cross-worker compute lock (seconds)."
+        600.0,
+        gt=0,
+        description="Longest a computation waits for another live worker computing the same "
+        "result before computing it too (seconds).",
+    )
+    job_max_attempts: int = Field(
+        3,
+        ge=1,
+        description="Runs of a job whose worker keeps dying (crash, out of memory) before it "
+        "is marked failed.",
+    )
+
+    viewer_three_url: str | None = Field(
+        None,
+        description="Base URL of the npm package `three` (the folder holding build/ and "
+        "examples/) in the web viewer's import map. Default: the local copy at /viewer/three/ "
+        "when one is installed (`npm ci` in neural_shdf/viewer, or `viewer_three_dir`), else "
+        "the jsDelivr CDN at the version locked in the viewer's package.json.",
+    )
+    viewer_three_dir: Path | None = Field(
+        None,
+        description="Local copy of the npm package `three` served at /viewer/three/; default: "
+        "node_modules/three in the viewer's folder when `npm ci` ran there.",
     )

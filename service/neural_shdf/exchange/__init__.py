@@ -1,6 +1,6 @@
 """One reader per mesh file format, registered by extension (see ``neural_shdf.mesh_io``)."""
 
-from neural_shdf.exchange._common import Reader, fan_triangulate
+from neural_shdf.exchange._common import MeshLimits, Reader, fan_triangulate
 from neural_shdf.exchange.gltf import read_glb, read_gltf
 from neural_shdf.exchange.obj import read_obj
 from neural_shdf.exchange.off import read_off
@@ -17,4 +17,4 @@ READERS: dict[str, Reader] = {
     "gltf": read_gltf,
 }
 
-__all__ = ["READERS", "Reader", "fan_triangulate"]
+__all__ = ["READERS", "MeshLimits", "Reader", "fan_triangulate"]

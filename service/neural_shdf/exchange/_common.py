@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,8 +18,44 @@ from neural_shdf.errors import (
 )
 from neural_shdf.mesh import TriangleMesh
 
-#: A reader turns file bytes into a mesh, honouring an optional face limit.
-Reader = Callable[[bytes, "int | None"], TriangleMesh]
+
+@dataclass(frozen=True)
+class MeshLimits:
+    """Size budgets a reader checks before allocating what they bound (None: no limit).
+
+    Attributes:
+        max_faces: triangles after triangulation and glTF instancing (and input faces).
+        max_vertices: vertices, counting every glTF instance of a mesh's vertices.
+    """
+
+    max_faces: int | None = None
+    max_vertices: int | None = None
+
+    def check_faces(self, count: int, what: str = "faces", *, context: str = "") -> None:
+        """MeshTooLargeError when ``count`` faces (or triangles) exceed ``max_faces``."""
+        _check(count, self.max_faces, "max_faces", what, context)
+
+    def check_vertices(self, count: int, *, context: str = "") -> None:
+        """MeshTooLargeError when ``count`` vertices exceed ``max_vertices``."""
+        _check(count, self.max_vertices, "max_vertices", "vertices", context)
+
+
+def _check(count: int, maximum: int | None, limit: str, what: str, context: str) -> None:
+    if maximum is not None and count > maximum:
+        raise MeshTooLargeError(
+            f"the mesh has {count} {what}{context}, more than the "
+            f"limit of {maximum} {what} ({limit}); simplify (decimate) it before uploading",
+            limit=limit,
+            maximum=maximum,
+            found=count,
+        )
+
+
+#: No limit at all (the readers' default).
+NO_LIMITS = MeshLimits()
+
+#: A reader turns file bytes into a mesh, honouring size limits.
+Reader = Callable[[bytes, MeshLimits], TriangleMesh]
 
 
 @contextmanager
@@ -30,7 +67,8 @@ def parse_guard(format_name: str) -> Iterator[None]:
         raise
     except MemoryError as exc:
         raise MeshTooLargeError(
-            f"the {format_name} file needs more memory than is available to load"
+            f"the {format_name} file needs more memory than is available to load",
+            limit="memory",
         ) from exc
     except Exception as exc:  # noqa: BLE001 - converting is the point of the guard
         detail = str(exc) or type(exc).__name__
@@ -38,15 +76,6 @@ def parse_guard(format_name: str) -> Iterator[None]:
             f"could not parse the file as {format_name}: {detail}. "
             f"Check that it is a complete, valid {format_name} file."
         ) from exc
-
-
-def check_face_limit(count: int, max_faces: int | None, what: str = "faces") -> None:
-    """Raise MeshTooLargeError when ``count`` exceeds ``max_faces`` (checked before allocating)."""
-    if max_faces is not None and count > max_faces:
-        raise MeshTooLargeError(
-            f"the mesh has {count} {what}, more than the limit of {max_faces}; "
-            "simplify (decimate) it before uploading"
-        )
 
 
 def decode_text(data: bytes, format_name: str) -> str:
@@ -103,7 +132,7 @@ def build_mesh(
     input_face_count: int,
     *,
     format_name: str,
-    max_faces: int | None,
+    limits: MeshLimits,
 ) -> TriangleMesh:
     """Validate parsed geometry and wrap it as a TriangleMesh (nothing merged or reordered).
 
@@ -113,7 +142,8 @@ def build_mesh(
     """
     vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    check_face_limit(len(faces), max_faces, "triangles")
+    limits.check_faces(len(faces), "triangles")
+    limits.check_vertices(len(vertices))
     if len(faces) == 0:
         raise InvalidGeometryError(
             f"the {format_name} file contains no triangles or polygons (is it a point cloud "
@@ -153,9 +183,16 @@ def polygon_mesh(
     flat_indices: NDArray,
     *,
     format_name: str,
-    max_faces: int | None,
+    limits: MeshLimits,
 ) -> TriangleMesh:
-    """Fan-triangulate polygons and validate; each polygon is one input face."""
+    """Fan-triangulate polygons and validate; each polygon is one input face.
+
+    The triangle count (a polygon of n vertices gives n - 2) is checked against
+    ``limits`` before the triangles are made: one 255-gon per PLY row would otherwise
+    multiply the face budget by 253.
+    """
+    counts = np.asarray(counts, dtype=np.int64)
+    limits.check_faces(int(np.maximum(counts - 2, 0).sum()), "triangles")
     faces, origin = fan_triangulate(counts, flat_indices)
     return build_mesh(
         vertices,
@@ -163,5 +200,5 @@ def polygon_mesh(
         origin,
         len(counts),
         format_name=format_name,
-        max_faces=max_faces,
+        limits=limits,
     )

@@ -27,7 +27,7 @@ from neural_shdf.errors import (
     MeshTooLargeError,
     UnsupportedFormatError,
 )
-from neural_shdf.exchange._common import build_mesh, check_face_limit
+from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, build_mesh
 from neural_shdf.mesh import TriangleMesh
 
 _GLB_MAGIC = b"glTF"
@@ -37,7 +37,8 @@ _COMPONENTS = {5120: "i1", 5121: "u1", 5122: "i2", 5123: "u2", 5125: "u4", 5126:
 _WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _TRIANGLES, _STRIP, _FAN = 4, 5, 6
 _COMPRESSION = ("KHR_draco_mesh_compression", "EXT_meshopt_compression")
-#: Cap on node visits, so a node graph that instances exponentially cannot blow up.
+#: Cap on node visits, so a node graph that instances exponentially cannot blow up
+#: (vertices and triangles are budgeted by ``MeshLimits`` before anything is expanded).
 MAX_NODE_VISITS = 100_000
 
 
@@ -198,10 +199,16 @@ def _triangles(indices: NDArray, mode: int) -> NDArray:
 def _triangle_count(document: _Document, primitive: dict, vertex_count: int) -> int:
     mode = primitive.get("mode", _TRIANGLES)
     if "indices" in primitive:
-        n = int(_item(document.gltf, "accessors", primitive["indices"]).get("count", 0))
+        n = _declared_count(_item(document.gltf, "accessors", primitive["indices"]))
     else:
         n = vertex_count
     return n // 3 if mode == _TRIANGLES else max(n - 2, 0)
+
+
+def _declared_count(spec: dict) -> int:
+    """An accessor's declared element count (0 when invalid: reading it reports that)."""
+    count = spec.get("count", 0)
+    return count if isinstance(count, int) and not isinstance(count, bool) and count > 0 else 0
 
 
 def _scene_roots(gltf: dict) -> list[int]:
@@ -214,13 +221,91 @@ def _scene_roots(gltf: dict) -> list[int]:
     return [i for i in range(len(nodes)) if i not in children]
 
 
-def _read_document(document: _Document, format_name: str, max_faces: int | None) -> TriangleMesh:
+def _mesh_instances(gltf: dict) -> list[tuple[int, NDArray]]:
+    """(mesh index, world matrix) of every mesh instance, in the depth-first node order.
+
+    Iterative (a chain of thousands of nodes is fine); a node met again on its own
+    path is a cycle; more than ``MAX_NODE_VISITS`` visits (a DAG that instances
+    exponentially) is too large.
+    """
+    if not (gltf.get("nodes") or gltf.get("scenes")):
+        return [(mesh_index, np.eye(4)) for mesh_index in range(len(gltf.get("meshes", [])))]
+    instances: list[tuple[int, NDArray]] = []
+    on_path: set[int] = set()
+    visits = 0
+    # Entries: (node, parent matrix) to enter, or (node, None) to leave.
+    stack: list[tuple[Any, NDArray | None]] = [
+        (root, np.eye(4)) for root in reversed(_scene_roots(gltf))
+    ]
+    while stack:
+        node_index, parent = stack.pop()
+        if parent is None:
+            on_path.discard(node_index)
+            continue
+        node = _item(gltf, "nodes", node_index)
+        if node_index in on_path:
+            raise MeshParseError(f"the glTF node graph has a cycle through node {node_index}")
+        visits += 1
+        if visits > MAX_NODE_VISITS:
+            raise MeshTooLargeError(
+                f"the glTF scene instances more than {MAX_NODE_VISITS} nodes "
+                "(max_node_visits); flatten it",
+                limit="max_node_visits",
+                maximum=MAX_NODE_VISITS,
+                found=visits,
+            )
+        if "EXT_mesh_gpu_instancing" in (node.get("extensions") or {}):
+            raise UnsupportedFormatError(
+                "glTF GPU instancing (EXT_mesh_gpu_instancing) is not supported; "
+                "export with instances realised as nodes"
+            )
+        matrix = parent @ _local_matrix(node)
+        if "mesh" in node:
+            instances.append((node["mesh"], matrix))
+        children = node.get("children", [])
+        if not isinstance(children, list):
+            raise MeshParseError(f"glTF node {node_index} has children that are not a list")
+        on_path.add(node_index)
+        stack.append((node_index, None))
+        stack.extend((child, matrix) for child in reversed(children))
+    return instances
+
+
+def _check_budget(
+    document: _Document, instances: list[tuple[int, NDArray]], limits: MeshLimits
+) -> None:
+    """Vertices and triangles the instances expand to, from the JSON alone, against
+    ``limits``: a mesh of 1M vertices placed by 40 nodes is 40M vertices, rejected
+    before a single accessor is read."""
     gltf = document.gltf
+    vertices = triangles = 0
+    uses: dict[int, int] = {}
+    for mesh_index, _ in instances:
+        uses[mesh_index] = uses.get(mesh_index, 0) + 1
+    for mesh_index, count in uses.items():
+        for primitive in _item(gltf, "meshes", mesh_index).get("primitives", []):
+            if primitive.get("mode", _TRIANGLES) not in (_TRIANGLES, _STRIP, _FAN):
+                continue
+            position = (primitive.get("attributes") or {}).get("POSITION")
+            if position is None:
+                continue  # reported when the primitive is read
+            vertex_count = _declared_count(_item(gltf, "accessors", position))
+            vertices += count * vertex_count
+            triangles += count * _triangle_count(document, primitive, vertex_count)
+    plural = "s" if len(instances) != 1 else ""
+    context = f" after expanding its {len(instances)} glTF mesh instance{plural}"
+    limits.check_faces(triangles, "triangles", context=context)
+    limits.check_vertices(vertices, context=context)
+
+
+def _read_document(document: _Document, format_name: str, limits: MeshLimits) -> TriangleMesh:
+    gltf = document.gltf
+    instances = _mesh_instances(gltf)
+    _check_budget(document, instances, limits)
     vertex_blocks: list[NDArray] = []
     face_blocks: list[NDArray] = []
-    state = {"vertices": 0, "triangles": 0, "visits": 0}
-
-    def emit(mesh_index: int, matrix: NDArray) -> None:
+    vertex_total = 0
+    for mesh_index, matrix in instances:
         mesh = _item(gltf, "meshes", mesh_index)
         flip = np.linalg.det(matrix[:3, :3]) < 0
         for primitive in mesh.get("primitives", []):
@@ -229,9 +314,6 @@ def _read_document(document: _Document, format_name: str, max_faces: int | None)
                 continue  # points and lines
             if "POSITION" not in primitive.get("attributes", {}):
                 raise MeshParseError("a glTF primitive has no POSITION attribute")
-            position_spec = _item(gltf, "accessors", primitive["attributes"]["POSITION"])
-            count = _triangle_count(document, primitive, int(position_spec.get("count", 0)))
-            check_face_limit(state["triangles"] + count, max_faces, "triangles")
             positions = document.accessor(primitive["attributes"]["POSITION"])
             if positions.shape[1] != 3:
                 raise MeshParseError("glTF POSITION must be VEC3")
@@ -251,48 +333,18 @@ def _read_document(document: _Document, format_name: str, max_faces: int | None)
             if flip:
                 triangles = triangles[:, [0, 2, 1]]
             vertex_blocks.append(positions @ matrix[:3, :3].T + matrix[:3, 3])
-            face_blocks.append(triangles + state["vertices"])
-            state["vertices"] += len(positions)
-            state["triangles"] += len(triangles)
-
-    def visit(node_index: int, parent: NDArray, path: tuple[int, ...]) -> None:
-        if node_index in path:
-            raise MeshParseError(f"the glTF node graph has a cycle through node {node_index}")
-        state["visits"] += 1
-        if state["visits"] > MAX_NODE_VISITS:
-            raise MeshTooLargeError(
-                f"the glTF scene instances more than {MAX_NODE_VISITS} nodes; flatten it"
-            )
-        node = _item(gltf, "nodes", node_index)
-        if "EXT_mesh_gpu_instancing" in (node.get("extensions") or {}):
-            raise UnsupportedFormatError(
-                "glTF GPU instancing (EXT_mesh_gpu_instancing) is not supported; "
-                "export with instances realised as nodes"
-            )
-        matrix = parent @ _local_matrix(node)
-        if "mesh" in node:
-            emit(node["mesh"], matrix)
-        for child in node.get("children", []):
-            visit(child, matrix, (*path, node_index))
-
-    if gltf.get("nodes") or gltf.get("scenes"):
-        for root in _scene_roots(gltf):
-            visit(root, np.eye(4), ())
-    else:
-        for mesh_index in range(len(gltf.get("meshes", []))):
-            emit(mesh_index, np.eye(4))
+            face_blocks.append(triangles + vertex_total)
+            vertex_total += len(positions)
 
     vertices = np.concatenate(vertex_blocks) if vertex_blocks else np.zeros((0, 3))
     faces = np.concatenate(face_blocks) if face_blocks else np.zeros((0, 3), dtype=np.int64)
-    return build_mesh(
-        vertices, faces, None, len(faces), format_name=format_name, max_faces=max_faces
-    )
+    return build_mesh(vertices, faces, None, len(faces), format_name=format_name, limits=limits)
 
 
-def read_glb(data: bytes, max_faces: int | None = None) -> TriangleMesh:
+def read_glb(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     """Parse binary glTF (GLB) bytes; declared lengths are checked before anything is read."""
     if data.lstrip()[:1] == b"{":  # a text glTF sent as GLB
-        return read_gltf(data, max_faces)
+        return read_gltf(data, limits)
     if len(data) < 12 or data[:4] != _GLB_MAGIC:
         raise MeshParseError("a GLB file must start with the 'glTF' magic bytes; is it a GLB?")
     version, length = struct.unpack_from("<II", data, 4)
@@ -317,18 +369,18 @@ def read_glb(data: bytes, max_faces: int | None = None) -> TriangleMesh:
         raise MeshParseError("the GLB has no JSON chunk")
     binary = next((payload for kind, payload in chunks[1:] if kind == _CHUNK_BIN), None)
     gltf = json.loads(chunks[0][1].decode("utf-8"))
-    return _read_document(_Document(gltf, binary), "GLB", max_faces)
+    return _read_document(_Document(gltf, binary), "GLB", limits)
 
 
-def read_gltf(data: bytes, max_faces: int | None = None) -> TriangleMesh:
+def read_gltf(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     """Parse text glTF bytes whose buffers are embedded as base64 ``data:`` URIs."""
     if data[:4] == _GLB_MAGIC:
-        return read_glb(data, max_faces)
+        return read_glb(data, limits)
     try:
         gltf = json.loads(data.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise MeshParseError(f"a .gltf file must be JSON: {exc}") from None
-    return _read_document(_Document(gltf, None), "glTF", max_faces)
+    return _read_document(_Document(gltf, None), "glTF", limits)
 
 
 __all__ = ["read_glb", "read_gltf"]

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from neural_shdf.errors import InvalidGeometryError, MeshParseError
-from neural_shdf.exchange._common import check_face_limit, decode_text, polygon_mesh
+from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, decode_text, polygon_mesh
 from neural_shdf.mesh import TriangleMesh
 
 FORMAT_NAME = "OBJ"
@@ -25,7 +25,7 @@ def _logical_lines(text: str) -> list[str]:
     return text.splitlines()
 
 
-def read_obj(data: bytes, max_faces: int | None = None) -> TriangleMesh:
+def read_obj(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     """Parse OBJ bytes; polygons are fan-triangulated, one input face per ``f`` record."""
     text = decode_text(data, FORMAT_NAME)
     coordinates: list[str] = []
@@ -33,6 +33,8 @@ def read_obj(data: bytes, max_faces: int | None = None) -> TriangleMesh:
     flat: list[int] = []
     vertex_count = 0
     polygon_count = 0
+    vertex_limit = limits.max_vertices if limits.max_vertices is not None else len(data)
+    face_limit = limits.max_faces if limits.max_faces is not None else len(data)
     for line_number, raw in enumerate(_logical_lines(text), start=1):
         line = raw.lstrip()
         if len(line) < 2 or line[0] not in "vf" or line[1] not in " \t":
@@ -45,6 +47,8 @@ def read_obj(data: bytes, max_faces: int | None = None) -> TriangleMesh:
                 )
             coordinates.extend(parts[1:4])
             vertex_count += 1
+            if vertex_count > vertex_limit:
+                limits.check_vertices(vertex_count, context=" (and counting)")
             continue
         # parts[0] == "f"
         references = parts[1:]
@@ -64,7 +68,8 @@ def read_obj(data: bytes, max_faces: int | None = None) -> TriangleMesh:
         counts.append(len(references))
         if len(references) >= 3:
             polygon_count += 1
-            check_face_limit(polygon_count, max_faces)
+            if polygon_count > face_limit:
+                limits.check_faces(polygon_count, context=" (and counting)")
     if not coordinates and not counts:
         raise MeshParseError("no vertex ('v') or face ('f') records found: this is not an OBJ mesh")
     try:
@@ -76,5 +81,5 @@ def read_obj(data: bytes, max_faces: int | None = None) -> TriangleMesh:
         np.array(counts, dtype=np.int64),
         np.array(flat, dtype=np.int64),
         format_name=FORMAT_NAME,
-        max_faces=max_faces,
+        limits=limits,
     )

@@ -11,7 +11,7 @@ import re
 import numpy as np
 
 from neural_shdf.errors import MeshParseError, UnsupportedFormatError
-from neural_shdf.exchange._common import check_face_limit, decode_text, polygon_mesh
+from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, decode_text, polygon_mesh
 from neural_shdf.mesh import TriangleMesh
 
 FORMAT_NAME = "OFF"
@@ -27,7 +27,7 @@ def _content_lines(text: str) -> list[str]:
     return lines
 
 
-def read_off(data: bytes, max_faces: int | None = None) -> TriangleMesh:
+def read_off(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     """Parse OFF bytes; polygons are fan-triangulated, one input face per face record."""
     if data[:64].lstrip().upper().startswith(b"OFF BINARY"):
         raise UnsupportedFormatError("binary OFF is not supported; save the mesh as text OFF")
@@ -60,7 +60,8 @@ def read_off(data: bytes, max_faces: int | None = None) -> TriangleMesh:
             f"the OFF file is truncated: its header declares {vertex_count} vertices and "
             f"{face_count} faces but only {available} data lines follow"
         )
-    check_face_limit(face_count, max_faces)
+    limits.check_faces(face_count)
+    limits.check_vertices(vertex_count)
 
     vertex_lines = lines[body_start : body_start + vertex_count]
     try:
@@ -86,6 +87,4 @@ def read_off(data: bytes, max_faces: int | None = None) -> TriangleMesh:
         flat_indices = np.array(flat, dtype=np.int64)
     except ValueError as exc:
         raise MeshParseError(f"OFF face indices must be integers: {exc}") from None
-    return polygon_mesh(
-        vertices, counts, flat_indices, format_name=FORMAT_NAME, max_faces=max_faces
-    )
+    return polygon_mesh(vertices, counts, flat_indices, format_name=FORMAT_NAME, limits=limits)

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.errors import InvalidGeometryError, MeshParseError, UnsupportedFormatError
-from neural_shdf.exchange._common import check_face_limit, polygon_mesh
+from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, polygon_mesh
 from neural_shdf.mesh import TriangleMesh
 
 FORMAT_NAME = "PLY"
@@ -247,7 +247,7 @@ def _read_binary_element(
     return columns, offset
 
 
-def read_ply(data: bytes, max_faces: int | None = None) -> TriangleMesh:
+def read_ply(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     """Parse PLY bytes; polygons are fan-triangulated, one input face per face row."""
     endian, elements, body = _parse_header(data)
     names = [e.name for e in elements]
@@ -258,7 +258,8 @@ def read_ply(data: bytes, max_faces: int | None = None) -> TriangleMesh:
             "the PLY file has no 'face' element (a point cloud?); export the surface as faces"
         )
     face_element = elements[names.index("face")]
-    check_face_limit(face_element.count, max_faces)
+    limits.check_faces(face_element.count)
+    limits.check_vertices(elements[names.index("vertex")].count)
     face_list = next((p.name for p in face_element.properties if p.name in _FACE_LISTS), None)
     if face_list is None:
         raise MeshParseError("the PLY 'face' element has no 'vertex_indices' list property")
@@ -288,5 +289,5 @@ def read_ply(data: bytes, max_faces: int | None = None) -> TriangleMesh:
         counts,
         flat.astype(np.int64),
         format_name=FORMAT_NAME,
-        max_faces=max_faces,
+        limits=limits,
     )

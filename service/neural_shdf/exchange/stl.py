@@ -12,7 +12,7 @@ import struct
 import numpy as np
 
 from neural_shdf.errors import MeshParseError
-from neural_shdf.exchange._common import build_mesh, check_face_limit, decode_text
+from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, build_mesh, decode_text
 from neural_shdf.mesh import TriangleMesh
 
 FORMAT_NAME = "STL"
@@ -23,7 +23,7 @@ _END_FACET = re.compile(rb"\bendfacet\b", re.IGNORECASE)
 _END_SOLID = re.compile(rb"\bendsolid\b", re.IGNORECASE)
 
 
-def _soup(corners: np.ndarray, max_faces: int | None) -> TriangleMesh:
+def _soup(corners: np.ndarray, limits: MeshLimits) -> TriangleMesh:
     count = len(corners)
     return build_mesh(
         corners.reshape(-1, 3),
@@ -31,22 +31,24 @@ def _soup(corners: np.ndarray, max_faces: int | None) -> TriangleMesh:
         None,
         count,
         format_name=FORMAT_NAME,
-        max_faces=max_faces,
+        limits=limits,
     )
 
 
-def _read_binary(data: bytes, count: int, max_faces: int | None) -> TriangleMesh:
-    check_face_limit(count, max_faces)
+def _read_binary(data: bytes, count: int, limits: MeshLimits) -> TriangleMesh:
+    limits.check_faces(count)
+    limits.check_vertices(3 * count)
     records = np.frombuffer(data, dtype=_RECORD, count=count, offset=_HEADER_BYTES)
-    return _soup(records["corners"].astype(np.float64), max_faces)
+    return _soup(records["corners"].astype(np.float64), limits)
 
 
-def _read_ascii(data: bytes, max_faces: int | None) -> TriangleMesh:
+def _read_ascii(data: bytes, limits: MeshLimits) -> TriangleMesh:
     decode_text(data, FORMAT_NAME)  # rejects binary content with a clear message
     if not _END_SOLID.search(data[-4096:]):
         raise MeshParseError("the ASCII STL does not end with 'endsolid': the file is truncated")
     facet_count = len(_END_FACET.findall(data))
-    check_face_limit(facet_count, max_faces)
+    limits.check_faces(facet_count)
+    limits.check_vertices(3 * facet_count)
     coordinates = _VERTEX.findall(data)
     if len(coordinates) != 3 * facet_count:
         raise MeshParseError(
@@ -57,18 +59,18 @@ def _read_ascii(data: bytes, max_faces: int | None) -> TriangleMesh:
         corners = np.array(coordinates, dtype=np.float64).reshape(-1, 3, 3)
     except ValueError as exc:
         raise MeshParseError(f"ASCII STL vertex coordinates are not numbers: {exc}") from None
-    return _soup(corners, max_faces)
+    return _soup(corners, limits)
 
 
-def read_stl(data: bytes, max_faces: int | None = None) -> TriangleMesh:
+def read_stl(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     """Parse STL bytes, telling binary from ASCII by the size the binary header implies."""
     declared = struct.unpack_from("<I", data, 80)[0] if len(data) >= _HEADER_BYTES else -1
     binary_size = _HEADER_BYTES + 50 * declared
     is_ascii = data[:1024].lstrip()[:5].lower() == b"solid" and b"\x00" not in data[:65536]
     if declared >= 0 and len(data) == binary_size:
-        return _read_binary(data, declared, max_faces)
+        return _read_binary(data, declared, limits)
     if is_ascii:
-        return _read_ascii(data, max_faces)
+        return _read_ascii(data, limits)
     if declared < 0:
         raise MeshParseError(
             f"the file has {len(data)} bytes: too short for a binary STL (84-byte header) "
@@ -79,4 +81,4 @@ def read_stl(data: bytes, max_faces: int | None = None) -> TriangleMesh:
             f"the binary STL is truncated: its header declares {declared} triangles "
             f"({binary_size} bytes) but the file has {len(data)} bytes"
         )
-    return _read_binary(data, declared, max_faces)  # trailing bytes after the records ignored
+    return _read_binary(data, declared, limits)  # trailing bytes after the records ignored

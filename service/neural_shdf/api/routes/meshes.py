@@ -162,3 +162,29 @@ async def get_shdf(
         values=[None if np.isnan(v) else float(v) for v in values.tolist()],
     )
     return JSONResponse(body.model_dump(), headers=headers)
+
+
+@router.get(
+    "/meshes/{mesh_id}/geometry",
+    operation_id="get_geometry",
+    summary="Triangles for display",
+    response_class=Response,
+    responses={
+        200: {
+            "content": {F32_MEDIA_TYPE: {"schema": {"type": "string", "format": "binary"}}},
+            "description": "Little-endian binary: a 20-byte header (`NSHG`, uint32 version 1, "
+            "vertex count V, triangle count T, input face count F), float32 positions (V, 3), "
+            "uint32 triangle corners (T, 3), uint32 input face of each triangle (T).",
+        },
+        **error_responses(404),
+    },
+)
+async def get_geometry(engine: EngineDep, mesh_id: MeshId) -> Response:
+    """The stored triangles in the service's order, each with the input face it came from,
+    so a viewer can colour them by per-input-face labels or ShDF values."""
+    from neural_shdf.export import display_geometry
+
+    mesh = await engine.io(engine.load, mesh_id)
+    body = await engine.io(display_geometry, mesh)
+    headers = {"X-Mesh-Id": mesh_id, "X-Faces": str(mesh.input_face_count)}
+    return Response(body, media_type=F32_MEDIA_TYPE, headers=headers)

@@ -1,0 +1,117 @@
+"""Web viewer latency in real Chromium: slider release to new colours on screen.
+
+``python benchmarks/bench_viewer.py [--repeat 8] [--sizes 10000,100000] [--screenshot PNG]``
+
+Starts ``neural-shdf serve`` (temp cache) and headless Chromium (/usr/bin/chromium, WebGL
+on the CPU), opens the viewer, uploads a mesh of about each size (psb-dev 1, 9.4k faces, and
+dense-dev's skull, 100k faces, when ../shared/data is present; otherwise tessellated tori),
+waits for its parts, then releases a slider ``--repeat`` times, each time to a value never
+requested before (so the service really segments: no cache helps), and reads the page's own
+measurement: ``performance.now()`` from the slider's change event to the first animation
+frame after the new colours were drawn. Also reported: the same for a value seen before
+(the page's own cache), where the time goes (request, recolouring), and the service's time.
+
+Target: release to new colours < 150 ms at 100k faces; ratio = median / target.
+``--screenshot`` also saves the page showing psb-dev model 381 (the README's picture).
+The browser, the server and the benchmark share this machine's cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO_ROOT))
+
+from tests.api.viewer_browser import ViewerPage, chromium_missing, neural_shdf_serve  # noqa: E402
+
+TARGET_MS = 150.0
+DATA = REPO_ROOT.parent / "shared" / "data"
+MESHES = {
+    10_000: DATA / "psb-dev" / "off" / "1.off",
+    100_000: DATA / "dense-dev" / "odedstein__objects__skull__skull.ply",
+}
+
+
+def mesh_file(faces: int, folder: Path) -> Path:
+    """The data mesh of about ``faces`` faces, else a torus with that many triangles."""
+    path = MESHES.get(faces)
+    if path is not None and path.is_file():
+        return path
+    ring = int(np.sqrt(faces / 2))
+    torus = trimesh.creation.torus(1.0, 0.3, major_sections=ring, minor_sections=ring)
+    out = folder / f"torus-{len(torus.faces)}.ply"
+    torus.export(out)
+    return out
+
+
+def summary(values: list[float]) -> str:
+    values = sorted(values)
+    p90 = values[min(len(values) - 1, int(round(0.9 * (len(values) - 1))))]
+    return f"{statistics.median(values):7.1f} {p90:7.1f}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=8, help="slider releases per mesh")
+    parser.add_argument("--sizes", default="10000,100000")
+    parser.add_argument("--screenshot", type=Path, help="save the page on psb-dev 381 here")
+    args = parser.parse_args()
+    missing = chromium_missing()
+    if missing:
+        sys.exit(f"cannot run: {missing}")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        with neural_shdf_serve(folder / "cache") as base, ViewerPage(base) as page:
+            page.open()
+            print(f"three.js from {page.js('return document.body.dataset.threeBase')}")
+            print(
+                f"{'mesh':<28} {'faces':>7} {'case':<9} {'n':>2} {'median':>7} {'p90':>7} "
+                f"{'request':>7} {'paint':>6} {'service':>7} {'segment':>7} {'ratio':>6}"
+            )
+            for size in [int(s) for s in args.sizes.split(",")]:
+                path = mesh_file(size, folder)
+                start = time.perf_counter()
+                page.upload(path)
+                if page.status() == "error":
+                    sys.exit(f"{path.name}: {page.message()}")
+                upload_s = time.perf_counter() - start
+                faces = page.js("return window.shdfViewer.state.meta.faces")
+                cold = [
+                    page.release_slider("smoothing", round(0.2 + 0.01 * i, 2))
+                    for i in range(args.repeat)
+                ]
+                warm = [
+                    page.release_slider("smoothing", round(0.2 + 0.01 * i, 2))
+                    for i in range(args.repeat)
+                ]
+                for case, runs in (("new value", cold), ("seen", warm)):
+                    total = [r["totalMs"] for r in runs]
+                    ratio = statistics.median(total) / TARGET_MS
+                    print(
+                        f"{path.name[:28]:<28} {faces:>7} {case:<9} {len(runs):>2} "
+                        f"{summary(total)} {statistics.median(r['fetchMs'] for r in runs):7.1f} "
+                        f"{statistics.median(r['paintMs'] for r in runs):6.1f} "
+                        f"{statistics.median(r['serverMs'] for r in runs):7.1f} "
+                        f"{statistics.median(r['segmentMs'] for r in runs):7.1f} {ratio:6.2f}"
+                    )
+                print(f"  (upload to first parts on screen: {upload_s:.1f} s)")
+            errors = [e for e in page.read_console() if e["level"] == "SEVERE"]
+            print(f"console errors: {len(errors)}")
+            if args.screenshot:
+                page.open()
+                page.upload(DATA / "psb-dev" / "off" / "381.off")
+                page.screenshot(args.screenshot)
+                print(f"screenshot: {args.screenshot}")
+
+
+if __name__ == "__main__":
+    main()

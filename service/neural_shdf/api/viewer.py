@@ -1,0 +1,94 @@
+"""The web viewer's page: its static files, its import map and where three.js comes from.
+
+three.js is never part of the repository. ``npm ci`` in the viewer's folder (the tests and the
+Docker image run it) installs the npm package ``three``; the service then serves that copy at
+``/viewer/three/``. Without it (a plain ``pip install``) the import map points at the jsDelivr
+CDN, pinned to the version locked in the viewer's ``package.json``. ``viewer_three_url``
+overrides both.
+"""
+
+from __future__ import annotations
+
+import functools
+import html
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from neural_shdf.api.settings import Settings
+from neural_shdf.mesh_io import SUPPORTED_FORMATS
+from neural_shdf.segment.params import DEFAULT_CLUSTERS, DEFAULT_SMOOTHING, MAX_CLUSTERS
+
+VIEWER_DIR = Path(__file__).resolve().parents[1] / "viewer"
+STATIC_DIR = VIEWER_DIR / "static"
+#: Where the service serves a local copy of three.js.
+LOCAL_THREE_PATH = "/viewer/three/"
+CDN_TEMPLATE = "https://cdn.jsdelivr.net/npm/three@{version}/"
+
+
+@functools.cache
+def three_version() -> str:
+    """The exact version of ``three`` the viewer's package.json asks for."""
+    manifest = json.loads((VIEWER_DIR / "package.json").read_text())
+    return manifest["dependencies"]["three"]
+
+
+@dataclass(frozen=True)
+class ThreeSource:
+    """Where the page loads three.js from, and the local copy the service serves (if any)."""
+
+    base_url: str
+    local_dir: Path | None
+
+
+def three_source(settings: Settings) -> ThreeSource:
+    """The configured URL, else the installed local copy, else the CDN."""
+    local = settings.viewer_three_dir or VIEWER_DIR / "node_modules" / "three"
+    local = local.expanduser().resolve()
+    installed = (local / "build" / "three.module.js").is_file()
+    if settings.viewer_three_url:
+        base = settings.viewer_three_url.rstrip("/") + "/"
+        return ThreeSource(base, local if installed else None)
+    if installed:
+        return ThreeSource(LOCAL_THREE_PATH, local)
+    return ThreeSource(CDN_TEMPLATE.format(version=three_version()), None)
+
+
+def import_map(base_url: str) -> dict[str, Any]:
+    """The page's import map: ``three`` and ``three/addons/`` under one base URL."""
+    return {
+        "imports": {
+            "three": f"{base_url}build/three.module.js",
+            "three/addons/": f"{base_url}examples/jsm/",
+        }
+    }
+
+
+def page_config(settings: Settings) -> dict[str, Any]:
+    """What the page needs to know about the service's limits and defaults."""
+    return {
+        "maxUploadBytes": settings.max_upload_bytes,
+        "maxFaces": settings.max_faces,
+        "defaultMethod": settings.default_method,
+        "formats": list(SUPPORTED_FORMATS),
+        "maxClusters": MAX_CLUSTERS,
+        "defaultClusters": DEFAULT_CLUSTERS,
+        "defaultSmoothing": DEFAULT_SMOOTHING,
+    }
+
+
+def _script_json(value: Any) -> str:
+    """JSON safe inside a <script> element."""
+    return json.dumps(value).replace("<", "\\u003c").replace(">", "\\u003e")
+
+
+def render_page(settings: Settings) -> str:
+    """index.html with the import map and the page configuration filled in."""
+    source = three_source(settings)
+    template = (VIEWER_DIR / "index.html").read_text()
+    return (
+        template.replace("{{IMPORT_MAP}}", _script_json(import_map(source.base_url)))
+        .replace("{{CONFIG}}", _script_json(page_config(settings)))
+        .replace("{{THREE_BASE}}", html.escape(source.base_url, quote=True))
+    )

@@ -1,0 +1,473 @@
+// The viewer page: upload, live segmentation controls, parts panel, downloads.
+import * as api from './api.js';
+import { MeshView, heatGradient, parseHex } from './scene.js';
+
+const config = JSON.parse(document.getElementById('viewer-config').textContent);
+const $ = (id) => document.getElementById(id);
+const SPECULATIVE_DELAY_MS = 150;  // a slider held still this long while dragging re-segments
+const CLIENT_CACHE_SIZE = 24;
+
+const state = {
+  meshId: null,
+  meta: null,
+  method: config.defaultMethod,
+  geometry: null,
+  shdf: null,
+  labels: null,       // Int32Array per input face
+  body: null,         // the last Segmentation (labels decoded separately)
+  palette: null,      // Uint8Array RGB per label
+  seq: 0,             // number of the newest segmentation request
+  controller: null,   // AbortController of the request in flight
+  inflightKey: null,
+  releaseTime: null,  // when the slider behind the request in flight was released
+  speculative: null,
+  cache: new Map(),   // request key -> Segmentation, most recent last
+  view: 'parts',
+  selected: -1,
+  hidden: new Set(),
+  isolated: -1,
+};
+
+const view = new MeshView($('canvas'));
+window.shdfViewer = { state, view, config };  // for tests, benchmarks and the console
+
+// ---- messages and progress ------------------------------------------------------------
+function setStatus(status) {
+  document.body.dataset.status = status;
+}
+
+function showError(error, context) {
+  const box = $('message');
+  const title = error instanceof api.ServiceError ? error.title : 'Error';
+  box.replaceChildren();
+  const head = document.createElement('b');
+  head.textContent = context ? `${title} — ${context}` : title;
+  const text = document.createElement('p');
+  text.textContent = error.message;
+  const close = document.createElement('button');
+  close.textContent = '×';
+  close.title = 'Dismiss';
+  close.onclick = () => { box.hidden = true; };
+  box.append(close, head, text);
+  box.hidden = false;
+  box.dataset.code = error.code || 'error';
+}
+
+function clearError() {
+  $('message').hidden = true;
+}
+
+function showProgress(label, fraction) {
+  $('progress').hidden = false;
+  $('progress-label').textContent = fraction === null ? label : `${label} ${Math.round(fraction * 100)}%`;
+  const bar = $('progress-bar');
+  if (fraction === null) bar.removeAttribute('value'); else bar.value = fraction;
+}
+
+function hideProgress() {
+  $('progress').hidden = true;
+}
+
+// ---- upload ---------------------------------------------------------------------------
+function checkFile(file) {
+  const extension = file.name.includes('.') ? file.name.split('.').pop().toLowerCase() : '';
+  if (!config.formats.includes(extension)) {
+    return new api.ServiceError(415, 'unsupported_format',
+      `${file.name}: not a mesh format the service reads; use one of ${config.formats.map((f) => '.' + f).join(', ')}`);
+  }
+  if (file.size > config.maxUploadBytes) {
+    const mb = (n) => (n / 1024 ** 2).toFixed(1);
+    return new api.ServiceError(413, 'payload_too_large',
+      `${file.name} is ${mb(file.size)} MB; the service accepts at most ${mb(config.maxUploadBytes)} MB`);
+  }
+  return null;
+}
+
+async function openFile(file) {
+  clearError();
+  const problem = checkFile(file);
+  if (problem) {
+    setStatus(state.meshId ? 'ready' : 'error');
+    showError(problem, file.name);
+    return;
+  }
+  state.seq++;  // nothing from the previous mesh may land on this one
+  state.controller?.abort();
+  try {
+    setStatus('uploading');
+    showProgress(`Uploading ${file.name}`, 0);
+    const method = $('method').value;
+    const uploaded = await api.uploadMesh(file, method, (f) => showProgress(`Uploading ${file.name}`, f));
+    let meta;
+    if (uploaded.status === 202) {
+      setStatus('computing');
+      const job = await api.waitForJob(uploaded.body, (f, jobState) =>
+        showProgress(jobState === 'queued' ? 'Queued' : 'Computing the ShDF', f));
+      meta = await api.getMesh(job.mesh_id);
+    } else {
+      meta = uploaded.body.mesh;
+    }
+    showProgress('Loading the geometry', null);
+    setStatus('loading');
+    await loadMesh(meta, method);
+  } catch (error) {
+    hideProgress();
+    setStatus(state.meshId ? 'ready' : 'error');
+    showError(error, file.name);
+  }
+}
+
+async function loadMesh(meta, method) {
+  const [geometry, shdf] = await Promise.all([api.getGeometry(meta.mesh_id), fetchShdf(meta.mesh_id, method)]);
+  Object.assign(state, {
+    meshId: meta.mesh_id, meta, method, geometry, shdf, labels: null, body: null,
+    selected: -1, hidden: new Set(), isolated: -1,
+  });
+  state.cache.clear();
+  view.setGeometry(geometry);
+  $('empty-hint').hidden = true;
+  $('mesh-info').hidden = false;
+  $('mesh-name').textContent = meta.filename || meta.mesh_id.slice(0, 12);
+  $('mesh-stats').textContent = `${meta.faces.toLocaleString()} faces · ${meta.vertices.toLocaleString()} vertices · ShDF: ${method}`;
+  paint();
+  hideProgress();
+  await resegment({ reason: 'load' });
+}
+
+/** The ShDF values, waiting for the job when a large mesh's ShDF is still being computed. */
+async function fetchShdf(meshId, method) {
+  for (;;) {
+    const response = await fetch(`/v1/meshes/${meshId}/shdf?format=f32&method=${method}`);
+    if (response.status === 202) {
+      await api.waitForJob(await response.json(), (f) => showProgress('Computing the ShDF', f));
+      continue;
+    }
+    if (!response.ok) {
+      const text = await response.text();
+      let body = null;
+      try { body = JSON.parse(text); } catch (_) { /* not JSON */ }
+      throw new api.ServiceError(response.status, body?.error?.code || 'http_error', body?.error?.message || text);
+    }
+    return new Float32Array(await response.arrayBuffer());
+  }
+}
+
+// ---- segmentation ---------------------------------------------------------------------
+function controlValues() {
+  const partitioner = $('partitioner').value;
+  return {
+    partitioner,
+    clusters: Number($('clusters').value),
+    smoothing: Number($('smoothing').value),
+    parts: partitioner === 'metis' ? Number($('parts').value) : null,
+    refine: $('refine').checked,
+    boundary_smoothing: $('boundary-smoothing').checked,
+  };
+}
+
+function currentRequest() {
+  return { mesh_id: state.meshId, method: state.method, ...controlValues() };
+}
+
+const requestKey = (request) => JSON.stringify(request);
+
+/**
+ * Re-segment with the current controls. A newer call aborts the request in flight and
+ * its answer, if it still comes, is ignored. `releaseTime` marks when the user let go.
+ */
+async function resegment({ reason, releaseTime = null }) {
+  if (!state.meshId) return;
+  const request = currentRequest();
+  const key = requestKey(request);
+  const start = releaseTime ?? performance.now();
+  if (state.inflightKey === key) {  // the same request already runs (sent while dragging)
+    state.releaseTime = start;
+    return;
+  }
+  const seq = ++state.seq;
+  state.controller?.abort();
+  state.controller = new AbortController();
+  state.inflightKey = key;
+  state.releaseTime = start;
+  $('seg-status').textContent = 'segmenting…';
+  setStatus('segmenting');
+  try {
+    let body = state.cache.get(key);
+    const fetchStart = performance.now();
+    if (body) {
+      state.cache.delete(key);  // re-inserted below as the most recent
+    } else {
+      body = await api.segment(request, state.controller.signal);
+    }
+    if (seq !== state.seq) return;  // superseded while it ran
+    const fetchMs = performance.now() - fetchStart;
+    state.cache.set(key, body);
+    if (state.cache.size > CLIENT_CACHE_SIZE) state.cache.delete(state.cache.keys().next().value);
+    const paintStart = performance.now();
+    applySegmentation(body);
+    const paintMs = performance.now() - paintStart;
+    const shown = await view.presented();
+    if (seq !== state.seq) return;
+    const detail = {
+      seq, reason, request, key,
+      parts: body.part_count,
+      totalMs: shown - state.releaseTime,
+      fetchMs,
+      paintMs,
+      serverMs: body.timings.total_ms,
+      segmentMs: body.timings.segment_ms,
+      cached: fetchMs < 1 || body.timings.segmentation_cached,
+    };
+    state.inflightKey = null;
+    $('seg-status').textContent = `${body.part_count} parts · ${Math.round(detail.totalMs)} ms (service ${Math.round(detail.serverMs)} ms)`;
+    setStatus('ready');
+    window.dispatchEvent(new CustomEvent('shdf:segmented', { detail }));
+  } catch (error) {
+    if (seq !== state.seq || error.name === 'AbortError') return;
+    state.inflightKey = null;
+    setStatus('ready');
+    $('seg-status').textContent = 'segmentation failed';
+    showError(error, 'segmentation');
+  }
+}
+
+function applySegmentation(body) {
+  const labels = api.decodeLabels(body);
+  const palette = new Uint8Array(body.parts.length * 3);
+  body.parts.forEach((part, i) => palette.set(parseHex(part.color), i * 3));
+  Object.assign(state, { labels, body, palette });
+  if (state.selected >= body.part_count) state.selected = -1;
+  state.hidden = new Set([...state.hidden].filter((label) => label < body.part_count));
+  if (state.isolated >= body.part_count) state.isolated = -1;
+  updateVisibility();
+  paint();
+  renderPartsPanel();
+  for (const id of ['download-seg', 'download-json', 'download-colored', 'download-parts']) $(id).disabled = false;
+}
+
+function paint() {
+  if (!view.mesh) return;
+  if (state.view === 'shdf' && state.shdf) view.paintShdf(state.shdf);
+  else if (state.view === 'parts' && state.labels) view.paintParts(state.labels, state.palette, state.selected);
+  else view.paintPlain();
+  $('shdf-legend').hidden = state.view !== 'shdf';
+  view.render();
+}
+
+// ---- parts: selection, hide, isolate ----------------------------------------------------
+function updateVisibility() {
+  if (!state.labels) return;
+  const { hidden, isolated } = state;
+  const filter = isolated >= 0 ? (label) => label === isolated
+    : hidden.size ? (label) => !hidden.has(label) : null;
+  view.setVisibility(state.labels, filter);
+}
+
+function select(label) {
+  state.selected = label;
+  const box = $('selection');
+  if (label < 0 || !state.body) {
+    box.hidden = true;
+  } else {
+    const part = state.body.parts[label];
+    $('selection-swatch').style.background = part.color;
+    $('selection-title').textContent = `Part ${label}`;
+    $('selection-faces').textContent = part.faces.toLocaleString();
+    $('selection-area').textContent = formatNumber(part.area);
+    $('selection-shdf').textContent = part.mean_shdf.toFixed(3);
+    $('selection-hide').textContent = state.hidden.has(label) ? 'Show' : 'Hide';
+    $('selection-isolate').textContent = state.isolated === label ? 'Show all' : 'Isolate';
+    box.hidden = false;
+  }
+  for (const row of $('parts-table').tBodies[0].rows) row.classList.toggle('selected', Number(row.dataset.label) === label);
+  paint();
+}
+
+function toggleHidden(label) {
+  if (state.hidden.has(label)) state.hidden.delete(label); else state.hidden.add(label);
+  state.isolated = -1;
+  updateVisibility();
+  renderPartsPanel();
+  select(state.selected);
+}
+
+function toggleIsolated(label) {
+  state.isolated = state.isolated === label ? -1 : label;
+  updateVisibility();
+  renderPartsPanel();
+  select(state.selected);
+}
+
+function showAll() {
+  state.hidden.clear();
+  state.isolated = -1;
+  updateVisibility();
+  renderPartsPanel();
+  select(state.selected);
+}
+
+const formatNumber = (x) => (Math.abs(x) >= 1000 || (x !== 0 && Math.abs(x) < 0.01) ? x.toExponential(2) : x.toFixed(3));
+const MAX_ROWS = 500;
+
+function renderPartsPanel() {
+  const body = state.body;
+  $('parts-panel').hidden = !body;
+  if (!body) return;
+  $('part-count').textContent = `(${body.part_count})`;
+  const rows = body.parts.slice(0, MAX_ROWS).map((part) => {
+    const row = document.createElement('tr');
+    row.dataset.label = part.label;
+    const visible = state.isolated >= 0 ? state.isolated === part.label : !state.hidden.has(part.label);
+    row.classList.toggle('hidden-part', !visible);
+    row.classList.toggle('selected', part.label === state.selected);
+    row.innerHTML = `<td><span class="swatch" style="background:${part.color}"></span></td>
+      <td>${part.label}</td><td>${part.faces.toLocaleString()}</td><td>${formatNumber(part.area)}</td>
+      <td>${part.mean_shdf.toFixed(3)}</td>
+      <td><button class="eye" title="Hide or show">${visible ? '◉' : '○'}</button><button class="solo" title="Isolate">◎</button></td>`;
+    row.querySelector('.eye').onclick = (event) => { event.stopPropagation(); toggleHidden(part.label); };
+    row.querySelector('.solo').onclick = (event) => { event.stopPropagation(); toggleIsolated(part.label); };
+    row.onclick = () => select(part.label === state.selected ? -1 : part.label);
+    return row;
+  });
+  $('parts-table').tBodies[0].replaceChildren(...rows);
+}
+
+// ---- downloads --------------------------------------------------------------------------
+function saveBlob(blob, name) {
+  const link = document.createElement('a');
+  link.href = URL.createObjectURL(blob);
+  link.download = name;
+  link.click();
+  setTimeout(() => URL.revokeObjectURL(link.href), 10000);
+}
+
+const stem = () => (state.meta.filename || state.meshId.slice(0, 16)).replace(/\.[^.]*$/, '');
+
+async function downloadGlb(style) {
+  const request = state.body ? JSON.parse(requestKey(currentRequest())) : null;
+  if (!request) return;
+  try {
+    const url = `/v1/meshes/${state.meshId}/segmentation/${style}.glb?${api.segmentQuery(request)}`;
+    const response = await fetch(url);
+    if (!response.ok) {
+      const text = await response.text();
+      let body = null;
+      try { body = JSON.parse(text); } catch (_) { /* not JSON */ }
+      throw new api.ServiceError(response.status, body?.error?.code || 'http_error', body?.error?.message || text);
+    }
+    saveBlob(await response.blob(), `${stem()}-${style}.glb`);
+  } catch (error) {
+    showError(error, `${style} GLB`);
+  }
+}
+
+$('download-seg').onclick = () => saveBlob(new Blob([state.labels.join('\n') + '\n'], { type: 'text/plain' }), `${stem()}.seg`);
+$('download-json').onclick = () => {
+  const body = { ...state.body, labels: Array.from(state.labels), labels_base64: null, labels_dtype: null };
+  saveBlob(new Blob([JSON.stringify(body)], { type: 'application/json' }), `${stem()}-segmentation.json`);
+};
+$('download-colored').onclick = () => downloadGlb('colored');
+$('download-parts').onclick = () => downloadGlb('parts');
+
+// ---- controls ---------------------------------------------------------------------------
+function showValues() {
+  const clusters = Number($('clusters').value);
+  $('clusters-out').textContent = clusters === 0 ? 'auto' : String(clusters);
+  $('smoothing-out').textContent = Number($('smoothing').value).toFixed(2);
+  $('parts-out').textContent = $('parts').value;
+  const metis = $('partitioner').value === 'metis';
+  $('parts').disabled = !metis;
+  $('parts').closest('label').title = metis ? '' : 'METIS only: the graph cut finds the part count itself';
+}
+
+function setUpControls() {
+  $('clusters').max = String(config.maxClusters);
+  $('clusters').value = String(config.defaultClusters);
+  $('smoothing').value = String(config.defaultSmoothing);
+  $('method').value = config.defaultMethod;
+  showValues();
+  for (const input of document.querySelectorAll('#controls input[type=range]')) {
+    input.addEventListener('input', () => {
+      showValues();
+      clearTimeout(state.speculative);
+      state.speculative = setTimeout(() => resegment({ reason: 'drag' }), SPECULATIVE_DELAY_MS);
+    });
+    input.addEventListener('change', (event) => {
+      clearTimeout(state.speculative);
+      resegment({ reason: 'release', releaseTime: event.timeStamp });
+    });
+  }
+  for (const input of document.querySelectorAll('#controls select, #controls input[type=checkbox]')) {
+    input.addEventListener('change', (event) => {
+      showValues();
+      resegment({ reason: 'release', releaseTime: event.timeStamp });
+    });
+  }
+  $('method').addEventListener('change', async () => {
+    if (!state.meshId) return;
+    clearError();
+    const method = $('method').value;
+    try {
+      state.seq++;
+      state.shdf = await fetchShdf(state.meshId, method);
+      state.method = method;
+      hideProgress();
+      $('mesh-stats').textContent = `${state.meta.faces.toLocaleString()} faces · ${state.meta.vertices.toLocaleString()} vertices · ShDF: ${method}`;
+      paint();
+      await resegment({ reason: 'method' });
+    } catch (error) {
+      hideProgress();
+      $('method').value = state.method;
+      showError(error, 'ShDF');
+    }
+  });
+  for (const radio of document.querySelectorAll('input[name=view]')) {
+    radio.addEventListener('change', () => { state.view = radio.value; paint(); });
+  }
+  $('shdf-legend').querySelector('.ramp').style.background = heatGradient();
+  $('selection-hide').onclick = () => toggleHidden(state.selected);
+  $('selection-isolate').onclick = () => toggleIsolated(state.selected);
+  $('selection-clear').onclick = () => select(-1);
+  $('show-all').onclick = showAll;
+}
+
+function setUpFileInput() {
+  $('file-input').addEventListener('change', (event) => {
+    const [file] = event.target.files;
+    if (file) openFile(file);
+    event.target.value = '';
+  });
+  const overlay = $('drop-overlay');
+  let depth = 0;
+  window.addEventListener('dragenter', (event) => { event.preventDefault(); depth++; overlay.hidden = false; });
+  window.addEventListener('dragleave', () => { if (--depth <= 0) { depth = 0; overlay.hidden = true; } });
+  window.addEventListener('dragover', (event) => event.preventDefault());
+  window.addEventListener('drop', (event) => {
+    event.preventDefault();
+    depth = 0;
+    overlay.hidden = true;
+    const [file] = event.dataTransfer.files;
+    if (file) openFile(file);
+  });
+}
+
+function setUpPicking() {
+  const canvas = $('canvas');
+  let down = null;
+  canvas.addEventListener('pointerdown', (event) => { down = [event.clientX, event.clientY]; });
+  canvas.addEventListener('pointerup', (event) => {
+    if (!down || Math.hypot(event.clientX - down[0], event.clientY - down[1]) > 4) return;  // a drag
+    if (!state.labels) return;
+    const face = view.pick(event.clientX, event.clientY);
+    const label = face >= 0 ? state.labels[face] : -1;
+    select(label === state.selected ? -1 : label);
+  });
+}
+
+setUpControls();
+setUpFileInput();
+setUpPicking();
+setStatus('empty');
+window.shdfViewer.openFile = openFile;
+window.shdfViewer.select = select;
+window.shdfViewer.ready = true;

@@ -1,0 +1,231 @@
+// The 3-D view: one three.js mesh drawn with a colour per triangle, orbit controls, picking.
+import * as THREE from 'three';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+
+const UNLABELED = [64, 64, 64];
+const NO_VALUE = [110, 110, 110];
+const PLAIN = [200, 200, 200];
+const DIM = 0.3;
+/** Viridis at 5 stops (thin = dark blue, thick = yellow). */
+const RAMP = [[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]];
+
+/** RGB bytes of a value in [0, 1] on the heat map ramp. */
+export function heatColor(value) {
+  if (!Number.isFinite(value)) return NO_VALUE;
+  const x = Math.min(Math.max(value, 0), 1) * (RAMP.length - 1);
+  const i = Math.min(Math.floor(x), RAMP.length - 2);
+  const t = x - i;
+  return RAMP[i].map((c, k) => Math.round(c + (RAMP[i + 1][k] - c) * t));
+}
+
+/** CSS gradient of the heat map ramp, for the legend. */
+export function heatGradient() {
+  return `linear-gradient(to right, ${RAMP.map((c) => `rgb(${c.join(',')})`).join(', ')})`;
+}
+
+/** '#rrggbb' -> [r, g, b]. */
+export function parseHex(hex) {
+  const n = parseInt(hex.slice(1), 16);
+  return [(n >> 16) & 255, (n >> 8) & 255, n & 255];
+}
+
+export class MeshView {
+  constructor(canvas) {
+    this.canvas = canvas;
+    this.renderer = new THREE.WebGLRenderer({ canvas, antialias: true });
+    this.renderer.setPixelRatio(Math.min(window.devicePixelRatio || 1, 2));
+    this.scene = new THREE.Scene();
+    this.scene.background = new THREE.Color(0xf3f4f6);
+    this.camera = new THREE.PerspectiveCamera(40, 1, 0.01, 1000);
+    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x8d8d8d, 1.6));
+    const light = new THREE.DirectionalLight(0xffffff, 1.6);
+    light.position.set(0.5, 1, 2);
+    this.camera.add(light);  // the light follows the view
+    this.scene.add(this.camera);
+    this.controls = new OrbitControls(this.camera, canvas);
+    this.controls.addEventListener('change', () => this.render());
+    this.mesh = null;
+    this.faceOrigin = null;
+    new ResizeObserver(() => this.resize()).observe(canvas.parentElement);
+    this.resize();
+  }
+
+  resize() {
+    const { clientWidth: width, clientHeight: height } = this.canvas.parentElement;
+    if (!width || !height) return;
+    this.renderer.setSize(width, height, false);
+    this.camera.aspect = width / height;
+    this.camera.updateProjectionMatrix();
+    this.render();
+  }
+
+  render() {
+    this.renderer.render(this.scene, this.camera);
+  }
+
+  /** Resolves after the browser has presented a frame with the current colours. */
+  presented() {
+    this.render();
+    return new Promise((resolve) => requestAnimationFrame(() => resolve(performance.now())));
+  }
+
+  /**
+   * Show new geometry: triangles as stored by the service (`triangles`: 3 vertex indices each),
+   * `faceOrigin`: the input face of each triangle. Triangles never share a drawn vertex, so a
+   * colour per triangle never blends into its neighbours.
+   */
+  setGeometry({ positions, triangles, faceOrigin }) {
+    if (this.mesh) {
+      this.scene.remove(this.mesh);
+      this.mesh.geometry.dispose();
+      this.mesh.material.dispose();
+    }
+    const count = faceOrigin.length;
+    const vertexNormals = smoothNormals(positions, triangles);
+    const position = new Float32Array(count * 9);
+    const normal = new Float32Array(count * 9);
+    for (let corner = 0; corner < count * 3; corner++) {
+      const v = triangles[corner] * 3;
+      const o = corner * 3;
+      position[o] = positions[v]; position[o + 1] = positions[v + 1]; position[o + 2] = positions[v + 2];
+      normal[o] = vertexNormals[v]; normal[o + 1] = vertexNormals[v + 1]; normal[o + 2] = vertexNormals[v + 2];
+    }
+    const geometry = new THREE.BufferGeometry();
+    geometry.setAttribute('position', new THREE.BufferAttribute(position, 3));
+    geometry.setAttribute('normal', new THREE.BufferAttribute(normal, 3));
+    const color = new THREE.BufferAttribute(new Uint8Array(count * 9).fill(200), 3, true);
+    color.setUsage(THREE.DynamicDrawUsage);
+    geometry.setAttribute('color', color);
+    geometry.computeBoundingSphere();
+    const material = new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.DoubleSide });
+    this.mesh = new THREE.Mesh(geometry, material);
+    this.scene.add(this.mesh);
+    this.faceOrigin = faceOrigin;
+    this.frame();
+  }
+
+  /**
+   * Point the camera at the whole mesh, looking across its longest side: the box's shortest
+   * axis points at the viewer (tilted a little), its middle axis is up.
+   */
+  frame() {
+    const geometry = this.mesh.geometry;
+    geometry.computeBoundingBox();
+    const size = geometry.boundingBox.getSize(new THREE.Vector3());
+    const axes = [0, 1, 2].sort((a, b) => size.getComponent(a) - size.getComponent(b));
+    const unit = (axis) => new THREE.Vector3().setComponent(axis, 1);
+    const [depth, up, across] = axes.map(unit);
+    const direction = depth.clone().add(up.clone().multiplyScalar(0.35)).add(across.clone().multiplyScalar(0.25)).normalize();
+    const { center, radius } = geometry.boundingSphere;
+    const halfHeight = Math.tan(THREE.MathUtils.degToRad(this.camera.fov / 2));
+    const halfView = Math.min(halfHeight, halfHeight * this.camera.aspect);
+    const distance = (1.1 * (radius || 1)) / halfView;
+    this.camera.near = distance / 100;
+    this.camera.far = distance * 100;
+    this.camera.up.copy(up);
+    this.camera.position.copy(center).add(direction.multiplyScalar(distance));
+    this.camera.updateProjectionMatrix();
+    // OrbitControls takes the up axis from the camera when it is made.
+    this.controls.dispose();
+    this.controls = new OrbitControls(this.camera, this.canvas);
+    this.controls.addEventListener('change', () => this.render());
+    this.controls.target.copy(center);
+    this.controls.update();
+  }
+
+  /** Colour every triangle by part: `labels` per input face, `palette` RGB bytes per label. */
+  paintParts(labels, palette, selected = -1) {
+    const color = this.mesh.geometry.getAttribute('color');
+    const out = color.array;
+    const origin = this.faceOrigin;
+    for (let t = 0; t < origin.length; t++) {
+      const label = labels[origin[t]];
+      let r = UNLABELED[0], g = UNLABELED[1], b = UNLABELED[2];
+      if (label >= 0) { r = palette[label * 3]; g = palette[label * 3 + 1]; b = palette[label * 3 + 2]; }
+      if (selected >= 0 && label !== selected) { r *= DIM; g *= DIM; b *= DIM; }
+      const o = t * 9;
+      out[o] = out[o + 3] = out[o + 6] = r;
+      out[o + 1] = out[o + 4] = out[o + 7] = g;
+      out[o + 2] = out[o + 5] = out[o + 8] = b;
+    }
+    color.needsUpdate = true;
+  }
+
+  /** Colour every triangle by its input face's ShDF on the heat map ramp. */
+  paintShdf(values) {
+    const color = this.mesh.geometry.getAttribute('color');
+    const out = color.array;
+    const origin = this.faceOrigin;
+    for (let t = 0; t < origin.length; t++) {
+      const [r, g, b] = heatColor(values[origin[t]]);
+      const o = t * 9;
+      out[o] = out[o + 3] = out[o + 6] = r;
+      out[o + 1] = out[o + 4] = out[o + 7] = g;
+      out[o + 2] = out[o + 5] = out[o + 8] = b;
+    }
+    color.needsUpdate = true;
+  }
+
+  paintPlain() {
+    const color = this.mesh.geometry.getAttribute('color');
+    for (let i = 0; i < color.array.length; i += 3) color.array.set(PLAIN, i);
+    color.needsUpdate = true;
+  }
+
+  /** Draw only the triangles whose input face's label `visible(label)` accepts (null: all). */
+  setVisibility(labels, visible) {
+    const geometry = this.mesh.geometry;
+    if (!visible) {
+      geometry.setIndex(null);
+      return;
+    }
+    const origin = this.faceOrigin;
+    const corners = new Uint32Array(origin.length * 3);
+    let n = 0;
+    for (let t = 0; t < origin.length; t++) {
+      if (visible(labels[origin[t]])) {
+        corners[n++] = t * 3; corners[n++] = t * 3 + 1; corners[n++] = t * 3 + 2;
+      }
+    }
+    geometry.setIndex(new THREE.BufferAttribute(corners.slice(0, n), 1));
+  }
+
+  /** The input face under a canvas pixel, or -1. */
+  pick(clientX, clientY) {
+    if (!this.mesh) return -1;
+    const rect = this.canvas.getBoundingClientRect();
+    const pointer = new THREE.Vector2(
+      ((clientX - rect.left) / rect.width) * 2 - 1,
+      -((clientY - rect.top) / rect.height) * 2 + 1,
+    );
+    const raycaster = new THREE.Raycaster();
+    raycaster.setFromCamera(pointer, this.camera);
+    const [hit] = raycaster.intersectObject(this.mesh);
+    return hit ? this.faceOrigin[Math.floor(hit.face.a / 3)] : -1;
+  }
+
+  /** RGB bytes of each triangle as drawn (tests compare them with the service's labels). */
+  triangleColors() {
+    const colors = this.mesh.geometry.getAttribute('color').array;
+    const out = new Uint8Array(this.faceOrigin.length * 3);
+    for (let t = 0; t < this.faceOrigin.length; t++) out.set(colors.subarray(t * 9, t * 9 + 3), t * 3);
+    return out;
+  }
+}
+
+/** Area-weighted vertex normals of an indexed triangle mesh. */
+function smoothNormals(positions, triangles) {
+  const normals = new Float32Array(positions.length);
+  for (let i = 0; i < triangles.length; i += 3) {
+    const a = triangles[i] * 3, b = triangles[i + 1] * 3, c = triangles[i + 2] * 3;
+    const ux = positions[b] - positions[a], uy = positions[b + 1] - positions[a + 1], uz = positions[b + 2] - positions[a + 2];
+    const vx = positions[c] - positions[a], vy = positions[c + 1] - positions[a + 1], vz = positions[c + 2] - positions[a + 2];
+    const nx = uy * vz - uz * vy, ny = uz * vx - ux * vz, nz = ux * vy - uy * vx;
+    for (const v of [a, b, c]) { normals[v] += nx; normals[v + 1] += ny; normals[v + 2] += nz; }
+  }
+  for (let v = 0; v < normals.length; v += 3) {
+    const length = Math.hypot(normals[v], normals[v + 1], normals[v + 2]) || 1;
+    normals[v] /= length; normals[v + 1] /= length; normals[v + 2] /= length;
+  }
+  return normals;
+}

@@ -1,0 +1,333 @@
+"""The web viewer in real Chromium against a real `neural-shdf serve` process.
+
+Skipped with the reason where Chromium, its driver, selenium or the npm copy of three.js
+(`npm ci` in service/neural_shdf/viewer; `bash scripts/test` runs it) is missing.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+import trimesh
+
+from neural_shdf.api.viewer import VIEWER_DIR
+from neural_shdf.mesh_io import load_mesh
+from tests.api.api_helpers import TEST_METHOD, obj_bytes
+from tests.api.viewer_browser import ViewerPage, chromium_missing, neural_shdf_serve
+
+_missing = chromium_missing()
+if _missing is None and not (VIEWER_DIR / "node_modules" / "three").is_dir():
+    _missing = "three.js is not installed: run `npm ci` in service/neural_shdf/viewer"
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(_missing is not None, reason=str(_missing))]
+
+#: Meshes above this many triangles go through a job (the page polls it).
+SYNC_FACES = 2000
+MAX_UPLOAD = 3_000_000
+
+
+def dumbbell_of_quads(rings: int, segments: int) -> tuple[np.ndarray, list[list[int]]]:
+    """Two balls on a thin neck, a surface of revolution made of quads with triangle-fan caps."""
+    t = np.linspace(0.0, 1.0, rings)
+    z = 4.0 * t - 2.0
+    radius = np.where(
+        np.abs(z) > 0.7, np.sqrt(np.clip(1.0 - (np.abs(z) - 1.3) ** 2 / 0.49, 0, 1)), 0.2
+    )
+    radius = np.maximum(radius, 0.2)
+    radius[0] = radius[-1] = 0.0
+    angles = np.linspace(0, 2 * np.pi, segments, endpoint=False)
+    vertices = [[0.0, 0.0, z[0]]]
+    for ring in range(1, rings - 1):
+        for a in angles:
+            vertices.append([radius[ring] * np.cos(a), radius[ring] * np.sin(a), z[ring]])
+    vertices.append([0.0, 0.0, z[-1]])
+    index = lambda ring, s: 1 + (ring - 1) * segments + s % segments  # noqa: E731
+    polygons = [[0, index(1, s + 1), index(1, s)] for s in range(segments)]
+    for ring in range(1, rings - 2):
+        for s in range(segments):
+            polygons.append(
+                [index(ring, s), index(ring, s + 1), index(ring + 1, s + 1), index(ring + 1, s)]
+            )
+    top = len(vertices) - 1
+    polygons += [[index(rings - 2, s), index(rings - 2, s + 1), top] for s in range(segments)]
+    return np.array(vertices), polygons
+
+
+@pytest.fixture(scope="module")
+def meshes(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("meshes")
+    small = folder / "small.obj"
+    small.write_bytes(obj_bytes(*dumbbell_of_quads(24, 24)))  # 528 polygons, 576 triangles
+    large = folder / "large.obj"
+    large.write_bytes(obj_bytes(*dumbbell_of_quads(60, 48)))  # 2,784 polygons, above SYNC_FACES
+    broken = folder / "broken.obj"
+    broken.write_bytes(b"v 0 0 0\nv 1 0 0\nf 1 2 7\n")
+    text = folder / "notes.txt"
+    text.write_text("not a mesh\n")
+    huge = folder / "huge.obj"
+    huge.write_bytes(b"v 0 0 0\n" * (MAX_UPLOAD // 8 + 10))
+    return {"small": small, "large": large, "broken": broken, "text": text, "huge": huge}
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
+    with neural_shdf_serve(
+        tmp_path_factory.mktemp("viewer-cache"),
+        default_method=TEST_METHOD,
+        sync_face_threshold=SYNC_FACES,
+        max_upload_bytes=MAX_UPLOAD,
+    ) as base:
+        yield base
+
+
+@pytest.fixture(scope="module")
+def browser(server: str, tmp_path_factory: pytest.TempPathFactory) -> Iterator[ViewerPage]:
+    downloads = tmp_path_factory.mktemp("downloads")
+    with ViewerPage(server) as page:
+        page.driver.execute_cdp_cmd(
+            "Browser.setDownloadBehavior", {"behavior": "allow", "downloadPath": str(downloads)}
+        )
+        page.downloads = downloads
+        yield page
+
+
+@pytest.fixture
+def page(browser: ViewerPage) -> ViewerPage:
+    """The viewer freshly opened, the console emptied."""
+    browser.open()
+    browser.read_console()
+    return browser
+
+
+def api_labels(server: str, mesh_id: str, controls: dict) -> dict:
+    body = {"mesh_id": mesh_id, "method": TEST_METHOD, **controls}
+    response = httpx.post(f"{server}/v1/segment", json=body, timeout=120)
+    assert response.status_code == 200, response.text
+    return response.json()
+
+
+def rgb(hex_color: str) -> list[int]:
+    return [int(hex_color[i : i + 2], 16) for i in (1, 3, 5)]
+
+
+def assert_colours_match(shown: dict, body: dict) -> None:
+    """Each drawn triangle has the API colour of the API label of its input face."""
+    assert shown["labels"] == body["labels"]
+    labels = np.asarray(body["labels"])[np.asarray(shown["faceOrigin"])]
+    palette = np.array([rgb(p["color"]) for p in body["parts"]])
+    colors = np.asarray(shown["colors"]).reshape(-1, 3)
+    np.testing.assert_array_equal(colors, palette[labels])
+
+
+def controls_of(shown: dict, **extra) -> dict:
+    controls = dict(shown["controls"])
+    controls["parts"] = extra.pop("parts", None)
+    controls.update(refine=False, boundary_smoothing=False, **extra)
+    return controls
+
+
+def rendered_hues(page: ViewerPage) -> np.ndarray:
+    """Share of the coloured pixels in each of 24 hue buckets, read back from WebGL."""
+    counts = page.js(
+        """
+        const view = window.shdfViewer.view;
+        view.render();
+        const gl = view.renderer.getContext();
+        const w = gl.drawingBufferWidth, h = gl.drawingBufferHeight;
+        const px = new Uint8Array(w * h * 4);
+        gl.readPixels(0, 0, w, h, gl.RGBA, gl.UNSIGNED_BYTE, px);
+        const counts = new Array(24).fill(0);
+        for (let i = 0; i < px.length; i += 4) {
+          const r = px[i] / 255, g = px[i + 1] / 255, b = px[i + 2] / 255;
+          const max = Math.max(r, g, b), min = Math.min(r, g, b);
+          if (max - min < 0.12) continue;  // greys: background, shading, unlabeled
+          let hue = max === r ? (g - b) / (max - min) : max === g ? 2 + (b - r) / (max - min)
+            : 4 + (r - g) / (max - min);
+          counts[Math.floor(((hue * 60 + 360) % 360) / 15)]++;
+        }
+        return counts;
+        """
+    )
+    counts = np.asarray(counts, dtype=float)
+    return counts / max(counts.sum(), 1.0)
+
+
+def severe(page: ViewerPage) -> list[dict]:
+    return [entry for entry in page.read_console() if entry["level"] == "SEVERE"]
+
+
+def test_upload_job_parts_slider_recolours_to_the_api_labels(page, server, meshes, tmp_path):
+    page.js(
+        "window.__statuses = []; new MutationObserver(() => "
+        "__statuses.push(document.body.dataset.status)).observe(document.body, "
+        "{attributes: true, attributeFilter: ['data-status']});"
+        "window.__progress = []; new MutationObserver(() => __progress.push("
+        "document.getElementById('progress-label').textContent)).observe("
+        "document.getElementById('progress-label'), {childList: true});"
+    )
+    page.upload(meshes["large"])
+    assert page.status() == "ready", page.message()
+    statuses = page.js("return window.__statuses")
+    assert statuses[:3] == ["uploading", "computing", "loading"], statuses
+    progress = page.js("return window.__progress")
+    assert any(p.startswith("Uploading large.obj") for p in progress), progress
+    assert any(p.startswith(("Computing the ShDF", "Queued")) for p in progress), progress
+
+    shown = page.segmentation()
+    mesh_id = page.js("return window.shdfViewer.state.meshId")
+    mesh = load_mesh(meshes["large"].read_bytes(), "obj")
+    assert shown["faceOrigin"] == mesh.face_origin.tolist()  # quads: 2 triangles each
+    assert_colours_match(shown, api_labels(server, mesh_id, controls_of(shown)))
+    hues_before = rendered_hues(page)
+    assert (hues_before > 0.01).sum() >= 2  # at least two part colours on screen
+
+    detail = page.release_slider("partitioner", "metis")
+    assert detail["request"]["partitioner"] == "metis" and detail["parts"] == 6
+    detail = page.release_slider("parts", 3)
+    assert detail["reason"] == "release" and detail["parts"] == 3
+    moved = page.segmentation()
+    body = api_labels(server, mesh_id, controls_of(moved, partitioner="metis", parts=3))
+    assert body["part_count"] == 3
+    assert_colours_match(moved, body)
+    assert moved["colors"] != shown["colors"]
+    hues_after = rendered_hues(page)
+    assert np.abs(hues_after - hues_before).sum() > 0.1, (hues_before, hues_after)
+
+    detail = page.release_slider("clusters", 4)  # still metis, new mixture
+    assert detail["request"]["clusters"] == 4
+    assert_colours_match(
+        page.segmentation(),
+        api_labels(server, mesh_id, controls_of(page.segmentation(), parts=3, clusters=4)),
+    )
+    assert severe(page) == []
+    shot = page.screenshot(tmp_path / "viewer.png")
+    assert shot.stat().st_size > 10_000
+    print(f"screenshot: {shot}")
+
+
+def test_a_newer_slider_value_supersedes_the_request_in_flight(page, server, meshes):
+    page.upload(meshes["small"])
+    events = page.driver.execute_async_script(
+        """
+        const done = arguments[0];
+        const seen = [];
+        addEventListener('shdf:segmented', (e) => seen.push(e.detail));
+        const input = document.getElementById('smoothing');
+        for (const value of ['0.5', '0.05']) {
+          input.value = value;
+          input.dispatchEvent(new Event('change'));
+        }
+        setTimeout(() => done(seen), 3000);
+        """
+    )
+    assert [e["request"]["smoothing"] for e in events] == [0.05]
+    shown = page.segmentation()
+    mesh_id = page.js("return window.shdfViewer.state.meshId")
+    assert_colours_match(shown, api_labels(server, mesh_id, controls_of(shown)))
+    assert severe(page) == []
+
+
+def test_click_a_part_shows_it_and_hides_or_isolates_it(page, server, meshes):
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+
+    page.upload(meshes["small"])
+    shown = page.segmentation()
+    labels = np.asarray(shown["labels"])[np.asarray(shown["faceOrigin"])]
+    # The screen position of a triangle of the largest part, facing the camera.
+    target = int(np.bincount(labels).argmax())
+    x, y = page.js(
+        """
+        const [label] = arguments;
+        const v = window.shdfViewer;
+        const position = v.view.mesh.geometry.getAttribute('position');
+        const origin = v.view.faceOrigin, labels = v.state.labels;
+        const camera = v.view.camera, canvas = v.view.canvas;
+        const toCamera = camera.position.clone();
+        let best = null;
+        for (let t = 0; t < origin.length; t++) {
+          if (labels[origin[t]] !== label) continue;
+          const p = [0, 1, 2].map(
+            (k) => camera.position.clone().fromBufferAttribute(position, 3 * t + k));
+          const centre = p[0].clone().add(p[1]).add(p[2]).multiplyScalar(1 / 3);
+          const normal = p[1].clone().sub(p[0]).cross(p[2].clone().sub(p[0])).normalize();
+          const facing = normal.dot(toCamera.clone().sub(centre).normalize());
+          if (!best || facing > best.facing) best = { facing, centre };
+        }
+        const ndc = best.centre.clone().project(camera);
+        const rect = canvas.getBoundingClientRect();
+        return [(ndc.x + 1) / 2 * rect.width, (1 - ndc.y) / 2 * rect.height];
+        """,
+        target,
+    )
+    canvas = page.driver.find_element(By.ID, "canvas")
+    size = canvas.size
+    ActionChains(page.driver).move_to_element_with_offset(
+        canvas, int(x - size["width"] / 2), int(y - size["height"] / 2)
+    ).click().perform()
+    selected = page.js("return window.shdfViewer.state.selected")
+    assert selected == target
+    part = shown["parts"][target]
+    assert page.js("return document.getElementById('selection').hidden") is False
+    text = page.js("return document.getElementById('selection').textContent")
+    assert f"Part {target}" in text and f"{part['faces']:,}" in text
+    assert f"{part['mean_shdf']:.3f}" in text
+    dimmed = np.asarray(page.segmentation()["colors"]).reshape(-1, 3)
+    palette = np.array([rgb(p["color"]) for p in shown["parts"]])
+    np.testing.assert_array_equal(dimmed[labels == target], palette[labels[labels == target]])
+    assert (dimmed[labels != target].sum(1) < palette[labels[labels != target]].sum(1)).all()
+
+    count = "const i = window.shdfViewer.view.mesh.geometry.index; return i ? i.count : null"
+    page.js("document.getElementById('selection-hide').click()")
+    assert page.js(count) == 3 * int((labels != target).sum())
+    page.js("document.getElementById('selection-isolate').click()")
+    assert page.js(count) == 3 * int((labels == target).sum())
+    page.js("document.getElementById('show-all').click()")
+    assert page.js(count) is None
+    assert severe(page) == []
+
+
+def wait_file(folder: Path, name: str, timeout_s: float = 30) -> Path:
+    path = folder / name
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if path.is_file() and not (folder / f"{name}.crdownload").exists():
+            return path
+        time.sleep(0.1)
+    raise AssertionError(f"{name} was not downloaded: {sorted(p.name for p in folder.iterdir())}")
+
+
+def test_downloads_hold_the_shown_segmentation(page, meshes):
+    page.upload(meshes["small"])
+    shown = page.segmentation()
+    for button in ("seg", "json", "colored", "parts"):
+        page.js(f"document.getElementById('download-{button}').click()")
+    folder = page.downloads
+    seg = wait_file(folder, "small.seg").read_text().split()
+    assert [int(v) for v in seg] == shown["labels"]
+    document = json.loads(wait_file(folder, "small-segmentation.json").read_text())
+    assert document["labels"] == shown["labels"] and document["parts"] == shown["parts"]
+    colored = trimesh.load(wait_file(folder, "small-colored.glb"), file_type="glb", force="mesh")
+    expected = {tuple(rgb(p["color"])) for p in shown["parts"]}
+    assert {tuple(c) for c in colored.visual.vertex_colors[:, :3].tolist()} == expected
+    scene = trimesh.load(wait_file(folder, "small-parts.glb"), file_type="glb")
+    assert len(scene.geometry) == len(shown["parts"])
+    assert severe(page) == []
+
+
+def test_service_errors_are_shown_as_messages(page, server, meshes):
+    page.upload(meshes["text"])
+    assert "Unsupported format" in page.message() and ".obj" in page.message()
+    page.upload(meshes["huge"])
+    assert "Too large" in page.message() and "2.9 MB" in page.message()
+    page.upload(meshes["broken"])
+    expected = httpx.post(
+        f"{server}/v1/meshes", files={"file": ("broken.obj", meshes["broken"].read_bytes())}
+    ).json()["error"]["message"]
+    assert "Unusable mesh" in page.message() and expected in page.message()
+    assert page.status() == "error"

@@ -103,9 +103,10 @@ def throughput(args: argparse.Namespace, work: Path) -> None:
     for name, folder in data_sets(args.sets, work).items():
         files = mesh_files(folder, args.sample)
         manifest = listing(files, work / f"{name}.txt")
-        print(f"{name}: {len(files)} meshes; {load()}")
+        print(f"{name}: {len(files)} meshes, {args.method} ShDF; {load()}")
         loop_script = (
             'i=0; while read -r f; do i=$((i+1)); "$@" segment "$f" -o "$OUT/$i.seg" -q '
+            f"--method {args.method} "
             '|| echo "failed: $f" >&2; done < "$LIST"'
         )
         walls: dict[str, list[float]] = {"loop": [], "batch": []}
@@ -122,7 +123,7 @@ def throughput(args: argparse.Namespace, work: Path) -> None:
             out = work / f"{name}-batch"
             shutil.rmtree(out, ignore_errors=True)
             wall, cpu, _ = timed([*CLI, "batch", str(manifest), "-o", str(out), "--workers", "2",
-                                  "-q"])  # fmt: skip
+                                  "--method", args.method, "-q"])  # fmt: skip
             walls["batch"].append(wall)
             cpus["batch"].append(cpu)
             rows = manifest_rows(out)
@@ -157,7 +158,7 @@ import json, logging, resource, sys, time
 from distributed import Client, LocalCluster
 from neural_shdf.batch import run_batch
 
-manifest, out, mode = sys.argv[1:4]
+manifest, out, mode, method = sys.argv[1:5]
 if mode == "dask":
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                            dashboard_address=None, silence_logs=logging.ERROR)
@@ -166,12 +167,12 @@ if mode == "dask":
     # spawn in about a second): the cluster start-up is a once-per-session cost.
     client.run(lambda: __import__("neural_shdf.pipeline"))
     start = time.perf_counter()
-    rows = run_batch([manifest], out, scheduler=client)
+    rows = run_batch([manifest], out, scheduler=client, method=method)
     seconds = time.perf_counter() - start
     client.close(); cluster.close()
 else:
     start = time.perf_counter()
-    rows = run_batch([manifest], out, workers=2)
+    rows = run_batch([manifest], out, workers=2, method=method)
     seconds = time.perf_counter() - start
 print(json.dumps({"seconds": seconds, "ok": sum(r["status"] == "ok" for r in rows)}))
 """
@@ -184,7 +185,7 @@ def dask_overhead(args: argparse.Namespace, work: Path) -> None:
     for name, folder in data_sets(args.sets, work).items():
         files = mesh_files(folder, args.sample)
         manifest = listing(files, work / f"{name}.txt")
-        print(f"{name}: {len(files)} meshes; {load()}")
+        print(f"{name}: {len(files)} meshes, {args.method} ShDF; {load()}")
         seconds: dict[str, list[float]] = {"local": [], "dask": []}
         cpus: dict[str, list[float]] = {"local": [], "dask": []}
         for _ in range(args.repeat):
@@ -193,7 +194,7 @@ def dask_overhead(args: argparse.Namespace, work: Path) -> None:
                 shutil.rmtree(out, ignore_errors=True)
                 cpu = children_cpu()
                 result = subprocess.run(
-                    [sys.executable, "-c", DASK_RUNNER, str(manifest), str(out), mode],
+                    [sys.executable, "-c", DASK_RUNNER, str(manifest), str(out), mode, args.method],
                     env=ENV, capture_output=True, text=True, check=True,
                 )  # fmt: skip
                 report = json.loads(result.stdout.strip().splitlines()[-1])
@@ -269,7 +270,8 @@ def resume(args: argparse.Namespace, work: Path) -> None:
     corrupt = generate_library(library, args.count, 0.05)
     out = work / "generated-out"
     shutil.rmtree(out, ignore_errors=True)
-    command = [*CLI, "batch", str(library), "-o", str(out), "--workers", "2", "-q"]
+    command = [*CLI, "batch", str(library), "-o", str(out), "--workers", "2", "-q",
+               "--method", args.method]  # fmt: skip
     print(f"{load()}")
     start = time.perf_counter()
     process = subprocess.Popen(command, env=ENV, start_new_session=True)
@@ -317,6 +319,7 @@ def main() -> None:
     parser.add_argument("--sample", type=int, help="only N meshes of each set (evenly spread)")
     parser.add_argument("--repeat", type=int, default=1, help="runs per case; the best counts")
     parser.add_argument("--count", type=int, default=1000, help="generated meshes (resume)")
+    parser.add_argument("--method", default="neural", help="ShDF method of every step")
     parser.add_argument("--work", type=Path, help="work folder (default: a temporary one)")
     args = parser.parse_args()
     work = args.work or Path(tempfile.mkdtemp(prefix="neural-shdf-bench-batch-"))

@@ -444,7 +444,13 @@ def _run_dask(tasks: list[Task], out_dir: str, config: BatchConfig, key: str,
             "--scheduler needs Dask distributed: pip install 'neural-shdf[distributed]'"
         ) from None
 
-    client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
+    if isinstance(scheduler, Client):
+        client = scheduler
+    else:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError, ValueError) as error:
+            raise ParameterError(f"cannot reach the Dask scheduler {scheduler}: {error}") from error
     try:
         futures = {
             client.submit(

@@ -69,6 +69,46 @@ def test_metis_gives_the_requested_number_of_parts(dumbbell_obj: Path, tmp_path:
     assert len(np.unique(np.array(_read_lines(out), dtype=int))) == 3
 
 
+def test_tree_json_recuts_to_every_part_count(dumbbell_obj: Path, tmp_path: Path):
+    import json
+
+    out, tree_path = tmp_path / "labels.seg", tmp_path / "tree.json"
+    assert main(["segment", str(dumbbell_obj), "-o", str(out), "--method", "exact",
+                 "--smoothing", "0.03", "--parts", "2", "--tree", str(tree_path), "-q"]) == 0
+    labels = np.array(_read_lines(out), dtype=int)
+    tree = json.loads(tree_path.read_text())
+    leaves = np.array(tree["leaf_labels"])
+    count = tree["leaf_count"]
+    assert len(leaves) == len(labels) and leaves.max() + 1 == count
+    assert tree["parts"] == 2 == len(np.unique(labels))
+    assert len(tree["parent"]) == 2 * count - 1 and len(tree["merge_cost"]) == count - 1
+    assert 1 <= tree["automatic_parts"] <= count
+
+    # The documented recipe, from the JSON alone, reproduces the written labels.
+    def cut(parts: int) -> np.ndarray:
+        top = []
+        for leaf in range(count):
+            node = leaf
+            while tree["parent"][node] != -1 and tree["parent"][node] < 2 * count - parts:
+                node = tree["parent"][node]
+            top.append(node)
+        smallest = {}
+        for leaf, node in enumerate(top):
+            smallest.setdefault(node, leaf)
+        order = sorted(smallest, key=smallest.get)
+        return np.array([order.index(node) for node in top])[leaves]
+
+    np.testing.assert_array_equal(cut(2), labels)
+    assert len(np.unique(cut(count))) == count
+
+
+def test_tree_needs_the_graph_cut(dumbbell_obj: Path, tmp_path: Path, capsys):
+    code = main(["segment", str(dumbbell_obj), "-o", str(tmp_path / "l.seg"), "--partitioner",
+                 "metis", "--parts", "2", "--tree", str(tmp_path / "t.json"), "-q"])
+    assert code == EXIT_BAD_INPUT
+    assert "--tree needs the graphcut partitioner" in capsys.readouterr().err
+
+
 def test_quads_keep_one_label_and_input_order(tmp_path: Path):
     mesh_path = tmp_path / "quads.obj"
     faces = _quad_box_obj(mesh_path)

@@ -247,7 +247,9 @@ class SegmentOptions(BaseModel):
     parts: int | None = Field(
         None,
         json_schema_extra=documented_bounds(1, MAX_PARTS),
-        description="Number of parts for `metis` (at most the mesh's face count).",
+        description="Number of parts. `graphcut`: a cut of its part tree (at most its leaves; "
+        "instant once the tree exists); `metis`: exactly this many (at most the mesh's face "
+        "count). None: automatic.",
         examples=[6],
     )
     refine: bool = Field(False, description="Re-segment heterogeneous parts.", examples=[False])

@@ -383,7 +383,10 @@ class MixedLoad:
 
     async def _client(self, index: int, stop_at: float, cache: dict) -> None:
         rng = random.Random(self.seed * 1000 + index)
-        async with httpx.AsyncClient(base_url=self.base, timeout=120) as client:
+        # A connection per request, as from many clients: the kernel spreads them over the
+        # workers (kept-alive connections would pin each client to one worker).
+        fresh = httpx.Limits(max_keepalive_connections=0)
+        async with httpx.AsyncClient(base_url=self.base, timeout=120, limits=fresh) as client:
             while time.monotonic() < stop_at:
                 roll = rng.random()
                 if roll < 0.12 or not self.meshes:
@@ -452,6 +455,20 @@ def summarize(samples: list[Sample], seconds: float) -> dict[str, float]:
         "p99": float(np.percentile(ms, 99)) if ms else 0.0,
         "max": ms[-1] if ms else 0.0,
     }
+
+
+def print_by_operation(samples: list[Sample]) -> None:
+    by_op: dict[str, list[Sample]] = {}
+    for sample in samples:
+        by_op.setdefault(sample.op, []).append(sample)
+    print("\n| operation | requests | 5xx | no answer | 4xx | p50 ms | p99 ms |")
+    print("|---|---|---|---|---|---|---|")
+    for op, chosen in sorted(by_op.items()):
+        w = summarize(chosen, 1.0)
+        print(
+            f"| {op} | {w['n']} | {w['5xx']} | {w['no_response']} | {w['4xx']} | "
+            f"{w['p50']:.0f} | {w['p99']:.0f} |"
+        )
 
 
 async def watch_ready(base: str, stop: asyncio.Event, log: list[tuple[float, str]]) -> None:
@@ -536,17 +553,7 @@ def redis_faults(args: argparse.Namespace, workdir: Path) -> int:
                     if after
                     else f"{name}: /readyz never 'ready' again"
                 )
-            by_op: dict[str, list[Sample]] = {}
-            for sample in load.samples:
-                by_op.setdefault(sample.op, []).append(sample)
-            print("\n| operation | requests | 5xx | no answer | 4xx | p99 ms |")
-            print("|---|---|---|---|---|---|")
-            for op, chosen in sorted(by_op.items()):
-                w = summarize(chosen, 1.0)
-                print(
-                    f"| {op} | {w['n']} | {w['5xx']} | {w['no_response']} | {w['4xx']} | "
-                    f"{w['p99']:.0f} |"
-                )
+            print_by_operation(load.samples)
             # Recovery: every job finished and pollable, every mesh readable, Redis written.
             states: dict[str, int] = {}
             for job in load.jobs:
@@ -581,12 +588,14 @@ def soak(args: argparse.Namespace, workdir: Path) -> int:
     with service(workdir / "cache", workdir / "server.log", **settings) as (base, process):
         load = MixedLoad(base, clients=args.clients, seed=args.seed)
         rss: list[tuple[float, list[float]]] = []
+        loads: list[float] = []
 
         async def drive() -> None:
             runner = asyncio.create_task(load.run(seconds))
             await asyncio.sleep(0.05)
             while not runner.done():
                 rss.append((time.monotonic() - load.start, server_rss_mib(process)))
+                loads.append(os.getloadavg()[0])
                 await asyncio.wait({runner}, timeout=args.every_s)
             rss.append((time.monotonic() - load.start, server_rss_mib(process)))
 
@@ -608,6 +617,7 @@ def soak(args: argparse.Namespace, workdir: Path) -> int:
                 f"{w['no_response']} | {w['4xx']} | {w['p50']:.0f} | {w['p99']:.0f} | "
                 f"{', '.join(f'{s:.0f}' for s in sizes)} |"
             )
+        print_by_operation(load.samples)
         total = summarize(load.samples, seconds)
         early = [sum(r) for t, r in rss if 60 <= t <= 180] or [sum(rss[0][1])]
         late = [sum(r) for t, r in rss if t >= seconds - 120]
@@ -617,7 +627,8 @@ def soak(args: argparse.Namespace, workdir: Path) -> int:
             f"p99 {total['p99']:.0f} ms, "
             f"5xx {total['5xx']}, no answer {total['no_response']}, 4xx {total['4xx']}; "
             f"total RSS median {statistics.median(early):.0f} MiB (1-3 min) -> "
-            f"{statistics.median(late):.0f} MiB (last 2 min): ratio {growth:.3f}"
+            f"{statistics.median(late):.0f} MiB (last 2 min): ratio {growth:.3f}; "
+            f"machine load average {min(loads):.1f}-{max(loads):.1f} on {os.cpu_count()} cores"
         )
     return 1 if errors else 0
 

@@ -68,6 +68,46 @@ def test_metis_gives_the_requested_number_of_parts(dumbbell_obj: Path, tmp_path:
     assert len(np.unique(np.array(_read_lines(out), dtype=int))) == 3
 
 
+def test_tree_json_recuts_to_every_part_count(dumbbell_obj: Path, tmp_path: Path):
+    import json
+
+    out, tree_path = tmp_path / "labels.seg", tmp_path / "tree.json"
+    assert main(["segment", str(dumbbell_obj), "-o", str(out), "--method", "exact",
+                 "--smoothing", "0.03", "--parts", "2", "--tree", str(tree_path), "-q"]) == 0
+    labels = np.array(_read_lines(out), dtype=int)
+    tree = json.loads(tree_path.read_text())
+    leaves = np.array(tree["leaf_labels"])
+    count = tree["leaf_count"]
+    assert len(leaves) == len(labels) and leaves.max() + 1 == count
+    assert tree["parts"] == 2 == len(np.unique(labels))
+    assert len(tree["parent"]) == 2 * count - 1 and len(tree["merge_cost"]) == count - 1
+    assert 1 <= tree["automatic_parts"] <= count
+
+    # The documented recipe, from the JSON alone, reproduces the written labels.
+    def cut(parts: int) -> np.ndarray:
+        top = []
+        for leaf in range(count):
+            node = leaf
+            while tree["parent"][node] != -1 and tree["parent"][node] < 2 * count - parts:
+                node = tree["parent"][node]
+            top.append(node)
+        smallest = {}
+        for leaf, node in enumerate(top):
+            smallest.setdefault(node, leaf)
+        order = sorted(smallest, key=smallest.get)
+        return np.array([order.index(node) for node in top])[leaves]
+
+    np.testing.assert_array_equal(cut(2), labels)
+    assert len(np.unique(cut(count))) == count
+
+
+def test_tree_needs_the_graph_cut(dumbbell_obj: Path, tmp_path: Path, capsys):
+    code = main(["segment", str(dumbbell_obj), "-o", str(tmp_path / "l.seg"), "--partitioner",
+                 "metis", "--parts", "2", "--tree", str(tmp_path / "t.json"), "-q"])
+    assert code == EXIT_BAD_INPUT
+    assert "--tree needs the graphcut partitioner" in capsys.readouterr().err
+
+
 def test_quads_keep_one_label_and_input_order(tmp_path: Path):
     mesh_path = tmp_path / "quads.obj"
     faces = _quad_box_obj(mesh_path)
@@ -155,6 +195,40 @@ def test_eval_prints_a_table_over_a_benchmark_folder(tmp_path: Path, capsys):
 def test_eval_rejects_a_folder_without_benchmark_layout(tmp_path: Path, capsys):
     assert main(["eval", str(tmp_path), "-q"]) == EXIT_BAD_INPUT
     assert "off/" in capsys.readouterr().err
+
+
+def test_unwrap_writes_a_glb_and_an_obj_that_keep_the_input_faces(tmp_path: Path):
+    from neural_shdf.mesh_io import load_mesh
+
+    source = tmp_path / "quads.obj"
+    count = _quad_box_obj(source)
+    glb, obj, png, seg = (tmp_path / n for n in ("u.glb", "u.obj", "atlas.png", "u.seg"))
+    code = main(["unwrap", str(source), "-o", str(glb), "--method", "exact", "--atlas-size",
+                 "256", "--atlas-png", str(png), "--labels", str(seg), "-q"])
+    assert code == 0
+    mesh = load_mesh(source)
+    loaded = trimesh.load(glb, force="mesh", process=False)
+    # Same triangles in the same order, UVs in [0, 1].
+    assert np.allclose(loaded.vertices[loaded.faces], mesh.vertices[mesh.faces], atol=1e-6)
+    assert loaded.visual.uv.min() >= 0 and loaded.visual.uv.max() <= 1
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert len(_read_lines(seg)) == count
+
+    assert main(["unwrap", str(source), "-o", str(obj), "--method", "exact", "-q"]) == 0
+    faces = [line.split()[1:] for line in obj.read_text().splitlines() if line.startswith("f ")]
+    texcoords = [line for line in obj.read_text().splitlines() if line.startswith("vt ")]
+    # One f line per input face (6 quads, 2 triangles), each corner with its own vt.
+    assert [len(face) for face in faces] == [4, 4, 4, 4, 4, 4, 3, 3]
+    assert len(texcoords) == 4 * 6 + 3 * 2
+    assert [int(c.split("/")[0]) for c in faces[0]] == [1, 4, 3, 2]
+
+
+def test_unwrap_rejects_an_output_it_cannot_write(tmp_path: Path, capsys):
+    source = tmp_path / "quads.obj"
+    _quad_box_obj(source)
+    code = main(["unwrap", str(source), "-o", str(tmp_path / "u.fbx"), "-q"])
+    assert code == EXIT_BAD_INPUT
+    assert ".glb or .obj" in capsys.readouterr().err
 
 
 def test_a_mesh_over_the_limits_exits_2_naming_the_limit(tmp_path: Path, capsys):

@@ -1,16 +1,23 @@
-"""Write segmentation results: coloured GLB, one-node-per-part GLB, .seg labels, value files."""
+"""Write segmentation results: coloured GLB, one-node-per-part GLB, .seg labels, value files,
+the part tree as JSON."""
 
 from __future__ import annotations
 
 import colorsys
+import json
 import struct
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.errors import ParameterError
 from neural_shdf.mesh import TriangleMesh
+
+if TYPE_CHECKING:
+    from neural_shdf.segment.hierarchy import PartTree
+    from neural_shdf.unwrap import UvAtlas
 
 #: First colours of the palette: distinct, colour-blind-friendly-ish, light enough to shade.
 _BASE_PALETTE = np.array(
@@ -165,6 +172,84 @@ def parts_glb(mesh: TriangleMesh, labels: NDArray) -> bytes:
     return scene.export(file_type="glb")
 
 
+def unwrapped_glb(mesh: TriangleMesh, atlas: UvAtlas, *, texture_png: bytes | None = None) -> bytes:
+    """GLB of the mesh with its atlas UVs (TEXCOORD_0), triangles in the mesh's order.
+
+    Vertices are split where a seam gives one position two UVs. ``texture_png`` becomes the
+    material's base colour texture (e.g. ``unwrap.png_bytes(atlas_layout_image(atlas))``).
+    """
+    import io
+
+    import trimesh
+    from PIL import Image
+
+    vertices, faces, uvs = uv_split_vertices(mesh, atlas)
+    image = Image.open(io.BytesIO(texture_png)) if texture_png else None
+    material = trimesh.visual.material.PBRMaterial(
+        baseColorTexture=image, metallicFactor=0.0, roughnessFactor=0.9
+    )
+    visual = trimesh.visual.TextureVisuals(uv=uvs, material=material)
+    out = trimesh.Trimesh(vertices, faces, visual=visual, process=False)
+    return out.export(file_type="glb")
+
+
+def uv_split_vertices(
+    mesh: TriangleMesh, atlas: UvAtlas
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
+    """``(vertices, faces, uvs)`` with one vertex per distinct (position, UV) corner:
+    triangles in the mesh's order, ``uvs[i]`` the UV of ``vertices[i]``."""
+    corners = mesh.faces.reshape(-1)
+    uv = np.asarray(atlas.corner_uvs, dtype=np.float64).reshape(-1, 2)
+    keys = np.column_stack([corners.astype(np.float64), uv])
+    unique, inverse = np.unique(keys, axis=0, return_inverse=True)
+    vertex = unique[:, 0].astype(np.int64)
+    return mesh.vertices[vertex], inverse.reshape(-1, 3).astype(np.int64), unique[:, 1:]
+
+
+def write_obj_with_uvs(path: str | Path, mesh: TriangleMesh, atlas: UvAtlas) -> int:
+    """Write an OBJ with ``v``, ``vt`` and ``f v/vt`` lines, one ``f`` per input face in the
+    input order, each polygon with its UVs per corner.
+
+    A polygon a chart boundary runs through (its triangles disagree on a shared corner's
+    UV) is written as its triangles, in place. Returns how many polygons were split so.
+    Input faces that produced no triangle are left out.
+    """
+    from neural_shdf.unwrap import input_face_corner_uvs
+
+    polygons, polygon_uvs, consistent = input_face_corner_uvs(mesh, atlas.corner_uvs)
+    lines = ["# neural-shdf unwrap: one f line per input face (split polygons: their triangles)"]
+    lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in mesh.vertices)
+    uv_rows = []
+    faces_text = []
+    offset = 0
+    starts = np.searchsorted(mesh.face_origin, np.arange(mesh.input_face_count))
+    for face, ring in enumerate(polygons):
+        count = len(ring)
+        if count == 0:
+            continue
+        if consistent[face]:
+            base = len(uv_rows)
+            uv_rows.extend(polygon_uvs[offset : offset + count])
+            faces_text.append(
+                "f " + " ".join(f"{v + 1}/{base + k + 1}" for k, v in enumerate(ring))
+            )
+        else:
+            first = int(starts[face])
+            for triangle in range(first, first + count - 2):
+                base = len(uv_rows)
+                uv_rows.extend(atlas.corner_uvs[triangle])
+                faces_text.append(
+                    "f " + " ".join(
+                        f"{v + 1}/{base + k + 1}" for k, v in enumerate(mesh.faces[triangle])
+                    )
+                )
+        offset += count
+    lines.extend(f"vt {u:.9g} {v:.9g}" for u, v in uv_rows)
+    lines.extend(faces_text)
+    Path(path).write_text("\n".join(lines) + "\n")
+    return int((~consistent).sum())
+
+
 def write_labels(path: str | Path, labels: NDArray) -> None:
     """Write a .seg file: one integer label per line."""
     labels = np.asarray(labels)
@@ -206,6 +291,35 @@ def read_values(path: str | Path) -> NDArray[np.float64]:
     return np.array(_read_column(path, float, "a number"), dtype=np.float64)
 
 
+def part_tree_document(tree: PartTree, leaf_labels: NDArray, parts: int) -> dict[str, Any]:
+    """The part tree as JSON-ready data (the API's ``hierarchy`` and the CLI's ``--tree``).
+
+    ``leaf_labels``: leaf per face of the output (e.g. per input face; -1 for none).
+    Keys: ``leaf_count`` L; ``parts`` (the count the labels were cut at);
+    ``automatic_parts``; ``leaf_labels``; ``parent`` (2L - 1 node ids, -1 for the
+    root; leaves are 0..L-1, merge i made node L + i); ``merge_cost`` and
+    ``merge_height`` (L - 1; height: running maximum of the cost). To cut at N
+    parts, give each leaf its highest ancestor with id < 2L - N (itself when its
+    parent's id is >= 2L - N) and number the parts by their smallest leaf.
+    """
+    from neural_shdf.segment.hierarchy import automatic_part_count
+
+    return {
+        "leaf_count": tree.leaf_count,
+        "parts": int(parts),
+        "automatic_parts": automatic_part_count(tree),
+        "leaf_labels": np.asarray(leaf_labels, dtype=np.int64).tolist(),
+        "parent": tree.parent.tolist(),
+        "merge_cost": [float(c) for c in tree.costs],
+        "merge_height": [float(h) for h in tree.heights],
+    }
+
+
+def write_part_tree(path: str | Path, tree: PartTree, leaf_labels: NDArray, parts: int) -> None:
+    """Write ``part_tree_document`` as a JSON file."""
+    Path(path).write_text(json.dumps(part_tree_document(tree, leaf_labels, parts)))
+
+
 __all__ = [
     "UNLABELED_COLOR",
     "colored_glb",
@@ -213,10 +327,15 @@ __all__ = [
     "part_color_hex",
     "part_colors",
     "part_name",
+    "part_tree_document",
     "parts_glb",
     "read_labels",
     "read_values",
     "split_by_part",
+    "unwrapped_glb",
+    "uv_split_vertices",
     "write_labels",
+    "write_part_tree",
+    "write_obj_with_uvs",
     "write_values",
 ]

@@ -224,6 +224,7 @@ class SegmentOptions(BaseModel):
         None,
         ge=0,
         le=100,
+        allow_inf_nan=False,
         description="Smoothness weight lambda of the graph cut.",
         examples=[0.12],
     )

@@ -20,7 +20,7 @@ from neural_shdf.api.schemas import (
     ShdfValues,
     UploadResult,
 )
-from neural_shdf.mesh_io import sniff_format
+from neural_shdf.mesh_io import normalize_format, sniff_format
 
 router = APIRouter(prefix="/v1", tags=["meshes"])
 
@@ -40,7 +40,7 @@ async def ingest(engine: Engine, upload: UploadFile, file_type: str | None) -> t
     data = await read_upload(upload)
     fmt = upload_format(upload, file_type)
     mesh = await engine.run(engine.parse, data, fmt)
-    detected = fmt or sniff_format(data)
+    detected = normalize_format(fmt) if fmt else sniff_format(data)
     meta = await engine.io(engine.store_mesh, mesh, detected, upload.filename)
     return meta, mesh
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -44,40 +45,77 @@ def capsule_obj() -> bytes:
     return capsule().export(file_type="obj").encode()
 
 
+class RedisServer:
+    """A real redis-server on a loopback port that a test can stop, restart, freeze, thaw."""
+
+    def __init__(self, binary: str, directory: Path) -> None:
+        self.binary = binary
+        self.directory = directory
+        self.port = free_port()
+        self.url = f"redis://127.0.0.1:{self.port}/0"
+        self.process: subprocess.Popen | None = None
+
+    def start(self) -> None:
+        self.process = subprocess.Popen(
+            [
+                self.binary,
+                "--port",
+                str(self.port),
+                "--bind",
+                "127.0.0.1",
+                "--dir",
+                str(self.directory),
+                "--save",
+                "",
+                "--appendonly",
+                "no",
+                "--protected-mode",
+                "yes",
+                "--enable-debug-command",
+                "local",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+        wait_for_port(self.port, self.process)
+
+    def stop(self) -> None:
+        if self.process is not None:
+            self.thaw()
+            self.process.terminate()
+            self.process.wait(timeout=10)
+            self.process = None
+
+    def freeze(self) -> None:
+        """SIGSTOP: connections are accepted by the kernel, nothing answers."""
+        assert self.process is not None
+        self.process.send_signal(signal.SIGSTOP)
+
+    def thaw(self) -> None:
+        if self.process is not None:
+            self.process.send_signal(signal.SIGCONT)
+
+
 @pytest.fixture
-def redis_url(tmp_path: Path) -> Iterator[str]:
-    """A real redis-server on a free loopback port with a temp dir."""
+def redis_server(tmp_path: Path) -> Iterator[RedisServer]:
+    """A real redis-server (started) that the test may stop, restart, freeze and thaw."""
     binary = shutil.which("redis-server")
     if binary is None:
         pytest.skip("redis-server is not installed (apt-get install -y redis-server)")
-    port = free_port()
     directory = tmp_path / "redis"
     directory.mkdir()
-    process = subprocess.Popen(
-        [
-            binary,
-            "--port",
-            str(port),
-            "--bind",
-            "127.0.0.1",
-            "--dir",
-            str(directory),
-            "--save",
-            "",
-            "--appendonly",
-            "no",
-            "--protected-mode",
-            "yes",
-        ],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    server = RedisServer(binary, directory)
+    server.start()
     try:
-        wait_for_port(port, process)
-        yield f"redis://127.0.0.1:{port}/0"
+        yield server
     finally:
-        process.terminate()
-        process.wait(timeout=10)
+        server.stop()
+
+
+@pytest.fixture
+def redis_url(redis_server: RedisServer) -> str:
+    """The URL of a real redis-server on a free loopback port."""
+    return redis_server.url
 
 
 def wait_for_port(port: int, process: subprocess.Popen, timeout_s: float = 20.0) -> None:
@@ -93,11 +131,14 @@ def wait_for_port(port: int, process: subprocess.Popen, timeout_s: float = 20.0)
 
 
 @contextlib.contextmanager
-def running_server(cache_dir: Path, workers: int = 1, **settings: object) -> Iterator[str]:
-    """`python -m neural_shdf.api.serve` on a free loopback port; yields its base URL.
+def running_server(
+    cache_dir: Path, workers: int = 1, port: int | None = None, **settings: object
+) -> Iterator[str]:
+    """`python -m neural_shdf.api.serve` on a free (or the given) loopback port; yields its
+    base URL.
 
     ``settings``: further service settings by name (``request_timeout_s=0.05``)."""
-    port = free_port()
+    port = port or free_port()
     env = dict(os.environ)
     env.update(
         NEURAL_SHDF_HOST="127.0.0.1",
@@ -128,8 +169,9 @@ def running_server(cache_dir: Path, workers: int = 1, **settings: object) -> Ite
             time.sleep(0.1)
         yield base
     finally:
-        process.terminate()
-        process.wait(timeout=30)
+        if process.poll() is None:
+            process.terminate()
+            process.wait(timeout=30)
 
 
 @pytest.fixture(scope="module")

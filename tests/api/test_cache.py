@@ -1,6 +1,13 @@
-"""The cache: checksummed framing, disk LRU cap, Redis shared by two replicas."""
+"""The cache: checksummed framing, disk LRU cap, leases, Redis faults, two replicas."""
 
 from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -11,6 +18,7 @@ from hypothesis import strategies as st
 from neural_shdf.api.cache import (
     CorruptEntryError,
     DiskBackend,
+    FallbackBackend,
     RedisBackend,
     ResultCache,
     decode_arrays,
@@ -75,8 +83,9 @@ def test_redis_backend_round_trip_lock_and_groups(redis_url):
     cache.put_json("m1:meta", {"faces": 7}, group="m1")
     np.testing.assert_array_equal(cache.get_arrays("m1:shdf")["shdf"], np.linspace(0, 1, 7))
     assert 0 < cache.backend._redis.ttl("neural-shdf:m1:meta") <= 100  # entries expire
-    with cache.lock("m1:shdf", timeout=5):
-        pass
+    with cache.lock("m1:shdf", wait_s=5) as lease:
+        assert lease.held and cache.backend._redis.exists("neural-shdf:lease:lock:m1:shdf")
+    assert not cache.backend._redis.exists("neural-shdf:lease:lock:m1:shdf")
     cache.backend.set("m1:bad", b"corrupt", group="m1")
     assert cache.get_json("m1:bad") is None and cache.backend.get("m1:bad") is None
     assert cache.delete_group("m1") == 2
@@ -110,3 +119,133 @@ def test_replica_b_segments_what_replica_a_uploaded(app_factory, redis_url, caps
         assert gone.status_code == 404
         other = b.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 2})
         assert other.status_code == 404
+
+
+# A lease holder in its own process, killed with SIGKILL by the tests (a crashed worker).
+_HOLDER = """
+import sys, time
+from pathlib import Path
+from neural_shdf.api.cache import DiskBackend, RedisBackend, ResultCache
+store, ttl = sys.argv[1], float(sys.argv[2])
+if store.startswith("redis://"):
+    backend = RedisBackend(store, 2.0)
+else:
+    backend = DiskBackend(Path(store), 10 * 1024**2)
+lease = ResultCache(backend, lease_s=ttl).lease("lock:m:shdf")
+assert lease.try_acquire()
+print("held", flush=True)
+time.sleep(600)
+"""
+
+
+def _store(kind: str, tmp_path, redis_url: str | None) -> tuple[str, ResultCache]:
+    if kind == "disk":
+        return str(tmp_path / "c"), ResultCache(DiskBackend(tmp_path / "c", 10 * 1024**2))
+    return redis_url, ResultCache(RedisBackend(redis_url, 2.0))
+
+
+@pytest.mark.parametrize("kind", ["disk", "redis"])
+def test_a_killed_holders_lease_lapses_within_its_ttl(kind, tmp_path, request):
+    """The holder renews while alive (others wait through several TTLs); once it is killed
+    with SIGKILL its lease lapses after one TTL, not after the old 600 s lock expiry."""
+    redis_url = request.getfixturevalue("redis_url") if kind == "redis" else None
+    where, cache = _store(kind, tmp_path, redis_url)
+    ttl = 1.0
+    cache.lease_s = ttl
+    holder = subprocess.Popen(
+        [sys.executable, "-c", _HOLDER, where, str(ttl)],
+        stdout=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+    )
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        waiter = cache.lease("lock:m:shdf")
+        assert not waiter.acquire(wait_s=3 * ttl)  # renewed by the live holder
+        holder.send_signal(signal.SIGKILL)
+        holder.wait(timeout=10)
+        start = time.monotonic()
+        assert waiter.acquire(wait_s=30)
+        assert time.monotonic() - start <= ttl + 1.5
+        waiter.release()
+        again = cache.lease("lock:m:shdf")
+        assert again.try_acquire()  # released: free at once
+        again.release()
+    finally:
+        holder.kill()
+        holder.wait(timeout=10)
+
+
+def test_lease_tokens_guard_renewal_and_release(tmp_path):
+    cache = ResultCache(DiskBackend(tmp_path / "c", 10 * 1024**2), lease_s=0.3)
+    first, second = cache.lease("k"), cache.lease("k")
+    assert first.try_acquire() and not second.try_acquire()
+    cache.backend.release_lease("k", second.token)  # not the holder's token: no effect
+    assert not second.try_acquire()
+    time.sleep(1.0)  # three TTLs: the renewals keep it
+    assert not second.try_acquire() and not first.lost
+    first.release()
+    assert second.try_acquire()
+    second.stop_renewing()  # the holder stops beating: lapses after one TTL
+    time.sleep(0.5)
+    assert first.try_acquire()
+    first.release()
+
+
+def _freeze_with_debug_sleep(redis_server, seconds: float) -> threading.Thread:
+    """Block redis-server for ``seconds`` with DEBUG SLEEP (another client's command)."""
+    import redis
+
+    client = redis.Redis.from_url(redis_server.url, socket_timeout=seconds + 10)
+    thread = threading.Thread(target=client.execute_command, args=("DEBUG", "SLEEP", seconds))
+    thread.start()
+    time.sleep(0.1)
+    return thread
+
+
+@pytest.mark.parametrize("fault", ["sigstop", "debug-sleep", "stopped"])
+def test_redis_fault_opens_the_breaker_and_the_disk_stands_in(fault, redis_server, tmp_path):
+    """One timeout at most, then no waiting on Redis; writes meanwhile go to disk and reach
+    Redis once a probe finds it again."""
+    timeout, retry = 0.5, 0.3
+    redis = RedisBackend(redis_server.url, timeout, retry_s=retry)
+    backend = FallbackBackend(redis, DiskBackend(tmp_path / "disk", 10 * 1024**2))
+    cache = ResultCache(backend, memory_items=0)
+    cache.put_json("m:before", {"a": 1}, group="m")
+    assert redis.get("m:before") is not None and backend.fallback.get("m:before") is None
+
+    sleeper = None
+    if fault == "sigstop":
+        redis_server.freeze()
+    elif fault == "debug-sleep":
+        sleeper = _freeze_with_debug_sleep(redis_server, 4)
+    else:
+        redis_server.stop()
+    start = time.monotonic()
+    assert cache.get_json("m:before") is None  # only Redis holds it: a miss, not a stall
+    assert time.monotonic() - start < timeout + 1.0
+    assert backend.degraded
+    start = time.monotonic()
+    cache.put_json("m:during", {"b": 2}, group="m")
+    assert cache.get_json("m:during") == {"b": 2}
+    lease = cache.lease("lock:m:x")
+    assert lease.try_acquire()  # from the disk cache
+    lease.release()
+    assert time.monotonic() - start < 0.5  # the breaker is open: no timeouts
+    ok, detail = cache.health()
+    assert not ok and "redis unreachable" in detail and "local disk cache" in detail
+
+    if fault == "sigstop":
+        redis_server.thaw()
+    elif fault == "debug-sleep":
+        sleeper.join()
+    else:
+        redis_server.start()
+    deadline = time.monotonic() + 10
+    while backend.degraded and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not backend.degraded and cache.health() == (True, "redis")
+    if fault != "stopped":  # a restarted Redis without persistence lost what it held
+        assert cache.get_json("m:before") == {"a": 1}
+    assert cache.get_json("m:during") == {"b": 2}  # moved from disk to Redis
+    assert redis.get("m:during") is not None and backend.fallback.get("m:during") is None

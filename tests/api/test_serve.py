@@ -3,12 +3,19 @@
 from __future__ import annotations
 
 import asyncio
+import os
+import signal
+import time
 
 import httpx
 import numpy as np
+import pytest
 
+from neural_shdf.api.cache import DiskBackend, ResultCache, unseal
+from neural_shdf.api.jobs import job_key
 from neural_shdf.mesh_io import load_mesh
-from tests.api.api_helpers import TEST_METHOD
+from tests.api.api_helpers import TEST_METHOD, capsule, free_port, wait_job
+from tests.api.conftest import running_server
 
 
 def test_real_server_end_to_end(uvicorn_server, capsule_obj):
@@ -112,3 +119,51 @@ def test_docker_healthcheck_command_passes_against_the_server(uvicorn_server):
     )
     ignored = (REPO_ROOT / ".dockerignore").read_text().split()
     assert not {"service", "pyproject.toml", "README.md"} & set(ignored)
+
+
+@pytest.mark.slow
+def test_kill_9_mid_job_leaves_no_stuck_lock_job_or_partial_entry(tmp_path):
+    """kill -9 while an exact ShDF job holds its compute lock, restart, re-upload: the new
+    job does not wait for the 600 s lock timeout, and the old job is re-run, not stuck."""
+    cache_dir = tmp_path / "cache"
+    data = capsule(200).export(file_type="ply")  # 80k faces: seconds of exact ShDF
+    settings = {
+        "default_method": "exact",
+        "sync_face_threshold": "10",
+        "lock_lease_s": "2",
+        "warm_up": "false",
+        "max_upload_bytes": str(8 * 1024**2),
+    }
+    port = free_port()
+    with (
+        running_server(cache_dir, port=port, **settings) as base,
+        httpx.Client(base_url=base, timeout=60) as client,
+    ):
+        old = client.post("/v1/meshes", files={"file": ("c.ply", data)})
+        assert old.status_code == 202, old.text
+        old_job = old.json()
+        deadline = time.monotonic() + 120
+        while client.get(f"/v1/jobs/{old_job['job_id']}").json()["progress"] <= 0:
+            assert time.monotonic() < deadline, "the job never started computing"
+            time.sleep(0.02)
+        cache = ResultCache(DiskBackend(cache_dir, 2 * 1024**3))
+        worker = cache.get_json(job_key(old_job["job_id"]))["worker"]
+        os.kill(int(worker.rsplit(":", 1)[1]), signal.SIGKILL)  # mid-computation, lock held
+        cache.close()
+    with (
+        running_server(cache_dir, port=port, **settings) as base,
+        httpx.Client(base_url=base, timeout=60) as client,
+    ):
+        start = time.monotonic()
+        again = client.post("/v1/meshes", files={"file": ("c.ply", data)})
+        assert again.status_code == 202, again.text  # nothing partial was cached
+        assert wait_job(client, again.json(), timeout_s=120)["state"] == "succeeded"
+        assert time.monotonic() - start < 60  # the lock lapsed (lock_timeout_s is 600)
+        rerun = wait_job(client, old_job, timeout_s=60)
+        assert rerun["state"] == "succeeded" and rerun["attempt"] == 2
+    cache = ResultCache(DiskBackend(cache_dir, 2 * 1024**3))
+    for key in cache.backend._cache.iterkeys():
+        value = cache.backend.get(key)
+        if value is not None and not key.startswith("lease:"):
+            unseal(value)  # every entry verifies: no partial write survived the crash
+    cache.close()

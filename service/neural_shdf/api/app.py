@@ -12,10 +12,10 @@ from fastapi.openapi.utils import get_openapi
 from fastapi.responses import JSONResponse
 
 from neural_shdf import __version__
-from neural_shdf.api.cache import DiskBackend, RedisBackend, ResultCache
+from neural_shdf.api.cache import DiskBackend, FallbackBackend, RedisBackend, ResultCache
 from neural_shdf.api.engine import Engine
 from neural_shdf.api.errors import BodySizeLimitMiddleware, install_error_handlers
-from neural_shdf.api.jobs import JobAccepted
+from neural_shdf.api.jobs import JobAccepted, public_job
 from neural_shdf.api.metrics import Metrics, RequestMetricsMiddleware
 from neural_shdf.api.routes import health, jobs, meshes, segment
 from neural_shdf.api.routes.viewer import install_viewer
@@ -34,15 +34,20 @@ logger = logging.getLogger(__name__)
 
 
 def build_cache(settings: Settings, metrics: Metrics) -> ResultCache:
-    """Redis when ``redis_url`` is set, else the local disk cache."""
+    """Redis (the local disk cache as its fallback) when ``redis_url`` is set, else the disk."""
+    disk = DiskBackend(settings.cache_dir, settings.cache_size_bytes)
+    backend: DiskBackend | FallbackBackend = disk
     if settings.redis_url:
-        backend = RedisBackend(
-            settings.redis_url, settings.redis_timeout_s, ttl_s=settings.redis_ttl_s
+        redis = RedisBackend(
+            settings.redis_url,
+            settings.redis_timeout_s,
+            ttl_s=settings.redis_ttl_s,
+            retry_s=settings.redis_retry_s,
         )
-        backend.on_error = lambda exc: metrics.cache_errors.inc()
-    else:
-        backend = DiskBackend(settings.cache_dir, settings.cache_size_bytes)
-    cache = ResultCache(backend, settings.memory_cache_items)
+        redis.on_error = lambda exc: metrics.cache_errors.inc()
+        redis.breaker.on_change = lambda is_open: metrics.cache_degraded.set(int(is_open))
+        backend = FallbackBackend(redis, disk)
+    cache = ResultCache(backend, settings.memory_cache_items, lease_s=settings.lock_lease_s)
     cache.on_corrupt = lambda key: metrics.cache_corrupt.inc()
     return cache
 
@@ -79,7 +84,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def job_accepted(_: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, JobAccepted)
         return JSONResponse(
-            exc.job, status_code=202, headers={"Location": f"/v1/jobs/{exc.job['job_id']}"}
+            public_job(exc.job),
+            status_code=202,
+            headers={"Location": f"/v1/jobs/{exc.job['job_id']}"},
         )
 
     app.add_exception_handler(JobAccepted, job_accepted)

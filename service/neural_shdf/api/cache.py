@@ -4,6 +4,10 @@ Every entry is ``MAGIC + sha256(payload) + payload``; an entry whose checksum do
 not match (corrupt, truncated, written by something else) is deleted and reported
 as a miss, so it is recomputed and never served. Keys are grouped per mesh id so a
 mesh and everything derived from it can be deleted together.
+
+Locks are leases (``Lease``): their holder renews them while it works, so a crashed
+holder's lock lapses within seconds. Redis sits behind a circuit breaker with the disk
+cache as fallback (``FallbackBackend``): an outage degrades the service, never stalls it.
 """
 
 from __future__ import annotations
@@ -13,16 +17,21 @@ import hashlib
 import io
 import json
 import logging
+import os
+import socket
 import threading
+import time
+import uuid
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 logger = logging.getLogger(__name__)
+T = TypeVar("T")
 
 MAGIC = b"NSHDF1\n"
 _DIGEST_SIZE = 32
@@ -66,8 +75,12 @@ def decode_arrays(payload: bytes) -> dict[str, NDArray]:
         raise CorruptEntryError(f"undecodable arrays: {exc}") from exc
 
 
+class BackendUnavailable(Exception):  # noqa: N818 - a state, reported by FallbackBackend
+    """The shared store cannot be reached now (error, timeout or open circuit breaker)."""
+
+
 class Backend(Protocol):
-    """Byte store shared by every worker/replica of the service."""
+    """Byte store shared by every worker/replica of the service, with leases for locking."""
 
     name: str
     #: Whether exists() is cheap enough to call on the event loop (local, never waits).
@@ -78,9 +91,15 @@ class Backend(Protocol):
     def set(self, key: str, value: bytes, *, group: str, expire: float | None = None) -> None: ...
     def delete(self, key: str) -> None: ...
     def delete_group(self, group: str) -> int: ...
-    def lock(self, key: str, timeout: float) -> contextlib.AbstractContextManager[None]: ...
-    def ping(self) -> bool: ...
+    def acquire_lease(self, key: str, token: str, ttl_s: float) -> bool: ...
+    def renew_lease(self, key: str, token: str, ttl_s: float) -> bool: ...
+    def release_lease(self, key: str, token: str) -> None: ...
+    def health(self) -> tuple[bool, str]: ...
     def close(self) -> None: ...
+
+
+def _lease_key(key: str) -> str:
+    return f"lease:{key}"
 
 
 class DiskBackend:
@@ -105,12 +124,21 @@ class DiskBackend:
         value = self._cache.get(key, default=None, retry=True)
         return value if isinstance(value, bytes) else None
 
+    def get_entry(self, key: str) -> tuple[bytes, str | None, float | None] | None:
+        """(value, group, seconds until it expires or None) of a live entry."""
+        value, expire_time, group = self._cache.get(
+            key, default=None, expire_time=True, tag=True, retry=True
+        )
+        if not isinstance(value, bytes):
+            return None
+        return value, group, None if expire_time is None else expire_time - time.time()
+
     def exists(self, key: str) -> bool | None:
         return key in self._cache
 
     def set(self, key: str, value: bytes, *, group: str, expire: float | None = None) -> None:
         # diskcache writes the value file first, then commits the SQLite row in one
-        # transaction: a reader never sees a half-written entry.
+        # transaction: a reader never sees a half-written entry, a crash leaves none.
         self._cache.set(key, value, expire=expire, tag=group, retry=True)
 
     def delete(self, key: str) -> None:
@@ -119,26 +147,123 @@ class DiskBackend:
     def delete_group(self, group: str) -> int:
         return int(self._cache.evict(group, retry=True))
 
-    @contextlib.contextmanager
-    def lock(self, key: str, timeout: float) -> Iterator[None]:
-        import diskcache
+    def acquire_lease(self, key: str, token: str, ttl_s: float) -> bool:
+        # add() is atomic across processes and treats an expired entry as absent.
+        return bool(self._cache.add(_lease_key(key), token, expire=ttl_s, retry=True))
 
-        with diskcache.Lock(self._cache, f"lock:{key}", expire=timeout):
-            yield
+    def renew_lease(self, key: str, token: str, ttl_s: float) -> bool:
+        lease = _lease_key(key)
+        with self._cache.transact(retry=True):
+            if self._cache.get(lease, default=None) != token:
+                return False
+            self._cache.set(lease, token, expire=ttl_s)
+        return True
 
-    def ping(self) -> bool:
+    def release_lease(self, key: str, token: str) -> None:
+        lease = _lease_key(key)
+        with self._cache.transact(retry=True):
+            if self._cache.get(lease, default=None) == token:
+                self._cache.delete(lease)
+
+    def health(self) -> tuple[bool, str]:
         try:
             self._cache.get("__ping__", retry=True)
-            return True
-        except Exception:  # noqa: BLE001
-            return False
+        except Exception as exc:  # noqa: BLE001 - reported by /readyz
+            return False, f"disk unreadable: {exc}"
+        return True, "disk"
 
     def close(self) -> None:
         self._cache.close()
 
 
+class CircuitBreaker:
+    """Stops calls to a failing dependency at once; a background probe closes it again.
+
+    Closed: calls go through. The first failure opens it: calls fail fast (no waiting on
+    timeouts) and a daemon thread runs ``probe`` every ``retry_s`` until one succeeds.
+    """
+
+    def __init__(self, name: str, probe: Callable[[], object], retry_s: float) -> None:
+        self.name = name
+        self.retry_s = retry_s
+        self._probe = probe
+        self._guard = threading.Lock()
+        self._opened_at: float | None = None
+        self._last_error = ""
+        self._stopped = threading.Event()
+        self.on_change: Callable[[bool], None] = lambda is_open: None
+
+    @property
+    def is_open(self) -> bool:
+        return self._opened_at is not None
+
+    def trip(self, exc: BaseException) -> None:
+        """Record a failure: open the breaker (once) and start probing."""
+        with self._guard:
+            self._last_error = str(exc) or type(exc).__name__
+            if self._opened_at is not None:
+                return
+            self._opened_at = time.monotonic()
+        logger.warning(
+            "%s unreachable (%s): circuit open, not waiting on it; probing every %g s",
+            self.name,
+            self._last_error,
+            self.retry_s,
+        )
+        self.on_change(True)
+        threading.Thread(
+            target=self._probe_until_closed, name=f"{self.name}-probe", daemon=True
+        ).start()
+
+    def _probe_until_closed(self) -> None:
+        while not self._stopped.wait(self.retry_s):
+            try:
+                self._probe()
+            except Exception as exc:  # noqa: BLE001 - still down
+                self._last_error = str(exc) or type(exc).__name__
+                continue
+            with self._guard:
+                opened_at, self._opened_at = self._opened_at, None
+            seconds = time.monotonic() - opened_at if opened_at is not None else 0.0
+            logger.warning("%s reachable again after %.1f s: circuit closed", self.name, seconds)
+            self.on_change(False)
+            return
+
+    def describe(self) -> str:
+        opened_at = self._opened_at
+        if opened_at is None:
+            return f"{self.name} reachable"
+        return (
+            f"{self.name} unreachable for {time.monotonic() - opened_at:.0f} s "
+            f"({self._last_error}); probed every {self.retry_s:g} s"
+        )
+
+    def stop(self) -> None:
+        self._stopped.set()
+
+
+# Compare-and-renew / compare-and-delete: only the holder's token may touch its lease.
+_RENEW_LEASE = """
+if redis.call('get', KEYS[1]) == ARGV[1] then
+    return redis.call('pexpire', KEYS[1], ARGV[2])
+end
+return 0
+"""
+_RELEASE_LEASE = """
+if redis.call('get', KEYS[1]) == ARGV[1] then
+    return redis.call('del', KEYS[1])
+end
+return 0
+"""
+
+
 class RedisBackend:
-    """Redis shared by several replicas; errors degrade to misses (computing again)."""
+    """Redis shared by several replicas, behind a circuit breaker.
+
+    Every failure raises BackendUnavailable; a connection error or timeout also opens the
+    breaker, after which calls fail at once until a probe reaches Redis again. No retries
+    inside redis-py: one timeout at most per call, then the breaker decides.
+    """
 
     name = "redis"
     local = False
@@ -149,107 +274,286 @@ class RedisBackend:
         timeout_s: float,
         namespace: str = "neural-shdf",
         ttl_s: float | None = None,
+        retry_s: float = 5.0,
     ) -> None:
         import redis
+        from redis.backoff import NoBackoff
+        from redis.retry import Retry
 
         self._redis = redis.Redis.from_url(
-            url, socket_timeout=timeout_s, socket_connect_timeout=timeout_s
+            url,
+            socket_timeout=timeout_s,
+            socket_connect_timeout=timeout_s,
+            retry=Retry(NoBackoff(), 0),
         )
+        self._down_errors = (redis.ConnectionError, redis.TimeoutError, OSError)
         self._errors = (redis.RedisError, OSError)
         self._ns = namespace
         self._ttl_s = ttl_s
-        self._local_locks: dict[str, threading.Lock] = {}
-        self._local_guard = threading.Lock()
+        self._renew = self._redis.register_script(_RENEW_LEASE)
+        self._release = self._redis.register_script(_RELEASE_LEASE)
+        self.breaker = CircuitBreaker("redis", self._redis.ping, retry_s)
         self.on_error: Callable[[Exception], None] = lambda exc: None
 
     def _key(self, key: str) -> str:
         return f"{self._ns}:{key}"
 
-    def _failed(self, exc: Exception) -> None:
-        logger.warning("redis unavailable: %s", exc)
-        self.on_error(exc)
+    def _call(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
+        if self.breaker.is_open:
+            raise BackendUnavailable(self.breaker.describe())
+        try:
+            return fn(*args, **kwargs)
+        except self._errors as exc:
+            self.on_error(exc)
+            if isinstance(exc, self._down_errors):
+                self.breaker.trip(exc)
+            else:
+                logger.warning("redis error: %s", exc)
+            raise BackendUnavailable(str(exc)) from exc
 
     def get(self, key: str) -> bytes | None:
-        try:
-            return self._redis.get(self._key(key))
-        except self._errors as exc:
-            self._failed(exc)
-            return None
+        return self._call(self._redis.get, self._key(key))
 
     def exists(self, key: str) -> bool | None:
-        try:
-            return bool(self._redis.exists(self._key(key)))
-        except self._errors as exc:
-            self._failed(exc)
-            return None
+        return bool(self._call(self._redis.exists, self._key(key)))
 
     def set(self, key: str, value: bytes, *, group: str, expire: float | None = None) -> None:
         # SET is atomic: readers see the old value or the whole new one.
         expire = expire or self._ttl_s
         seconds = max(1, int(expire)) if expire else None
-        try:
+
+        def write() -> None:
             pipe = self._redis.pipeline(transaction=True)
             pipe.set(self._key(key), value, ex=seconds)
             pipe.sadd(self._key(f"group:{group}"), key)
             if self._ttl_s:
                 pipe.expire(self._key(f"group:{group}"), max(1, int(self._ttl_s)))
             pipe.execute()
-        except self._errors as exc:
-            self._failed(exc)
+
+        self._call(write)
 
     def delete(self, key: str) -> None:
-        try:
-            self._redis.delete(self._key(key))
-        except self._errors as exc:
-            self._failed(exc)
+        self._call(self._redis.delete, self._key(key))
 
     def delete_group(self, group: str) -> int:
-        try:
+        def remove() -> int:
             members = self._redis.smembers(self._key(f"group:{group}"))
             keys = [self._key(m.decode()) for m in members]
             removed = self._redis.delete(*keys) if keys else 0
             self._redis.delete(self._key(f"group:{group}"))
             return int(removed)
-        except self._errors as exc:
-            self._failed(exc)
-            return 0
 
-    @contextlib.contextmanager
-    def lock(self, key: str, timeout: float) -> Iterator[None]:
-        lock = self._redis.lock(self._key(f"lock:{key}"), timeout=timeout, blocking_timeout=timeout)
-        try:
-            acquired = lock.acquire()
-        except self._errors as exc:
-            self._failed(exc)
-            acquired = None
-        if acquired is None:  # Redis down: at least serialise this process's threads
-            with self._local_guard:
-                local = self._local_locks.setdefault(key, threading.Lock())
-            with local:
-                yield
-            return
-        try:
-            yield
-        finally:
-            with contextlib.suppress(*self._errors):
-                lock.release()
+        return self._call(remove)
 
-    def ping(self) -> bool:
+    def acquire_lease(self, key: str, token: str, ttl_s: float) -> bool:
+        lease = self._key(_lease_key(key))
+        return bool(self._call(self._redis.set, lease, token, nx=True, px=int(ttl_s * 1000)))
+
+    def renew_lease(self, key: str, token: str, ttl_s: float) -> bool:
+        lease = self._key(_lease_key(key))
+        return bool(self._call(self._renew, keys=[lease], args=[token, int(ttl_s * 1000)]))
+
+    def release_lease(self, key: str, token: str) -> None:
+        self._call(self._release, keys=[self._key(_lease_key(key))], args=[token])
+
+    def health(self) -> tuple[bool, str]:
         try:
-            return bool(self._redis.ping())
-        except self._errors:
-            return False
+            self._call(self._redis.ping)
+        except BackendUnavailable:
+            return False, self.breaker.describe()
+        return True, "redis"
 
     def close(self) -> None:
+        self.breaker.stop()
         with contextlib.suppress(Exception):
             self._redis.close()
+
+
+class FallbackBackend:
+    """Redis first, the local disk cache whenever Redis is unavailable.
+
+    Through an outage the service keeps working, degraded: results, meshes and job records
+    are written to (and read from) the disk cache that this host's workers share, so a job
+    accepted then stays pollable. A Redis miss also looks on disk, and an entry found there
+    (written during an outage) moves to Redis, so nothing written meanwhile is lost after it
+    recovers. Leases are taken from Redis, else from the disk cache.
+    """
+
+    local = False
+
+    def __init__(self, primary: RedisBackend, fallback: DiskBackend) -> None:
+        self.primary = primary
+        self.fallback = fallback
+        self.name = primary.name
+        self._lease_stores: dict[str, Backend] = {}  # lease token -> the store holding it
+        self._guard = threading.Lock()
+
+    @property
+    def degraded(self) -> bool:
+        return self.primary.breaker.is_open
+
+    def get(self, key: str) -> bytes | None:
+        try:
+            value = self.primary.get(key)
+        except BackendUnavailable:
+            return self.fallback.get(key)
+        return value if value is not None else self._promote(key)
+
+    def _promote(self, key: str) -> bytes | None:
+        """An entry the fallback holds (written during an outage), moved to Redis."""
+        entry = self.fallback.get_entry(key)
+        if entry is None:
+            return None
+        value, group, expires_in = entry
+        if expires_in is not None and expires_in <= 1:
+            return value
+        try:
+            self.primary.set(key, value, group=group or key.split(":", 1)[0], expire=expires_in)
+        except BackendUnavailable:
+            return value
+        self.fallback.delete(key)
+        return value
+
+    def exists(self, key: str) -> bool | None:
+        try:
+            if self.primary.exists(key):
+                return True
+        except BackendUnavailable:
+            return True if self.fallback.exists(key) else None
+        return bool(self.fallback.exists(key))
+
+    def set(self, key: str, value: bytes, *, group: str, expire: float | None = None) -> None:
+        try:
+            self.primary.set(key, value, group=group, expire=expire)
+        except BackendUnavailable:
+            self.fallback.set(key, value, group=group, expire=expire)
+
+    def delete(self, key: str) -> None:
+        with contextlib.suppress(BackendUnavailable):
+            self.primary.delete(key)
+        self.fallback.delete(key)
+
+    def delete_group(self, group: str) -> int:
+        removed = 0
+        with contextlib.suppress(BackendUnavailable):
+            removed += self.primary.delete_group(group)
+        return removed + self.fallback.delete_group(group)
+
+    def acquire_lease(self, key: str, token: str, ttl_s: float) -> bool:
+        store: Backend = self.primary
+        try:
+            acquired = self.primary.acquire_lease(key, token, ttl_s)
+        except BackendUnavailable:
+            store = self.fallback
+            acquired = self.fallback.acquire_lease(key, token, ttl_s)
+        if acquired:
+            with self._guard:
+                self._lease_stores[token] = store
+        return acquired
+
+    def renew_lease(self, key: str, token: str, ttl_s: float) -> bool:
+        store = self._lease_stores.get(token)
+        try:
+            return store is not None and store.renew_lease(key, token, ttl_s)
+        except BackendUnavailable:
+            return False  # the holder then tries to take it again, from the fallback
+
+    def release_lease(self, key: str, token: str) -> None:
+        with self._guard:
+            store = self._lease_stores.pop(token, None)
+        if store is not None:
+            with contextlib.suppress(BackendUnavailable):
+                store.release_lease(key, token)
+
+    def health(self) -> tuple[bool, str]:
+        ok, detail = self.primary.health()
+        if ok:
+            return True, detail
+        return False, f"{detail}; degraded: serving from the local disk cache"
+
+    def close(self) -> None:
+        self.primary.close()
+        self.fallback.close()
+
+
+class Lease:
+    """A lock across threads, processes and replicas that lapses unless its holder renews it.
+
+    While held, a daemon thread renews it every ``ttl_s / 3``; a holder that dies (kill -9,
+    out of memory, lost host) stops renewing, so its lease lapses after ``ttl_s`` and the
+    next worker goes on. A holder paused for longer than ``ttl_s`` loses it (``lost``);
+    results are deterministic and written atomically, so the cost is only duplicate work.
+    """
+
+    def __init__(self, store: Backend, key: str, ttl_s: float) -> None:
+        self.store = store
+        self.key = key
+        self.ttl_s = ttl_s
+        self.token = f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex}"
+        self.held = False
+        self.lost = False
+        self._stop = threading.Event()
+
+    def try_acquire(self) -> bool:
+        """Take the lease if it is free or has lapsed; start renewing it."""
+        if not self.held and self.store.acquire_lease(self.key, self.token, self.ttl_s):
+            self.held, self.lost = True, False
+            self._stop = threading.Event()
+            threading.Thread(
+                target=self._renew_until_released, args=(self._stop,), daemon=True
+            ).start()
+        return self.held
+
+    def acquire(self, wait_s: float) -> bool:
+        """Wait up to ``wait_s`` for the lease; False if a live holder keeps it that long."""
+        deadline = time.monotonic() + wait_s
+        pause = 0.01
+        while not self.try_acquire():
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return False
+            time.sleep(min(pause, remaining))
+            pause = min(pause * 2, 0.25)
+        return True
+
+    def stop_renewing(self) -> None:
+        """Stop the renewals at once (the lease then lapses by itself)."""
+        self._stop.set()
+
+    def release(self) -> None:
+        if not self.held:
+            return
+        self.stop_renewing()
+        self.held = False
+        try:
+            self.store.release_lease(self.key, self.token)
+        except Exception as exc:  # noqa: BLE001 - it lapses by itself
+            logger.warning("could not release the lease on %s: %s", self.key, exc)
+
+    def _renew_until_released(self, stop: threading.Event) -> None:
+        while not stop.wait(self.ttl_s / 3):
+            why = "taken by another worker after a pause"
+            try:
+                renewed = self.store.renew_lease(
+                    self.key, self.token, self.ttl_s
+                ) or self.store.acquire_lease(self.key, self.token, self.ttl_s)
+            except Exception as exc:  # noqa: BLE001 - retried at the next beat
+                renewed, why = False, f"store unreachable: {exc}"
+            if not renewed and not self.lost:
+                logger.warning(
+                    "lease on %s lost (%s); another worker may compute the same result",
+                    self.key,
+                    why,
+                )
+            self.lost = not renewed
 
 
 class ResultCache:
     """Typed, checksummed entries over a Backend, with a small in-memory LRU in front."""
 
-    def __init__(self, backend: Backend, memory_items: int = 16) -> None:
+    def __init__(self, backend: Backend, memory_items: int = 16, lease_s: float = 5.0) -> None:
         self.backend = backend
+        self.lease_s = lease_s
         self._memory: OrderedDict[str, Any] = OrderedDict()
         self._memory_items = memory_items
         self._memory_guard = threading.Lock()
@@ -322,11 +626,29 @@ class ResultCache:
         self.forget_group(group)
         return self.backend.delete_group(group)
 
-    def lock(self, key: str, timeout: float) -> contextlib.AbstractContextManager[None]:
-        return self.backend.lock(key, timeout)
+    def lease(self, key: str) -> Lease:
+        """A lease on ``key`` (not yet taken), lapsing ``lease_s`` after its last renewal."""
+        return Lease(self.backend, key, self.lease_s)
+
+    @contextlib.contextmanager
+    def lock(self, key: str, wait_s: float) -> Iterator[Lease]:
+        """Hold the lease on ``lock:<key>``, waiting up to ``wait_s`` for a live holder
+        (a dead one's lapses within ``lease_s``); after that, go on without it: duplicate
+        work rather than a stall."""
+        lease = self.lease(f"lock:{key}")
+        if not lease.acquire(wait_s):
+            logger.warning("%s still held by a live worker after %g s: going on", key, wait_s)
+        try:
+            yield lease
+        finally:
+            lease.release()
+
+    def health(self) -> tuple[bool, str]:
+        """(whether the shared store answers, what was checked or why it failed)."""
+        return self.backend.health()
 
     def ping(self) -> bool:
-        return self.backend.ping()
+        return self.health()[0]
 
     def close(self) -> None:
         self.backend.close()

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import contextlib
 import functools
 import hashlib
 import inspect
@@ -27,9 +28,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf import __version__
-from neural_shdf.api.cache import ResultCache
+from neural_shdf.api.cache import Lease, ResultCache
 from neural_shdf.api.errors import ApiError, error_dict, not_found
-from neural_shdf.api.jobs import JobAccepted, JobStore
+from neural_shdf.api.jobs import JobAccepted, JobStore, public_job, worker_name
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.schemas import SegmentOptions
 from neural_shdf.api.settings import Settings
@@ -185,7 +186,7 @@ class Engine:
         self.settings = settings
         self.cache = cache
         self.metrics = metrics
-        self.jobs = JobStore(cache, settings.job_ttl_s)
+        self.jobs = JobStore(cache, settings.job_ttl_s, settings.job_max_attempts)
         self.executor = ThreadPoolExecutor(settings.compute_threads, thread_name_prefix="compute")
         self.io_executor = ThreadPoolExecutor(settings.io_threads, thread_name_prefix="io")
         self.model_path = model_path(settings)
@@ -427,24 +428,45 @@ class Engine:
         self, key: str, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
     ) -> dict[str, Any]:
         job = await self.io(self.jobs.create, mesh_id, method, seed)
-        compute = functools.partial(self._compute_shdf, key, mesh_id, mesh, method, seed)
-        task = asyncio.create_task(self._run_job(job, key, compute))
-        self._background.add(task)
-        task.add_done_callback(self._background.discard)
+        lease = self.jobs.runner_lease(job["job_id"])
+        await self.io(lease.try_acquire)  # a fresh id: free
+        self._launch_job(job, key, mesh_id, mesh, method, seed, lease)
         return dict(job)
 
-    async def _run_job(
-        self, job: dict[str, Any], key: str, compute: Callable[[], ShdfOutcome]
+    def _launch_job(
+        self,
+        job: dict[str, Any],
+        key: str,
+        mesh_id: str,
+        mesh: TriangleMesh,
+        method: str,
+        seed: int,
+        lease: Lease,
     ) -> None:
+        compute = functools.partial(self._compute_shdf, key, mesh_id, mesh, method, seed)
+        task = asyncio.create_task(self._run_job(job, key, compute, lease))
+        self._background.add(task)
+        task.add_done_callback(self._background.discard)
+
+    async def _run_job(
+        self, job: dict[str, Any], key: str, compute: Callable[[], ShdfOutcome], lease: Lease
+    ) -> None:
+        """Run a job, rewriting its record with the progress and at least every heartbeat
+        (a record left unwritten for a lease marks a dead runner)."""
         self.metrics.jobs_running.inc()
         try:
             await self.io(self.jobs.update, job, state="running")
             work = asyncio.ensure_future(self.single_flight(key, compute))
+            written = time.monotonic()
             while not work.done():
                 await asyncio.wait({work}, timeout=0.5)
                 progress = self._progress.get(key)
-                if progress is not None and not work.done():
-                    await self.io(self.jobs.update, job, progress=min(progress, 0.99))
+                moved = progress is not None and progress != job["progress"]
+                due = time.monotonic() - written >= self.jobs.heartbeat_s
+                if not work.done() and (moved or due):
+                    changes = {"progress": min(progress, 0.99)} if moved else {}
+                    await self.io(self.jobs.update, job, **changes)
+                    written = time.monotonic()
             work.result()
             await self.io(self.jobs.update, job, state="succeeded", progress=1.0)
         except Exception as exc:  # noqa: BLE001 - a failed job is recorded, not raised
@@ -453,12 +475,49 @@ class Engine:
             await self.io(self.jobs.update, job, state="failed", error=error_dict(exc))
         finally:
             self.metrics.jobs_running.dec()
+            lease.stop_renewing()
+            with contextlib.suppress(RuntimeError):  # executor shut down: it lapses instead
+                self.io_executor.submit(lease.release)
 
-    def job(self, job_id: str) -> dict[str, Any]:
-        job = self.jobs.get(job_id)
+    async def job(self, job_id: str) -> dict[str, Any]:
+        """A job's record; one whose worker died is re-run here (or failed after
+        ``job_max_attempts`` runs), so no job stays ``running`` for ever."""
+        job = await self.io(self.jobs.get, job_id)
         if job is None:
             raise not_found("job", job_id)
-        return job
+        lease = await self.io(self.jobs.orphaned, job)
+        if lease is not None:
+            await self._rerun(job, lease)
+        return public_job(job)
+
+    async def _rerun(self, job: dict[str, Any], lease: Lease) -> None:
+        """Re-run an orphaned job (holding its lease) on this worker."""
+        attempt = int(job.get("attempt", 1)) + 1
+        logger.warning(
+            "job %s: its worker %s stopped; run %d", job["job_id"], job.get("worker"), attempt
+        )
+        if attempt > self.jobs.max_attempts:
+            error = {
+                "code": "worker_lost",
+                "message": f"the worker computing this job stopped {attempt - 1} times "
+                "(crash, out of memory or restart); the mesh may be too large for this "
+                "service: try a smaller mesh or the neural method",
+                "detail": None,
+            }
+            await self.io(self.jobs.update, job, state="failed", error=error)
+            await self.io(lease.release)
+            return
+        self.metrics.jobs_rerun.inc()
+        try:
+            mesh = await self.io(self.load, job["mesh_id"])
+        except ApiError as exc:
+            await self.io(self.jobs.update, job, state="failed", error=error_dict(exc))
+            await self.io(lease.release)
+            return
+        method, seed = job["method"], int(job["seed"])
+        await self.io(self.jobs.update, job, state="queued", attempt=attempt, worker=worker_name())
+        key = self.shdf_key(job["mesh_id"], method, seed)
+        self._launch_job(job, key, job["mesh_id"], mesh, method, seed, lease)
 
     # -- segmentation ----------------------------------------------------------
     def cached_segmentation(self, key: str) -> SegmentResult | None:

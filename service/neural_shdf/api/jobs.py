@@ -1,12 +1,36 @@
-"""Job records for long ShDF computations, kept in the shared cache so any worker can answer."""
+"""Job records for long ShDF computations, kept in the shared cache so any worker can answer.
+
+The worker running a job holds the lease ``job:<id>`` (renewed while it works) and
+rewrites the record at least every third of a lease. A record still ``queued`` or
+``running`` but not rewritten for a whole lease may belong to a dead worker: whoever
+then takes its lease re-runs the job (``JobStore.orphaned``), up to ``max_attempts`` runs.
+"""
 
 from __future__ import annotations
 
+import os
+import socket
 import time
 import uuid
 from typing import Any
 
-from neural_shdf.api.cache import ResultCache
+from neural_shdf.api.cache import Lease, ResultCache
+
+#: Fields of a job record that the API shows (the rest is bookkeeping between workers).
+PUBLIC_FIELDS = (
+    "job_id",
+    "state",
+    "progress",
+    "mesh_id",
+    "method",
+    "seed",
+    "attempt",
+    "created_at",
+    "updated_at",
+    "error",
+    "result_url",
+)
+UNFINISHED = ("queued", "running")
 
 
 class JobAccepted(Exception):  # noqa: N818 - a signal, not a failure
@@ -21,12 +45,28 @@ def job_key(job_id: str) -> str:
     return f"job:{job_id}"
 
 
+def public_job(job: dict[str, Any]) -> dict[str, Any]:
+    """The record as the API shows it."""
+    return {name: job.get(name, 1 if name == "attempt" else None) for name in PUBLIC_FIELDS}
+
+
+def worker_name() -> str:
+    """This process, as named in job records (host:pid)."""
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
 class JobStore:
     """Create, update and read job records (JSON entries that expire after ``ttl_s``)."""
 
-    def __init__(self, cache: ResultCache, ttl_s: float) -> None:
+    def __init__(self, cache: ResultCache, ttl_s: float, max_attempts: int = 3) -> None:
         self.cache = cache
         self.ttl_s = ttl_s
+        self.max_attempts = max_attempts
+
+    @property
+    def heartbeat_s(self) -> float:
+        """Longest a running job's record goes unwritten."""
+        return self.cache.lease_s / 3
 
     def create(self, mesh_id: str, method: str, seed: int) -> dict[str, Any]:
         now = time.time()
@@ -37,6 +77,8 @@ class JobStore:
             "mesh_id": mesh_id,
             "method": method,
             "seed": seed,
+            "attempt": 1,
+            "worker": worker_name(),
             "created_at": now,
             "updated_at": now,
             "error": None,
@@ -52,6 +94,28 @@ class JobStore:
 
     def get(self, job_id: str) -> dict[str, Any] | None:
         return self.cache.get_json(job_key(job_id))
+
+    def runner_lease(self, job_id: str) -> Lease:
+        """The lease its runner holds while the job is queued or running."""
+        return self.cache.lease(job_key(job_id))
+
+    def orphaned(self, job: dict[str, Any]) -> Lease | None:
+        """For an unfinished record not written for a lease: its lease, taken, when its
+        runner is gone (the caller then re-runs or fails the job); else None."""
+        if job.get("state") not in UNFINISHED:
+            return None
+        if time.time() - float(job.get("updated_at", 0.0)) < self.cache.lease_s:
+            return None
+        lease = self.runner_lease(job["job_id"])
+        if not lease.try_acquire():
+            return None  # its runner (or another adopter) is alive
+        current = self.get(job["job_id"])
+        if current is None or current.get("state") not in UNFINISHED:
+            lease.release()  # finished meanwhile
+            return None
+        job.clear()
+        job.update(current)
+        return lease
 
     def _save(self, job: dict[str, Any]) -> None:
         self.cache.put_json(job_key(job["job_id"]), job, group=job["mesh_id"], expire=self.ttl_s)

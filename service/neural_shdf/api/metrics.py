@@ -66,6 +66,17 @@ class Metrics:
             "Cache backend errors (degraded to computing).",
             registry=r,
         )
+        self.cache_degraded = Gauge(
+            "neural_shdf_cache_degraded",
+            "1 while Redis is unreachable and the local disk cache serves instead.",
+            registry=r,
+            multiprocess_mode="livemax",
+        )
+        self.jobs_rerun = Counter(
+            "neural_shdf_jobs_rerun",
+            "Jobs re-run because the worker running them stopped.",
+            registry=r,
+        )
         self.jobs_running = Gauge(
             "neural_shdf_jobs_running",
             "Jobs running (summed over live workers).",

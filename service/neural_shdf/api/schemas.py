@@ -60,7 +60,11 @@ class Check(BaseModel):
 class Readiness(BaseModel):
     """Readiness: the model is loaded and the cache is reachable."""
 
-    status: Literal["ready", "not_ready"] = Field(description="Overall state.", examples=["ready"])
+    status: Literal["ready", "degraded", "not_ready"] = Field(
+        description="Overall state: `degraded` (still 200) while Redis is unreachable and "
+        "the local disk cache serves instead.",
+        examples=["ready"],
+    )
     checks: dict[str, Check] = Field(
         description="Each check by name (`model`, `cache`).",
         examples=[
@@ -137,6 +141,7 @@ class Job(BaseModel):
                     "mesh_id": MESH_ID_EXAMPLE,
                     "method": "neural",
                     "seed": 0,
+                    "attempt": 1,
                     "created_at": 1763791200.0,
                     "updated_at": 1763791203.5,
                     "error": None,
@@ -154,6 +159,12 @@ class Job(BaseModel):
     mesh_id: str = Field(description="The mesh the job computes.", examples=[MESH_ID_EXAMPLE])
     method: ShdfMethodName = Field(description="ShDF method.", examples=["neural"])
     seed: int = Field(description="ShDF seed.", examples=[0])
+    attempt: int = Field(
+        1,
+        ge=1,
+        description="Run of the job: above 1 when it was re-run after its worker stopped.",
+        examples=[1],
+    )
     created_at: float = Field(description="Unix time the job was created.", examples=[1763791200.0])
     updated_at: float = Field(description="Unix time of the last update.", examples=[1763791203.5])
     error: ErrorDetail | None = Field(None, description="Why it failed (state `failed`).")

@@ -30,7 +30,17 @@ class Settings(BaseSettings):
     redis_url: str | None = Field(
         None, description="redis://host:port/db; when set, Redis replaces the disk cache."
     )
-    redis_timeout_s: float = Field(2.0, gt=0, description="Redis socket timeout in seconds.")
+    redis_timeout_s: float = Field(
+        2.0,
+        gt=0,
+        description="Redis socket timeout in seconds; one timeout opens the circuit breaker.",
+    )
+    redis_retry_s: float = Field(
+        5.0,
+        gt=0,
+        description="While Redis is unreachable, how often it is probed again; meanwhile "
+        "requests use the local disk cache (`CACHE_DIR`) without waiting on Redis.",
+    )
     redis_ttl_s: float | None = Field(
         30 * 24 * 3600,
         gt=0,
@@ -88,8 +98,23 @@ class Settings(BaseSettings):
         8, ge=1, description="Threads for cache I/O (never blocked by computations)."
     )
     job_ttl_s: int = Field(7 * 24 * 3600, ge=1, description="How long job records are kept.")
+    lock_lease_s: float = Field(
+        5.0,
+        gt=0,
+        description="Compute locks and running jobs are leases their worker renews every "
+        "third of this; a crashed worker's lock lapses, and its job is re-run, after this long.",
+    )
     lock_timeout_s: float = Field(
-        600.0, gt=0, description="Expiry of the cross-worker compute lock (seconds)."
+        600.0,
+        gt=0,
+        description="Longest a computation waits for another live worker computing the same "
+        "result before computing it too (seconds).",
+    )
+    job_max_attempts: int = Field(
+        3,
+        ge=1,
+        description="Runs of a job whose worker keeps dying (crash, out of memory) before it "
+        "is marked failed.",
     )
 
     viewer_three_url: str | None = Field(

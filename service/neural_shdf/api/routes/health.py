@@ -26,19 +26,21 @@ async def health() -> Health:
     responses={503: {"model": Readiness, "description": "Not ready (model or cache)."}},
 )
 async def ready(engine: EngineDep) -> JSONResponse:
-    """Ready when the neural model loads (if it is the default method) and the cache answers."""
+    """Ready when the neural model loads (if it is the default method) and the cache answers;
+    `degraded` (still 200: requests are served) while Redis is down and the local disk
+    cache stands in."""
     model_ok, model_detail = await engine.io(engine.check_model)
     if engine.settings.default_method != "neural" and not model_ok:
         model_ok, model_detail = True, f"not needed (default method exact): {model_detail}"
-    cache_ok = await engine.io(engine.cache.ping)
-    backend = engine.cache.backend.name
+    cache_ok, cache_detail = await engine.io(engine.cache.health)
+    degraded = not cache_ok and getattr(engine.cache.backend, "degraded", False)
     checks = {
         "model": {"ok": model_ok, "detail": model_detail},
-        "cache": {"ok": cache_ok, "detail": backend if cache_ok else f"{backend} unreachable"},
+        "cache": {"ok": cache_ok, "detail": cache_detail},
     }
-    ok = model_ok and cache_ok
-    body = Readiness(status="ready" if ok else "not_ready", checks=checks)  # type: ignore[arg-type]
-    return JSONResponse(body.model_dump(), status_code=200 if ok else 503)
+    status = "ready" if model_ok and cache_ok else "degraded" if model_ok and degraded else None
+    body = Readiness(status=status or "not_ready", checks=checks)  # type: ignore[arg-type]
+    return JSONResponse(body.model_dump(), status_code=503 if status is None else 200)
 
 
 @router.get(

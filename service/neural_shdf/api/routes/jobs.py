@@ -25,5 +25,9 @@ async def get_job(
         str, Path(pattern=JOB_ID_PATTERN, description="Job id.", examples=[JOB_ID_EXAMPLE])
     ],
 ) -> Job:
-    """Poll until `succeeded` (then fetch `result_url`) or `failed` (see `error`)."""
-    return Job(**await engine.io(engine.job, job_id))
+    """Poll until `succeeded` (then fetch `result_url`) or `failed` (see `error`).
+
+    A job whose worker stopped (crash, restart) is run again by the worker answering
+    the poll (`attempt` counts the runs); after a few runs it fails with `worker_lost`.
+    """
+    return Job(**await engine.job(job_id))

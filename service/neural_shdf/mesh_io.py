@@ -44,8 +44,7 @@ def normalize_format(file_type: str) -> str:
     if name not in READERS:
         shown = file_type if len(file_type) <= 40 else file_type[:40] + "..."
         raise UnsupportedFormatError(
-            f"unsupported mesh format {shown!r}; give one of {', '.join(SUPPORTED_FORMATS)} "
-            "(a format name, not a file name or path)"
+            f"unsupported mesh format {shown!r}; supported: {', '.join(SUPPORTED_FORMATS)}"
         )
     return name
 

@@ -261,6 +261,7 @@ def _mesh_instances(gltf: dict) -> list[tuple[int, NDArray]]:
             )
         matrix = parent @ _local_matrix(node)
         if "mesh" in node:
+            _item(gltf, "meshes", node["mesh"])  # a valid reference, before it is counted
             instances.append((node["mesh"], matrix))
         children = node.get("children", [])
         if not isinstance(children, list):

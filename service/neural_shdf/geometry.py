@@ -194,7 +194,8 @@ def _adjacent_pairs(faces, edge_table, slot, n_vertices, clique):  # pragma: no 
 
     Along an edge (its group in ``edge_table``, faces ascending) a group of
     ``k <= clique`` faces links every pair, a larger one each face to the next:
-    linear in the faces whatever the valence. Face by face, the candidates from its three edges are sorted by
+    linear in the faces whatever the valence. Face by face, the candidates from its
+    three edges are sorted by
     ``(b, group size, edge key)``; a pair met on several edges keeps the edge shared
     by the fewest faces, then the lowest. ``edge_table, slot`` come from ``_sorted_edges``.
     """

@@ -157,6 +157,40 @@ def test_eval_rejects_a_folder_without_benchmark_layout(tmp_path: Path, capsys):
     assert "off/" in capsys.readouterr().err
 
 
+def test_unwrap_writes_a_glb_and_an_obj_that_keep_the_input_faces(tmp_path: Path):
+    from neural_shdf.mesh_io import load_mesh
+
+    source = tmp_path / "quads.obj"
+    count = _quad_box_obj(source)
+    glb, obj, png, seg = (tmp_path / n for n in ("u.glb", "u.obj", "atlas.png", "u.seg"))
+    code = main(["unwrap", str(source), "-o", str(glb), "--method", "exact", "--atlas-size",
+                 "256", "--atlas-png", str(png), "--labels", str(seg), "-q"])
+    assert code == 0
+    mesh = load_mesh(source)
+    loaded = trimesh.load(glb, force="mesh", process=False)
+    # Same triangles in the same order, UVs in [0, 1].
+    assert np.allclose(loaded.vertices[loaded.faces], mesh.vertices[mesh.faces], atol=1e-6)
+    assert loaded.visual.uv.min() >= 0 and loaded.visual.uv.max() <= 1
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert len(_read_lines(seg)) == count
+
+    assert main(["unwrap", str(source), "-o", str(obj), "--method", "exact", "-q"]) == 0
+    faces = [line.split()[1:] for line in obj.read_text().splitlines() if line.startswith("f ")]
+    texcoords = [line for line in obj.read_text().splitlines() if line.startswith("vt ")]
+    # One f line per input face (6 quads, 2 triangles), each corner with its own vt.
+    assert [len(face) for face in faces] == [4, 4, 4, 4, 4, 4, 3, 3]
+    assert len(texcoords) == 4 * 6 + 3 * 2
+    assert [int(c.split("/")[0]) for c in faces[0]] == [1, 4, 3, 2]
+
+
+def test_unwrap_rejects_an_output_it_cannot_write(tmp_path: Path, capsys):
+    source = tmp_path / "quads.obj"
+    _quad_box_obj(source)
+    code = main(["unwrap", str(source), "-o", str(tmp_path / "u.fbx"), "-q"])
+    assert code == EXIT_BAD_INPUT
+    assert ".glb or .obj" in capsys.readouterr().err
+
+
 def test_a_mesh_over_the_limits_exits_2_naming_the_limit(tmp_path: Path, capsys):
     from tests.api.api_helpers import instanced_glb
 

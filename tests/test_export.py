@@ -1,4 +1,7 @@
-"""Exports: palette, coloured GLB without blending across parts, per-part GLB, label files."""
+"""Exports: palette, coloured GLB without blending across parts, per-part GLB, label files,
+unwrapped GLB."""
+
+import io
 
 import numpy as np
 import pytest
@@ -19,6 +22,7 @@ from neural_shdf.export import (
     write_labels,
     write_values,
 )
+from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import load_mesh
 
 
@@ -128,6 +132,23 @@ def test_read_values_reads_cgal_sdf_files(shared_data):
         pytest.skip(f"{path} is absent")
     values = read_values(path)
     assert len(values) == 9408 and values.min() >= 0 and values.max() <= 1
+
+
+def test_unwrapped_glb_round_trips_faces_order_and_uvs():
+    from neural_shdf.export import unwrapped_glb
+    from neural_shdf.unwrap import atlas_layout_image, png_bytes, unwrap
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    mesh = TriangleMesh(sphere.vertices, sphere.faces)
+    labels = (sphere.triangles_center[:, 2] > 0).astype(np.int64)
+    atlas = unwrap(mesh, labels)
+    data = unwrapped_glb(mesh, atlas, texture_png=png_bytes(atlas_layout_image(atlas, size=128)))
+    loaded = trimesh.load(io.BytesIO(data), file_type="glb", force="mesh", process=False)
+    assert len(loaded.faces) == mesh.face_count
+    assert np.allclose(loaded.vertices[loaded.faces], mesh.vertices[mesh.faces], atol=1e-6)
+    corner_uvs = loaded.visual.uv[loaded.faces]
+    assert np.allclose(corner_uvs, atlas.corner_uvs, atol=1e-6)
+    assert loaded.visual.material.baseColorTexture.size == (128, 128)
 
 
 def test_part_color_hex_spells_the_palette():

@@ -57,3 +57,19 @@ def test_normals_and_areas_are_computed_once_and_read_only():
     np.testing.assert_allclose(normals, box.face_normals, atol=1e-12)
     np.testing.assert_allclose(areas, box.area_faces, atol=1e-12)
     assert not normals.flags.writeable and not areas.flags.writeable
+
+
+def test_mapping_weighs_triangles_by_area_by_default():
+    # Input face 0: a quad fanned into a big and a small triangle; face 1 a lone triangle.
+    vertices = np.array([[0, 0, 0], [4, 0, 0], [4, 1, 0], [3, 1, 0], [5, 0, 0]], float)
+    faces = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 2]])  # areas 2.0 and 0.5
+    mesh = TriangleMesh(vertices, faces, face_origin=np.array([0, 0, 1]), input_face_count=2)
+    assert mesh.labels_to_input_faces(np.array([7, 2, 1])).tolist() == [7, 1]
+    np.testing.assert_allclose(mesh.to_input_faces(np.array([1.0, 6.0, 3.0])), [2.0, 3.0])
+
+
+def test_polygon_of_degenerate_triangles_counts_them_equally():
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], float)  # collinear
+    mesh = TriangleMesh(vertices, [[0, 1, 2], [0, 2, 3]], face_origin=[0, 0], input_face_count=1)
+    np.testing.assert_allclose(mesh.to_input_faces(np.array([1.0, 3.0])), [2.0])
+    assert mesh.labels_to_input_faces(np.array([5, 4])).tolist() == [4]

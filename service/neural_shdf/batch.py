@@ -108,7 +108,7 @@ class BatchConfig:
 
     def key(self) -> str:
         """Hash of everything the outputs depend on besides the input file."""
-        from neural_shdf.api.engine import model_version, shdf_version
+        from neural_shdf.api.shdf_service import model_version, shdf_version
         from neural_shdf.neural.inference import model_path
 
         version = model_version(model_path()) if self.method == "neural" else None
@@ -310,8 +310,8 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
     cached = False
     if config.cache:
         engine = _shdf_engine(config.cache)
-        graph = engine.graph(mesh_id, mesh)
-        outcome = engine.shdf_blocking(mesh_id, mesh, config.method, config.seed)
+        graph = engine.meshes.graph(mesh_id, mesh)
+        outcome = engine.shdf.get_blocking(mesh_id, mesh, config.method, config.seed)
         shdf, cached = outcome.values, outcome.cached
     else:
         graph = mesh_face_graph(mesh)

@@ -1,4 +1,4 @@
-"""Command-line interface: ``neural-shdf shdf|segment|eval|serve``.
+"""Command-line interface: ``neural-shdf shdf|segment|unwrap|batch|eval|serve``.
 
 A stable contract for pipelines: per-face outputs have one line per face of the
 input file, in the input file's order; errors go to stderr with a non-zero exit.
@@ -95,6 +95,45 @@ def cmd_segment(args: argparse.Namespace) -> int:
         parts = len(np.unique(labels))
         elapsed = time.perf_counter() - start
         print(f"{parts} parts, {mesh.input_face_count} faces, segmented in {elapsed:.2f} s",
+              file=sys.stderr)
+    return 0
+
+
+def cmd_unwrap(args: argparse.Namespace) -> int:
+    from neural_shdf.export import unwrapped_glb, write_labels, write_obj_with_uvs
+    from neural_shdf.pipeline import input_face_labels, mesh_face_graph, segment_mesh
+    from neural_shdf.segment import SegmentParams
+    from neural_shdf.unwrap import UnwrapParams, atlas_layout_image, png_bytes, unwrap
+
+    output = Path(args.output)
+    if output.suffix.lower() not in (".glb", ".obj"):
+        raise ParameterError(f"-o must end in .glb or .obj, got {output.name!r}")
+    params = SegmentParams.from_attributes(args)
+    unwrap_params = UnwrapParams(
+        atlas_size=args.atlas_size, padding=args.padding, max_stretch=args.max_stretch
+    )
+    mesh = _load(args)
+    graph = mesh_face_graph(mesh)
+    shdf = _shdf(mesh, args.method, args.seed, graph, args.quiet)
+    start = time.perf_counter()
+    labels = segment_mesh(mesh, shdf, params, graph=graph)
+    atlas = unwrap(mesh, labels, unwrap_params)
+    layout = png_bytes(atlas_layout_image(atlas, size=args.atlas_size))
+    split = 0
+    if output.suffix.lower() == ".glb":
+        output.write_bytes(unwrapped_glb(mesh, atlas, texture_png=layout))
+    else:
+        split = write_obj_with_uvs(output, mesh, atlas)
+    if args.atlas_png:
+        Path(args.atlas_png).write_bytes(layout)
+    if args.labels:
+        write_labels(args.labels, input_face_labels(mesh, labels))
+    if not args.quiet:
+        elapsed = time.perf_counter() - start
+        parts = len(np.unique(labels))
+        note = f"; {split} polygons split by a chart boundary written as triangles" if split else ""
+        print(f"{parts} parts, {atlas.chart_count} charts, atlas {atlas.width}x{atlas.height} "
+              f"({atlas.utilization:.0%} used), unwrapped in {elapsed:.2f} s{note}",
               file=sys.stderr)
     return 0
 
@@ -245,6 +284,22 @@ def build_parser() -> argparse.ArgumentParser:
                        help="assets with more triangles fail without being computed")
     batch.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
     batch.set_defaults(run=cmd_batch)
+
+    unwrap = commands.add_parser(
+        "unwrap", help="UVs charted part by part, packed into one atlas (GLB or OBJ with vt)"
+    )
+    _add_mesh_arguments(unwrap)
+    unwrap.add_argument("-o", "--output", required=True,
+                        help="OUT.glb (UVs + atlas preview texture) or OUT.obj (v/vt per corner)")
+    _add_segment_options(unwrap)
+    unwrap.add_argument("--atlas-size", type=int, default=1024, help="atlas side in texels")
+    unwrap.add_argument("--padding", type=int, default=2, help="texels between charts")
+    unwrap.add_argument("--max-stretch", type=float, default=1.1,
+                        help="largest L2 stretch of a part kept as one chart (1 = no stretch)")
+    unwrap.add_argument("--atlas-png", metavar="OUT.png",
+                        help="write the atlas layout (charts coloured by part, outlined)")
+    unwrap.add_argument("--labels", metavar="OUT.seg", help="also write the part labels")
+    unwrap.set_defaults(run=cmd_unwrap)
 
     evaluate = commands.add_parser("eval", help="Princeton Segmentation Benchmark metrics")
     evaluate.add_argument("bench_dir", help="folder with off/, seg/ (and cgal/) subfolders")

@@ -5,12 +5,16 @@ from __future__ import annotations
 import colorsys
 import struct
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.errors import ParameterError
 from neural_shdf.mesh import TriangleMesh
+
+if TYPE_CHECKING:
+    from neural_shdf.unwrap import UvAtlas
 
 #: First colours of the palette: distinct, colour-blind-friendly-ish, light enough to shade.
 _BASE_PALETTE = np.array(
@@ -165,6 +169,84 @@ def parts_glb(mesh: TriangleMesh, labels: NDArray) -> bytes:
     return scene.export(file_type="glb")
 
 
+def unwrapped_glb(mesh: TriangleMesh, atlas: UvAtlas, *, texture_png: bytes | None = None) -> bytes:
+    """GLB of the mesh with its atlas UVs (TEXCOORD_0), triangles in the mesh's order.
+
+    Vertices are split where a seam gives one position two UVs. ``texture_png`` becomes the
+    material's base colour texture (e.g. ``unwrap.png_bytes(atlas_layout_image(atlas))``).
+    """
+    import io
+
+    import trimesh
+    from PIL import Image
+
+    vertices, faces, uvs = uv_split_vertices(mesh, atlas)
+    image = Image.open(io.BytesIO(texture_png)) if texture_png else None
+    material = trimesh.visual.material.PBRMaterial(
+        baseColorTexture=image, metallicFactor=0.0, roughnessFactor=0.9
+    )
+    visual = trimesh.visual.TextureVisuals(uv=uvs, material=material)
+    out = trimesh.Trimesh(vertices, faces, visual=visual, process=False)
+    return out.export(file_type="glb")
+
+
+def uv_split_vertices(
+    mesh: TriangleMesh, atlas: UvAtlas
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
+    """``(vertices, faces, uvs)`` with one vertex per distinct (position, UV) corner:
+    triangles in the mesh's order, ``uvs[i]`` the UV of ``vertices[i]``."""
+    corners = mesh.faces.reshape(-1)
+    uv = np.asarray(atlas.corner_uvs, dtype=np.float64).reshape(-1, 2)
+    keys = np.column_stack([corners.astype(np.float64), uv])
+    unique, inverse = np.unique(keys, axis=0, return_inverse=True)
+    vertex = unique[:, 0].astype(np.int64)
+    return mesh.vertices[vertex], inverse.reshape(-1, 3).astype(np.int64), unique[:, 1:]
+
+
+def write_obj_with_uvs(path: str | Path, mesh: TriangleMesh, atlas: UvAtlas) -> int:
+    """Write an OBJ with ``v``, ``vt`` and ``f v/vt`` lines, one ``f`` per input face in the
+    input order, each polygon with its UVs per corner.
+
+    A polygon a chart boundary runs through (its triangles disagree on a shared corner's
+    UV) is written as its triangles, in place. Returns how many polygons were split so.
+    Input faces that produced no triangle are left out.
+    """
+    from neural_shdf.unwrap import input_face_corner_uvs
+
+    polygons, polygon_uvs, consistent = input_face_corner_uvs(mesh, atlas.corner_uvs)
+    lines = ["# neural-shdf unwrap: one f line per input face (split polygons: their triangles)"]
+    lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in mesh.vertices)
+    uv_rows = []
+    faces_text = []
+    offset = 0
+    starts = np.searchsorted(mesh.face_origin, np.arange(mesh.input_face_count))
+    for face, ring in enumerate(polygons):
+        count = len(ring)
+        if count == 0:
+            continue
+        if consistent[face]:
+            base = len(uv_rows)
+            uv_rows.extend(polygon_uvs[offset : offset + count])
+            faces_text.append(
+                "f " + " ".join(f"{v + 1}/{base + k + 1}" for k, v in enumerate(ring))
+            )
+        else:
+            first = int(starts[face])
+            for triangle in range(first, first + count - 2):
+                base = len(uv_rows)
+                uv_rows.extend(atlas.corner_uvs[triangle])
+                faces_text.append(
+                    "f " + " ".join(
+                        f"{v + 1}/{base + k + 1}" for k, v in enumerate(mesh.faces[triangle])
+                    )
+                )
+        offset += count
+    lines.extend(f"vt {u:.9g} {v:.9g}" for u, v in uv_rows)
+    lines.extend(faces_text)
+    Path(path).write_text("\n".join(lines) + "\n")
+    return int((~consistent).sum())
+
+
 def write_labels(path: str | Path, labels: NDArray) -> None:
     """Write a .seg file: one integer label per line."""
     labels = np.asarray(labels)
@@ -217,6 +299,9 @@ __all__ = [
     "read_labels",
     "read_values",
     "split_by_part",
+    "unwrapped_glb",
+    "uv_split_vertices",
     "write_labels",
+    "write_obj_with_uvs",
     "write_values",
 ]

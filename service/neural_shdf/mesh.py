@@ -74,13 +74,23 @@ class TriangleMesh:
         digest.update(str(self.input_face_count).encode())
         return digest.hexdigest()
 
-    def to_input_faces(self, values: NDArray, *, weights: NDArray | None = None) -> NDArray:
-        """Map per-triangle float values to per-input-face values (weighted mean).
+    def input_face_weights(self) -> NDArray[np.float64]:
+        """How much each triangle counts in its input face: its area, or 1 for every
+        triangle of a face whose triangles are all degenerate (zero area)."""
+        _, areas = self.normals_and_areas
+        polygon_area = np.bincount(self.face_origin, weights=areas, minlength=self.input_face_count)
+        flat = polygon_area[self.face_origin] <= 0
+        return np.where(flat, 1.0, areas) if flat.any() else np.asarray(areas, dtype=np.float64)
 
-        Input faces without triangles get NaN.
+    def to_input_faces(self, values: NDArray, *, weights: NDArray | None = None) -> NDArray:
+        """Map per-triangle float values to per-input-face values: the mean over the
+        face's triangles weighted by area (``weights`` to weigh otherwise).
+
+        The one mapping of values that the CLI, the API and the library use. Input
+        faces without triangles get NaN.
         """
         values = np.asarray(values, dtype=np.float64)
-        w = np.ones(len(values)) if weights is None else np.asarray(weights, dtype=np.float64)
+        w = self.input_face_weights() if weights is None else np.asarray(weights, np.float64)
         total = np.bincount(self.face_origin, weights=w * values, minlength=self.input_face_count)
         norm = np.bincount(self.face_origin, weights=w, minlength=self.input_face_count)
         out = np.full(self.input_face_count, np.nan)
@@ -94,8 +104,9 @@ class TriangleMesh:
         """Map per-triangle labels to one label per input face.
 
         A polygon split into several triangles takes the label that covers the
-        largest share of its area (ties: the smallest label). Input faces that
-        produced no triangle get ``missing``.
+        largest share of its area (``weights`` to weigh otherwise; ties: the
+        smallest label). The one mapping of labels that the CLI, the API and the
+        library use. Input faces that produced no triangle get ``missing``.
         """
         labels = np.asarray(labels, dtype=np.int64)
         out = np.full(self.input_face_count, missing, dtype=np.int64)
@@ -104,7 +115,7 @@ class TriangleMesh:
         if np.array_equal(self.face_origin, np.arange(len(labels))):
             out[: len(labels)] = labels
             return out
-        w = np.ones(len(labels)) if weights is None else np.asarray(weights, dtype=np.float64)
+        w = self.input_face_weights() if weights is None else np.asarray(weights, np.float64)
         # Sum weight per (origin, label), then keep the heaviest label per origin.
         keys = self.face_origin * (int(labels.max()) + 1) + labels
         unique_keys, inverse = np.unique(keys, return_inverse=True)

@@ -35,7 +35,13 @@ def compute_shdf(
     graph: FaceGraph | None = None,
     progress: Progress | None = None,
 ) -> NDArray[np.float64]:
-    """Post-processed ShDF in [0, 1] per triangle (exact rays or the neural predictor)."""
+    """Post-processed ShDF in [0, 1] per triangle (exact rays or the neural predictor).
+
+    ``seed``: 0..``MAX_SEED``; by convention the segmentation's ``SegmentParams.seed``.
+    """
+    from neural_shdf.segment.params import check_seed
+
+    seed = check_seed(seed)
     graph = mesh_face_graph(mesh) if graph is None else graph
     if method == "exact":
         from neural_shdf.shdf.exact import exact_shdf
@@ -67,16 +73,14 @@ def segment_mesh(
 
 def input_face_labels(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.int64]:
     """One label per face of the input file, in its order (a polygon split into triangles
-    takes the label covering most of its area)."""
-    _, areas = mesh.normals_and_areas
-    return mesh.labels_to_input_faces(labels, weights=areas + 1e-300)
+    takes the label covering most of its area): ``mesh.labels_to_input_faces``."""
+    return mesh.labels_to_input_faces(labels)
 
 
 def input_face_shdf(mesh: TriangleMesh, values: NDArray) -> NDArray[np.float64]:
     """One ShDF value per face of the input file, in its order (area-weighted mean over a
-    polygon's triangles)."""
-    _, areas = mesh.normals_and_areas
-    return mesh.to_input_faces(values, weights=areas + 1e-300)
+    polygon's triangles): ``mesh.to_input_faces``."""
+    return mesh.to_input_faces(values)
 
 
 def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "neural")) -> float:

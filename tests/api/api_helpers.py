@@ -142,6 +142,36 @@ def make_settings(cache_dir: Path, **overrides):
     return Settings(_env_file=None, **values)
 
 
+def quad_dumbbell_obj(rings: int = 24, sectors: int = 16, jitter: float = 0.15) -> bytes:
+    """Two balls joined by a thin bar around the x axis, as an OBJ of quads (triangle fans
+    at the poles). Vertices are moved radially by up to ``jitter`` (fixed seed), so the
+    quads are not planar and part boundaries run through some of them: the two triangles
+    of such a quad get different labels and differ in area."""
+    x = np.linspace(-3.0, 3.0, rings)
+    radius = np.where(np.abs(x) < 1.0, 0.25, np.sqrt(np.clip(1 - (np.abs(x) - 2) ** 2, 0, None)))
+    radius[[1, -2]] = np.maximum(radius[[1, -2]], 0.3)
+    angles = np.linspace(0, 2 * np.pi, sectors, endpoint=False)
+    rings_xyz = [
+        [[x[i], radius[i] * np.cos(a), radius[i] * np.sin(a)] for a in angles]
+        for i in range(1, rings - 1)
+    ]
+    vertices = np.array([[x[0], 0, 0], *np.concatenate(rings_xyz), [x[-1], 0, 0]])
+    vertices *= 1 + jitter * np.random.default_rng(1).uniform(-1, 1, (len(vertices), 1))
+
+    def ring(i: int, j: int) -> int:
+        return 1 + (i - 1) * sectors + j % sectors
+
+    last = len(vertices) - 1
+    polygons = [[0, ring(1, j + 1), ring(1, j)] for j in range(sectors)]
+    polygons += [
+        [ring(i, j), ring(i, j + 1), ring(i + 1, j + 1), ring(i + 1, j)]
+        for i in range(1, rings - 2)
+        for j in range(sectors)
+    ]
+    polygons += [[last, ring(rings - 2, j), ring(rings - 2, j + 1)] for j in range(sectors)]
+    return obj_bytes(vertices, polygons)
+
+
 def instanced_glb(vertex_count: int, children: int) -> bytes:
     """A GLB whose one mesh (``vertex_count`` vertices, one triangle) is placed by each of
     ``children`` nodes: a small file that expands to ``children * vertex_count`` vertices."""

@@ -155,7 +155,7 @@ def running_server(
     process = subprocess.Popen([sys.executable, "-m", "neural_shdf.api.serve"], env=env)
     base = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + 180  # start-up under a loaded CI machine
         while True:
             if process.poll() is not None:
                 raise RuntimeError(f"server exited with {process.returncode}")

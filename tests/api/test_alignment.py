@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.api.api_helpers import capsule, glb_two_nodes, obj_bytes, parts_within_blocks, quad_box
+from tests.api.api_helpers import (
+    capsule,
+    glb_two_nodes,
+    obj_bytes,
+    parts_within_blocks,
+    quad_box,
+    quad_dumbbell_obj,
+)
 
 
 def segment_file(client, data: bytes, name: str, **options) -> dict:
@@ -92,3 +99,46 @@ def test_every_format_gives_the_same_segmentation(client):
     assert len(reference) == len(shape.faces)
     for name, body in results.items():
         assert body["labels"] == reference, name
+
+
+@pytest.mark.parametrize(
+    "options",
+    [{"partitioner": "graphcut"}, {"partitioner": "metis", "parts": 8}],
+    ids=["graphcut", "metis"],
+)
+def test_cli_api_and_library_give_identical_labels_for_quads(client, tmp_path, options):
+    """One mapping (area-weighted, in the library) and one seed convention: the same quad
+    OBJ gets the same per-polygon labels from the library, the CLI and the API."""
+    from neural_shdf.cli import main
+    from neural_shdf.mesh_io import load_mesh
+    from neural_shdf.pipeline import compute_shdf, mesh_face_graph, segment_mesh
+    from neural_shdf.segment import SegmentParams
+
+    data, seed = quad_dumbbell_obj(), 3
+    mesh = load_mesh(data, "obj")
+    graph = mesh_face_graph(mesh)
+    params = SegmentParams(seed=seed, **options)
+    shdf = compute_shdf(mesh, method="exact", seed=seed, graph=graph)
+    triangle_labels = segment_mesh(mesh, shdf, params, graph=graph)
+    library = mesh.labels_to_input_faces(triangle_labels)
+    # The mesh exercises the mapping: counting triangles instead of area would differ.
+    by_count = mesh.labels_to_input_faces(triangle_labels, weights=np.ones(mesh.face_count))
+    assert np.any(library != by_count)
+
+    path, out = tmp_path / "quads.obj", tmp_path / "labels.seg"
+    path.write_bytes(data)
+    flags = [f"--{name}={value}" for name, value in options.items()]
+    assert main(["segment", str(path), "-o", str(out), "--method", "exact",
+                 f"--seed={seed}", *flags, "-q"]) == 0  # fmt: skip
+    cli = np.array(out.read_text().split(), dtype=int)
+
+    api = segment_file(client, data, "quads.obj", seed=seed, **options)["labels"]
+    form = {"seed": seed, "method": "exact"}
+    stored = client.post("/v1/meshes", files={"file": ("q.obj", data)}, data=form)
+    mesh_id = stored.json()["mesh"]["mesh_id"]
+    again = client.post("/v1/segment", json={"mesh_id": mesh_id, "method": "exact",
+                                             "seed": seed, **options})  # fmt: skip
+    assert again.status_code == 200, again.text
+    np.testing.assert_array_equal(cli, library)
+    np.testing.assert_array_equal(api, library)
+    np.testing.assert_array_equal(again.json()["labels"], library)

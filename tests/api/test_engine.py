@@ -61,7 +61,7 @@ def test_corrupt_entry_is_recomputed_never_served(app_factory, capsule_obj):
             "mesh_id"
         ]
         good = client.get(f"/v1/meshes/{mesh_id}/shdf?format=f32").content
-        key = engine.shdf_key(mesh_id, TEST_METHOD, 0)
+        key = engine.shdf.key(mesh_id, TEST_METHOD, 0)
         blob = engine.cache.backend.get(key)
         assert blob.startswith(MAGIC)
         flipped = bytearray(blob)
@@ -112,7 +112,7 @@ def test_failed_computation_leaves_no_entry(app_factory, capsule_obj, monkeypatc
         assert response.status_code == 500
         assert response.json()["error"]["code"] == "internal_error"
         mesh_id = load_mesh(capsule_obj, "obj").content_hash()
-        assert engine.cache.backend.get(engine.shdf_key(mesh_id, TEST_METHOD, 0)) is None
+        assert engine.cache.backend.get(engine.shdf.key(mesh_id, TEST_METHOD, 0)) is None
         monkeypatch.undo()
         again = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)})
         assert again.status_code == 200 and again.json()["shdf"]["cached"] is False
@@ -136,13 +136,13 @@ def test_unreachable_redis_degrades_to_computing(app_factory, capsule_obj):
 @pytest.mark.skipif(TEST_METHOD != "neural", reason="the committed model emd.onnx is absent")
 def test_neural_is_the_default_and_keyed_by_model_version(client, capsule_obj):
     engine = client.app.state.engine
-    assert engine.model_version is not None
+    assert engine.shdf.model_version is not None
     body = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)}).json()
     assert body["shdf"]["method"] == "neural"
-    key = engine.shdf_key(body["mesh"]["mesh_id"], "neural", 0)
-    assert engine.model_version in key
+    key = engine.shdf.key(body["mesh"]["mesh_id"], "neural", 0)
+    assert engine.shdf.model_version in key
     values = client.get(f"/v1/meshes/{body['mesh']['mesh_id']}/shdf").json()
-    assert values["model_version"] == engine.model_version
+    assert values["model_version"] == engine.shdf.model_version
     assert np.all((np.array(values["values"]) >= 0) & (np.array(values["values"]) <= 1))
 
 
@@ -207,7 +207,7 @@ def test_long_computation_never_blocks_polling_or_cached_reads(
 def test_compact_labels_use_the_narrowest_integer(labels, dtype):
     import base64
 
-    from neural_shdf.api.engine import SegmentResult
+    from neural_shdf.api.segmentation import SegmentResult
 
     result = SegmentResult(
         labels=np.array(labels, dtype=np.int32),

@@ -61,9 +61,16 @@ def test_error_shape_for_routing_and_validation(small_client):
     assert_error(small_client.delete("/healthz"), 405, "method_not_allowed")
     assert_error(small_client.get("/v1/meshes/" + "0" * 64), 404, "mesh_not_found")
     assert_error(small_client.get("/v1/meshes/not-a-hash"), 422, "validation_error")
-    error = assert_error(small_client.post("/v1/segment", json={"clusters": -1}), 422)
+    error = assert_error(small_client.post("/v1/segment", json={"clusters": "many"}), 422)
     assert error["code"] == "validation_error"
     assert {tuple(p["loc"]) for p in error["detail"]} >= {("body", "mesh_id"), ("body", "clusters")}
+    # Bounds are checked in one place, SegmentParams, before any work (even for unknown ids).
+    bad = {"mesh_id": "0" * 64, "clusters": -1}
+    error = assert_error(small_client.post("/v1/segment", json=bad), 422, "invalid_parameter")
+    assert "clusters must be an integer in 1..32" in error["message"]
+    query = "?partitioner=metis&parts=0"
+    path = f"/v1/meshes/{'0' * 64}/segmentation/colored.glb{query}"
+    assert_error(small_client.get(path), 422, "invalid_parameter")
     malformed = assert_error(
         small_client.post(
             "/v1/segment", content=b"{not json", headers={"content-type": "application/json"}
@@ -283,8 +290,8 @@ def test_non_finite_smoothing_says_finite(small_client):
     response = small_client.post(
         "/v1/segment", content=body, headers={"content-type": "application/json"}
     )
-    error = assert_error(response, 422, "validation_error")
-    assert "finite number" in error["message"] and "100" not in error["message"]
+    error = assert_error(response, 422, "invalid_parameter")
+    assert "smoothing must be a finite number" in error["message"]
     query = small_client.get(f"/v1/meshes/{'0' * 64}/segmentation/colored.glb?smoothing=inf")
     assert "finite number" in assert_error(query, 422)["message"]
 

@@ -63,7 +63,7 @@ def test_segment_reruns_only_the_partitioning(client, capsule_obj):
     mesh_id = upload(client, capsule_obj).json()["mesh"]["mesh_id"]
     assert metric(app, "neural_shdf_shdf_computations_total", method=TEST_METHOD) == 1
     first = client.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 2})
-    second = client.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 4, "seed": 3})
+    second = client.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 4})
     metis = client.post(
         "/v1/segment", json={"mesh_id": mesh_id, "partitioner": "metis", "parts": 3}
     )
@@ -88,7 +88,13 @@ def test_segment_reruns_only_the_partitioning(client, capsule_obj):
     repeat = client.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 2}).json()
     assert repeat["labels"] == first.json()["labels"]
     assert repeat["timings"]["segmentation_cached"] is True
-    assert metric(app, "neural_shdf_segmentations_total") == 3
+
+    # One seed seeds every random step: another seed means the ShDF of that seed (as the
+    # CLI's --seed and the library's compute_shdf(seed=...) with SegmentParams(seed=...)).
+    reseeded = client.post("/v1/segment", json={"mesh_id": mesh_id, "seed": 3}).json()
+    assert reseeded["timings"]["shdf_cached"] is False
+    assert metric(app, "neural_shdf_shdf_computations_total", method=TEST_METHOD) == 2
+    assert metric(app, "neural_shdf_segmentations_total") == 4
 
     compact = client.post(
         "/v1/segment", json={"mesh_id": mesh_id, "clusters": 2, "labels_format": "base64"}
@@ -152,7 +158,7 @@ def test_large_mesh_runs_as_a_job(app_factory, capsule_obj):
         segmented = client.post("/v1/segment", json={"mesh_id": done["mesh_id"]})
         assert segmented.status_code == 200
         # A large mesh whose ShDF (another seed) is not cached: segment answers 202 too.
-        other = client.post("/v1/segment", json={"mesh_id": done["mesh_id"], "shdf_seed": 7})
+        other = client.post("/v1/segment", json={"mesh_id": done["mesh_id"], "seed": 7})
         if TEST_METHOD == "exact":
             assert other.status_code == 202
             assert wait_job(client, other.json())["state"] == "succeeded"

@@ -70,6 +70,9 @@ def test_page_config_reflects_the_service_limits(app_factory):
     assert config["maxUploadBytes"] == 12345 and config["defaultMethod"] == "exact"
     assert set(config["formats"]) == {"obj", "glb", "gltf", "off", "ply", "stl"}
     assert config["defaultClusters"] == 9 and config["maxClusters"] == 32
+    assert config["methods"] == ["neural", "exact"]
+    assert config["partitioners"] == ["graphcut", "metis"]
+    assert config["unlabeledColor"] == "#404040"
 
 
 def test_config_cannot_break_out_of_its_script_element(app_factory):

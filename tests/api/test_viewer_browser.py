@@ -331,3 +331,91 @@ def test_service_errors_are_shown_as_messages(page, server, meshes):
     ).json()["error"]["message"]
     assert "Unusable mesh" in page.message() and expected in page.message()
     assert page.status() == "error"
+
+
+def test_dropped_file_and_shdf_heat_map(page, server, meshes):
+    page.js("window.__segmented = []; addEventListener('shdf:segmented', e => __segmented.push(1))")
+    page.js(
+        """
+        const [name, text] = arguments;
+        const transfer = new DataTransfer();
+        transfer.items.add(new File([text], name));
+        dispatchEvent(new DragEvent('dragenter', { dataTransfer: transfer }));
+        if (document.getElementById('drop-overlay').hidden) throw new Error('no drop overlay');
+        dispatchEvent(new DragEvent('drop', { dataTransfer: transfer }));
+        """,
+        "dropped.obj",
+        meshes["small"].read_text(),
+    )
+    page.wait_for("return __segmented.length > 0 && document.body.dataset.status === 'ready'")
+    assert page.js("return window.shdfViewer.state.meta.filename") == "dropped.obj"
+    assert page.js("return document.getElementById('drop-overlay').hidden") is True
+
+    page.js("document.querySelector('input[name=view][value=shdf]').click()")
+    assert page.js("return document.getElementById('shdf-legend').hidden") is False
+    shown = page.segmentation()
+    mesh_id = page.js("return window.shdfViewer.state.meshId")
+    shdf = np.frombuffer(
+        httpx.get(f"{server}/v1/meshes/{mesh_id}/shdf", params={"format": "f32"}).content, "<f4"
+    )
+    values = shdf[np.asarray(shown["faceOrigin"])]
+    colors = np.asarray(shown["colors"], dtype=float).reshape(-1, 3)
+    luminance = colors @ [0.2126, 0.7152, 0.0722]  # viridis brightens monotonically
+    assert np.corrcoef(values, luminance)[0, 1] > 0.95
+    _, first = np.unique(values, return_index=True)
+    same = {float(v): tuple(colors[i]) for v, i in zip(values[first], first, strict=True)}
+    assert all(same[float(v)] == tuple(c) for v, c in zip(values, colors, strict=True))
+
+    page.js("document.querySelector('input[name=view][value=plain]').click()")
+    plain = np.asarray(page.segmentation()["colors"]).reshape(-1, 3)
+    assert len(np.unique(plain, axis=0)) == 1
+    assert severe(page) == []
+
+
+def test_dragging_keeps_one_request_in_flight_and_ends_on_the_released_value(page, server, meshes):
+    """Answers are slowed down in the page (a slow service): while dragging, the page never
+    aborts one request for the next; the release still wins."""
+    page.upload(meshes["small"])
+    result = page.driver.execute_async_script(
+        """
+        const done = arguments[0];
+        const original = window.fetch;
+        const pause = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
+        const signals = [];
+        window.fetch = (url, options = {}) => {
+          if (!String(url).endsWith('/v1/segment')) return original(url, options);
+          signals.push(options.signal);
+          return original(url, options).then((response) => pause(600).then(() => response));
+        };
+        const input = document.getElementById('smoothing');
+        (async () => {
+          for (const value of ['0.3', '0.31', '0.32', '0.33', '0.34', '0.35']) {
+            input.value = value;  // held still past the page's 150 ms each time
+            input.dispatchEvent(new Event('input'));
+            await pause(200);
+          }
+          const last = new Promise((resolve) => addEventListener('shdf:segmented', (e) => {
+            if (e.detail.request.smoothing === 0.36) resolve(e.detail);
+          }));
+          input.value = '0.36';
+          input.dispatchEvent(new Event('input'));
+          input.dispatchEvent(new Event('change'));
+          const detail = await last;
+          window.fetch = original;
+          done({
+            sent: signals.length,
+            abortedBeforeRelease: signals.slice(0, -1).filter((s) => s.aborted).length,
+            reason: detail.reason,
+          });
+        })();
+        """
+    )
+    # 1.2 s of dragging, 0.6 s per answer: two drag requests, then the release.
+    assert result["sent"] <= 4, result
+    assert result["abortedBeforeRelease"] <= 1, result  # only the release aborts one
+    assert result["reason"] == "release"
+    shown = page.segmentation()
+    assert shown["controls"]["smoothing"] == 0.36
+    mesh_id = page.js("return window.shdfViewer.state.meshId")
+    assert_colours_match(shown, api_labels(server, mesh_id, controls_of(shown)))
+    assert severe(page) == []

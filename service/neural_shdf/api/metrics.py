@@ -84,6 +84,10 @@ class Metrics:
             multiprocess_mode="livesum",
         )
 
+    def count_cache(self, kind: str, *, hit: bool) -> None:
+        """One cache lookup of ``kind`` (mesh, shdf, segmentation), hit or miss."""
+        (self.cache_hits if hit else self.cache_misses).labels(kind).inc()
+
     def value(self, name: str, labels: dict[str, str] | None = None) -> float:
         """Current value of a sample (0 when absent); used by tests and health checks."""
         return self.registry.get_sample_value(name, labels or {}) or 0.0

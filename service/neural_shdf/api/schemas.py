@@ -8,7 +8,7 @@ from fastapi import UploadFile
 from pydantic import BaseModel, ConfigDict, Field
 
 from neural_shdf.segment import SegmentParams
-from neural_shdf.segment.params import MAX_CLUSTERS
+from neural_shdf.segment.params import MAX_CLUSTERS, MAX_PARTS, MAX_SEED, MAX_SMOOTHING
 
 ShdfMethodName = Literal["neural", "exact"]
 JobState = Literal["queued", "running", "succeeded", "failed"]
@@ -17,6 +17,15 @@ MESH_ID_EXAMPLE = "3f1c0b6e2d4a8f7e9c1b2a3d4e5f60718293a4b5c6d7e8f9a0b1c2d3e4f5a
 MESH_ID_PATTERN = "^[0-9a-f]{64}$"
 JOB_ID_PATTERN = "^[0-9a-f]{32}$"
 JOB_ID_EXAMPLE = "5d0f3c8a9b6e4f21a7c3d2e1f0a9b8c7"
+
+
+def documented_bounds(minimum: float, maximum: float) -> dict[str, float]:
+    """JSON-schema bounds for clients and fuzzers. They are not enforced by pydantic:
+    ``SegmentParams`` (and ``check_seed``) validate, once, for the CLI, API and library."""
+    return {"minimum": minimum, "maximum": maximum}
+
+
+SEED_BOUNDS = documented_bounds(0, MAX_SEED)
 
 
 class ErrorDetail(BaseModel):
@@ -215,7 +224,6 @@ class SegmentOptions(BaseModel):
         description="ShDF method; default: the service's default (neural).",
         examples=["neural"],
     )
-    shdf_seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the ShDF.", examples=[0])
     partitioner: Literal["graphcut", "metis"] = Field(
         "graphcut",
         description="`graphcut` (alpha expansion) or `metis` (exactly `parts` parts).",
@@ -223,8 +231,7 @@ class SegmentOptions(BaseModel):
     )
     clusters: int | None = Field(
         None,
-        ge=0,
-        le=MAX_CLUSTERS,
+        json_schema_extra=documented_bounds(0, MAX_CLUSTERS),
         description=(
             "Gaussian mixture components (level of detail, not a part count); "
             "none: the default (9, tuned on the Princeton benchmark); 0: chosen per mesh by BIC."
@@ -233,20 +240,27 @@ class SegmentOptions(BaseModel):
     )
     smoothing: float | None = Field(
         None,
-        ge=0,
-        le=100,
-        allow_inf_nan=False,
-        description="Smoothness weight lambda of the graph cut.",
+        json_schema_extra=documented_bounds(0, MAX_SMOOTHING),
+        description="Smoothness weight lambda of the graph cut; default 0.12.",
         examples=[0.12],
     )
     parts: int | None = Field(
-        None, ge=1, le=10_000, description="Number of parts for `metis`.", examples=[6]
+        None,
+        json_schema_extra=documented_bounds(1, MAX_PARTS),
+        description="Number of parts for `metis` (at most the mesh's face count).",
+        examples=[6],
     )
     refine: bool = Field(False, description="Re-segment heterogeneous parts.", examples=[False])
     boundary_smoothing: bool = Field(
         False, description="Straighten part boundaries.", examples=[False]
     )
-    seed: int = Field(0, ge=0, le=2**31 - 1, description="Seed of the segmentation.", examples=[0])
+    seed: int = Field(
+        0,
+        json_schema_extra=SEED_BOUNDS,
+        description="Seed of every random step: the ShDF's sampling (so the ShDF cached by "
+        "an upload with the same `seed` is reused) and the segmentation.",
+        examples=[0],
+    )
     labels_format: Literal["json", "base64"] = Field(
         "json",
         description="`json`: labels as a list; `base64`: the labels as little-endian "
@@ -256,6 +270,7 @@ class SegmentOptions(BaseModel):
     )
 
     def segment_params(self) -> SegmentParams:
+        """The library's parameters, validated there (ParameterError: a 422 that says why)."""
         return SegmentParams.from_attributes(self)
 
 

@@ -14,9 +14,11 @@ import html
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
+from neural_shdf.api.schemas import SegmentOptions, ShdfMethodName
 from neural_shdf.api.settings import Settings
+from neural_shdf.export import UNLABELED_COLOR
 from neural_shdf.mesh_io import SUPPORTED_FORMATS
 from neural_shdf.segment.params import DEFAULT_CLUSTERS, DEFAULT_SMOOTHING, MAX_CLUSTERS
 
@@ -65,16 +67,27 @@ def import_map(base_url: str) -> dict[str, Any]:
     }
 
 
+def _choices(annotation: Any) -> list[str]:
+    """The values of a ``Literal`` (possibly inside ``X | None``)."""
+    values: list[str] = []
+    for arg in get_args(annotation) or (annotation,):
+        values.extend(_choices(arg) if get_args(arg) else [arg] if isinstance(arg, str) else [])
+    return values
+
+
 def page_config(settings: Settings) -> dict[str, Any]:
-    """What the page needs to know about the service's limits and defaults."""
+    """What the page needs to know about the service's limits, choices and defaults."""
     return {
         "maxUploadBytes": settings.max_upload_bytes,
         "maxFaces": settings.max_faces,
         "defaultMethod": settings.default_method,
+        "methods": _choices(ShdfMethodName),
+        "partitioners": _choices(SegmentOptions.model_fields["partitioner"].annotation),
         "formats": list(SUPPORTED_FORMATS),
         "maxClusters": MAX_CLUSTERS,
         "defaultClusters": DEFAULT_CLUSTERS,
         "defaultSmoothing": DEFAULT_SMOOTHING,
+        "unlabeledColor": "#{:02x}{:02x}{:02x}".format(*UNLABELED_COLOR[:3].tolist()),
     }
 
 

@@ -109,8 +109,7 @@ class SegmentArgs(TypedDict, total=False):
     parts: int | None  # part count for metis
     refine: bool | None
     boundary_smoothing: bool | None
-    seed: int | None
-    shdf_seed: int | None
+    seed: int | None  # seeds every random step: the ShDF's sampling and the segmentation
 
 
 def given(options: Mapping[str, Any]) -> dict[str, Any]:

@@ -180,8 +180,7 @@ def _input_labels(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.int64]:
     labels = np.asarray(labels, dtype=np.int64).reshape(-1)
     if len(labels) != mesh.face_count:
         raise ValueError(f"{len(labels)} labels for {mesh.face_count} triangles")
-    _, areas = mesh.normals_and_areas
-    return mesh.labels_to_input_faces(labels, weights=areas + 1e-300, missing=-1)
+    return mesh.labels_to_input_faces(labels, missing=-1)
 
 
 # ---------------------------------------------------------------- predictors

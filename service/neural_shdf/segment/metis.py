@@ -132,6 +132,22 @@ def metis_partition(
     return canonical_labels(labels)
 
 
+def split_faces(
+    graph: FaceGraph, parts: int, seed: int = 0, edge_length: NDArray | None = None
+) -> NDArray[np.int64]:
+    """``parts`` pieces of one connected face graph with the shortest total boundary
+    (METIS on edge lengths, or on ``edge_length`` given per pair), labels 0..parts-1."""
+    length = graph.edge_length if edge_length is None else np.asarray(edge_length, float)
+    top = float(length.max(initial=0.0))
+    weights = (
+        np.clip(np.rint(length / top * WEIGHT_RANGE), 1, WEIGHT_RANGE).astype(np.int64)
+        if top > 0
+        else np.ones(len(length), dtype=np.int64)
+    )
+    faces = np.arange(graph.face_count, dtype=np.int64)
+    return _partition_component(faces, graph.pairs, weights, parts, seed)
+
+
 def _partition_component(
     faces: NDArray, pairs: NDArray, weights: NDArray, parts: int, seed: int
 ) -> NDArray[np.int64]:

@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 from typing import Literal
+
+import numpy as np
+
+from neural_shdf.errors import ParameterError
 
 Partitioner = Literal["graphcut", "metis"]
 
@@ -18,6 +23,14 @@ AUTO_CLUSTERS = 0
 CLUSTER_CANDIDATES = tuple(range(2, 9))
 #: Largest mixture size a user may ask for.
 MAX_CLUSTERS = 32
+#: Largest graph-cut smoothness lambda accepted (beyond it every face joins one part).
+MAX_SMOOTHING = 100.0
+#: Most parts a user may ask METIS for (also bounded by the mesh's face count).
+MAX_PARTS = 10_000
+#: Largest seed accepted (a non-negative 31-bit integer, the same in the CLI, API and library).
+MAX_SEED = 2**31 - 1
+#: Deepest refinement accepted.
+MAX_REFINE_DEPTH = 8
 #: Parts smaller than this fraction of the surface area are merged into a neighbour.
 DEFAULT_MIN_PART_FRACTION = 0.002
 #: How many times refinement may re-segment a part of a part.
@@ -38,7 +51,9 @@ class SegmentParams:
         parts: number of parts for ``metis`` (None: as many as the graph cut finds).
         refine: recursively re-segment parts that are themselves heterogeneous.
         boundary_smoothing: alpha-expansion pass that straightens part boundaries.
-        seed: seed of every random step.
+        seed: seed of every random step, in 0..``MAX_SEED``. The one seed convention of
+            the CLI, the API and the evaluation: the same seed also seeds the ShDF
+            (``compute_shdf(mesh, seed=params.seed)``).
         min_part_fraction: parts below this fraction of the total surface area
             are merged into the neighbour they share the longest boundary with
             (a small shell with no neighbour joins the nearest part); 0 keeps all.
@@ -63,6 +78,60 @@ class SegmentParams:
     refine_depth: int = DEFAULT_REFINE_DEPTH
     reference_faces: int | None = None
 
+    def __post_init__(self) -> None:
+        """Every parameter checked here, once, whoever builds the parameters (CLI, API,
+        library); raises ParameterError saying which value is wrong and what is allowed.
+        Checks that need the mesh (``parts`` <= faces) are made where the mesh is known."""
+        if self.partitioner not in ("graphcut", "metis"):
+            raise ParameterError(
+                f"unknown partitioner {self.partitioner!r}; use 'graphcut' or 'metis'"
+            )
+        if self.clusters is not None and (
+            not _is_int(self.clusters) or not AUTO_CLUSTERS <= self.clusters <= MAX_CLUSTERS
+        ):
+            raise ParameterError(
+                f"clusters must be an integer in 1..{MAX_CLUSTERS}, {AUTO_CLUSTERS} to choose it "
+                f"by BIC, or None for the default ({DEFAULT_CLUSTERS}), got {self.clusters!r}"
+            )
+        if self.smoothing is not None and not (
+            _is_number(self.smoothing)
+            and math.isfinite(self.smoothing)
+            and 0 <= self.smoothing <= MAX_SMOOTHING
+        ):
+            raise ParameterError(
+                f"smoothing must be a finite number in [0, {MAX_SMOOTHING:g}] (or None for "
+                f"{DEFAULT_SMOOTHING}), got {self.smoothing!r}"
+            )
+        if self.parts is not None:
+            if self.partitioner != "metis":
+                raise ParameterError(
+                    "parts applies to the 'metis' partitioner only; the graph cut finds the "
+                    "number of parts itself (leave parts unset or use partitioner='metis')"
+                )
+            if not _is_int(self.parts) or not 1 <= self.parts <= MAX_PARTS:
+                raise ParameterError(
+                    f"parts must be an integer in 1..{MAX_PARTS}, got {self.parts!r}"
+                )
+        for name in ("refine", "boundary_smoothing"):
+            if not isinstance(getattr(self, name), bool | np.bool_):
+                raise ParameterError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        check_seed(self.seed)
+        if not _is_number(self.min_part_fraction) or not 0 <= self.min_part_fraction < 1:
+            raise ParameterError(
+                f"min_part_fraction must be in [0, 1), got {self.min_part_fraction!r}"
+            )
+        if not _is_int(self.refine_depth) or not 0 <= self.refine_depth <= MAX_REFINE_DEPTH:
+            raise ParameterError(
+                f"refine_depth must be an integer in 0..{MAX_REFINE_DEPTH}, "
+                f"got {self.refine_depth!r}"
+            )
+        if self.reference_faces is not None and (
+            not _is_int(self.reference_faces) or self.reference_faces < 1
+        ):
+            raise ParameterError(
+                f"reference_faces must be an integer >= 1 (or None), got {self.reference_faces!r}"
+            )
+
     @classmethod
     def from_attributes(cls, source: object) -> SegmentParams:
         """Parameters from same-named attributes of ``source`` (CLI arguments, API requests).
@@ -71,3 +140,18 @@ class SegmentParams:
         """
         present = [field.name for field in fields(cls) if hasattr(source, field.name)]
         return cls(**{name: getattr(source, name) for name in present})
+
+
+def check_seed(seed: object) -> int:
+    """The seed as an int; ParameterError unless it is an integer in 0..MAX_SEED."""
+    if not _is_int(seed) or not 0 <= seed <= MAX_SEED:  # type: ignore[operator]
+        raise ParameterError(f"seed must be an integer in 0..{MAX_SEED}, got {seed!r}")
+    return int(seed)  # type: ignore[call-overload]
+
+
+def _is_int(value: object) -> bool:
+    return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)

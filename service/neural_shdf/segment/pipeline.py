@@ -12,7 +12,6 @@ Steps (Shapira et al. 2008 as implemented by CGAL's ``segmentation_from_sdf_valu
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 
@@ -28,7 +27,6 @@ from neural_shdf.segment.params import (
     AUTO_CLUSTERS,
     DEFAULT_CLUSTERS,
     DEFAULT_SMOOTHING,
-    MAX_CLUSTERS,
     SegmentParams,
 )
 from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
@@ -36,8 +34,6 @@ from neural_shdf.shdf.postprocess import log_normalize
 
 #: ShDF values may stray this far outside [0, 1] (rounding) before they are refused.
 SHDF_TOLERANCE = 1e-6
-#: Deepest refinement accepted.
-MAX_REFINE_DEPTH = 8
 
 
 @dataclass
@@ -191,59 +187,13 @@ def cut_into_parts(
 
 
 def validate(faces: NDArray, shdf: NDArray, params: SegmentParams, graph: FaceGraph) -> NDArray:
-    """Check the inputs; return the ShDF as float64 clipped to [0, 1]. Raises ParameterError."""
+    """Check what depends on the mesh (``SegmentParams`` checks itself when it is built);
+    return the ShDF as float64 clipped to [0, 1]. Raises ParameterError."""
     face_count = len(faces)
-    if params.partitioner not in ("graphcut", "metis"):
+    if params.parts is not None and params.parts > face_count:
         raise ParameterError(
-            f"unknown partitioner {params.partitioner!r}; use 'graphcut' or 'metis'"
-        )
-    if params.clusters is not None and (
-        not _is_int(params.clusters) or not AUTO_CLUSTERS <= params.clusters <= MAX_CLUSTERS
-    ):
-        raise ParameterError(
-            f"clusters must be an integer in 1..{MAX_CLUSTERS}, {AUTO_CLUSTERS} to choose it "
-            "by BIC, or None for the default, "
-            f"got {params.clusters!r}"
-        )
-    if params.smoothing is not None and (
-        not isinstance(params.smoothing, int | float)
-        or not math.isfinite(params.smoothing)
-        or params.smoothing < 0
-    ):
-        raise ParameterError(
-            f"smoothing must be a finite number >= 0 (or None for {DEFAULT_SMOOTHING}), "
-            f"got {params.smoothing!r}"
-        )
-    if params.parts is not None:
-        if params.partitioner != "metis":
-            raise ParameterError(
-                "parts applies to the 'metis' partitioner only; the graph cut finds the "
-                "number of parts itself (leave parts unset or use partitioner='metis')"
-            )
-        if not _is_int(params.parts) or params.parts < 1:
-            raise ParameterError(f"parts must be an integer >= 1, got {params.parts!r}")
-        if params.parts > face_count:
-            raise ParameterError(
-                f"parts={params.parts} is more than the mesh's {face_count} faces; "
-                f"ask for at most {face_count} parts"
-            )
-    if params.reference_faces is not None and (
-        not _is_int(params.reference_faces) or params.reference_faces < 1
-    ):
-        raise ParameterError(
-            f"reference_faces must be an integer >= 1 (or None), got {params.reference_faces!r}"
-        )
-    if not _is_int(params.seed) or params.seed < 0:
-        raise ParameterError(f"seed must be an integer >= 0, got {params.seed!r}")
-    if not isinstance(params.min_part_fraction, int | float) or not (
-        0 <= params.min_part_fraction < 1
-    ):
-        raise ParameterError(
-            f"min_part_fraction must be in [0, 1), got {params.min_part_fraction!r}"
-        )
-    if not _is_int(params.refine_depth) or not 0 <= params.refine_depth <= MAX_REFINE_DEPTH:
-        raise ParameterError(
-            f"refine_depth must be an integer in 0..{MAX_REFINE_DEPTH}, got {params.refine_depth!r}"
+            f"parts={params.parts} is more than the mesh's {face_count} faces; "
+            f"ask for at most {face_count} parts"
         )
 
     values = np.asarray(shdf, dtype=np.float64)
@@ -266,7 +216,3 @@ def validate(faces: NDArray, shdf: NDArray, params: SegmentParams, graph: FaceGr
             f"[{values.min():.6g}, {values.max():.6g}]"
         )
     return np.clip(values, 0.0, 1.0)
-
-
-def _is_int(value: object) -> bool:
-    return isinstance(value, int | np.integer) and not isinstance(value, bool)

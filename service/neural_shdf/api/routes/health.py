@@ -29,7 +29,7 @@ async def ready(engine: EngineDep) -> JSONResponse:
     """Ready when the neural model loads (if it is the default method) and the cache answers;
     `degraded` (still 200: requests are served) while Redis is down and the local disk
     cache stands in."""
-    model_ok, model_detail = await engine.io(engine.check_model)
+    model_ok, model_detail = await engine.io(engine.shdf.check_model)
     if engine.settings.default_method != "neural" and not model_ok:
         model_ok, model_detail = True, f"not needed (default method exact): {model_detail}"
     cache_ok, cache_detail = await engine.io(engine.cache.health)

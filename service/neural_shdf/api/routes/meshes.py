@@ -4,23 +4,24 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-import numpy as np
 from fastapi import APIRouter, File, Form, Header, Path, Query, Response, UploadFile
-from fastapi.responses import JSONResponse
 
 from neural_shdf.api.engine import Engine
+from neural_shdf.api.responses import F32_MEDIA_TYPE, shdf_response, upload_result
 from neural_shdf.api.routes.deps import EngineDep, error_responses, read_upload, upload_format
 from neural_shdf.api.schemas import (
     MESH_ID_EXAMPLE,
     MESH_ID_PATTERN,
+    SEED_BOUNDS,
     Job,
     MeshInfo,
     ShdfMethodName,
-    ShdfStatus,
     ShdfValues,
     UploadResult,
 )
+from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import normalize_format, sniff_format
+from neural_shdf.segment.params import check_seed
 
 router = APIRouter(prefix="/v1", tags=["meshes"])
 
@@ -32,16 +33,18 @@ MeshId = Annotated[
         examples=[MESH_ID_EXAMPLE],
     ),
 ]
-F32_MEDIA_TYPE = "application/octet-stream"
+SEED_DESCRIPTION = "Seed of the ShDF's sampling (the `seed` of a later segmentation)."
 
 
-async def ingest(engine: Engine, upload: UploadFile, file_type: str | None) -> tuple[dict, object]:
+async def ingest(
+    engine: Engine, upload: UploadFile, file_type: str | None
+) -> tuple[dict, TriangleMesh]:
     """Parse and store an uploaded mesh; returns (metadata, mesh)."""
     data = await read_upload(upload)
     fmt = upload_format(upload, file_type)
-    mesh = await engine.run(engine.parse, data, fmt)
+    mesh = await engine.run(engine.meshes.parse, data, fmt)
     detected = normalize_format(fmt) if fmt else sniff_format(data)
-    meta = await engine.io(engine.store_mesh, mesh, detected, upload.filename)
+    meta = await engine.io(engine.meshes.store, mesh, detected, upload.filename)
     return meta, mesh
 
 
@@ -71,24 +74,19 @@ async def upload_mesh(
         ShdfMethodName | None,
         Form(description="ShDF method; default: the service default.", examples=["neural"]),
     ] = None,
-    seed: Annotated[int, Form(ge=0, le=2**31 - 1, description="ShDF seed.", examples=[0])] = 0,
+    seed: Annotated[
+        int, Form(description=SEED_DESCRIPTION, examples=[0], json_schema_extra=SEED_BOUNDS)
+    ] = 0,
 ) -> UploadResult:
     """Store the mesh under its content hash and compute its ShDF once (cached).
 
     Meshes above the synchronous threshold answer 202 with a job to poll.
     """
+    seed = check_seed(seed)
     meta, mesh = await ingest(engine, file, file_type)
     chosen = engine.method_of(method)
-    outcome = await engine.shdf(meta["mesh_id"], mesh, chosen, seed)  # type: ignore[arg-type]
-    return UploadResult(
-        mesh=MeshInfo(**meta),
-        shdf=ShdfStatus(
-            method=chosen,
-            seed=seed,
-            cached=outcome.cached,  # type: ignore[arg-type]
-            seconds=round(outcome.seconds, 6),
-        ),
-    )
+    outcome = await engine.shdf.get(meta["mesh_id"], mesh, chosen, seed)
+    return upload_result(meta, chosen, seed, outcome)
 
 
 @router.get(
@@ -100,7 +98,7 @@ async def upload_mesh(
 )
 async def get_mesh(engine: EngineDep, mesh_id: MeshId) -> MeshInfo:
     """Size, bounds and origin of a stored mesh."""
-    return MeshInfo(**await engine.io(engine.mesh_meta, mesh_id))
+    return MeshInfo(**await engine.io(engine.meshes.meta, mesh_id))
 
 
 @router.delete(
@@ -113,8 +111,7 @@ async def get_mesh(engine: EngineDep, mesh_id: MeshId) -> MeshInfo:
 )
 async def delete_mesh(engine: EngineDep, mesh_id: MeshId) -> Response:
     """Delete the mesh and everything computed from it (ShDF, segmentations, jobs)."""
-    if not await engine.io(engine.delete, mesh_id):
-        raise engine._mesh_missing(mesh_id)
+    await engine.io(engine.meshes.delete, mesh_id)
     return Response(status_code=204)
 
 
@@ -137,7 +134,7 @@ async def get_shdf(
     engine: EngineDep,
     mesh_id: MeshId,
     method: Annotated[ShdfMethodName | None, Query(description="ShDF method.")] = None,
-    seed: Annotated[int, Query(ge=0, le=2**31 - 1, description="ShDF seed.")] = 0,
+    seed: Annotated[int, Query(description=SEED_DESCRIPTION, json_schema_extra=SEED_BOUNDS)] = 0,
     format: Annotated[  # noqa: A002 - the query parameter's public name
         Literal["json", "f32"] | None,
         Query(description="`json` or `f32` (binary); default: from the Accept header."),
@@ -145,23 +142,13 @@ async def get_shdf(
     accept: Annotated[str | None, Header(include_in_schema=False)] = None,
 ) -> Response:
     """The ShDF in [0, 1] per input face, computed once and cached."""
+    seed = check_seed(seed)
     chosen = engine.method_of(method)
-    mesh = await engine.io(engine.load, mesh_id)
-    outcome = await engine.shdf(mesh_id, mesh, chosen, seed)
+    mesh = await engine.io(engine.meshes.load, mesh_id)
+    outcome = await engine.shdf.get(mesh_id, mesh, chosen, seed)
     values = await engine.io(mesh.to_input_faces, outcome.values)
     binary = format == "f32" or (format is None and F32_MEDIA_TYPE in (accept or ""))
-    headers = {"X-Mesh-Id": mesh_id, "X-Faces": str(len(values))}
-    if binary:
-        return Response(values.astype("<f4").tobytes(), media_type=F32_MEDIA_TYPE, headers=headers)
-    body = ShdfValues(
-        mesh_id=mesh_id,
-        method=chosen,  # type: ignore[arg-type]
-        seed=seed,
-        model_version=engine.model_version if chosen == "neural" else None,
-        faces=len(values),
-        values=[None if np.isnan(v) else float(v) for v in values.tolist()],
-    )
-    return JSONResponse(body.model_dump(), headers=headers)
+    return shdf_response(mesh_id, chosen, seed, engine.shdf.model_version, values, binary=binary)
 
 
 @router.get(
@@ -184,7 +171,7 @@ async def get_geometry(engine: EngineDep, mesh_id: MeshId) -> Response:
     so a viewer can colour them by per-input-face labels or ShDF values."""
     from neural_shdf.export import display_geometry
 
-    mesh = await engine.io(engine.load, mesh_id)
+    mesh = await engine.io(engine.meshes.load, mesh_id)
     body = await engine.io(display_geometry, mesh)
     headers = {"X-Mesh-Id": mesh_id, "X-Faces": str(mesh.input_face_count)}
     return Response(body, media_type=F32_MEDIA_TYPE, headers=headers)

@@ -7,6 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Form, Query, Response
 
 from neural_shdf.api.engine import Engine
+from neural_shdf.api.responses import GLB_MEDIA_TYPE, glb_response, segmentation_response
 from neural_shdf.api.routes.deps import EngineDep, error_responses
 from neural_shdf.api.routes.meshes import MeshId, ingest
 from neural_shdf.api.schemas import (
@@ -16,10 +17,10 @@ from neural_shdf.api.schemas import (
     SegmentOptions,
     SegmentRequest,
 )
+from neural_shdf.segment import SegmentParams
 
 router = APIRouter(prefix="/v1", tags=["segmentation"])
 
-GLB_MEDIA_TYPE = "model/gltf-binary"
 _SEGMENT_ERRORS = {
     202: {
         "model": Job,
@@ -30,11 +31,12 @@ _SEGMENT_ERRORS = {
 }
 
 
-async def segment_response(engine: Engine, mesh_id: str, options: SegmentOptions) -> Response:
-    result, timings = await engine.segmentation(mesh_id, options)
+async def segment_response(
+    engine: Engine, mesh_id: str, options: SegmentOptions, params: SegmentParams
+) -> Response:
     method = engine.method_of(options.method)
-    body = engine.segmentation_body(mesh_id, method, options, result, timings)
-    return Response(body, media_type="application/json")
+    result, timings = await engine.segmentations.get(mesh_id, method, params)
+    return segmentation_response(mesh_id, method, options.labels_format, result, timings)
 
 
 @router.post(
@@ -46,7 +48,8 @@ async def segment_response(engine: Engine, mesh_id: str, options: SegmentOptions
 )
 async def segment_mesh(engine: EngineDep, request: SegmentRequest) -> Response:
     """Part label per input face from the cached ShDF; only the partitioning runs."""
-    return await segment_response(engine, request.mesh_id, request)
+    params = request.segment_params()
+    return await segment_response(engine, request.mesh_id, request, params)
 
 
 @router.post(
@@ -61,20 +64,19 @@ async def segment_file(
     form: Annotated[SegmentFileForm, Form(media_type="multipart/form-data")],
 ) -> Response:
     """Store the mesh, compute (or reuse) its ShDF and segment it."""
+    params = form.segment_params()  # bad parameters fail before the upload is parsed
     meta, _ = await ingest(engine, form.file, form.file_type)
-    return await segment_response(engine, meta["mesh_id"], form)
+    return await segment_response(engine, meta["mesh_id"], form, params)
 
 
 def _glb_route(style: str):  # noqa: ANN202 - FastAPI endpoint factory
     async def endpoint(
         engine: EngineDep, mesh_id: MeshId, options: Annotated[SegmentOptions, Query()]
     ) -> Response:
-        glb = await engine.export_glb(mesh_id, options, style)
-        return Response(
-            glb,
-            media_type=GLB_MEDIA_TYPE,
-            headers={"Content-Disposition": f'attachment; filename="{mesh_id[:16]}-{style}.glb"'},
-        )
+        params = options.segment_params()
+        method = engine.method_of(options.method)
+        glb = await engine.segmentations.glb(mesh_id, method, params, style)
+        return glb_response(glb, mesh_id, style)
 
     return endpoint
 

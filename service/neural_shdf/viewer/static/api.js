@@ -122,15 +122,23 @@ export function decodeLabels(body) {
   return Int32Array.from(new Type(aligned.buffer, 0, bytes.length / Type.BYTES_PER_ELEMENT));
 }
 
-/** POST /v1/segment; `signal` aborts a request a newer one superseded. */
-export async function segment(request, signal) {
-  const response = await checked(await fetch('/v1/segment', {
-    method: 'POST',
-    headers: { 'content-type': 'application/json' },
-    body: JSON.stringify({ ...request, labels_format: 'base64' }),
-    signal,
-  }));
-  return response.json();
+/**
+ * POST /v1/segment; `signal` aborts a request a newer one superseded. When the service must
+ * first (re)compute the ShDF of a large mesh it answers with a job: wait for it, then ask again.
+ */
+export async function segment(request, signal, onJobProgress = () => {}) {
+  for (;;) {
+    const response = await checked(await fetch('/v1/segment', {
+      method: 'POST',
+      headers: { 'content-type': 'application/json' },
+      body: JSON.stringify({ ...request, labels_format: 'base64' }),
+      signal,
+    }));
+    const body = await response.json();
+    if (response.status !== 202) return body;
+    await waitForJob(body, onJobProgress);
+    signal.throwIfAborted();
+  }
 }
 
 /** Query string of the GLB routes for the same segmentation parameters. */

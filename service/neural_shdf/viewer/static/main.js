@@ -3,6 +3,7 @@ import * as api from './api.js';
 import { MeshView, heatGradient, parseHex } from './scene.js';
 
 const config = JSON.parse(document.getElementById('viewer-config').textContent);
+const UNLABELED = parseHex(config.unlabeledColor);
 const $ = (id) => document.getElementById(id);
 const SPECULATIVE_DELAY_MS = 150;  // a slider held still this long while dragging re-segments
 const CLIENT_CACHE_SIZE = 24;
@@ -14,13 +15,15 @@ const state = {
   geometry: null,
   shdf: null,
   labels: null,       // Int32Array per input face
-  body: null,         // the last Segmentation (labels decoded separately)
+  body: null,         // the Segmentation on screen (labels decoded separately)
+  shownRequest: null, // the request that produced it
   palette: null,      // Uint8Array RGB per label
   seq: 0,             // number of the newest segmentation request
   controller: null,   // AbortController of the request in flight
   inflightKey: null,
   releaseTime: null,  // when the slider behind the request in flight was released
-  speculative: null,
+  speculative: null,  // timer of the request sent when a dragged slider is held still
+  dragPending: false, // a dragged value waits for the request in flight
   cache: new Map(),   // request key -> Segmentation, most recent last
   view: 'parts',
   selected: -1,
@@ -109,7 +112,8 @@ async function openFile(file) {
     }
     showProgress('Loading the geometry', null);
     setStatus('loading');
-    await loadMesh(meta, method);
+    // The service keeps the name of the first upload of this geometry; show this file's.
+    await loadMesh({ ...meta, filename: file.name }, method);
   } catch (error) {
     hideProgress();
     setStatus(state.meshId ? 'ready' : 'error');
@@ -120,7 +124,7 @@ async function openFile(file) {
 async function loadMesh(meta, method) {
   const [geometry, shdf] = await Promise.all([api.getGeometry(meta.mesh_id), fetchShdf(meta.mesh_id, method)]);
   Object.assign(state, {
-    meshId: meta.mesh_id, meta, method, geometry, shdf, labels: null, body: null,
+    meshId: meta.mesh_id, meta, method, geometry, shdf, labels: null, body: null, shownRequest: null,
     selected: -1, hidden: new Set(), isolated: -1,
   });
   state.cache.clear();
@@ -184,6 +188,12 @@ async function resegment({ reason, releaseTime = null }) {
     state.releaseTime = start;
     return;
   }
+  if (reason === 'drag' && state.inflightKey) {
+    // While dragging, one request at a time: the newest value goes when this one is back.
+    state.dragPending = true;
+    return;
+  }
+  state.dragPending = false;
   const seq = ++state.seq;
   state.controller?.abort();
   state.controller = new AbortController();
@@ -193,18 +203,20 @@ async function resegment({ reason, releaseTime = null }) {
   setStatus('segmenting');
   try {
     let body = state.cache.get(key);
+    const fromPageCache = Boolean(body);
     const fetchStart = performance.now();
     if (body) {
       state.cache.delete(key);  // re-inserted below as the most recent
     } else {
-      body = await api.segment(request, state.controller.signal);
+      body = await api.segment(request, state.controller.signal, (f) => showProgress('Computing the ShDF', f));
+      hideProgress();
     }
     if (seq !== state.seq) return;  // superseded while it ran
     const fetchMs = performance.now() - fetchStart;
     state.cache.set(key, body);
     if (state.cache.size > CLIENT_CACHE_SIZE) state.cache.delete(state.cache.keys().next().value);
     const paintStart = performance.now();
-    applySegmentation(body);
+    applySegmentation(body, request);
     const paintMs = performance.now() - paintStart;
     const shown = await view.presented();
     if (seq !== state.seq) return;
@@ -216,26 +228,34 @@ async function resegment({ reason, releaseTime = null }) {
       paintMs,
       serverMs: body.timings.total_ms,
       segmentMs: body.timings.segment_ms,
-      cached: fetchMs < 1 || body.timings.segmentation_cached,
+      cached: fromPageCache,
     };
     state.inflightKey = null;
-    $('seg-status').textContent = `${body.part_count} parts · ${Math.round(detail.totalMs)} ms (service ${Math.round(detail.serverMs)} ms)`;
+    state.controller = null;
+    if (state.dragPending) {
+      state.dragPending = false;
+      resegment({ reason: 'drag' });
+    }
+    const service = fromPageCache ? 'from this page' : `service ${Math.round(detail.serverMs)} ms`;
+    $('seg-status').textContent = `${body.part_count} parts · ${Math.round(detail.totalMs)} ms (${service})`;
     setStatus('ready');
     window.dispatchEvent(new CustomEvent('shdf:segmented', { detail }));
   } catch (error) {
     if (seq !== state.seq || error.name === 'AbortError') return;
     state.inflightKey = null;
+    state.controller = null;
+    state.dragPending = false;
     setStatus('ready');
     $('seg-status').textContent = 'segmentation failed';
     showError(error, 'segmentation');
   }
 }
 
-function applySegmentation(body) {
+function applySegmentation(body, request) {
   const labels = api.decodeLabels(body);
   const palette = new Uint8Array(body.parts.length * 3);
   body.parts.forEach((part, i) => palette.set(parseHex(part.color), i * 3));
-  Object.assign(state, { labels, body, palette });
+  Object.assign(state, { labels, body, palette, shownRequest: request });
   if (state.selected >= body.part_count) state.selected = -1;
   state.hidden = new Set([...state.hidden].filter((label) => label < body.part_count));
   if (state.isolated >= body.part_count) state.isolated = -1;
@@ -248,7 +268,7 @@ function applySegmentation(body) {
 function paint() {
   if (!view.mesh) return;
   if (state.view === 'shdf' && state.shdf) view.paintShdf(state.shdf);
-  else if (state.view === 'parts' && state.labels) view.paintParts(state.labels, state.palette, state.selected);
+  else if (state.view === 'parts' && state.labels) view.paintParts(state.labels, state.palette, UNLABELED, state.selected);
   else view.paintPlain();
   $('shdf-legend').hidden = state.view !== 'shdf';
   view.render();
@@ -344,10 +364,10 @@ function saveBlob(blob, name) {
 const stem = () => (state.meta.filename || state.meshId.slice(0, 16)).replace(/\.[^.]*$/, '');
 
 async function downloadGlb(style) {
-  const request = state.body ? JSON.parse(requestKey(currentRequest())) : null;
-  if (!request) return;
+  if (!state.shownRequest) return;
   try {
-    const url = `/v1/meshes/${state.meshId}/segmentation/${style}.glb?${api.segmentQuery(request)}`;
+    const query = api.segmentQuery(state.shownRequest);
+    const url = `/v1/meshes/${state.meshId}/segmentation/${style}.glb?${query}`;
     const response = await fetch(url);
     if (!response.ok) {
       const text = await response.text();
@@ -380,7 +400,17 @@ function showValues() {
   $('parts').closest('label').title = metis ? '' : 'METIS only: the graph cut finds the part count itself';
 }
 
+const CHOICE_NAMES = {
+  neural: 'neural', exact: 'exact (ray cast)', graphcut: 'graph cut', metis: 'METIS (exact part count)',
+};
+
+function fillSelect(select, values) {
+  select.replaceChildren(...values.map((value) => new Option(CHOICE_NAMES[value] || value, value)));
+}
+
 function setUpControls() {
+  fillSelect($('method'), config.methods);
+  fillSelect($('partitioner'), config.partitioners);
   $('clusters').max = String(config.maxClusters);
   $('clusters').value = String(config.defaultClusters);
   $('smoothing').value = String(config.defaultSmoothing);

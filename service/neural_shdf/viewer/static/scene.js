@@ -2,7 +2,6 @@
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
-const UNLABELED = [64, 64, 64];
 const NO_VALUE = [110, 110, 110];
 const PLAIN = [200, 200, 200];
 const DIM = 0.3;
@@ -133,14 +132,17 @@ export class MeshView {
     this.controls.update();
   }
 
-  /** Colour every triangle by part: `labels` per input face, `palette` RGB bytes per label. */
-  paintParts(labels, palette, selected = -1) {
+  /**
+   * Colour every triangle by part: `labels` per input face, `palette` RGB bytes per label,
+   * `unlabeled` RGB of a negative label; all but the `selected` part dimmed when one is.
+   */
+  paintParts(labels, palette, unlabeled, selected = -1) {
     const color = this.mesh.geometry.getAttribute('color');
     const out = color.array;
     const origin = this.faceOrigin;
     for (let t = 0; t < origin.length; t++) {
       const label = labels[origin[t]];
-      let r = UNLABELED[0], g = UNLABELED[1], b = UNLABELED[2];
+      let r = unlabeled[0], g = unlabeled[1], b = unlabeled[2];
       if (label >= 0) { r = palette[label * 3]; g = palette[label * 3 + 1]; b = palette[label * 3 + 2]; }
       if (selected >= 0 && label !== selected) { r *= DIM; g *= DIM; b *= DIM; }
       const o = t * 9;

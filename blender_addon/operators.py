@@ -1,0 +1,272 @@
+""" "Segment Selected": the evaluated meshes go to the service on a worker thread while
+Blender stays responsive (a modal operator polls the task on a timer; scripts and
+background mode wait for the same task); labels come back as attributes and materials."""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+
+import bpy
+import numpy as np
+
+from . import apply_parts, mesh_payload, service
+from .properties import DIGEST_KEY, MESH_ID_KEY, PARTS_KEY, SERVER_KEY
+
+
+@dataclass
+class ObjectRequest:
+    """What one object sends, prepared on the main thread (bpy is not thread-safe)."""
+
+    object_name: str
+    payload: bytes
+    digest: str
+    polygons: int
+    known_mesh_id: str | None
+    #: The evaluated mesh (modifiers applied) when modifiers change the topology: the labels
+    #: are written to a new object holding it. None: they go to the object's own mesh.
+    evaluated_mesh: bpy.types.Mesh | None = None
+
+
+@dataclass
+class SegmentTask:
+    """Requests of several objects, run one after the other on a worker thread."""
+
+    server_url: str
+    options: dict[str, object]
+    requests: list[ObjectRequest]
+    cancel: threading.Event = field(default_factory=threading.Event)
+    outcomes: dict[str, service.Outcome] = field(default_factory=dict)
+    error: str | None = None
+    cancelled: bool = False
+    progress: float = 0.0
+    status: str = "starting"
+    seconds: float = 0.0
+    thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        self.thread = threading.Thread(target=self._work, name="neural-shdf", daemon=True)
+        self.thread.start()
+
+    @property
+    def done(self) -> bool:
+        return self.thread is not None and not self.thread.is_alive()
+
+    def _work(self) -> None:
+        started = time.perf_counter()
+        try:
+            session = service.Session(self.server_url, cancel=self.cancel)
+            for index, request in enumerate(self.requests):
+
+                def report(fraction: float, status: str, index: int = index) -> None:
+                    self.progress = (index + min(max(fraction, 0.0), 1.0)) / len(self.requests)
+                    self.status = f"{self.requests[index].object_name}: {status}"
+
+                self.outcomes[request.object_name] = session.segment(
+                    request.payload,
+                    f"{request.object_name}.ply",
+                    self.options,
+                    report,
+                    mesh_id=request.known_mesh_id,
+                )
+        except service.Cancelled:
+            self.cancelled = True
+        except service.ServiceError as error:
+            self.error = error.message
+        except Exception as error:  # noqa: BLE001 - shown to the user, never a traceback
+            self.error = f"unexpected {type(error).__name__}: {error}"
+        self.seconds = time.perf_counter() - started
+
+
+def selected_meshes(context: bpy.types.Context) -> list[bpy.types.Object]:
+    return [obj for obj in context.selected_objects if obj.type == "MESH"]
+
+
+def prepare(context: bpy.types.Context, settings) -> SegmentTask:  # noqa: ANN001
+    """The task for the selected mesh objects: evaluated meshes (modifiers applied) as PLY."""
+    depsgraph = context.evaluated_depsgraph_get()
+    server = settings.server_url.strip().rstrip("/")
+    requests = []
+    for obj in selected_meshes(context):
+        evaluated_object = obj.evaluated_get(depsgraph)
+        evaluated = evaluated_object.to_mesh()
+        try:
+            scale = tuple(obj.matrix_world.to_scale())
+            arrays = mesh_payload.mesh_arrays(evaluated, scale)
+            if arrays.polygon_count == 0:
+                raise service.ServiceError(f"{obj.name!r} has no polygons to segment")
+            same = arrays.same_topology(mesh_payload.mesh_arrays(obj.data))
+            payload = mesh_payload.polygon_ply(arrays)
+        finally:
+            evaluated_object.to_mesh_clear()
+        digest = mesh_payload.payload_digest(payload)
+        known = obj.get(MESH_ID_KEY) if obj.get(DIGEST_KEY) == digest else None
+        if obj.get(SERVER_KEY) != server:
+            known = None
+        requests.append(
+            ObjectRequest(
+                object_name=obj.name,
+                payload=payload,
+                digest=digest,
+                polygons=arrays.polygon_count,
+                known_mesh_id=known,
+                evaluated_mesh=None
+                if same
+                else bpy.data.meshes.new_from_object(
+                    evaluated_object, preserve_all_data_layers=True, depsgraph=depsgraph
+                ),
+            )
+        )
+    return SegmentTask(server, settings.options(), requests)
+
+
+def target_object(context: bpy.types.Context, obj: bpy.types.Object, request: ObjectRequest):  # noqa: ANN201
+    """Where the labels go: the object itself, or "<name> segmented" holding the evaluated
+    mesh when modifiers change the topology (the source object is kept as it is, hidden)."""
+    if request.evaluated_mesh is None:
+        return obj
+    name = f"{obj.name} segmented"
+    target = bpy.data.objects.get(name)
+    if target is None:
+        target = bpy.data.objects.new(name, request.evaluated_mesh)
+        for collection in obj.users_collection or [context.scene.collection]:
+            collection.objects.link(target)
+    else:
+        old = target.data
+        target.data = request.evaluated_mesh
+        if old is not None and old.users == 0:
+            bpy.data.meshes.remove(old)
+    target.matrix_world = obj.matrix_world.copy()
+    obj.hide_set(True)  # the result takes its place; the source stays, hidden
+    return target
+
+
+def apply(context: bpy.types.Context, task: SegmentTask, settings) -> list[str]:  # noqa: ANN001
+    """Write every outcome back (main thread); returns one summary line per object."""
+    lines = []
+    for request in task.requests:
+        obj = bpy.data.objects.get(request.object_name)
+        outcome = task.outcomes.get(request.object_name)
+        if obj is None or outcome is None:
+            continue
+        obj[MESH_ID_KEY] = outcome.mesh_id
+        obj[DIGEST_KEY] = request.digest
+        obj[SERVER_KEY] = task.server_url
+        obj[PARTS_KEY] = outcome.part_count
+        target = target_object(context, obj, request)
+        labels = np.frombuffer(outcome.labels, dtype=np.int32)
+        apply_parts.write_labels(target.data, labels, outcome.part_count)
+        if settings.assign_materials or settings.split_parts:
+            apply_parts.assign_materials(target.data, labels, outcome.part_count)
+        if settings.split_parts:
+            apply_parts.split_parts(target, outcome.part_count)
+        sent = "uploaded" if outcome.uploaded else "by mesh id"
+        lines.append(f"{obj.name}: {outcome.part_count} parts ({sent})")
+    return lines
+
+
+def _show(context: bpy.types.Context, task: SegmentTask | None) -> None:
+    state = context.window_manager.neural_shdf_state
+    state.running = task is not None and not task.done
+    state.progress = task.progress if task else 0.0
+    state.status = task.status if task else ""
+    for window in context.window_manager.windows:
+        for area in window.screen.areas:
+            if area.type == "VIEW_3D":
+                area.tag_redraw()
+
+
+class SegmentSelectedOperator(bpy.types.Operator):
+    """Split the selected meshes into parts with the neural-shdf service"""
+
+    bl_idname = "neural_shdf.segment_selected"
+    bl_label = "Segment Selected"
+    bl_options = {"REGISTER", "UNDO"}
+
+    _task: SegmentTask | None = None
+    _timer = None
+
+    @classmethod
+    def poll(cls, context: bpy.types.Context) -> bool:
+        if context.mode != "OBJECT":
+            cls.poll_message_set("Switch to Object Mode")
+            return False
+        if context.window_manager.neural_shdf_state.running:
+            cls.poll_message_set("A segmentation is running")
+            return False
+        if not selected_meshes(context):
+            cls.poll_message_set("Select one or more mesh objects")
+            return False
+        return True
+
+    def _start(self, context: bpy.types.Context) -> bool:
+        try:
+            self._task = prepare(context, context.scene.neural_shdf)
+        except (service.ServiceError, ValueError) as error:
+            self.report({"ERROR"}, f"neural-shdf: {error}")
+            return False
+        self._task.start()
+        _show(context, self._task)
+        return True
+
+    def _finish(self, context: bpy.types.Context) -> set[str]:
+        task = self._task
+        _show(context, None)
+        if task is None:
+            return {"CANCELLED"}
+        if task.cancelled:
+            self.report({"WARNING"}, "neural-shdf: cancelled")
+            return {"CANCELLED"}
+        if task.error:
+            self.report({"ERROR"}, f"neural-shdf: {task.error}")
+            return {"CANCELLED"}
+        try:
+            lines = apply(context, task, context.scene.neural_shdf)
+        except Exception as error:  # noqa: BLE001 - shown to the user, never a traceback
+            self.report({"ERROR"}, f"neural-shdf: could not write the parts back: {error}")
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"neural-shdf: {'; '.join(lines)} in {task.seconds:.2f} s")
+        return {"FINISHED"}
+
+    def invoke(self, context: bpy.types.Context, event: bpy.types.Event) -> set[str]:
+        """Interactive: start the worker, then poll it on a timer (Esc cancels)."""
+        if not self._start(context):
+            return {"CANCELLED"}
+        window_manager = context.window_manager
+        self._timer = window_manager.event_timer_add(0.1, window=context.window)
+        window_manager.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context: bpy.types.Context, event: bpy.types.Event) -> set[str]:
+        if self._task is None:
+            return {"CANCELLED"}
+        if event.type == "ESC":
+            # Stop at once; the worker stops at its next step and its answer is dropped.
+            self._task.cancel.set()
+            self._task.cancelled = True
+            return self._stop(context)
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}
+        _show(context, self._task)
+        context.workspace.status_text_set(
+            f"neural-shdf: {self._task.status} ({self._task.progress:.0%}), Esc to cancel"
+        )
+        return self._stop(context) if self._task.done else {"PASS_THROUGH"}
+
+    def _stop(self, context: bpy.types.Context) -> set[str]:
+        context.window_manager.event_timer_remove(self._timer)
+        context.workspace.status_text_set(None)
+        return self._finish(context)
+
+    def execute(self, context: bpy.types.Context) -> set[str]:
+        """Scripts and background mode: the same worker, waited for here."""
+        if not self._start(context):
+            return {"CANCELLED"}
+        assert self._task is not None and self._task.thread is not None
+        while self._task.thread.is_alive():
+            self._task.thread.join(0.05)
+        return self._finish(context)
+
+
+CLASSES = (SegmentSelectedOperator,)

@@ -1,0 +1,107 @@
+"""The panel's settings (saved with the scene) and the running task's state (not saved)."""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
+
+#: Custom properties an object keeps about its last segmentation.
+MESH_ID_KEY = "neural_shdf_mesh_id"
+DIGEST_KEY = "neural_shdf_digest"
+SERVER_KEY = "neural_shdf_server"
+PARTS_KEY = "neural_shdf_part_count"
+
+
+class NeuralShdfSettings(bpy.types.PropertyGroup):
+    """Where the service is and how to segment."""
+
+    server_url: StringProperty(  # type: ignore[valid-type]
+        name="Server",
+        description="Base URL of the neural-shdf service (neural-shdf serve)",
+        default="http://127.0.0.1:8000",
+    )
+    method: EnumProperty(  # type: ignore[valid-type]
+        name="Method",
+        description="How the Shape Diameter Function is computed",
+        items=[
+            ("default", "Service Default", "The method the service uses when none is named"),
+            ("neural", "Neural", "Predicted by the graph network (fast)"),
+            ("exact", "Exact", "Ray-cast reference"),
+        ],
+        default="default",
+    )
+    partitioner: EnumProperty(  # type: ignore[valid-type]
+        name="Partitioner",
+        items=[
+            ("graphcut", "Graph cut", "As many parts as the shape suggests"),
+            ("metis", "METIS", "Exactly the number of parts set below"),
+        ],
+        default="graphcut",
+    )
+    clusters: IntProperty(  # type: ignore[valid-type]
+        name="Clusters",
+        description="Gaussian mixture components (level of detail); 0: chosen per mesh",
+        default=9,
+        min=0,
+        max=32,
+    )
+    smoothing: FloatProperty(  # type: ignore[valid-type]
+        name="Smoothing",
+        description="Smoothness weight of the graph cut (higher: fewer, smoother parts)",
+        default=0.12,
+        min=0.0,
+        max=100.0,
+        soft_max=2.0,
+    )
+    parts: IntProperty(  # type: ignore[valid-type]
+        name="Parts",
+        description="Number of parts (METIS)",
+        default=4,
+        min=1,
+        max=10000,
+        soft_max=64,
+    )
+    assign_materials: BoolProperty(  # type: ignore[valid-type]
+        name="Material per Part",
+        description="Replace the object's materials by one material per part",
+        default=True,
+    )
+    split_parts: BoolProperty(  # type: ignore[valid-type]
+        name="Split into Objects",
+        description="Also make one object per part (in a new collection; the source is hidden)",
+        default=False,
+    )
+
+    def options(self) -> dict[str, object]:
+        """The request's segmentation options."""
+        options: dict[str, object] = {
+            "partitioner": self.partitioner,
+            "clusters": self.clusters,
+            "smoothing": round(self.smoothing, 6),
+        }
+        if self.method != "default":
+            options["method"] = self.method
+        if self.partitioner == "metis":
+            options["parts"] = self.parts
+        return options
+
+
+class NeuralShdfState(bpy.types.PropertyGroup):
+    """Progress of the running segmentation, shown by the panel."""
+
+    running: BoolProperty(default=False)  # type: ignore[valid-type]
+    progress: FloatProperty(default=0.0, min=0.0, max=1.0, subtype="FACTOR")  # type: ignore[valid-type]
+    status: StringProperty(default="")  # type: ignore[valid-type]
+
+
+CLASSES = (NeuralShdfSettings, NeuralShdfState)
+
+
+def register() -> None:
+    bpy.types.Scene.neural_shdf = bpy.props.PointerProperty(type=NeuralShdfSettings)
+    bpy.types.WindowManager.neural_shdf_state = bpy.props.PointerProperty(type=NeuralShdfState)
+
+
+def unregister() -> None:
+    del bpy.types.WindowManager.neural_shdf_state
+    del bpy.types.Scene.neural_shdf

@@ -1,0 +1,208 @@
+"""Segmentations of stored meshes: computed once per (mesh, ShDF, parameters), cached."""
+
+from __future__ import annotations
+
+import base64
+import functools
+import hashlib
+import json
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf import __version__
+from neural_shdf.api.cache import ResultCache
+from neural_shdf.api.mesh_store import MeshStore, mesh_missing
+from neural_shdf.api.metrics import Metrics
+from neural_shdf.api.shdf_service import ShdfService
+from neural_shdf.api.tasks import TaskRunner
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.segment import SegmentParams
+
+
+@dataclass
+class SegmentResult:
+    """A segmentation, stored in the cache as arrays."""
+
+    labels: NDArray[np.int32]  # per input face
+    triangle_labels: NDArray[np.int32]  # per triangle
+    part_faces: NDArray[np.int64]
+    part_area: NDArray[np.float64]
+    part_mean_shdf: NDArray[np.float64]
+    segment_seconds: float
+
+    @functools.cached_property
+    def labels_json(self) -> str:
+        """The labels as a JSON array, encoded once per result (the hot path's main cost)."""
+        return json.dumps(self.labels.tolist(), separators=(",", ":"))
+
+    @functools.cached_property
+    def labels_base64(self) -> tuple[str, str]:
+        """(base64 of the labels as the narrowest little-endian integers, their dtype name)."""
+        top = int(self.labels.max()) if len(self.labels) else 0
+        dtype = "int8" if top < 2**7 else "int16" if top < 2**15 else "int32"
+        packed = self.labels.astype(np.dtype(dtype).newbyteorder("<")).tobytes()
+        return base64.b64encode(packed).decode(), dtype
+
+    def arrays(self) -> dict[str, NDArray]:
+        data = asdict(self)
+        data["segment_seconds"] = np.array(self.segment_seconds)
+        return data
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, NDArray]) -> SegmentResult:
+        return cls(
+            labels=arrays["labels"],
+            triangle_labels=arrays["triangle_labels"],
+            part_faces=arrays["part_faces"],
+            part_area=arrays["part_area"],
+            part_mean_shdf=arrays["part_mean_shdf"],
+            segment_seconds=float(arrays["segment_seconds"]),
+        )
+
+
+def summarize(
+    mesh: TriangleMesh, triangle_labels: NDArray, shdf: NDArray, seconds: float
+) -> SegmentResult:
+    """Input-face labels (the library's mapping) and per-part faces, area and
+    area-weighted mean ShDF."""
+    labels = mesh.labels_to_input_faces(triangle_labels)
+    _, area = mesh.normals_and_areas
+    part_count = int(triangle_labels.max()) + 1 if len(triangle_labels) else 0
+    tri = np.asarray(triangle_labels, dtype=np.int64)
+    part_area = np.bincount(tri, weights=area, minlength=part_count)
+    weighted = np.bincount(tri, weights=area * shdf, minlength=part_count)
+    mean = np.divide(weighted, part_area, out=np.zeros(part_count), where=part_area > 0)
+    assigned = labels[labels >= 0]
+    part_faces = np.bincount(assigned, minlength=part_count)
+    return SegmentResult(
+        labels=labels.astype(np.int32),
+        triangle_labels=tri.astype(np.int32),
+        part_faces=part_faces.astype(np.int64),
+        part_area=part_area,
+        part_mean_shdf=mean,
+        segment_seconds=seconds,
+    )
+
+
+def params_digest(params: SegmentParams) -> str:
+    """Stable hash of the segmentation parameters (the cache key's parameter part)."""
+    return hashlib.sha256(json.dumps(asdict(params), sort_keys=True).encode()).hexdigest()[:20]
+
+
+class SegmentationService:
+    """Segmentations of stored meshes from their cached ShDF, deduplicated."""
+
+    def __init__(
+        self,
+        cache: ResultCache,
+        metrics: Metrics,
+        tasks: TaskRunner,
+        meshes: MeshStore,
+        shdf: ShdfService,
+    ) -> None:
+        self.cache = cache
+        self.metrics = metrics
+        self.tasks = tasks
+        self.meshes = meshes
+        self.shdf = shdf
+
+    def key(self, mesh_id: str, method: str, params: SegmentParams) -> str:
+        """The cache key: mesh, code version, the ShDF it starts from, the parameters."""
+        shdf = f"{self.shdf.version(method)}:{params.seed}"
+        return f"{mesh_id}:seg:{__version__}:{shdf}:{params_digest(params)}"
+
+    def cached(self, key: str) -> SegmentResult | None:
+        """The cached segmentation (memory, then the shared cache), or None."""
+        result = self.cache.recall(key)
+        if result is None:
+            arrays = self.cache.get_arrays(key)
+            if arrays is not None:
+                try:
+                    result = SegmentResult.from_arrays(arrays)
+                except (KeyError, ValueError):
+                    result = None
+                if result is not None:
+                    self.cache.remember(key, result)
+        self.metrics.count_cache("segmentation", hit=result is not None)
+        return result
+
+    def _store(self, key: str, mesh_id: str, result: SegmentResult) -> None:
+        self.cache.put_arrays(key, result.arrays(), group=mesh_id)
+        self.cache.remember(key, result)
+
+    def _compute(
+        self, mesh_id: str, mesh: TriangleMesh, shdf: NDArray, params: SegmentParams
+    ) -> SegmentResult:
+        from neural_shdf.pipeline import segment_mesh
+
+        graph = self.meshes.graph(mesh_id, mesh)
+        start = time.perf_counter()
+        triangle_labels = segment_mesh(mesh, shdf, params, graph=graph)
+        seconds = time.perf_counter() - start
+        self.metrics.segmentations.inc()
+        self.metrics.segment_seconds.observe(seconds)
+        return summarize(mesh, np.asarray(triangle_labels), shdf, seconds)
+
+    async def _recall_fresh(self, mesh_id: str, key: str) -> SegmentResult | None:
+        """This process's memory of the result, unless the mesh was deleted meanwhile."""
+        result = self.cache.recall(key)
+        if result is None:
+            return None
+        stored = (
+            self.meshes.still_stored(mesh_id)
+            if self.cache.backend.local
+            else await self.tasks.io(self.meshes.still_stored, mesh_id)
+        )
+        if not stored:
+            raise mesh_missing(mesh_id)
+        self.metrics.count_cache("segmentation", hit=True)
+        return result
+
+    async def get(
+        self, mesh_id: str, method: str, params: SegmentParams
+    ) -> tuple[SegmentResult, dict[str, Any]]:
+        """Segment a stored mesh (cached result, else from the cached ShDF, whose seed is
+        ``params.seed``); returns the result and where the time went."""
+        start = time.perf_counter()
+        key = self.key(mesh_id, method, params)
+        result = await self._recall_fresh(mesh_id, key)
+        if result is None:
+            result = await self.tasks.io(self.cached, key)
+        shdf_cached, shdf_seconds, segmentation_cached = True, 0.0, result is not None
+        if result is None:
+            mesh = await self.tasks.io(self.meshes.load, mesh_id)
+            outcome = await self.shdf.get(mesh_id, mesh, method, params.seed)
+            shdf_cached, shdf_seconds = outcome.cached, outcome.seconds
+            result, segmentation_cached = await self.tasks.with_timeout(
+                self.tasks.single_flight(
+                    key,
+                    functools.partial(
+                        self.tasks.compute_once,
+                        key,
+                        functools.partial(self.cached, key),
+                        functools.partial(self._compute, mesh_id, mesh, outcome.values, params),
+                        functools.partial(self._store, key, mesh_id),
+                    ),
+                )
+            )
+        timings = {
+            "shdf_ms": round(shdf_seconds * 1000, 3),
+            "segment_ms": 0.0 if segmentation_cached else round(result.segment_seconds * 1000, 3),
+            "total_ms": round((time.perf_counter() - start) * 1000, 3),
+            "shdf_cached": shdf_cached,
+            "segmentation_cached": segmentation_cached,
+        }
+        return result, timings
+
+    async def glb(self, mesh_id: str, method: str, params: SegmentParams, style: str) -> bytes:
+        """The segmentation as a GLB: ``colored`` (vertex colours) or ``parts`` (a node each)."""
+        from neural_shdf.export import colored_glb, parts_glb
+
+        result, _ = await self.get(mesh_id, method, params)
+        mesh = await self.tasks.io(self.meshes.load, mesh_id)
+        writer = colored_glb if style == "colored" else parts_glb
+        return await self.tasks.run(writer, mesh, result.triangle_labels.astype(np.int64))

@@ -1,0 +1,312 @@
+"""The ShDF of stored meshes: computed once per (mesh, method, model, seed), cached,
+and run as a pollable job when the mesh is large."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import functools
+import hashlib
+import inspect
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf import __version__
+from neural_shdf.api.cache import Lease, ResultCache
+from neural_shdf.api.errors import ApiError, error_dict, not_found
+from neural_shdf.api.jobs import JobAccepted, JobStore, public_job, worker_name
+from neural_shdf.api.mesh_store import MeshStore
+from neural_shdf.api.metrics import Metrics
+from neural_shdf.api.settings import Settings
+from neural_shdf.api.tasks import TaskRunner
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.segment.params import check_seed
+
+logger = logging.getLogger(__name__)
+
+
+def model_path(settings: Settings) -> Path:
+    """The neural model file: the setting, else the library's choice (env or packaged)."""
+    from neural_shdf.neural.inference import model_path as library_model_path
+
+    return settings.model.expanduser().resolve() if settings.model else library_model_path()
+
+
+def model_version(path: Path) -> str | None:
+    """Short hash of the model card (which holds the weights' checksum and feature version);
+    of the weights when there is no card; None when the model is absent."""
+    card = path.with_suffix(".json")
+    if card.is_file():
+        return hashlib.sha256(card.read_bytes()).hexdigest()[:16]
+    if path.is_file():
+        from neural_shdf.neural.inference import file_sha256
+
+        return file_sha256(path)[:16]
+    return None
+
+
+def shdf_version(method: str, model_version: str | None) -> str:
+    """What a cached ShDF depends on besides the mesh: the model and how it is applied."""
+    if method == "neural":
+        from neural_shdf.neural.inference import DEFAULT_SAMPLE_SETS
+
+        return f"neural-{model_version or 'none'}-sets{DEFAULT_SAMPLE_SETS}"
+    return f"exact-{__version__}"
+
+
+def shdf_key(mesh_id: str, method: str, seed: int, model_version: str | None) -> str:
+    """Cache key of a mesh's ShDF (shared by every service replica and batch worker)."""
+    return f"{mesh_id}:shdf:{shdf_version(method, model_version)}:{seed}"
+
+
+def _accepts_model_path() -> bool:
+    from neural_shdf.pipeline import compute_shdf
+
+    return "model_path" in inspect.signature(compute_shdf).parameters
+
+
+@dataclass(frozen=True)
+class ShdfOutcome:
+    """A per-triangle ShDF and how it was obtained."""
+
+    values: NDArray[np.float64]
+    cached: bool
+    seconds: float
+
+
+class ShdfService:
+    """Per-triangle ShDF of stored meshes over the shared cache, deduplicated."""
+
+    def __init__(
+        self,
+        settings: Settings,
+        cache: ResultCache,
+        metrics: Metrics,
+        tasks: TaskRunner,
+        meshes: MeshStore,
+        jobs: JobStore,
+    ) -> None:
+        self.settings = settings
+        self.cache = cache
+        self.metrics = metrics
+        self.tasks = tasks
+        self.meshes = meshes
+        self.jobs = jobs
+        self.model_path = model_path(settings)
+        self.model_version = model_version(self.model_path)
+        self._progress: dict[str, float] = {}
+
+    def version(self, method: str) -> str:
+        """What a cached ShDF depends on besides the mesh (``shdf_version``)."""
+        return shdf_version(method, self.model_version)
+
+    def key(self, mesh_id: str, method: str, seed: int) -> str:
+        """The cache key of a ShDF (``shdf_key``)."""
+        return shdf_key(mesh_id, method, seed, self.model_version)
+
+    def cached(self, key: str) -> NDArray[np.float64] | None:
+        """The cached ShDF (memory, then the shared cache), or None."""
+        values = self.cache.recall(key)
+        if values is None:
+            arrays = self.cache.get_arrays(key)
+            if arrays is not None and "shdf" in arrays:
+                values = arrays["shdf"]
+                self.cache.remember(key, values)
+        self.metrics.count_cache("shdf", hit=values is not None)
+        return values
+
+    def _store(self, key: str, mesh_id: str, outcome: ShdfOutcome) -> None:
+        self.cache.put_arrays(key, {"shdf": outcome.values}, group=mesh_id)
+        self.cache.remember(key, outcome.values)
+
+    def _compute(
+        self, key: str, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
+    ) -> ShdfOutcome:
+        """Compute the ShDF now (a compute thread), reporting progress under ``key``."""
+        from neural_shdf.pipeline import compute_shdf
+
+        graph = self.meshes.graph(mesh_id, mesh)
+        self._progress[key] = 0.0
+
+        def progress(fraction: float) -> None:
+            self._progress[key] = float(fraction)
+
+        extra = {}
+        if method == "neural" and _accepts_model_path():
+            extra["model_path"] = self.model_path
+        start = time.perf_counter()
+        try:
+            values = compute_shdf(
+                mesh,
+                method=method,  # type: ignore[arg-type]
+                seed=seed,
+                graph=graph,
+                progress=progress,
+                **extra,
+            )
+        finally:
+            self._progress.pop(key, None)
+        seconds = time.perf_counter() - start
+        self.metrics.shdf_computations.labels(method).inc()
+        self.metrics.shdf_seconds.labels(method).observe(seconds)
+        return ShdfOutcome(np.ascontiguousarray(values, dtype=np.float64), False, seconds)
+
+    def _compute_once(
+        self, key: str, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
+    ) -> ShdfOutcome:
+        """Blocking: the cached ShDF, else computed and stored under the cache lock."""
+
+        def lookup() -> ShdfOutcome | None:
+            values = self.cached(key)
+            return None if values is None else ShdfOutcome(values, True, 0.0)
+
+        outcome, _ = self.tasks.compute_once(
+            key,
+            lookup,
+            functools.partial(self._compute, key, mesh_id, mesh, method, seed),
+            functools.partial(self._store, key, mesh_id),
+        )
+        return outcome
+
+    def get_blocking(self, mesh_id: str, mesh: TriangleMesh, method: str, seed: int) -> ShdfOutcome:
+        """The cached ShDF, else computed once under the cache lock and stored (blocking:
+        for batch workers outside an event loop)."""
+        seed = check_seed(seed)
+        key = self.key(mesh_id, method, seed)
+        values = self.cached(key)
+        if values is not None:
+            return ShdfOutcome(values, True, 0.0)
+        return self._compute_once(key, mesh_id, mesh, method, seed)
+
+    async def get(
+        self,
+        mesh_id: str,
+        mesh: TriangleMesh,
+        method: str,
+        seed: int,
+        *,
+        allow_job: bool = True,
+    ) -> ShdfOutcome:
+        """The cached ShDF, else computed once; large meshes raise JobAccepted (202)."""
+        seed = check_seed(seed)
+        key = self.key(mesh_id, method, seed)
+        values = await self.tasks.io(self.cached, key)
+        if values is not None:
+            return ShdfOutcome(values, True, 0.0)
+        if allow_job and mesh.face_count > self.settings.sync_face_threshold:
+            raise JobAccepted(await self.start_job(key, mesh_id, mesh, method, seed))
+        compute = functools.partial(self._compute_once, key, mesh_id, mesh, method, seed)
+        return await self.tasks.with_timeout(self.tasks.single_flight(key, compute))
+
+    async def start_job(
+        self, key: str, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
+    ) -> dict[str, Any]:
+        """Record a job and compute the ShDF in the background; the job's record."""
+        job = await self.tasks.io(self.jobs.create, mesh_id, method, seed)
+        lease = self.jobs.runner_lease(job["job_id"])
+        await self.tasks.io(lease.try_acquire)  # a fresh id: free
+        self._launch_job(job, key, mesh_id, mesh, method, seed, lease)
+        return dict(job)
+
+    def _launch_job(
+        self,
+        job: dict[str, Any],
+        key: str,
+        mesh_id: str,
+        mesh: TriangleMesh,
+        method: str,
+        seed: int,
+        lease: Lease,
+    ) -> None:
+        compute = functools.partial(self._compute_once, key, mesh_id, mesh, method, seed)
+        self.tasks.spawn(self._run_job(job, key, compute, lease))
+
+    async def _run_job(
+        self, job: dict[str, Any], key: str, compute: Callable[[], ShdfOutcome], lease: Lease
+    ) -> None:
+        """Run a job, rewriting its record with the progress and at least every heartbeat
+        (a record left unwritten for a lease marks a dead runner)."""
+        self.metrics.jobs_running.inc()
+        try:
+            await self.tasks.io(self.jobs.update, job, state="running")
+            work = asyncio.ensure_future(self.tasks.single_flight(key, compute))
+            written = time.monotonic()
+            while not work.done():
+                await asyncio.wait({work}, timeout=0.5)
+                progress = self._progress.get(key)
+                moved = progress is not None and progress != job["progress"]
+                due = time.monotonic() - written >= self.jobs.heartbeat_s
+                if not work.done() and (moved or due):
+                    changes = {"progress": min(progress, 0.99)} if moved else {}
+                    await self.tasks.io(self.jobs.update, job, **changes)
+                    written = time.monotonic()
+            work.result()
+            await self.tasks.io(self.jobs.update, job, state="succeeded", progress=1.0)
+        except Exception as exc:  # noqa: BLE001 - a failed job is recorded, not raised
+            if not isinstance(exc, ApiError | ValueError | RuntimeError):
+                logger.exception("job %s failed", job["job_id"])
+            await self.tasks.io(self.jobs.update, job, state="failed", error=error_dict(exc))
+        finally:
+            self.metrics.jobs_running.dec()
+            lease.stop_renewing()
+            with contextlib.suppress(RuntimeError):  # executor shut down: it lapses instead
+                self.tasks.io_executor.submit(lease.release)
+
+    async def job(self, job_id: str) -> dict[str, Any]:
+        """A job's record; one whose worker died is re-run here (or failed after
+        ``job_max_attempts`` runs), so no job stays ``running`` for ever."""
+        job = await self.tasks.io(self.jobs.get, job_id)
+        if job is None:
+            raise not_found("job", job_id)
+        lease = await self.tasks.io(self.jobs.orphaned, job)
+        if lease is not None:
+            await self._rerun(job, lease)
+        return public_job(job)
+
+    async def _rerun(self, job: dict[str, Any], lease: Lease) -> None:
+        """Re-run an orphaned job (holding its lease) on this worker."""
+        attempt = int(job.get("attempt", 1)) + 1
+        logger.warning(
+            "job %s: its worker %s stopped; run %d", job["job_id"], job.get("worker"), attempt
+        )
+        if attempt > self.jobs.max_attempts:
+            error = {
+                "code": "worker_lost",
+                "message": f"the worker computing this job stopped {attempt - 1} times "
+                "(crash, out of memory or restart); the mesh may be too large for this "
+                "service: try a smaller mesh or the neural method",
+                "detail": None,
+            }
+            await self.tasks.io(self.jobs.update, job, state="failed", error=error)
+            await self.tasks.io(lease.release)
+            return
+        self.metrics.jobs_rerun.inc()
+        try:
+            mesh = await self.tasks.io(self.meshes.load, job["mesh_id"])
+        except ApiError as exc:
+            await self.tasks.io(self.jobs.update, job, state="failed", error=error_dict(exc))
+            await self.tasks.io(lease.release)
+            return
+        method, seed = job["method"], int(job["seed"])
+        await self.tasks.io(
+            self.jobs.update, job, state="queued", attempt=attempt, worker=worker_name()
+        )
+        key = self.key(job["mesh_id"], method, seed)
+        self._launch_job(job, key, job["mesh_id"], mesh, method, seed, lease)
+
+    def check_model(self) -> tuple[bool, str]:
+        """Whether the neural model loads (cached by the library after the first call)."""
+        from neural_shdf.neural.inference import load_model
+
+        try:
+            load_model(self.model_path)
+        except Exception as exc:  # noqa: BLE001 - reported by /readyz
+            return False, str(exc)
+        return True, self.model_path.name

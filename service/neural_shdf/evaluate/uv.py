@@ -1,0 +1,165 @@
+"""Quality of a UV layout: charts, seams, distortion and atlas use, for any unwrapper.
+
+Distortion follows Sander et al. 2001 ("Texture mapping progressive meshes"): the
+L2 stretch of the map from UV to surface, with the UVs first scaled so their total
+area equals the surface's (1.0 is an isometry, larger is worse), and the conformal
+error as the area-weighted mean ratio of the map's singular values (1.0: angles kept).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.geometry import build_face_graph, weld_faces
+from neural_shdf.unwrap import rasterize_charts
+
+
+@dataclass(frozen=True)
+class UvQuality:
+    """One layout's numbers (see the module docstring)."""
+
+    charts: int
+    seam_ratio: float
+    l2_stretch: float
+    conformal_error: float
+    flipped_fraction: float
+    utilization: float
+    overlapping_texels: int
+
+    def as_dict(self) -> dict[str, float | int]:
+        return asdict(self)
+
+
+def stretch_terms(
+    vertices: NDArray, faces: NDArray, corner_uvs: NDArray
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """Per triangle: 3D area, signed UV area, and the Gram terms a = |S_s|^2, c = |S_t|^2,
+    b = S_s . S_t of the Jacobian of the map from UV to the surface."""
+    p0, p1, p2 = (vertices[faces[:, k]] for k in range(3))
+    area_3d = 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
+    s, t = corner_uvs[:, :, 0], corner_uvs[:, :, 1]
+    area_uv = 0.5 * (
+        (s[:, 1] - s[:, 0]) * (t[:, 2] - t[:, 0]) - (s[:, 2] - s[:, 0]) * (t[:, 1] - t[:, 0])
+    )
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / (2.0 * area_uv)
+        ss = (p0 * (t[:, 1] - t[:, 2])[:, None] + p1 * (t[:, 2] - t[:, 0])[:, None]
+              + p2 * (t[:, 0] - t[:, 1])[:, None]) * inv[:, None]  # fmt: skip
+        st = (p0 * (s[:, 2] - s[:, 1])[:, None] + p1 * (s[:, 0] - s[:, 2])[:, None]
+              + p2 * (s[:, 1] - s[:, 0])[:, None]) * inv[:, None]  # fmt: skip
+    a = np.einsum("ij,ij->i", ss, ss)
+    b = np.einsum("ij,ij->i", ss, st)
+    c = np.einsum("ij,ij->i", st, st)
+    return area_3d, area_uv, a, c, b
+
+
+def seam_ratio(vertices: NDArray, faces: NDArray, corner_uvs: NDArray) -> float:
+    """Length of the seams over the length of every edge of the (welded) surface.
+
+    A seam is an edge shared by two triangles whose UVs at its two end points differ;
+    the surface's own border is not a seam.
+    """
+    welded = weld_faces(vertices, faces)
+    graph = build_face_graph(vertices, welded)
+    if len(graph.pairs) == 0:
+        return 0.0
+    left, right = graph.pairs[:, 0], graph.pairs[:, 1]
+    seam = np.zeros(len(left), dtype=bool)
+    for end in (0, 1):
+        vertex = graph.edge_vertices[:, end][:, None]
+        uv_left = corner_uvs[left, np.argmax(welded[left] == vertex, axis=1)]
+        uv_right = corner_uvs[right, np.argmax(welded[right] == vertex, axis=1)]
+        seam |= np.any(np.abs(uv_left - uv_right) > 1e-7, axis=1)
+    edges = np.sort(welded[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    unique = np.unique(edges, axis=0)
+    total = float(np.linalg.norm(vertices[unique[:, 0]] - vertices[unique[:, 1]], axis=1).sum())
+    return float(graph.edge_length[seam].sum() / total) if total > 0 else 0.0
+
+
+def uv_islands(vertices: NDArray, faces: NDArray, corner_uvs: NDArray) -> NDArray[np.int64]:
+    """Chart per triangle as the UV layout itself says: triangles joined across every edge
+    whose two end points have the same UVs on both sides (any unwrapper's charts)."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    welded = weld_faces(vertices, faces)
+    graph = build_face_graph(vertices, welded)
+    left, right = graph.pairs[:, 0], graph.pairs[:, 1]
+    joined = np.ones(len(left), dtype=bool)
+    for end in (0, 1):
+        vertex = graph.edge_vertices[:, end][:, None]
+        uv_left = corner_uvs[left, np.argmax(welded[left] == vertex, axis=1)]
+        uv_right = corner_uvs[right, np.argmax(welded[right] == vertex, axis=1)]
+        joined &= np.all(np.abs(uv_left - uv_right) <= 1e-7, axis=1)
+    n = len(faces)
+    adjacency = sp.csr_matrix(
+        (np.ones(int(joined.sum())), (left[joined], right[joined])), shape=(n, n)
+    )
+    _, island = connected_components(adjacency, directed=False)
+    return island.astype(np.int64)
+
+
+def uv_quality(
+    vertices: NDArray,
+    faces: NDArray,
+    corner_uvs: NDArray,
+    chart: NDArray,
+    *,
+    raster_size: int = 1024,
+) -> UvQuality:
+    """Charts, seam ratio, L2 stretch, conformal error, flipped share and atlas use.
+
+    ``corner_uvs`` (F, 3, 2) in [0, 1]; ``chart`` (F,) chart per triangle (-1: none).
+    Utilisation and overlap are counted on a ``raster_size`` square grid over the UV
+    square; ``overlapping_texels`` counts texels covered by two different charts.
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    corner_uvs = np.asarray(corner_uvs, dtype=np.float64)
+    chart = np.asarray(chart, dtype=np.int64)
+    area_3d, area_uv, a, c, b = stretch_terms(vertices, faces, corner_uvs)
+    usable = (area_3d > 1e-12 * max(area_3d.max(initial=0.0), 1e-300)) & (chart >= 0)
+    total_3d = area_3d[usable].sum()
+    total_uv = np.abs(area_uv[usable]).sum()
+    # A mirrored chart is not a defect: a triangle is flipped against its chart's majority.
+    orientation = np.zeros(int(chart.max(initial=-1)) + 1)
+    np.add.at(orientation, chart[usable], area_uv[usable])
+    facing = area_uv * np.where(chart >= 0, np.sign(orientation[np.maximum(chart, 0)]), 0.0)
+    flipped = usable & (facing <= 0)
+    good = usable & (facing > 0) & np.isfinite(a) & np.isfinite(c)
+    # Scale UVs to the surface's area: stretch terms a, c scale by total_uv / total_3d.
+    scale = total_uv / total_3d if total_3d > 0 else 1.0
+    a_n, b_n, c_n = a * scale, b * scale, c * scale
+    weights = area_3d[good]
+    l2 = (
+        np.sqrt(np.sum(weights * (a_n[good] + c_n[good]) / 2.0) / weights.sum())
+        if weights.sum() > 0
+        else np.nan
+    )
+    root = np.sqrt(np.maximum((a_n - c_n) ** 2 + 4.0 * b_n**2, 0.0))
+    big = np.sqrt(np.maximum((a_n + c_n + root) / 2.0, 0.0))
+    small = np.sqrt(np.maximum((a_n + c_n - root) / 2.0, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = big / small
+    ratio_ok = good & np.isfinite(ratio)
+    conformal = (
+        float(np.sum(area_3d[ratio_ok] * ratio[ratio_ok]) / area_3d[ratio_ok].sum())
+        if ratio_ok.any()
+        else np.nan
+    )
+    owner, clashes = rasterize_charts(corner_uvs, chart, raster_size)
+    return UvQuality(
+        charts=int(len(np.unique(chart[chart >= 0]))),
+        seam_ratio=seam_ratio(vertices, faces, corner_uvs),
+        l2_stretch=float(l2),
+        conformal_error=conformal,
+        flipped_fraction=float(area_3d[flipped].sum() / total_3d) if total_3d > 0 else 0.0,
+        utilization=float((owner >= 0).mean()),
+        overlapping_texels=clashes,
+    )
+
+
+__all__ = ["UvQuality", "seam_ratio", "stretch_terms", "uv_islands", "uv_quality"]

@@ -1,0 +1,705 @@
+"""Piece-wise UV unwrapping by parts (the paper's application).
+
+Each part is charted and parameterised on its own with xatlas, so every chart lies
+within one part and seams run where parts meet, plus whatever cuts a part still
+needs to flatten; all charts are packed into one atlas. UVs are per triangle
+corner, in ``[0, 1]``, with ``v`` pointing up (OBJ's and trimesh's convention; the
+GLB writer flips it for glTF).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.compiled import kernel
+from neural_shdf.errors import ParameterError
+from neural_shdf.geometry import weld_faces
+from neural_shdf.mesh import TriangleMesh
+
+#: Atlas sides a user may ask for, in texels.
+MIN_ATLAS_SIZE, MAX_ATLAS_SIZE = 64, 8192
+#: Largest gap between charts, in texels.
+MAX_PADDING = 64
+#: A piece smaller than twice this is never halved further.
+MIN_SPLIT_FACES = 16
+
+
+@dataclass(frozen=True)
+class UnwrapParams:
+    """How to chart and pack.
+
+    Attributes:
+        atlas_size: side of the square atlas in texels; charts are scaled to fill it.
+        padding: texels left free around every chart.
+        max_stretch: largest L2 stretch (1 = isometric) a part may have as one chart;
+            above it the part is cut further, then left to xatlas's charting.
+        max_cuts: extra cuts tried per part before it is split in two.
+        max_splits: how many times a part that cannot be one chart is halved (METIS,
+            shortest boundary) before xatlas charts what is left.
+    """
+
+    atlas_size: int = 1024
+    padding: int = 2
+    max_stretch: float = 1.1
+    max_cuts: int = 6
+    max_splits: int = 3
+
+    def __post_init__(self) -> None:
+        if not MIN_ATLAS_SIZE <= self.atlas_size <= MAX_ATLAS_SIZE:
+            raise ParameterError(
+                f"atlas_size must be in [{MIN_ATLAS_SIZE}, {MAX_ATLAS_SIZE}] texels, "
+                f"got {self.atlas_size}"
+            )
+        if not 0 <= self.padding <= MAX_PADDING:
+            raise ParameterError(
+                f"padding must be in [0, {MAX_PADDING}] texels, got {self.padding}"
+            )
+        if not (math.isfinite(self.max_stretch) and self.max_stretch >= 1.0):
+            raise ParameterError(f"max_stretch must be a number >= 1, got {self.max_stretch}")
+        if not 0 <= self.max_cuts <= 64:
+            raise ParameterError(f"max_cuts must be in [0, 64], got {self.max_cuts}")
+        if not 0 <= self.max_splits <= 8:
+            raise ParameterError(f"max_splits must be in [0, 8], got {self.max_splits}")
+
+
+@dataclass(frozen=True)
+class UvAtlas:
+    """UVs of every triangle corner and the charts they form.
+
+    Attributes:
+        corner_uvs: (F, 3, 2) float64 in ``[0, 1]``, per corner of ``mesh.faces``.
+        chart: (F,) chart of each triangle; -1 for a degenerate triangle xatlas left out
+            (its corners sit at one point of a neighbouring chart, or at 0).
+        chart_part: (C,) the part label each chart belongs to.
+        width, height: the packed atlas in texels (UVs are normalised by them).
+        utilization: fraction of the atlas covered by charts (xatlas's count).
+    """
+
+    corner_uvs: NDArray[np.float64]
+    chart: NDArray[np.int64]
+    chart_part: NDArray[np.int64]
+    width: int
+    height: int
+    utilization: float
+
+    @property
+    def chart_count(self) -> int:
+        return int(len(self.chart_part))
+
+
+def part_labels_per_triangle(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.int64]:
+    """Per-triangle labels with every input polygon in one part (the polygon's label).
+
+    ``labels`` may be per triangle or per input face; polygons split between parts
+    take the label covering most of their area, as everywhere else.
+    """
+    labels = np.asarray(labels)
+    if labels.dtype.kind not in "iu" or labels.ndim != 1:
+        raise ParameterError("labels must be a 1-D integer array")
+    if len(labels) == mesh.face_count:
+        _, areas = mesh.normals_and_areas
+        labels = mesh.labels_to_input_faces(labels, weights=areas)
+    elif len(labels) != mesh.input_face_count:
+        raise ParameterError(
+            f"need one label per triangle ({mesh.face_count}) or per input face "
+            f"({mesh.input_face_count}), got {len(labels)}"
+        )
+    return np.asarray(labels, dtype=np.int64)[mesh.face_origin]
+
+
+def unwrap(mesh: TriangleMesh, labels: NDArray, params: UnwrapParams | None = None) -> UvAtlas:
+    """Chart each part on its own, parameterise it, pack every chart into one atlas.
+
+    Each connected piece of a part becomes one chart where that is possible within
+    ``params.max_stretch``: cut to a disk (libigl), flattened by a least-squares
+    conformal map, and cut further from its most compressed point to its border while
+    it is too stretched. A piece that still fails (non-manifold, overlapping itself,
+    too stretched after ``max_cuts`` cuts) is charted by xatlas inside the piece. xatlas
+    packs all charts. ``labels``: a part per triangle or per input face (see
+    ``part_labels_per_triangle``). Deterministic.
+    """
+    params = params or UnwrapParams()
+    labels = part_labels_per_triangle(mesh, labels)
+    welded = weld_faces(mesh.vertices, mesh.faces)
+    diagonal_pairs = _polygon_diagonals(mesh, welded)
+    corner_uvs = np.zeros((mesh.face_count, 3, 2), dtype=np.float64)
+    chart = np.full(mesh.face_count, -1, dtype=np.int64)
+    chart_part: list[int] = []
+    leftovers: list[tuple[int, NDArray[np.int64]]] = []
+    for part in np.unique(labels):
+        pending = [
+            (piece, 0) for piece in _connected_pieces(welded, np.flatnonzero(labels == part))
+        ]
+        while pending:
+            piece, depth = pending.pop(0)
+            used, local = np.unique(welded[piece], return_inverse=True)
+            local = local.reshape(-1, 3)
+            diagonals = _local_diagonals(diagonal_pairs, used)
+            uvs = _flatten_piece(
+                mesh.vertices[used], local, params.max_stretch, params.max_cuts, diagonals
+            )
+            if uvs is not None:
+                corner_uvs[piece] = uvs
+                chart[piece] = len(chart_part)
+                chart_part.append(int(part))
+            elif depth < params.max_splits and len(piece) >= 2 * MIN_SPLIT_FACES:
+                halves = _bisect(mesh.vertices[used], local, diagonals)
+                for half in (0, 1):
+                    for sub in _connected_pieces(welded, piece[halves == half]):
+                        pending.append((sub, depth + 1))
+            else:
+                leftovers.append((int(part), piece))
+    for part, piece in leftovers:
+        for faces, uvs in _xatlas_charts(mesh.vertices, welded, piece, params):
+            corner_uvs[faces] = uvs
+            chart[faces] = len(chart_part)
+            chart_part.append(part)
+    return _pack(mesh, corner_uvs, chart, np.asarray(chart_part, dtype=np.int64), params)
+
+
+def _polygon_diagonals(mesh: TriangleMesh, welded: NDArray[np.int64]) -> NDArray[np.int64]:
+    """(D, 2) welded vertex pairs of the fan diagonals inside input polygons."""
+    same_polygon = mesh.face_origin[1:] == mesh.face_origin[:-1]
+    # In a fan (v0, vi, vi+1), (v0, vi+1) is shared with the next triangle of the polygon.
+    following = np.flatnonzero(same_polygon)
+    return np.sort(welded[following][:, [0, 2]], axis=1)
+
+
+def _local_diagonals(pairs: NDArray[np.int64], used: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Sorted keys ``low * len(used) + high`` of the diagonals among a piece's vertices."""
+    if len(pairs) == 0:
+        return np.zeros(0, dtype=np.int64)
+    local = np.searchsorted(used, pairs)
+    local = np.minimum(local, len(used) - 1)
+    inside = (used[local] == pairs).all(axis=1)
+    local = np.sort(local[inside], axis=1)
+    return np.unique(local[:, 0] * len(used) + local[:, 1])
+
+
+def _connected_pieces(welded: NDArray[np.int64], faces: NDArray[np.int64]) -> list[NDArray]:
+    """``faces`` split into edge-connected pieces, each in ascending face order."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    if len(faces) == 0:
+        return []
+    edges = np.sort(welded[faces][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, edge_id = np.unique(edges, axis=0, return_inverse=True)
+    owner = np.repeat(np.arange(len(faces)), 3)
+    incidence = sp.csr_matrix(
+        (np.ones(len(owner)), (owner, edge_id.reshape(-1))), shape=(len(faces), edge_id.max() + 1)
+    )
+    count, component = connected_components(incidence @ incidence.T, directed=False)
+    order = np.argsort(component, kind="stable")
+    return np.split(faces[order], np.cumsum(np.bincount(component, minlength=count))[:-1])
+
+
+def _bisect(
+    vertices: NDArray, faces: NDArray[np.int64], diagonals: NDArray[np.int64]
+) -> NDArray[np.int64]:
+    """0/1 per face: two halves of similar size with the shortest boundary (METIS), never
+    split across a polygon diagonal."""
+    from neural_shdf.geometry import build_face_graph
+    from neural_shdf.segment.metis import split_faces
+
+    graph = build_face_graph(vertices, faces)
+    a, b = graph.edge_vertices[:, 0], graph.edge_vertices[:, 1]
+    keys = np.minimum(a, b) * len(vertices) + np.maximum(a, b)
+    found = np.minimum(np.searchsorted(diagonals, keys), max(len(diagonals) - 1, 0))
+    inside = diagonals[found] == keys if len(diagonals) else np.zeros(len(keys), bool)
+    length = np.where(inside, graph.edge_length.max(initial=1.0) * 1e3, graph.edge_length)
+    return split_faces(graph, 2, seed=0, edge_length=length)
+
+
+def _is_edge_manifold(faces: NDArray[np.int64]) -> bool:
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    return bool(counts.max(initial=0) <= 2)
+
+
+def _triangle_areas(points: NDArray, faces: NDArray) -> NDArray[np.float64]:
+    """Unsigned areas in 3D, signed areas in 2D."""
+    a, b, c = points[faces[:, 0]], points[faces[:, 1]], points[faces[:, 2]]
+    if points.shape[1] == 2:
+        u, v = b - a, c - a
+        return 0.5 * (u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+    return 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+
+
+def _lscm(vertices: NDArray, faces: NDArray) -> NDArray[np.float64] | None:
+    """Free-boundary least-squares conformal map of a disk, scaled to the surface's area."""
+    import igl
+
+    boundary = igl.boundary_loop(faces)
+    if len(boundary) < 3:
+        return None
+    points = vertices[boundary]
+    far = int(np.argmax(np.linalg.norm(points - points[0], axis=1)))
+    pins = np.array([boundary[0], boundary[far]], dtype=np.int64)
+    span = float(np.linalg.norm(points[far] - points[0]))
+    uv, _ = igl.lscm(vertices, faces, pins, np.array([[0.0, 0.0], [span, 0.0]]))
+    if not np.all(np.isfinite(uv)):
+        return None
+    area_uv = _triangle_areas(uv, faces).sum()
+    area_3d = _triangle_areas(vertices, faces).sum()
+    if area_uv == 0 or area_3d == 0:
+        return None
+    if area_uv < 0:
+        uv[:, 1] = -uv[:, 1]
+        area_uv = -area_uv
+    return uv * np.sqrt(area_3d / area_uv)
+
+
+#: Edge-length factor that keeps cuts off the diagonals inside input polygons.
+DIAGONAL_PENALTY = 1e6
+
+
+class _Piece:
+    """A connected piece of a part being cut open: its vertices, its triangles (order kept)
+    and, per vertex, the vertex it was copied from when a cut split it."""
+
+    def __init__(self, vertices: NDArray, faces: NDArray, diagonals: NDArray) -> None:
+        self.vertices = np.asarray(vertices, dtype=np.float64)
+        self.faces = np.asarray(faces, dtype=np.int64)
+        self.origin = np.arange(len(self.vertices), dtype=np.int64)
+        self.n_original = len(self.vertices)
+        self.diagonals = diagonals  # sorted int64 keys low * n + high of polygon diagonals
+
+    def _is_diagonal(self, a: NDArray, b: NDArray) -> NDArray[np.bool_]:
+        low, high = (
+            np.minimum(self.origin[a], self.origin[b]),
+            np.maximum(self.origin[a], self.origin[b]),
+        )
+        keys = low * self.n_original + high
+        found = np.searchsorted(self.diagonals, keys)
+        found = np.minimum(found, max(len(self.diagonals) - 1, 0))
+        return (self.diagonals[found] == keys) if len(self.diagonals) else np.zeros(len(a), bool)
+
+    def edge_graph(self):
+        """Vertex graph weighted by edge length; polygon diagonals cost DIAGONAL_PENALTY more."""
+        import scipy.sparse as sp
+
+        edges = np.unique(np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+        a, b = edges[:, 0], edges[:, 1]
+        length = np.linalg.norm(self.vertices[a] - self.vertices[b], axis=1) + 1e-300
+        length[self._is_diagonal(a, b)] *= DIAGONAL_PENALTY
+        n = len(self.vertices)
+        return sp.csr_matrix((length, (a, b)), shape=(n, n))
+
+    def loops(self) -> list[NDArray[np.int64]]:
+        import igl
+
+        return [np.asarray(loop, dtype=np.int64) for loop in igl.boundary_loop_all(self.faces)]
+
+    def euler_characteristic(self) -> int:
+        edges = np.unique(np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+        return len(np.unique(self.faces)) - len(edges) + len(self.faces)
+
+    def cut(self, path: list[int] | NDArray) -> None:
+        """Cut open along a vertex path (libigl; faces keep their order)."""
+        import igl
+
+        path = np.asarray(path, dtype=np.int64)
+        low = np.minimum(path[:-1], path[1:])
+        high = np.maximum(path[:-1], path[1:])
+        n = len(self.vertices)
+        wanted = np.unique(low * n + high)
+        flags = np.zeros(self.faces.shape, dtype=bool)
+        for k in range(3):
+            a, b = self.faces[:, k], self.faces[:, (k + 1) % 3]
+            keys = np.minimum(a, b) * n + np.maximum(a, b)
+            flags[:, k] = np.isin(keys, wanted)
+        vertices, faces, copied_from = igl.cut_mesh(self.vertices, self.faces, flags)
+        self.origin = self.origin[np.asarray(copied_from, dtype=np.int64)]
+        self.vertices = np.asarray(vertices)
+        self.faces = np.asarray(faces, dtype=np.int64)
+
+
+def _shortest_path(graph, sources: NDArray[np.int64], targets: NDArray[np.int64]) -> list[int]:
+    """Shortest edge path from any of ``sources`` to the nearest of ``targets`` ([] if none)."""
+    from scipy.sparse.csgraph import dijkstra
+
+    distance, previous, _ = dijkstra(
+        graph, directed=False, indices=sources, return_predecessors=True, min_only=True
+    )
+    if len(targets) == 0:
+        return []
+    target = int(targets[np.argmin(distance[targets])])
+    if not np.isfinite(distance[target]):
+        return []
+    path = [target]
+    while previous[path[-1]] >= 0:
+        path.append(int(previous[path[-1]]))
+    return path[::-1]
+
+
+def _open_to_disk(piece: _Piece) -> bool:
+    """Cut the piece into a topological disk, off polygon diagonals where possible: join
+    boundary loops by shortest paths, open a closed piece between far-apart points, and
+    leave handles to libigl's ``cut_to_disk``. False if no disk came out."""
+    import igl
+
+    loops = piece.loops()
+    if not loops:
+        vertices = piece.vertices
+        start = int(np.argmax(np.linalg.norm(vertices - vertices[0], axis=1)))
+        end = int(np.argmax(np.linalg.norm(vertices - vertices[start], axis=1)))
+        path = _shortest_path(piece.edge_graph(), np.array([start]), np.array([end]))
+        if len(path) < 2:
+            return False
+        piece.cut(path)
+        loops = piece.loops()
+    while len(loops) > 1:
+        path = _shortest_path(piece.edge_graph(), loops[0], np.concatenate(loops[1:]))
+        if len(path) < 2:
+            return False
+        piece.cut(path)
+        remaining = piece.loops()
+        if len(remaining) >= len(loops):
+            return False
+        loops = remaining
+    if piece.euler_characteristic() != 1:  # handles: libigl's cuts
+        for path in igl.cut_to_disk(piece.faces):
+            if len(path) > 1:
+                piece.cut(list(path))
+    return len(piece.loops()) == 1 and piece.euler_characteristic() == 1
+
+
+def _flatten_piece(
+    vertices: NDArray,
+    faces: NDArray,
+    max_stretch: float,
+    max_cuts: int,
+    diagonals: NDArray | None = None,
+) -> NDArray[np.float64] | None:
+    """(F, 3, 2) UVs of one connected piece as a single chart, or None where it cannot be
+    one chart within ``max_stretch`` (L2 stretch) without flips or overlaps.
+
+    ``diagonals``: sorted keys ``low * V + high`` of the edges inside input polygons, which
+    cuts avoid so that a polygon's corners keep one UV each.
+    """
+    if len(faces) < 2 or not _is_edge_manifold(faces):
+        return None
+    areas = _triangle_areas(vertices, faces)
+    if areas.min() <= 1e-12 * areas.max():
+        return None
+    piece = _Piece(vertices, faces, np.zeros(0, np.int64) if diagonals is None else diagonals)
+    if not _open_to_disk(piece):
+        return None
+    for cut in range(max_cuts + 1):
+        uv = _lscm(piece.vertices, piece.faces)
+        if uv is None:
+            return None
+        area_uv = _triangle_areas(uv, piece.faces)
+        if np.all(area_uv > 0) and _l2_stretch(piece.vertices, piece.faces, uv) <= max_stretch:
+            return None if _overlaps_itself(uv, piece.faces) else uv[piece.faces]
+        if cut == max_cuts:
+            return None
+        # Cut from the most compressed interior vertex to the border.
+        scale = area_uv / np.maximum(areas, 1e-300)
+        vertex_scale = np.full(len(piece.vertices), np.inf)
+        np.minimum.at(vertex_scale, piece.faces.reshape(-1), np.repeat(scale, 3))
+        border = np.concatenate(piece.loops())
+        vertex_scale[border] = np.inf
+        if not np.isfinite(vertex_scale).any():
+            return None
+        worst = int(np.argmin(vertex_scale))
+        path = _shortest_path(piece.edge_graph(), np.array([worst]), border)
+        if len(path) < 2:
+            return None
+        piece.cut(path)
+    return None
+
+
+def _l2_stretch(vertices: NDArray, faces: NDArray, uv: NDArray) -> float:
+    """Sander's L2 stretch of a chart whose UV area equals its surface area."""
+    from neural_shdf.evaluate.uv import stretch_terms
+
+    area_3d, area_uv, gram_a, gram_c, _ = stretch_terms(vertices, faces, uv[faces])
+    scale = np.abs(area_uv).sum() / area_3d.sum()
+    return float(np.sqrt(np.sum(area_3d * (gram_a + gram_c) * scale / 2) / area_3d.sum()))
+
+
+def _overlaps_itself(uv: NDArray, faces: NDArray, size: int = 512) -> bool:
+    """Whether two triangles of one chart cover the same texel centre (a global fold)."""
+    low, high = uv.min(axis=0), uv.max(axis=0)
+    extent = float(max(high - low))
+    corner_uvs = (uv[faces] - low) / extent * (1 - 1e-9)
+    _, clashes = rasterize_charts(corner_uvs, np.arange(len(faces)), size)
+    # Texel centres on an edge shared by two triangles count twice: allow a few.
+    return clashes > max(8, len(faces) // 100)
+
+
+def _xatlas_charts(
+    vertices: NDArray, welded: NDArray, piece: NDArray[np.int64], params: UnwrapParams
+) -> list[tuple[NDArray[np.int64], NDArray[np.float64]]]:
+    """xatlas's own charts of one piece: (faces, (n, 3, 2) UVs at the surface's scale)."""
+    import xatlas
+
+    used, local = np.unique(welded[piece], return_inverse=True)
+    local = local.reshape(-1, 3)
+    atlas = xatlas.Atlas()
+    atlas.add_mesh(
+        np.ascontiguousarray(vertices[used], dtype=np.float32),
+        np.ascontiguousarray(local, dtype=np.uint32),
+    )
+    atlas.generate()
+    _, indices, uvs = atlas.get_mesh(0)
+    corner = uvs.astype(np.float64)[indices.astype(np.int64)]
+    charts = []
+    for index in range(atlas.get_mesh_chart_count(0)):
+        faces = np.asarray(atlas.get_mesh_chart(0, index).faces, dtype=np.int64)
+        uv = corner[faces].reshape(-1, 2)
+        flat = np.arange(len(uv)).reshape(-1, 3)
+        area_uv = abs(_triangle_areas(uv, flat).sum())
+        area_3d = _triangle_areas(vertices[used], local[faces]).sum()
+        scale = np.sqrt(area_3d / area_uv) if area_uv > 0 else 1.0
+        charts.append((piece[faces], corner[faces] * scale))
+    return charts
+
+
+def _pack(
+    mesh: TriangleMesh,
+    corner_uvs: NDArray,
+    chart: NDArray[np.int64],
+    chart_part: NDArray[np.int64],
+    params: UnwrapParams,
+) -> UvAtlas:
+    """Pack charts (UVs at the surface's scale) into one atlas with xatlas."""
+    import xatlas
+
+    charted = np.flatnonzero(chart >= 0)
+    # xatlas finds UV charts by shared UV positions: lay the charts out side by side first.
+    laid_out = corner_uvs[charted].copy()
+    owner = chart[charted]
+    low = np.full((len(chart_part), 2), np.inf)
+    high = np.full((len(chart_part), 2), -np.inf)
+    np.minimum.at(low, owner, laid_out.min(axis=1))
+    np.maximum.at(high, owner, laid_out.max(axis=1))
+    width = high[:, 0] - low[:, 0]
+    gap = 0.1 * float(width.max(initial=1.0)) + 1e-6
+    shift = np.concatenate([[0.0], np.cumsum(width + gap)[:-1]]) - low[:, 0]
+    laid_out[:, :, 0] += shift[owner][:, None]
+    laid_out[:, :, 1] -= low[owner, 1][:, None]
+    quantum = 2.0**-30 * max(float(np.abs(laid_out).max(initial=1.0)), 1e-30)
+    keys = np.column_stack(
+        [np.repeat(owner, 3), np.round(laid_out.reshape(-1, 2) / quantum)]
+    ).astype(np.int64)
+    unique, inverse = np.unique(keys, axis=0, return_inverse=True)
+    uv_vertices = np.ascontiguousarray(unique[:, 1:] * quantum, dtype=np.float32)
+    uv_faces = np.ascontiguousarray(inverse.reshape(-1, 3), dtype=np.uint32)
+    texels_per_unit = 0.0  # first pass: xatlas's estimate for the resolution
+    for _ in range(4):
+        atlas = xatlas.Atlas()
+        atlas.add_uv_mesh(uv_vertices, uv_faces)
+        pack_options = xatlas.PackOptions()
+        pack_options.resolution = params.atlas_size
+        pack_options.padding = params.padding
+        pack_options.bilinear = True
+        pack_options.texels_per_unit = texels_per_unit
+        atlas.generate(pack_options=pack_options)
+        side = max(atlas.width, atlas.height)
+        if atlas.atlas_count == 1 and side <= params.atlas_size:
+            break
+        # The estimate overshot: scale the charts down until they fit one atlas.
+        shrink = min(params.atlas_size / side, 0.97) if atlas.atlas_count == 1 else 0.7
+        texels_per_unit = float(atlas.texels_per_unit) * shrink
+    _, indices, uvs = atlas.get_mesh(0)
+    packed = np.zeros_like(corner_uvs)
+    packed[charted] = uvs.astype(np.float64)[indices.astype(np.int64)]
+    np.clip(packed, 0.0, 1.0, out=packed)
+    return UvAtlas(
+        corner_uvs=packed,
+        chart=chart,
+        chart_part=chart_part,
+        width=int(atlas.width),
+        height=int(atlas.height),
+        utilization=float(atlas.utilization),
+    )
+
+
+def input_face_corner_uvs(
+    mesh: TriangleMesh, corner_uvs: NDArray
+) -> tuple[list[NDArray[np.int64]], NDArray[np.float64], NDArray[np.bool_]]:
+    """UVs per corner of every input polygon, for writers that keep polygons.
+
+    A fan-triangulated polygon's corners are read back from its triangles. Returns
+    ``(polygons, polygon_uvs, consistent)``: the polygon's vertex indices, its corner
+    UVs (same lengths, concatenated in polygon order) and, per input face, whether
+    all its triangles agree on every shared corner (False where a chart boundary
+    runs through the polygon: a writer must then split it into its triangles).
+    """
+    corner_uvs = np.asarray(corner_uvs, dtype=np.float64)
+    origin = mesh.face_origin
+    starts = np.searchsorted(origin, np.arange(mesh.input_face_count))
+    counts = np.bincount(origin, minlength=mesh.input_face_count)
+    polygons: list[NDArray[np.int64]] = []
+    uv_rows: list[NDArray[np.float64]] = []
+    consistent = np.ones(mesh.input_face_count, dtype=bool)
+    for face in range(mesh.input_face_count):
+        first, count = int(starts[face]), int(counts[face])
+        if count == 0:
+            polygons.append(np.zeros(0, np.int64))
+            uv_rows.append(np.zeros((0, 2)))
+            continue
+        triangles = mesh.faces[first : first + count]
+        uvs = corner_uvs[first : first + count]
+        # Fan (v0, v_i, v_i+1): corners are v0, then v1..vn-1 from consecutive triangles.
+        ring = np.concatenate([triangles[:, 0][:1], triangles[:, 1], triangles[-1:, 2]])
+        ring_uvs = np.concatenate([uvs[:1, 0], uvs[:, 1], uvs[-1:, 2]])
+        if count > 1:
+            same_apex = np.allclose(uvs[:, 0], uvs[0, 0], atol=1e-9)
+            same_diagonal = np.allclose(uvs[:-1, 2], uvs[1:, 1], atol=1e-9)
+            consistent[face] = same_apex and same_diagonal
+        polygons.append(ring)
+        uv_rows.append(ring_uvs)
+    flat = np.concatenate(uv_rows) if uv_rows else np.zeros((0, 2))
+    return polygons, flat, consistent
+
+
+@kernel
+def _rasterize_charts(corner_uvs, chart, width, height, owner):  # pragma: no cover - numba
+    """Claim every texel whose centre lies in a triangle for that triangle's chart.
+
+    ``owner`` (height, width) starts at -1; returns how many texel claims met a
+    texel another chart already owned (0 when no two charts overlap).
+    """
+    clashes = 0
+    for face in range(len(chart)):
+        label = chart[face]
+        if label < 0:
+            continue
+        x0 = corner_uvs[face, 0, 0] * width
+        y0 = corner_uvs[face, 0, 1] * height
+        x1 = corner_uvs[face, 1, 0] * width
+        y1 = corner_uvs[face, 1, 1] * height
+        x2 = corner_uvs[face, 2, 0] * width
+        y2 = corner_uvs[face, 2, 1] * height
+        area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+        if area == 0.0:
+            continue
+        sign = 1.0 if area > 0 else -1.0
+        xmin = max(int(math.floor(min(x0, x1, x2))), 0)
+        xmax = min(int(math.ceil(max(x0, x1, x2))), width - 1)
+        ymin = max(int(math.floor(min(y0, y1, y2))), 0)
+        ymax = min(int(math.ceil(max(y0, y1, y2))), height - 1)
+        for py in range(ymin, ymax + 1):
+            cy = py + 0.5
+            for px in range(xmin, xmax + 1):
+                cx = px + 0.5
+                w0 = sign * ((x1 - cx) * (y2 - cy) - (x2 - cx) * (y1 - cy))
+                w1 = sign * ((x2 - cx) * (y0 - cy) - (x0 - cx) * (y2 - cy))
+                w2 = sign * ((x0 - cx) * (y1 - cy) - (x1 - cx) * (y0 - cy))
+                if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+                    previous = owner[py, px]
+                    if previous < 0:
+                        owner[py, px] = label
+                    elif previous != label:
+                        clashes += 1
+    return clashes
+
+
+def rasterize_charts(
+    corner_uvs: NDArray, chart: NDArray, size: int
+) -> tuple[NDArray[np.int64], int]:
+    """Chart id per texel of a ``size`` x ``size`` grid (-1: empty; row 0 at v = 0), and
+    how many texels two charts both cover."""
+    owner = np.full((size, size), -1, dtype=np.int64)
+    clashes = _rasterize_charts(
+        np.ascontiguousarray(corner_uvs, dtype=np.float64),
+        np.ascontiguousarray(chart, dtype=np.int64),
+        size,
+        size,
+        owner,
+    )
+    return owner, int(clashes)
+
+
+@kernel
+def _draw_segments(segments, image, color):  # pragma: no cover - numba
+    """Set the texels along each (x0, y0, x1, y1) segment (texel units) to ``color``."""
+    height, width = image.shape[0], image.shape[1]
+    for i in range(len(segments)):
+        x0, y0, x1, y1 = segments[i, 0], segments[i, 1], segments[i, 2], segments[i, 3]
+        steps = int(max(abs(x1 - x0), abs(y1 - y0))) + 1
+        for s in range(steps + 1):
+            t = s / steps
+            px = int(x0 + t * (x1 - x0))
+            py = int(y0 + t * (y1 - y0))
+            if 0 <= px < width and 0 <= py < height:
+                for c in range(image.shape[2]):
+                    image[py, px, c] = color[c]
+
+
+def chart_outline_edges(corner_uvs: NDArray, chart: NDArray) -> NDArray[np.float64]:
+    """(E, 2, 2) UV segments on chart outlines: triangle edges no other triangle of the
+    same chart shares with the same UV end points."""
+    corner_uvs = np.asarray(corner_uvs, dtype=np.float64)
+    faces = np.flatnonzero(np.asarray(chart) >= 0)
+    starts = corner_uvs[faces][:, [0, 1, 2]].reshape(-1, 2)
+    ends = corner_uvs[faces][:, [1, 2, 0]].reshape(-1, 2)
+    quantum = 2.0**-24
+    a = np.round(starts / quantum).astype(np.int64)
+    b = np.round(ends / quantum).astype(np.int64)
+    swap = (a[:, 0] > b[:, 0]) | ((a[:, 0] == b[:, 0]) & (a[:, 1] > b[:, 1]))
+    low = np.where(swap[:, None], b, a)
+    high = np.where(swap[:, None], a, b)
+    owner = np.repeat(np.asarray(chart)[faces], 3)
+    keys = np.column_stack([owner, low, high])
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    outline = counts[inverse.reshape(-1)] == 1
+    return np.stack([starts[outline], ends[outline]], axis=1)
+
+
+def atlas_layout_image(
+    atlas: UvAtlas, *, size: int | None = None, checker: int = 16
+) -> NDArray[np.uint8]:
+    """An RGB picture of the atlas for people: charts filled with their part's colour
+    under a checker pattern (``checker`` squares per side; shows stretch when used as a
+    texture), chart outlines dark, empty space white. Row 0 is the top (v = 1)."""
+    from neural_shdf.export import part_colors
+
+    size = size or max(atlas.width, atlas.height, 64)
+    owner, _ = rasterize_charts(atlas.corner_uvs, atlas.chart, size)
+    parts = atlas.chart_part
+    colors = part_colors(int(parts.max()) + 1 if len(parts) else 0)[:, :3].astype(np.float64)
+    image = np.full((size, size, 3), 255.0)
+    filled = owner >= 0
+    rows, cols = np.nonzero(filled)
+    squares = ((rows * checker // size) + (cols * checker // size)) % 2
+    shade = np.where(squares == 0, 1.0, 0.72)
+    image[rows, cols] = colors[parts[owner[rows, cols]]] * shade[:, None]
+    image = image.astype(np.uint8)
+    outline = chart_outline_edges(atlas.corner_uvs, atlas.chart) * size
+    _draw_segments(
+        np.ascontiguousarray(outline.reshape(-1, 4)), image, np.array([40, 40, 40], np.uint8)
+    )
+    return np.ascontiguousarray(image[::-1])
+
+
+def png_bytes(image: NDArray[np.uint8]) -> bytes:
+    """Encode an (H, W, 3) uint8 image as PNG."""
+    import io
+
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(np.asarray(image, dtype=np.uint8)).save(buffer, format="PNG", optimize=False)
+    return buffer.getvalue()
+
+
+__all__ = [
+    "UnwrapParams",
+    "UvAtlas",
+    "atlas_layout_image",
+    "chart_outline_edges",
+    "input_face_corner_uvs",
+    "part_labels_per_triangle",
+    "png_bytes",
+    "rasterize_charts",
+    "unwrap",
+]

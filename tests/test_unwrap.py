@@ -1,0 +1,119 @@
+"""Piece-wise UV unwrapping: UVs that would be wrong fail these properties."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from neural_shdf.errors import ParameterError
+from neural_shdf.evaluate.uv import uv_quality
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.unwrap import (
+    UnwrapParams,
+    atlas_layout_image,
+    input_face_corner_uvs,
+    part_labels_per_triangle,
+    rasterize_charts,
+    unwrap,
+)
+from tests.conftest import as_triangle_mesh
+
+
+def _capsule_parts() -> tuple[TriangleMesh, np.ndarray]:
+    """A capsule cut into 3 parts by height: two caps and a tube."""
+    mesh = as_triangle_mesh(trimesh.creation.capsule(height=2.0, radius=0.5, count=[24, 24]))
+    z = mesh.vertices[mesh.faces].mean(axis=1)[:, 2]
+    labels = np.where(z < -0.9, 0, np.where(z > 0.9, 2, 1))
+    return mesh, labels
+
+
+def _assert_valid_atlas(mesh: TriangleMesh, labels: np.ndarray, atlas) -> None:
+    assert atlas.corner_uvs.shape == (mesh.face_count, 3, 2)
+    assert np.all((atlas.corner_uvs >= 0) & (atlas.corner_uvs <= 1))
+    charted = atlas.chart >= 0
+    assert charted.all(), "every non-degenerate triangle belongs to a chart"
+    # Each chart lies within one part; different parts never share a chart.
+    assert np.array_equal(atlas.chart_part[atlas.chart], labels)
+    # No two charts overlap in the atlas (texel centres claimed by two charts).
+    _, clashes = rasterize_charts(atlas.corner_uvs, atlas.chart, 2048)
+    assert clashes == 0
+    quality = uv_quality(mesh.vertices, mesh.faces, atlas.corner_uvs, atlas.chart)
+    assert quality.flipped_fraction == 0
+    assert quality.overlapping_texels == 0
+    assert 1.0 <= quality.l2_stretch < 1.5
+
+
+def test_each_part_is_charted_on_its_own_and_packed_without_overlap():
+    mesh, labels = _capsule_parts()
+    atlas = unwrap(mesh, labels)
+    _assert_valid_atlas(mesh, labels, atlas)
+    # Caps are disks and the tube opens with one cut: one chart per part.
+    assert atlas.chart_count == 3
+    assert 0.2 < atlas.utilization <= 1.0
+
+
+def test_a_closed_part_is_cut_open_and_a_non_manifold_part_falls_back_to_xatlas():
+    sphere = as_triangle_mesh(trimesh.creation.icosphere(subdivisions=3))
+    atlas = unwrap(sphere, np.zeros(sphere.face_count, dtype=np.int64))
+    _assert_valid_atlas(sphere, np.zeros(sphere.face_count, dtype=np.int64), atlas)
+
+    # Three fins on one edge: no disk exists, xatlas charts the piece.
+    vertices = np.array([[0, 0, 0], [0, 0, 1], [1, 0, 0.5], [-1, 0, 0.5], [0, 1, 0.5]], float)
+    fins = TriangleMesh(vertices, np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]]))
+    atlas = unwrap(fins, np.zeros(3, dtype=np.int64))
+    assert atlas.chart_count >= 1
+    assert np.all(atlas.chart_part[atlas.chart] == 0)
+    assert rasterize_charts(atlas.corner_uvs, atlas.chart, 1024)[1] == 0
+
+
+def test_unwrap_is_deterministic_and_honours_the_atlas_size():
+    mesh, labels = _capsule_parts()
+    first = unwrap(mesh, labels, UnwrapParams(atlas_size=512, padding=4))
+    second = unwrap(mesh, labels, UnwrapParams(atlas_size=512, padding=4))
+    assert np.array_equal(first.corner_uvs, second.corner_uvs)
+    assert np.array_equal(first.chart, second.chart)
+    assert max(first.width, first.height) <= 512
+
+
+def test_polygons_stay_in_one_part_and_keep_their_corner_uvs():
+    box = trimesh.creation.box()
+    # A quad-faced box: 6 quads fan-triangulated into 12 triangles, with origins.
+    polygons = np.array(
+        [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    )
+    faces = np.concatenate([polygons[:, [0, 1, 2]], polygons[:, [0, 2, 3]]])
+    order = np.argsort(np.concatenate([np.arange(6), np.arange(6)]), kind="stable")
+    mesh = TriangleMesh(box.vertices, faces[order], np.repeat(np.arange(6), 2), 6)
+    # Per-triangle labels disagreeing inside a quad: the quad takes one part.
+    triangle_labels = np.array([0, 1, 0, 0, 1, 1, 1, 1, 0, 0, 1, 1])
+    per_triangle = part_labels_per_triangle(mesh, triangle_labels)
+    assert np.all(per_triangle[0::2] == per_triangle[1::2])
+    atlas = unwrap(mesh, np.array([0, 0, 1, 1, 0, 1]))
+    polygons_out, corner_uvs, consistent = input_face_corner_uvs(mesh, atlas.corner_uvs)
+    assert [p.tolist() for p in polygons_out] == polygons.tolist()
+    assert len(corner_uvs) == 24
+    assert consistent.all()
+
+
+def test_layout_image_shows_every_chart():
+    mesh, labels = _capsule_parts()
+    atlas = unwrap(mesh, labels, UnwrapParams(atlas_size=256))
+    image = atlas_layout_image(atlas, size=256)
+    assert image.shape == (256, 256, 3) and image.dtype == np.uint8
+    assert (image != 255).any(axis=2).mean() > 0.2  # charts drawn, not a blank page
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("atlas_size", 16), ("padding", -1), ("max_stretch", 0.5), ("max_stretch", float("nan"))],
+)
+def test_bad_parameters_say_what_is_wrong(field, value):
+    with pytest.raises(ParameterError, match=field):
+        UnwrapParams(**{field: value})
+
+
+def test_labels_of_the_wrong_length_are_rejected():
+    mesh, _ = _capsule_parts()
+    with pytest.raises(ParameterError, match="one label per triangle"):
+        unwrap(mesh, np.zeros(5, dtype=np.int64))

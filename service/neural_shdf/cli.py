@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -21,26 +22,42 @@ from neural_shdf.errors import NeuralShdfError, ParameterError
 #: Exit codes: 0 ok, 1 unexpected failure, 2 bad input or usage, 3 model unavailable.
 EXIT_BAD_INPUT = 2
 EXIT_MODEL_UNAVAILABLE = 3
+#: Resolution of the progress bars.
+PROGRESS_STEPS = 1000
 
 
 @contextmanager
-def progress_bar(description: str, enabled: bool = True) -> Iterator[Callable[[float], None]]:
-    """A tqdm bar on stderr that appears only for work lasting more than a second."""
+def progress_bar(
+    description: str, enabled: bool = True, *, delay_s: float = 1.0
+) -> Iterator[Callable[[float], None]]:
+    """A tqdm bar on stderr for work that lasts more than ``delay_s``, cleared when it ends.
+
+    Only on a terminal: redirected to a file or a pipe, stderr gets no ``\r`` frames.
+    The returned function takes the fraction done (from any thread; it never goes back).
+    """
     from tqdm import tqdm
 
     bar = tqdm(
-        total=1000,
+        total=PROGRESS_STEPS,
         desc=description,
-        delay=1.0,
-        disable=not enabled,
+        delay=delay_s,
+        mininterval=0.2,
+        disable=not (enabled and sys.stderr.isatty()),
         file=sys.stderr,
         leave=False,
         bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}",
     )
+    done = 0
+    lock = threading.Lock()
 
     def update(fraction: float) -> None:
-        bar.n = int(1000 * min(max(fraction, 0.0), 1.0))
-        bar.refresh()
+        # tqdm.update (not refresh) honours the delay, and then close() clears the line.
+        nonlocal done
+        target = int(PROGRESS_STEPS * min(max(fraction, 0.0), 1.0))
+        with lock:
+            if target > done:
+                bar.update(target - done)
+                done = target
 
     try:
         yield update
@@ -58,8 +75,9 @@ def _load(args: argparse.Namespace):
     )
 
 
-def _shdf(mesh, args: argparse.Namespace, graph) -> np.ndarray:
-    """The ShDF per triangle; says on stderr which producer ran (``auto`` resolved)."""
+def _shdf(mesh, args: argparse.Namespace, graph) -> tuple[np.ndarray, str]:
+    """The ShDF per triangle and a note naming the producer that ran (``auto`` resolved),
+    for the command's summary line."""
     from neural_shdf.pipeline import compute_shdf_result
 
     start = time.perf_counter()
@@ -68,10 +86,8 @@ def _shdf(mesh, args: argparse.Namespace, graph) -> np.ndarray:
             mesh, method=args.method, seed=args.seed, graph=graph, progress=progress,
             model=args.model,
         )
-    if not args.quiet:
-        print(f"ShDF: {result.method} (requested {args.method}), {mesh.input_face_count} faces, "
-              f"{time.perf_counter() - start:.2f} s", file=sys.stderr)
-    return result.values
+    note = f"ShDF {result.method} ({args.method}) in {time.perf_counter() - start:.2f} s"
+    return result.values, note
 
 
 def cmd_shdf(args: argparse.Namespace) -> int:
@@ -79,23 +95,31 @@ def cmd_shdf(args: argparse.Namespace) -> int:
     from neural_shdf.pipeline import input_face_shdf, mesh_face_graph
 
     mesh = _load(args)
-    values = _shdf(mesh, args, mesh_face_graph(mesh))
+    values, note = _shdf(mesh, args, mesh_face_graph(mesh))
     write_values(args.output, input_face_shdf(mesh, values))
+    if not args.quiet:
+        print(f"{mesh.input_face_count} faces, {note}", file=sys.stderr)
     return 0
 
 
 def cmd_segment(args: argparse.Namespace) -> int:
-    from neural_shdf.export import colored_glb, parts_glb, write_labels
-    from neural_shdf.pipeline import input_face_labels, mesh_face_graph, segment_mesh
+    from neural_shdf.export import colored_glb, parts_glb, write_labels, write_part_tree
+    from neural_shdf.pipeline import input_face_parts, mesh_face_graph, segment_mesh_with_details
     from neural_shdf.segment import SegmentParams
 
     params = SegmentParams.from_attributes(args)
+    if args.tree and params.partitioner != "graphcut":
+        raise ParameterError("--tree needs the graphcut partitioner (metis makes no part tree)")
     mesh = _load(args)
     graph = mesh_face_graph(mesh)
-    shdf = _shdf(mesh, args, graph)
+    shdf, note = _shdf(mesh, args, graph)
     start = time.perf_counter()
-    labels = segment_mesh(mesh, shdf, params, graph=graph)
-    write_labels(args.output, input_face_labels(mesh, labels))
+    result = segment_mesh_with_details(mesh, shdf, params, graph=graph)
+    labels = result.labels
+    face_labels, face_leaves = input_face_parts(mesh, result)
+    write_labels(args.output, face_labels)
+    if args.tree:
+        write_part_tree(args.tree, result.tree, face_leaves, result.part_count)
     if args.colored:
         Path(args.colored).write_bytes(colored_glb(mesh, labels))
     if args.parts_glb:
@@ -103,8 +127,8 @@ def cmd_segment(args: argparse.Namespace) -> int:
     if not args.quiet:
         parts = len(np.unique(labels))
         elapsed = time.perf_counter() - start
-        print(f"{parts} parts, {mesh.input_face_count} faces, segmented in {elapsed:.2f} s",
-              file=sys.stderr)
+        print(f"{parts} parts, {mesh.input_face_count} faces, {note}, segmented in "
+              f"{elapsed:.2f} s", file=sys.stderr)
     return 0
 
 
@@ -123,7 +147,7 @@ def cmd_unwrap(args: argparse.Namespace) -> int:
     )
     mesh = _load(args)
     graph = mesh_face_graph(mesh)
-    shdf = _shdf(mesh, args, graph)
+    shdf, _ = _shdf(mesh, args, graph)
     start = time.perf_counter()
     labels = segment_mesh(mesh, shdf, params, graph=graph)
     atlas = unwrap(mesh, labels, unwrap_params)
@@ -214,7 +238,9 @@ def _add_segment_options(parser: argparse.ArgumentParser) -> None:
                         help="mixture components k, a level of detail (default 9), "
                              "or 'auto' to choose k per mesh by BIC")
     parser.add_argument("--smoothing", type=float, help="graph-cut smoothness lambda")
-    parser.add_argument("--parts", type=int, help="number of parts (metis; default: automatic)")
+    parser.add_argument("--parts", type=int,
+                        help="number of parts: a cut of the graph cut's part tree (at most its "
+                             "leaves), or exactly this many with metis (default: automatic)")
     parser.add_argument("--refine", action="store_true", help="recursively refine parts")
     parser.add_argument("--boundary-smoothing", action="store_true",
                         help="alpha-expansion pass that smooths part boundaries")
@@ -236,6 +262,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         outputs=outputs,
         file_type=args.format,
         max_faces=args.max_faces,
+        max_vertices=args.max_vertices,
         cache=args.cache,
         workers=args.workers,
         scheduler=args.scheduler,
@@ -262,6 +289,9 @@ def build_parser() -> argparse.ArgumentParser:
     segment.add_argument("-o", "--output", required=True, help="output .seg file")
     _add_segment_options(segment)
     segment.add_argument("--colored", metavar="OUT.glb", help="write a GLB coloured by part")
+    segment.add_argument("--tree", metavar="OUT.json",
+                         help="write the part tree (graphcut): leaf per input face, parent of "
+                              "each node, merge costs; any part count is a cut of it")
     segment.add_argument("--parts-glb", metavar="OUT.glb",
                          help="write a GLB with one mesh node per part")
     segment.set_defaults(run=cmd_segment)
@@ -293,8 +323,10 @@ def build_parser() -> argparse.ArgumentParser:
                             "'distributed' extra and the same paths on every worker")
     batch.add_argument("--cache", metavar="URL_OR_DIR",
                        help="ShDF cache shared with the service: redis://host:port/db or a folder")
-    batch.add_argument("--max-faces", type=int, default=2_000_000,
+    batch.add_argument("--max-faces", type=int, default=DEFAULT_MAX_FACES,
                        help="assets with more triangles fail without being computed")
+    batch.add_argument("--max-vertices", type=int, default=DEFAULT_MAX_VERTICES,
+                       help="assets with more vertices (glTF instances counted) fail")
     batch.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
     batch.set_defaults(run=cmd_batch)
 

@@ -1,11 +1,13 @@
-"""Write segmentation results: coloured GLB, one-node-per-part GLB, .seg labels, value files."""
+"""Write segmentation results: coloured GLB, one-node-per-part GLB, .seg labels, value files,
+the part tree as JSON."""
 
 from __future__ import annotations
 
 import colorsys
+import json
 import struct
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -14,6 +16,7 @@ from neural_shdf.errors import ParameterError
 from neural_shdf.mesh import TriangleMesh
 
 if TYPE_CHECKING:
+    from neural_shdf.segment.hierarchy import PartTree
     from neural_shdf.unwrap import UvAtlas
 
 #: First colours of the palette: distinct, colour-blind-friendly-ish, light enough to shade.
@@ -288,6 +291,35 @@ def read_values(path: str | Path) -> NDArray[np.float64]:
     return np.array(_read_column(path, float, "a number"), dtype=np.float64)
 
 
+def part_tree_document(tree: PartTree, leaf_labels: NDArray, parts: int) -> dict[str, Any]:
+    """The part tree as JSON-ready data (the API's ``hierarchy`` and the CLI's ``--tree``).
+
+    ``leaf_labels``: leaf per face of the output (e.g. per input face; -1 for none).
+    Keys: ``leaf_count`` L; ``parts`` (the count the labels were cut at);
+    ``automatic_parts``; ``leaf_labels``; ``parent`` (2L - 1 node ids, -1 for the
+    root; leaves are 0..L-1, merge i made node L + i); ``merge_cost`` and
+    ``merge_height`` (L - 1; height: running maximum of the cost). To cut at N
+    parts, give each leaf its highest ancestor with id < 2L - N (itself when its
+    parent's id is >= 2L - N) and number the parts by their smallest leaf.
+    """
+    from neural_shdf.segment.hierarchy import automatic_part_count
+
+    return {
+        "leaf_count": tree.leaf_count,
+        "parts": int(parts),
+        "automatic_parts": automatic_part_count(tree),
+        "leaf_labels": np.asarray(leaf_labels, dtype=np.int64).tolist(),
+        "parent": tree.parent.tolist(),
+        "merge_cost": [float(c) for c in tree.costs],
+        "merge_height": [float(h) for h in tree.heights],
+    }
+
+
+def write_part_tree(path: str | Path, tree: PartTree, leaf_labels: NDArray, parts: int) -> None:
+    """Write ``part_tree_document`` as a JSON file."""
+    Path(path).write_text(json.dumps(part_tree_document(tree, leaf_labels, parts)))
+
+
 __all__ = [
     "UNLABELED_COLOR",
     "colored_glb",
@@ -295,6 +327,7 @@ __all__ = [
     "part_color_hex",
     "part_colors",
     "part_name",
+    "part_tree_document",
     "parts_glb",
     "read_labels",
     "read_values",
@@ -302,6 +335,7 @@ __all__ = [
     "unwrapped_glb",
     "uv_split_vertices",
     "write_labels",
+    "write_part_tree",
     "write_obj_with_uvs",
     "write_values",
 ]

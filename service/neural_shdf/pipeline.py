@@ -20,6 +20,7 @@ from neural_shdf.segment import SegmentParams
 from neural_shdf.shdf.stage import ShdfMethod, ShdfParams, ShdfResult, run_shdf, with_seed
 
 if TYPE_CHECKING:
+    from neural_shdf.segment.pipeline import SegmentResult
     from neural_shdf.shdf.neural.inference import NeuralModel
 
 Progress = Callable[[float], None]
@@ -86,11 +87,22 @@ def segment_mesh(
     graph: FaceGraph | None = None,
 ) -> NDArray[np.int64]:
     """Part label per triangle, 0..P-1, from a ShDF in [0, 1]; deterministic."""
-    from neural_shdf.segment.pipeline import segment
+    return segment_mesh_with_details(mesh, shdf, params, graph=graph).labels
+
+
+def segment_mesh_with_details(
+    mesh: TriangleMesh,
+    shdf: NDArray,
+    params: SegmentParams | None = None,
+    *,
+    graph: FaceGraph | None = None,
+) -> SegmentResult:
+    """``segment_mesh`` plus the graph cut's part tree, the mixture size and timings."""
+    from neural_shdf.segment.pipeline import segment_with_details
 
     graph = mesh_face_graph(mesh) if graph is None else graph
     _, areas = mesh.normals_and_areas
-    return segment(
+    return segment_with_details(
         mesh.vertices, mesh.faces, np.asarray(shdf), params or SegmentParams(), graph, areas=areas
     )
 
@@ -105,6 +117,20 @@ def input_face_shdf(mesh: TriangleMesh, values: NDArray) -> NDArray[np.float64]:
     """One ShDF value per face of the input file, in its order (area-weighted mean over a
     polygon's triangles): ``mesh.to_input_faces``."""
     return mesh.to_input_faces(values)
+
+
+def input_face_parts(
+    mesh: TriangleMesh, result: SegmentResult
+) -> tuple[NDArray[np.int64], NDArray[np.int64] | None]:
+    """(part label, leaf of the part tree or None) per input face; -1 for faces without triangles.
+
+    With a tree, the input faces' labels are the tree's cut of their leaves, so a
+    client that re-cuts the tree (see ``export.part_tree_document``) gets the same.
+    """
+    if result.tree is None:
+        return input_face_labels(mesh, result.labels), None
+    leaves = input_face_labels(mesh, result.tree.leaf_labels)
+    return result.tree.relabel(leaves, result.part_count), leaves
 
 
 def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "sampled", "neural")) -> float:

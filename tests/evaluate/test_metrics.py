@@ -18,6 +18,7 @@ from neural_shdf.evaluate.metrics import (
     cut_distance_field,
     cut_graph,
     hamming_distance,
+    matched_accuracy,
     rand_index_error,
     score_against_humans,
     score_segmentation,
@@ -235,3 +236,28 @@ def test_mismatched_lengths_are_refused():
         score_segmentation(mesh, np.zeros(3, dtype=int), np.zeros(len(faces), dtype=int))
     with pytest.raises(ValueError, match="weights"):
         rand_index_error(A, B, np.ones(3))
+
+
+def test_matched_accuracy_matches_segments_one_to_one():
+    reference = np.array([0, 0, 0, 1, 1, 2, 2, 2])
+    assert matched_accuracy(reference, reference) == 1.0
+    assert matched_accuracy(reference + 5, reference) == 1.0  # names do not matter
+    # Two segments covering label 0: only one can be matched; the other's face is wrong.
+    assert matched_accuracy([0, 0, 3, 1, 1, 2, 2, 2], reference) == pytest.approx(7 / 8)
+    # A segment straddling labels 0 and 1 is matched to one of them.
+    labels = np.array([0, 0, 1, 1, 1, 2, 2, 2])
+    assert matched_accuracy(labels, reference) == pytest.approx(7 / 8)
+    # Weights count mass instead of faces.
+    weights = np.array([1, 1, 1, 1, 1, 1, 1, 9.0])
+    assert matched_accuracy([0, 0, 3, 1, 1, 2, 2, 2], reference, weights) == pytest.approx(15 / 16)
+
+
+@given(st.lists(st.integers(0, 3), min_size=1, max_size=12), st.data())
+@settings(max_examples=60, deadline=None)
+def test_matched_accuracy_equals_the_best_permutation(labels, data):
+    reference = data.draw(st.lists(st.integers(0, 3), min_size=len(labels), max_size=len(labels)))
+    labels, reference = np.array(labels), np.array(reference)
+    best = 0
+    for perm in itertools.permutations(range(4)):
+        best = max(best, int(np.sum(np.array(perm)[labels] == reference)))
+    assert matched_accuracy(labels, reference) == pytest.approx(best / len(labels))

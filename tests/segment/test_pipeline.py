@@ -97,6 +97,30 @@ def test_reference_faces_make_part_counts_independent_of_tessellation():
     assert counts == [3, 3]
 
 
+def test_graphcut_parts_cut_its_merge_tree(dumbbell_case):
+    vertices, faces, shdf, graph, _ = dumbbell_case
+    fine = SegmentParams(smoothing=0.02)
+    whole = segment_with_details(vertices, faces, shdf, fine, graph)
+    leaves = whole.tree.leaf_count
+    assert leaves >= 3
+    for parts in range(1, leaves + 1):
+        result = segment_with_details(vertices, faces, shdf, replace(fine, parts=parts), graph)
+        assert_canonical(result.labels)
+        assert result.part_count == parts
+        # The same tree, cut: no new partition per count.
+        np.testing.assert_array_equal(result.tree.merges, whole.tree.merges)
+        np.testing.assert_array_equal(result.labels, whole.tree.labels(parts))
+    # More parts than leaves: all the leaves.
+    many = segment(vertices, faces, shdf, replace(fine, parts=leaves + 5), graph)
+    np.testing.assert_array_equal(many, whole.tree.leaf_labels)
+
+
+def test_metis_has_no_tree(dumbbell_case):
+    vertices, faces, shdf, graph, _ = dumbbell_case
+    params = SegmentParams(partitioner="metis", parts=3)
+    assert segment_with_details(vertices, faces, shdf, params, graph).tree is None
+
+
 def test_constant_shdf_gives_one_part(dumbbell_case):
     vertices, faces, _, graph, _ = dumbbell_case
     result = segment_with_details(vertices, faces, np.full(len(faces), 0.5), SegmentParams(), graph)
@@ -149,7 +173,7 @@ def test_empty_mesh():
         ({"smoothing": -1.0}, "smoothing must be a finite number"),
         ({"smoothing": float("nan")}, "smoothing must be a finite number"),
         ({"smoothing": 1e9}, "smoothing must be a finite number in \\[0, 100\\]"),
-        ({"parts": 3}, "parts applies to the 'metis' partitioner only"),
+        ({"parts": 0}, "parts must be an integer in 1..10000"),
         ({"partitioner": "metis", "parts": 0}, "parts must be an integer in 1..10000"),
         ({"partitioner": "metis", "parts": 9999}, "more than the mesh's"),
         ({"partitioner": "metis", "parts": 10**9}, "parts must be an integer in 1..10000"),

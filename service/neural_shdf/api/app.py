@@ -13,11 +13,13 @@ from fastapi.responses import JSONResponse
 
 from neural_shdf import __version__
 from neural_shdf.api.cache import DiskBackend, FallbackBackend, RedisBackend, ResultCache
+from neural_shdf.api.docs import install_docs
 from neural_shdf.api.engine import Engine
 from neural_shdf.api.errors import BodySizeLimitMiddleware, install_error_handlers
 from neural_shdf.api.jobs import JobAccepted, public_job
+from neural_shdf.api.links import add_links
 from neural_shdf.api.metrics import Metrics, RequestMetricsMiddleware
-from neural_shdf.api.routes import health, jobs, meshes, segment
+from neural_shdf.api.routes import health, jobs, meshes, segment, unwrap
 from neural_shdf.api.routes.viewer import install_viewer
 from neural_shdf.api.settings import Settings
 from neural_shdf.pipeline import warm_up
@@ -60,8 +62,20 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+        logger.info(
+            "neural-shdf %s: default ShDF method %s, model %s, cache %s",
+            __version__,
+            settings.default_method,
+            engine.shdf.model_path,
+            engine.cache.backend.name,
+        )
         if settings.warm_up:
             # The first request then pays no compilation (seconds on a fresh install).
+            logger.info(
+                "warming up: a small sphere through the face graph, both ShDF methods and "
+                "both partitioners (compiles the numba kernels once after an install, about "
+                "15 s; later starts load them from their cache)"
+            )
             try:
                 seconds = await engine.run(warm_up)
                 logger.info("warm-up done in %.2f s", seconds)
@@ -76,8 +90,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version=__version__,
         description=DESCRIPTION,
         lifespan=lifespan,
+        docs_url=None,  # served from local assets by install_docs (works offline)
+        redoc_url=None,
     )
     app.state.settings = settings
+    install_docs(app)
     app.state.engine = engine
     install_error_handlers(app)
 
@@ -90,7 +107,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         )
 
     app.add_exception_handler(JobAccepted, job_accepted)
-    for module in (health, meshes, segment, jobs):
+    for module in (health, meshes, segment, unwrap, jobs):
         app.include_router(module.router)
     install_viewer(app, settings)
     app.openapi = lambda: _openapi_with_error_shape(app)  # type: ignore[method-assign]
@@ -104,7 +121,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 
 def _openapi_with_error_shape(app: FastAPI) -> dict[str, Any]:
-    """FastAPI's schema with its default 422 body replaced by the service's error shape."""
+    """FastAPI's schema with its default 422 body replaced by the service's error shape,
+    and links from the operations that answer a mesh or job id to those that take one."""
     if app.openapi_schema is None:
         schema = get_openapi(
             title=app.title,
@@ -125,7 +143,7 @@ def _openapi_with_error_shape(app: FastAPI) -> dict[str, Any]:
         components = schema.get("components", {}).get("schemas", {})
         components.pop("HTTPValidationError", None)
         components.pop("ValidationError", None)
-        app.openapi_schema = schema
+        app.openapi_schema = add_links(schema)
     return app.openapi_schema
 
 

@@ -25,7 +25,7 @@ CLUSTER_CANDIDATES = tuple(range(2, 9))
 MAX_CLUSTERS = 32
 #: Largest graph-cut smoothness lambda accepted (beyond it every face joins one part).
 MAX_SMOOTHING = 100.0
-#: Most parts a user may ask METIS for (also bounded by the mesh's face count).
+#: Most parts a user may ask for (also bounded by the mesh's face count).
 MAX_PARTS = 10_000
 #: Largest seed accepted (a non-negative 31-bit integer, the same in the CLI, API and library).
 MAX_SEED = 2**31 - 1
@@ -48,7 +48,9 @@ class SegmentParams:
             count); None: ``DEFAULT_CLUSTERS``; ``AUTO_CLUSTERS`` (0): k in
             ``CLUSTER_CANDIDATES`` chosen per mesh by BIC.
         smoothing: smoothness weight lambda of the graph cut (None: ``DEFAULT_SMOOTHING``).
-        parts: number of parts for ``metis`` (None: as many as the graph cut finds).
+        parts: number of parts. ``graphcut``: a cut of the merge tree over its parts
+            (``segment.hierarchy``; more than its leaves gives every leaf); ``metis``:
+            exactly this many. None: automatic (``metis``: as many as the graph cut finds).
         refine: recursively re-segment parts that are themselves heterogeneous.
         boundary_smoothing: alpha-expansion pass that straightens part boundaries.
         seed: seed of every random step, in 0..``MAX_SEED``. The one seed convention of
@@ -102,16 +104,8 @@ class SegmentParams:
                 f"smoothing must be a finite number in [0, {MAX_SMOOTHING:g}] (or None for "
                 f"{DEFAULT_SMOOTHING}), got {self.smoothing!r}"
             )
-        if self.parts is not None:
-            if self.partitioner != "metis":
-                raise ParameterError(
-                    "parts applies to the 'metis' partitioner only; the graph cut finds the "
-                    "number of parts itself (leave parts unset or use partitioner='metis')"
-                )
-            if not _is_int(self.parts) or not 1 <= self.parts <= MAX_PARTS:
-                raise ParameterError(
-                    f"parts must be an integer in 1..{MAX_PARTS}, got {self.parts!r}"
-                )
+        if self.parts is not None and (not _is_int(self.parts) or not 1 <= self.parts <= MAX_PARTS):
+            raise ParameterError(f"parts must be an integer in 1..{MAX_PARTS}, got {self.parts!r}")
         for name in ("refine", "boundary_smoothing"):
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise ParameterError(f"{name} must be true or false, got {getattr(self, name)!r}")

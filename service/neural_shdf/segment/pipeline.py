@@ -7,7 +7,9 @@ Steps (Shapira et al. 2008 as implemented by CGAL's ``segmentation_from_sdf_valu
    dihedral edge weights; connected runs of one cluster become parts.
    ``metis``: METIS k-way partition into exactly ``parts`` parts;
 3. optional recursive refinement and boundary smoothing; tiny parts merged
-   (graph cut only); labels renumbered by lowest face index.
+   (graph cut only); labels renumbered by lowest face index;
+4. graph cut only: the parts are the leaves of a merge tree (``hierarchy``), cut
+   at ``parts`` parts or, by default, where the merge cost jumps.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from numpy.typing import NDArray
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
 from neural_shdf.segment.graphcut import data_costs, dihedral_weights, multilevel_alpha_expansion
+from neural_shdf.segment.hierarchy import PartTree, merge_tree
 from neural_shdf.segment.metis import metis_edge_weights, metis_partition
 from neural_shdf.segment.mixture import fit_best_mixture, fit_mixture
 from neural_shdf.segment.params import (
@@ -44,6 +47,8 @@ class SegmentResult:
     clusters: int
     smoothing: float
     timings: dict[str, float] = field(default_factory=dict)
+    #: The graph cut's merge tree (None for ``metis``): ``labels`` is one of its cuts.
+    tree: PartTree | None = None
 
     @property
     def part_count(self) -> int:
@@ -172,7 +177,15 @@ def segment_with_details(
                 params.min_part_fraction,
             )
         lap("boundary_smoothing")
-    return SegmentResult(canonical_labels(parts), mixture.size, smoothing, timings)
+    if params.partitioner == "metis":
+        return SegmentResult(canonical_labels(parts), mixture.size, smoothing, timings)
+
+    # Graph cut: its parts are the leaves of the merge tree; cut it at the asked count.
+    tree = merge_tree(canonical_labels(parts), graph, geometry.areas, values)
+    count = tree.leaf_count if params.parts is None else params.parts
+    labels = tree.labels(count)
+    lap("hierarchy")
+    return SegmentResult(labels, mixture.size, smoothing, timings, tree)
 
 
 def cut_into_parts(

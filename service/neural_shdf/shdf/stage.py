@@ -36,6 +36,8 @@ from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, face_centroids
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.shdf.postprocess import (
+    EXACT_WINDOW_MAX,
+    FILTER_COST_PER_PAIR,
     RANGE_SIGMA_FACTOR,
     SPATIAL_SIGMA_FACTOR,
     postprocess_shdf,
@@ -301,7 +303,11 @@ def run_shdf(
         from neural_shdf.shdf.neural.inference import NeuralModel, load_model
 
         model = model if isinstance(model, NeuralModel) else load_model(model)  # type: ignore[arg-type]
-    ray_share = 0.9 if resolved == "exact" else 0.5
+    window = params.window_for(mesh.face_count)
+    ray_share = 0.5
+    if resolved == "exact":  # the rays against the filter's expected time
+        pairs = 1 + 3 * min(window, EXACT_WINDOW_MAX) * (min(window, EXACT_WINDOW_MAX) + 1) // 2
+        ray_share = 1.0 / (1.0 + FILTER_COST_PER_PAIR * pairs)
     centroids = face_centroids(mesh.vertices, mesh.faces)
     raw = raw_diameters(
         mesh,
@@ -315,12 +321,13 @@ def run_shdf(
     values = postprocess_shdf(
         raw,
         graph,
-        window_size=params.window_for(mesh.face_count),
+        window_size=window,
         smooth=resolved == "exact",
         centroids=centroids,
+        progress=None
+        if progress is None
+        else (lambda done: progress(ray_share + (1 - ray_share) * done)),
     )
-    if progress is not None:
-        progress(1.0)
     return ShdfResult(values, resolved)
 
 

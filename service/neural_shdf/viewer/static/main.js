@@ -138,22 +138,8 @@ async function loadMesh(meta, method) {
   await resegment({ reason: 'load' });
 }
 
-/** The ShDF values, waiting for the job when a large mesh's ShDF is still being computed. */
-async function fetchShdf(meshId, method) {
-  for (;;) {
-    const response = await fetch(`/v1/meshes/${meshId}/shdf?format=f32&method=${method}`);
-    if (response.status === 202) {
-      await api.waitForJob(await response.json(), (f) => showProgress('Computing the ShDF', f));
-      continue;
-    }
-    if (!response.ok) {
-      const text = await response.text();
-      let body = null;
-      try { body = JSON.parse(text); } catch (_) { /* not JSON */ }
-      throw new api.ServiceError(response.status, body?.error?.code || 'http_error', body?.error?.message || text);
-    }
-    return new Float32Array(await response.arrayBuffer());
-  }
+function fetchShdf(meshId, method) {
+  return api.getShdf(meshId, method, (f) => showProgress('Computing the ShDF', f));
 }
 
 // ---- segmentation ---------------------------------------------------------------------
@@ -163,7 +149,7 @@ function controlValues() {
     partitioner,
     clusters: Number($('clusters').value),
     smoothing: Number($('smoothing').value),
-    parts: partitioner === 'metis' ? Number($('parts').value) : null,
+    parts: Number($('parts').value) || null,  // 0: automatic
     refine: $('refine').checked,
     boundary_smoothing: $('boundary-smoothing').checked,
   };
@@ -366,16 +352,7 @@ const stem = () => (state.meta.filename || state.meshId.slice(0, 16)).replace(/\
 async function downloadGlb(style) {
   if (!state.shownRequest) return;
   try {
-    const query = api.segmentQuery(state.shownRequest);
-    const url = `/v1/meshes/${state.meshId}/segmentation/${style}.glb?${query}`;
-    const response = await fetch(url);
-    if (!response.ok) {
-      const text = await response.text();
-      let body = null;
-      try { body = JSON.parse(text); } catch (_) { /* not JSON */ }
-      throw new api.ServiceError(response.status, body?.error?.code || 'http_error', body?.error?.message || text);
-    }
-    saveBlob(await response.blob(), `${stem()}-${style}.glb`);
+    saveBlob(await api.getGlb(state.meshId, style, state.shownRequest), `${stem()}-${style}.glb`);
   } catch (error) {
     showError(error, `${style} GLB`);
   }
@@ -394,10 +371,10 @@ function showValues() {
   const clusters = Number($('clusters').value);
   $('clusters-out').textContent = clusters === 0 ? 'auto' : String(clusters);
   $('smoothing-out').textContent = Number($('smoothing').value).toFixed(2);
-  $('parts-out').textContent = $('parts').value;
-  const metis = $('partitioner').value === 'metis';
-  $('parts').disabled = !metis;
-  $('parts').closest('label').title = metis ? '' : 'METIS only: the graph cut finds the part count itself';
+  const parts = Number($('parts').value);
+  $('parts-out').textContent = parts === 0 ? 'auto' : String(parts);
+  $('parts').closest('label').title = $('partitioner').value === 'metis'
+    ? 'METIS: exactly this many parts' : 'graph cut: a cut of its part tree (at most its leaves)';
 }
 
 const CHOICE_NAMES = {

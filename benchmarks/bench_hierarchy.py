@@ -1,0 +1,129 @@
+"""Part hierarchy speed on a ~1M-face mesh from a cached ShDF: tree build + cut, later cuts.
+
+Mesh: psb-dev 82 (an ant, 16.6k faces) subdivided three times (1.06M faces)
+where ``../shared/data`` exists, else the 1M-face dumbbell. ShDF: the exact
+ShDF of the base mesh, each subdivided face taking its nearest base face's
+value (a realistic per-face field; "cached" means it is given). The face graph
+is built first and reported apart (it is cached with the mesh in the service).
+
+Rows (wall and CPU seconds, best of ``--repeat``; ratio = time / target):
+
+* ``segment``: the whole re-segmentation from the cached ShDF with default
+  parameters: mixture, graph cut (the tree's leaves), tree build, automatic cut;
+  target 1.5 s.
+* ``tree+cut``: building the merge tree from the leaves and cutting it
+  (automatic count); the part of ``segment`` the hierarchy adds.
+* ``later cut``: ``PartTree.labels(N)`` for every N in 1..leaves; the worst and
+  the median; target 20 ms.
+
+    python benchmarks/bench_hierarchy.py [--repeat 3] [--subdivisions 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from neural_shdf.geometry import build_face_graph, face_centroids, face_normals, weld_faces
+from neural_shdf.segment.hierarchy import automatic_part_count, merge_tree
+from neural_shdf.segment.params import SegmentParams
+from neural_shdf.segment.pipeline import segment_with_details
+from neural_shdf.segment.synthetic import dumbbell
+from neural_shdf.shdf.postprocess import log_normalize
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+BASE_MESH = REPO_ROOT / ".." / "shared" / "data" / "psb-dev" / "off" / "82.off"
+TARGET_SEGMENT_S = 1.5
+TARGET_CUT_S = 0.020
+
+
+def test_mesh(subdivisions: int) -> tuple[str, np.ndarray, np.ndarray, np.ndarray]:
+    """(name, vertices, faces, ShDF per face) of the benchmark mesh."""
+    if not BASE_MESH.is_file():
+        mesh, shdf = dumbbell(1_000_000, ripple=0.05)
+        return "dumbbell", np.asarray(mesh.vertices), np.asarray(mesh.faces), shdf
+    from scipy.spatial import cKDTree
+
+    from neural_shdf.mesh_io import load_mesh
+    from neural_shdf.pipeline import compute_shdf
+
+    base = load_mesh(BASE_MESH)
+    base_shdf = compute_shdf(base, method="exact")
+    vertices, faces = base.vertices, base.faces
+    for _ in range(subdivisions):
+        vertices, faces = trimesh.remesh.subdivide(vertices, faces)
+    nearest = cKDTree(face_centroids(base.vertices, base.faces)).query(
+        face_centroids(vertices, faces)
+    )[1]
+    return f"psb-82 x{4**subdivisions}", vertices, faces, base_shdf[nearest]
+
+
+def timed(function, repeat: int):
+    """(best wall seconds, best CPU seconds, last result)."""
+    wall, cpu, result = np.inf, np.inf, None
+    for _ in range(repeat):
+        start, start_cpu = time.perf_counter(), time.process_time()
+        result = function()
+        wall = min(wall, time.perf_counter() - start)
+        cpu = min(cpu, time.process_time() - start_cpu)
+    return wall, cpu, result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=3, help="runs per case; the best counts")
+    parser.add_argument("--subdivisions", type=int, default=3)
+    args = parser.parse_args()
+
+    name, vertices, faces, shdf = test_mesh(args.subdivisions)
+    start = time.perf_counter()
+    normals, areas = face_normals(vertices, faces)
+    graph = build_face_graph(vertices, weld_faces(vertices, faces), normals)
+    print(
+        f"mesh {name}: {len(faces)} faces; face graph {time.perf_counter() - start:.2f} s "
+        "(not counted: cached with the mesh)"
+    )
+
+    params = SegmentParams()
+    wall, cpu, result = timed(
+        lambda: segment_with_details(vertices, faces, shdf, params, graph, areas=areas),
+        args.repeat,
+    )
+    steps = " ".join(f"{k}={v:.3f}" for k, v in result.timings.items())
+    tree = result.tree
+    print(f"{'what':<10} {'wall_s':>8} {'cpu_s':>7} {'target_s':>8} {'ratio':>6} {'cpu_ratio':>9}")
+    print(
+        f"{'segment':<10} {wall:8.3f} {cpu:7.3f} {TARGET_SEGMENT_S:8.3f} "
+        f"{wall / TARGET_SEGMENT_S:6.2f} {cpu / TARGET_SEGMENT_S:9.2f}  "
+        f"{result.part_count} parts of {tree.leaf_count} leaves; {steps}"
+    )
+
+    values = log_normalize(shdf)
+    leaves = tree.leaf_labels
+
+    def build_and_cut():
+        built = merge_tree(leaves, graph, areas, values)
+        return built.labels(automatic_part_count(built))
+
+    wall, cpu, _ = timed(build_and_cut, args.repeat)
+    print(
+        f"{'tree+cut':<10} {wall:8.3f} {cpu:7.3f} {'-':>8} {'-':>6} {'-':>9}  (included in segment)"
+    )
+
+    cut_times = []
+    for count in range(1, tree.leaf_count + 1):
+        cut_times.append(timed(lambda count=count: tree.labels(count), args.repeat)[0])
+    worst, median = max(cut_times), float(np.median(cut_times))
+    print(
+        f"{'later cut':<10} {worst:8.4f} {'-':>7} {TARGET_CUT_S:8.3f} "
+        f"{worst / TARGET_CUT_S:6.2f} {'-':>9}  worst of N = 1..{tree.leaf_count}; "
+        f"median {median * 1000:.1f} ms"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,268 @@
+"""A merge tree (dendrogram) over the parts of an over-segmentation.
+
+Adjacent parts merge greedily, cheapest first, where the cost of merging A and B is
+what a person would weigh::
+
+    cost = size ** SIZE_EXPONENT * (CONSTANT + |mean ShDF_A - mean ShDF_B|
+           + CONCAVITY_WEIGHT * concavity) * neck ** -NECK_EXPONENT
+
+* ``size``: the smaller part's share of the surface area (slivers go first);
+* ShDF means: area-weighted, of the log-normalised ShDF (thick and thin differ);
+* ``concavity``: length-weighted mean of ``angle / pi`` over the shared boundary's
+  concave edges (convex and flat edges count 0): a crease is a natural boundary;
+* ``neck``: shared boundary length over sqrt(smaller part's area): a short cut
+  around a protrusion (a finger, a handle) is natural, a long one is not.
+
+Tree layout (scipy's ``linkage`` convention): leaves are nodes ``0..L-1``; merge
+``i`` creates node ``L + i`` from ``merges[i]``; the root is ``2L - 2``. Cutting
+at N parts undoes the last ``N - 1`` merges: each leaf belongs to its highest
+ancestor whose id is below ``2L - N``. Cuts are nested (N + 1 refines N).
+Parts of a cut are numbered by their smallest leaf; with leaves numbered by their
+lowest face, that is the order of each part's lowest face (``canonical_labels``).
+
+Shells with no shared edge merge after every adjacent pair, smallest first, into
+the part of nearest ShDF mean (their cost treats the missing boundary as the
+narrowest neck), so the tree always has one root.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.errors import ParameterError
+from neural_shdf.geometry import FaceGraph
+
+#: Exponent of the smaller part's area share: small parts merge first.
+SIZE_EXPONENT = 1.0
+#: Exponent of the neck ratio (shared boundary length over sqrt(smaller area)).
+NECK_EXPONENT = 1.0
+#: Cost of merging two parts with the same ShDF across a flat boundary, relative to
+#: a difference of 1 in mean log-normalised ShDF.
+COST_CONSTANT = 0.05
+#: Weight of the boundary's mean concave angle (over pi).
+CONCAVITY_WEIGHT = 1.0
+#: Smallest neck ratio (a shell with no shared boundary counts as this narrow).
+NECK_FLOOR = 0.05
+
+
+@dataclass(frozen=True)
+class MergeCost:
+    """The weights of the merge cost (see the module docstring)."""
+
+    size_exponent: float = SIZE_EXPONENT
+    neck_exponent: float = NECK_EXPONENT
+    constant: float = COST_CONSTANT
+    concavity_weight: float = CONCAVITY_WEIGHT
+
+    def __call__(
+        self,
+        area_a: float,
+        area_b: float,
+        mean_a: float,
+        mean_b: float,
+        boundary: float,
+        concave: float,
+        total_area: float,
+    ) -> float:
+        """Cost of merging parts a and b (``concave``: concave-angle-weighted boundary length)."""
+        smaller = min(area_a, area_b)
+        size = smaller / total_area if total_area > 0 else 0.0
+        concavity = concave / boundary if boundary > 0 else 1.0
+        neck = boundary / math.sqrt(smaller) if smaller > 0 else 0.0
+        neck = max(neck, NECK_FLOOR)
+        similarity = self.constant + abs(mean_a - mean_b) + self.concavity_weight * concavity
+        return size**self.size_exponent * similarity * neck**-self.neck_exponent
+
+
+@dataclass(frozen=True)
+class PartTree:
+    """A dendrogram over leaf parts.
+
+    Attributes:
+        leaf_labels: (F,) leaf id of each face, ``0..L-1`` in order of each leaf's lowest face.
+        merges: (L-1, 2) the two nodes merged into node ``L + i``, smaller id first.
+        costs: (L-1,) the cost of each merge, when it was made (may dip below an earlier one).
+    """
+
+    leaf_labels: NDArray[np.int64]
+    merges: NDArray[np.int64]
+    costs: NDArray[np.float64]
+
+    @property
+    def leaf_count(self) -> int:
+        return len(self.merges) + 1 if len(self.leaf_labels) else 0
+
+    @property
+    def heights(self) -> NDArray[np.float64]:
+        """Monotone merge heights: the running maximum of the costs (for display, gaps)."""
+        return np.maximum.accumulate(self.costs) if len(self.costs) else self.costs
+
+    @property
+    def parent(self) -> NDArray[np.int64]:
+        """(2L-1,) parent node of every node; -1 for the root."""
+        leaves = self.leaf_count
+        parent = np.full(max(2 * leaves - 1, 0), -1, dtype=np.int64)
+        if len(self.merges):
+            parent[self.merges.reshape(-1)] = np.repeat(
+                np.arange(leaves, 2 * leaves - 1, dtype=np.int64), 2
+            )
+        return parent
+
+    def leaf_parts(self, count: int) -> NDArray[np.int64]:
+        """(L,) part of each leaf when the tree is cut into ``count`` parts (clamped to 1..L).
+
+        Parts are numbered in order of their smallest leaf.
+        """
+        leaves = self.leaf_count
+        if leaves == 0:
+            return np.zeros(0, dtype=np.int64)
+        count = min(max(int(count), 1), leaves)
+        owner = np.arange(2 * leaves - 1, dtype=np.int64)
+        for i in range(leaves - count):  # union of the first L - count merges
+            a, b = self.merges[i]
+            owner[a] = owner[b] = leaves + i
+        # Merge nodes come after their children: resolving from the top is one pass.
+        for node in range(2 * leaves - 2, -1, -1):
+            owner[node] = owner[owner[node]]
+        root_of_leaf = owner[:leaves]
+        smallest = np.full(2 * leaves - 1, leaves, dtype=np.int64)
+        np.minimum.at(smallest, root_of_leaf, np.arange(leaves))
+        _, dense = np.unique(smallest[root_of_leaf], return_inverse=True)
+        return dense.reshape(-1).astype(np.int64)
+
+    def labels(self, count: int) -> NDArray[np.int64]:
+        """(F,) part per face for ``count`` parts (clamped to 1..L); canonical numbering."""
+        return self.leaf_parts(count)[self.leaf_labels]
+
+    def relabel(self, leaf_labels: NDArray, count: int) -> NDArray[np.int64]:
+        """Parts of any array of leaf ids (e.g. per input face) at ``count``; -1 stays -1."""
+        leaf_labels = np.asarray(leaf_labels, dtype=np.int64)
+        parts = self.leaf_parts(count)
+        return np.where(leaf_labels >= 0, parts[np.maximum(leaf_labels, 0)], -1)
+
+
+def merge_tree(
+    leaf_labels: NDArray,
+    graph: FaceGraph,
+    areas: NDArray,
+    values: NDArray,
+    cost: MergeCost | None = None,
+) -> PartTree:
+    """The merge tree of the parts ``leaf_labels`` (canonical: 0..L-1 by lowest face).
+
+    ``values``: per-face ShDF on the scale the cost compares (log-normalised, [0, 1]).
+    """
+    cost = MergeCost() if cost is None else cost
+    leaves = np.asarray(leaf_labels, dtype=np.int64)
+    face_count = len(leaves)
+    if face_count != graph.face_count:
+        raise ParameterError(f"{face_count} leaf labels for {graph.face_count} faces")
+    if face_count == 0:
+        return PartTree(leaves, np.zeros((0, 2), dtype=np.int64), np.zeros(0))
+    leaf_count = int(leaves.max()) + 1
+    areas = np.asarray(areas, dtype=np.float64)
+    if not areas.sum() > 0:
+        areas = np.ones(face_count)
+    area = np.bincount(leaves, weights=areas, minlength=leaf_count)
+    moment = np.bincount(leaves, weights=areas * values, minlength=leaf_count)
+    total_area = float(area.sum())
+
+    a, b = leaves[graph.pairs[:, 0]], leaves[graph.pairs[:, 1]]
+    cut = np.flatnonzero(a != b)
+    low, high = np.minimum(a[cut], b[cut]), np.maximum(a[cut], b[cut])
+    keys, inverse = np.unique(low * leaf_count + high, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    lengths = graph.edge_length[cut]
+    depth = np.where(graph.concave[cut], graph.dihedral[cut] / np.pi, 0.0)
+    boundary = np.bincount(inverse, weights=lengths, minlength=len(keys))
+    concave = np.bincount(inverse, weights=lengths * depth, minlength=len(keys))
+
+    node_count = 2 * leaf_count - 1
+    node_area = np.zeros(node_count)
+    node_moment = np.zeros(node_count)
+    node_area[:leaf_count] = area
+    node_moment[:leaf_count] = moment
+    neighbours: list[dict[int, list[float]]] = [{} for _ in range(node_count)]
+    for key, length, crease in zip(keys.tolist(), boundary.tolist(), concave.tolist(), strict=True):
+        i, j = divmod(key, leaf_count)
+        neighbours[i][j] = [length, crease]
+        neighbours[j][i] = [length, crease]
+
+    def mean(node: int) -> float:
+        return node_moment[node] / node_area[node] if node_area[node] > 0 else 0.0
+
+    def pair_cost(i: int, j: int, length: float, crease: float) -> float:
+        return cost(node_area[i], node_area[j], mean(i), mean(j), length, crease, total_area)
+
+    heap = [
+        (pair_cost(i, j, *shared), i, j)
+        for i in range(leaf_count)
+        for j, shared in neighbours[i].items()
+        if i < j
+    ]
+    heapq.heapify(heap)
+    alive = np.zeros(node_count, dtype=bool)
+    alive[:leaf_count] = True
+    merges: list[tuple[int, int]] = []
+    costs: list[float] = []
+
+    def merge(i: int, j: int, merge_cost: float) -> int:
+        node = leaf_count + len(merges)
+        merges.append((min(i, j), max(i, j)))
+        costs.append(merge_cost)
+        alive[i] = alive[j] = False
+        alive[node] = True
+        node_area[node] = node_area[i] + node_area[j]
+        node_moment[node] = node_moment[i] + node_moment[j]
+        joined: dict[int, list[float]] = {}
+        for old in (i, j):
+            for other, (length, crease) in neighbours[old].items():
+                if other in (i, j):
+                    continue
+                entry = joined.setdefault(other, [0.0, 0.0])
+                entry[0] += length
+                entry[1] += crease
+                del neighbours[other][old]
+            neighbours[old] = {}
+        neighbours[node] = joined
+        for other, shared in joined.items():
+            neighbours[other][node] = shared
+            heapq.heappush(heap, (pair_cost(other, node, *shared), other, node))
+        return node
+
+    while heap:
+        merge_cost, i, j = heapq.heappop(heap)
+        if alive[i] and alive[j]:
+            merge(i, j, merge_cost)
+
+    # Separate shells: smallest first into the part of nearest mean ShDF.
+    while int(alive.sum()) > 1:
+        roots = np.flatnonzero(alive)
+        smallest = int(roots[np.lexsort((roots, node_area[roots]))[0]])
+        others = roots[roots != smallest]
+        gaps = np.abs(np.array([mean(o) for o in others]) - mean(smallest))
+        target = int(others[np.lexsort((others, gaps))[0]])
+        merge(smallest, target, pair_cost(smallest, target, 0.0, 0.0))
+
+    return PartTree(
+        leaves, np.array(merges, dtype=np.int64).reshape(-1, 2), np.array(costs, dtype=np.float64)
+    )
+
+
+#: Automatic part count: merges costing more than this are not made (tuned on psb-dev).
+AUTO_COST_THRESHOLD = 0.01
+
+
+def automatic_part_count(tree: PartTree, threshold: float = AUTO_COST_THRESHOLD) -> int:
+    """The part count where merging stops being cheap: 1 + merges above ``threshold``.
+
+    Heights (running maxima) are compared, so the count is a cut of the tree.
+    """
+    if tree.leaf_count == 0:
+        return 0
+    return 1 + int(np.sum(tree.heights > threshold))

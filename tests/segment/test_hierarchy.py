@@ -1,0 +1,153 @@
+"""The merge tree: structure, nested cuts, the client's relabelling recipe, what merges first."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
+from neural_shdf.segment.hierarchy import (
+    MergeCost,
+    PartTree,
+    automatic_part_count,
+    merge_tree,
+)
+from neural_shdf.segment.parts import canonical_labels, connected_parts
+from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
+from neural_shdf.shdf.postprocess import log_normalize
+
+
+def graph_and_areas(vertices, faces):
+    normals, areas = face_normals(vertices, faces)
+    return build_face_graph(vertices, weld_faces(vertices, faces), normals), areas
+
+
+@pytest.fixture(scope="module")
+def dumbbell_leaves():
+    """A dumbbell over-segmented into 8 leaves: each ball and the neck cut by flat planes."""
+    mesh, shdf = dumbbell(6000)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    graph, areas = graph_and_areas(vertices, faces)
+    centre = mesh.triangles_center
+    z = centre[:, 2]
+    region = np.where(z < -JUNCTION_Z, 0, np.where(z > JUNCTION_Z, 2, 1))
+    # Flat cuts: each ball split by x = 0 and by its equator, the neck at z = 0.
+    pieces = region * 4 + (centre[:, 0] > 0) * 2 + (np.abs(z) > 2.0) * (region != 1)
+    pieces = np.where(region == 1, 4 + (z > 0), pieces)
+    leaves = connected_parts(pieces, graph.pairs, len(faces))
+    return leaves, graph, areas, log_normalize(shdf), region
+
+
+def relabel_like_a_client(tree: PartTree, count: int) -> np.ndarray:
+    """The recipe the API documents: climb while the parent's id is below 2L - count."""
+    leaves = tree.leaf_count
+    parent = tree.parent
+    top = np.empty(leaves, dtype=np.int64)
+    for leaf in range(leaves):
+        node = leaf
+        while parent[node] != -1 and parent[node] < 2 * leaves - count:
+            node = parent[node]
+        top[leaf] = node
+    return canonical_labels(top[tree.leaf_labels])
+
+
+def test_tree_structure(dumbbell_leaves):
+    leaves, graph, areas, values, _ = dumbbell_leaves
+    tree = merge_tree(leaves, graph, areas, values)
+    count = int(leaves.max()) + 1
+    assert count >= 8
+    assert tree.leaf_count == count
+    assert tree.merges.shape == (count - 1, 2)
+    # Every node but the root is merged exactly once, and only after it exists.
+    merged = tree.merges.reshape(-1)
+    assert sorted(merged.tolist()) == list(range(2 * count - 2))
+    for i, (a, b) in enumerate(tree.merges):
+        assert a < b < count + i
+    parent = tree.parent
+    assert parent[-1] == -1 and np.all(parent[:-1] >= count)
+    assert np.all(np.diff(tree.heights) >= 0)
+    assert np.all(tree.costs >= 0)
+
+
+def test_cuts_are_nested_and_canonical(dumbbell_leaves):
+    leaves, graph, areas, values, _ = dumbbell_leaves
+    tree = merge_tree(leaves, graph, areas, values)
+    count = tree.leaf_count
+    assert np.array_equal(tree.labels(count), leaves)
+    assert np.all(tree.labels(1) == 0)
+    previous = tree.labels(1)
+    for parts in range(2, count + 1):
+        labels = tree.labels(parts)
+        assert labels.max() + 1 == parts
+        assert np.array_equal(labels, canonical_labels(labels))
+        # Each part at N lies inside one part at N - 1.
+        pairs = np.unique(np.stack([labels, previous], axis=1), axis=0)
+        assert len(pairs) == parts
+        previous = labels
+    # Out-of-range counts clamp to 1..L.
+    assert np.array_equal(tree.labels(10 * count), leaves)
+    assert np.all(tree.labels(0) == 0)
+
+
+def test_the_documented_client_recipe_gives_the_same_cuts(dumbbell_leaves):
+    leaves, graph, areas, values, _ = dumbbell_leaves
+    tree = merge_tree(leaves, graph, areas, values)
+    for parts in range(1, tree.leaf_count + 1):
+        assert np.array_equal(relabel_like_a_client(tree, parts), tree.labels(parts))
+
+
+def test_flat_cuts_merge_before_the_creases_between_balls_and_neck(dumbbell_leaves):
+    leaves, graph, areas, values, region = dumbbell_leaves
+    tree = merge_tree(leaves, graph, areas, values)
+    labels = tree.labels(3)
+    for part in range(3):
+        inside = region[labels == part]
+        assert np.all(inside == inside[0])
+    assert automatic_part_count(tree) == 3
+
+
+def test_deterministic_and_independent_of_leaf_numbering(dumbbell_leaves):
+    leaves, graph, areas, values, _ = dumbbell_leaves
+    first = merge_tree(leaves, graph, areas, values)
+    again = merge_tree(leaves.copy(), graph, areas, values)
+    assert np.array_equal(first.merges, again.merges)
+    assert np.array_equal(first.costs, again.costs)
+
+
+def test_cost_prefers_small_similar_parts_across_flat_wide_boundaries():
+    cost = MergeCost()
+    base = dict(area_a=1.0, area_b=4.0, mean_a=0.5, mean_b=0.5, boundary=2.0, concave=0.0,
+                total_area=10.0)  # fmt: skip
+    reference = cost(**base)
+    assert cost(**{**base, "area_a": 0.1}) < reference  # smaller
+    assert cost(**{**base, "mean_a": 0.8}) > reference  # thicker or thinner
+    assert cost(**{**base, "concave": 1.0}) > reference  # along a crease
+    assert cost(**{**base, "boundary": 0.5}) > reference  # a narrow neck
+
+
+def test_separate_shells_still_make_one_tree():
+    spheres = [trimesh.creation.icosphere(2, radius=r).apply_translation([3 * i, 0, 0])
+               for i, r in enumerate((1.0, 0.5, 0.8))]  # fmt: skip
+    mesh = trimesh.util.concatenate(spheres)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    graph, areas = graph_and_areas(vertices, faces)
+    leaves = connected_parts(np.zeros(len(faces), dtype=np.int64), graph.pairs, len(faces))
+    assert leaves.max() == 2
+    values = np.repeat([0.9, 0.1, 0.6], len(faces) // 3)
+    tree = merge_tree(leaves, graph, areas, values)
+    assert tree.leaf_count == 3 and tree.parent[-1] == -1
+    # The smallest shell (0.5) joins the one of nearest ShDF (0.8 -> 0.6) first.
+    assert tree.merges[0].tolist() == [1, 2]
+    assert np.all(tree.costs > 0)
+
+
+def test_a_single_leaf_and_an_empty_mesh():
+    mesh = trimesh.creation.icosphere(1)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    graph, areas = graph_and_areas(vertices, faces)
+    tree = merge_tree(np.zeros(len(faces), dtype=np.int64), graph, areas, np.full(len(faces), 0.5))
+    assert tree.leaf_count == 1 and len(tree.merges) == 0
+    assert np.all(tree.labels(5) == 0)
+    assert automatic_part_count(tree) == 1
+    assert tree.parent.tolist() == [-1]

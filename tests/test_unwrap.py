@@ -117,3 +117,28 @@ def test_labels_of_the_wrong_length_are_rejected():
     mesh, _ = _capsule_parts()
     with pytest.raises(ParameterError, match="one label per triangle"):
         unwrap(mesh, np.zeros(5, dtype=np.int64))
+
+
+def _ring_strip(turn_degrees: float, steps: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    """A strip of triangles between two concentric arcs sweeping ``turn_degrees``: no
+    triangle is flipped, but past 360 degrees the strip lies over itself."""
+    from neural_shdf.unwrap import _triangle_areas
+
+    angles = np.radians(np.linspace(0.0, turn_degrees, steps + 1))
+    radius = np.linspace(1.0, 0.95, steps + 1)  # a spiral: no two vertices coincide
+    inner = np.column_stack([np.cos(angles), np.sin(angles)]) * radius[:, None]
+    outer = inner * 1.3
+    uv = np.concatenate([inner, outer])
+    faces = []
+    for i in range(steps):
+        faces += [[i, i + 1, steps + 1 + i], [i + 1, steps + 2 + i, steps + 1 + i]]
+    faces = np.array(faces)[:, ::-1]  # counter-clockwise
+    assert (_triangle_areas(uv, faces) > 0).all()
+    return uv, faces
+
+
+def test_a_chart_whose_border_crosses_itself_is_an_overlap():
+    from neural_shdf.unwrap import _overlaps_itself
+
+    assert not _overlaps_itself(*_ring_strip(300.0))
+    assert _overlaps_itself(*_ring_strip(420.0))

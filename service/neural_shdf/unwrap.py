@@ -24,6 +24,8 @@ from neural_shdf.mesh import TriangleMesh
 MIN_ATLAS_SIZE, MAX_ATLAS_SIZE = 64, 8192
 #: Largest gap between charts, in texels.
 MAX_PADDING = 64
+#: Packing passes, each with the charts a little smaller, until they fit one atlas.
+PACK_ATTEMPTS = 12
 #: A piece smaller than twice this is never halved further.
 MIN_SPLIT_FACES = 16
 
@@ -45,7 +47,7 @@ class UnwrapParams:
     atlas_size: int = 1024
     padding: int = 2
     max_stretch: float = 1.1
-    max_cuts: int = 6
+    max_cuts: int = 10
     max_splits: int = 3
 
     def __post_init__(self) -> None:
@@ -424,14 +426,31 @@ def _l2_stretch(vertices: NDArray, faces: NDArray, uv: NDArray) -> float:
     return float(np.sqrt(np.sum(area_3d * (gram_a + gram_c) * scale / 2) / area_3d.sum()))
 
 
-def _overlaps_itself(uv: NDArray, faces: NDArray, size: int = 512) -> bool:
-    """Whether two triangles of one chart cover the same texel centre (a global fold)."""
-    low, high = uv.min(axis=0), uv.max(axis=0)
-    extent = float(max(high - low))
-    corner_uvs = (uv[faces] - low) / extent * (1 - 1e-9)
-    _, clashes = rasterize_charts(corner_uvs, np.arange(len(faces)), size)
-    # Texel centres on an edge shared by two triangles count twice: allow a few.
-    return clashes > max(8, len(faces) // 100)
+def _overlaps_itself(uv: NDArray, faces: NDArray) -> bool:
+    """Whether a chart with no flipped triangle still overlaps itself: that happens exactly
+    when its border crosses itself, so test every pair of border edges that share no end."""
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    border = unique[counts == 1]
+    start, end = uv[border[:, 0]], uv[border[:, 1]]
+    block = max(1, 4_000_000 // max(len(border), 1))
+    for first in range(0, len(border), block):
+        a, b = start[first : first + block, None], end[first : first + block, None]
+        c, d = start[None], end[None]
+        crosses = (_orientation(a, b, c) * _orientation(a, b, d) < 0) & (
+            _orientation(c, d, a) * _orientation(c, d, b) < 0
+        )
+        ends = border[first : first + block, None, :, None] == border[None, :, None, :]
+        crosses &= ~ends.any(axis=(2, 3))
+        if crosses.any():
+            return True
+    return False
+
+
+def _orientation(p: NDArray, q: NDArray, r: NDArray) -> NDArray[np.float64]:
+    """Sign of the turn p -> q -> r (positive: counter-clockwise)."""
+    return np.sign((q[..., 0] - p[..., 0]) * (r[..., 1] - p[..., 1])
+                   - (q[..., 1] - p[..., 1]) * (r[..., 0] - p[..., 0]))  # fmt: skip
 
 
 def _xatlas_charts(
@@ -493,20 +512,22 @@ def _pack(
     uv_vertices = np.ascontiguousarray(unique[:, 1:] * quantum, dtype=np.float32)
     uv_faces = np.ascontiguousarray(inverse.reshape(-1, 3), dtype=np.uint32)
     texels_per_unit = 0.0  # first pass: xatlas's estimate for the resolution
-    for _ in range(4):
+    for attempt in range(PACK_ATTEMPTS + 1):
+        last = attempt == PACK_ATTEMPTS
         atlas = xatlas.Atlas()
         atlas.add_uv_mesh(uv_vertices, uv_faces)
         pack_options = xatlas.PackOptions()
-        pack_options.resolution = params.atlas_size
+        # Last resort: no fixed resolution, so xatlas makes a single atlas of its own size.
+        pack_options.resolution = 0 if last else params.atlas_size
         pack_options.padding = params.padding
         pack_options.bilinear = True
         pack_options.texels_per_unit = texels_per_unit
         atlas.generate(pack_options=pack_options)
         side = max(atlas.width, atlas.height)
-        if atlas.atlas_count == 1 and side <= params.atlas_size:
+        if last or (atlas.atlas_count == 1 and side <= params.atlas_size):
             break
         # The estimate overshot: scale the charts down until they fit one atlas.
-        shrink = min(params.atlas_size / side, 0.97) if atlas.atlas_count == 1 else 0.7
+        shrink = min(params.atlas_size / side, 0.97) if atlas.atlas_count == 1 else 0.92
         texels_per_unit = float(atlas.texels_per_unit) * shrink
     _, indices, uvs = atlas.get_mesh(0)
     packed = np.zeros_like(corner_uvs)

@@ -63,7 +63,7 @@ def test_service_errors_carry_its_message(service_url):
     assert degenerate.value.code == "invalid_geometry"
     with pytest.raises(service.ServiceError, match="clusters") as invalid:
         session.segment(capsule().export(file_type="ply"), "c.ply", {"clusters": 99}, no_progress)
-    assert invalid.value.status == 422 and invalid.value.code == "validation_error"
+    assert invalid.value.status == 422 and invalid.value.code == "invalid_parameter"
 
 
 def test_unreachable_service_and_bad_url_and_cancel():

@@ -3,7 +3,8 @@
 - ``tasks`` (``api/tasks.py``): thread pools, single flight, timeouts, compute-once;
 - ``meshes`` (``api/mesh_store.py``): parse, store, load and delete meshes;
 - ``shdf`` (``api/shdf_service.py``): the ShDF, cached, and jobs for large meshes;
-- ``segmentations`` (``api/segmentation.py``): segmentations from the cached ShDF.
+- ``segmentations`` (``api/segmentation.py``): segmentations from the cached ShDF;
+- ``unwraps`` (``api/unwrapping.py``): UV atlases by part from the cached segmentation.
 
 Response bodies are built in ``api/responses.py``; routes stay thin.
 """
@@ -21,6 +22,7 @@ from neural_shdf.api.segmentation import SegmentationService
 from neural_shdf.api.settings import Settings
 from neural_shdf.api.shdf_service import ShdfService
 from neural_shdf.api.tasks import TaskRunner
+from neural_shdf.api.unwrapping import UnwrapService
 
 T = TypeVar("T")
 
@@ -37,6 +39,7 @@ class Engine:
         self.meshes = MeshStore(settings, cache, metrics)
         self.shdf = ShdfService(settings, cache, metrics, self.tasks, self.meshes, self.jobs)
         self.segmentations = SegmentationService(cache, metrics, self.tasks, self.meshes, self.shdf)
+        self.unwraps = UnwrapService(cache, metrics, self.tasks, self.meshes, self.segmentations)
 
     async def run(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
         """Run a CPU-heavy ``fn`` on the compute thread pool."""

@@ -85,8 +85,11 @@ class MeshStore:
                 "bounds": [mesh.vertices.min(0).tolist(), mesh.vertices.max(0).tolist()],
                 "surface_area": float(area.sum()),
             }
-            self.cache.put_arrays(f"{mesh_id}:mesh", mesh_arrays(mesh), group=mesh_id)
-            self.cache.put_json(meta_key, meta, group=mesh_id)
+            # keep_local: readable through a Redis outage (only the client could restore it)
+            self.cache.put_arrays(
+                f"{mesh_id}:mesh", mesh_arrays(mesh), group=mesh_id, keep_local=True
+            )
+            self.cache.put_json(meta_key, meta, group=mesh_id, keep_local=True)
         self.cache.remember(f"{mesh_id}:mesh", mesh)
         return meta
 

@@ -9,6 +9,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from neural_shdf.segment import SegmentParams
 from neural_shdf.segment.params import MAX_CLUSTERS, MAX_PARTS, MAX_SEED, MAX_SMOOTHING
+from neural_shdf.unwrap import MAX_ATLAS_SIZE, MAX_PADDING, MIN_ATLAS_SIZE, UnwrapParams
 
 ShdfMethodName = Literal["neural", "exact"]
 JobState = Literal["queued", "running", "succeeded", "failed"]
@@ -275,6 +276,36 @@ class SegmentOptions(BaseModel):
     def segment_params(self) -> SegmentParams:
         """The library's parameters, validated there (ParameterError: a 422 that says why)."""
         return SegmentParams.from_attributes(self)
+
+
+class UnwrapOptions(SegmentOptions):
+    """The segmentation to unwrap by, and how to chart and pack its parts."""
+
+    atlas_size: int = Field(
+        1024,
+        json_schema_extra=documented_bounds(MIN_ATLAS_SIZE, MAX_ATLAS_SIZE),
+        description="Side of the square atlas in texels.",
+        examples=[1024],
+    )
+    padding: int = Field(
+        2,
+        json_schema_extra=documented_bounds(0, MAX_PADDING),
+        description="Texels left free around every chart.",
+        examples=[2],
+    )
+    max_stretch: float = Field(
+        1.1,
+        json_schema_extra={"minimum": 1.0},
+        description="Largest L2 stretch (1 = none) of a part kept as one chart; above it "
+        "the part is cut further, then halved, then charted by xatlas.",
+        examples=[1.1],
+    )
+
+    def unwrap_params(self) -> UnwrapParams:
+        """The library's parameters, validated there (ParameterError: a 422 that says why)."""
+        return UnwrapParams(
+            atlas_size=self.atlas_size, padding=self.padding, max_stretch=self.max_stretch
+        )
 
 
 class SegmentRequest(SegmentOptions):

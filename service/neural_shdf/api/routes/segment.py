@@ -21,7 +21,7 @@ from neural_shdf.segment import SegmentParams
 
 router = APIRouter(prefix="/v1", tags=["segmentation"])
 
-_SEGMENT_ERRORS = {
+SEGMENT_ERRORS = {
     202: {
         "model": Job,
         "description": "Large mesh whose ShDF is not cached yet: poll the job, "
@@ -44,7 +44,7 @@ async def segment_response(
     operation_id="segment_mesh",
     summary="Segment a stored mesh",
     response_model=Segmentation,
-    responses=_SEGMENT_ERRORS,
+    responses=SEGMENT_ERRORS,
 )
 async def segment_mesh(engine: EngineDep, request: SegmentRequest) -> Response:
     """Part label per input face from the cached ShDF; only the partitioning runs."""
@@ -57,7 +57,7 @@ async def segment_mesh(engine: EngineDep, request: SegmentRequest) -> Response:
     operation_id="segment_file",
     summary="Upload and segment a mesh in one call",
     response_model=Segmentation,
-    responses=_SEGMENT_ERRORS,
+    responses=SEGMENT_ERRORS,
 )
 async def segment_file(
     engine: EngineDep,
@@ -86,7 +86,7 @@ _GLB_RESPONSES = {
         "content": {GLB_MEDIA_TYPE: {"schema": {"type": "string", "format": "binary"}}},
         "description": "Binary glTF.",
     },
-    **_SEGMENT_ERRORS,
+    **SEGMENT_ERRORS,
 }
 router.add_api_route(
     "/meshes/{mesh_id}/segmentation/colored.glb",

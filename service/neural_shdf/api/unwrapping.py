@@ -1,0 +1,139 @@
+"""UV atlases of stored meshes, part by part: computed once per (segmentation, unwrap
+parameters) from the cached segmentation, cached."""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+from dataclasses import asdict
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.api.cache import ResultCache
+from neural_shdf.api.mesh_store import MeshStore
+from neural_shdf.api.metrics import Metrics
+from neural_shdf.api.segmentation import SegmentationService
+from neural_shdf.api.tasks import TaskRunner
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.segment import SegmentParams
+from neural_shdf.unwrap import UnwrapParams, UvAtlas
+
+
+def _atlas_arrays(atlas: UvAtlas) -> dict[str, NDArray]:
+    return {
+        "corner_uvs": atlas.corner_uvs.astype(np.float32),
+        "chart": atlas.chart.astype(np.int32),
+        "chart_part": atlas.chart_part.astype(np.int32),
+        "size": np.array([atlas.width, atlas.height], dtype=np.int64),
+        "utilization": np.array(atlas.utilization),
+    }
+
+
+def _atlas_from_arrays(arrays: dict[str, NDArray]) -> UvAtlas:
+    width, height = (int(v) for v in arrays["size"])
+    return UvAtlas(
+        corner_uvs=arrays["corner_uvs"].astype(np.float64),
+        chart=arrays["chart"].astype(np.int64),
+        chart_part=arrays["chart_part"].astype(np.int64),
+        width=width,
+        height=height,
+        utilization=float(arrays["utilization"]),
+    )
+
+
+class UnwrapService:
+    """UV atlases by part, from the cached segmentation (and so the cached ShDF)."""
+
+    def __init__(
+        self,
+        cache: ResultCache,
+        metrics: Metrics,
+        tasks: TaskRunner,
+        meshes: MeshStore,
+        segmentations: SegmentationService,
+    ) -> None:
+        self.cache = cache
+        self.metrics = metrics
+        self.tasks = tasks
+        self.meshes = meshes
+        self.segmentations = segmentations
+
+    def key(
+        self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
+    ) -> str:
+        """The segmentation's key plus the unwrap parameters."""
+        digest = hashlib.sha256(json.dumps(asdict(unwrap), sort_keys=True).encode())
+        return f"{self.segmentations.key(mesh_id, method, params)}:uv:{digest.hexdigest()[:20]}"
+
+    def cached(self, key: str) -> UvAtlas | None:
+        atlas = self.cache.recall(key)
+        if atlas is None:
+            arrays = self.cache.get_arrays(key)
+            if arrays is not None:
+                try:
+                    atlas = _atlas_from_arrays(arrays)
+                except (KeyError, ValueError):
+                    atlas = None
+                if atlas is not None:
+                    self.cache.remember(key, atlas)
+        self.metrics.count_cache("unwrap", hit=atlas is not None)
+        return atlas
+
+    def _store(self, key: str, mesh_id: str, atlas: UvAtlas) -> None:
+        self.cache.put_arrays(key, _atlas_arrays(atlas), group=mesh_id)
+        self.cache.remember(key, atlas)
+
+    @staticmethod
+    def _compute(mesh: TriangleMesh, triangle_labels: NDArray, unwrap: UnwrapParams) -> UvAtlas:
+        from neural_shdf.unwrap import unwrap as unwrap_mesh
+
+        return unwrap_mesh(mesh, np.asarray(triangle_labels, dtype=np.int64), unwrap)
+
+    async def get(
+        self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
+    ) -> tuple[TriangleMesh, UvAtlas]:
+        """The mesh and its atlas (cached, else from the cached segmentation, itself from
+        the cached ShDF: a large mesh's first request answers 202 with the ShDF's job)."""
+        key = self.key(mesh_id, method, params, unwrap)
+        result, _ = await self.segmentations.get(mesh_id, method, params)
+        mesh = await self.tasks.io(self.meshes.load, mesh_id)
+        atlas = self.cache.recall(key)
+        if atlas is None:
+            atlas, _ = await self.tasks.with_timeout(
+                self.tasks.single_flight(
+                    key,
+                    functools.partial(
+                        self.tasks.compute_once,
+                        key,
+                        functools.partial(self.cached, key),
+                        functools.partial(self._compute, mesh, result.triangle_labels, unwrap),
+                        functools.partial(self._store, key, mesh_id),
+                    ),
+                )
+            )
+        return mesh, atlas
+
+    async def glb(
+        self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
+    ) -> bytes:
+        """The mesh with its atlas UVs and the atlas layout as its texture."""
+        from neural_shdf.export import unwrapped_glb
+
+        mesh, atlas = await self.get(mesh_id, method, params, unwrap)
+        texture = await self.tasks.run(self._layout_png, atlas, unwrap)
+        return await self.tasks.run(unwrapped_glb, mesh, atlas, texture_png=texture)
+
+    async def atlas_png(
+        self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
+    ) -> bytes:
+        """The atlas layout as a PNG: charts coloured by part, outlined."""
+        _, atlas = await self.get(mesh_id, method, params, unwrap)
+        return await self.tasks.run(self._layout_png, atlas, unwrap)
+
+    @staticmethod
+    def _layout_png(atlas: UvAtlas, unwrap: UnwrapParams) -> bytes:
+        from neural_shdf.unwrap import atlas_layout_image, png_bytes
+
+        return png_bytes(atlas_layout_image(atlas, size=unwrap.atlas_size))

@@ -1,0 +1,62 @@
+"""The unwrap routes end to end in-process on the real pipeline: UVs by part, cached."""
+
+from __future__ import annotations
+
+import io
+
+import numpy as np
+import trimesh
+
+from neural_shdf.mesh_io import load_mesh
+from neural_shdf.unwrap import rasterize_charts
+from tests.api.api_helpers import TEST_METHOD, metric
+
+
+def _upload(client, data: bytes) -> str:
+    response = client.post("/v1/meshes", files={"file": ("capsule.obj", data)})
+    assert response.status_code == 200, response.text
+    return response.json()["mesh"]["mesh_id"]
+
+
+def test_unwrapped_glb_keeps_the_triangles_and_is_computed_once(client, capsule_obj):
+    mesh_id = _upload(client, capsule_obj)
+    query = {"method": TEST_METHOD, "clusters": 3, "atlas_size": 256}
+    response = client.get(f"/v1/meshes/{mesh_id}/segmentation/unwrapped.glb", params=query)
+    assert response.status_code == 200, response.text
+    assert response.headers["content-type"] == "model/gltf-binary"
+    loaded = trimesh.load(io.BytesIO(response.content), file_type="glb", force="mesh",
+                          process=False)  # fmt: skip
+    mesh = load_mesh(capsule_obj, "obj")
+    assert np.allclose(loaded.vertices[loaded.faces], mesh.vertices[mesh.faces], atol=1e-6)
+    corner_uvs = loaded.visual.uv[loaded.faces]
+    assert corner_uvs.min() >= 0 and corner_uvs.max() <= 1
+
+    # Charts never overlap, and each chart's triangles are one part of the segmentation.
+    labels = client.post("/v1/segment", json={"mesh_id": mesh_id, **{
+        k: v for k, v in query.items() if k != "atlas_size"}}).json()["labels"]  # fmt: skip
+    from neural_shdf.evaluate.uv import uv_islands
+
+    islands = uv_islands(mesh.vertices, mesh.faces, corner_uvs)
+    assert rasterize_charts(corner_uvs, islands, 1024)[1] == 0
+    triangle_labels = np.asarray(labels)[mesh.face_origin]
+    for island in np.unique(islands):
+        assert len(np.unique(triangle_labels[islands == island])) == 1
+
+    misses = metric(client.app, "neural_shdf_cache_misses_total", kind="unwrap")
+    again = client.get(f"/v1/meshes/{mesh_id}/segmentation/unwrapped.glb", params=query)
+    assert again.content == response.content
+    assert metric(client.app, "neural_shdf_cache_misses_total", kind="unwrap") == misses
+
+    png = client.get(f"/v1/meshes/{mesh_id}/segmentation/atlas.png", params=query)
+    assert png.status_code == 200 and png.headers["content-type"] == "image/png"
+    assert png.content[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_unwrap_parameters_and_ids_get_actionable_errors(client, capsule_obj):
+    mesh_id = _upload(client, capsule_obj)
+    bad = client.get(f"/v1/meshes/{mesh_id}/segmentation/unwrapped.glb",
+                     params={"method": TEST_METHOD, "atlas_size": 10})  # fmt: skip
+    assert bad.status_code == 422
+    assert "atlas_size" in bad.json()["error"]["message"]
+    missing = client.get(f"/v1/meshes/{'0' * 64}/segmentation/atlas.png")
+    assert missing.status_code == 404

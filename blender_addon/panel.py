@@ -23,9 +23,11 @@ class SegmentPanel(bpy.types.Panel):
         column.prop(settings, "partitioner")
         column.prop(settings, "clusters")
         column.prop(settings, "smoothing")
-        row = column.row()
-        row.enabled = settings.partitioner == "metis"
-        row.prop(settings, "parts")
+        row = column.row(align=True)
+        row.prop(settings, "use_parts", text="")
+        parts = row.row(align=True)
+        parts.enabled = settings.use_parts
+        parts.prop(settings, "parts")
         layout.prop(settings, "assign_materials")
         layout.prop(settings, "split_parts")
         state = context.window_manager.neural_shdf_state

@@ -33,8 +33,8 @@ class NeuralShdfSettings(bpy.types.PropertyGroup):
     partitioner: EnumProperty(  # type: ignore[valid-type]
         name="Partitioner",
         items=[
-            ("graphcut", "Graph cut", "As many parts as the shape suggests"),
-            ("metis", "METIS", "Exactly the number of parts set below"),
+            ("graphcut", "Graph cut", "Parts along the shape's thickness changes"),
+            ("metis", "METIS", "Balanced parts, exactly as many as asked"),
         ],
         default="graphcut",
     )
@@ -53,9 +53,15 @@ class NeuralShdfSettings(bpy.types.PropertyGroup):
         max=100.0,
         soft_max=2.0,
     )
+    use_parts: BoolProperty(  # type: ignore[valid-type]
+        name="Part Count",
+        description="Ask for a number of parts (off: the service chooses it)",
+        default=False,
+    )
     parts: IntProperty(  # type: ignore[valid-type]
         name="Parts",
-        description="Number of parts (METIS)",
+        description="Number of parts: a cut of the part tree (graph cut; instant on a re-run) "
+        "or exactly this many (METIS)",
         default=4,
         min=1,
         max=10000,
@@ -81,7 +87,7 @@ class NeuralShdfSettings(bpy.types.PropertyGroup):
         }
         if self.method != "default":
             options["method"] = self.method
-        if self.partitioner == "metis":
+        if self.use_parts:
             options["parts"] = self.parts
         return options
 

@@ -1,5 +1,6 @@
 """The CLI contract: one line per input face, input order, clear errors, non-zero exits."""
 
+import io
 import subprocess
 import sys
 from pathlib import Path
@@ -243,3 +244,47 @@ def test_a_mesh_over_the_limits_exits_2_naming_the_limit(tmp_path: Path, capsys)
     assert "160000 vertices" in err and "limit of 100000 vertices (max_vertices)" in err
     assert main(["segment", str(bomb), "-o", out, "--max-faces", "10", "-q"]) == EXIT_BAD_INPUT
     assert "(max_faces)" in capsys.readouterr().err
+
+
+class _Stream(io.StringIO):
+    """A stderr that records what is written and says whether it is a terminal."""
+
+    def __init__(self, tty: bool) -> None:
+        super().__init__()
+        self.tty = tty
+
+    def isatty(self) -> bool:
+        return self.tty
+
+
+@pytest.mark.parametrize("tty", [True, False])
+def test_progress_bar_waits_its_delay_is_cleared_and_stays_off_logs(monkeypatch, tty):
+    import time
+
+    from neural_shdf.cli import progress_bar
+
+    quick, slow = _Stream(tty), _Stream(tty)
+    monkeypatch.setattr(sys, "stderr", quick)
+    with progress_bar("quick", delay_s=0.5) as update:
+        update(0.5)
+        update(1.0)
+    assert quick.getvalue() == ""  # shorter than the delay: never shown
+    monkeypatch.setattr(sys, "stderr", slow)
+    with progress_bar("slow", delay_s=0.2) as update:
+        for step in range(1, 9):
+            time.sleep(0.06)
+            update(step / 10)
+    frames = slow.getvalue()
+    if not tty:
+        assert frames == ""  # redirected: no \r frames in the log
+        return
+    assert "slow:" in frames and "%" in frames
+    # Cleared at the end: the last frame is overwritten with blanks and the cursor returns.
+    assert frames.endswith("\r") and frames.rstrip("\r").split("\r")[-1].strip() == ""
+
+
+def test_redirected_stderr_gets_only_the_summary(dumbbell_obj: Path, tmp_path: Path, capsys):
+    out = tmp_path / "labels.seg"
+    assert main(["segment", str(dumbbell_obj), "-o", str(out), "--method", "exact"]) == 0
+    err = capsys.readouterr().err
+    assert "\r" not in err and err.count("\n") == 1 and "parts" in err

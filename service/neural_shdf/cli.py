@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -21,26 +22,42 @@ from neural_shdf.errors import NeuralShdfError, ParameterError
 #: Exit codes: 0 ok, 1 unexpected failure, 2 bad input or usage, 3 model unavailable.
 EXIT_BAD_INPUT = 2
 EXIT_MODEL_UNAVAILABLE = 3
+#: Resolution of the progress bars.
+PROGRESS_STEPS = 1000
 
 
 @contextmanager
-def progress_bar(description: str, enabled: bool = True) -> Iterator[Callable[[float], None]]:
-    """A tqdm bar on stderr that appears only for work lasting more than a second."""
+def progress_bar(
+    description: str, enabled: bool = True, *, delay_s: float = 1.0
+) -> Iterator[Callable[[float], None]]:
+    """A tqdm bar on stderr for work that lasts more than ``delay_s``, cleared when it ends.
+
+    Only on a terminal: redirected to a file or a pipe, stderr gets no ``\r`` frames.
+    The returned function takes the fraction done (from any thread; it never goes back).
+    """
     from tqdm import tqdm
 
     bar = tqdm(
-        total=1000,
+        total=PROGRESS_STEPS,
         desc=description,
-        delay=1.0,
-        disable=not enabled,
+        delay=delay_s,
+        mininterval=0.2,
+        disable=not (enabled and sys.stderr.isatty()),
         file=sys.stderr,
         leave=False,
         bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining}",
     )
+    done = 0
+    lock = threading.Lock()
 
     def update(fraction: float) -> None:
-        bar.n = int(1000 * min(max(fraction, 0.0), 1.0))
-        bar.refresh()
+        # tqdm.update (not refresh) honours the delay, and then close() clears the line.
+        nonlocal done
+        target = int(PROGRESS_STEPS * min(max(fraction, 0.0), 1.0))
+        with lock:
+            if target > done:
+                bar.update(target - done)
+                done = target
 
     try:
         yield update

@@ -132,12 +132,17 @@ def wait_for_port(port: int, process: subprocess.Popen, timeout_s: float = 20.0)
 
 @contextlib.contextmanager
 def running_server(
-    cache_dir: Path, workers: int = 1, port: int | None = None, **settings: object
+    cache_dir: Path,
+    workers: int = 1,
+    port: int | None = None,
+    log_file: Path | None = None,
+    **settings: object,
 ) -> Iterator[str]:
     """`python -m neural_shdf.api.serve` on a free (or the given) loopback port; yields its
     base URL.
 
-    ``settings``: further service settings by name (``request_timeout_s=0.05``)."""
+    ``log_file``: where the server's stderr (its log) goes; ``settings``: further service
+    settings by name (``request_timeout_s=0.05``)."""
     port = port or free_port()
     env = dict(os.environ)
     env.update(
@@ -152,7 +157,9 @@ def running_server(
     env.update({f"NEURAL_SHDF_{name.upper()}": str(value) for name, value in settings.items()})
     env.pop("NEURAL_SHDF_REDIS_URL", None)
     env.pop("PROMETHEUS_MULTIPROC_DIR", None)
-    process = subprocess.Popen([sys.executable, "-m", "neural_shdf.api.serve"], env=env)
+    log = open(log_file, "wb") if log_file else None  # noqa: SIM115 - closed below
+    command = [sys.executable, "-m", "neural_shdf.api.serve"]
+    process = subprocess.Popen(command, env=env, stderr=log)
     base = f"http://127.0.0.1:{port}"
     try:
         deadline = time.monotonic() + 180  # start-up under a loaded CI machine
@@ -172,6 +179,8 @@ def running_server(
         if process.poll() is None:
             process.terminate()
             process.wait(timeout=30)
+        if log is not None:
+            log.close()
 
 
 @pytest.fixture(scope="module")

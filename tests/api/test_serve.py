@@ -167,3 +167,19 @@ def test_kill_9_mid_job_leaves_no_stuck_lock_job_or_partial_entry(tmp_path):
         if value is not None and not key.startswith("lease:"):
             unseal(value)  # every entry verifies: no partial write survived the crash
     cache.close()
+
+
+def test_start_up_says_what_it_does_before_serving(tmp_path):
+    """The warm-up (up to ~15 s after an install) is announced, not silent."""
+    log_file = tmp_path / "serve.log"
+    with running_server(tmp_path / "cache", log_file=log_file, log_level="info"):
+        pass
+    log = log_file.read_text()
+    lines = [
+        "neural-shdf ",
+        "warming up:",
+        "warm-up done in",
+        "Application startup complete",
+    ]
+    positions = [log.find(line) for line in lines]
+    assert -1 not in positions and positions == sorted(positions), log

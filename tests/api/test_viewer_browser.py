@@ -157,6 +157,13 @@ def rendered_hues(page: ViewerPage) -> np.ndarray:
     return counts / max(counts.sum(), 1.0)
 
 
+def shdf_computations(server: str) -> float:
+    """The service's count of ShDF computations (Prometheus)."""
+    prefix = f'neural_shdf_shdf_computations_total{{method="{TEST_METHOD}"}}'
+    lines = httpx.get(f"{server}/metrics").text.splitlines()
+    return sum(float(line.split()[-1]) for line in lines if line.startswith(prefix))
+
+
 def severe(page: ViewerPage) -> list[dict]:
     return [entry for entry in page.read_console() if entry["level"] == "SEVERE"]
 
@@ -185,9 +192,14 @@ def test_upload_job_parts_slider_recolours_to_the_api_labels(page, server, meshe
     assert_colours_match(shown, api_labels(server, mesh_id, controls_of(shown)))
     hues_before = rendered_hues(page)
     assert (hues_before > 0.01).sum() >= 2  # at least two part colours on screen
+    computed = shdf_computations(server)
 
+    detail = page.release_slider("parts", 2)  # a cut of the graph cut's part tree
+    assert detail["request"]["parts"] == 2 and detail["parts"] == 2
+    tree_cut = page.segmentation()
+    assert_colours_match(tree_cut, api_labels(server, mesh_id, controls_of(tree_cut, parts=2)))
     detail = page.release_slider("partitioner", "metis")
-    assert detail["request"]["partitioner"] == "metis" and detail["parts"] == 6
+    assert detail["request"]["partitioner"] == "metis" and detail["parts"] == 2
     detail = page.release_slider("parts", 3)
     assert detail["reason"] == "release" and detail["parts"] == 3
     moved = page.segmentation()
@@ -204,6 +216,13 @@ def test_upload_job_parts_slider_recolours_to_the_api_labels(page, server, meshe
         page.segmentation(),
         api_labels(server, mesh_id, controls_of(page.segmentation(), parts=3, clusters=4)),
     )
+    # Recoloured in place: the geometry and the ShDF were fetched once, never recomputed.
+    fetched = page.js(
+        "return performance.getEntriesByType('resource').map(e => new URL(e.name).pathname)"
+    )
+    assert sum(p.endswith("/geometry") for p in fetched) == 1
+    assert sum(p.endswith("/shdf") for p in fetched) == 1
+    assert shdf_computations(server) == computed
     assert severe(page) == []
     shot = page.screenshot(tmp_path / "viewer.png")
     assert shot.stat().st_size > 10_000

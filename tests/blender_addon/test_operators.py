@@ -20,7 +20,8 @@ SUBDIVIDED_POLYGONS = 4 * 88  # the cuts=1 dumbbell (88 quads), simple subdivisi
 @pytest.fixture(scope="module")
 def session(run_blender, service_url) -> dict:
     """One Blender session: segment, re-segment with new parameters, a modifier stack with
-    split parts, then two failures (degenerate mesh, unreachable service)."""
+    split parts, two failures (degenerate mesh, unreachable service), a part count. The
+    panel's settings persist from step to step, as in Blender."""
     nowhere = f"http://127.0.0.1:{free_port()}"
     steps = [
         {"make": "dumbbell", "name": "Dumbbell", "cuts": 3},
@@ -28,16 +29,31 @@ def session(run_blender, service_url) -> dict:
         {"inspect": "Dumbbell"},
         {
             "segment": ["Dumbbell"],
-            "settings": {"partitioner": "metis", "parts": 2, "method": "exact"},
+            "settings": {"partitioner": "metis", "use_parts": True, "parts": 2, "method": "exact"},
         },
         {"inspect": "Dumbbell"},
         {"make": "dumbbell", "name": "Smooth", "cuts": 1, "subsurf": 1},
-        {"segment": ["Smooth"], "settings": {"partitioner": "graphcut", "split_parts": True}},
+        {
+            "segment": ["Smooth"],
+            "settings": {"partitioner": "graphcut", "use_parts": False, "split_parts": True},
+        },
         {"inspect": "Smooth segmented"},
         {"inspect": "Smooth"},
         {"make": "flat_triangle", "name": "Flat"},
         {"segment": ["Flat"], "settings": {"split_parts": False}},
         {"segment": ["Dumbbell"], "settings": {"server_url": nowhere}},
+        # A part count for the graph cut: a cut of its part tree, by mesh id.
+        {
+            "segment": ["Dumbbell"],
+            "settings": {
+                "server_url": service_url,
+                "partitioner": "graphcut",
+                "method": "default",
+                "use_parts": True,
+                "parts": 2,
+            },
+        },
+        {"inspect": "Dumbbell"},
     ]
     records = run_blender(steps)
     return {
@@ -110,7 +126,7 @@ def test_new_parameters_reuse_the_mesh_id_without_uploading(session, service_url
         )
     assert after["labels"] == expected.labels.tolist()
     # Uploads: the dumbbell once and the subdivided one once; the re-run went by id.
-    assert session["uploads"] == 2 and session["by_id"] == 1
+    assert session["uploads"] == 2 and session["by_id"] == 2
 
 
 def test_modifiers_are_applied_and_parts_split_into_objects(session):
@@ -132,3 +148,13 @@ def test_errors_are_reported_in_blender_never_as_a_traceback(session):
     assert unreachable["result"] == ["CANCELLED"]
     assert "cannot reach the neural-shdf service" in unreachable["error"]
     assert not any("Traceback" in s["output"] for s in session["segments"])
+
+
+def test_part_count_for_the_graph_cut_cuts_its_part_tree(session, service_url):
+    run, record = session["segments"][5], session["inspections"][4]
+    assert run["result"] == ["FINISHED"] and "Dumbbell: 2 parts (by mesh id)" in run["output"]
+    with Client(service_url) as client:
+        expected = client.segment(record["props"]["neural_shdf_mesh_id"], clusters=9, parts=2)
+    assert record["labels"] == expected.labels.tolist()
+    found = regions(record)
+    assert found["left"].most_common(1)[0][0] != found["right"].most_common(1)[0][0]

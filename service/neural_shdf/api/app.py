@@ -13,6 +13,7 @@ from fastapi.responses import JSONResponse
 
 from neural_shdf import __version__
 from neural_shdf.api.cache import DiskBackend, FallbackBackend, RedisBackend, ResultCache
+from neural_shdf.api.docs import install_docs
 from neural_shdf.api.engine import Engine
 from neural_shdf.api.errors import BodySizeLimitMiddleware, install_error_handlers
 from neural_shdf.api.jobs import JobAccepted, public_job
@@ -60,8 +61,20 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(_: FastAPI) -> AsyncIterator[None]:
+        logger.info(
+            "neural-shdf %s: default ShDF method %s, model %s, cache %s",
+            __version__,
+            settings.default_method,
+            engine.shdf.model_path,
+            engine.cache.backend.name,
+        )
         if settings.warm_up:
             # The first request then pays no compilation (seconds on a fresh install).
+            logger.info(
+                "warming up: a small sphere through the face graph, both ShDF methods and "
+                "both partitioners (compiles the numba kernels once after an install, about "
+                "15 s; later starts load them from their cache)"
+            )
             try:
                 seconds = await engine.run(warm_up)
                 logger.info("warm-up done in %.2f s", seconds)
@@ -76,8 +89,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         version=__version__,
         description=DESCRIPTION,
         lifespan=lifespan,
+        docs_url=None,  # served from local assets by install_docs (works offline)
+        redoc_url=None,
     )
     app.state.settings = settings
+    install_docs(app)
     app.state.engine = engine
     install_error_handlers(app)
 

@@ -2,11 +2,27 @@
 
 from __future__ import annotations
 
+import copy
 import os
 import shutil
 import tempfile
+from typing import Any
 
 from neural_shdf.api.settings import Settings
+
+
+def log_config(level: str) -> dict[str, Any]:
+    """uvicorn's logging set-up plus the package's loggers (``neural_shdf.*``): start-up and
+    warm-up, job failures and cache faults reach the console in uvicorn's format."""
+    from uvicorn.config import LOGGING_CONFIG
+
+    config = copy.deepcopy(LOGGING_CONFIG)
+    config["loggers"]["neural_shdf"] = {
+        "handlers": ["default"],
+        "level": level.upper(),
+        "propagate": False,
+    }
+    return config
 
 
 def run(host: str | None = None, port: int | None = None, workers: int | None = None) -> None:
@@ -34,6 +50,7 @@ def run(host: str | None = None, port: int | None = None, workers: int | None = 
             port=port,
             workers=workers,
             log_level=settings.log_level,
+            log_config=log_config(settings.log_level),
             timeout_graceful_shutdown=10,
         )
     finally:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -27,6 +28,10 @@ RANGE_SIGMA_FACTOR = 1.5
 SPATIAL_SIGMA_FACTOR = 0.5
 #: Face pairs handled at once by the bilateral filter (bounds its memory).
 PAIRS_PER_CHUNK = 4_000_000
+#: Blocks of faces the compiled filter is split into when progress is reported.
+PROGRESS_BLOCKS = 100
+
+Progress = Callable[[float], None]
 
 
 def smoothing_window(face_count: int) -> int:
@@ -194,6 +199,7 @@ def bilateral_smooth(
     range_sigma_factor: float = RANGE_SIGMA_FACTOR,
     compiled: bool = True,
     threads: int | None = None,
+    progress: Progress | None = None,
 ) -> NDArray[np.float64]:
     """One pass of CGAL's bilateral filter over faces within ``window_size`` edge rings.
 
@@ -204,6 +210,7 @@ def bilateral_smooth(
     their value. ``compiled`` uses the numba kernel
     (same result to rounding; the numpy path is several times slower), in
     ``threads`` threads (default one per CPU; the result does not depend on it).
+    ``progress`` is called with the fraction of faces done (compiled path).
     """
     values = np.asarray(values, dtype=np.float64)
     if window_size < 0:
@@ -222,7 +229,8 @@ def bilateral_smooth(
         indptr = adjacency.indptr.astype(np.int64)
         indices = adjacency.indices.astype(np.int64)
         workers = max(1, os.cpu_count() or 1) if threads is None else max(1, threads)
-        bounds = np.linspace(0, face_count, min(4 * workers, face_count) + 1).astype(int)
+        blocks = min(max(4 * workers, PROGRESS_BLOCKS if progress else 0), face_count)
+        bounds = np.linspace(0, face_count, blocks + 1).astype(int)
 
         def run(block: int) -> None:
             _bilateral_faces(
@@ -238,7 +246,9 @@ def bilateral_smooth(
             )
 
         with ThreadPoolExecutor(max_workers=workers) as pool:
-            list(pool.map(run, range(len(bounds) - 1)))
+            for done, _ in enumerate(pool.map(run, range(blocks)), start=1):
+                if progress is not None:
+                    progress(done / blocks)
         return out
     return _bilateral_vectorised(values, adjacency, window_size, spatial_weight, range_sigma_factor)
 
@@ -269,6 +279,7 @@ def postprocess_shdf(
     spatial_sigma: float | None = None,
     range_sigma_factor: float = RANGE_SIGMA_FACTOR,
     smooth: bool = True,
+    progress: Progress | None = None,
 ) -> NDArray[np.float64]:
     """Raw diameters (NaN = no value) -> ShDF in [0, 1], as CGAL post-processes ``sdf_values``.
 
@@ -278,6 +289,7 @@ def postprocess_shdf(
         window_size: smoothing window in edge rings; default ``smoothing_window(F)``.
         spatial_sigma, range_sigma_factor: bilateral filter widths (see ``bilateral_smooth``).
         smooth: False skips the bilateral filter (filling and normalisation only).
+        progress: called with the fraction done, in [0, 1] (the filter is most of it).
     """
     raw = np.asarray(raw, dtype=np.float64)
     if len(raw) != graph.face_count:
@@ -291,5 +303,9 @@ def postprocess_shdf(
             window_size=window,
             spatial_sigma=spatial_sigma,
             range_sigma_factor=range_sigma_factor,
+            progress=progress,
         )
-    return linear_normalize(values)
+    result = linear_normalize(values)
+    if progress is not None:
+        progress(1.0)
+    return result

@@ -163,7 +163,7 @@ function controlValues() {
     partitioner,
     clusters: Number($('clusters').value),
     smoothing: Number($('smoothing').value),
-    parts: partitioner === 'metis' ? Number($('parts').value) : null,
+    parts: Number($('parts').value) || null,  // 0: automatic
     refine: $('refine').checked,
     boundary_smoothing: $('boundary-smoothing').checked,
   };
@@ -394,10 +394,10 @@ function showValues() {
   const clusters = Number($('clusters').value);
   $('clusters-out').textContent = clusters === 0 ? 'auto' : String(clusters);
   $('smoothing-out').textContent = Number($('smoothing').value).toFixed(2);
-  $('parts-out').textContent = $('parts').value;
-  const metis = $('partitioner').value === 'metis';
-  $('parts').disabled = !metis;
-  $('parts').closest('label').title = metis ? '' : 'METIS only: the graph cut finds the part count itself';
+  const parts = Number($('parts').value);
+  $('parts-out').textContent = parts === 0 ? 'auto' : String(parts);
+  $('parts').closest('label').title = $('partitioner').value === 'metis'
+    ? 'METIS: exactly this many parts' : 'graph cut: a cut of its part tree (at most its leaves)';
 }
 
 const CHOICE_NAMES = {

@@ -145,13 +145,13 @@ def _store(kind: str, tmp_path, redis_url: str | None) -> tuple[str, ResultCache
 
 
 @pytest.mark.parametrize("kind", ["disk", "redis"])
-def test_a_killed_holders_lease_lapses_within_its_ttl(kind, tmp_path, request):
+def test_a_killed_holders_lease_is_broken_at_once(kind, tmp_path, request):
     """The holder renews while alive (others wait through several TTLs); once it is killed
-    with SIGKILL its lease lapses after one TTL, not after the old 600 s lock expiry."""
+    with SIGKILL, a waiter on the same machine sees its process is gone and takes over."""
     redis_url = request.getfixturevalue("redis_url") if kind == "redis" else None
     where, cache = _store(kind, tmp_path, redis_url)
     ttl = 1.0
-    cache.lease_s = ttl
+    cache.lease_s = 60.0  # the waiter's own lease: irrelevant here
     holder = subprocess.Popen(
         [sys.executable, "-c", _HOLDER, where, str(ttl)],
         stdout=subprocess.PIPE,
@@ -162,11 +162,11 @@ def test_a_killed_holders_lease_lapses_within_its_ttl(kind, tmp_path, request):
         assert holder.stdout.readline().strip() == "held"
         waiter = cache.lease("lock:m:shdf")
         assert not waiter.acquire(wait_s=3 * ttl)  # renewed by the live holder
+        assert not waiter.break_if_holder_died()
         holder.send_signal(signal.SIGKILL)
         holder.wait(timeout=10)
-        start = time.monotonic()
-        assert waiter.acquire(wait_s=30)
-        assert time.monotonic() - start <= ttl + 1.5
+        assert not waiter.try_acquire()  # its lease is still there, for up to a TTL
+        assert waiter.break_if_holder_died() and waiter.try_acquire()
         waiter.release()
         again = cache.lease("lock:m:shdf")
         assert again.try_acquire()  # released: free at once
@@ -174,6 +174,22 @@ def test_a_killed_holders_lease_lapses_within_its_ttl(kind, tmp_path, request):
     finally:
         holder.kill()
         holder.wait(timeout=10)
+
+
+@pytest.mark.parametrize("kind", ["disk", "redis"])
+def test_a_remote_holders_lease_lapses_after_its_ttl(kind, tmp_path, request):
+    """A holder on another machine that stopped renewing (its liveness cannot be checked
+    from here): its lease lapses after one TTL, not after the old 600 s lock expiry."""
+    redis_url = request.getfixturevalue("redis_url") if kind == "redis" else None
+    _, cache = _store(kind, tmp_path, redis_url)
+    ttl = 1.0
+    assert cache.backend.acquire_lease("lock:m:shdf", "other-host/1:4242:0123abcd", ttl)
+    waiter = cache.lease("lock:m:shdf")
+    start = time.monotonic()
+    assert not waiter.try_acquire() and not waiter.break_if_holder_died()
+    assert waiter.acquire(wait_s=30)
+    assert ttl - 0.2 <= time.monotonic() - start <= ttl + 1.5
+    waiter.release()
 
 
 def test_lease_tokens_guard_renewal_and_release(tmp_path):
@@ -205,13 +221,14 @@ def _freeze_with_debug_sleep(redis_server, seconds: float) -> threading.Thread:
 
 @pytest.mark.parametrize("fault", ["sigstop", "debug-sleep", "stopped"])
 def test_redis_fault_opens_the_breaker_and_the_disk_stands_in(fault, redis_server, tmp_path):
-    """One timeout at most, then no waiting on Redis; writes meanwhile go to disk and reach
-    Redis once a probe finds it again."""
+    """One timeout at most, then no waiting on Redis; writes meanwhile go to disk and move
+    to Redis before the breaker closes; entries kept local stay readable throughout."""
     timeout, retry = 0.5, 0.3
     redis = RedisBackend(redis_server.url, timeout, retry_s=retry)
     backend = FallbackBackend(redis, DiskBackend(tmp_path / "disk", 10 * 1024**2))
     cache = ResultCache(backend, memory_items=0)
     cache.put_json("m:before", {"a": 1}, group="m")
+    cache.put_json("m:kept", {"k": 1}, group="m", keep_local=True)
     assert redis.get("m:before") is not None and backend.fallback.get("m:before") is None
 
     sleeper = None
@@ -226,6 +243,7 @@ def test_redis_fault_opens_the_breaker_and_the_disk_stands_in(fault, redis_serve
     assert time.monotonic() - start < timeout + 1.0
     assert backend.degraded
     start = time.monotonic()
+    assert cache.get_json("m:kept") == {"k": 1}  # its local copy
     cache.put_json("m:during", {"b": 2}, group="m")
     assert cache.get_json("m:during") == {"b": 2}
     lease = cache.lease("lock:m:x")
@@ -245,7 +263,13 @@ def test_redis_fault_opens_the_breaker_and_the_disk_stands_in(fault, redis_serve
     while backend.degraded and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not backend.degraded and cache.health() == (True, "redis")
+    # Drained before the breaker closed: in Redis already, not on disk any more.
+    assert redis.get("m:during") is not None
+    assert backend.fallback.get("pending:m:during") is None
+    assert cache.get_json("m:during") == {"b": 2}
     if fault != "stopped":  # a restarted Redis without persistence lost what it held
         assert cache.get_json("m:before") == {"a": 1}
-    assert cache.get_json("m:during") == {"b": 2}  # moved from disk to Redis
-    assert redis.get("m:during") is not None and backend.fallback.get("m:during") is None
+    # A local copy is never served while Redis answers (a deletion elsewhere must hold).
+    redis.delete("m:kept")
+    assert cache.get_json("m:kept") is None
+    assert cache.delete_group("m") >= 1 and cache.get_json("m:during") is None

@@ -46,6 +46,32 @@ def test_a_dead_workers_job_is_rerun_by_the_next_poll(app_factory, capsule_obj):
         assert shdf.status_code == 200 and shdf.json()["seed"] == 7
 
 
+def test_a_job_whose_runner_process_is_gone_is_rerun_at_once(app_factory, capsule_obj):
+    """A fresh record, but its runner's lease names a process of this machine that exited."""
+    import subprocess
+    import sys
+
+    from neural_shdf.api.cache import MACHINE
+
+    app = app_factory(lock_lease_s=600, warm_up=False)
+    engine = app.state.engine
+    with TestClient(app) as client:
+        mesh_id = _upload(client, capsule_obj)
+        job = engine.jobs.create(mesh_id, TEST_METHOD, 11)
+        engine.jobs.update(job, state="running")
+        exited = subprocess.run(
+            [sys.executable, "-c", "import os; print(os.getpid())"],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        token = f"{MACHINE}:{int(exited.stdout)}:dead"
+        assert engine.cache.backend.acquire_lease(job_key(job["job_id"]), token, 600)
+        polled = client.get(f"/v1/jobs/{job['job_id']}").json()
+        assert polled["attempt"] == 2
+        assert wait_job(client, polled)["state"] == "succeeded"
+
+
 def test_a_job_whose_runner_is_alive_is_left_alone(app_factory, capsule_obj):
     """A stale record alone is not enough: the runner's lease must have lapsed."""
     app = app_factory(lock_lease_s=0.5, warm_up=False)

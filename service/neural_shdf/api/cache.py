@@ -88,12 +88,22 @@ class Backend(Protocol):
 
     def get(self, key: str) -> bytes | None: ...
     def exists(self, key: str) -> bool | None: ...  # None: the store cannot tell now
-    def set(self, key: str, value: bytes, *, group: str, expire: float | None = None) -> None: ...
+    # keep_local: a shared store also keeps a local copy, readable through its outages
+    def set(
+        self,
+        key: str,
+        value: bytes,
+        *,
+        group: str,
+        expire: float | None = None,
+        keep_local: bool = False,
+    ) -> None: ...
     def delete(self, key: str) -> None: ...
     def delete_group(self, group: str) -> int: ...
     def acquire_lease(self, key: str, token: str, ttl_s: float) -> bool: ...
     def renew_lease(self, key: str, token: str, ttl_s: float) -> bool: ...
-    def release_lease(self, key: str, token: str) -> None: ...
+    def release_lease(self, key: str, token: str) -> None: ...  # only if ``token`` holds it
+    def lease_holder(self, key: str) -> str | None: ...
     def health(self) -> tuple[bool, str]: ...
     def close(self) -> None: ...
 
@@ -136,7 +146,19 @@ class DiskBackend:
     def exists(self, key: str) -> bool | None:
         return key in self._cache
 
-    def set(self, key: str, value: bytes, *, group: str, expire: float | None = None) -> None:
+    def keys(self, prefix: str) -> Iterator[str]:
+        """Keys starting with ``prefix`` (a scan of the index)."""
+        return (key for key in self._cache.iterkeys() if str(key).startswith(prefix))
+
+    def set(
+        self,
+        key: str,
+        value: bytes,
+        *,
+        group: str,
+        expire: float | None = None,
+        keep_local: bool = False,
+    ) -> None:
         # diskcache writes the value file first, then commits the SQLite row in one
         # transaction: a reader never sees a half-written entry, a crash leaves none.
         self._cache.set(key, value, expire=expire, tag=group, retry=True)
@@ -165,6 +187,10 @@ class DiskBackend:
             if self._cache.get(lease, default=None) == token:
                 self._cache.delete(lease)
 
+    def lease_holder(self, key: str) -> str | None:
+        holder = self._cache.get(_lease_key(key), default=None, retry=True)
+        return holder if isinstance(holder, str) else None
+
     def health(self) -> tuple[bool, str]:
         try:
             self._cache.get("__ping__", retry=True)
@@ -192,6 +218,8 @@ class CircuitBreaker:
         self._last_error = ""
         self._stopped = threading.Event()
         self.on_change: Callable[[bool], None] = lambda is_open: None
+        #: Runs after a successful probe, before closing (raising keeps the breaker open).
+        self.before_close: Callable[[], None] = lambda: None
 
     @property
     def is_open(self) -> bool:
@@ -219,6 +247,7 @@ class CircuitBreaker:
         while not self._stopped.wait(self.retry_s):
             try:
                 self._probe()
+                self.before_close()
             except Exception as exc:  # noqa: BLE001 - still down
                 self._last_error = str(exc) or type(exc).__name__
                 continue
@@ -317,20 +346,28 @@ class RedisBackend:
     def exists(self, key: str) -> bool | None:
         return bool(self._call(self._redis.exists, self._key(key)))
 
-    def set(self, key: str, value: bytes, *, group: str, expire: float | None = None) -> None:
+    def set(
+        self,
+        key: str,
+        value: bytes,
+        *,
+        group: str,
+        expire: float | None = None,
+        keep_local: bool = False,
+    ) -> None:
         # SET is atomic: readers see the old value or the whole new one.
+        self._call(self.write_now, key, value, group=group, expire=expire)
+
+    def write_now(self, key: str, value: bytes, *, group: str, expire: float | None) -> None:
+        """SET past the breaker (raises redis errors): for draining before it closes."""
         expire = expire or self._ttl_s
         seconds = max(1, int(expire)) if expire else None
-
-        def write() -> None:
-            pipe = self._redis.pipeline(transaction=True)
-            pipe.set(self._key(key), value, ex=seconds)
-            pipe.sadd(self._key(f"group:{group}"), key)
-            if self._ttl_s:
-                pipe.expire(self._key(f"group:{group}"), max(1, int(self._ttl_s)))
-            pipe.execute()
-
-        self._call(write)
+        pipe = self._redis.pipeline(transaction=True)
+        pipe.set(self._key(key), value, ex=seconds)
+        pipe.sadd(self._key(f"group:{group}"), key)
+        if self._ttl_s:
+            pipe.expire(self._key(f"group:{group}"), max(1, int(self._ttl_s)))
+        pipe.execute()
 
     def delete(self, key: str) -> None:
         self._call(self._redis.delete, self._key(key))
@@ -356,6 +393,10 @@ class RedisBackend:
     def release_lease(self, key: str, token: str) -> None:
         self._call(self._release, keys=[self._key(_lease_key(key))], args=[token])
 
+    def lease_holder(self, key: str) -> str | None:
+        holder = self._call(self._redis.get, self._key(_lease_key(key)))
+        return holder.decode() if holder is not None else None
+
     def health(self) -> tuple[bool, str]:
         try:
             self._call(self._redis.ping)
@@ -372,11 +413,12 @@ class RedisBackend:
 class FallbackBackend:
     """Redis first, the local disk cache whenever Redis is unavailable.
 
-    Through an outage the service keeps working, degraded: results, meshes and job records
-    are written to (and read from) the disk cache that this host's workers share, so a job
-    accepted then stays pollable. A Redis miss also looks on disk, and an entry found there
-    (written during an outage) moves to Redis, so nothing written meanwhile is lost after it
-    recovers. Leases are taken from Redis, else from the disk cache.
+    Through an outage the service keeps working, degraded. Writes go to the disk cache
+    that this host's workers share, as ``pending:<key>``; before the breaker closes again
+    they are moved to Redis (``drain``), and a Redis miss also looks there meanwhile.
+    Entries written with ``keep_local`` (meshes, job records) also keep a copy on disk,
+    ``mirror:<key>``, read only while Redis is unavailable: a job or mesh stored before an
+    outage stays readable through it. Leases are taken from Redis, else from the disk.
     """
 
     local = False
@@ -387,51 +429,77 @@ class FallbackBackend:
         self.name = primary.name
         self._lease_stores: dict[str, Backend] = {}  # lease token -> the store holding it
         self._guard = threading.Lock()
+        primary.breaker.before_close = self.drain
 
     @property
     def degraded(self) -> bool:
         return self.primary.breaker.is_open
 
+    def _local(self, key: str) -> bytes | None:
+        """What the disk holds for ``key`` (outage writes first), for an unreachable Redis."""
+        value = self.fallback.get(f"pending:{key}")
+        return value if value is not None else self.fallback.get(f"mirror:{key}")
+
     def get(self, key: str) -> bytes | None:
         try:
             value = self.primary.get(key)
+            return value if value is not None else self._move(f"pending:{key}", self.primary.set)
         except BackendUnavailable:
-            return self.fallback.get(key)
-        return value if value is not None else self._promote(key)
+            return self._local(key)
 
-    def _promote(self, key: str) -> bytes | None:
-        """An entry the fallback holds (written during an outage), moved to Redis."""
-        entry = self.fallback.get_entry(key)
+    def _move(self, pending: str, write: Callable[..., None]) -> bytes | None:
+        """A pending (outage) entry written to Redis with ``write`` and dropped from disk;
+        its value, or None if there is none."""
+        entry = self.fallback.get_entry(pending)
         if entry is None:
             return None
         value, group, expires_in = entry
-        if expires_in is not None and expires_in <= 1:
-            return value
-        try:
-            self.primary.set(key, value, group=group or key.split(":", 1)[0], expire=expires_in)
-        except BackendUnavailable:
-            return value
-        self.fallback.delete(key)
+        key = pending.removeprefix("pending:")
+        if expires_in is None or expires_in > 1:
+            write(key, value, group=group or key, expire=expires_in)
+        self.fallback.delete(pending)
         return value
+
+    def drain(self) -> None:
+        """Move every outage write to Redis, past the (still open) breaker; runs before it
+        closes, so nothing newer can be in Redis yet. A Redis error keeps it open."""
+        moved = sum(
+            self._move(pending, self.primary.write_now) is not None
+            for pending in list(self.fallback.keys("pending:"))
+        )
+        if moved:
+            logger.warning("moved %d entries written during the Redis outage to Redis", moved)
 
     def exists(self, key: str) -> bool | None:
         try:
             if self.primary.exists(key):
                 return True
         except BackendUnavailable:
-            return True if self.fallback.exists(key) else None
-        return bool(self.fallback.exists(key))
+            return True if self._local(key) is not None else None
+        return bool(self.fallback.exists(f"pending:{key}"))
 
-    def set(self, key: str, value: bytes, *, group: str, expire: float | None = None) -> None:
+    def set(
+        self,
+        key: str,
+        value: bytes,
+        *,
+        group: str,
+        expire: float | None = None,
+        keep_local: bool = False,
+    ) -> None:
         try:
             self.primary.set(key, value, group=group, expire=expire)
         except BackendUnavailable:
-            self.fallback.set(key, value, group=group, expire=expire)
+            self.fallback.set(f"pending:{key}", value, group=group, expire=expire)
+            return
+        if keep_local:
+            self.fallback.set(f"mirror:{key}", value, group=group, expire=expire)
 
     def delete(self, key: str) -> None:
         with contextlib.suppress(BackendUnavailable):
             self.primary.delete(key)
-        self.fallback.delete(key)
+        self.fallback.delete(f"pending:{key}")
+        self.fallback.delete(f"mirror:{key}")
 
     def delete_group(self, group: str) -> int:
         removed = 0
@@ -461,9 +529,16 @@ class FallbackBackend:
     def release_lease(self, key: str, token: str) -> None:
         with self._guard:
             store = self._lease_stores.pop(token, None)
-        if store is not None:
+        for each in (store,) if store is not None else (self.primary, self.fallback):
             with contextlib.suppress(BackendUnavailable):
-                store.release_lease(key, token)
+                each.release_lease(key, token)
+
+    def lease_holder(self, key: str) -> str | None:
+        try:
+            holder = self.primary.lease_holder(key)
+        except BackendUnavailable:
+            holder = None
+        return holder or self.fallback.lease_holder(key)
 
     def health(self) -> tuple[bool, str]:
         ok, detail = self.primary.health()
@@ -476,20 +551,49 @@ class FallbackBackend:
         self.fallback.close()
 
 
+def _machine() -> str:
+    """This host and PID namespace: where process ids in lease tokens are comparable."""
+    try:
+        namespace = str(os.stat("/proc/self/ns/pid").st_ino)
+    except OSError:
+        namespace = "?"  # no /proc: holders' liveness is never checked, leases just lapse
+    return f"{socket.gethostname()}/{namespace}"
+
+
+MACHINE = _machine()
+
+
+def process_is_gone(pid: int) -> bool:
+    """Whether no live process has this id here (never started, exited or a zombie)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:
+        return False
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rpartition(")")[2].split()[:1] in (["Z"], ["X"])
+
+
 class Lease:
     """A lock across threads, processes and replicas that lapses unless its holder renews it.
 
     While held, a daemon thread renews it every ``ttl_s / 3``; a holder that dies (kill -9,
     out of memory, lost host) stops renewing, so its lease lapses after ``ttl_s`` and the
-    next worker goes on. A holder paused for longer than ``ttl_s`` loses it (``lost``);
-    results are deterministic and written atomically, so the cost is only duplicate work.
+    next worker goes on. A waiter on the holder's own machine does not wait that long: the
+    token names the holder's process, and the lease of a process that is gone is broken at
+    once. A holder paused for longer than ``ttl_s`` loses it (``lost``); results are
+    deterministic and written atomically, so the cost is only duplicate work.
     """
 
     def __init__(self, store: Backend, key: str, ttl_s: float) -> None:
         self.store = store
         self.key = key
         self.ttl_s = ttl_s
-        self.token = f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex}"
+        self.token = f"{MACHINE}:{os.getpid()}:{uuid.uuid4().hex}"
         self.held = False
         self.lost = False
         self._stop = threading.Event()
@@ -509,11 +613,27 @@ class Lease:
         deadline = time.monotonic() + wait_s
         pause = 0.01
         while not self.try_acquire():
+            if self.break_if_holder_died():
+                continue
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return False
             time.sleep(min(pause, remaining))
             pause = min(pause * 2, 0.25)
+        return True
+
+    def break_if_holder_died(self) -> bool:
+        """Free the lease if its holder was a process on this machine that is gone."""
+        holder = self.store.lease_holder(self.key)
+        if holder is None or holder.count(":") < 2:
+            return False
+        machine, pid, _ = holder.rsplit(":", 2)
+        if machine != MACHINE or machine.endswith("/?") or not pid.isdigit():
+            return False
+        if not process_is_gone(int(pid)):
+            return False
+        self.store.release_lease(self.key, holder)  # only if that dead holder still has it
+        logger.warning("lease on %s: its holder (process %s) is gone; taking over", self.key, pid)
         return True
 
     def stop_renewing(self) -> None:
@@ -605,8 +725,12 @@ class ResultCache:
             self.backend.delete(key)
             return None
 
-    def put_arrays(self, key: str, arrays: dict[str, NDArray], *, group: str) -> None:
-        self.backend.set(key, seal(encode_arrays(arrays)), group=group)
+    def put_arrays(
+        self, key: str, arrays: dict[str, NDArray], *, group: str, keep_local: bool = False
+    ) -> None:
+        """Store arrays; ``keep_local``: also readable from this host while Redis is down
+        (for what cannot be recomputed: uploaded meshes, job records)."""
+        self.backend.set(key, seal(encode_arrays(arrays)), group=group, keep_local=keep_local)
 
     def get_json(self, key: str) -> Any | None:
         payload = self._payload(key)
@@ -619,8 +743,17 @@ class ResultCache:
             self.backend.delete(key)
             return None
 
-    def put_json(self, key: str, value: Any, *, group: str, expire: float | None = None) -> None:
-        self.backend.set(key, seal(json.dumps(value).encode()), group=group, expire=expire)
+    def put_json(
+        self,
+        key: str,
+        value: Any,
+        *,
+        group: str,
+        expire: float | None = None,
+        keep_local: bool = False,
+    ) -> None:
+        blob = seal(json.dumps(value).encode())
+        self.backend.set(key, blob, group=group, expire=expire, keep_local=keep_local)
 
     def delete_group(self, group: str) -> int:
         self.forget_group(group)

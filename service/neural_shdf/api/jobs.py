@@ -2,8 +2,9 @@
 
 The worker running a job holds the lease ``job:<id>`` (renewed while it works) and
 rewrites the record at least every third of a lease. A record still ``queued`` or
-``running`` but not rewritten for a whole lease may belong to a dead worker: whoever
-then takes its lease re-runs the job (``JobStore.orphaned``), up to ``max_attempts`` runs.
+``running`` whose runner process is gone (seen at once on the same machine, else after
+its lease lapsed) is re-run by whoever then takes its lease (``JobStore.orphaned``), up
+to ``max_attempts`` runs.
 """
 
 from __future__ import annotations
@@ -100,13 +101,15 @@ class JobStore:
         return self.cache.lease(job_key(job_id))
 
     def orphaned(self, job: dict[str, Any]) -> Lease | None:
-        """For an unfinished record not written for a lease: its lease, taken, when its
-        runner is gone (the caller then re-runs or fails the job); else None."""
+        """For an unfinished job whose runner is gone: its lease, taken (the caller then
+        re-runs or fails the job); else None. Gone: a runner process on this machine that
+        no longer exists, or a record not written for a whole lease whose lease lapsed."""
         if job.get("state") not in UNFINISHED:
             return None
-        if time.time() - float(job.get("updated_at", 0.0)) < self.cache.lease_s:
-            return None
         lease = self.runner_lease(job["job_id"])
+        stale = time.time() - float(job.get("updated_at", 0.0)) >= self.cache.lease_s
+        if not stale and not lease.break_if_holder_died():
+            return None
         if not lease.try_acquire():
             return None  # its runner (or another adopter) is alive
         current = self.get(job["job_id"])
@@ -118,4 +121,5 @@ class JobStore:
         return lease
 
     def _save(self, job: dict[str, Any]) -> None:
-        self.cache.put_json(job_key(job["job_id"]), job, group=job["mesh_id"], expire=self.ttl_s)
+        key = job_key(job["job_id"])
+        self.cache.put_json(key, job, group=job["mesh_id"], expire=self.ttl_s, keep_local=True)

@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from neural_shdf import __version__
+from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
 from neural_shdf.errors import ModelUnavailableError, NeuralShdfError, ParameterError
 from neural_shdf.segment import SegmentParams
 
@@ -92,7 +93,8 @@ class BatchConfig:
     params: SegmentParams = field(default_factory=SegmentParams)
     outputs: tuple[str, ...] = ("seg",)
     file_type: str | None = None
-    max_faces: int | None = 2_000_000
+    max_faces: int | None = DEFAULT_MAX_FACES
+    max_vertices: int | None = DEFAULT_MAX_VERTICES
     #: ShDF cache shared with the service: a ``redis://`` URL or a disk-cache folder.
     cache: str | None = None
     #: onnxruntime intra-op threads per worker (not part of the key: results do not
@@ -323,7 +325,9 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
     if not path.is_file():
         raise FileNotFoundError(f"mesh file not found: {path}")
     content_hash = file_hash(path)
-    mesh = load_mesh(path, config.file_type, max_faces=config.max_faces)
+    mesh = load_mesh(
+        path, config.file_type, max_faces=config.max_faces, max_vertices=config.max_vertices
+    )
     if mesh.face_count == 0:
         raise InvalidGeometryError(f"{path}: the mesh has no triangles")
     mesh_id = mesh.content_hash()
@@ -545,7 +549,8 @@ def run_batch(
     params: SegmentParams | None = None,
     outputs: Sequence[str] = ("seg",),
     file_type: str | None = None,
-    max_faces: int | None = 2_000_000,
+    max_faces: int | None = DEFAULT_MAX_FACES,
+    max_vertices: int | None = DEFAULT_MAX_VERTICES,
     cache: str | None = None,
     workers: int | None = None,
     scheduler: Any = None,
@@ -577,6 +582,7 @@ def run_batch(
         outputs=tuple(dict.fromkeys(outputs)),
         file_type=file_type,
         max_faces=max_faces,
+        max_vertices=max_vertices,
         cache=cache,
     )
     out = Path(out_dir).resolve()

@@ -239,8 +239,7 @@ def write_obj_with_uvs(path: str | Path, mesh: TriangleMesh, atlas: UvAtlas) -> 
                 base = len(uv_rows)
                 uv_rows.extend(atlas.corner_uvs[triangle])
                 faces_text.append(
-                    "f "
-                    + " ".join(
+                    "f " + " ".join(
                         f"{v + 1}/{base + k + 1}" for k, v in enumerate(mesh.faces[triangle])
                     )
                 )

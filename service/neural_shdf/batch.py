@@ -554,7 +554,7 @@ def run_batch(
     out_dir: str | Path,
     *,
     method: str = "auto",
-    seed: int = 0,
+    seed: int | None = None,
     params: SegmentParams | None = None,
     outputs: Sequence[str] = ("seg",),
     file_type: str | None = None,
@@ -572,6 +572,7 @@ def run_batch(
         inputs: mesh files, folders (searched recursively) and manifests (.txt/.lst: one
             path per line; .csv: a ``path`` column), relative paths from the manifest.
         out_dir: where outputs, records and ``manifest.csv`` go.
+        seed: seed of the ShDF and the segmentation (default: ``params.seed``).
         outputs: any of ``seg``, ``shdf``, ``colored``, ``parts``.
         cache: ShDF cache shared with the service (``redis://...`` or a folder).
         workers: local worker processes (default: one per core; 0: in this process).
@@ -579,10 +580,14 @@ def run_batch(
             the workers must see the same paths.
         progress: show a progress bar on stderr.
     """
+    # One seed for the ShDF and the segmentation (the CLI's convention): ``seed``, else
+    # ``params.seed``.
+    params = params or SegmentParams()
+    seed = params.seed if seed is None else seed
     config = BatchConfig(
         method=method,
         seed=seed,
-        params=params or SegmentParams(seed=seed),
+        params=dataclasses.replace(params, seed=seed),
         outputs=tuple(dict.fromkeys(outputs)),
         file_type=file_type,
         max_faces=max_faces,

@@ -7,7 +7,7 @@ vertex welding (``weld_faces``) and the face adjacency graph
 dumbbell of about 100k and 1M faces, the same 1M faces as a triangle soup
 (every corner its own vertex, as STL files come: the weld's worst case), one
 tetrahedron repeated in place to 1M faces (every edge shared by 500k faces: the
-face graph must stay linear, ``geometry.EDGE_BAND``), and psb-dev 281 subdivided
+face graph must stay linear, ``geometry.EDGE_CLIQUE``), and psb-dev 281 subdivided
 twice (808k faces) where ``../shared/data`` exists.
 Each stage's best of ``--repeat`` runs after a warm-up (numba kernels load
 from their disk cache once per process: ``warmup_s``); ``s_per_Mface`` is the

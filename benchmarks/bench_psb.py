@@ -1,22 +1,30 @@
 """Princeton Segmentation Benchmark metrics on psb-dev: one table, all methods side by side.
 
 Rows per category and overall (mean over categories, as the benchmark averages);
-columns CD, HD, Rm, Rf, 1-RI, GCE, LCE (lower is better). Methods by default:
-CGAL's own segmentations (``cgal/*.seg``), our exact ShDF with the graph cut,
-with METIS (automatic parameters), and METIS given the humans' most frequent
-part count per model (the benchmark's protocol for methods that take a count).
+columns CD, HD, Rm, Rf, 1-RI, GCE, LCE (lower is better), then the mean part count.
+Default rows, all from our exact ShDF except CGAL's:
 
-References: humans against humans on the whole benchmark score 1-RI 0.103;
-CGAL's defaults 0.309 on psb-dev.
+* ``before-tree``: the segmentation before the part tree (graph cut, lambda 0.12,
+  every part it finds: ``exact-graphcut-leaves`` with ``smoothing=0.12``);
+* ``tree-auto``: the default now (``exact-graphcut``): the part tree cut where the
+  merge cost jumps;
+* ``tree-humansN``: the part tree cut at the humans' most frequent part count of each
+  model (``exact-graphcut-humanparts``), the benchmark's protocol for methods that
+  take a count;
+* ``metis-humansN``: METIS given the same count (``exact-metis-humanparts``);
+* ``cgal``: CGAL's own segmentations (``cgal/*.seg``).
 
-    python benchmarks/bench_psb.py [--bench-dir DIR] [--methods ...] [--jobs 2] [--json out.json]
-        [--tuned '{"smoothing": 0.1, "clusters": 8}']
+The hierarchy's weights and its automatic count were tuned on the first three
+models of each category; the fourth (ids 4, 24, 44, ..., 384) was held out and is
+reported apart (``--split``), so the gap shows how much of a gain is tuning.
 
-``--tuned`` adds rows ``exact-graphcut+tuned`` and ``exact-metis+tuned`` with
-those SegmentParams overrides (global values, the same for every mesh).
+References: humans against humans on the whole benchmark score 1-RI 0.103, CD 0.172.
 
-Exact ShDF values are cached in ~/.cache/neural-shdf/psb (``--cache-dir``), so
-re-running with other segmentation parameters only re-segments.
+    python benchmarks/bench_psb.py [--bench-dir DIR] [--jobs 2] [--json out.json]
+        [--rows before-tree tree-auto ...] [--extra NAME=METHOD:JSON ...] [--no-split]
+
+``--extra`` adds a row, e.g. ``smooth=exact-graphcut:{"boundary_smoothing": true}``.
+Exact ShDF values are cached in ~/.cache/neural-shdf/psb (``--cache-dir``).
 """
 
 from __future__ import annotations
@@ -29,6 +37,8 @@ from pathlib import Path
 
 from neural_shdf.evaluate.benchmark import (
     DEFAULT_CACHE_DIR,
+    EvalTable,
+    MethodTable,
     evaluate_folder,
     format_table,
     make_predictor,
@@ -37,33 +47,75 @@ from neural_shdf.evaluate.benchmark import (
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_BENCH = REPO_ROOT / ".." / "shared" / "data" / "psb-dev"
-DEFAULT_METHODS = ["cgal", "exact-graphcut", "exact-metis", "exact-metis-humanparts"]
+#: Row name -> (method, SegmentParams overrides).
+ROWS: dict[str, tuple[str, dict]] = {
+    "before-tree": ("exact-graphcut-leaves", {"smoothing": 0.12}),
+    "tree-auto": ("exact-graphcut", {}),
+    "tree-humansN": ("exact-graphcut-humanparts", {}),
+    "metis-humansN": ("exact-metis-humanparts", {}),
+    "cgal": ("cgal", {}),
+}
+
+
+def is_held_out(model_id: int) -> bool:
+    """The 4th psb-dev model of each category, never used for tuning."""
+    return (model_id - 1) % 20 == 3
+
+
+def subset(table: EvalTable, held_out: bool) -> EvalTable:
+    return {
+        name: MethodTable(name, tuple(r for r in t.models if is_held_out(r.model_id) == held_out))
+        for name, t in table.items()
+    }
+
+
+def parse_extra(text: str) -> tuple[str, tuple[str, dict]]:
+    name, _, rest = text.partition("=")
+    method, _, params = rest.partition(":")
+    return name, (method, json.loads(params) if params else {})
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--bench-dir", type=Path, default=DEFAULT_BENCH.resolve())
-    parser.add_argument("--methods", nargs="+", default=DEFAULT_METHODS)
+    parser.add_argument("--rows", nargs="+", default=list(ROWS), choices=list(ROWS))
+    parser.add_argument(
+        "--extra",
+        nargs="*",
+        default=[],
+        type=parse_extra,
+        help="more rows: NAME=METHOD[:JSON SegmentParams overrides]",
+    )
     parser.add_argument("--limit", type=int, help="only the first N models")
     parser.add_argument("--jobs", type=int, default=2, help="worker processes (at most 2)")
     parser.add_argument("--cache-dir", type=Path, default=DEFAULT_CACHE_DIR)
     parser.add_argument("--json", type=Path, help="also write per-model scores as JSON")
-    parser.add_argument("--tuned", type=json.loads, help="SegmentParams overrides, as JSON")
+    parser.add_argument("--no-split", action="store_true", help="no tuned/held-out tables")
     args = parser.parse_args(argv)
     if not args.bench_dir.is_dir():
         print(f"benchmark folder {args.bench_dir} is absent", file=sys.stderr)
         return 2
 
     start = time.perf_counter()
-    predictors = {m: make_predictor(m, cache_dir=args.cache_dir) for m in args.methods}
-    if args.tuned:
-        for method in ("exact-graphcut", "exact-metis"):
-            predictors[f"{method}+tuned"] = make_predictor(
-                method, cache_dir=args.cache_dir, params=args.tuned
-            )
-        print(f"tuned: {json.dumps(args.tuned)}")
+    rows = {name: ROWS[name] for name in args.rows} | dict(args.extra)
+    predictors = {
+        name: make_predictor(method, cache_dir=args.cache_dir, params=params)
+        for name, (method, params) in rows.items()
+    }
+    for name, (method, params) in rows.items():
+        print(f"{name}: {method} {json.dumps(params) if params else ''}")
     table = evaluate_folder(args.bench_dir, predictors, limit=args.limit, jobs=args.jobs)
+    print("\n== all models")
     print(format_table(table))
+    if not args.no_split:
+        for title, held_out in (
+            ("tuning models (ids 1-3 of each category)", False),
+            ("held-out models (id 4 of each category)", True),
+        ):
+            part = subset(table, held_out)
+            if all(t.models for t in part.values()):
+                print(f"\n== {title}")
+                print(format_table(part, per_category=False))
     print(f"evaluated in {time.perf_counter() - start:.0f} s (wall, ShDF cache: {args.cache_dir})")
     if args.json:
         args.json.write_text(json.dumps(table_as_dict(table), indent=1))

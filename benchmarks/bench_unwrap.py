@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -165,8 +166,10 @@ def main() -> None:
     parser.add_argument("--dense", default="skull,lucy", help="dense-dev scans ('' for none)")
     parser.add_argument("--curve", default="1.05,1.25,1.5", help="other max_stretch values")
     parser.add_argument("--no-blender", action="store_true")
-    parser.add_argument("--blender-python", default=sys.executable,
-                        help="a Python with bpy==4.5.* (bpy wants numpy<2: a venv of its own)")
+    parser.add_argument("--blender-python",
+                        default=os.environ.get("NEURAL_SHDF_BLENDER_PYTHON", sys.executable),
+                        help="a Python with bpy==4.5.* (bpy wants numpy<2: a venv of its own; "
+                             "default: $NEURAL_SHDF_BLENDER_PYTHON, as scripts/test sets up)")
     parser.add_argument("--json", help="also write every row as JSON")
     args = parser.parse_args()
     curve = [float(v) for v in args.curve.split(",") if v]

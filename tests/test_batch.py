@@ -4,14 +4,19 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import os
 import signal
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pytest
 import trimesh
 
 from neural_shdf.batch import MANIFEST_COLUMNS, collect_assets, run_batch
@@ -114,7 +119,7 @@ def test_bad_assets_are_reported_and_the_rest_is_done(tmp_path: Path):
     listing = tmp_path / "list.txt"
     listing.write_text("in/sub/deep/mesh000.obj\nmissing.obj\nin/broken0.obj\n")
     code = main(["batch", str(tmp_path / "in"), str(listing), "-o", str(tmp_path / "out"),
-                 "--method", TEST_METHOD, "--workers", "2", "-q"])  # fmt: skip
+                 "--method", "exact", "--workers", "2", "-q"])  # fmt: skip
     assert code == EXIT_BAD_INPUT
     rows = _rows(tmp_path / "out")
     assert list(rows[0]) == list(MANIFEST_COLUMNS)
@@ -126,7 +131,7 @@ def test_bad_assets_are_reported_and_the_rest_is_done(tmp_path: Path):
     }  # fmt: skip
     assert all(r["error"] for r in failed.values())
     assert sum(r["status"] == "ok" for r in rows) == 4  # mesh000 twice (folder and list)
-    assert {r["method"] for r in rows if r["status"] == "ok"} == {TEST_METHOD}
+    assert {r["method"] for r in rows if r["status"] == "ok"} == {"exact"}
     assert not list((tmp_path / "out").rglob("*.tmp"))
     # Only good meshes have outputs, one label per input face.
     for row in rows:
@@ -138,20 +143,20 @@ def test_bad_assets_are_reported_and_the_rest_is_done(tmp_path: Path):
 
 def test_rerun_skips_finished_assets_and_redoes_changed_ones(tmp_path: Path):
     _library(tmp_path / "in", 3)
-    first = run_batch([tmp_path / "in"], tmp_path / "out", method=TEST_METHOD, workers=0)
+    first = run_batch([tmp_path / "in"], tmp_path / "out", method="exact", workers=0)
     assert [r["status"] for r in first] == ["ok"] * 3
     before = _outputs(tmp_path / "out")
-    again = run_batch([tmp_path / "in"], tmp_path / "out", method=TEST_METHOD, workers=0)
+    again = run_batch([tmp_path / "in"], tmp_path / "out", method="exact", workers=0)
     assert [r["status"] for r in again] == ["skipped"] * 3
     assert [r["faces"] for r in again] == [r["faces"] for r in first]
     assert _outputs(tmp_path / "out") == before
     # A changed file, new parameters or a missing output are recomputed.
     _shape(5).export(tmp_path / "in" / "mesh001.off")
     (tmp_path / "out" / "mesh002.seg").unlink()
-    rows = run_batch([tmp_path / "in"], tmp_path / "out", method=TEST_METHOD, workers=0)
+    rows = run_batch([tmp_path / "in"], tmp_path / "out", method="exact", workers=0)
     assert [r["status"] for r in rows] == ["ok", "ok", "skipped"]
     rows = run_batch(
-        [tmp_path / "in"], tmp_path / "out", method=TEST_METHOD, workers=0,
+        [tmp_path / "in"], tmp_path / "out", method="exact", workers=0,
         params=SegmentParams(partitioner="metis", parts=3),
     )  # fmt: skip
     assert [r["status"] for r in rows] == ["ok"] * 3
@@ -159,7 +164,7 @@ def test_rerun_skips_finished_assets_and_redoes_changed_ones(tmp_path: Path):
 
 
 def test_killed_batch_leaves_whole_files_and_rerun_redoes_nothing_finished(tmp_path: Path):
-    _library(tmp_path / "in", 10)
+    _library(tmp_path / "in", 8)
     out = tmp_path / "out"
     env = {**os.environ, "PYTHONPATH": f"{REPO_ROOT / 'service'}:{REPO_ROOT}"}
     command = [sys.executable, "-m", "neural_shdf.cli", "batch", str(tmp_path / "in"),
@@ -172,7 +177,7 @@ def test_killed_batch_leaves_whole_files_and_rerun_redoes_nothing_finished(tmp_p
     os.killpg(process.pid, signal.SIGKILL)
     process.wait()
     finished = {p.name for p in out.rglob("*.batch.json")}
-    assert 3 <= len(finished) < 10
+    assert 3 <= len(finished) < 8
     for record in out.rglob("*.batch.json"):  # a record is only written after its outputs
         seg = record.with_name(record.name.replace(".batch.json", ".seg"))
         row = json.loads(record.read_text())["row"]
@@ -180,5 +185,83 @@ def test_killed_batch_leaves_whole_files_and_rerun_redoes_nothing_finished(tmp_p
     assert main([*command[3:]]) == 0
     rows = _rows(out)
     assert sum(r["status"] == "skipped" for r in rows) == len(finished)
-    assert sum(r["status"] == "ok" for r in rows) == 10 - len(finished)
+    assert sum(r["status"] == "ok" for r in rows) == 8 - len(finished)
     assert not list(out.rglob("*.tmp"))
+
+
+# -- Dask distributed: a real LocalCluster of 2 worker processes ------------------------
+
+
+@pytest.fixture(scope="module")
+def library(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _library(tmp_path_factory.mktemp("library"), 8, bad=1)
+
+
+@pytest.fixture(scope="module")
+def local_outputs(library: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, bytes]:
+    out = tmp_path_factory.mktemp("local")
+    rows = run_batch([library], out, method=TEST_METHOD, outputs=["seg", "shdf"], workers=2)
+    assert [r["status"] for r in rows].count("ok") == 8
+    return _outputs(out)
+
+
+@pytest.fixture(scope="module")
+def dask_client() -> Iterator[Any]:
+    distributed = pytest.importorskip("distributed")
+    cluster = distributed.LocalCluster(
+        n_workers=2,
+        threads_per_worker=1,
+        processes=True,
+        dashboard_address=None,
+        silence_logs=logging.ERROR,
+    )
+    client = distributed.Client(cluster)
+    try:
+        yield client
+    finally:
+        client.close()
+        cluster.close()
+
+
+@pytest.mark.slow
+def test_dask_cluster_writes_the_local_outputs_byte_for_byte(
+    library: Path, local_outputs: dict[str, bytes], dask_client: Any, tmp_path: Path
+):
+    rows = run_batch([library], tmp_path, method=TEST_METHOD, outputs=["seg", "shdf"],
+                     scheduler=dask_client)  # fmt: skip
+    assert [r["status"] for r in rows].count("ok") == 8
+    assert [r["error_type"] for r in rows if r["status"] == "failed"] == ["MeshParseError"]
+    assert _outputs(tmp_path) == local_outputs
+    # Both worker processes took part.
+    assert len({r["worker"] for r in rows}) == 2
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_run_has_its_assets_retried_elsewhere(
+    library: Path, local_outputs: dict[str, bytes], dask_client: Any, tmp_path: Path
+):
+    result: dict[str, Any] = {}
+
+    def run() -> None:
+        result["rows"] = run_batch([library], tmp_path, method=TEST_METHOD,
+                                   outputs=["seg", "shdf"], scheduler=dask_client)  # fmt: skip
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    deadline = time.monotonic() + 120
+    victim = None
+    while victim is None and time.monotonic() < deadline:
+        busy = {w: tasks for w, tasks in dask_client.processing().items() if tasks}
+        if len(list(tmp_path.rglob("*.batch.json"))) >= 2 and busy:
+            victim = sorted(busy)[0]
+        time.sleep(0.02)
+    assert victim is not None, "no worker was busy"
+    held = set(dask_client.processing()[victim])
+    pids = dask_client.run(os.getpid, workers=[victim])
+    os.kill(pids[victim], signal.SIGKILL)
+    thread.join(timeout=300)
+    assert not thread.is_alive()
+    rows = result["rows"]
+    assert held, "the killed worker held no asset"
+    assert [r["status"] for r in rows].count("ok") == 8
+    assert _outputs(tmp_path) == local_outputs

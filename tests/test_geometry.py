@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from neural_shdf.constants import AREA_EPS
-from neural_shdf.geometry import EDGE_BAND, build_face_graph, face_normals, weld_faces
+from neural_shdf.geometry import EDGE_CLIQUE, build_face_graph, face_normals, weld_faces
 
 
 def test_normals_and_areas_of_a_box():
@@ -105,8 +105,8 @@ def _reference_normals(vertices, faces):
 
 
 def _reference_graph(vertices, faces, normals):
-    """Edge groups in a dict, each face linked to the next EDGE_BAND members of its group;
-    a pair met on several edges keeps (fewest faces, lowest edge)."""
+    """Edge groups in a dict: every pair of a group of up to EDGE_CLIQUE faces, else each
+    face with the next; a pair met on several edges keeps (fewest faces, lowest edge)."""
     groups: dict[tuple[int, int], list[int]] = {}
     for face, corners in enumerate(faces.tolist()):
         for start, end in zip(corners, corners[1:] + corners[:1], strict=True):
@@ -115,7 +115,8 @@ def _reference_graph(vertices, faces, normals):
     best: dict[tuple[int, int], tuple[int, int, int]] = {}
     for (lo, hi), members in groups.items():
         for i, a in enumerate(members):
-            for b in members[i + 1 : i + 1 + EDGE_BAND]:
+            reach = len(members) if len(members) <= EDGE_CLIQUE else 1
+            for b in members[i + 1 : i + 1 + reach]:
                 if a != b:
                     pair = (min(a, b), max(a, b))
                     best[pair] = min(best.get(pair, (len(members), lo, hi)), (len(members), lo, hi))
@@ -221,11 +222,11 @@ def _tetrahedra_in_place(copies: int) -> tuple[np.ndarray, np.ndarray]:
     return vertices, np.tile(np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]]), (copies, 1))
 
 
-def test_an_edge_of_up_to_band_plus_one_faces_links_every_pair():
+def test_an_edge_of_up_to_four_faces_links_every_pair():
     # Four fins on one edge (an X junction): every pair is linked, as in a complete graph.
     vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]])
     faces = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4], [1, 0, 5]])
-    assert EDGE_BAND + 1 >= 4
+    assert EDGE_CLIQUE >= 4
     graph = build_face_graph(vertices.astype(float), faces)
     assert graph.pairs.tolist() == [[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]]
 
@@ -235,9 +236,9 @@ def test_an_edge_shared_by_thousands_of_faces_keeps_the_graph_linear_and_connect
 
     vertices, faces = _tetrahedra_in_place(5000)  # 20k faces; all pairs would be 200M
     graph = build_face_graph(vertices, faces)
-    assert len(graph.pairs) <= 3 * EDGE_BAND * len(faces)
+    assert len(graph.pairs) <= 3 * len(faces)
     assert csgraph.connected_components(graph.csr(), directed=False)[0] == 1
-    # The band, exactly: each face links the next EDGE_BAND faces of each of its edges.
+    # The chain, exactly: each face links the next face along each of its edges.
     small_vertices, small_faces = _tetrahedra_in_place(40)
     normals, _ = face_normals(small_vertices, small_faces)
     small = build_face_graph(small_vertices, small_faces, normals)

@@ -204,3 +204,33 @@ def test_polygons_are_budgeted_by_the_triangles_they_fan_into():
     with pytest.raises(MeshTooLargeError, match="253000 triangles"):
         load_mesh(data, "ply", max_faces=100_000)
     assert load_mesh(data, "ply", max_faces=253_000).face_count == 253_000
+
+
+def test_coordinates_too_large_for_float32_geometry_are_named():
+    from neural_shdf.errors import InvalidGeometryError
+
+    data = b"v 1e300 0 0\nv 0 1e300 0\nv 0 0 1e300\nf 1 2 3\n"
+    with pytest.raises(InvalidGeometryError, match=r"as large as 1e\+300 .*rescale"):
+        load_mesh(data, "obj")
+
+
+def test_tiny_or_collapsed_triangles_say_how_big_they_are():
+    from neural_shdf.errors import InvalidGeometryError
+
+    tiny = b"v 0 0 0\nv 1e-12 0 0\nv 0 1e-12 0\nf 1 2 3\n"
+    with pytest.raises(InvalidGeometryError, match=r"span 1e-12 units: rescale"):
+        load_mesh(tiny, "obj")
+    point = b"v 1 1 1\nv 1 1 1\nv 1 1 1\nf 1 2 3\n"
+    with pytest.raises(InvalidGeometryError, match="corners are at one point"):
+        load_mesh(point, "obj")
+
+
+def test_text_formats_report_the_whole_file_s_counts_before_parsing():
+    obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\n" + b"f 1 2 3\n" * 5000
+    with pytest.raises(MeshTooLargeError, match="has 5000 faces, more than the limit of 10 "):
+        load_mesh(obj, "obj", max_faces=10)
+    off = b"OFF\n3 5000 0\n0 0 0\n1 0 0\n0 1 0\n" + b"3 0 1 2\n" * 5000
+    with pytest.raises(MeshTooLargeError, match="has 5000 faces"):
+        load_mesh(off, "off", max_faces=10)
+    with pytest.raises(MeshParseError, match="truncated"):
+        load_mesh(b"OFF\n3 5000000 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "off", max_faces=10)

@@ -43,3 +43,21 @@ def test_test_command_ci_and_image_install_the_locked_set():
     assert "-c constraints.txt" in (REPO_ROOT / "scripts" / "test").read_text()
     assert "-c constraints.txt" in (REPO_ROOT / "Dockerfile").read_text()
     assert "NEURAL_SHDF_FRESH_VENV=1" in (REPO_ROOT / ".ci" / "run").read_text()
+
+
+def test_the_viewer_files_are_package_data_and_node_modules_is_not():
+    from fnmatch import fnmatch
+
+    patterns = tomllib.loads((REPO_ROOT / "pyproject.toml").read_text())["tool"]["setuptools"][
+        "package-data"
+    ]["neural_shdf"]
+    package = REPO_ROOT / "service" / "neural_shdf"
+    viewer = [
+        path.relative_to(package).as_posix()
+        for path in (package / "viewer").rglob("*")
+        if path.is_file() and "node_modules" not in path.parts
+    ]
+    assert "viewer/index.html" in viewer and "viewer/static/main.js" in viewer
+    for name in viewer:
+        assert any(fnmatch(name, pattern) for pattern in patterns), f"{name} is not package data"
+    assert not any(fnmatch("viewer/node_modules/three/build/three.module.js", p) for p in patterns)

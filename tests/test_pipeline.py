@@ -46,7 +46,7 @@ def test_a_tetrahedron_repeated_in_place_segments_like_one(params):
     tetrahedron = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
     stack = TriangleMesh(vertices, np.tile(tetrahedron, (6000, 1)))
     graph = pipeline.mesh_face_graph(stack)
-    assert len(graph.pairs) <= 3 * geometry.EDGE_BAND * stack.face_count
+    assert len(graph.pairs) <= 3 * stack.face_count
     shdf = pipeline.compute_shdf(stack, method="neural", graph=graph)
     assert shdf.shape == (stack.face_count,) and np.isfinite(shdf).all()
     labels = pipeline.segment_mesh(stack, shdf, params, graph=graph)

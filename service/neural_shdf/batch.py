@@ -23,6 +23,7 @@ import io
 import json
 import os
 import resource
+import socket
 import sys
 import tempfile
 import time
@@ -34,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from neural_shdf import __version__
+from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
 from neural_shdf.errors import ModelUnavailableError, NeuralShdfError, ParameterError
 from neural_shdf.segment import SegmentParams
 
@@ -63,6 +65,7 @@ MANIFEST_COLUMNS = (
     "seconds",
     "peak_memory_mb",
     "shdf_cached",
+    "worker",
 )
 #: Extensions a folder scan picks up (the formats ``mesh_io`` reads).
 MESH_EXTENSIONS = frozenset({".obj", ".off", ".ply", ".stl", ".glb", ".gltf"})
@@ -90,9 +93,13 @@ class BatchConfig:
     params: SegmentParams = field(default_factory=SegmentParams)
     outputs: tuple[str, ...] = ("seg",)
     file_type: str | None = None
-    max_faces: int | None = 2_000_000
+    max_faces: int | None = DEFAULT_MAX_FACES
+    max_vertices: int | None = DEFAULT_MAX_VERTICES
     #: ShDF cache shared with the service: a ``redis://`` URL or a disk-cache folder.
     cache: str | None = None
+    #: onnxruntime intra-op threads per worker (not part of the key: results do not
+    #: depend on it); None: the library's default.
+    session_threads: int | None = None
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.outputs) - set(OUTPUT_SUFFIXES))
@@ -262,9 +269,23 @@ def output_paths(out_dir: Path, asset: Asset, outputs: Iterable[str]) -> dict[st
     return {name: out_dir / (asset.output + OUTPUT_SUFFIXES[name]) for name in outputs}
 
 
+_PREPARED: list[int | None] = []
+
+
+def _prepare_worker(config: BatchConfig) -> None:
+    """Once per worker process, before its model loads: its session threads."""
+    if not _PREPARED:
+        if config.session_threads is not None:
+            from neural_shdf.neural.inference import set_session_threads
+
+            set_session_threads(config.session_threads)
+        _PREPARED.append(config.session_threads)
+
+
 def process_asset(asset: Asset, out_dir: str, config: BatchConfig, key: str) -> dict[str, Any]:
     """Compute and write one asset's outputs and record; its manifest row. Never raises for
     a bad asset: the row says what is wrong (the CLI's typed errors)."""
+    _prepare_worker(config)
     start = time.perf_counter()
     reset = _reset_peak_memory()
     try:
@@ -280,6 +301,7 @@ def process_asset(asset: Asset, out_dir: str, config: BatchConfig, key: str) -> 
         )
     row["seconds"] = round(time.perf_counter() - start, 4)
     row["peak_memory_mb"] = _peak_memory_mb(reset)
+    row["worker"] = f"{socket.gethostname()}:{os.getpid()}"
     if row["status"] == "ok":
         record = {"key": key, "content_hash": row["content_hash"], "row": row}
         path = Path(out_dir) / (asset.output + RECORD_SUFFIX)
@@ -303,7 +325,9 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
     if not path.is_file():
         raise FileNotFoundError(f"mesh file not found: {path}")
     content_hash = file_hash(path)
-    mesh = load_mesh(path, config.file_type, max_faces=config.max_faces)
+    mesh = load_mesh(
+        path, config.file_type, max_faces=config.max_faces, max_vertices=config.max_vertices
+    )
     if mesh.face_count == 0:
         raise InvalidGeometryError(f"{path}: the mesh has no triangles")
     mesh_id = mesh.content_hash()
@@ -424,7 +448,13 @@ def _run_dask(tasks: list[Task], out_dir: str, config: BatchConfig, key: str,
             "--scheduler needs Dask distributed: pip install 'neural-shdf[distributed]'"
         ) from None
 
-    client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
+    if isinstance(scheduler, Client):
+        client = scheduler
+    else:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError, ValueError) as error:
+            raise ParameterError(f"cannot reach the Dask scheduler {scheduler}: {error}") from error
     try:
         futures = {
             client.submit(
@@ -515,11 +545,12 @@ def run_batch(
     out_dir: str | Path,
     *,
     method: str = "neural",
-    seed: int = 0,
+    seed: int | None = None,
     params: SegmentParams | None = None,
     outputs: Sequence[str] = ("seg",),
     file_type: str | None = None,
-    max_faces: int | None = 2_000_000,
+    max_faces: int | None = DEFAULT_MAX_FACES,
+    max_vertices: int | None = DEFAULT_MAX_VERTICES,
     cache: str | None = None,
     workers: int | None = None,
     scheduler: Any = None,
@@ -532,6 +563,7 @@ def run_batch(
         inputs: mesh files, folders (searched recursively) and manifests (.txt/.lst: one
             path per line; .csv: a ``path`` column), relative paths from the manifest.
         out_dir: where outputs, records and ``manifest.csv`` go.
+        seed: seed of the ShDF and the segmentation (default: ``params.seed``).
         outputs: any of ``seg``, ``shdf``, ``colored``, ``parts``.
         cache: ShDF cache shared with the service (``redis://...`` or a folder).
         workers: local worker processes (default: one per core; 0: in this process).
@@ -539,13 +571,18 @@ def run_batch(
             the workers must see the same paths.
         progress: show a progress bar on stderr.
     """
+    # One seed for the ShDF and the segmentation (the CLI's convention): ``seed``, else
+    # ``params.seed``.
+    params = params or SegmentParams()
+    seed = params.seed if seed is None else seed
     config = BatchConfig(
         method=method,
         seed=seed,
-        params=params or SegmentParams(seed=seed),
+        params=dataclasses.replace(params, seed=seed),
         outputs=tuple(dict.fromkeys(outputs)),
         file_type=file_type,
         max_faces=max_faces,
+        max_vertices=max_vertices,
         cache=cache,
     )
     out = Path(out_dir).resolve()
@@ -574,12 +611,16 @@ def run_batch(
         # Largest files first: the pool's last minutes are not one big mesh alone.
         todo.sort(key=lambda task: -_size(task[1].path))
         workers = default_workers() if workers is None else workers
-        if scheduler is not None:
+        if scheduler is not None:  # one task per Dask worker thread: one session thread
+            config = dataclasses.replace(config, session_threads=1)
             _run_dask(todo, str(out), config, key, on_row, scheduler)
         elif workers <= 0 or len(todo) <= 1:
             _run_in_process(todo, str(out), config, key, on_row)
         else:
-            _run_local_pool(todo, str(out), config, key, on_row, min(workers, len(todo)))
+            workers = min(workers, len(todo))
+            threads = max(1, default_workers() // workers)
+            config = dataclasses.replace(config, session_threads=threads)
+            _run_local_pool(todo, str(out), config, key, on_row, workers)
     finally:
         bar.close()
         finished = [row for row in rows if row is not None]

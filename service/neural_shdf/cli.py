@@ -248,6 +248,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         outputs=outputs,
         file_type=args.format,
         max_faces=args.max_faces,
+        max_vertices=args.max_vertices,
         cache=args.cache,
         workers=args.workers,
         scheduler=args.scheduler,
@@ -308,8 +309,10 @@ def build_parser() -> argparse.ArgumentParser:
                             "'distributed' extra and the same paths on every worker")
     batch.add_argument("--cache", metavar="URL_OR_DIR",
                        help="ShDF cache shared with the service: redis://host:port/db or a folder")
-    batch.add_argument("--max-faces", type=int, default=2_000_000,
+    batch.add_argument("--max-faces", type=int, default=DEFAULT_MAX_FACES,
                        help="assets with more triangles fail without being computed")
+    batch.add_argument("--max-vertices", type=int, default=DEFAULT_MAX_VERTICES,
+                       help="assets with more vertices (glTF instances counted) fail")
     batch.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
     batch.set_defaults(run=cmd_batch)
 

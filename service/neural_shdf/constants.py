@@ -4,6 +4,9 @@ import math
 
 #: Triangles with twice-area below this (relative to nothing: absolute) have no normal.
 AREA_EPS = 1e-20
+#: Largest coordinate magnitude accepted: squared lengths must stay finite in float32
+#: (the ray tracer and the network's sample graph), whose largest value is 3.4e38.
+MAX_COORDINATE = 1e18
 
 #: ShDF cone: CGAL's defaults (2/3 pi opening, 25 rays).
 SHDF_CONE_ANGLE = 2.0 * math.pi / 3.0

@@ -11,9 +11,10 @@ from numpy.typing import NDArray
 from neural_shdf.compiled import kernel
 from neural_shdf.constants import AREA_EPS
 
-#: Along an edge shared by more than two faces, each face links the next ``EDGE_BAND``
-#: faces (in face order): every pair of up to ``EDGE_BAND + 1`` faces, linear beyond.
-EDGE_BAND = 3
+#: An edge shared by at most ``EDGE_CLIQUE`` faces links every pair of them (T and X
+#: junctions); one shared by more links its faces in a chain, in face order, so the
+#: graph stays linear in the faces whatever the valence.
+EDGE_CLIQUE = 4
 
 
 def face_normals(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
@@ -98,10 +99,10 @@ def build_face_graph(
     """Face adjacency over shared edges.
 
     Works on open, non-manifold and multi-shell meshes; boundary edges link
-    nothing. An edge shared by k faces links each of them (in face order) to the
-    next ``EDGE_BAND`` of them: every pair when ``k <= EDGE_BAND + 1`` (T and X
-    junctions), a band of ``O(k)`` pairs above, so the graph stays linear in the
-    faces even when thousands of faces share one edge (a shape repeated in place).
+    nothing. An edge shared by k faces links every pair of them when
+    ``k <= EDGE_CLIQUE`` (T and X junctions), else each face to the next in face
+    order (a chain of k - 1 links), so the graph stays linear in the faces even when
+    thousands of faces share one edge (a shape repeated in place).
     Edges are found by vertex index, so callers that want welding must weld first.
     Two faces that share several edges are linked once, through the edge shared by
     the fewest faces (ties: the lowest vertex pair).
@@ -118,7 +119,7 @@ def build_face_graph(
     normals = np.ascontiguousarray(normals, dtype=np.float64).reshape(n_faces, 3)
     n_vertices = int(faces.max()) + 1
     edge_table, slot = _sorted_edges(faces, n_vertices)
-    pairs, edge_vertices = _adjacent_pairs(faces, edge_table, slot, n_vertices, EDGE_BAND)
+    pairs, edge_vertices = _adjacent_pairs(faces, edge_table, slot, n_vertices, EDGE_CLIQUE)
     edge_length, dihedral, concave = _pair_geometry(vertices, faces, normals, pairs, edge_vertices)
     return FaceGraph(pairs, edge_vertices, edge_length, dihedral, concave, n_faces)
 
@@ -188,13 +189,13 @@ def _sort_buckets(bucket_start, key, payload):  # pragma: no cover - numba
 
 
 @kernel
-def _adjacent_pairs(faces, edge_table, slot, n_vertices, band):  # pragma: no cover - numba
+def _adjacent_pairs(faces, edge_table, slot, n_vertices, clique):  # pragma: no cover - numba
     """Face pairs ``a < b`` sharing an edge, sorted, each once, with the edge it shares.
 
-    Along an edge (its group in ``edge_table``, faces ascending) each face is linked
-    to the next ``band`` faces, so a group of ``k <= band + 1`` faces links every
-    pair and a larger one ``O(k * band)`` pairs: linear in the faces whatever the
-    valence. Face by face, the candidates from its three edges are sorted by
+    Along an edge (its group in ``edge_table``, faces ascending) a group of
+    ``k <= clique`` faces links every pair, a larger one each face to the next:
+    linear in the faces whatever the valence. Face by face, the candidates from its
+    three edges are sorted by
     ``(b, group size, edge key)``; a pair met on several edges keeps the edge shared
     by the fewest faces, then the lowest. ``edge_table, slot`` come from ``_sorted_edges``.
     """
@@ -207,17 +208,12 @@ def _adjacent_pairs(faces, edge_table, slot, n_vertices, band):  # pragma: no co
         while j < edge_count and edge_table[j, 0] == edge_table[i, 0]:
             j += 1
         group_size[i:j] = j - i
-        reach = j - i - 1  # how far the first face looks: sum of min(band, 0..reach)
-        upper_bound += (
-            reach * (reach + 1) // 2
-            if reach <= band
-            else (band * (band + 1) // 2 + band * (reach - band))
-        )
+        upper_bound += (j - i) * (j - i - 1) // 2 if j - i <= clique else j - i - 1
         i = j
     pairs = np.empty((upper_bound, 2), dtype=np.int64)
     edge_vertices = np.empty((upper_bound, 2), dtype=np.int64)
-    neighbours = np.empty(3 * band, dtype=np.int64)
-    rank = np.empty((3 * band, 2), dtype=np.int64)  # per neighbour: group size, edge key
+    neighbours = np.empty(3 * max(clique - 1, 1), dtype=np.int64)
+    rank = np.empty((3 * max(clique - 1, 1), 2), dtype=np.int64)  # group size, edge key
     kept = 0
     for face in range(faces.shape[0]):
         found = 0
@@ -227,7 +223,8 @@ def _adjacent_pairs(faces, edge_table, slot, n_vertices, band):  # pragma: no co
                 continue
             key = edge_table[position, 0]
             size = group_size[position]
-            for k in range(position + 1, min(position + 1 + band, edge_count)):
+            reach = size - 1 if size <= clique else 1  # every later face, or the next
+            for k in range(position + 1, min(position + 1 + reach, edge_count)):
                 if edge_table[k, 0] != key:
                     break
                 neighbour = edge_table[k, 1]

@@ -37,11 +37,14 @@ _FORMAT_NAMES = {"obj": "OBJ", "off": "OFF", "ply": "PLY", "stl": "STL", "glb": 
                  "gltf": "glTF"}  # fmt: skip
 
 
-def _normalise_type(file_type: str) -> str:
-    name = file_type.strip().lower().lstrip(".")
+def normalize_format(file_type: str) -> str:
+    """The format name of a file type as a user may write it (``" .OBJ"`` -> ``"obj"``);
+    UnsupportedFormatError naming the value as given (shortened) for anything else."""
+    name = file_type.strip().lower().removeprefix(".")
     if name not in READERS:
+        shown = file_type if len(file_type) <= 40 else file_type[:40] + "..."
         raise UnsupportedFormatError(
-            f"unsupported mesh format {file_type!r}; supported: {', '.join(SUPPORTED_FORMATS)}"
+            f"unsupported mesh format {shown!r}; supported: {', '.join(SUPPORTED_FORMATS)}"
         )
     return name
 
@@ -54,7 +57,7 @@ def detect_format(filename: str | Path) -> str:
             f"cannot tell the mesh format of {str(filename)!r}: it has no file extension; "
             f"use one of {', '.join('.' + f for f in SUPPORTED_FORMATS)}"
         )
-    return _normalise_type(suffix)
+    return normalize_format(suffix)
 
 
 def sniff_format(data: bytes) -> str | None:
@@ -112,7 +115,7 @@ def load_mesh(
             shown = str(path) if len(str(path)) <= 200 else str(path)[:200] + "..."
             raise MeshParseError(f"cannot read mesh file {shown!r}: {exc.strerror}") from exc
         label = f"{path.name!r}"
-    name = _normalise_type(file_type)
+    name = normalize_format(file_type)
     format_name = _FORMAT_NAMES[name]
     if not data.strip():
         raise MeshParseError(f"{label} is empty; expected a {format_name} mesh")
@@ -125,5 +128,6 @@ __all__ = [
     "MeshLimits",
     "detect_format",
     "load_mesh",
+    "normalize_format",
     "sniff_format",
 ]

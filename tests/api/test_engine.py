@@ -74,6 +74,29 @@ def test_corrupt_entry_is_recomputed_never_served(app_factory, capsule_obj):
         assert metric(app, "neural_shdf_shdf_computations_total", method=TEST_METHOD) == 5
 
 
+def test_a_corrupt_mesh_entry_is_gone_for_every_route(app_factory, capsule_obj):
+    app = app_factory()
+    engine = app.state.engine
+    with TestClient(app) as client:
+        mesh_id = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)}).json()["mesh"][
+            "mesh_id"
+        ]
+        key = f"{mesh_id}:mesh"
+        engine.cache.backend.set(key, engine.cache.backend.get(key)[:-7], group=mesh_id)
+        engine.cache._memory.clear()
+        segment = client.post("/v1/segment", json={"mesh_id": mesh_id, "method": TEST_METHOD})
+        assert segment.status_code == 404
+        assert "damaged" in segment.json()["error"]["message"]
+        assert client.get(f"/v1/meshes/{mesh_id}").status_code == 404
+        # Evicted geometry: metadata answers 404 too, without any route reading the mesh.
+        again = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)})
+        assert again.status_code == 200 and client.get(f"/v1/meshes/{mesh_id}").status_code == 200
+        engine.cache.backend.delete(key)
+        engine.cache._memory.clear()
+        assert client.get(f"/v1/meshes/{mesh_id}").status_code == 404
+        assert client.post("/v1/segment", json={"mesh_id": mesh_id}).status_code == 404
+
+
 def test_failed_computation_leaves_no_entry(app_factory, capsule_obj, monkeypatch):
     import neural_shdf.pipeline
 

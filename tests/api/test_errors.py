@@ -71,7 +71,14 @@ def test_error_shape_for_routing_and_validation(small_client):
     query = "?partitioner=metis&parts=0"
     path = f"/v1/meshes/{'0' * 64}/segmentation/colored.glb{query}"
     assert_error(small_client.get(path), 422, "invalid_parameter")
-    assert_error(small_client.post("/v1/segment", content=b"{not json"), 422, "validation_error")
+    malformed = assert_error(
+        small_client.post(
+            "/v1/segment", content=b"{not json", headers={"content-type": "application/json"}
+        ),
+        400,
+        "malformed_json",
+    )
+    assert "not valid JSON" in malformed["message"] and "character 1" in malformed["message"]
     assert_error(small_client.post("/v1/meshes"), 422, "validation_error")
     assert_error(
         small_client.post("/v1/segment", json={"mesh_id": "x", "unknown_option": 1}),
@@ -276,3 +283,59 @@ def test_stalled_body_times_out_with_408(app_factory):
             )
 
     assert_error(asyncio.run(send()), 408, "request_timeout")
+
+
+def test_non_finite_smoothing_says_finite(small_client):
+    body = b'{"mesh_id": "' + b"0" * 64 + b'", "smoothing": NaN}'
+    response = small_client.post(
+        "/v1/segment", content=body, headers={"content-type": "application/json"}
+    )
+    error = assert_error(response, 422, "invalid_parameter")
+    assert "smoothing must be a finite number" in error["message"]
+    query = small_client.get(f"/v1/meshes/{'0' * 64}/segmentation/colored.glb?smoothing=inf")
+    assert "finite number" in assert_error(query, 422)["message"]
+
+
+def test_huge_coordinates_are_named_not_called_degenerate(small_client):
+    tetrahedron = b"v 1e308 0 0\nv 0 1e308 0\nv 0 0 1e308\nv 0 0 0\nf 1 2 3\nf 1 2 4\nf 1 3 4\n"
+    error = assert_error(post_file(small_client, tetrahedron, "t.obj"), 422, "invalid_geometry")
+    assert "1e+308" in error["message"] and "rescale" in error["message"]
+    assert "degenerate" not in error["message"]
+
+
+def test_face_limit_reports_the_file_s_face_count(small_client):
+    many = b"v 0 0 0\nv 1 0 0\nv 0 1 0\n" + b"f 1 2 3\n" * 5000
+    error = assert_error(post_file(small_client, many, "m.obj"), 413, "mesh_too_large")
+    assert error["message"].startswith("the mesh has 5000 faces")
+    assert error["detail"] == {"limit": "max_faces", "maximum": 2_000, "found": 5000}
+
+
+def _tetrahedron_obj() -> bytes:
+    corners = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]
+    return obj_bytes(np.array(corners, float), [[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
+
+
+@pytest.mark.parametrize("file_type", ["../../etc/Passwd", "x" * 500])
+def test_file_type_is_named_as_given_never_rewritten(small_client, file_type):
+    response = small_client.post(
+        "/v1/meshes", files={"file": ("m.obj", _tetrahedron_obj())}, data={"file_type": file_type}
+    )
+    error = assert_error(response, 415, "unsupported_format")
+    assert (
+        repr(file_type[:40])[:-1] in error["message"] and "/../etc/passwd" not in error["message"]
+    )
+    assert len(error["message"]) < 200
+
+
+def test_file_type_is_normalised_when_it_names_a_format(small_client):
+    response = small_client.post(
+        "/v1/meshes", files={"file": ("m.bin", _tetrahedron_obj())}, data={"file_type": " .OBJ"}
+    )
+    assert response.status_code == 200, response.text
+    assert response.json()["mesh"]["format"] == "obj"
+
+
+def test_deeply_nested_gltf_json_is_a_parse_error_saying_so(small_client):
+    doc = b'{"asset": {"version": "2.0"}, "extras": ' + b"[" * 5000 + b"]" * 5000 + b"}"
+    error = assert_error(post_file(small_client, doc, "deep.gltf"), 422, "mesh_parse_error")
+    assert "nests" in error["message"] and "recursion" not in error["message"]

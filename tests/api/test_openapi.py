@@ -47,3 +47,27 @@ def test_every_model_field_has_a_description_and_example():
             has_example = has_example or any("$ref" in s for s in spec.get("anyOf", []))
             has_example = has_example or "contentMediaType" in spec  # a file upload
             assert has_example or "examples" in schema, f"{name}.{field} has no example"
+
+
+def test_links_lead_from_a_stored_mesh_to_every_route_that_takes_its_id():
+    operations = {
+        operation["operationId"]: operation
+        for path in openapi_document()["paths"].values()
+        for operation in path.values()
+    }
+    takes_mesh_id = {
+        operation_id
+        for operation_id, operation in operations.items()
+        if any(p["name"] == "mesh_id" for p in operation.get("parameters", []))
+    } | {"segment_mesh"}
+    for source, pointer in (("upload_mesh", "/mesh/mesh_id"), ("segment_file", "/mesh_id")):
+        links = operations[source]["responses"]["200"]["links"]
+        assert {link["operationId"] for link in links.values()} == takes_mesh_id
+        for link in links.values():
+            expression = (
+                link.get("parameters", {}).get("path.mesh_id") or link["requestBody"]["mesh_id"]
+            )
+            assert expression == f"$response.body#{pointer}"
+    for operation in operations.values():
+        if "202" in operation["responses"]:
+            assert operation["responses"]["202"]["links"]["GetJob"]["operationId"] == "get_job"

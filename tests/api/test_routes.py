@@ -234,3 +234,46 @@ def test_parts_carry_the_coloured_glb_palette(client, capsule_obj):
     for part in body["parts"]:
         rgb = [int(part["color"][i : i + 2], 16) for i in (1, 3, 5)]
         assert rgb == palette[part["label"]].tolist()
+
+
+def cut_hierarchy(tree: dict, leaves: list[int], parts: int) -> list[int]:
+    """A client's re-cut of the `hierarchy` member, following the schema's recipe."""
+    count, parent = tree["leaf_count"], tree["parent"]
+    top = []
+    for leaf in range(count):
+        node = leaf
+        while parent[node] != -1 and parent[node] < 2 * count - parts:
+            node = parent[node]
+        top.append(node)
+    order = sorted(set(top), key=top.index)  # by smallest leaf
+    return [-1 if leaf < 0 else order.index(top[leaf]) for leaf in leaves]
+
+
+def test_graphcut_returns_its_part_tree_for_cuts_without_a_request(client, capsule_obj):
+    mesh_id = upload(client, capsule_obj).json()["mesh"]["mesh_id"]
+    fine = {"mesh_id": mesh_id, "smoothing": 0.02}
+    body = client.post("/v1/segment", json=fine).json()
+    tree = body["hierarchy"]
+    count = tree["leaf_count"]
+    assert count >= 2 and tree["parts"] == body["part_count"]
+    assert len(tree["leaf_labels"]) == body["faces"]
+    assert len(tree["parent"]) == 2 * count - 1 and tree["parent"][-1] == -1
+    assert len(tree["merge_cost"]) == len(tree["merge_height"]) == count - 1
+    assert cut_hierarchy(tree, tree["leaf_labels"], tree["parts"]) == body["labels"]
+    for parts in range(1, count + 1):
+        asked = client.post("/v1/segment", json={**fine, "parts": parts}).json()
+        assert asked["part_count"] == parts
+        assert asked["hierarchy"]["parent"] == tree["parent"]
+        assert cut_hierarchy(tree, tree["leaf_labels"], parts) == asked["labels"]
+
+    compact = client.post("/v1/segment", json={**fine, "labels_format": "base64"}).json()
+    packed = compact["hierarchy"]
+    assert packed["leaf_labels"] is None
+    dtype = {"int8": "<i1", "int16": "<i2", "int32": "<i4"}[packed["leaf_labels_dtype"]]
+    decoded = np.frombuffer(base64.b64decode(packed["leaf_labels_base64"]), dtype)
+    assert decoded.tolist() == tree["leaf_labels"]
+
+    metis = client.post(
+        "/v1/segment", json={"mesh_id": mesh_id, "partitioner": "metis", "parts": 2}
+    ).json()
+    assert metis["hierarchy"] is None

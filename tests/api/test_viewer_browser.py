@@ -81,7 +81,7 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
         default_method=TEST_METHOD,
         sync_face_threshold=SYNC_FACES,
         max_upload_bytes=MAX_UPLOAD,
-    ) as base:
+    ) as (base, _):
         yield base
 
 

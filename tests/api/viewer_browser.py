@@ -46,9 +46,15 @@ def chromium_missing() -> str | None:
     return None
 
 
+def cpu_seconds(pid: int) -> float:
+    """CPU time (user + system) a process has used so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 @contextlib.contextmanager
-def neural_shdf_serve(cache_dir: Path, **settings: str) -> Iterator[str]:
-    """`neural-shdf serve` (the CLI) on a free loopback port; yields its base URL."""
+def neural_shdf_serve(cache_dir: Path, **settings: str) -> Iterator[tuple[str, int]]:
+    """`neural-shdf serve` (the CLI) on a free loopback port; yields (base URL, its pid)."""
     port = free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("NEURAL_SHDF_")}
     env.update(
@@ -72,7 +78,7 @@ def neural_shdf_serve(cache_dir: Path, **settings: str) -> Iterator[str]:
             if time.monotonic() > deadline:
                 raise RuntimeError("neural-shdf serve did not become ready")
             time.sleep(0.2)
-        yield base
+        yield base, process.pid
     finally:
         process.terminate()
         process.wait(timeout=30)

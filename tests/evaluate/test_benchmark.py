@@ -116,11 +116,18 @@ def test_a_bare_predictor_and_two_workers_agree(bench: Path):
 
 
 def test_shdf_methods_run_with_humans_part_count(bench: Path):
-    table = run_eval(
-        bench, ["cgalsdf-graphcut", "cgalsdf-metis-humanparts"], cache_dir=bench / "cache"
-    )
+    methods = ["cgalsdf-graphcut", "cgalsdf-metis-humanparts", "cgalsdf-graphcut-humanparts",
+               "cgalsdf-graphcut-leaves"]  # fmt: skip
+    table = run_eval(bench, methods, cache_dir=bench / "cache")
     metis = table["cgalsdf-metis-humanparts"]
     assert [r.parts for r in metis.models] == [r.human_parts for r in metis.models]
+    # The tree's cut at the humans' count, unless it has fewer leaves than that.
+    leaves = [r.parts for r in table["cgalsdf-graphcut-leaves"].models]
+    tree = [r.parts for r in table["cgalsdf-graphcut-humanparts"].models]
+    humans = [r.human_parts for r in metis.models]
+    assert tree == [min(h, n) for h, n in zip(humans, leaves, strict=True)]
+    automatic = [r.parts for r in table["cgalsdf-graphcut"].models]
+    assert all(a <= n for a, n in zip(automatic, leaves, strict=True))
     for method_table in table.values():
         for value in method_table.overall().as_dict().values():
             assert np.isnan(value) or value >= 0.0
@@ -146,8 +153,8 @@ def test_exact_shdf_is_cached(bench: Path, monkeypatch: pytest.MonkeyPatch):
 def test_bad_names_and_folders_are_refused(bench: Path, tmp_path: Path):
     with pytest.raises(ParameterError, match="unknown method"):
         make_predictor("exact-kmeans")
-    with pytest.raises(ParameterError, match="metis"):
-        make_predictor("exact-graphcut-humanparts")
+    with pytest.raises(ParameterError, match="-leaves needs the graphcut"):
+        make_predictor("exact-metis-leaves")
     with pytest.raises(ParameterError, match="off/ and seg/"):
         list_models(tmp_path / "nowhere")
 

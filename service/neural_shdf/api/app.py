@@ -17,6 +17,7 @@ from neural_shdf.api.docs import install_docs
 from neural_shdf.api.engine import Engine
 from neural_shdf.api.errors import BodySizeLimitMiddleware, install_error_handlers
 from neural_shdf.api.jobs import JobAccepted, public_job
+from neural_shdf.api.links import add_links
 from neural_shdf.api.metrics import Metrics, RequestMetricsMiddleware
 from neural_shdf.api.routes import health, jobs, meshes, segment, unwrap
 from neural_shdf.api.routes.viewer import install_viewer
@@ -120,7 +121,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 
 def _openapi_with_error_shape(app: FastAPI) -> dict[str, Any]:
-    """FastAPI's schema with its default 422 body replaced by the service's error shape."""
+    """FastAPI's schema with its default 422 body replaced by the service's error shape,
+    and links from the operations that answer a mesh or job id to those that take one."""
     if app.openapi_schema is None:
         schema = get_openapi(
             title=app.title,
@@ -141,7 +143,7 @@ def _openapi_with_error_shape(app: FastAPI) -> dict[str, Any]:
         components = schema.get("components", {}).get("schemas", {})
         components.pop("HTTPValidationError", None)
         components.pop("ValidationError", None)
-        app.openapi_schema = schema
+        app.openapi_schema = add_links(schema)
     return app.openapi_schema
 
 

@@ -141,6 +141,17 @@ def install_error_handlers(app: FastAPI) -> None:
 
     async def validation_error(_: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, RequestValidationError)
+        malformed = next((e for e in exc.errors() if e.get("type") == "json_invalid"), None)
+        if malformed is not None:  # not JSON at all: a malformed body (400), not a bad value
+            reason = (malformed.get("ctx") or {}).get("error") or "it does not parse"
+            position = malformed.get("loc", ("body", None))[-1]
+            where = f" at character {position}" if isinstance(position, int) else ""
+            return error_response(
+                400,
+                "malformed_json",
+                f"the request body is not valid JSON: {reason}{where}; send a JSON object "
+                "with content-type application/json",
+            )
         problems = [
             {"loc": list(e.get("loc", ())), "msg": e.get("msg", ""), "type": e.get("type", "")}
             for e in exc.errors()

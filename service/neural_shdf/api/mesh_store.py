@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import threading
 from typing import Any
 
@@ -15,6 +16,8 @@ from neural_shdf.api.settings import Settings
 from neural_shdf.errors import InvalidGeometryError
 from neural_shdf.geometry import FaceGraph
 from neural_shdf.mesh import TriangleMesh
+
+logger = logging.getLogger(__name__)
 
 
 def mesh_arrays(mesh: TriangleMesh) -> dict[str, NDArray]:
@@ -38,7 +41,10 @@ def mesh_from_arrays(arrays: dict[str, NDArray]) -> TriangleMesh:
 def mesh_missing(mesh_id: str) -> ApiError:
     """The 404 of a mesh that is not stored, saying what to do."""
     error = not_found("mesh", mesh_id)
-    error.message += " (never uploaded, deleted or evicted from the cache: upload it again)"
+    error.message += (
+        " (never uploaded, deleted, evicted from the cache or its stored copy was "
+        "damaged: upload it again)"
+    )
     return error
 
 
@@ -94,10 +100,24 @@ class MeshStore:
         return meta
 
     def meta(self, mesh_id: str) -> dict[str, Any]:
+        """Metadata of a mesh that can be used: one whose geometry is gone is gone."""
         meta = self.cache.get_json(f"{mesh_id}:meta")
-        if meta is None:
+        if meta is None or self._geometry_lost(mesh_id):
             raise mesh_missing(mesh_id)
         return meta
+
+    def _geometry_lost(self, mesh_id: str) -> bool:
+        """Whether the mesh's geometry entry is known to be gone (evicted, or dropped as
+        corrupt); then its metadata and results are deleted too, so that every route
+        answers 404 alike. An unreachable cache cannot tell: not lost."""
+        key = f"{mesh_id}:mesh"
+        if self.cache.recall(key) is not None or self.cache.backend.exists(key) is not False:
+            return False
+        logger.warning(
+            "mesh %s lost its geometry entry; dropping what was derived from it", mesh_id
+        )
+        self.cache.delete_group(mesh_id)
+        return True
 
     def still_stored(self, mesh_id: str) -> bool:
         """Whether the shared cache still holds the mesh: a deletion through another
@@ -118,6 +138,7 @@ class MeshStore:
         arrays = self.cache.get_arrays(key)
         self.metrics.count_cache("mesh", hit=arrays is not None)
         if arrays is None:
+            self._geometry_lost(mesh_id)
             raise mesh_missing(mesh_id)
         mesh = mesh_from_arrays(arrays)
         self.cache.remember(key, mesh)

@@ -90,8 +90,12 @@ def segmentation_response(
         "timings": timings,
     }
     labels = "null" if compact else result.labels_json
+    hierarchy = result.hierarchy_json(compact)
     rest = json.dumps(body, separators=(",", ":"))
-    return Response(f'{{"labels":{labels},{rest[1:]}'.encode(), media_type="application/json")
+    return Response(
+        f'{{"labels":{labels},"hierarchy":{hierarchy},{rest[1:]}'.encode(),
+        media_type="application/json",
+    )
 
 
 def glb_response(glb: bytes, mesh_id: str, style: str) -> Response:

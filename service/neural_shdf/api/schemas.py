@@ -242,8 +242,9 @@ class SegmentOptions(BaseModel):
     smoothing: float | None = Field(
         None,
         json_schema_extra=documented_bounds(0, MAX_SMOOTHING),
-        description="Smoothness weight lambda of the graph cut; default 0.12.",
-        examples=[0.12],
+        description="Smoothness weight lambda of the graph cut (whose parts are the part "
+        "tree's leaves); default 0.06.",
+        examples=[0.06],
     )
     parts: int | None = Field(
         None,
@@ -360,6 +361,70 @@ class Timings(BaseModel):
     )
 
 
+class PartHierarchy(BaseModel):
+    """The graph cut's part tree: any part count is a cut of it, computed by the client.
+
+    Leaves are nodes `0..L-1` (the finest parts, numbered by their lowest face); merge
+    `i` (cheapest first) joined two nodes into node `L + i`; the root is `2L - 2`.
+
+    To get `N` parts (1 <= N <= L) with no request: for each leaf, climb while its
+    parent's id is below `2L - N` (stop at the root, parent -1); the node reached is
+    its part. Number the parts by their smallest leaf (that gives this response's own
+    `labels` for `N = parts`), then `label[face] = part[leaf_labels[face]]` (-1 stays
+    -1). Cuts are nested: each part at N + 1 lies inside one part at N.
+    """
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "leaf_count": 3,
+                    "parts": 2,
+                    "automatic_parts": 2,
+                    "leaf_labels": [0, 0, 1, 2],
+                    "leaf_labels_base64": None,
+                    "leaf_labels_dtype": None,
+                    "parent": [3, 3, 4, 4, -1],
+                    "merge_cost": [0.0012, 0.31],
+                    "merge_height": [0.0012, 0.31],
+                }
+            ]
+        }
+    )
+
+    leaf_count: int = Field(description="Leaves L (the most parts a cut can give).", examples=[3])
+    parts: int = Field(description="The part count `labels` was cut at.", examples=[2])
+    automatic_parts: int = Field(
+        description="The count chosen when `parts` is not given (where merge costs jump).",
+        examples=[2],
+    )
+    leaf_labels: list[int] | None = Field(
+        description="Leaf per input face (-1: face without triangles); null with "
+        "`labels_format=base64`.",
+        examples=[[0, 0, 1, 2]],
+    )
+    leaf_labels_base64: str | None = Field(
+        None,
+        description="Leaf labels as base64 little-endian integers (`labels_format=base64`).",
+        examples=[None],
+    )
+    leaf_labels_dtype: Literal["int8", "int16", "int32"] | None = Field(
+        None, description="Integer type of `leaf_labels_base64`.", examples=[None]
+    )
+    parent: list[int] = Field(
+        description="Parent node of each of the 2L - 1 nodes; -1 for the root.",
+        examples=[[3, 3, 4, 4, -1]],
+    )
+    merge_cost: list[float] = Field(
+        description="Cost of merge i (made node L + i), L - 1 values in merge order.",
+        examples=[[0.0012, 0.31]],
+    )
+    merge_height: list[float] = Field(
+        description="Running maximum of `merge_cost` (monotone: a dendrogram's heights).",
+        examples=[[0.0012, 0.31]],
+    )
+
+
 class Segmentation(BaseModel):
     """Per-face part labels in the input file's face order, with a summary per part."""
 
@@ -374,6 +439,7 @@ class Segmentation(BaseModel):
                     "labels": [0, 0, 1, 1],
                     "labels_base64": None,
                     "labels_dtype": None,
+                    "hierarchy": None,
                     "parts": [
                         {
                             "label": 0,
@@ -424,5 +490,10 @@ class Segmentation(BaseModel):
     parts: list[PartSummary] = Field(
         description="Summary per part, by label.",
         examples=[[{"label": 0, "faces": 2, "area": 1.0, "mean_shdf": 0.2, "color": "#e69f00"}]],
+    )
+    hierarchy: PartHierarchy | None = Field(
+        None,
+        description="The part tree (`graphcut`; null for `metis`): re-cut it locally for "
+        "any part count.",
     )
     timings: Timings = Field(description="Timings.")

@@ -8,7 +8,8 @@ import hashlib
 import json
 import time
 from dataclasses import asdict, dataclass
-from typing import Any
+from dataclasses import field as dataclass_field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,8 +20,13 @@ from neural_shdf.api.mesh_store import MeshStore, mesh_missing
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.shdf_service import ShdfService
 from neural_shdf.api.tasks import TaskRunner
+from neural_shdf.export import part_tree_document
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
+from neural_shdf.segment.hierarchy import PartTree
+
+if TYPE_CHECKING:
+    from neural_shdf.segment.pipeline import SegmentResult as LibrarySegmentResult
 
 
 @dataclass
@@ -33,6 +39,21 @@ class SegmentResult:
     part_area: NDArray[np.float64]
     part_mean_shdf: NDArray[np.float64]
     segment_seconds: float
+    # The graph cut's part tree (empty for metis): leaf per input face, merges, costs.
+    leaf_labels: NDArray[np.int32] = dataclass_field(
+        default_factory=lambda: np.zeros(0, dtype=np.int32)
+    )
+    tree_merges: NDArray[np.int64] = dataclass_field(
+        default_factory=lambda: np.zeros((0, 2), dtype=np.int64)
+    )
+    tree_costs: NDArray[np.float64] = dataclass_field(default_factory=lambda: np.zeros(0))
+
+    @property
+    def tree(self) -> PartTree | None:
+        """The part tree over the input faces' leaves, or None (metis)."""
+        if len(self.leaf_labels) == 0:
+            return None
+        return PartTree(self.leaf_labels.astype(np.int64), self.tree_merges, self.tree_costs)
 
     @functools.cached_property
     def labels_json(self) -> str:
@@ -42,10 +63,24 @@ class SegmentResult:
     @functools.cached_property
     def labels_base64(self) -> tuple[str, str]:
         """(base64 of the labels as the narrowest little-endian integers, their dtype name)."""
-        top = int(self.labels.max()) if len(self.labels) else 0
-        dtype = "int8" if top < 2**7 else "int16" if top < 2**15 else "int32"
-        packed = self.labels.astype(np.dtype(dtype).newbyteorder("<")).tobytes()
-        return base64.b64encode(packed).decode(), dtype
+        return pack_integers(self.labels)
+
+    def hierarchy_json(self, compact: bool) -> str:
+        """The ``hierarchy`` member as JSON ("null" without a tree), encoded once per form."""
+        name = "_hierarchy_base64" if compact else "_hierarchy_list"
+        cached = self.__dict__.get(name)
+        if cached is None:
+            tree = self.tree
+            document = None
+            if tree is not None:
+                document = part_tree_document(tree, self.leaf_labels, len(self.part_faces))
+                packed = pack_integers(self.leaf_labels) if compact else (None, None)
+                if compact:
+                    document["leaf_labels"] = None
+                document["leaf_labels_base64"], document["leaf_labels_dtype"] = packed
+            cached = json.dumps(document, separators=(",", ":"))
+            self.__dict__[name] = cached
+        return cached
 
     def arrays(self) -> dict[str, NDArray]:
         data = asdict(self)
@@ -61,15 +96,29 @@ class SegmentResult:
             part_area=arrays["part_area"],
             part_mean_shdf=arrays["part_mean_shdf"],
             segment_seconds=float(arrays["segment_seconds"]),
+            leaf_labels=arrays["leaf_labels"],
+            tree_merges=arrays["tree_merges"].reshape(-1, 2),
+            tree_costs=arrays["tree_costs"],
         )
 
 
+def pack_integers(values: NDArray) -> tuple[str, str]:
+    """(base64 of non-negative-or--1 integers as the narrowest little-endian type, its name)."""
+    top = int(values.max()) if len(values) else 0
+    dtype = "int8" if top < 2**7 else "int16" if top < 2**15 else "int32"
+    packed = values.astype(np.dtype(dtype).newbyteorder("<")).tobytes()
+    return base64.b64encode(packed).decode(), dtype
+
+
 def summarize(
-    mesh: TriangleMesh, triangle_labels: NDArray, shdf: NDArray, seconds: float
+    mesh: TriangleMesh, segmentation: LibrarySegmentResult, shdf: NDArray, seconds: float
 ) -> SegmentResult:
-    """Input-face labels (the library's mapping) and per-part faces, area and
-    area-weighted mean ShDF."""
-    labels = mesh.labels_to_input_faces(triangle_labels)
+    """Input-face labels and leaves (the library's mapping), the part tree, and per-part
+    faces, area and area-weighted mean ShDF."""
+    from neural_shdf.pipeline import input_face_parts
+
+    triangle_labels = segmentation.labels
+    labels, leaves = input_face_parts(mesh, segmentation)
     _, area = mesh.normals_and_areas
     part_count = int(triangle_labels.max()) + 1 if len(triangle_labels) else 0
     tri = np.asarray(triangle_labels, dtype=np.int64)
@@ -78,7 +127,7 @@ def summarize(
     mean = np.divide(weighted, part_area, out=np.zeros(part_count), where=part_area > 0)
     assigned = labels[labels >= 0]
     part_faces = np.bincount(assigned, minlength=part_count)
-    return SegmentResult(
+    result = SegmentResult(
         labels=labels.astype(np.int32),
         triangle_labels=tri.astype(np.int32),
         part_faces=part_faces.astype(np.int64),
@@ -86,6 +135,11 @@ def summarize(
         part_mean_shdf=mean,
         segment_seconds=seconds,
     )
+    if leaves is not None and segmentation.tree is not None:
+        result.leaf_labels = leaves.astype(np.int32)
+        result.tree_merges = segmentation.tree.merges
+        result.tree_costs = segmentation.tree.costs
+    return result
 
 
 def params_digest(params: SegmentParams) -> str:
@@ -137,15 +191,15 @@ class SegmentationService:
     def _compute(
         self, mesh_id: str, mesh: TriangleMesh, shdf: NDArray, params: SegmentParams
     ) -> SegmentResult:
-        from neural_shdf.pipeline import segment_mesh
+        from neural_shdf.pipeline import segment_mesh_with_details
 
         graph = self.meshes.graph(mesh_id, mesh)
         start = time.perf_counter()
-        triangle_labels = segment_mesh(mesh, shdf, params, graph=graph)
+        segmentation = segment_mesh_with_details(mesh, shdf, params, graph=graph)
         seconds = time.perf_counter() - start
         self.metrics.segmentations.inc()
         self.metrics.segment_seconds.observe(seconds)
-        return summarize(mesh, np.asarray(triangle_labels), shdf, seconds)
+        return summarize(mesh, segmentation, shdf, seconds)
 
     async def _recall_fresh(self, mesh_id: str, key: str) -> SegmentResult | None:
         """This process's memory of the result, unless the mesh was deleted meanwhile."""

@@ -16,9 +16,11 @@ Method names (``run_eval(methods=...)``, the CLI's ``--methods``):
   mesh), ``neural`` (the neural predictor) or ``cgalsdf`` (CGAL's ShDF read
   from ``cgal/{id}.sdf``; a fast proxy while tuning) and partitioner
   ``graphcut`` or ``metis`` (automatic parameters);
-* a ``-humanparts`` suffix (metis only): metis is given the number of parts
-  the humans used most often for that model, the benchmark's protocol for
-  methods that take a part count.
+* a ``-humanparts`` suffix: the partitioner is given the number of parts the
+  humans used most often for that model, the benchmark's protocol for methods
+  that take a part count (graph cut: a cut of its part tree; metis: exactly);
+* a ``-leaves`` suffix (graph cut only): every leaf of the part tree, i.e. the
+  graph cut's own parts with no merging (the segmentation before the tree).
 """
 
 from __future__ import annotations
@@ -64,7 +66,7 @@ DEFAULT_CACHE_DIR = Path.home() / ".cache" / "neural-shdf" / "psb"
 MAX_JOBS = 2
 
 SHDF_SOURCES = ("exact", "neural", "cgalsdf")
-_METHOD_PATTERN = re.compile(r"^(exact|neural|cgalsdf)-(graphcut|metis)(-humanparts)?$")
+_METHOD_PATTERN = re.compile(r"^(exact|neural|cgalsdf)-(graphcut|metis)(-humanparts|-leaves)?$")
 
 #: A predictor: (mesh, model) -> one part label per triangle of ``mesh``.
 Predictor = Callable[[TriangleMesh, "BenchModel"], NDArray]
@@ -227,21 +229,26 @@ class CgalPredictor:
 class ShdfPredictor:
     """ShDF from ``source``, then ``segment_mesh`` with ``params``.
 
-    ``human_parts``: metis gets the humans' most frequent part count of the model.
+    ``human_parts``: the partitioner gets the humans' most frequent part count of the
+    model; ``leaves``: every leaf of the graph cut's part tree.
     """
 
     source: str
     params: SegmentParams
     human_parts: bool = False
     cache_dir: Path | None = None
+    leaves: bool = False
 
     def __call__(self, mesh: TriangleMesh, model: BenchModel) -> NDArray:
-        from neural_shdf.pipeline import mesh_face_graph, segment_mesh
+        from neural_shdf.pipeline import mesh_face_graph, segment_mesh, segment_mesh_with_details
 
         shdf = cached_shdf(mesh, self.source, self.cache_dir, model, seed=self.params.seed)
         params = self.params
         if self.human_parts:
             params = dataclasses.replace(params, parts=model.human_part_count())
+        if self.leaves:
+            result = segment_mesh_with_details(mesh, shdf, params, graph=mesh_face_graph(mesh))
+            return result.tree.leaf_labels
         return segment_mesh(mesh, shdf, params, graph=mesh_face_graph(mesh))
 
 
@@ -261,13 +268,15 @@ def make_predictor(
     if match is None:
         raise ParameterError(
             f"unknown method {method!r}; use 'cgal' or '{{exact,neural,cgalsdf}}-"
-            "{graphcut,metis}', optionally with '-humanparts' after metis"
+            "{graphcut,metis}', optionally followed by '-humanparts' or (graphcut) '-leaves'"
         )
-    source, partitioner, human_parts = match.groups()
-    if human_parts and partitioner != "metis":
-        raise ParameterError(f"{method}: -humanparts needs the metis partitioner")
+    source, partitioner, suffix = match.groups()
+    if suffix == "-leaves" and partitioner != "graphcut":
+        raise ParameterError(f"{method}: -leaves needs the graphcut partitioner")
     segment_params = SegmentParams(partitioner=partitioner, **dict(params or {}))
-    return ShdfPredictor(source, segment_params, bool(human_parts), cache_dir)
+    return ShdfPredictor(
+        source, segment_params, suffix == "-humanparts", cache_dir, suffix == "-leaves"
+    )
 
 
 # ---------------------------------------------------------------- evaluation

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf.constants import AREA_EPS
+from neural_shdf.constants import AREA_EPS, MAX_COORDINATE
 from neural_shdf.errors import (
     InvalidGeometryError,
     MeshError,
@@ -31,20 +31,25 @@ class MeshLimits:
     max_faces: int | None = None
     max_vertices: int | None = None
 
-    def check_faces(self, count: int, what: str = "faces", *, context: str = "") -> None:
-        """MeshTooLargeError when ``count`` faces (or triangles) exceed ``max_faces``."""
-        _check(count, self.max_faces, "max_faces", what, context)
+    def check_faces(
+        self, count: int, what: str = "faces", *, context: str = "", at_least: bool = False
+    ) -> None:
+        """MeshTooLargeError when ``count`` faces (or triangles) exceed ``max_faces``
+        (``at_least``: the count is a lower bound, found while reading)."""
+        _check(count, self.max_faces, "max_faces", what, context, at_least)
 
-    def check_vertices(self, count: int, *, context: str = "") -> None:
+    def check_vertices(self, count: int, *, context: str = "", at_least: bool = False) -> None:
         """MeshTooLargeError when ``count`` vertices exceed ``max_vertices``."""
-        _check(count, self.max_vertices, "max_vertices", "vertices", context)
+        _check(count, self.max_vertices, "max_vertices", "vertices", context, at_least)
 
 
-def _check(count: int, maximum: int | None, limit: str, what: str, context: str) -> None:
+def _check(
+    count: int, maximum: int | None, limit: str, what: str, context: str, at_least: bool
+) -> None:
     if maximum is not None and count > maximum:
         raise MeshTooLargeError(
-            f"the mesh has {count} {what}{context}, more than the "
-            f"limit of {maximum} {what} ({limit}); simplify (decimate) it before uploading",
+            f"the mesh has {'at least ' if at_least else ''}{count} {what}{context}, more than "
+            f"the limit of {maximum} {what} ({limit}); simplify (decimate) it before uploading",
             limit=limit,
             maximum=maximum,
             found=count,
@@ -156,6 +161,14 @@ def build_mesh(
             f"{int(bad_vertex.sum())} vertices have NaN or infinite coordinates "
             f"(first: vertex {index}); repair or re-export the mesh"
         )
+    largest = float(np.abs(vertices).max()) if len(vertices) else 0.0
+    if largest > MAX_COORDINATE:
+        index = int(np.abs(vertices).max(axis=1).argmax())
+        raise InvalidGeometryError(
+            f"coordinates as large as {largest:.3g} (first: vertex {index}) are beyond "
+            f"{MAX_COORDINATE:.0e}, where squared lengths overflow the float32 geometry of "
+            "the ray tracer and the network; rescale the mesh (e.g. to metres or millimetres)"
+        )
     bad_face = (faces < 0).any(axis=1) | (faces >= len(vertices)).any(axis=1)
     if bad_face.any():
         index = int(np.flatnonzero(bad_face)[0])
@@ -166,8 +179,16 @@ def build_mesh(
             f"are {len(vertices)} vertices); the file is corrupt or truncated"
         )
     if not _has_area(vertices, faces[:1024]) and not _has_area(vertices, faces):
+        used = vertices[np.unique(faces)]
+        extent = float((used.max(axis=0) - used.min(axis=0)).max())
         raise InvalidGeometryError(
-            f"all {len(faces)} triangles have zero area (degenerate); the mesh has no surface"
+            f"all {len(faces)} triangles have zero area (twice the area at most {AREA_EPS:g}), "
+            f"so the mesh has no surface; its triangles span {extent:.3g} units: "
+            + (
+                "rescale the mesh if it is that small"
+                if extent > 0
+                else "all their corners are at one point"
+            )
         )
     return TriangleMesh(
         vertices=vertices,

@@ -261,6 +261,7 @@ def _mesh_instances(gltf: dict) -> list[tuple[int, NDArray]]:
             )
         matrix = parent @ _local_matrix(node)
         if "mesh" in node:
+            _item(gltf, "meshes", node["mesh"])  # a valid reference, before it is counted
             instances.append((node["mesh"], matrix))
         children = node.get("children", [])
         if not isinstance(children, list):
@@ -341,6 +342,21 @@ def _read_document(document: _Document, format_name: str, limits: MeshLimits) ->
     return build_mesh(vertices, faces, None, len(faces), format_name=format_name, limits=limits)
 
 
+def _parse_json(text: bytes, format_name: str) -> Any:
+    """The glTF JSON, with parse errors a user can act on."""
+    try:
+        return json.loads(text.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise MeshParseError(f"the {format_name} JSON is not UTF-8 text: {exc}") from None
+    except json.JSONDecodeError as exc:
+        raise MeshParseError(f"the {format_name} JSON is malformed: {exc}") from None
+    except RecursionError:
+        raise MeshParseError(
+            f"the {format_name} JSON nests arrays or objects too deeply to read (a valid "
+            "glTF nests a few levels); the file is corrupt or not a glTF"
+        ) from None
+
+
 def read_glb(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     """Parse binary glTF (GLB) bytes; declared lengths are checked before anything is read."""
     if data.lstrip()[:1] == b"{":  # a text glTF sent as GLB
@@ -368,7 +384,7 @@ def read_glb(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     if not chunks or chunks[0][0] != _CHUNK_JSON:
         raise MeshParseError("the GLB has no JSON chunk")
     binary = next((payload for kind, payload in chunks[1:] if kind == _CHUNK_BIN), None)
-    gltf = json.loads(chunks[0][1].decode("utf-8"))
+    gltf = _parse_json(chunks[0][1], "GLB")
     return _read_document(_Document(gltf, binary), "GLB", limits)
 
 
@@ -376,11 +392,7 @@ def read_gltf(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     """Parse text glTF bytes whose buffers are embedded as base64 ``data:`` URIs."""
     if data[:4] == _GLB_MAGIC:
         return read_glb(data, limits)
-    try:
-        gltf = json.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise MeshParseError(f"a .gltf file must be JSON: {exc}") from None
-    return _read_document(_Document(gltf, None), "glTF", limits)
+    return _read_document(_Document(_parse_json(data, "glTF"), None), "glTF", limits)
 
 
 __all__ = ["read_glb", "read_gltf"]

@@ -27,14 +27,21 @@ def _content_lines(text: str) -> list[str]:
     return lines
 
 
-def read_off(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
-    """Parse OFF bytes; polygons are fan-triangulated, one input face per face record."""
-    if data[:64].lstrip().upper().startswith(b"OFF BINARY"):
-        raise UnsupportedFormatError("binary OFF is not supported; save the mesh as text OFF")
-    lines = _content_lines(decode_text(data, FORMAT_NAME))
-    if not lines:
+def _header(text: str) -> tuple[list[str], list[str], int]:
+    """(header tokens, count tokens, content lines the header takes) from the first
+    content lines, read lazily so that limits are checked before the body is split."""
+    found: list[str] = []
+    start = 0
+    while len(found) < 2 and start < len(text):
+        end = text.find("\n", start)
+        end = len(text) if end < 0 else end
+        line = text[start:end].split("#", 1)[0].strip()
+        if line:
+            found.append(line)
+        start = end + 1
+    if not found:
         raise MeshParseError("the OFF file is empty")
-    header = lines[0].split()
+    header = found[0].split()
     keyword = header[0].upper()
     if not re.fullmatch(r"(ST)?C?N?OFF", keyword):
         if keyword.endswith("OFF"):
@@ -42,10 +49,19 @@ def read_off(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
                 f"OFF variant {header[0]!r} is not supported; save as plain 3-D 'OFF'"
             )
         raise MeshParseError(
-            f"an OFF file must start with 'OFF', found {lines[0][:40]!r}; is it really OFF?"
+            f"an OFF file must start with 'OFF', found {found[0][:40]!r}; is it really OFF?"
         )
-    counts_tokens = header[1:] if len(header) > 1 else lines[1].split() if len(lines) > 1 else []
-    body_start = 1 if len(header) > 1 else 2
+    if len(header) > 1:
+        return header, header[1:], 1
+    return header, found[1].split() if len(found) > 1 else [], 2
+
+
+def read_off(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
+    """Parse OFF bytes; polygons are fan-triangulated, one input face per face record."""
+    if data[:64].lstrip().upper().startswith(b"OFF BINARY"):
+        raise UnsupportedFormatError("binary OFF is not supported; save the mesh as text OFF")
+    text = decode_text(data, FORMAT_NAME)
+    _, counts_tokens, body_start = _header(text)
     if len(counts_tokens) < 2:
         raise MeshParseError("the OFF header needs vertex and face counts ('V F E')")
     try:
@@ -54,14 +70,21 @@ def read_off(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
         raise MeshParseError(f"OFF counts are not integers: {counts_tokens[:3]}") from None
     if vertex_count < 0 or face_count < 0:
         raise MeshParseError(f"OFF counts are negative: {vertex_count} {face_count}")
+    line_count = data.count(b"\n") + data.count(b"\r") + 1  # at least the lines there are
+    if vertex_count + face_count > line_count:
+        raise MeshParseError(
+            f"the OFF file is truncated: its header declares {vertex_count} vertices and "
+            f"{face_count} faces but the file has only {line_count} lines"
+        )
+    limits.check_faces(face_count)
+    limits.check_vertices(vertex_count)
+    lines = _content_lines(text)
     available = len(lines) - body_start
     if vertex_count + face_count > available:
         raise MeshParseError(
             f"the OFF file is truncated: its header declares {vertex_count} vertices and "
             f"{face_count} faces but only {available} data lines follow"
         )
-    limits.check_faces(face_count)
-    limits.check_vertices(vertex_count)
 
     vertex_lines = lines[body_start : body_start + vertex_count]
     try:

@@ -65,6 +65,14 @@ _MODELS: dict[Path, NeuralModel] = {}
 _LOCK = threading.Lock()
 
 
+def set_session_threads(threads: int) -> None:
+    """Intra-op threads of the sessions loaded from now on. Worker pools with one process
+    per core use 1: onnxruntime's spinning threads only cost CPU there. Results do not
+    depend on it."""
+    global INTRA_OP_THREADS
+    INTRA_OP_THREADS = max(1, int(threads))
+
+
 def model_path() -> Path:
     """The model file in use: ``$NEURAL_SHDF_MODEL`` or the packaged ``emd.onnx``."""
     override = os.environ.get(MODEL_ENV_VAR)

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
 from neural_shdf.segment.graphcut import data_costs, dihedral_weights, multilevel_alpha_expansion
-from neural_shdf.segment.hierarchy import PartTree, merge_tree
+from neural_shdf.segment.hierarchy import PartTree, automatic_part_count, merge_tree
 from neural_shdf.segment.metis import metis_edge_weights, metis_partition
 from neural_shdf.segment.mixture import fit_best_mixture, fit_mixture
 from neural_shdf.segment.params import (
@@ -147,7 +147,11 @@ def segment_with_details(
         lap("merge_small")
 
     if params.partitioner == "metis":
-        count = params.parts if params.parts is not None else int(parts.max()) + 1
+        if params.parts is not None:
+            count = params.parts
+        else:  # the graph cut's automatic count
+            tree = merge_tree(canonical_labels(parts), graph, geometry.areas, values)
+            count = automatic_part_count(tree)
         weights = metis_edge_weights(edge_weights, posteriors, graph.pairs)
         parts = metis_partition(
             graph,
@@ -182,7 +186,7 @@ def segment_with_details(
 
     # Graph cut: its parts are the leaves of the merge tree; cut it at the asked count.
     tree = merge_tree(canonical_labels(parts), graph, geometry.areas, values)
-    count = tree.leaf_count if params.parts is None else params.parts
+    count = automatic_part_count(tree) if params.parts is None else params.parts
     labels = tree.labels(count)
     lap("hierarchy")
     return SegmentResult(labels, mixture.size, smoothing, timings, tree)

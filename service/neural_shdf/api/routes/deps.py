@@ -37,7 +37,7 @@ def error_responses(*statuses: int) -> dict[int | str, dict[str, Any]]:
 def upload_format(upload: UploadFile, file_type: str | None) -> str | None:
     """The mesh format: explicit, else the file name's extension, else sniffed later (None)."""
     if file_type:
-        return file_type.strip().lower().lstrip(".")
+        return file_type  # as given: mesh_io normalises it, or names it in its error
     suffix = PurePosixPath(upload.filename or "").suffix
     return suffix.lower().lstrip(".") or None
 

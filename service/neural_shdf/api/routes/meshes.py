@@ -20,7 +20,7 @@ from neural_shdf.api.schemas import (
     UploadResult,
 )
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.mesh_io import sniff_format
+from neural_shdf.mesh_io import normalize_format, sniff_format
 from neural_shdf.segment.params import check_seed
 
 router = APIRouter(prefix="/v1", tags=["meshes"])
@@ -43,7 +43,7 @@ async def ingest(
     data = await read_upload(upload)
     fmt = upload_format(upload, file_type)
     mesh = await engine.run(engine.meshes.parse, data, fmt)
-    detected = fmt or sniff_format(data)
+    detected = normalize_format(fmt) if fmt else sniff_format(data)
     meta = await engine.io(engine.meshes.store, mesh, detected, upload.filename)
     return meta, mesh
 

@@ -103,11 +103,27 @@ export async function getGeometry(meshId) {
   return { positions, triangles, faceOrigin, inputFaces };
 }
 
-/** GET /v1/meshes/{id}/shdf as float32 per input face (NaN: face without triangles). */
-export async function getShdf(meshId, method) {
+/**
+ * GET /v1/meshes/{id}/shdf as float32 per input face (NaN: face without triangles), waiting
+ * for the job when a large mesh's ShDF is still being computed.
+ */
+export async function getShdf(meshId, method, onJobProgress = () => {}) {
   const query = new URLSearchParams({ format: 'f32', method });
-  const response = await checked(await fetch(`/v1/meshes/${meshId}/shdf?${query}`));
-  return new Float32Array(await response.arrayBuffer());
+  for (;;) {
+    const response = await checked(await fetch(`/v1/meshes/${meshId}/shdf?${query}`));
+    if (response.status !== 202) return new Float32Array(await response.arrayBuffer());
+    await waitForJob(await response.json(), onJobProgress);
+  }
+}
+
+/** GET the segmentation as a GLB (`style`: colored or parts) for the same parameters. */
+export async function getGlb(meshId, style, request) {
+  const url = `/v1/meshes/${meshId}/segmentation/${style}.glb?${segmentQuery(request)}`;
+  const response = await checked(await fetch(url));
+  if (response.status === 202) {
+    throw new ServiceError(202, 'not_ready', 'the ShDF is still being computed; try again shortly');
+  }
+  return response.blob();
 }
 
 const LABEL_TYPES = { int8: Int8Array, int16: Int16Array, int32: Int32Array };

@@ -138,22 +138,8 @@ async function loadMesh(meta, method) {
   await resegment({ reason: 'load' });
 }
 
-/** The ShDF values, waiting for the job when a large mesh's ShDF is still being computed. */
-async function fetchShdf(meshId, method) {
-  for (;;) {
-    const response = await fetch(`/v1/meshes/${meshId}/shdf?format=f32&method=${method}`);
-    if (response.status === 202) {
-      await api.waitForJob(await response.json(), (f) => showProgress('Computing the ShDF', f));
-      continue;
-    }
-    if (!response.ok) {
-      const text = await response.text();
-      let body = null;
-      try { body = JSON.parse(text); } catch (_) { /* not JSON */ }
-      throw new api.ServiceError(response.status, body?.error?.code || 'http_error', body?.error?.message || text);
-    }
-    return new Float32Array(await response.arrayBuffer());
-  }
+function fetchShdf(meshId, method) {
+  return api.getShdf(meshId, method, (f) => showProgress('Computing the ShDF', f));
 }
 
 // ---- segmentation ---------------------------------------------------------------------
@@ -366,16 +352,7 @@ const stem = () => (state.meta.filename || state.meshId.slice(0, 16)).replace(/\
 async function downloadGlb(style) {
   if (!state.shownRequest) return;
   try {
-    const query = api.segmentQuery(state.shownRequest);
-    const url = `/v1/meshes/${state.meshId}/segmentation/${style}.glb?${query}`;
-    const response = await fetch(url);
-    if (!response.ok) {
-      const text = await response.text();
-      let body = null;
-      try { body = JSON.parse(text); } catch (_) { /* not JSON */ }
-      throw new api.ServiceError(response.status, body?.error?.code || 'http_error', body?.error?.message || text);
-    }
-    saveBlob(await response.blob(), `${stem()}-${style}.glb`);
+    saveBlob(await api.getGlb(state.meshId, style, state.shownRequest), `${stem()}-${style}.glb`);
   } catch (error) {
     showError(error, `${style} GLB`);
   }

@@ -229,6 +229,63 @@ def test_upload_job_parts_slider_recolours_to_the_api_labels(page, server, meshe
     print(f"screenshot: {shot}")
 
 
+def segment_requests(page: ViewerPage) -> int:
+    """POST /v1/segment requests the page has made so far."""
+    return page.js(
+        "return performance.getEntriesByType('resource')"
+        ".filter(e => new URL(e.name).pathname === '/v1/segment').length"
+    )
+
+
+def assert_table_matches(page: ViewerPage, body: dict) -> None:
+    """The parts table and the page's parts: the API's faces, area and mean ShDF per part."""
+    shown = page.segmentation()["parts"]
+    assert [p["label"] for p in shown] == [p["label"] for p in body["parts"]]
+    assert [p["color"] for p in shown] == [p["color"] for p in body["parts"]]
+    assert [p["faces"] for p in shown] == [p["faces"] for p in body["parts"]]
+    for key in ("area", "mean_shdf"):
+        np.testing.assert_allclose(
+            [p[key] for p in shown], [p[key] for p in body["parts"]], rtol=1e-4, atol=1e-6
+        )
+    rows = page.js(
+        "return Array.from(document.querySelectorAll('#parts-table tbody tr'),"
+        " r => Array.from(r.cells, c => c.textContent.trim()).slice(1, 3))"
+    )
+    assert rows == [[str(p["label"]), f"{p['faces']:,}"] for p in body["parts"]]
+
+
+def test_parts_slider_recuts_the_part_tree_without_a_request(page, server, meshes):
+    """Graph cut: moving the parts slider recolours from the answer's part tree, no request;
+    labels, colours and the parts table equal the API's answer for that part count."""
+    page.upload(meshes["large"])  # quads: two triangles per input face
+    assert page.status() == "ready", page.message()
+    mesh_id = page.js("return window.shdfViewer.state.meshId")
+    tree = page.js("return window.shdfViewer.state.body.hierarchy")
+    assert tree is not None and tree["leaf_count"] >= 4, tree
+    assert page.js("return Number(document.getElementById('parts').max)") == tree["leaf_count"]
+    sent = segment_requests(page)
+    counts = sorted({1, 2, 3, tree["leaf_count"] - 1, tree["leaf_count"]})
+    for count in [*counts, 0]:  # 0: back to "auto"
+        detail = page.release_slider("parts", count)
+        assert detail["recut"] and detail["request"]["parts"] == (count or None)
+        shown = page.segmentation()
+        body = api_labels(server, mesh_id, controls_of(shown, parts=count or None))
+        assert detail["parts"] == body["part_count"]
+        assert_colours_match(shown, body)
+        assert_table_matches(page, body)
+    assert detail["parts"] == tree["automatic_parts"]
+    assert segment_requests(page) == sent  # the page asked nothing for any of them
+    assert page.js("return document.getElementById('parts-out').textContent") == "auto"
+
+    detail = page.release_slider("clusters", 4)  # a new mixture: a new tree from the service
+    assert not detail.get("recut") and segment_requests(page) == sent + 1
+    detail = page.release_slider("parts", 2)
+    assert detail["recut"] and segment_requests(page) == sent + 1
+    shown = page.segmentation()
+    assert_colours_match(shown, api_labels(server, mesh_id, controls_of(shown, parts=2)))
+    assert severe(page) == []
+
+
 def test_a_newer_slider_value_supersedes_the_request_in_flight(page, server, meshes):
     page.upload(meshes["small"])
     events = page.driver.execute_async_script(

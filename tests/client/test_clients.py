@@ -20,6 +20,7 @@ from neural_shdf.client import (
     UnsupportedMediaError,
 )
 from neural_shdf.mesh_io import load_mesh
+from neural_shdf.segment.synthetic import dumbbell
 from tests.api.api_helpers import TEST_METHOD, capsule, free_port, obj_bytes, quad_box
 
 
@@ -63,6 +64,34 @@ def test_upload_segment_and_shdf_match_the_raw_api(service, tmp_path):
     assert shdf.dtype == np.float32 and len(shdf) == faces
     np.testing.assert_allclose(shdf, np.array(raw_shdf["values"], dtype=np.float32), rtol=1e-6)
     assert info.mesh_id == uploaded.mesh_id and info.filename == "capsule.obj"
+
+
+def test_part_tree_gives_the_services_labels_for_any_part_count(service, tmp_path):
+    path = tmp_path / "dumbbell.obj"
+    path.write_bytes(dumbbell(3000)[0].export(file_type="obj").encode())
+    with Client(service) as client:
+        mesh_id = client.upload(path).mesh_id
+        automatic = client.segment(mesh_id, clusters=8, smoothing=0.0)
+        tree = automatic.hierarchy
+        assert tree is not None and "hierarchy" not in automatic.extra
+        assert tree.leaf_count >= 4 and tree.parts == automatic.part_count
+        assert len(tree.leaf_labels) == len(automatic.labels) and tree.leaf_labels.dtype == np.int32
+        assert (
+            len(tree.parent) == 2 * tree.leaf_count - 1
+            and len(tree.merge_cost) == tree.leaf_count - 1
+        )
+        assert np.all(np.diff(tree.merge_height) >= 0)
+        np.testing.assert_array_equal(tree.labels(), automatic.labels)  # None: automatic
+        assert tree.parts == tree.automatic_parts
+        counts = sorted({1, 2, 3, tree.leaf_count // 2, tree.leaf_count, tree.leaf_count + 5})
+        for count in counts:
+            asked = client.segment(mesh_id, clusters=8, smoothing=0.0, parts=count)
+            assert asked.hierarchy is not None and asked.hierarchy.parts == asked.part_count
+            np.testing.assert_array_equal(asked.hierarchy.parent, tree.parent)
+            labels = tree.labels(count)
+            assert labels.dtype == np.int32
+            np.testing.assert_array_equal(labels, asked.labels, err_msg=f"{count} parts")
+        assert client.segment(mesh_id, partitioner="metis", parts=3).hierarchy is None
 
 
 def test_segment_file_bytes_polygons_and_glb_downloads(service):

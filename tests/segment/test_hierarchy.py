@@ -151,3 +151,24 @@ def test_a_single_leaf_and_an_empty_mesh():
     assert np.all(tree.labels(5) == 0)
     assert automatic_part_count(tree) == 1
     assert tree.parent.tolist() == [-1]
+
+
+def test_from_parent_rebuilds_the_tree_and_its_cuts(dumbbell_leaves):
+    leaves, graph, areas, values, _ = dumbbell_leaves
+    tree = merge_tree(leaves, graph, areas, values)
+    rebuilt = PartTree.from_parent(tree.leaf_labels, tree.parent, tree.costs)
+    np.testing.assert_array_equal(rebuilt.merges, tree.merges)
+    np.testing.assert_array_equal(rebuilt.costs, tree.costs)
+    for count in range(1, tree.leaf_count + 1):
+        np.testing.assert_array_equal(rebuilt.labels(count), tree.labels(count))
+    single = PartTree.from_parent([0, 0], [-1], [])
+    assert single.leaf_count == 1 and single.labels(3).tolist() == [0, 0]
+
+
+@pytest.mark.parametrize(
+    "parent",
+    [[2, 2, 3, -1], [2, 2, -1, 4, -1], [3, 3, 3, 4, -1], [4, 3, 4, 4, -1], [2, 1, -1]],
+)
+def test_from_parent_refuses_what_is_not_a_merge_tree(parent):
+    with pytest.raises(ValueError, match="not a merge tree"):
+        PartTree.from_parent([0], parent, [0.0] * (len(parent) // 2))

@@ -18,9 +18,14 @@ from typing import Any, get_args
 
 from neural_shdf.api.schemas import SegmentOptions, ShdfMethodName
 from neural_shdf.api.settings import Settings
-from neural_shdf.export import UNLABELED_COLOR
+from neural_shdf.export import UNLABELED_COLOR, part_color_hex
 from neural_shdf.mesh_io import SUPPORTED_FORMATS
-from neural_shdf.segment.params import DEFAULT_CLUSTERS, DEFAULT_SMOOTHING, MAX_CLUSTERS
+from neural_shdf.segment.params import (
+    DEFAULT_CLUSTERS,
+    DEFAULT_SMOOTHING,
+    MAX_CLUSTERS,
+    MAX_PARTS,
+)
 
 VIEWER_DIR = Path(__file__).resolve().parents[1] / "viewer"
 STATIC_DIR = VIEWER_DIR / "static"
@@ -75,6 +80,13 @@ def _choices(annotation: Any) -> list[str]:
     return values
 
 
+@functools.cache
+def part_palette() -> str:
+    """The API's part colours for 0..MAX_PARTS-1 as one string of ``rrggbb`` runs: the page
+    colours a cut of the part tree it makes itself exactly as the service would."""
+    return "".join(color[1:] for color in part_color_hex(MAX_PARTS))
+
+
 def page_config(settings: Settings) -> dict[str, Any]:
     """What the page needs to know about the service's limits, choices and defaults."""
     return {
@@ -88,6 +100,8 @@ def page_config(settings: Settings) -> dict[str, Any]:
         "defaultClusters": DEFAULT_CLUSTERS,
         "defaultSmoothing": DEFAULT_SMOOTHING,
         "unlabeledColor": "#{:02x}{:02x}{:02x}".format(*UNLABELED_COLOR[:3].tolist()),
+        "maxParts": MAX_PARTS,
+        "partPalette": part_palette(),
     }
 
 

@@ -21,7 +21,14 @@ from neural_shdf.client.errors import (
     UnsupportedMediaError,
 )
 from neural_shdf.client.operations import SegmentArgs
-from neural_shdf.client.results import Job, MeshInfo, PartSummary, Segmentation, Upload
+from neural_shdf.client.results import (
+    Job,
+    MeshInfo,
+    PartHierarchy,
+    PartSummary,
+    Segmentation,
+    Upload,
+)
 
 __all__ = [
     "AsyncClient",
@@ -31,6 +38,7 @@ __all__ = [
     "JobFailedError",
     "MeshInfo",
     "NotFoundError",
+    "PartHierarchy",
     "PartSummary",
     "PayloadTooLargeError",
     "SegmentArgs",

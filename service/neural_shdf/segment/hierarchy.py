@@ -116,6 +116,31 @@ class PartTree:
             )
         return parent
 
+    @classmethod
+    def from_parent(cls, leaf_labels: NDArray, parent: NDArray, costs: NDArray) -> PartTree:
+        """The tree from its ``parent`` array (the API's form; the inverse of ``parent``).
+
+        Raises ValueError when ``parent`` is not a merge tree over ``(len(parent) + 1) / 2``
+        leaves (each merge node ``L + i`` with exactly two children, the root last).
+        """
+        parent = np.asarray(parent, dtype=np.int64).reshape(-1)
+        leaves = (len(parent) + 1) // 2
+        nodes = np.flatnonzero(parent >= 0)
+        merges = nodes[np.lexsort((nodes, parent[nodes]))]
+        expected = np.repeat(np.arange(leaves, 2 * leaves - 1, dtype=np.int64), 2)
+        if (
+            len(parent) != max(2 * leaves - 1, 0)
+            or (leaves and parent[-1] != -1)
+            or not np.array_equal(parent[merges], expected)
+            or np.any(merges >= parent[merges])
+        ):
+            raise ValueError(f"not a merge tree's parent array over {leaves} leaves")
+        return cls(
+            np.asarray(leaf_labels, dtype=np.int64),
+            merges.reshape(-1, 2),
+            np.asarray(costs, dtype=np.float64).reshape(-1),
+        )
+
     def leaf_parts(self, count: int) -> NDArray[np.int64]:
         """(L,) part of each leaf when the tree is cut into ``count`` parts (clamped to 1..L).
 

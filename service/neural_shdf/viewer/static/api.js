@@ -128,14 +128,25 @@ export async function getGlb(meshId, style, request) {
 
 const LABEL_TYPES = { int8: Int8Array, int16: Int16Array, int32: Int32Array };
 
-/** Decode the compact labels of a Segmentation (labels_format=base64) to an Int32Array. */
-export function decodeLabels(body) {
-  if (body.labels) return Int32Array.from(body.labels);
-  const bytes = Uint8Array.from(atob(body.labels_base64), (c) => c.charCodeAt(0));
-  const Type = LABEL_TYPES[body.labels_dtype];
+/** Decode base64 little-endian integers of type `dtype` (int8/16/32) to an Int32Array. */
+export function decodeIntegers(base64, dtype) {
+  const bytes = Uint8Array.from(atob(base64), (c) => c.charCodeAt(0));
+  const Type = LABEL_TYPES[dtype];
   const aligned = new Uint8Array(bytes.length);  // typed views need an aligned buffer
   aligned.set(bytes);
   return Int32Array.from(new Type(aligned.buffer, 0, bytes.length / Type.BYTES_PER_ELEMENT));
+}
+
+/** Decode the compact labels of a Segmentation (labels_format=base64) to an Int32Array. */
+export function decodeLabels(body) {
+  if (body.labels) return Int32Array.from(body.labels);
+  return decodeIntegers(body.labels_base64, body.labels_dtype);
+}
+
+/** Leaf per input face of a Segmentation's `hierarchy` (list or base64 form). */
+export function decodeLeafLabels(tree) {
+  if (tree.leaf_labels) return Int32Array.from(tree.leaf_labels);
+  return decodeIntegers(tree.leaf_labels_base64, tree.leaf_labels_dtype);
 }
 
 /**

@@ -1,5 +1,6 @@
 // The viewer page: upload, live segmentation controls, parts panel, downloads.
 import * as api from './api.js';
+import { faceParts, leafParts, leafSums, partSums } from './hierarchy.js';
 import { MeshView, heatGradient, parseHex } from './scene.js';
 
 const config = JSON.parse(document.getElementById('viewer-config').textContent);
@@ -7,6 +8,9 @@ const UNLABELED = parseHex(config.unlabeledColor);
 const $ = (id) => document.getElementById(id);
 const SPECULATIVE_DELAY_MS = 150;  // a slider held still this long while dragging re-segments
 const CLIENT_CACHE_SIZE = 24;
+const DEFAULT_PARTS_MAX = Number(document.getElementById('parts').max);
+/** The service's colour of part `label` (the same palette as its answers). */
+const partColor = (label) => '#' + config.partPalette.slice(6 * label, 6 * label + 6);
 
 const state = {
   meshId: null,
@@ -25,6 +29,7 @@ const state = {
   speculative: null,  // timer of the request sent when a dragged slider is held still
   dragPending: false, // a dragged value waits for the request in flight
   cache: new Map(),   // request key -> Segmentation, most recent last
+  tree: null,         // the graph cut's part tree of the answer on screen, for recuts
   view: 'parts',
   selected: -1,
   hidden: new Set(),
@@ -125,6 +130,7 @@ async function loadMesh(meta, method) {
   const [geometry, shdf] = await Promise.all([api.getGeometry(meta.mesh_id), fetchShdf(meta.mesh_id, method)]);
   Object.assign(state, {
     meshId: meta.mesh_id, meta, method, geometry, shdf, labels: null, body: null, shownRequest: null,
+    tree: null,
     selected: -1, hidden: new Set(), isolated: -1,
   });
   state.cache.clear();
@@ -170,6 +176,10 @@ async function resegment({ reason, releaseTime = null }) {
   const request = currentRequest();
   const key = requestKey(request);
   const start = releaseTime ?? performance.now();
+  if (canRecut(request)) {
+    if (key !== requestKey(state.shownRequest)) await recut(request, reason, start);
+    return;
+  }
   if (state.inflightKey === key) {  // the same request already runs (sent while dragging)
     state.releaseTime = start;
     return;
@@ -237,8 +247,72 @@ async function resegment({ reason, releaseTime = null }) {
   }
 }
 
-function applySegmentation(body, request) {
-  const labels = api.decodeLabels(body);
+/** Whether `request` is a cut of the part tree on screen: only the part count differs. */
+function canRecut(request) {
+  if (!state.tree || !state.shownRequest) return false;
+  return requestKey({ ...request, parts: null }) === requestKey({ ...state.tree.request, parts: null });
+}
+
+/**
+ * Show the part tree cut at the request's part count (0: automatic) with no request: the
+ * labels, colours and parts table the service would answer for that count.
+ */
+async function recut(request, reason, start) {
+  const seq = ++state.seq;
+  state.controller?.abort();  // a request for another part count is moot
+  Object.assign(state, { controller: null, inflightKey: null, dragPending: false });
+  const paintStart = performance.now();
+  const { tree, leafLabels, sums, body: base } = state.tree;
+  const count = Math.min(request.parts ?? tree.automatic_parts, tree.leaf_count);
+  const parts = leafParts(tree, count);
+  const partCount = tree.leaf_count ? count : 0;
+  const totals = partSums(sums, parts, partCount);
+  const summaries = Array.from({ length: partCount }, (_, label) => ({
+    label,
+    faces: totals.faces[label],
+    area: totals.area[label],
+    mean_shdf: totals.mean[label],
+    color: partColor(label),
+  }));
+  const body = {
+    ...base, labels: null, labels_base64: null, labels_dtype: null,
+    part_count: partCount, parts: summaries, hierarchy: { ...tree, parts: partCount },
+  };
+  applySegmentation(body, request, faceParts(leafLabels, parts));
+  const paintMs = performance.now() - paintStart;
+  const shown = await view.presented();
+  if (seq !== state.seq) return;
+  const detail = {
+    seq, reason, request, key: requestKey(request), parts: partCount,
+    totalMs: shown - start, fetchMs: 0, paintMs, serverMs: 0, segmentMs: 0,
+    cached: true, recut: true,
+  };
+  $('seg-status').textContent = `${partCount} parts · ${Math.round(detail.totalMs)} ms (cut of the part tree)`;
+  setStatus('ready');
+  window.dispatchEvent(new CustomEvent('shdf:segmented', { detail }));
+}
+
+/** Keep the answer's part tree (with its per-leaf sums) for recuts; the slider spans it. */
+function keepTree(body, request) {
+  const tree = body.hierarchy;
+  if (!tree) {
+    state.tree = null;
+    $('parts').max = String(DEFAULT_PARTS_MAX);
+    return;
+  }
+  if (state.tree?.body === body) return;
+  const leafLabels = api.decodeLeafLabels(tree);
+  const sums = leafSums(tree.leaf_count, leafLabels, state.geometry, state.shdf);
+  state.tree = { tree, leafLabels, sums, body, request };
+  $('parts').max = String(Math.max(1, Math.min(tree.leaf_count, config.maxParts)));
+  showValues();
+}
+
+function applySegmentation(body, request, labels = null) {
+  if (labels === null) {
+    labels = api.decodeLabels(body);
+    keepTree(body, request);
+  }
   const palette = new Uint8Array(body.parts.length * 3);
   body.parts.forEach((part, i) => palette.set(parseHex(part.color), i * 3));
   Object.assign(state, { labels, body, palette, shownRequest: request });
@@ -394,9 +468,13 @@ function setUpControls() {
   $('method').value = config.defaultMethod;
   showValues();
   for (const input of document.querySelectorAll('#controls input[type=range]')) {
-    input.addEventListener('input', () => {
+    input.addEventListener('input', (event) => {
       showValues();
       clearTimeout(state.speculative);
+      if (state.meshId && canRecut(currentRequest())) {  // a cut of the tree: at once
+        resegment({ reason: 'drag', releaseTime: event.timeStamp });
+        return;
+      }
       state.speculative = setTimeout(() => resegment({ reason: 'drag' }), SPECULATIVE_DELAY_MS);
     });
     input.addEventListener('change', (event) => {

@@ -267,10 +267,10 @@ def kill_worker(args: argparse.Namespace, workdir: Path) -> int:
         print(f"exact ShDF jobs, {faces} faces, 2 workers, disk cache; per round: a normal")
         print("upload of a fresh mesh (T), then a fresh mesh whose worker is killed mid-job")
         print(
-            "\n| round | T s | killed after s | re-upload s | ratio to T | killed job | "
-            "its runs | settled after s | entries | corrupt |"
+            "\n| round | T s | killed after s | re-upload s | ratio to T | its runs | killed job | "
+            "its runs | settled after s | workers lost | entries | corrupt |"
         )
-        print("|---|---|---|---|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|")
         failures = 0
         ratios, normals = [], []
         for round_ in range(1, args.rounds + 1):
@@ -285,8 +285,10 @@ def kill_worker(args: argparse.Namespace, workdir: Path) -> int:
             time.sleep(delay)
             record = read_job_record(cache_dir, old["job_id"])
             victim = int(record["worker"].rsplit(":", 1)[1])
+            before = set(worker_pids(process))
             os.kill(victim, signal.SIGKILL)
             job, seconds = upload_to_shdf(base, data)
+            lost = len(before - set(worker_pids(process)))  # 1: the killed one
             settled, settle_s = wait_job(base, old, timeout_s=120)
             checked, corrupt = scan_cache(cache_dir)
             ratio = seconds / t_normal
@@ -296,8 +298,8 @@ def kill_worker(args: argparse.Namespace, workdir: Path) -> int:
             failures += not ok
             print(
                 f"| {round_} | {t_normal:.2f} | {delay:.2f} | {seconds:.2f} | {ratio:.2f} | "
-                f"{settled['state']} | {settled.get('attempt', 1)} | {settle_s:.1f} | "
-                f"{checked} | {corrupt} |",
+                f"{job.get('attempt', 1)} | {settled['state']} | {settled.get('attempt', 1)} | "
+                f"{settle_s:.1f} | {lost} | {checked} | {corrupt} |",
                 flush=True,
             )
             wait_for_workers(process, 2)  # uvicorn restarts the killed one; let it warm up

@@ -245,6 +245,7 @@ def test_redis_fault_opens_the_breaker_and_the_disk_stands_in(fault, redis_serve
     start = time.monotonic()
     assert cache.get_json("m:kept") == {"k": 1}  # its local copy
     cache.put_json("m:during", {"b": 2}, group="m")
+    cache.put_json("m:during-kept", {"c": 3}, group="m", keep_local=True)
     assert cache.get_json("m:during") == {"b": 2}
     lease = cache.lease("lock:m:x")
     assert lease.try_acquire()  # from the disk cache
@@ -267,6 +268,8 @@ def test_redis_fault_opens_the_breaker_and_the_disk_stands_in(fault, redis_serve
     assert redis.get("m:during") is not None
     assert backend.fallback.get("pending:m:during") is None
     assert cache.get_json("m:during") == {"b": 2}
+    # Kept local even when written during the outage: readable through the next one.
+    assert backend.fallback.get("mirror:m:during-kept") is not None
     if fault != "stopped":  # a restarted Redis without persistence lost what it held
         assert cache.get_json("m:before") == {"a": 1}
     # A local copy is never served while Redis answers (a deletion elsewhere must hold).

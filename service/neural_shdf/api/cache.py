@@ -491,8 +491,7 @@ class FallbackBackend:
             self.primary.set(key, value, group=group, expire=expire)
         except BackendUnavailable:
             self.fallback.set(f"pending:{key}", value, group=group, expire=expire)
-            return
-        if keep_local:
+        if keep_local:  # also after the pending copy has moved to Redis
             self.fallback.set(f"mirror:{key}", value, group=group, expire=expire)
 
     def delete(self, key: str) -> None:

@@ -60,9 +60,7 @@ class UnwrapService:
         self.meshes = meshes
         self.segmentations = segmentations
 
-    def key(
-        self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
-    ) -> str:
+    def key(self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams) -> str:
         """The segmentation's key plus the unwrap parameters."""
         digest = hashlib.sha256(json.dumps(asdict(unwrap), sort_keys=True).encode())
         return f"{self.segmentations.key(mesh_id, method, params)}:uv:{digest.hexdigest()[:20]}"

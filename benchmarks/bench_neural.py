@@ -38,9 +38,15 @@ sys.path.insert(0, str(REPO))
 
 from neural_shdf.geometry import face_centroids  # noqa: E402
 from neural_shdf.mesh import TriangleMesh  # noqa: E402
-from neural_shdf.pipeline import mesh_face_graph  # noqa: E402
-from neural_shdf.shdf.exact import exact_shdf  # noqa: E402
-from neural_shdf.shdf.neural import neural_shdf  # noqa: E402
+from neural_shdf.pipeline import compute_shdf, mesh_face_graph  # noqa: E402
+
+
+def exact_shdf(mesh: TriangleMesh, *, graph) -> np.ndarray:  # noqa: ANN001
+    return compute_shdf(mesh, method="exact", graph=graph)
+
+
+def neural_shdf(mesh: TriangleMesh, *, graph, seed: int = 0) -> np.ndarray:  # noqa: ANN001
+    return compute_shdf(mesh, method="neural", graph=graph, seed=seed)
 
 
 def load(path: Path) -> TriangleMesh:
@@ -57,7 +63,7 @@ def pearson(a: np.ndarray, b: np.ndarray) -> float:
 
 def compare(mesh: TriangleMesh) -> tuple[float, float, float, float]:
     """Pearson and MAE of the neural ShDF vs the exact one: default and with smoothing."""
-    from neural_shdf.neural.inference import neural_raw_shdf
+    from neural_shdf.shdf.neural.inference import neural_raw_shdf
     from neural_shdf.shdf.postprocess import postprocess_shdf
 
     graph = mesh_face_graph(mesh)
@@ -207,11 +213,13 @@ start = time.perf_counter()
 graph = mesh_face_graph(mesh)
 graph_s = time.perf_counter() - start
 if {method!r} == "neural":
-    from neural_shdf.neural.inference import load_model
-    from neural_shdf.shdf.neural import neural_shdf as run
+    from neural_shdf.shdf.neural.inference import load_model
+    from neural_shdf.pipeline import compute_shdf
+    run = lambda mesh, graph: compute_shdf(mesh, method="neural", graph=graph)
     load_model()
 else:
-    from neural_shdf.shdf.exact import exact_shdf as run
+    from neural_shdf.pipeline import compute_shdf
+    run = lambda mesh, graph: compute_shdf(mesh, method="exact", graph=graph)
 import trimesh  # warm-up: compiled kernels loaded, model session made, before timing
 small = trimesh.creation.icosphere(3)
 small = TriangleMesh(small.vertices, small.faces)
@@ -234,8 +242,8 @@ def run_child(mesh_file: Path, method: str, out: Path) -> dict:
 
 
 def profile_neural(mesh: TriangleMesh) -> None:
-    from neural_shdf.neural.graph import build_sample_graph, samples_to_faces
-    from neural_shdf.neural.inference import load_model
+    from neural_shdf.shdf.neural.graph import build_sample_graph, samples_to_faces
+    from neural_shdf.shdf.neural.inference import load_model
     from neural_shdf.shdf.postprocess import postprocess_shdf
 
     model = load_model()

@@ -25,8 +25,10 @@ class NeuralShdfSettings(bpy.types.PropertyGroup):
         description="How the Shape Diameter Function is computed",
         items=[
             ("default", "Service Default", "The method the service uses when none is named"),
-            ("neural", "Neural", "Predicted by the graph network (fast)"),
+            ("auto", "Auto", "The fastest method that meets the fidelity target, per mesh"),
             ("exact", "Exact", "Ray-cast reference"),
+            ("sampled", "Sampled", "Rays cast at surface samples only (fast on large meshes)"),
+            ("neural", "Neural", "Predicted by the graph network"),
         ],
         default="default",
     )

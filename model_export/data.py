@@ -32,7 +32,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from neural_shdf.geometry import face_centroids, face_normals
-from neural_shdf.neural.graph import (
+from neural_shdf.shdf.neural.graph import (
     GraphSpec,
     build_sample_graph,
     sample_targets,
@@ -58,7 +58,10 @@ PROCEDURAL_COUNT = 160
 
 #: Cached graph files stay valid while only node features change (training recomputes
 #: them from the density column and the edges); bump when edges or their features change.
-GRAPH_FILE_VERSION = 3
+GRAPH_FILE_VERSION = 4
+#: Rays cast from every sample for the ray-informed network's node features (the exact
+#: ShDF's cone, CGAL's 25 rays: the same rays as the ``sampled`` producer).
+TRAINING_RAY_COUNT = 25
 
 
 def graph_folder(cache: Path) -> Path:
@@ -229,6 +232,22 @@ def safe_name(name: str) -> str:
     return f"{stem}_{hashlib.sha1(name.encode()).hexdigest()[:8]}"
 
 
+def ray_arrays(vertices, faces, graph, ray_count: int) -> dict[str, np.ndarray]:
+    """The ShDF cone cast from each sample: robust mean diameter in Poisson radii (NaN
+    without a valid hit), relative spread and hit fraction (``ray_feature_array``'s inputs)."""
+    from neural_shdf.shdf.exact import raw_shdf_at_points
+
+    mean, spread, hits = raw_shdf_at_points(
+        vertices, faces, graph.positions, graph.normals, graph.face_ids,
+        ray_count=ray_count, threads=1,
+    )
+    return {
+        "ray_diameter": (mean / graph.radius).astype(np.float32),
+        "ray_spread": spread.astype(np.float32),
+        "ray_hits": hits.astype(np.float32),
+    }
+
+
 def process_shape(name: str, source, cache: Path, log) -> int:
     """Targets and variant graphs of one shape; returns the number of graphs written."""
     from model_export.shdf_task import graph_arrays, log_diameter_target
@@ -251,7 +270,7 @@ def process_shape(name: str, source, cache: Path, log) -> int:
         raw = np.load(target_file)["raw"]
     else:
         raw = raw_shdf(vertices, faces, threads=1)
-        target_file.parent.mkdir(parents=True, exist_ok=True)
+        target_file.parent.mkdir(parents=True, exist_ok=True)  # targets outlive graph versions
         np.savez(target_file, raw=raw, faces=len(faces))
     if np.isfinite(raw).mean() < 0.5:
         done_marker.write_text("skipped: ShDF undefined on most faces")
@@ -271,6 +290,7 @@ def process_shape(name: str, source, cache: Path, log) -> int:
         target = log_diameter_target(per_sample, graph.radius)
         arrays = graph_arrays(graph)
         arrays["target"] = target.astype(np.float32)
+        arrays.update(ray_arrays(v, f, graph, TRAINING_RAY_COUNT))
         np.savez(out_dir / f"{key}__{index}_{label}.npz", **arrays)
         written += 1
     done_marker.write_text(

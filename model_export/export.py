@@ -17,23 +17,24 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from model_export.data import DEFAULT_CACHE
+from model_export.data import DEFAULT_CACHE, TRAINING_RAY_COUNT
 from model_export.shdf_task import INPUT_NAMES, OUTPUT_NAMES, ShdfNetwork, to_tensors
-from neural_shdf.neural.graph import (
+from neural_shdf.shdf.neural.graph import (
     EDGE_FEATURES,
     FEATURE_SPEC_VERSION,
-    NODE_FEATURES,
     GraphSpec,
 )
-from neural_shdf.neural.inference import DEFAULT_MODEL_PATH, file_sha256
+from neural_shdf.shdf.neural.inference import DEFAULT_MODEL_PATH, file_sha256
 
 OPSET = 17
 
 
-def example_inputs(nodes: int = 64, edges: int = 400, seed: int = 0) -> dict[str, np.ndarray]:
+def example_inputs(
+    nodes: int = 64, edges: int = 400, seed: int = 0, node_columns: int = 7
+) -> dict[str, np.ndarray]:
     """Random graph inputs of the right shapes and dtypes (for tracing and checks)."""
     rng = np.random.default_rng(seed)
-    node_features = rng.random((nodes, len(NODE_FEATURES))).astype(np.float32) + 0.5
+    node_features = rng.random((nodes, node_columns)).astype(np.float32) + 0.5
     return {
         "node_features": node_features,
         "edge_features": rng.normal(size=(edges, len(EDGE_FEATURES))).astype(np.float32),
@@ -45,7 +46,7 @@ def example_inputs(nodes: int = 64, edges: int = 400, seed: int = 0) -> dict[str
 def export_onnx(model: ShdfNetwork, path: Path) -> None:
     """Write ``model`` as ONNX with dynamic node and edge counts."""
     model.eval()
-    example = to_tensors(example_inputs())
+    example = to_tensors(example_inputs(node_columns=model.node_norm.mean.numel()))
     args = tuple(example[name] for name in INPUT_NAMES)
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.onnx.export(
@@ -92,12 +93,21 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     checkpoint = torch.load(args.checkpoint.expanduser(), weights_only=False)
     config = checkpoint["config"]
-    model = ShdfNetwork(latent=config["latent"], steps=config["message_steps"])
+    rays = bool(config.get("rays", False))
+    model = ShdfNetwork(latent=config["latent"], steps=config["message_steps"], rays=rays)
     model.load_state_dict(checkpoint["model"])
     model.eval()
     export_onnx(model, args.out)
-    difference = max(max_difference(model, args.out, example_inputs(n, 8 * n, seed=n))
-                     for n in (50, 700))
+    spec = GraphSpec(
+        knn=config.get("knn", GraphSpec.knn),
+        cone_neighbours=config.get("cone", 0),
+        ray_count=TRAINING_RAY_COUNT if rays else 0,
+    )
+    columns = len(spec.node_features)
+    difference = max(
+        max_difference(model, args.out, example_inputs(n, 8 * n, seed=n, node_columns=columns))
+        for n in (50, 700)
+    )
     if difference > 1e-4:
         raise SystemExit(f"onnxruntime and PyTorch differ by {difference}")
     state = checkpoint["state"]
@@ -105,14 +115,13 @@ def main(argv: list[str] | None = None) -> int:
     card = {
         "format": "neural-shdf-emd",
         "feature_spec_version": FEATURE_SPEC_VERSION,
-        "graph_spec": GraphSpec(
-            knn=config.get("knn", GraphSpec.knn), cone_neighbours=config.get("cone", 0)
-        ).to_dict(),
-        "node_features": list(NODE_FEATURES),
+        "graph_spec": spec.to_dict(),
+        "node_features": list(spec.node_features),
         "edge_features": list(EDGE_FEATURES),
         "inputs": list(INPUT_NAMES),
         "outputs": list(OUTPUT_NAMES),
         "output_meaning": "log(raw ShDF diameter / Poisson radius) per sample",
+        "ray_informed": rays,
         "opset": OPSET,
         "architecture": {
             "kind": "encode-process-decode",

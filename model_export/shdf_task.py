@@ -13,13 +13,21 @@ import torch
 from torch import nn
 
 from model_export.core_model import EncodeProcessDecode
-from neural_shdf.neural.graph import EDGE_FEATURES, NODE_FEATURES, SampleGraph
+from neural_shdf.shdf.neural.graph import (
+    EDGE_FEATURES,
+    NODE_FEATURES,
+    RAY_NODE_FEATURES,
+    SampleGraph,
+)
 
 #: ONNX input and output names (the service feeds these).
 INPUT_NAMES = ("node_features", "edge_features", "senders", "receivers")
 OUTPUT_NAMES = ("log_diameter",)
 #: Node feature column holding the density that scales messages.
 DENSITY_COLUMN = NODE_FEATURES.index("density")
+#: Ray-informed networks: columns of the ray cone's hit flag and log diameter.
+HAS_RAY_COLUMN = len(NODE_FEATURES) + RAY_NODE_FEATURES.index("has_ray_hit")
+LOG_RAY_COLUMN = len(NODE_FEATURES) + RAY_NODE_FEATURES.index("log_ray_diameter")
 
 
 def log_diameter_target(raw_per_sample: np.ndarray, radius: float) -> np.ndarray:
@@ -49,16 +57,29 @@ class Normaliser(nn.Module):
 
 
 class ShdfNetwork(nn.Module):
-    """Graph features in, log diameter (in Poisson radii) per sample out."""
+    """Graph features in, log diameter (in Poisson radii) per sample out.
 
-    def __init__(self, *, latent: int = 128, steps: int = 6) -> None:
+    ``rays``: the ray-informed network. Its nodes also carry ``RAY_NODE_FEATURES`` and
+    it predicts a correction of the ray cone's own log diameter (a residual: where the
+    cone has a valid hit the network starts from it; elsewhere from zero).
+    """
+
+    def __init__(self, *, latent: int = 128, steps: int = 6, rays: bool = False) -> None:
         super().__init__()
-        self.node_norm = Normaliser(len(NODE_FEATURES))
+        self.rays = rays
+        node_count = len(NODE_FEATURES) + (len(RAY_NODE_FEATURES) if rays else 0)
+        self.node_norm = Normaliser(node_count)
         self.edge_norm = Normaliser(len(EDGE_FEATURES))
         self.target_norm = Normaliser(1)
         self.core = EncodeProcessDecode(
-            len(NODE_FEATURES), len(EDGE_FEATURES), 1, latent=latent, steps=steps
+            node_count, len(EDGE_FEATURES), 1, latent=latent, steps=steps
         )
+
+    def base(self, node_features: torch.Tensor) -> torch.Tensor:
+        """What the network corrects: the cone's log diameter (rays), else zero."""
+        if not self.rays:
+            return torch.zeros_like(node_features[:, 0])
+        return node_features[:, HAS_RAY_COLUMN] * node_features[:, LOG_RAY_COLUMN]
 
     def normalised_output(
         self,
@@ -82,7 +103,7 @@ class ShdfNetwork(nn.Module):
         receivers: torch.Tensor,
     ) -> torch.Tensor:
         normalised = self.normalised_output(node_features, edge_features, senders, receivers)
-        return self.target_norm.inverse(normalised.unsqueeze(1))[:, 0]
+        return self.base(node_features) + self.target_norm.inverse(normalised.unsqueeze(1))[:, 0]
 
     def loss(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """Huber loss (squared within one standard deviation, linear beyond: the
@@ -91,7 +112,8 @@ class ShdfNetwork(nn.Module):
         prediction = self.normalised_output(
             batch["node_features"], batch["edge_features"], batch["senders"], batch["receivers"]
         )
-        target = self.target_norm(batch["target"].unsqueeze(1))[:, 0]
+        residual = batch["target"] - self.base(batch["node_features"])
+        target = self.target_norm(residual.unsqueeze(1))[:, 0]
         mask = torch.isfinite(target)
         return torch.nn.functional.huber_loss(prediction[mask], target[mask], delta=1.0)
 

@@ -22,7 +22,12 @@ import torch
 
 from model_export.data import DEFAULT_CACHE, graph_folder
 from model_export.shdf_task import ShdfNetwork, batch_graphs
-from neural_shdf.neural.graph import EDGE_FEATURES, NODE_FEATURES, node_feature_array
+from neural_shdf.shdf.neural.graph import (
+    EDGE_FEATURES,
+    NODE_FEATURES,
+    node_feature_array,
+    ray_feature_array,
+)
 
 CONE_COLUMN = EDGE_FEATURES.index("is_cone_edge")
 DENSITY_COLUMN = NODE_FEATURES.index("density")
@@ -36,7 +41,9 @@ def rank_within_receiver(receivers: np.ndarray) -> np.ndarray:
     return np.arange(len(receivers)) - first
 
 
-def subset_edges(arrays: dict[str, np.ndarray], knn: int, cone: int) -> dict[str, np.ndarray]:
+def subset_edges(
+    arrays: dict[str, np.ndarray], knn: int, cone: int, rays: bool = False
+) -> dict[str, np.ndarray]:
     """Keep each receiver's ``knn`` nearest and ``cone`` nearest cone edges (both stored
     nearest first) and recompute the node features, as ``build_sample_graph`` with
     those counts would have built them (cached graphs of an older node-feature
@@ -52,15 +59,22 @@ def subset_edges(arrays: dict[str, np.ndarray], knn: int, cone: int) -> dict[str
         out[key] = arrays[key][keep]
     density = arrays["node_features"][:, DENSITY_COLUMN].astype(np.float64)
     out["node_features"] = node_feature_array(density, out["edge_features"], out["receivers"])
+    if rays:
+        ray_features = ray_feature_array(
+            arrays["ray_diameter"], arrays["ray_spread"], arrays["ray_hits"]
+        )
+        out["node_features"] = np.concatenate([out["node_features"], ray_features], axis=1)
+    for key in ("ray_diameter", "ray_spread", "ray_hits"):
+        out.pop(key, None)
     return out
 
 
 class GraphStore:
     """Graph files of one split, loaded lazily and kept in memory."""
 
-    def __init__(self, folder: Path, *, knn: int, cone: int) -> None:
+    def __init__(self, folder: Path, *, knn: int, cone: int, rays: bool = False) -> None:
         self.folder = folder
-        self.knn, self.cone = knn, cone
+        self.knn, self.cone, self.rays = knn, cone, rays
         self.paths: list[Path] = []
         self.loaded: dict[Path, dict[str, np.ndarray]] = {}
         self.rescan()
@@ -73,17 +87,21 @@ class GraphStore:
         if path not in self.loaded:
             with np.load(path) as data:
                 arrays = {k: data[k] for k in data.files}
-            self.loaded[path] = subset_edges(arrays, self.knn, self.cone)
+            self.loaded[path] = subset_edges(arrays, self.knn, self.cone, self.rays)
         return self.loaded[path]
 
 
-def feature_stats(store: GraphStore, count: int = 300) -> dict[str, list[float]]:
-    """Mean and std of node features, edge features and finite targets over some graphs."""
+def feature_stats(
+    store: GraphStore, model: ShdfNetwork, count: int = 300
+) -> dict[str, list[float]]:
+    """Mean and std of node features, edge features and finite targets (what the
+    network predicts: the residual over ``model.base``) over some graphs."""
     paths = store.paths[:: max(1, len(store.paths) // count)]
     graphs = [store.get(p) for p in paths]
     nodes = np.concatenate([g["node_features"] for g in graphs])
     edges = np.concatenate([g["edge_features"] for g in graphs])
     target = np.concatenate([g["target"] for g in graphs])
+    target = target - model.base(torch.from_numpy(nodes)).numpy()
     target = target[np.isfinite(target)]
     return {
         "node_mean": nodes.mean(0).tolist(), "node_std": nodes.std(0).tolist(),
@@ -144,6 +162,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--knn", type=int, default=8, help="nearest-sample edges kept")
     parser.add_argument("--cone", type=int, default=4, help="cone edges kept (0: none)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--rays", action="store_true",
+                        help="the ray-informed network (RAY_NODE_FEATURES, residual over the "
+                             "cone's diameter); default the paper's ray-free network")
     parser.add_argument("--init", type=Path, default=None,
                         help="warm start: weights and normalisers of this checkpoint, fresh "
                              "optimizer and schedule (ignored when the run folder resumes)")
@@ -160,9 +181,9 @@ def main(argv: list[str] | None = None) -> int:
         print(line, file=log_file, flush=True)
         print(line, flush=True)
 
-    train = GraphStore(graph_folder(cache) / "train", knn=args.knn, cone=args.cone)
-    val = GraphStore(graph_folder(cache) / "val", knn=args.knn, cone=args.cone)
-    model = ShdfNetwork(latent=args.latent, steps=args.message_steps)
+    train = GraphStore(graph_folder(cache) / "train", knn=args.knn, cone=args.cone, rays=args.rays)
+    val = GraphStore(graph_folder(cache) / "val", knn=args.knn, cone=args.cone, rays=args.rays)
+    model = ShdfNetwork(latent=args.latent, steps=args.message_steps, rays=args.rays)
     optimizer = torch.optim.Adam(model.parameters(), lr=args.lr)
     state = {"step": 0, "elapsed": 0.0, "best_val_loss": float("inf"), "history": []}
     last = run / "last.pt"
@@ -181,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
                          "elapsed": checkpoint["state"]["elapsed"]}
         log(f"warm start from {args.init} (step {checkpoint['state']['step']})")
     else:
-        stats = feature_stats(train)
+        stats = feature_stats(train, model)
         apply_stats(model, stats)
     config = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
 

@@ -5,9 +5,9 @@ import pytest
 
 from neural_shdf import geometry, pipeline
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.neural import inference
 from neural_shdf.segment import SegmentParams
 from neural_shdf.shdf import exact
+from neural_shdf.shdf.neural import inference
 
 
 def test_warm_up_compiles_every_kernel_it_reaches():

@@ -88,7 +88,7 @@ class Asset:
 class BatchConfig:
     """What every asset of a batch is computed with."""
 
-    method: str = "neural"
+    method: str = "auto"
     seed: int = 0
     params: SegmentParams = field(default_factory=SegmentParams)
     outputs: tuple[str, ...] = ("seg",)
@@ -116,12 +116,13 @@ class BatchConfig:
     def key(self) -> str:
         """Hash of everything the outputs depend on besides the input file."""
         from neural_shdf.api.shdf_service import model_version, shdf_version
-        from neural_shdf.neural.inference import model_path
+        from neural_shdf.shdf.neural.inference import model_path
+        from neural_shdf.shdf.stage import uses_model
 
-        version = model_version(model_path()) if self.method == "neural" else None
+        version = model_version(model_path()) if uses_model(self.method) else None
         spec = {
             "version": __version__,
-            "shdf": shdf_version(self.method, version),
+            "shdf": shdf_version(self.method, version, self.seed),
             "seed": self.seed,
             "params": dataclasses.asdict(self.params) if self.segments else None,
             "file_type": self.file_type,
@@ -276,7 +277,7 @@ def _prepare_worker(config: BatchConfig) -> None:
     """Once per worker process, before its model loads: its session threads."""
     if not _PREPARED:
         if config.session_threads is not None:
-            from neural_shdf.neural.inference import set_session_threads
+            from neural_shdf.shdf.neural.inference import set_session_threads
 
             set_session_threads(config.session_threads)
         _PREPARED.append(config.session_threads)
@@ -314,7 +315,7 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
     from neural_shdf.export import colored_glb, parts_glb, write_labels, write_values
     from neural_shdf.mesh_io import load_mesh
     from neural_shdf.pipeline import (
-        compute_shdf,
+        compute_shdf_result,
         input_face_labels,
         input_face_shdf,
         mesh_face_graph,
@@ -336,10 +337,16 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
         engine = _shdf_engine(config.cache)
         graph = engine.meshes.graph(mesh_id, mesh)
         outcome = engine.shdf.get_blocking(mesh_id, mesh, config.method, config.seed)
-        shdf, cached = outcome.values, outcome.cached
+        shdf, cached, method = outcome.values, outcome.cached, outcome.method
     else:
         graph = mesh_face_graph(mesh)
-        shdf = compute_shdf(mesh, method=config.method, seed=config.seed, graph=graph)  # type: ignore[arg-type]
+        result = compute_shdf_result(
+            mesh,
+            method=config.method,  # type: ignore[arg-type]
+            seed=config.seed,
+            graph=graph,
+        )
+        shdf, method = result.values, result.method
     paths = output_paths(out_dir, asset, config.outputs)
     if "shdf" in paths:
         values = input_face_shdf(mesh, shdf)
@@ -361,7 +368,7 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
         mesh_id=mesh_id,
         faces=mesh.input_face_count,
         triangles=mesh.face_count,
-        method=config.method,
+        method=method,
         parts=parts,
         shdf_cached=cached,
     )
@@ -521,8 +528,10 @@ def write_manifest(path: Path, rows: Sequence[dict[str, Any]]) -> None:
 
 def _check_model(config: BatchConfig) -> None:
     """Fail the whole batch up front when the neural model cannot load (every asset would)."""
-    if config.method == "neural":
-        from neural_shdf.neural.inference import load_model
+    from neural_shdf.shdf.stage import uses_model
+
+    if uses_model(config.method):
+        from neural_shdf.shdf.neural.inference import load_model
 
         try:
             load_model()
@@ -544,7 +553,7 @@ def run_batch(
     inputs: Iterable[str | Path],
     out_dir: str | Path,
     *,
-    method: str = "neural",
+    method: str = "auto",
     seed: int | None = None,
     params: SegmentParams | None = None,
     outputs: Sequence[str] = ("seg",),

@@ -75,11 +75,19 @@ def _load(args: argparse.Namespace):
     )
 
 
-def _shdf(mesh, method: str, seed: int, graph, quiet: bool) -> np.ndarray:
-    from neural_shdf.pipeline import compute_shdf
+def _shdf(mesh, args: argparse.Namespace, graph) -> tuple[np.ndarray, str]:
+    """The ShDF per triangle and a note naming the producer that ran (``auto`` resolved),
+    for the command's summary line."""
+    from neural_shdf.pipeline import compute_shdf_result
 
-    with progress_bar(f"{method} ShDF", enabled=not quiet) as progress:
-        return compute_shdf(mesh, method=method, seed=seed, graph=graph, progress=progress)
+    start = time.perf_counter()
+    with progress_bar(f"{args.method} ShDF", enabled=not args.quiet) as progress:
+        result = compute_shdf_result(
+            mesh, method=args.method, seed=args.seed, graph=graph, progress=progress,
+            model=args.model,
+        )
+    note = f"ShDF {result.method} ({args.method}) in {time.perf_counter() - start:.2f} s"
+    return result.values, note
 
 
 def cmd_shdf(args: argparse.Namespace) -> int:
@@ -87,8 +95,10 @@ def cmd_shdf(args: argparse.Namespace) -> int:
     from neural_shdf.pipeline import input_face_shdf, mesh_face_graph
 
     mesh = _load(args)
-    values = _shdf(mesh, args.method, args.seed, mesh_face_graph(mesh), args.quiet)
+    values, note = _shdf(mesh, args, mesh_face_graph(mesh))
     write_values(args.output, input_face_shdf(mesh, values))
+    if not args.quiet:
+        print(f"{mesh.input_face_count} faces, {note}", file=sys.stderr)
     return 0
 
 
@@ -102,7 +112,7 @@ def cmd_segment(args: argparse.Namespace) -> int:
         raise ParameterError("--tree needs the graphcut partitioner (metis makes no part tree)")
     mesh = _load(args)
     graph = mesh_face_graph(mesh)
-    shdf = _shdf(mesh, args.method, args.seed, graph, args.quiet)
+    shdf, note = _shdf(mesh, args, graph)
     start = time.perf_counter()
     result = segment_mesh_with_details(mesh, shdf, params, graph=graph)
     labels = result.labels
@@ -117,8 +127,8 @@ def cmd_segment(args: argparse.Namespace) -> int:
     if not args.quiet:
         parts = len(np.unique(labels))
         elapsed = time.perf_counter() - start
-        print(f"{parts} parts, {mesh.input_face_count} faces, segmented in {elapsed:.2f} s",
-              file=sys.stderr)
+        print(f"{parts} parts, {mesh.input_face_count} faces, {note}, segmented in "
+              f"{elapsed:.2f} s", file=sys.stderr)
     return 0
 
 
@@ -137,7 +147,7 @@ def cmd_unwrap(args: argparse.Namespace) -> int:
     )
     mesh = _load(args)
     graph = mesh_face_graph(mesh)
-    shdf = _shdf(mesh, args.method, args.seed, graph, args.quiet)
+    shdf, _ = _shdf(mesh, args, graph)
     start = time.perf_counter()
     labels = segment_mesh(mesh, shdf, params, graph=graph)
     atlas = unwrap(mesh, labels, unwrap_params)
@@ -198,8 +208,12 @@ def _clusters(text: str) -> int:
 def _add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("mesh", help="input mesh: OBJ, GLB/glTF, OFF, PLY or STL")
     parser.add_argument("--format", help="file type when the extension does not say it")
-    parser.add_argument("--method", choices=["neural", "exact"], default="neural",
-                        help="ShDF from the neural network (default, fast) or exact ray casting")
+    parser.add_argument("--method", choices=["auto", "exact", "sampled", "neural"],
+                        default="auto",
+                        help="ShDF producer: auto (default: the fastest that meets the fidelity "
+                             "target, per mesh), exact (every face's rays, CGAL's), sampled "
+                             "(rays at surface samples) or neural (the network)")
+    parser.add_argument("--model", help="ONNX model for --method neural (default: installed)")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random step")
     parser.add_argument(
         "--max-faces",
@@ -293,8 +307,8 @@ def build_parser() -> argparse.ArgumentParser:
     batch.add_argument("-o", "--output", required=True, metavar="OUT_DIR",
                        help="output folder")
     batch.add_argument("--format", help="file type when the extensions do not say it")
-    batch.add_argument("--method", choices=["neural", "exact"], default="neural",
-                       help="ShDF from the neural network (default, fast) or exact ray casting")
+    batch.add_argument("--method", choices=["auto", "exact", "sampled", "neural"],
+                       default="auto", help="ShDF producer (see `neural-shdf shdf --help`)")
     batch.add_argument("--seed", type=int, default=0, help="seed of every random step")
     _add_segment_options(batch)
     batch.add_argument("--shdf-only", action="store_true",

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Literal
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -16,11 +17,12 @@ from numpy.typing import NDArray
 from neural_shdf.geometry import FaceGraph, build_face_graph, weld_faces
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
+from neural_shdf.shdf.stage import ShdfMethod, ShdfParams, ShdfResult, run_shdf, with_seed
 
 if TYPE_CHECKING:
     from neural_shdf.segment.pipeline import SegmentResult
+    from neural_shdf.shdf.neural.inference import NeuralModel
 
-ShdfMethod = Literal["exact", "neural"]
 Progress = Callable[[float], None]
 
 
@@ -33,28 +35,48 @@ def mesh_face_graph(mesh: TriangleMesh) -> FaceGraph:
 def compute_shdf(
     mesh: TriangleMesh,
     *,
-    method: ShdfMethod = "neural",
-    seed: int = 0,
+    method: ShdfMethod = "auto",
+    seed: int | None = None,
     graph: FaceGraph | None = None,
     progress: Progress | None = None,
+    model: NeuralModel | str | Path | None = None,
+    params: ShdfParams | None = None,
 ) -> NDArray[np.float64]:
-    """Post-processed ShDF in [0, 1] per triangle (exact rays or the neural predictor).
+    """Post-processed ShDF in [0, 1] per triangle (``shdf.stage``: one raw-diameter
+    producer, then one post-processing). ``method``: ``auto`` (default; the producer
+    ``resolve_method`` picks for the mesh), ``exact``, ``sampled`` or ``neural``;
+    ``model``: the network ``neural`` runs (a loaded model or an ONNX path; default the
+    installed one); ``seed``, when given, replaces ``params.seed``. ``compute_shdf_result`` also
+    says which producer ran."""
+    return compute_shdf_result(
+        mesh, method=method, seed=seed, graph=graph, progress=progress, model=model, params=params
+    ).values
 
-    ``seed``: 0..``MAX_SEED``; by convention the segmentation's ``SegmentParams.seed``.
-    """
+
+def compute_shdf_result(
+    mesh: TriangleMesh,
+    *,
+    method: ShdfMethod = "auto",
+    seed: int | None = None,
+    graph: FaceGraph | None = None,
+    progress: Progress | None = None,
+    model: NeuralModel | str | Path | None = None,
+    params: ShdfParams | None = None,
+) -> ShdfResult:
+    """``compute_shdf`` with the producer that ran (``ShdfResult.method``). ``seed``:
+    0..``MAX_SEED``; by convention the segmentation's ``SegmentParams.seed``."""
     from neural_shdf.segment.params import check_seed
 
-    seed = check_seed(seed)
+    seed = None if seed is None else check_seed(seed)
     graph = mesh_face_graph(mesh) if graph is None else graph
-    if method == "exact":
-        from neural_shdf.shdf.exact import exact_shdf
-
-        return exact_shdf(mesh, graph=graph, seed=seed, progress=progress)
-    if method == "neural":
-        from neural_shdf.shdf.neural import neural_shdf
-
-        return neural_shdf(mesh, graph=graph, seed=seed, progress=progress)
-    raise ValueError(f"unknown ShDF method {method!r}; use 'exact' or 'neural'")
+    return run_shdf(
+        mesh,
+        graph,
+        method=method,
+        params=with_seed(params, seed),
+        model=model,
+        progress=progress,
+    )
 
 
 def segment_mesh(
@@ -111,7 +133,7 @@ def input_face_parts(
     return result.tree.relabel(leaves, result.part_count), leaves
 
 
-def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "neural")) -> float:
+def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "sampled", "neural")) -> float:
     """Run a small generated sphere through the face graph, each ShDF ``method`` and both
     partitioners, so that the compiled kernels are built (first run after an install) or
     loaded from their cache and the model session exists. Seconds taken; a neural model
@@ -132,4 +154,9 @@ def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "neural")) -> float:
             continue
         for params in (SegmentParams(), SegmentParams(partitioner="metis", parts=2)):
             segment_mesh(mesh, shdf, params, graph=graph)
+    if "exact" in methods:  # the patch filter of wide windows (meshes above ~100k faces)
+        from neural_shdf.shdf.postprocess import EXACT_WINDOW_MAX
+
+        wide = ShdfParams(window_size=EXACT_WINDOW_MAX + 1)
+        compute_shdf(mesh, method="exact", graph=graph, params=wide)
     return time.perf_counter() - start

@@ -12,7 +12,8 @@ from fastapi.testclient import TestClient
 
 from neural_shdf.api.cache import MAGIC, seal
 from neural_shdf.mesh_io import load_mesh
-from tests.api.api_helpers import TEST_METHOD, free_port, metric
+from neural_shdf.shdf.stage import ShdfParams, shdf_key
+from tests.api.api_helpers import MODEL_FILE, TEST_METHOD, free_port, metric
 
 
 async def _concurrent_uploads(app, data: bytes, count: int) -> list[httpx.Response]:
@@ -140,7 +141,9 @@ def test_neural_is_the_default_and_keyed_by_model_version(client, capsule_obj):
     body = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)}).json()
     assert body["shdf"]["method"] == "neural"
     key = engine.shdf.key(body["mesh"]["mesh_id"], "neural", 0)
-    assert engine.shdf.model_version in key
+    assert key.endswith(shdf_key("neural", ShdfParams(seed=0), engine.shdf.model_version))
+    other_model = shdf_key("neural", ShdfParams(seed=0), "0" * 16)
+    assert not key.endswith(other_model)
     values = client.get(f"/v1/meshes/{body['mesh']['mesh_id']}/shdf").json()
     assert values["model_version"] == engine.shdf.model_version
     assert np.all((np.array(values["values"]) >= 0) & (np.array(values["values"]) <= 1))
@@ -221,3 +224,38 @@ def test_compact_labels_use_the_narrowest_integer(labels, dtype):
     assert name == dtype
     decoded = np.frombuffer(base64.b64decode(encoded), np.dtype(dtype).newbyteorder("<"))
     assert decoded.tolist() == labels
+
+
+def test_the_model_setting_decides_which_network_computes(app_factory, capsule_obj, tmp_path):
+    """Settings.model is the network that computes, not only the readiness and the cache key."""
+    from neural_shdf.pipeline import compute_shdf
+    from tests.model_helpers import perturbed_model
+
+    if not MODEL_FILE.is_file():
+        pytest.skip("no committed model")
+    other = perturbed_model(tmp_path)
+    mesh = load_mesh(capsule_obj, "obj")
+    served = {}
+    for name, model in (("default", None), ("other", other)):
+        app = app_factory(model=model, default_method="neural", cache_dir=tmp_path / name)
+        with TestClient(app) as client:
+            upload = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)}).json()
+            assert upload["shdf"]["method"] == "neural"
+            mesh_id = upload["mesh"]["mesh_id"]
+            raw = client.get(f"/v1/meshes/{mesh_id}/shdf?format=f32").content
+            served[name] = np.frombuffer(raw, dtype="<f4")
+    expected = mesh.to_input_faces(compute_shdf(mesh, method="neural", seed=0, model=other))
+    np.testing.assert_allclose(served["other"], expected, atol=1e-6)
+    assert np.abs(served["other"] - served["default"]).max() > 1e-3
+
+
+def test_auto_reports_the_producer_that_ran(app_factory, capsule_obj):
+    with TestClient(app_factory(default_method="auto")) as client:
+        upload = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)}).json()
+        assert upload["shdf"]["method"] == "exact"  # a small mesh: every face's rays
+        mesh_id = upload["mesh"]["mesh_id"]
+        assert client.get(f"/v1/meshes/{mesh_id}/shdf").json()["method"] == "exact"
+        segmented = client.post("/v1/segment", json={"mesh_id": mesh_id}).json()
+        assert segmented["method"] == "exact"
+        sampled = client.post("/v1/segment", json={"mesh_id": mesh_id, "method": "sampled"})
+        assert sampled.json()["method"] == "sampled"

@@ -70,7 +70,7 @@ def test_page_config_reflects_the_service_limits(app_factory):
     assert config["maxUploadBytes"] == 12345 and config["defaultMethod"] == "exact"
     assert set(config["formats"]) == {"obj", "glb", "gltf", "off", "ply", "stl"}
     assert config["defaultClusters"] == 9 and config["maxClusters"] == 32
-    assert config["methods"] == ["neural", "exact"]
+    assert config["methods"] == ["auto", "exact", "sampled", "neural"]
     assert config["partitioners"] == ["graphcut", "metis"]
     assert config["unlabeledColor"] == "#404040"
 

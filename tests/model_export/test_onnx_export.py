@@ -12,8 +12,8 @@ torch = pytest.importorskip("torch")
 from model_export import data, export, train  # noqa: E402
 from model_export.core_model import scatter_sum  # noqa: E402
 from model_export.shdf_task import INPUT_NAMES, ShdfNetwork, to_tensors  # noqa: E402
-from neural_shdf.neural.graph import NODE_FEATURES  # noqa: E402
-from neural_shdf.neural.inference import load_model, neural_raw_shdf  # noqa: E402
+from neural_shdf.shdf.neural.graph import NODE_FEATURES  # noqa: E402
+from neural_shdf.shdf.neural.inference import load_model, neural_raw_shdf  # noqa: E402
 
 
 def random_model(seed: int = 0) -> ShdfNetwork:
@@ -82,7 +82,7 @@ def test_edge_subset_equals_building_with_fewer_edges() -> None:
     import trimesh
 
     from model_export.shdf_task import graph_arrays
-    from neural_shdf.neural.graph import GraphSpec, build_sample_graph
+    from neural_shdf.shdf.neural.graph import GraphSpec, build_sample_graph
 
     mesh = trimesh.creation.capsule(height=2.0, radius=0.3, count=[24, 24])
     full = build_sample_graph(mesh.vertices, mesh.faces, GraphSpec(target_samples=300), seed=3)

@@ -12,11 +12,14 @@ from neural_shdf.geometry import build_face_graph
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import mesh_face_graph
 from neural_shdf.shdf.postprocess import (
+    EXACT_WINDOW_MAX,
     bilateral_smooth,
     fill_missing,
     linear_normalize,
     log_normalize,
+    patch_bilateral,
     postprocess_shdf,
+    ring_length,
     smoothing_window,
 )
 
@@ -155,6 +158,58 @@ def test_postprocess_gives_unit_range_and_checks_sizes(sphere_graph):
         postprocess_shdf(raw[:-1], sphere_graph)
     # Scale invariance: raw values in other units give the same result.
     np.testing.assert_allclose(postprocess_shdf(raw * 1000, sphere_graph), values, atol=1e-12)
+
+
+def capsule_field() -> tuple[trimesh.Trimesh, np.ndarray]:
+    """A subdivided capsule (~33k faces) and a noisy field with a sharp step along it."""
+    mesh = trimesh.creation.capsule(height=4.0, radius=0.5, count=[64, 64])
+    mesh = mesh.subdivide()
+    rng = np.random.default_rng(3)
+    centroids = mesh.triangles_center
+    values = np.where(centroids[:, 2] > 0.3, 2.0, 1.0) + 0.3 * centroids[:, 0]
+    return mesh, values + rng.normal(0.0, 0.15, len(values))
+
+
+def test_patch_filter_follows_the_face_by_face_filter_on_wide_windows():
+    mesh, values = capsule_field()
+    graph = build_face_graph(mesh.vertices, mesh.faces)
+    centroids = mesh.triangles_center
+    exact = bilateral_smooth(values, graph, window_size=12)
+    patches = patch_bilateral(values, graph, centroids, window_size=12)
+    assert np.corrcoef(exact, patches)[0, 1] > 0.99
+    assert np.abs(exact - patches).mean() < 0.03 * np.ptp(exact)
+    assert np.abs(patches - values).mean() > 0.5 * np.abs(exact - values).mean()  # it smooths
+    np.testing.assert_array_equal(
+        patch_bilateral(values, graph, centroids, window_size=12, threads=1), patches
+    )
+
+
+def test_narrow_windows_stay_face_by_face_with_centroids():
+    mesh, values = capsule_field()
+    graph = build_face_graph(mesh.vertices, mesh.faces)
+    plain = postprocess_shdf(values, graph, window_size=EXACT_WINDOW_MAX)
+    with_centroids = postprocess_shdf(
+        values, graph, window_size=EXACT_WINDOW_MAX, centroids=mesh.triangles_center
+    )
+    np.testing.assert_array_equal(plain, with_centroids)
+    wide = postprocess_shdf(
+        values, graph, window_size=EXACT_WINDOW_MAX + 4, centroids=mesh.triangles_center
+    )
+    np.testing.assert_array_equal(
+        wide,
+        linear_normalize(
+            patch_bilateral(values, graph, mesh.triangles_center, window_size=EXACT_WINDOW_MAX + 4)
+        ),
+    )
+
+
+def test_ring_length_measures_the_spacing_of_rings():
+    mesh, _ = capsule_field()
+    graph = build_face_graph(mesh.vertices, mesh.faces)
+    centroids = mesh.triangles_center
+    pairs = graph.pairs
+    spacing = np.linalg.norm(centroids[pairs[:, 0]] - centroids[pairs[:, 1]], axis=1).mean()
+    assert ring_length(graph, centroids) == pytest.approx(0.82 * spacing)
 
 
 def test_post_processing_reports_progress_in_steps():

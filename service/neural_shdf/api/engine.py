@@ -50,8 +50,17 @@ class Engine:
         return await self.tasks.io(fn, *args, **kwargs)
 
     def method_of(self, method: str | None) -> str:
-        """The ShDF method asked for, else the service's default."""
+        """The ShDF method asked for, else the service's default (may be ``auto``)."""
         return method or self.settings.default_method
+
+    async def resolved_method(self, mesh_id: str, method: str | None) -> str:
+        """The ShDF producer a request runs on a stored mesh (``auto`` resolved per mesh)."""
+        mesh = self.cache.recall(f"{mesh_id}:mesh")
+        if mesh is not None:
+            triangles = mesh.face_count
+        else:
+            triangles = int((await self.io(self.meshes.meta, mesh_id))["triangles"])
+        return self.shdf.resolve(method, triangles)
 
     async def job(self, job_id: str) -> dict[str, Any]:
         """A job's record (an orphaned job is re-run first: ``ShdfService.job``)."""

@@ -11,7 +11,10 @@ from neural_shdf.segment import SegmentParams
 from neural_shdf.segment.params import MAX_CLUSTERS, MAX_PARTS, MAX_SEED, MAX_SMOOTHING
 from neural_shdf.unwrap import MAX_ATLAS_SIZE, MAX_PADDING, MIN_ATLAS_SIZE, UnwrapParams
 
-ShdfMethodName = Literal["neural", "exact"]
+#: A requested ShDF method; ``auto`` picks a producer per mesh.
+ShdfMethodName = Literal["auto", "exact", "sampled", "neural"]
+#: The ShDF producer that ran (``auto`` resolved).
+ShdfProducerName = Literal["exact", "sampled", "neural"]
 JobState = Literal["queued", "running", "succeeded", "failed"]
 
 MESH_ID_EXAMPLE = "3f1c0b6e2d4a8f7e9c1b2a3d4e5f60718293a4b5c6d7e8f9a0b1c2d3e4f5a6b7"
@@ -123,7 +126,9 @@ class MeshInfo(BaseModel):
 class ShdfStatus(BaseModel):
     """Where the ShDF of a mesh stands after an upload."""
 
-    method: ShdfMethodName = Field(description="ShDF method.", examples=["neural"])
+    method: ShdfProducerName = Field(
+        description="ShDF producer that ran (auto resolved).", examples=["exact"]
+    )
     seed: int = Field(description="Seed of the ShDF computation.", examples=[0])
     cached: bool = Field(description="True when it came from the cache.", examples=[False])
     seconds: float = Field(
@@ -149,7 +154,7 @@ class Job(BaseModel):
                     "state": "running",
                     "progress": 0.4,
                     "mesh_id": MESH_ID_EXAMPLE,
-                    "method": "neural",
+                    "method": "exact",
                     "seed": 0,
                     "attempt": 1,
                     "created_at": 1763791200.0,
@@ -167,7 +172,9 @@ class Job(BaseModel):
     )
     progress: float = Field(ge=0, le=1, description="Fraction done.", examples=[0.4])
     mesh_id: str = Field(description="The mesh the job computes.", examples=[MESH_ID_EXAMPLE])
-    method: ShdfMethodName = Field(description="ShDF method.", examples=["neural"])
+    method: ShdfProducerName = Field(
+        description="ShDF producer that ran (auto resolved).", examples=["exact"]
+    )
     seed: int = Field(description="ShDF seed.", examples=[0])
     attempt: int = Field(
         1,
@@ -192,9 +199,9 @@ class ShdfValues(BaseModel):
             "examples": [
                 {
                     "mesh_id": MESH_ID_EXAMPLE,
-                    "method": "neural",
+                    "method": "exact",
                     "seed": 0,
-                    "model_version": "a1b2c3d4e5f60718",
+                    "model_version": None,
                     "faces": 4,
                     "values": [0.12, 0.5, 0.98, None],
                 }
@@ -203,10 +210,12 @@ class ShdfValues(BaseModel):
     )
 
     mesh_id: str = Field(description="Mesh id.", examples=[MESH_ID_EXAMPLE])
-    method: ShdfMethodName = Field(description="ShDF method.", examples=["neural"])
+    method: ShdfProducerName = Field(
+        description="ShDF producer that ran (auto resolved).", examples=["exact"]
+    )
     seed: int = Field(description="ShDF seed.", examples=[0])
     model_version: str | None = Field(
-        description="Version (hash) of the neural model; null for `exact`.",
+        description="Version (hash) of the neural model; null unless `neural` ran.",
         examples=["a1b2c3d4e5f60718"],
     )
     faces: int = Field(description="Number of values (input faces).", examples=[4])
@@ -222,8 +231,9 @@ class SegmentOptions(BaseModel):
 
     method: ShdfMethodName | None = Field(
         None,
-        description="ShDF method; default: the service's default (neural).",
-        examples=["neural"],
+        description="ShDF method (auto, exact, sampled, neural); default: the service's "
+        "default (auto).",
+        examples=["auto"],
     )
     partitioner: Literal["graphcut", "metis"] = Field(
         "graphcut",
@@ -433,7 +443,7 @@ class Segmentation(BaseModel):
             "examples": [
                 {
                     "mesh_id": MESH_ID_EXAMPLE,
-                    "method": "neural",
+                    "method": "exact",
                     "faces": 4,
                     "part_count": 2,
                     "labels": [0, 0, 1, 1],
@@ -469,7 +479,9 @@ class Segmentation(BaseModel):
     )
 
     mesh_id: str = Field(description="Mesh id.", examples=[MESH_ID_EXAMPLE])
-    method: ShdfMethodName = Field(description="ShDF method used.", examples=["neural"])
+    method: ShdfProducerName = Field(
+        description="ShDF producer that ran (auto resolved).", examples=["exact"]
+    )
     faces: int = Field(description="Input faces (length of the labels).", examples=[4])
     part_count: int = Field(description="Number of parts.", examples=[2])
     labels: list[int] | None = Field(

@@ -166,7 +166,7 @@ class SegmentationService:
 
     def key(self, mesh_id: str, method: str, params: SegmentParams) -> str:
         """The cache key: mesh, code version, the ShDF it starts from, the parameters."""
-        shdf = f"{self.shdf.version(method)}:{params.seed}"
+        shdf = self.shdf.version(method, params.seed)
         return f"{mesh_id}:seg:{__version__}:{shdf}:{params_digest(params)}"
 
     def cached(self, key: str) -> SegmentResult | None:

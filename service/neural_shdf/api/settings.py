@@ -51,8 +51,10 @@ class Settings(BaseSettings):
         16, ge=0, description="Meshes, graphs and results kept in process memory (LRU)."
     )
 
-    default_method: Literal["neural", "exact"] = Field(
-        "neural", description="ShDF method used when a request names none."
+    default_method: Literal["auto", "exact", "sampled", "neural"] = Field(
+        "auto",
+        description="ShDF method used when a request names none (auto: the fastest "
+        "producer that meets the fidelity target, per mesh).",
     )
     model: Path | None = Field(
         None,

@@ -7,7 +7,6 @@ import asyncio
 import contextlib
 import functools
 import hashlib
-import inspect
 import logging
 import time
 from collections.abc import Callable
@@ -26,15 +25,17 @@ from neural_shdf.api.mesh_store import MeshStore
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.settings import Settings
 from neural_shdf.api.tasks import TaskRunner
+from neural_shdf.errors import ModelUnavailableError
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.params import check_seed
+from neural_shdf.shdf.stage import resolve_method, uses_model
 
 logger = logging.getLogger(__name__)
 
 
 def model_path(settings: Settings) -> Path:
     """The neural model file: the setting, else the library's choice (env or packaged)."""
-    from neural_shdf.neural.inference import model_path as library_model_path
+    from neural_shdf.shdf.neural.inference import model_path as library_model_path
 
     return settings.model.expanduser().resolve() if settings.model else library_model_path()
 
@@ -46,30 +47,30 @@ def model_version(path: Path) -> str | None:
     if card.is_file():
         return hashlib.sha256(card.read_bytes()).hexdigest()[:16]
     if path.is_file():
-        from neural_shdf.neural.inference import file_sha256
+        from neural_shdf.shdf.neural.inference import file_sha256
 
         return file_sha256(path)[:16]
     return None
 
 
-def shdf_version(method: str, model_version: str | None) -> str:
-    """What a cached ShDF depends on besides the mesh: the model and how it is applied."""
-    if method == "neural":
-        from neural_shdf.neural.inference import DEFAULT_SAMPLE_SETS
+def shdf_version(method: str, model_version: str | None, seed: int = 0) -> str:
+    """What a cached ShDF depends on besides the mesh: the code version, the method
+    (resolved by callers that know the mesh), the model's version where the method can
+    run the network (refused when there is none) and every ShDF parameter
+    (``stage.shdf_key``)."""
+    from neural_shdf.shdf.stage import ShdfParams
+    from neural_shdf.shdf.stage import shdf_key as stage_key
 
-        return f"neural-{model_version or 'none'}-sets{DEFAULT_SAMPLE_SETS}"
-    return f"exact-{__version__}"
+    if uses_model(method) and not model_version:
+        raise ModelUnavailableError(f"the ShDF method {method!r} needs a neural model; none found")
+    model = model_version if uses_model(method) else None
+    return f"{__version__}:{stage_key(method, ShdfParams(seed=seed), model)}"
 
 
 def shdf_key(mesh_id: str, method: str, seed: int, model_version: str | None) -> str:
-    """Cache key of a mesh's ShDF (shared by every service replica and batch worker)."""
-    return f"{mesh_id}:shdf:{shdf_version(method, model_version)}:{seed}"
-
-
-def _accepts_model_path() -> bool:
-    from neural_shdf.pipeline import compute_shdf
-
-    return "model_path" in inspect.signature(compute_shdf).parameters
+    """Cache key of a mesh's ShDF (shared by every service replica and batch worker);
+    ``method`` is a resolved producer (not ``auto``)."""
+    return f"{mesh_id}:shdf:{shdf_version(method, model_version, seed)}"
 
 
 @dataclass(frozen=True)
@@ -79,6 +80,7 @@ class ShdfOutcome:
     values: NDArray[np.float64]
     cached: bool
     seconds: float
+    method: str  # the producer that made it (``auto`` resolved)
 
 
 class ShdfService:
@@ -103,9 +105,14 @@ class ShdfService:
         self.model_version = model_version(self.model_path)
         self._progress: dict[str, float] = {}
 
-    def version(self, method: str) -> str:
+    def version(self, method: str, seed: int) -> str:
         """What a cached ShDF depends on besides the mesh (``shdf_version``)."""
-        return shdf_version(method, self.model_version)
+        return shdf_version(method, self.model_version, seed)
+
+    def resolve(self, method: str | None, triangles: int) -> str:
+        """The producer ``method`` (or the service default) runs on a mesh of
+        ``triangles`` triangles (``auto`` resolved)."""
+        return resolve_method(method or self.settings.default_method, triangles)
 
     def key(self, mesh_id: str, method: str, seed: int) -> str:
         """The cache key of a ShDF (``shdf_key``)."""
@@ -138,9 +145,6 @@ class ShdfService:
         def progress(fraction: float) -> None:
             self._progress[key] = float(fraction)
 
-        extra = {}
-        if method == "neural" and _accepts_model_path():
-            extra["model_path"] = self.model_path
         start = time.perf_counter()
         try:
             values = compute_shdf(
@@ -149,14 +153,14 @@ class ShdfService:
                 seed=seed,
                 graph=graph,
                 progress=progress,
-                **extra,
+                model=self.model_path,
             )
         finally:
             self._progress.pop(key, None)
         seconds = time.perf_counter() - start
         self.metrics.shdf_computations.labels(method).inc()
         self.metrics.shdf_seconds.labels(method).observe(seconds)
-        return ShdfOutcome(np.ascontiguousarray(values, dtype=np.float64), False, seconds)
+        return ShdfOutcome(np.ascontiguousarray(values, dtype=np.float64), False, seconds, method)
 
     def _compute_once(
         self, key: str, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
@@ -165,7 +169,7 @@ class ShdfService:
 
         def lookup() -> ShdfOutcome | None:
             values = self.cached(key)
-            return None if values is None else ShdfOutcome(values, True, 0.0)
+            return None if values is None else ShdfOutcome(values, True, 0.0, method)
 
         outcome, _ = self.tasks.compute_once(
             key,
@@ -177,12 +181,13 @@ class ShdfService:
 
     def get_blocking(self, mesh_id: str, mesh: TriangleMesh, method: str, seed: int) -> ShdfOutcome:
         """The cached ShDF, else computed once under the cache lock and stored (blocking:
-        for batch workers outside an event loop)."""
+        for batch workers outside an event loop). ``method`` may be ``auto``."""
         seed = check_seed(seed)
+        method = self.resolve(method, mesh.face_count)
         key = self.key(mesh_id, method, seed)
         values = self.cached(key)
         if values is not None:
-            return ShdfOutcome(values, True, 0.0)
+            return ShdfOutcome(values, True, 0.0, method)
         return self._compute_once(key, mesh_id, mesh, method, seed)
 
     async def get(
@@ -194,12 +199,14 @@ class ShdfService:
         *,
         allow_job: bool = True,
     ) -> ShdfOutcome:
-        """The cached ShDF, else computed once; large meshes raise JobAccepted (202)."""
+        """The cached ShDF, else computed once; large meshes raise JobAccepted (202).
+        ``method`` may be ``auto`` (resolved for this mesh; the outcome says which ran)."""
         seed = check_seed(seed)
+        method = self.resolve(method, mesh.face_count)
         key = self.key(mesh_id, method, seed)
         values = await self.tasks.io(self.cached, key)
         if values is not None:
-            return ShdfOutcome(values, True, 0.0)
+            return ShdfOutcome(values, True, 0.0, method)
         if allow_job and mesh.face_count > self.settings.sync_face_threshold:
             raise JobAccepted(await self.start_job(key, mesh_id, mesh, method, seed))
         compute = functools.partial(self._compute_once, key, mesh_id, mesh, method, seed)
@@ -303,7 +310,7 @@ class ShdfService:
 
     def check_model(self) -> tuple[bool, str]:
         """Whether the neural model loads (cached by the library after the first call)."""
-        from neural_shdf.neural.inference import load_model
+        from neural_shdf.shdf.neural.inference import load_model
 
         try:
             load_model(self.model_path)

@@ -102,7 +102,7 @@ class SegmentArgs(TypedDict, total=False):
     """Segmentation options (keyword arguments of the client's segment calls); omitted or
     None: the service's default. Fields of newer service versions may be passed too."""
 
-    method: str | None  # ShDF method: neural, exact
+    method: str | None  # ShDF method: auto, exact, sampled, neural
     partitioner: str | None  # graphcut, metis
     clusters: int | None  # Gaussian mixture components (0: chosen by BIC)
     smoothing: float | None  # graph-cut smoothness weight

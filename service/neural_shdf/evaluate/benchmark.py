@@ -65,8 +65,10 @@ DEFAULT_CACHE_DIR = Path.home() / ".cache" / "neural-shdf" / "psb"
 #: The benchmark's machines here have 2 cores: never more worker processes.
 MAX_JOBS = 2
 
-SHDF_SOURCES = ("exact", "neural", "cgalsdf")
-_METHOD_PATTERN = re.compile(r"^(exact|neural|cgalsdf)-(graphcut|metis)(-humanparts|-leaves)?$")
+SHDF_SOURCES = ("exact", "sampled", "neural", "auto", "cgalsdf")
+_METHOD_PATTERN = re.compile(
+    r"^(exact|sampled|neural|auto|cgalsdf)-(graphcut|metis)(-humanparts|-leaves)?$"
+)
 
 #: A predictor: (mesh, model) -> one part label per triangle of ``mesh``.
 Predictor = Callable[[TriangleMesh, "BenchModel"], NDArray]
@@ -200,7 +202,10 @@ def cached_shdf(
         values = np.loadtxt(model.bench_dir / "cgal" / f"{model.model_id}.sdf", ndmin=1)
         return values[mesh.face_origin]
     from neural_shdf.pipeline import compute_shdf
+    from neural_shdf.shdf.stage import resolve_method
 
+    if source == "auto":
+        source = resolve_method(source, mesh.face_count)
     if source != "exact" or cache_dir is None:
         return compute_shdf(mesh, method=source, seed=seed)  # type: ignore[arg-type]
     path = Path(cache_dir) / source / f"{model.model_id}-{mesh.content_hash()[:16]}-s{seed}.npy"
@@ -267,7 +272,7 @@ def make_predictor(
     match = _METHOD_PATTERN.match(method)
     if match is None:
         raise ParameterError(
-            f"unknown method {method!r}; use 'cgal' or '{{exact,neural,cgalsdf}}-"
+            f"unknown method {method!r}; use 'cgal' or '{{exact,sampled,neural,auto,cgalsdf}}-"
             "{graphcut,metis}', optionally followed by '-humanparts' or (graphcut) '-leaves'"
         )
     source, partitioner, suffix = match.groups()

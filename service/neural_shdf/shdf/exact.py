@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,8 +37,7 @@ from numpy.typing import NDArray
 from neural_shdf import constants
 from neural_shdf.compiled import kernel
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
-from neural_shdf.mesh import TriangleMesh
+from neural_shdf.geometry import face_centroids, face_normals
 from neural_shdf.shdf.embree import (
     LANES,
     NORMAL_X,
@@ -51,7 +50,6 @@ from neural_shdf.shdf.embree import (
     new_packet,
     set_ray,
 )
-from neural_shdf.shdf.postprocess import postprocess_shdf, smoothing_window
 
 Progress = Callable[[float], None]
 
@@ -67,10 +65,6 @@ BATCHES_PER_THREAD = 8
 #: Ray origins move this fraction of the bounding-box diagonal along the ray so
 #: that the ray cannot hit its own triangle through float32 rounding.
 ORIGIN_OFFSET = 1e-6
-#: Time of the bilateral filter per face and window pair, relative to casting one face's
-#: rays (measured: 0.0012-0.0018 on 82k-328k-face spheres, 2 threads); it sets how much
-#: of ``exact_shdf``'s progress the post-processing reports.
-FILTER_COST_PER_PAIR = 0.0015
 #: Offset used again for the few rays that still hit their own triangle.
 RETRY_ORIGIN_OFFSET = 1e-4
 
@@ -224,6 +218,13 @@ def robust_mean(distances: NDArray, weights: NDArray) -> NDArray[np.float64]:
     return np.array([_robust_mean_row(row, weights, scratch) for row in distances])
 
 
+def _check_cone(cone_angle: float, ray_count: int) -> None:
+    if not 0.0 < cone_angle < math.pi:
+        raise ParameterError(f"cone_angle must lie in (0, pi) radians, got {cone_angle}")
+    if ray_count < 1:
+        raise ParameterError(f"ray_count must be at least 1, got {ray_count}")
+
+
 def raw_shdf(
     vertices: NDArray,
     faces: NDArray,
@@ -252,107 +253,145 @@ def raw_shdf(
             does not depend on it).
         progress: called with the fraction of faces done, in [0, 1].
     """
-    if not 0.0 < cone_angle < math.pi:
-        raise ParameterError(f"cone_angle must lie in (0, pi) radians, got {cone_angle}")
-    if ray_count < 1:
-        raise ParameterError(f"ray_count must be at least 1, got {ray_count}")
+    _check_cone(cone_angle, ray_count)
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
-    result = np.full(len(faces), np.nan)
     if normals is None and len(faces):
         normals, _ = face_normals(vertices, faces)
-    valid = np.zeros(len(faces), dtype=bool)
-    if len(faces):
-        normals = np.asarray(normals, dtype=np.float64)
-        valid = np.linalg.norm(normals, axis=1) > 0.5
-    if not valid.any():
-        if progress is not None:
-            progress(1.0)
-        return result
-
-    threads = max(1, os.cpu_count() or 1) if threads is None else max(1, threads)
-    with ThreadPoolExecutor(max_workers=threads) as pool:
-        # Building the Embree scene releases the GIL: overlap it with the set-up.
-        building = pool.submit(Scene, vertices, faces)  # degenerate faces never hit
-        _cast_batches(
-            building,
-            pool,
-            vertices,
-            faces,
-            normals,
-            valid,
-            result,
-            cone_angle=cone_angle,
-            ray_count=ray_count,
-            seed=seed,
-            rotate_pattern=rotate_pattern,
-            threads=threads,
-            progress=progress,
-        )
+    if not len(faces):
+        return np.full(0, np.nan)
+    result, _, _ = _cast_rays(
+        vertices,
+        faces,
+        face_centroids(vertices, faces),
+        np.asarray(normals, dtype=np.float64),
+        np.arange(len(faces), dtype=np.int64),
+        cone_angle=cone_angle,
+        ray_count=ray_count,
+        seed=seed,
+        rotate_pattern=rotate_pattern,
+        threads=threads,
+        progress=progress,
+        statistics=False,
+    )
     return result
 
 
-def _cast_batches(
-    building: Future[Scene],
-    pool: ThreadPoolExecutor,
+def raw_shdf_at_points(
     vertices: NDArray,
     faces: NDArray,
+    points: NDArray,
+    point_normals: NDArray,
+    point_faces: NDArray,
+    *,
+    cone_angle: float = constants.SHDF_CONE_ANGLE,
+    ray_count: int = constants.SHDF_RAY_COUNT,
+    threads: int | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The exact ShDF's ray cone cast from surface points instead of face centroids.
+
+    ``points`` (P, 3) lie on the triangles ``point_faces`` (never hit by their own
+    rays) with unit outward ``point_normals``. Returns per point the robust mean
+    diameter (NaN without a valid hit), the spread of the valid hit distances
+    (standard deviation over their mean, 0 without hits) and the fraction of rays
+    with a valid hit. Same rays, back-face test and outlier filter as ``raw_shdf``.
+    """
+    _check_cone(cone_angle, ray_count)
+    points = np.asarray(points, dtype=np.float64)
+    if not len(points):
+        empty = np.zeros(0)
+        return empty, empty.copy(), empty.copy()
+    return _cast_rays(
+        np.asarray(vertices, dtype=np.float64),
+        np.asarray(faces, dtype=np.int64),
+        points,
+        np.asarray(point_normals, dtype=np.float64),
+        np.asarray(point_faces, dtype=np.int64),
+        cone_angle=cone_angle,
+        ray_count=ray_count,
+        seed=0,
+        rotate_pattern=False,
+        threads=threads,
+        progress=None,
+        statistics=True,
+    )
+
+
+def _cast_rays(
+    vertices: NDArray,
+    faces: NDArray,
+    origins: NDArray,
     normals: NDArray,
-    valid: NDArray,
-    result: NDArray,
+    own_faces: NDArray,
     *,
     cone_angle: float,
     ray_count: int,
     seed: int,
     rotate_pattern: bool,
-    threads: int,
+    threads: int | None,
     progress: Progress | None,
-) -> None:
-    """Cast the rays of the valid faces in batches on ``pool``, writing ``result``."""
-    face_count = len(faces)
+    statistics: bool,
+) -> tuple[NDArray, NDArray, NDArray]:
+    """Cones of rays from ``origins`` around their inward ``normals``, in batches over
+    threads: (robust mean, spread, hit fraction) per origin; the last two only with
+    ``statistics`` (else empty). Origins with a zero normal get NaN."""
+    count = len(origins)
+    result = np.full(count, np.nan)
+    spread = np.zeros(count if statistics else 0)
+    hit_fraction = np.zeros(count if statistics else 0)
+    valid = np.linalg.norm(normals, axis=1) > 0.5
+    if not valid.any():
+        if progress is not None:
+            progress(1.0)
+        return result, spread, hit_fraction
+    threads = max(1, os.cpu_count() or 1) if threads is None else max(1, threads)
     diagonal = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
-    centroids = face_centroids(vertices, faces)
     origin_offset = np.float32(ORIGIN_OFFSET * diagonal)
     retry_offset = np.float32(RETRY_ORIGIN_OFFSET * diagonal)
     _, weights = disk_samples(ray_count)
     rotation = (
-        np.random.default_rng(seed).uniform(0.0, 2.0 * math.pi, face_count)
-        if rotate_pattern
-        else None
+        np.random.default_rng(seed).uniform(0.0, 2.0 * math.pi, count) if rotate_pattern else None
     )
-
-    todo = np.flatnonzero(valid)
-    todo = todo[spatial_order(centroids[todo])]
-    size = min(
-        FACES_PER_BATCH, max(MIN_FACES_PER_BATCH, -(-len(todo) // (BATCHES_PER_THREAD * threads)))
-    )
-    batches = [todo[i : i + size] for i in range(0, len(todo), size)]
-    local_centroids = (centroids - Scene.center_of(vertices)).astype(np.float32)
-    coefficients = cone_coefficients(ray_count, cone_angle).astype(np.float32)
-
-    def run_batch(batch: NDArray) -> None:
-        frames = cone_frames(
-            np.negative(np.take(normals, batch, axis=0)),
-            None if rotation is None else np.take(rotation, batch),
-        ).astype(np.float32)
-        scene = building.result()  # the frames above were made while the scene was built
-        _shdf_of_faces(
-            *scene.kernel_arguments(),
-            batch,
-            frames,
-            coefficients,
-            local_centroids,
-            origin_offset,
-            retry_offset,
-            weights,
-            result,
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        # Building the Embree scene releases the GIL: overlap it with the set-up.
+        building = pool.submit(Scene, vertices, faces)  # degenerate faces never hit
+        todo = np.flatnonzero(valid)
+        todo = todo[spatial_order(origins[todo])]
+        size = min(
+            FACES_PER_BATCH,
+            max(MIN_FACES_PER_BATCH, -(-len(todo) // (BATCHES_PER_THREAD * threads))),
         )
+        batches = [todo[i : i + size] for i in range(0, len(todo), size)]
+        local_origins = (origins - Scene.center_of(vertices)).astype(np.float32)
+        coefficients = cone_coefficients(ray_count, cone_angle).astype(np.float32)
 
-    done = 0
-    for batch, _ in zip(batches, pool.map(run_batch, batches), strict=True):
-        done += len(batch)
-        if progress is not None:
-            progress(done / len(todo))
+        def run_batch(batch: NDArray) -> None:
+            frames = cone_frames(
+                np.negative(np.take(normals, batch, axis=0)),
+                None if rotation is None else np.take(rotation, batch),
+            ).astype(np.float32)
+            scene = building.result()  # the frames above were made while the scene was built
+            _shdf_of_faces(
+                *scene.kernel_arguments(),
+                batch,
+                frames,
+                coefficients,
+                local_origins,
+                own_faces,
+                origin_offset,
+                retry_offset,
+                weights,
+                result,
+                spread,
+                hit_fraction,
+            )
+
+        done = 0
+        for batch, _ in zip(batches, pool.map(run_batch, batches), strict=True):
+            done += len(batch)
+            if progress is not None:
+                progress(done / len(todo))
+    return result, spread, hit_fraction
 
 
 @kernel(inline=True)
@@ -379,18 +418,22 @@ def _shdf_of_faces(
     batch,  # noqa: ANN001
     frames,  # noqa: ANN001
     coefficients,  # noqa: ANN001
-    local_centroids,  # noqa: ANN001
+    local_origins,  # noqa: ANN001
+    own_faces,  # noqa: ANN001
     origin_offset,  # noqa: ANN001
     retry_offset,  # noqa: ANN001
     weights,  # noqa: ANN001
     result,  # noqa: ANN001
+    spread,  # noqa: ANN001
+    hit_fraction,  # noqa: ANN001
 ) -> None:
-    """Raw ShDF of the faces ``batch`` into ``result``: rays of 16 faces per packet.
+    """Raw ShDF of the origins ``batch`` into ``result``: rays of 16 origins per packet.
 
-    ``frames[k]`` holds the inward normal and the two plane vectors of face
-    ``batch[k]`` (float32), ``coefficients`` each ray's weights on them. Each hit
-    is read from the packet itself (distance, geometric normal): no lookup of the
-    hit triangle.
+    ``frames[k]`` holds the inward normal and the two plane vectors of origin
+    ``batch[k]`` (float32), ``coefficients`` each ray's weights on them; a ray
+    hitting ``own_faces[origin]`` starts again further out. Each hit is read from
+    the packet itself (distance, geometric normal): no lookup of the hit
+    triangle. ``spread`` and ``hit_fraction`` are filled when not empty.
     """
     rays, ids, valid = new_packet()
     ray_count = len(coefficients)
@@ -414,11 +457,11 @@ def _shdf_of_faces(
         # Ray i of 16 neighbouring faces: nearly parallel rays, a coherent packet.
         for i in range(ray_count):
             for lane in range(count):
-                origin = local_centroids[batch[start + lane]]
+                origin = local_origins[batch[start + lane]]
                 set_ray(rays, ids, lane, origin, directions[lane, i], origin_offset)
             intersect_packet(intersect16, scene, arguments, rays, ids, valid, count)
             for lane in range(count):
-                own_hit[lane, i] = hit_of(ids, lane) == batch[start + lane]
+                own_hit[lane, i] = hit_of(ids, lane) == own_faces[batch[start + lane]]
                 distances[lane, i] = _exit_distance(
                     rays, ids, lane, directions[lane, i], origin_offset
                 )
@@ -434,59 +477,38 @@ def _shdf_of_faces(
             size = min(LANES, pending - first)
             for k in range(size):
                 lane = retry_lane[first + k]
-                origin = local_centroids[batch[start + lane]]
+                origin = local_origins[batch[start + lane]]
                 set_ray(rays, ids, k, origin, directions[lane, retry_ray[first + k]], retry_offset)
             intersect_packet(intersect16, scene, arguments, rays, ids, valid, size)
             for k in range(size):
                 lane, i = retry_lane[first + k], retry_ray[first + k]
-                own = hit_of(ids, k) == batch[start + lane]
+                own = hit_of(ids, k) == own_faces[batch[start + lane]]
                 distances[lane, i] = (
                     np.nan
                     if own
                     else _exit_distance(rays, ids, k, directions[lane, i], retry_offset)
                 )
         for lane in range(count):
-            result[batch[start + lane]] = _robust_mean_row(distances[lane], weights, scratch)
+            item = batch[start + lane]
+            result[item] = _robust_mean_row(distances[lane], weights, scratch)
+            if len(spread):
+                _hit_statistics(distances[lane], item, spread, hit_fraction)
 
 
-def exact_shdf(
-    mesh: TriangleMesh,
-    *,
-    graph: FaceGraph,
-    cone_angle: float = constants.SHDF_CONE_ANGLE,
-    ray_count: int = constants.SHDF_RAY_COUNT,
-    seed: int = 0,
-    rotate_pattern: bool = False,
-    window_size: int | None = None,
-    threads: int | None = None,
-    progress: Progress | None = None,
-) -> NDArray[np.float64]:
-    """Post-processed exact ShDF in [0, 1] per triangle of ``mesh`` (CGAL's ``sdf_values``).
-
-    ``graph`` is the face adjacency the smoothing walks (``pipeline.mesh_face_graph``);
-    the other parameters are those of ``raw_shdf`` and ``postprocess_shdf``.
-    Progress: ray casting and post-processing each report their expected share of the time.
-    """
-    normals, _ = mesh.normals_and_areas
-    window = smoothing_window(mesh.face_count) if window_size is None else window_size
-    pairs_per_face = 1 + 3 * window * (window + 1) // 2
-    ray_share = 1.0 / (1.0 + FILTER_COST_PER_PAIR * pairs_per_face)
-    raw = raw_shdf(
-        mesh.vertices,
-        mesh.faces,
-        cone_angle=cone_angle,
-        ray_count=ray_count,
-        seed=seed,
-        rotate_pattern=rotate_pattern,
-        normals=normals,
-        threads=threads,
-        progress=None if progress is None else (lambda done: progress(ray_share * done)),
-    )
-    return postprocess_shdf(
-        raw,
-        graph,
-        window_size=window,
-        progress=None
-        if progress is None
-        else (lambda done: progress(ray_share + (1 - ray_share) * done)),
-    )
+@kernel(inline=True)
+def _hit_statistics(distances, item, spread, hit_fraction) -> None:  # noqa: ANN001
+    """Relative standard deviation of the valid hit distances and their share of the rays."""
+    hits = 0
+    total = 0.0
+    squares = 0.0
+    for value in distances:
+        if not np.isnan(value):
+            hits += 1
+            total += value
+            squares += value * value
+    hit_fraction[item] = hits / len(distances)
+    if hits > 0 and total > 0:
+        mean = total / hits
+        spread[item] = math.sqrt(max(squares / hits - mean * mean, 0.0)) / mean
+    else:
+        spread[item] = 0.0

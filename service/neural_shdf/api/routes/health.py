@@ -8,6 +8,7 @@ from fastapi.responses import JSONResponse
 from neural_shdf.api.metrics import CONTENT_TYPE_LATEST
 from neural_shdf.api.routes.deps import EngineDep
 from neural_shdf.api.schemas import Health, Readiness
+from neural_shdf.shdf.stage import uses_model
 
 router = APIRouter(tags=["operations"])
 
@@ -30,8 +31,9 @@ async def ready(engine: EngineDep) -> JSONResponse:
     `degraded` (still 200: requests are served) while Redis is down and the local disk
     cache stands in."""
     model_ok, model_detail = await engine.io(engine.shdf.check_model)
-    if engine.settings.default_method != "neural" and not model_ok:
-        model_ok, model_detail = True, f"not needed (default method exact): {model_detail}"
+    if not uses_model(engine.settings.default_method) and not model_ok:
+        default = engine.settings.default_method
+        model_ok, model_detail = True, f"not needed (default method {default}): {model_detail}"
     cache_ok, cache_detail = await engine.io(engine.cache.health)
     degraded = not cache_ok and getattr(engine.cache.backend, "degraded", False)
     checks = {

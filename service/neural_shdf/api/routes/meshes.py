@@ -84,9 +84,8 @@ async def upload_mesh(
     """
     seed = check_seed(seed)
     meta, mesh = await ingest(engine, file, file_type)
-    chosen = engine.method_of(method)
-    outcome = await engine.shdf.get(meta["mesh_id"], mesh, chosen, seed)
-    return upload_result(meta, chosen, seed, outcome)
+    outcome = await engine.shdf.get(meta["mesh_id"], mesh, engine.method_of(method), seed)
+    return upload_result(meta, outcome.method, seed, outcome)
 
 
 @router.get(
@@ -143,12 +142,12 @@ async def get_shdf(
 ) -> Response:
     """The ShDF in [0, 1] per input face, computed once and cached."""
     seed = check_seed(seed)
-    chosen = engine.method_of(method)
     mesh = await engine.io(engine.meshes.load, mesh_id)
-    outcome = await engine.shdf.get(mesh_id, mesh, chosen, seed)
+    outcome = await engine.shdf.get(mesh_id, mesh, engine.method_of(method), seed)
     values = await engine.io(mesh.to_input_faces, outcome.values)
     binary = format == "f32" or (format is None and F32_MEDIA_TYPE in (accept or ""))
-    return shdf_response(mesh_id, chosen, seed, engine.shdf.model_version, values, binary=binary)
+    version = engine.shdf.model_version
+    return shdf_response(mesh_id, outcome.method, seed, version, values, binary=binary)
 
 
 @router.get(

@@ -34,7 +34,7 @@ SEGMENT_ERRORS = {
 async def segment_response(
     engine: Engine, mesh_id: str, options: SegmentOptions, params: SegmentParams
 ) -> Response:
-    method = engine.method_of(options.method)
+    method = await engine.resolved_method(mesh_id, options.method)
     result, timings = await engine.segmentations.get(mesh_id, method, params)
     return segmentation_response(mesh_id, method, options.labels_format, result, timings)
 
@@ -74,7 +74,7 @@ def _glb_route(style: str):  # noqa: ANN202 - FastAPI endpoint factory
         engine: EngineDep, mesh_id: MeshId, options: Annotated[SegmentOptions, Query()]
     ) -> Response:
         params = options.segment_params()
-        method = engine.method_of(options.method)
+        method = await engine.resolved_method(mesh_id, options.method)
         glb = await engine.segmentations.glb(mesh_id, method, params, style)
         return glb_response(glb, mesh_id, style)
 

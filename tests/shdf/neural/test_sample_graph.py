@@ -8,7 +8,7 @@ import trimesh
 
 from neural_shdf.errors import InvalidGeometryError
 from neural_shdf.geometry import face_centroids, face_normals
-from neural_shdf.neural.graph import (
+from neural_shdf.shdf.neural.graph import (
     EDGE_FEATURES,
     GraphSpec,
     build_sample_graph,

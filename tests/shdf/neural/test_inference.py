@@ -11,8 +11,8 @@ import trimesh
 
 from neural_shdf.errors import ModelUnavailableError, ParameterError
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.neural.inference import DEFAULT_MODEL_PATH, load_model, neural_raw_shdf
 from neural_shdf.pipeline import compute_shdf, mesh_face_graph
+from neural_shdf.shdf.neural.inference import DEFAULT_MODEL_PATH, load_model, neural_raw_shdf
 
 
 def test_missing_model_raises_a_clear_error(tmp_path) -> None:
@@ -99,3 +99,23 @@ def test_committed_model_known_values(committed_model) -> None:
 
 
 EXPECTED_RAW = [1.53103, 1.54412, 1.54088, 1.53564, 0.166036, 0.160966, 0.179628]
+
+
+RAY_MODEL_PATH = DEFAULT_MODEL_PATH.with_name("emd-rays.onnx")
+
+
+def test_ray_informed_model_reads_the_cone_of_every_sample() -> None:
+    if not RAY_MODEL_PATH.exists():
+        pytest.skip("no committed ray-informed model")
+    from neural_shdf.shdf.neural.graph import RAY_NODE_FEATURES, build_sample_graph
+
+    model = load_model(RAY_MODEL_PATH)
+    assert model.spec.ray_count > 0
+    assert model.card["node_features"][-len(RAY_NODE_FEATURES) :] == list(RAY_NODE_FEATURES)
+    mesh, thin = two_shells()
+    graph = build_sample_graph(mesh.vertices, mesh.faces, model.spec)
+    assert graph.node_features.shape[1] == len(model.spec.node_features)
+    has_hit = graph.node_features[:, -len(RAY_NODE_FEATURES)]
+    assert has_hit.mean() > 0.95
+    values = compute_shdf(mesh, method="neural", model=RAY_MODEL_PATH)
+    assert np.median(values[thin]) < 0.5 * np.median(values[~thin])

@@ -26,7 +26,7 @@ Numpy, scipy and numba only (the service never imports torch).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -56,6 +56,14 @@ NODE_FEATURES = (
     "log_mean_cone_distance",
     "log_mean_cone_depth",
 )
+#: Node features of the ray-informed network (``GraphSpec.ray_count`` > 0), after
+#: ``NODE_FEATURES``: what the ShDF's ray cone cast from the sample sees.
+RAY_NODE_FEATURES = (
+    "has_ray_hit",
+    "log_ray_diameter",
+    "ray_spread",
+    "ray_hit_fraction",
+)
 #: Edge features, lengths in units of the sampling radius.
 EDGE_FEATURES = (
     "distance",
@@ -78,6 +86,14 @@ class GraphSpec:
     cone_cos: float = 0.5
     #: Sample-to-face neighbours used when mapping predictions back to faces.
     interpolation_neighbours: int = 4
+    #: Rays of the ShDF cone cast from each sample for ``RAY_NODE_FEATURES``; 0 = the
+    #: paper's ray-free network.
+    ray_count: int = 0
+
+    @property
+    def node_features(self) -> tuple[str, ...]:
+        """Names of the node feature columns this spec's network reads."""
+        return NODE_FEATURES + (RAY_NODE_FEATURES if self.ray_count else ())
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -375,6 +391,19 @@ def node_feature_array(
     ).astype(np.float32)
 
 
+def ray_feature_array(
+    diameter: NDArray, spread: NDArray, hit_fraction: NDArray
+) -> NDArray[np.float32]:
+    """``RAY_NODE_FEATURES`` from each sample's ray cone: robust mean ``diameter`` in
+    Poisson radii (NaN without a valid hit), relative spread and hit fraction."""
+    diameter = np.asarray(diameter, dtype=np.float64)
+    has = np.isfinite(diameter) & (diameter > 0)
+    log_diameter = np.log(np.where(has, diameter, 1.0))
+    return np.stack(
+        [has.astype(np.float64), np.where(has, log_diameter, 0.0), spread, hit_fraction], axis=1
+    ).astype(np.float32)
+
+
 def vertex_normal_sums(
     vertex_count: int, faces: NDArray, normals: NDArray, areas: NDArray
 ) -> NDArray[np.float64]:
@@ -407,7 +436,7 @@ def unit_rows(vectors: NDArray) -> NDArray[np.float64]:
     return np.divide(vectors, length, out=np.zeros_like(vectors), where=length > 0)
 
 
-def build_sample_graph(
+def sample_surface_points(
     vertices: NDArray,
     faces: NDArray,
     spec: GraphSpec | None = None,
@@ -418,13 +447,13 @@ def build_sample_graph(
     workers: int = 2,
     map_vertices: bool = True,
     normal_sums: NDArray | None = None,
+    density: bool = False,
 ) -> SampleGraph:
-    """Samples, density, edges and features of a triangle mesh (full resolution).
+    """Poisson-disk samples of a triangle mesh, without edges (``senders`` etc. empty).
 
-    ``map_vertices=False`` skips each vertex's nearest samples (``vertex_samples``
-    and ``vertex_normals`` are then empty): for sample sets whose values reach the faces
-    through another set.
-    ``normal_sums`` (``vertex_normal_sums``) may be passed when several sets share a mesh.
+    Each sample's normal takes the side of the faces around it (flipped faces);
+    ``map_vertices`` finds each vertex's nearest samples (for ``samples_to_faces``);
+    ``density`` computes the density (else zeros).
     """
     spec = spec or GraphSpec()
     vertices = np.asarray(vertices, dtype=np.float64)
@@ -451,24 +480,76 @@ def build_sample_graph(
     )  # the faces around the sample's face, without it
     flip = np.einsum("ij,ij->i", sample_normals, around) < 0
     sample_normals[flip] *= -1.0
-    n = len(positions)
 
     # Full-resolution neighbourhoods: each vertex's nearest samples (mapping back).
-    tree = cKDTree(positions)
     targets = vertices if map_vertices else np.zeros((0, 3))
     vertex_samples, vertex_distance = nearest_samples(
-        tree, targets, spec.interpolation_neighbours, workers
+        cKDTree(positions), targets, spec.interpolation_neighbours, workers
     )
-    near_count = cKDTree(candidates).query_ball_point(
-        positions, DENSITY_RADIUS * radius, return_length=True, workers=workers
+    sample_density = np.zeros(len(positions))
+    if density:
+        near_count = cKDTree(candidates).query_ball_point(
+            positions, DENSITY_RADIUS * radius, return_length=True, workers=workers
+        )
+        flat_count = len(candidates) / total_area * math.pi * (DENSITY_RADIUS * radius) ** 2
+        sample_density = np.asarray(near_count, dtype=np.float64) / flat_count
+    no_edges = np.zeros(0, np.int64)
+    return SampleGraph(
+        positions=positions,
+        normals=sample_normals,
+        face_ids=face_ids,
+        density=sample_density,
+        senders=no_edges,
+        receivers=no_edges,
+        node_features=np.zeros((len(positions), 0), np.float32),
+        edge_features=np.zeros((0, len(EDGE_FEATURES)), np.float32),
+        radius=radius,
+        vertex_samples=vertex_samples,
+        vertex_sample_distance=vertex_distance,
+        vertex_normals=unit_rows(normal_sums) if map_vertices else np.zeros((0, 3)),
     )
-    flat_count = len(candidates) / total_area * math.pi * (DENSITY_RADIUS * radius) ** 2
-    density = np.asarray(near_count, dtype=np.float64) / flat_count
 
+
+def build_sample_graph(
+    vertices: NDArray,
+    faces: NDArray,
+    spec: GraphSpec | None = None,
+    *,
+    seed: int = 0,
+    normals: NDArray | None = None,
+    areas: NDArray | None = None,
+    workers: int = 2,
+    map_vertices: bool = True,
+    normal_sums: NDArray | None = None,
+) -> SampleGraph:
+    """Samples (``sample_surface_points``), density, edges and features of a triangle
+    mesh (full resolution); with ``spec.ray_count``, the ray cone of every sample
+    (``RAY_NODE_FEATURES``).
+
+    ``map_vertices=False`` skips each vertex's nearest samples (``vertex_samples``
+    and ``vertex_normals`` are then empty): for sample sets whose values reach the faces
+    through another set.
+    ``normal_sums`` (``vertex_normal_sums``) may be passed when several sets share a mesh.
+    """
+    spec = spec or GraphSpec()
+    samples = sample_surface_points(
+        vertices,
+        faces,
+        spec,
+        seed=seed,
+        normals=normals,
+        areas=areas,
+        workers=workers,
+        map_vertices=map_vertices,
+        normal_sums=normal_sums,
+        density=True,
+    )
+    positions, sample_normals, radius = samples.positions, samples.normals, samples.radius
+    n = len(positions)
     # Edges: k nearest samples + the other side of the volume.
     k_near = min(spec.knn, n - 1)
     if k_near > 0:
-        _, neighbours = tree.query(positions, k=k_near + 1, workers=workers)
+        _, neighbours = cKDTree(positions).query(positions, k=k_near + 1, workers=workers)
         knn_senders = neighbours[:, 1:].reshape(-1).astype(np.int64)
         knn_receivers = np.repeat(np.arange(n, dtype=np.int64), k_near)
     else:
@@ -482,20 +563,27 @@ def build_sample_graph(
     edge_features = edge_feature_array(
         positions, sample_normals, senders, receivers, is_cone, radius
     )
-    node_features = node_feature_array(density, edge_features, receivers)
-    return SampleGraph(
-        positions=positions,
-        normals=sample_normals,
-        face_ids=face_ids,
-        density=density,
+    node_features = node_feature_array(samples.density, edge_features, receivers)
+    if spec.ray_count:
+        from neural_shdf.shdf.exact import raw_shdf_at_points
+
+        diameter, spread, hits = raw_shdf_at_points(
+            vertices,
+            faces,
+            positions,
+            sample_normals,
+            samples.face_ids,
+            ray_count=spec.ray_count,
+            threads=workers,
+        )
+        rays = ray_feature_array(diameter / radius, spread, hits)
+        node_features = np.concatenate([node_features, rays], axis=1)
+    return replace(
+        samples,
         senders=senders,
         receivers=receivers,
         node_features=node_features,
         edge_features=edge_features,
-        radius=radius,
-        vertex_samples=vertex_samples,
-        vertex_sample_distance=vertex_distance,
-        vertex_normals=unit_rows(normal_sums) if map_vertices else np.zeros((0, 3)),
     )
 
 

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.errors import ModelUnavailableError, ParameterError
 from neural_shdf.geometry import face_normals
-from neural_shdf.neural.graph import (
+from neural_shdf.shdf.neural.graph import (
     FEATURE_SPEC_VERSION,
     GraphSpec,
     SampleGraph,
@@ -29,7 +29,7 @@ from neural_shdf.neural.graph import (
     vertex_normal_sums,
 )
 
-MODEL_DIR = Path(__file__).resolve().parents[1] / "models"
+MODEL_DIR = Path(__file__).resolve().parents[2] / "models"
 DEFAULT_MODEL_PATH = MODEL_DIR / "emd.onnx"
 MODEL_ENV_VAR = "NEURAL_SHDF_MODEL"
 INTRA_OP_THREADS = 2
@@ -128,7 +128,13 @@ def load_model(path: str | Path | None = None) -> NeuralModel:
             )
         except Exception as error:  # noqa: BLE001 - any loader failure means no model
             raise ModelUnavailableError(f"cannot load model {path}: {error}") from error
-        model = NeuralModel(session, card, GraphSpec.from_dict(card.get("graph_spec", {})), path)
+        spec = GraphSpec.from_dict(card.get("graph_spec", {}))
+        if card.get("node_features", list(spec.node_features)) != list(spec.node_features):
+            raise ModelUnavailableError(
+                f"model {path.name}: its card's node features {card['node_features']} are not "
+                f"those its graph spec builds {list(spec.node_features)}; re-export the model"
+            )
+        model = NeuralModel(session, card, spec, path)
         _MODELS[path] = model
         return model
 
@@ -142,13 +148,15 @@ def neural_raw_shdf(
     model: NeuralModel | None = None,
     normals: NDArray | None = None,
     areas: NDArray | None = None,
+    smoothing: tuple[float, float] | None = None,
 ) -> NDArray[np.float64]:
     """Predicted raw diameter per triangle (mesh units), before post-processing.
 
     The network runs on ``sample_sets`` independent Poisson-disk sample sets
     (seeds derived from ``seed``); the log diameters of the other sets are
-    interpolated at the first set's samples and averaged there, then mapped to
-    the faces once.
+    interpolated at the first set's samples and averaged there, smoothed at the
+    sample scale when ``smoothing`` = (radius, spatial sigma) is given
+    (``stage.smooth_samples``), then mapped to the faces once.
     """
     if sample_sets < 1:
         raise ParameterError(f"sample_sets must be at least 1, got {sample_sets}")
@@ -183,4 +191,11 @@ def neural_raw_shdf(
             model.predict_log_diameter(other), other, anchor, model.spec.interpolation_neighbours
         )
     per_sample = np.exp(log_diameter / sample_sets) * anchor.radius
+    if smoothing is not None:
+        from neural_shdf.shdf.stage import smooth_samples
+
+        radius, sigma = smoothing
+        per_sample = smooth_samples(
+            per_sample, anchor.positions, anchor.normals, radius=radius, spatial_sigma=sigma
+        )
     return samples_to_faces(per_sample, anchor, faces)

@@ -1,1 +1,0 @@
-"""The neural ShDF's input graph and its onnxruntime inference (no torch here)."""

@@ -1,0 +1,337 @@
+"""The ShDF stage, shaped like CGAL's: one raw-diameter producer, then one post-processing.
+
+CGAL computes ``sdf_values(postprocess=false)`` and then
+``sdf_values_postprocessing``. Here the producers are
+
+* ``exact``: the ray cone at every face centroid (``exact.raw_shdf``);
+* ``sampled``: the same cone cast only from Poisson-disk samples of the surface
+  (``exact.raw_shdf_at_points``), smoothed at the sample scale over the surface
+  window the exact path's bilateral filter covers, interpolated to the faces
+  (``samples_to_faces``);
+* ``neural``: the EMD network's diameters at the samples (``neural.inference``),
+  smoothed and interpolated the same way;
+
+and ``auto`` picks one per mesh (``resolve_method``). ``postprocess_shdf`` runs
+once on the result: with its face-level bilateral filter for ``exact``, without
+it for the sample-based producers, whose values are already smoothed at the
+sample scale.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from neural_shdf import constants
+from neural_shdf.errors import ParameterError
+from neural_shdf.geometry import FaceGraph, face_centroids
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.shdf.postprocess import (
+    EXACT_WINDOW_MAX,
+    FILTER_COST_PER_PAIR,
+    RANGE_SIGMA_FACTOR,
+    SPATIAL_SIGMA_FACTOR,
+    postprocess_shdf,
+    ring_length,
+    smoothing_window,
+)
+
+ShdfMethod = Literal["auto", "exact", "sampled", "neural"]
+RawMethod = Literal["exact", "sampled", "neural"]
+METHODS: tuple[str, ...] = ("auto", "exact", "sampled", "neural")
+Progress = Callable[[float], None]
+
+#: ``auto`` casts every face's cone up to this many faces (cheaper than sampling there,
+#: and exact); above it, the sample-based producer ``AUTO_SAMPLED_METHOD``.
+AUTO_EXACT_MAX_FACES = 150_000
+#: The sample-based producer ``auto`` uses on large meshes (see the model card: the
+#: network does not beat ``sampled`` at equal samples and rays).
+AUTO_SAMPLED_METHOD: RawMethod = "sampled"
+#: Poisson samples of the sample-based producers (the count follows the surface area,
+#: not the triangles).
+DEFAULT_SAMPLES = 4096
+#: Samples without a valid hit take the mean of their valid ones among this many nearest.
+FILL_NEIGHBOURS = 8
+
+
+@dataclass(frozen=True)
+class ShdfParams:
+    """Every parameter a ShDF depends on (besides the mesh, the method and the model).
+
+    ``cone_angle``/``ray_count``: the ray cone (CGAL's defaults). ``seed``: the
+    Poisson samples of the sample-based producers. ``samples``: their target count.
+    ``sample_sets``: the network's averaged sample sets. ``window_size``: the
+    bilateral window in edge rings, 0 = CGAL's ``floor(sqrt(F / 2000)) + 1``.
+    """
+
+    cone_angle: float = constants.SHDF_CONE_ANGLE
+    ray_count: int = constants.SHDF_RAY_COUNT
+    seed: int = constants.DEFAULT_SEED
+    samples: int = DEFAULT_SAMPLES
+    sample_sets: int = 2
+    window_size: int = 0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.cone_angle < math.pi:
+            raise ParameterError(f"cone_angle must lie in (0, pi) radians, got {self.cone_angle}")
+        if self.ray_count < 1:
+            raise ParameterError(f"ray_count must be at least 1, got {self.ray_count}")
+        if self.samples < 16:
+            raise ParameterError(f"samples must be at least 16, got {self.samples}")
+        if self.sample_sets < 1:
+            raise ParameterError(f"sample_sets must be at least 1, got {self.sample_sets}")
+        if self.window_size < 0:
+            raise ParameterError(f"window_size must be >= 0, got {self.window_size}")
+
+    def window_for(self, face_count: int) -> int:
+        """The bilateral window in edge rings for a mesh of ``face_count`` faces."""
+        return self.window_size or smoothing_window(face_count)
+
+
+def resolve_method(method: str, face_count: int) -> RawMethod:
+    """The producer ``method`` means for a mesh of ``face_count`` triangles; deterministic.
+
+    ``auto`` is the fastest producer that meets the fidelity target: every face's
+    cone on meshes up to ``AUTO_EXACT_MAX_FACES`` faces (cheaper than sampling
+    there), ``AUTO_SAMPLED_METHOD`` above.
+    """
+    if method == "auto":
+        return "exact" if face_count <= AUTO_EXACT_MAX_FACES else AUTO_SAMPLED_METHOD
+    if method in ("exact", "sampled", "neural"):
+        return method  # type: ignore[return-value]
+    raise ParameterError(f"unknown ShDF method {method!r}; use one of {', '.join(METHODS)}")
+
+
+def uses_model(method: str) -> bool:
+    """Whether ``method`` can run the neural network on some mesh."""
+    return method == "neural" or (method == "auto" and AUTO_SAMPLED_METHOD == "neural")
+
+
+def shdf_key(method: RawMethod, params: ShdfParams, model_sha256: str | None) -> str:
+    """Stable digest of what a ShDF depends on besides the mesh: the resolved method,
+    the model's checksum (neural only) and every parameter the method reads."""
+    used = asdict(params)
+    if method == "exact":
+        for name in ("seed", "samples", "sample_sets"):
+            used.pop(name)
+    if method != "neural":
+        used.pop("sample_sets", None)
+    if method == "neural":
+        if not model_sha256:
+            raise ParameterError("a neural ShDF key needs the model's checksum")
+        used["model"] = model_sha256
+    used["method"] = method
+    return hashlib.sha256(json.dumps(used, sort_keys=True).encode()).hexdigest()[:24]
+
+
+def smooth_samples(
+    values: NDArray,
+    positions: NDArray,
+    normals: NDArray,
+    *,
+    radius: float,
+    spatial_sigma: float,
+    range_sigma_factor: float = RANGE_SIGMA_FACTOR,
+) -> NDArray[np.float64]:
+    """The exact path's bilateral filter at the sample scale: for each sample, the
+    samples within ``radius`` (mesh units) whose normals do not oppose its own (the
+    other side of a thin wall is not its surface neighbourhood), weighted by a
+    Gaussian of their distance (``spatial_sigma``) times a Gaussian of their value
+    difference (``range_sigma_factor`` x the window's RMS difference)."""
+    values = np.asarray(values, dtype=np.float64)
+    if len(values) < 2 or not radius > 0:
+        return values.copy()
+    tree = cKDTree(positions)
+    pairs = tree.query_pairs(radius, output_type="ndarray")
+    if len(pairs) == 0:
+        return values.copy()
+    pairs = pairs[np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) > 0]
+    rows = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(len(values))])
+    cols = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(len(values))])
+    offset = positions[rows] - positions[cols]
+    squared_distance = np.einsum("ij,ij->i", offset, offset)
+    difference = values[cols] - values[rows]
+    count = np.bincount(rows, minlength=len(values))
+    variance = np.bincount(rows, difference**2, minlength=len(values)) / count
+    varies = variance > 0
+    scale = 0.5 / (range_sigma_factor**2 * np.where(varies, variance, 1.0))
+    weight = np.exp(-0.5 * squared_distance / spatial_sigma**2 - difference**2 * scale[rows])
+    total = np.bincount(rows, weight * values[cols], minlength=len(values))
+    norm = np.bincount(rows, weight, minlength=len(values))
+    return np.where(varies, total / norm, values)
+
+
+def fill_samples(values: NDArray, positions: NDArray) -> NDArray[np.float64]:
+    """Samples without a value (NaN) take the mean of their valid nearest samples;
+    those with none nearby the smallest value; all NaN stays all NaN."""
+    values = np.asarray(values, dtype=np.float64).copy()
+    missing = np.isnan(values)
+    if not missing.any() or missing.all():
+        return values
+    valid = np.flatnonzero(~missing)
+    k = min(FILL_NEIGHBOURS, len(valid))
+    _, nearest = cKDTree(positions[valid]).query(positions[missing], k=k)
+    values[missing] = values[valid][np.asarray(nearest).reshape(-1, k)].mean(axis=1)
+    return values
+
+
+def sample_smoothing(
+    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams, centroids: NDArray
+) -> tuple[float, float]:
+    """(radius, spatial sigma) in mesh units of the surface window the exact path's
+    bilateral filter covers on this mesh (``window`` edge rings of ``ring_length``)."""
+    window = params.window_for(mesh.face_count)
+    spacing = ring_length(graph, centroids)
+    return window * spacing, SPATIAL_SIGMA_FACTOR * window * spacing
+
+
+def sampled_raw_shdf(
+    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams, centroids: NDArray
+) -> NDArray[np.float64]:
+    """Per-face raw diameters from the exact cone cast at ``params.samples`` Poisson
+    samples, smoothed at the sample scale and interpolated to the faces."""
+    from neural_shdf.shdf.exact import raw_shdf_at_points
+    from neural_shdf.shdf.neural.graph import GraphSpec, sample_surface_points, samples_to_faces
+
+    normals, areas = mesh.normals_and_areas
+    samples = sample_surface_points(
+        mesh.vertices,
+        mesh.faces,
+        GraphSpec(target_samples=params.samples),
+        seed=params.seed,
+        normals=normals,
+        areas=areas,
+    )
+    diameters, _, _ = raw_shdf_at_points(
+        mesh.vertices,
+        mesh.faces,
+        samples.positions,
+        samples.normals,
+        samples.face_ids,
+        cone_angle=params.cone_angle,
+        ray_count=params.ray_count,
+    )
+    if np.isnan(diameters).all():
+        return np.full(mesh.face_count, np.nan)
+    diameters = fill_samples(diameters, samples.positions)
+    radius, sigma = sample_smoothing(mesh, graph, params, centroids)
+    smoothed = smooth_samples(
+        diameters, samples.positions, samples.normals, radius=radius, spatial_sigma=sigma
+    )
+    return samples_to_faces(smoothed, samples, mesh.faces)
+
+
+def raw_diameters(
+    mesh: TriangleMesh,
+    graph: FaceGraph,
+    method: RawMethod,
+    params: ShdfParams,
+    model: object | None = None,
+    progress: Progress | None = None,
+    centroids: NDArray | None = None,
+) -> NDArray[np.float64]:
+    """Raw diameter per triangle (mesh units, NaN = unknown) from one producer
+    (``centroids``: the face centroids, when the caller has them)."""
+    if centroids is None:
+        centroids = face_centroids(mesh.vertices, mesh.faces)
+    if method == "exact":
+        from neural_shdf.shdf.exact import raw_shdf
+
+        normals, _ = mesh.normals_and_areas
+        return raw_shdf(
+            mesh.vertices,
+            mesh.faces,
+            cone_angle=params.cone_angle,
+            ray_count=params.ray_count,
+            normals=normals,
+            progress=progress,
+        )
+    if method == "sampled":
+        return sampled_raw_shdf(mesh, graph, params, centroids)
+    if method == "neural":
+        from neural_shdf.shdf.neural.inference import neural_raw_shdf
+
+        normals, areas = mesh.normals_and_areas
+        radius, sigma = sample_smoothing(mesh, graph, params, centroids)
+        return neural_raw_shdf(
+            mesh.vertices,
+            mesh.faces,
+            seed=params.seed,
+            sample_sets=params.sample_sets,
+            model=model,  # type: ignore[arg-type]
+            normals=normals,
+            areas=areas,
+            smoothing=(radius, sigma),
+        )
+    raise ParameterError(f"unknown ShDF producer {method!r}")
+
+
+@dataclass(frozen=True)
+class ShdfResult:
+    """A post-processed ShDF in [0, 1] per triangle and the producer that made it."""
+
+    values: NDArray[np.float64]
+    method: RawMethod
+
+
+def run_shdf(
+    mesh: TriangleMesh,
+    graph: FaceGraph,
+    *,
+    method: str = "auto",
+    params: ShdfParams | None = None,
+    model: object | str | Path | None = None,
+    progress: Progress | None = None,
+) -> ShdfResult:
+    """Raw diameters from the producer ``method`` resolves to, then one post-processing.
+
+    ``model``: a loaded ``NeuralModel`` or the path of an ONNX model, used by
+    ``neural`` (default: the installed model); ignored by the other producers.
+    """
+    params = params or ShdfParams()
+    resolved = resolve_method(method, mesh.face_count)
+    if resolved == "neural":
+        from neural_shdf.shdf.neural.inference import NeuralModel, load_model
+
+        model = model if isinstance(model, NeuralModel) else load_model(model)  # type: ignore[arg-type]
+    window = params.window_for(mesh.face_count)
+    ray_share = 0.5
+    if resolved == "exact":  # the rays against the filter's expected time
+        pairs = 1 + 3 * min(window, EXACT_WINDOW_MAX) * (min(window, EXACT_WINDOW_MAX) + 1) // 2
+        ray_share = 1.0 / (1.0 + FILTER_COST_PER_PAIR * pairs)
+    centroids = face_centroids(mesh.vertices, mesh.faces)
+    raw = raw_diameters(
+        mesh,
+        graph,
+        resolved,
+        params,
+        model,
+        None if progress is None else (lambda done: progress(ray_share * done)),
+        centroids,
+    )
+    values = postprocess_shdf(
+        raw,
+        graph,
+        window_size=window,
+        smooth=resolved == "exact",
+        centroids=centroids,
+        progress=None
+        if progress is None
+        else (lambda done: progress(ray_share + (1 - ray_share) * done)),
+    )
+    return ShdfResult(values, resolved)
+
+
+def with_seed(params: ShdfParams | None, seed: int | None) -> ShdfParams:
+    """``params`` (default ones when None), with ``seed`` as sampling seed when given."""
+    params = params or ShdfParams()
+    return params if seed is None else replace(params, seed=seed)

@@ -1,0 +1,133 @@
+"""The ShDF stage: producers behind one interface, one post-processing, auto, cache keys."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from neural_shdf.errors import ParameterError
+from neural_shdf.geometry import face_centroids
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.pipeline import compute_shdf, compute_shdf_result, mesh_face_graph
+from neural_shdf.shdf import stage
+from neural_shdf.shdf.exact import raw_shdf, raw_shdf_at_points
+from neural_shdf.shdf.neural.inference import DEFAULT_MODEL_PATH
+from neural_shdf.shdf.stage import ShdfParams, resolve_method, shdf_key, smooth_samples
+
+
+def two_shells() -> TriangleMesh:
+    """A sphere of radius 1 and a thin capsule beside it."""
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    capsule = trimesh.creation.capsule(height=2.0, radius=0.1, count=[32, 32])
+    capsule.apply_translation([2.5, 0.0, 0.0])
+    both = trimesh.util.concatenate([sphere, capsule])
+    return TriangleMesh(np.asarray(both.vertices), np.asarray(both.faces))
+
+
+def test_auto_is_exact_on_small_meshes_and_sampled_above(monkeypatch) -> None:
+    assert resolve_method("auto", 10_000) == "exact"
+    assert resolve_method("auto", stage.AUTO_EXACT_MAX_FACES) == "exact"
+    assert resolve_method("auto", stage.AUTO_EXACT_MAX_FACES + 1) == stage.AUTO_SAMPLED_METHOD
+    for method in ("exact", "sampled", "neural"):
+        assert resolve_method(method, 5) == method
+    with pytest.raises(ParameterError, match="unknown ShDF method"):
+        resolve_method("fast", 5)
+
+
+def test_auto_reports_the_producer_that_ran(monkeypatch) -> None:
+    mesh = two_shells()
+    graph = mesh_face_graph(mesh)
+    result = compute_shdf_result(mesh, graph=graph)
+    assert result.method == "exact"
+    np.testing.assert_array_equal(result.values, compute_shdf(mesh, method="exact", graph=graph))
+    monkeypatch.setattr(stage, "AUTO_EXACT_MAX_FACES", 100)
+    result = compute_shdf_result(mesh, graph=graph)
+    assert result.method == "sampled"
+    again = compute_shdf_result(mesh, graph=graph)
+    np.testing.assert_array_equal(result.values, again.values)
+
+
+def test_cone_at_face_centroids_is_the_exact_raw_shdf() -> None:
+    mesh = two_shells()
+    normals, _ = mesh.normals_and_areas
+    faces = np.arange(mesh.face_count)
+    at_points, spread, hits = raw_shdf_at_points(
+        mesh.vertices, mesh.faces, face_centroids(mesh.vertices, mesh.faces), normals, faces
+    )
+    np.testing.assert_allclose(at_points, raw_shdf(mesh.vertices, mesh.faces), rtol=1e-12)
+    assert np.all((hits > 0.9) & (hits <= 1.0))
+    assert np.all(spread >= 0) and np.median(spread) < 0.3
+
+
+def test_sampled_follows_exact_on_two_shells() -> None:
+    mesh = two_shells()
+    graph = mesh_face_graph(mesh)
+    exact = compute_shdf(mesh, method="exact", graph=graph)
+    sampled = compute_shdf(mesh, method="sampled", graph=graph, params=ShdfParams(samples=1024))
+    assert sampled.shape == exact.shape and np.all((sampled >= 0) & (sampled <= 1))
+    assert np.corrcoef(exact, sampled)[0, 1] > 0.98
+    other_seed = compute_shdf(mesh, method="sampled", graph=graph, seed=3)
+    assert not np.array_equal(other_seed, compute_shdf(mesh, method="sampled", graph=graph))
+
+
+def test_sample_smoothing_keeps_steps_and_constants() -> None:
+    rng = np.random.default_rng(0)
+    positions = rng.random((400, 3)) * [10.0, 1.0, 0.0]
+    normals = np.tile([0.0, 0.0, 1.0], (400, 1))
+    constant = np.full(400, 2.0)
+    np.testing.assert_array_equal(
+        smooth_samples(constant, positions, normals, radius=1.0, spatial_sigma=0.5), constant
+    )
+    step = np.where(positions[:, 0] < 5.0, 1.0, 3.0) + rng.normal(0, 0.05, 400)
+    smoothed = smooth_samples(step, positions, normals, radius=1.0, spatial_sigma=0.5)
+    far = np.abs(positions[:, 0] - 5.0) > 1.0
+    assert np.std(smoothed[far & (positions[:, 0] < 5)]) < np.std(step[far & (positions[:, 0] < 5)])
+    assert np.all(np.abs(smoothed[far] - np.round(step[far])) < 0.2)  # no bleeding across
+    flipped = normals.copy()
+    flipped[::2] *= -1  # the other side of a wall never mixes in
+    lone = smooth_samples(step, positions, flipped, radius=1.0, spatial_sigma=0.5)
+    assert np.abs(lone - smoothed).max() > 0
+
+
+def test_cache_key_covers_method_model_and_every_parameter() -> None:
+    base = ShdfParams()
+    keys = {
+        shdf_key("exact", base, None),
+        shdf_key("sampled", base, None),
+        shdf_key("neural", base, "a" * 64),
+        shdf_key("neural", base, "b" * 64),
+        shdf_key("exact", ShdfParams(ray_count=16), None),
+        shdf_key("exact", ShdfParams(window_size=3), None),
+        shdf_key("sampled", ShdfParams(samples=1024), None),
+        shdf_key("sampled", ShdfParams(seed=1), None),
+        shdf_key("neural", ShdfParams(sample_sets=3), "a" * 64),
+    }
+    assert len(keys) == 9
+    # Parameters a producer never reads do not split its cache.
+    assert shdf_key("exact", ShdfParams(seed=5, samples=64), None) == shdf_key("exact", base, None)
+    with pytest.raises(ParameterError, match="checksum"):
+        shdf_key("neural", base, None)
+
+
+def test_parameters_are_checked() -> None:
+    for bad in ({"ray_count": 0}, {"cone_angle": 4.0}, {"samples": 3}, {"sample_sets": 0}):
+        with pytest.raises(ParameterError):
+            ShdfParams(**bad)
+
+
+def test_the_model_argument_decides_which_network_computes(tmp_path) -> None:
+    if not DEFAULT_MODEL_PATH.exists():
+        pytest.skip("no committed model")
+    from tests.model_helpers import perturbed_model
+
+    mesh = two_shells()
+    graph = mesh_face_graph(mesh)
+    params = ShdfParams(sample_sets=1)
+    default = compute_shdf(mesh, method="neural", graph=graph, params=params)
+    other_path = perturbed_model(tmp_path)
+    other = compute_shdf(mesh, method="neural", graph=graph, params=params, model=other_path)
+    assert np.abs(other - default).max() > 1e-3
+    np.testing.assert_array_equal(
+        default, compute_shdf(mesh, method="neural", graph=graph, params=params, model=None)
+    )

@@ -9,7 +9,9 @@ waits for its parts, then releases a slider ``--repeat`` times, each time to a v
 requested before (so the service really segments: no cache helps), and reads the page's own
 measurement: ``performance.now()`` from the slider's change event to the first animation
 frame after the new colours were drawn. Also reported: the same for a value seen before
-(the page's own cache), where the time goes: ``request`` (fetch of /v1/segment), ``paint``
+(the page's own cache) and for the parts slider, which cuts the graph cut's part tree in
+the page (``parts cut``: no request; each release a part count other than the one shown,
+cycling through 1..leaves), where the time goes: ``request`` (fetch of /v1/segment), ``paint``
 (decoding and recolouring), ``service`` (the service's own time for the request, 0 when the
 page's cache answered), ``segment`` (its partitioning), ``viewer`` (release to frame minus the
 service's time: HTTP, decoding, recolouring, drawing). The service's CPU time per new value
@@ -63,6 +65,14 @@ def mesh_file(faces: int, folder: Path) -> Path:
     return out
 
 
+def segment_requests(page: ViewerPage) -> int:
+    """POST /v1/segment requests the page has made so far."""
+    return page.js(
+        "return performance.getEntriesByType('resource')"
+        ".filter(e => new URL(e.name).pathname === '/v1/segment').length"
+    )
+
+
 def summary(values: list[float]) -> str:
     values = sorted(values)
     p90 = values[min(len(values) - 1, int(round(0.9 * (len(values) - 1))))]
@@ -82,6 +92,7 @@ def main() -> None:
         folder = Path(tmp)
         with neural_shdf_serve(folder / "cache") as (base, pid), ViewerPage(base) as page:
             page.open()
+            page.js("performance.setResourceTimingBufferSize(100000)")  # count every request
             print(f"three.js from {page.js('return document.body.dataset.threeBase')}")
             print(
                 f"{'mesh':<28} {'faces':>7} {'case':<9} {'n':>2} {'median':>7} {'p90':>7} "
@@ -106,7 +117,17 @@ def main() -> None:
                     page.release_slider("smoothing", round(0.2 + 0.01 * i, 2))
                     for i in range(args.repeat)
                 ]
-                for case, runs in (("new value", cold), ("seen", warm)):
+                leaves = page.js("return window.shdfViewer.state.body.hierarchy.leaf_count")
+                sent = segment_requests(page)
+                cuts = [
+                    page.release_slider("parts", 1 + i % leaves)
+                    for i in range(args.repeat)
+                    if leaves > 1
+                ]
+                if segment_requests(page) != sent or not all(r.get("recut") for r in cuts):
+                    sys.exit("the parts slider sent a request instead of cutting the part tree")
+                cases = [("new value", cold), ("seen", warm)] + ([("parts cut", cuts)] * bool(cuts))
+                for case, runs in cases:
                     total = [r["totalMs"] for r in runs]
                     ratio = statistics.median(total) / TARGET_MS
                     # Everything but the service's own work: HTTP, decoding, recolouring, frame.
@@ -121,7 +142,8 @@ def main() -> None:
                         f"{ratio:6.2f}"
                     )
                 print(
-                    f"  service CPU per new value: {service_cpu_ms:.0f} ms (all its threads); "
+                    f"  part tree: {leaves} leaves; "
+                    f"service CPU per new value: {service_cpu_ms:.0f} ms (all its threads); "
                     f"upload to first parts on screen: {upload_s:.1f} s"
                 )
             errors = [e for e in page.read_console() if e["level"] == "SEVERE"]

@@ -398,8 +398,7 @@ def _flatten_piece(
             return None
         area_uv = _triangle_areas(uv, piece.faces)
         if np.all(area_uv > 0) and _l2_stretch(piece.vertices, piece.faces, uv) <= max_stretch:
-            overlaps = _overlaps_itself(uv, piece.faces, piece.origin)
-            return None if overlaps else uv[piece.faces]
+            return None if _overlaps_itself(uv, piece.faces) else uv[piece.faces]
         if cut == max_cuts:
             return None
         # Cut from the most compressed interior vertex to the border.
@@ -427,16 +426,15 @@ def _l2_stretch(vertices: NDArray, faces: NDArray, uv: NDArray) -> float:
     return float(np.sqrt(np.sum(area_3d * (gram_a + gram_c) * scale / 2) / area_3d.sum()))
 
 
-def _overlaps_itself(uv: NDArray, faces: NDArray, origin: NDArray | None = None) -> bool:
+def _overlaps_itself(uv: NDArray, faces: NDArray) -> bool:
     """Whether a chart with no flipped triangle still overlaps itself: that happens exactly
     when its border crosses itself, so test every pair of border edges that share no end.
-
-    ``origin``: the surface vertex each UV vertex was copied from by a cut; the two sides
-    of a cut share their ends (they touch where the cut ends, without crossing)."""
+    The two sides of a cut are different border edges: where they cross (the chart wraps
+    past a full turn at the cut's end) that is an overlap too."""
     edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     border = unique[counts == 1]
-    same = border if origin is None else np.asarray(origin)[border]
+    same = border
     start, end = uv[border[:, 0]], uv[border[:, 1]]
     block = max(1, 4_000_000 // max(len(border), 1))
     for first in range(0, len(border), block):

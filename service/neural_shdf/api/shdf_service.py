@@ -105,8 +105,18 @@ class ShdfService:
         self.model_version = model_version(self.model_path)
         self._progress: dict[str, float] = {}
 
+    def _require_model(self, method: str) -> None:
+        """A ModelUnavailableError naming the missing file, for methods that run the network."""
+        if uses_model(method) and not self.model_version:
+            raise ModelUnavailableError(
+                f"the ShDF method {method!r} needs the neural model, but {self.model_path} "
+                "does not exist; set NEURAL_SHDF_MODEL to an exported model (model_export) "
+                "or ask for method 'exact'"
+            )
+
     def version(self, method: str, seed: int) -> str:
         """What a cached ShDF depends on besides the mesh (``shdf_version``)."""
+        self._require_model(method)
         return shdf_version(method, self.model_version, seed)
 
     def resolve(self, method: str | None, triangles: int) -> str:
@@ -116,6 +126,7 @@ class ShdfService:
 
     def key(self, mesh_id: str, method: str, seed: int) -> str:
         """The cache key of a ShDF (``shdf_key``)."""
+        self._require_model(method)
         return shdf_key(mesh_id, method, seed, self.model_version)
 
     def cached(self, key: str) -> NDArray[np.float64] | None:

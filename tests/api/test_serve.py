@@ -126,13 +126,15 @@ def test_kill_9_mid_job_leaves_no_stuck_lock_job_or_partial_entry(tmp_path):
     """kill -9 while an exact ShDF job holds its compute lock, restart, re-upload: the new
     job does not wait for the 600 s lock timeout, and the old job is re-run, not stuck."""
     cache_dir = tmp_path / "cache"
-    data = capsule(200).export(file_type="ply")  # 80k faces: seconds of exact ShDF
+    # 320k faces: seconds of exact ShDF even on a quiet machine, so the kill lands mid-job
+    # (job records are rewritten every 0.5 s: a job shorter than that may finish first).
+    data = capsule(400).export(file_type="ply")
     settings = {
         "default_method": "exact",
         "sync_face_threshold": "10",
         "lock_lease_s": "2",
         "warm_up": "false",
-        "max_upload_bytes": str(8 * 1024**2),
+        "max_upload_bytes": str(16 * 1024**2),
     }
     port = free_port()
     with (

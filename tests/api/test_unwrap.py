@@ -60,3 +60,26 @@ def test_unwrap_parameters_and_ids_get_actionable_errors(client, capsule_obj):
     assert "atlas_size" in bad.json()["error"]["message"]
     missing = client.get(f"/v1/meshes/{'0' * 64}/segmentation/atlas.png")
     assert missing.status_code == 404
+
+
+def test_a_large_mesh_is_unwrapped_in_a_job(app_factory, capsule_obj):
+    from fastapi.testclient import TestClient
+
+    from tests.api.api_helpers import wait_job
+
+    with TestClient(app_factory(sync_face_threshold=10)) as client:
+        uploaded = client.post("/v1/meshes", files={"file": ("capsule.obj", capsule_obj)})
+        assert uploaded.status_code == 202, uploaded.text  # the ShDF's job
+        mesh_id = uploaded.json()["mesh_id"]
+        assert wait_job(client, uploaded.json())["state"] == "succeeded"
+        url = f"/v1/meshes/{mesh_id}/segmentation/unwrapped.glb"
+        query = {"method": TEST_METHOD, "atlas_size": 256}
+        accepted = client.get(url, params=query)
+        assert accepted.status_code == 202, accepted.text  # the atlas's job
+        job = accepted.json()
+        assert job["result_url"].endswith("/segmentation/unwrapped.glb")
+        assert wait_job(client, job)["state"] == "succeeded"
+        done = client.get(url, params=query)
+        assert done.status_code == 200 and done.headers["content-type"] == "model/gltf-binary"
+        png = client.get(f"/v1/meshes/{mesh_id}/segmentation/atlas.png", params=query)
+        assert png.status_code == 200  # the same atlas, cached: no second job

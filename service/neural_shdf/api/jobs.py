@@ -69,7 +69,17 @@ class JobStore:
         """Longest a running job's record goes unwritten."""
         return self.cache.lease_s / 3
 
-    def create(self, mesh_id: str, method: str, seed: int) -> dict[str, Any]:
+    def create(
+        self,
+        mesh_id: str,
+        method: str,
+        seed: int,
+        *,
+        kind: str = "shdf",
+        result_url: str | None = None,
+    ) -> dict[str, Any]:
+        """A queued job: ``kind`` ``shdf`` (re-run when its worker dies) or another
+        computation (failed, with a message to repeat the request, when its worker dies)."""
         now = time.time()
         job = {
             "job_id": uuid.uuid4().hex,
@@ -83,7 +93,8 @@ class JobStore:
             "created_at": now,
             "updated_at": now,
             "error": None,
-            "result_url": f"/v1/meshes/{mesh_id}/shdf?method={method}&seed={seed}",
+            "result_url": result_url or f"/v1/meshes/{mesh_id}/shdf?method={method}&seed={seed}",
+            "kind": kind,
         }
         self._save(job)
         return job

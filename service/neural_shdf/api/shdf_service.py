@@ -233,6 +233,27 @@ class ShdfService:
         self._launch_job(job, key, mesh_id, mesh, method, seed, lease)
         return dict(job)
 
+    async def start_computation_job(
+        self,
+        key: str,
+        mesh_id: str,
+        method: str,
+        seed: int,
+        compute: Callable[[], Any],
+        *,
+        kind: str,
+        result_url: str,
+    ) -> dict[str, Any]:
+        """Record a job of another ``kind`` (e.g. an unwrap) running ``compute`` in the
+        background under the same leases and heartbeats as ShDF jobs; the job's record."""
+        job = await self.tasks.io(
+            self.jobs.create, mesh_id, method, seed, kind=kind, result_url=result_url
+        )
+        lease = self.jobs.runner_lease(job["job_id"])
+        await self.tasks.io(lease.try_acquire)  # a fresh id: free
+        self.tasks.spawn(self._run_job(job, key, compute, lease))
+        return dict(job)
+
     def _launch_job(
         self,
         job: dict[str, Any],
@@ -294,6 +315,16 @@ class ShdfService:
         logger.warning(
             "job %s: its worker %s stopped; run %d", job["job_id"], job.get("worker"), attempt
         )
+        if job.get("kind", "shdf") != "shdf":
+            error = {
+                "code": "worker_lost",
+                "message": f"the worker computing this {job['kind']} stopped (crash, out of "
+                "memory or restart); repeat the request to start it again",
+                "detail": None,
+            }
+            await self.tasks.io(self.jobs.update, job, state="failed", error=error)
+            await self.tasks.io(lease.release)
+            return
         if attempt > self.jobs.max_attempts:
             error = {
                 "code": "worker_lost",

@@ -12,6 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.api.cache import ResultCache
+from neural_shdf.api.jobs import JobAccepted
 from neural_shdf.api.mesh_store import MeshStore
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.segmentation import SegmentationService
@@ -93,24 +94,34 @@ class UnwrapService:
         self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
     ) -> tuple[TriangleMesh, UvAtlas]:
         """The mesh and its atlas (cached, else from the cached segmentation, itself from
-        the cached ShDF: a large mesh's first request answers 202 with the ShDF's job)."""
+        the cached ShDF). A large mesh (over ``sync_face_threshold`` faces) answers 202 with
+        a job: first the ShDF's, then the atlas's; repeat the request once it succeeded."""
         key = self.key(mesh_id, method, params, unwrap)
         result, _ = await self.segmentations.get(mesh_id, method, params)
         mesh = await self.tasks.io(self.meshes.load, mesh_id)
-        atlas = self.cache.recall(key)
-        if atlas is None:
-            atlas, _ = await self.tasks.with_timeout(
-                self.tasks.single_flight(
-                    key,
-                    functools.partial(
-                        self.tasks.compute_once,
-                        key,
-                        functools.partial(self.cached, key),
-                        functools.partial(self._compute, mesh, result.triangle_labels, unwrap),
-                        functools.partial(self._store, key, mesh_id),
-                    ),
-                )
+        atlas = self.cache.recall(key) or await self.tasks.io(self.cached, key)
+        if atlas is not None:
+            return mesh, atlas
+        compute = functools.partial(
+            self.tasks.compute_once,
+            key,
+            functools.partial(self.cached, key),
+            functools.partial(self._compute, mesh, result.triangle_labels, unwrap),
+            functools.partial(self._store, key, mesh_id),
+        )
+        if mesh.face_count > self.segmentations.shdf.settings.sync_face_threshold:
+            shdf = self.segmentations.shdf
+            job = await shdf.start_computation_job(
+                key,
+                mesh_id,
+                method,
+                params.seed,
+                compute,
+                kind="unwrap",
+                result_url=f"/v1/meshes/{mesh_id}/segmentation/unwrapped.glb",
             )
+            raise JobAccepted(job)
+        atlas, _ = await self.tasks.with_timeout(self.tasks.single_flight(key, compute))
         return mesh, atlas
 
     async def glb(

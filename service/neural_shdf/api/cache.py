@@ -724,6 +724,22 @@ class ResultCache:
             self.backend.delete(key)
             return None
 
+    def recall_arrays(self, key: str, decode: Callable[[dict[str, NDArray]], T]) -> T | None:
+        """This process's memory of ``key``, else its stored arrays through ``decode`` (then
+        remembered); None when absent or when ``decode`` rejects them (KeyError, ValueError)."""
+        value = self.recall(key)
+        if value is not None:
+            return value
+        arrays = self.get_arrays(key)
+        if arrays is None:
+            return None
+        try:
+            value = decode(arrays)
+        except (KeyError, ValueError):
+            return None
+        self.remember(key, value)
+        return value
+
     def put_arrays(
         self, key: str, arrays: dict[str, NDArray], *, group: str, keep_local: bool = False
     ) -> None:

@@ -171,16 +171,7 @@ class SegmentationService:
 
     def cached(self, key: str) -> SegmentResult | None:
         """The cached segmentation (memory, then the shared cache), or None."""
-        result = self.cache.recall(key)
-        if result is None:
-            arrays = self.cache.get_arrays(key)
-            if arrays is not None:
-                try:
-                    result = SegmentResult.from_arrays(arrays)
-                except (KeyError, ValueError):
-                    result = None
-                if result is not None:
-                    self.cache.remember(key, result)
+        result = self.cache.recall_arrays(key, SegmentResult.from_arrays)
         self.metrics.count_cache("segmentation", hit=result is not None)
         return result
 

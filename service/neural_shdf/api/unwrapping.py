@@ -67,16 +67,8 @@ class UnwrapService:
         return f"{self.segmentations.key(mesh_id, method, params)}:uv:{digest.hexdigest()[:20]}"
 
     def cached(self, key: str) -> UvAtlas | None:
-        atlas = self.cache.recall(key)
-        if atlas is None:
-            arrays = self.cache.get_arrays(key)
-            if arrays is not None:
-                try:
-                    atlas = _atlas_from_arrays(arrays)
-                except (KeyError, ValueError):
-                    atlas = None
-                if atlas is not None:
-                    self.cache.remember(key, atlas)
+        """The cached atlas (memory, then the shared cache), or None."""
+        atlas = self.cache.recall_arrays(key, _atlas_from_arrays)
         self.metrics.count_cache("unwrap", hit=atlas is not None)
         return atlas
 

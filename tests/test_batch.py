@@ -237,6 +237,29 @@ def test_dask_cluster_writes_the_local_outputs_byte_for_byte(
 
 
 @pytest.mark.slow
+def test_two_batches_on_one_cluster_each_write_their_own_outputs(
+    library: Path, local_outputs: dict[str, bytes], dask_client: Any, tmp_path: Path
+):
+    """The same assets and parameters into two folders at once on one cluster: each batch
+    runs its own tasks (Dask shares a result between tasks submitted under one name)."""
+    folders = [tmp_path / "first", tmp_path / "second"]
+    rows: dict[Path, list] = {}
+
+    def run(folder: Path) -> None:
+        rows[folder] = run_batch([library], folder, method=TEST_METHOD, outputs=["seg", "shdf"],
+                                 scheduler=dask_client)  # fmt: skip
+
+    threads = [threading.Thread(target=run, args=(folder,)) for folder in folders]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=300)
+    for folder in folders:
+        assert [r["status"] for r in rows[folder]].count("ok") == 8
+        assert _outputs(folder) == local_outputs
+
+
+@pytest.mark.slow
 def test_a_worker_killed_mid_run_has_its_assets_retried_elsewhere(
     library: Path, local_outputs: dict[str, bytes], dask_client: Any, tmp_path: Path
 ):

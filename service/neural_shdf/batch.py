@@ -27,6 +27,7 @@ import socket
 import sys
 import tempfile
 import time
+import uuid
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -462,11 +463,14 @@ def _run_dask(tasks: list[Task], out_dir: str, config: BatchConfig, key: str,
             client = Client(scheduler, timeout="20s")
         except (OSError, TimeoutError, ValueError) as error:
             raise ParameterError(f"cannot reach the Dask scheduler {scheduler}: {error}") from error
+    # Task names unique to this run: Dask hands a finished result still held under the same
+    # name (an earlier batch into another folder) back instead of running the task.
+    run_id = uuid.uuid4().hex[:12]
     try:
         futures = {
             client.submit(
                 process_asset, asset, out_dir, config, key,
-                key=f"neural-shdf-asset-{key}-{index}", pure=False, retries=0,
+                key=f"neural-shdf-asset-{key}-{run_id}-{index}", pure=False, retries=0,
             ): (index, asset)
             for index, asset in tasks
         }  # fmt: skip

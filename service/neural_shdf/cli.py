@@ -233,6 +233,8 @@ def _add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _add_segment_options(parser: argparse.ArgumentParser) -> None:
     """The segmentation parameters (``SegmentParams`` fields), shared by segment and batch."""
+    from neural_shdf.segment.params import DEFAULT_CREASE_BOUNDARIES
+
     parser.add_argument("--partitioner", choices=["graphcut", "metis"], default="graphcut")
     parser.add_argument("--clusters", type=_clusters,
                         help="mixture components k, a level of detail (default 9), "
@@ -244,6 +246,10 @@ def _add_segment_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refine", action="store_true", help="recursively refine parts")
     parser.add_argument("--boundary-smoothing", action="store_true",
                         help="alpha-expansion pass that smooths part boundaries")
+    parser.add_argument("--crease-boundaries", action=argparse.BooleanOptionalAction,
+                        default=DEFAULT_CREASE_BOUNDARIES,
+                        help="move the graph cut's part boundaries onto nearby concave creases "
+                             "(a min cut in a band around each boundary)")
 
 
 def cmd_batch(args: argparse.Namespace) -> int:

@@ -246,6 +246,7 @@ JSON_VALUES = st.recursive(
                 "method",
                 "shdf_seed",
                 "boundary_smoothing",
+                "crease_boundaries",
                 "labels_format",
                 "other",
             ]

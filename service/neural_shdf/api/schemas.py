@@ -8,7 +8,13 @@ from fastapi import UploadFile
 from pydantic import BaseModel, ConfigDict, Field
 
 from neural_shdf.segment import SegmentParams
-from neural_shdf.segment.params import MAX_CLUSTERS, MAX_PARTS, MAX_SEED, MAX_SMOOTHING
+from neural_shdf.segment.params import (
+    DEFAULT_CREASE_BOUNDARIES,
+    MAX_CLUSTERS,
+    MAX_PARTS,
+    MAX_SEED,
+    MAX_SMOOTHING,
+)
 from neural_shdf.unwrap import MAX_ATLAS_SIZE, MAX_PADDING, MIN_ATLAS_SIZE, UnwrapParams
 
 #: A requested ShDF method; ``auto`` picks a producer per mesh.
@@ -267,6 +273,13 @@ class SegmentOptions(BaseModel):
     refine: bool = Field(False, description="Re-segment heterogeneous parts.", examples=[False])
     boundary_smoothing: bool = Field(
         False, description="Straighten part boundaries.", examples=[False]
+    )
+    crease_boundaries: bool = Field(
+        DEFAULT_CREASE_BOUNDARIES,
+        description="Move the graph cut's part boundaries onto nearby concave creases (a min "
+        "cut in a band around each boundary), before the part tree is built, so every cut "
+        "of `hierarchy` has them.",
+        examples=[DEFAULT_CREASE_BOUNDARIES],
     )
     seed: int = Field(
         0,

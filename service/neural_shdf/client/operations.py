@@ -109,6 +109,7 @@ class SegmentArgs(TypedDict, total=False):
     parts: int | None  # part count for metis
     refine: bool | None
     boundary_smoothing: bool | None
+    crease_boundaries: bool | None  # boundaries moved onto concave creases
     seed: int | None  # seeds every random step: the ShDF's sampling and the segmentation
 
 

@@ -35,6 +35,8 @@ MAX_SEED = 2**31 - 1
 MAX_REFINE_DEPTH = 8
 #: Parts smaller than this fraction of the surface area are merged into a neighbour.
 DEFAULT_MIN_PART_FRACTION = 0.002
+#: Boundary refinement onto concave creases (``segment.creases``) by default.
+DEFAULT_CREASE_BOUNDARIES = False
 #: How many times refinement may re-segment a part of a part.
 DEFAULT_REFINE_DEPTH = 2
 
@@ -55,6 +57,9 @@ class SegmentParams:
             exactly this many. None: automatic (``metis``: as many as the graph cut finds).
         refine: recursively re-segment parts that are themselves heterogeneous.
         boundary_smoothing: alpha-expansion pass that straightens part boundaries.
+        crease_boundaries: move the graph cut's part boundaries onto nearby concave
+            creases (a min cut in a band around each boundary, ``segment.creases``),
+            before the part tree is built, so every cut of the tree has them.
         seed: seed of every random step, in 0..``MAX_SEED``. The one seed convention of
             the CLI, the API and the evaluation: the same seed also seeds the ShDF
             (``compute_shdf(mesh, seed=params.seed)``).
@@ -77,6 +82,7 @@ class SegmentParams:
     parts: int | None = None
     refine: bool = False
     boundary_smoothing: bool = False
+    crease_boundaries: bool = DEFAULT_CREASE_BOUNDARIES
     seed: int = 0
     min_part_fraction: float = DEFAULT_MIN_PART_FRACTION
     refine_depth: int = DEFAULT_REFINE_DEPTH
@@ -108,7 +114,7 @@ class SegmentParams:
             )
         if self.parts is not None and (not _is_int(self.parts) or not 1 <= self.parts <= MAX_PARTS):
             raise ParameterError(f"parts must be an integer in 1..{MAX_PARTS}, got {self.parts!r}")
-        for name in ("refine", "boundary_smoothing"):
+        for name in ("refine", "boundary_smoothing", "crease_boundaries"):
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise ParameterError(f"{name} must be true or false, got {getattr(self, name)!r}")
         check_seed(self.seed)

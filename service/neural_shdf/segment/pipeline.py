@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
+from neural_shdf.segment.creases import snap_boundaries_to_creases
 from neural_shdf.segment.graphcut import data_costs, dihedral_weights, multilevel_alpha_expansion
 from neural_shdf.segment.hierarchy import PartTree, automatic_part_count, merge_tree
 from neural_shdf.segment.metis import metis_edge_weights, metis_partition
@@ -145,6 +146,11 @@ def segment_with_details(
             parts, graph, geometry.areas, geometry.centroids, params.min_part_fraction
         )
         lap("merge_small")
+        if params.crease_boundaries and params.partitioner == "graphcut":
+            parts = snap_boundaries_to_creases(
+                parts, graph, geometry.areas, geometry.centroids, params.min_part_fraction
+            )
+            lap("crease_boundaries")
 
     if params.partitioner == "metis":
         if params.parts is not None:

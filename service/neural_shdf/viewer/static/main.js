@@ -158,6 +158,7 @@ function controlValues() {
     parts: Number($('parts').value) || null,  // 0: automatic
     refine: $('refine').checked,
     boundary_smoothing: $('boundary-smoothing').checked,
+    crease_boundaries: $('crease-boundaries').checked,
   };
 }
 

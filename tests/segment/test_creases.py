@@ -1,0 +1,105 @@
+"""Boundary refinement onto concave creases: misplaced boundaries move, parts survive."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from neural_shdf.geometry import build_face_graph, face_centroids, face_normals, weld_faces
+from neural_shdf.segment.creases import crease_capacities, snap_boundaries_to_creases
+from neural_shdf.segment.params import SegmentParams
+from neural_shdf.segment.parts import canonical_labels
+from neural_shdf.segment.pipeline import segment_with_details
+from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
+
+
+def case(faces: int, ripple: float = 0.0):
+    mesh, shdf = dumbbell(faces, ripple)
+    vertices, triangles = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    normals, areas = face_normals(vertices, triangles)
+    graph = build_face_graph(vertices, weld_faces(vertices, triangles), normals)
+    return vertices, triangles, shdf, graph, areas, face_centroids(vertices, triangles)
+
+
+@pytest.fixture(scope="module")
+def dumbbell_case():
+    return case(6000)
+
+
+def junction_errors(labels, z):
+    """Faces on the wrong side of the upper ball's concave junction (1 = the ball)."""
+    ball = z > JUNCTION_Z + 0.02
+    neck = (z < JUNCTION_Z - 0.02) & (z > 0)
+    return int(np.sum(labels[ball] != 1) + np.sum(labels[neck] != 0))
+
+
+@pytest.mark.parametrize("offset", [0.25, -0.12])
+def test_a_misplaced_boundary_moves_onto_the_concave_crease(dumbbell_case, offset):
+    _, _, _, graph, areas, centroids = dumbbell_case
+    z = centroids[:, 2]
+    # Two parts: the upper ball and the rest, cut `offset` off the neck's junction.
+    misplaced = (z > JUNCTION_Z + offset).astype(np.int64)
+    assert junction_errors(misplaced, z) > 50
+    snapped = snap_boundaries_to_creases(misplaced, graph, areas, centroids, 0.002)
+    assert snapped.max() == 1
+    assert junction_errors(snapped, z) == 0
+
+
+def test_a_boundary_on_the_crease_stays(dumbbell_case):
+    _, _, _, graph, areas, centroids = dumbbell_case
+    on_crease = (centroids[:, 2] > JUNCTION_Z).astype(np.int64)
+    snapped = snap_boundaries_to_creases(on_crease, graph, areas, centroids, 0.002)
+    np.testing.assert_array_equal(snapped, on_crease)
+
+
+def test_concave_edges_are_cheap_and_convex_ones_cost_their_length(dumbbell_case):
+    graph = dumbbell_case[3]
+    capacity = crease_capacities(graph)
+    concave = graph.concave & (graph.dihedral > 0.1)
+    assert np.all(capacity[concave] < 0.5 * graph.edge_length[concave])
+    np.testing.assert_allclose(capacity[~graph.concave], graph.edge_length[~graph.concave])
+
+
+def test_a_small_part_inside_the_band_survives(dumbbell_case):
+    _, _, _, graph, areas, centroids = dumbbell_case
+    # A cap on the upper ball, far narrower than the band width: no part vanishes.
+    cap = (centroids[:, 2] > 2.9).astype(np.int64)
+    snapped = snap_boundaries_to_creases(cap, graph, areas, centroids, 0.0)
+    assert snapped.max() == 1
+    assert 0 < np.sum(snapped == 1) <= 2 * np.sum(cap == 1)
+
+
+def test_refinement_is_deterministic_and_keeps_labels_in_face_order():
+    vertices, faces, shdf, graph, areas, _ = case(5000, ripple=0.05)
+    params = SegmentParams(crease_boundaries=True, smoothing=0.02)
+    first = segment_with_details(vertices, faces, shdf, params, graph, areas=areas)
+    again = segment_with_details(vertices, faces, shdf, params, graph, areas=areas)
+    np.testing.assert_array_equal(first.tree.leaf_labels, again.tree.leaf_labels)
+    # The same mesh with its faces in another order: the same parts, per face.
+    order = np.random.default_rng(0).permutation(len(faces))
+    shuffled_faces = faces[order]
+    normals, shuffled_areas = face_normals(vertices, shuffled_faces)
+    shuffled_graph = build_face_graph(vertices, weld_faces(vertices, shuffled_faces), normals)
+    shuffled = segment_with_details(
+        vertices, shuffled_faces, shdf[order], params, shuffled_graph, areas=shuffled_areas
+    )
+    np.testing.assert_array_equal(
+        shuffled.tree.leaf_labels, canonical_labels(first.tree.leaf_labels[order])
+    )
+
+
+def test_every_cut_of_the_tree_has_the_refined_boundaries(dumbbell_case):
+    vertices, faces, shdf, graph, areas, _ = dumbbell_case
+    params = SegmentParams(crease_boundaries=True, smoothing=0.02)
+    whole = segment_with_details(vertices, faces, shdf, params, graph, areas=areas)
+    plain = segment_with_details(
+        vertices, faces, shdf, replace(params, crease_boundaries=False), graph, areas=areas
+    )
+    assert "crease_boundaries" in whole.timings
+    assert not np.array_equal(whole.tree.leaf_labels, plain.tree.leaf_labels)
+    for parts in range(1, whole.tree.leaf_count + 1):
+        asked = segment_with_details(
+            vertices, faces, shdf, replace(params, parts=parts), graph, areas=areas
+        )
+        np.testing.assert_array_equal(asked.tree.leaf_labels, whole.tree.leaf_labels)
+        np.testing.assert_array_equal(asked.labels, whole.tree.labels(parts))

@@ -2,16 +2,21 @@
 
 Rows per category and overall (mean over categories, as the benchmark averages);
 columns CD, HD, Rm, Rf, 1-RI, GCE, LCE (lower is better), then the mean part count.
-Default rows, all from our exact ShDF except CGAL's:
+Default rows, from our exact ShDF unless named ``neural-`` (CGAL's are its own):
 
 * ``before-tree``: the segmentation before the part tree (graph cut, lambda 0.12,
-  every part it finds: ``exact-graphcut-leaves`` with ``smoothing=0.12``);
-* ``tree-auto``: the default now (``exact-graphcut``): the part tree cut where the
-  merge cost jumps;
+  every part it finds, no crease refinement: ``exact-graphcut-leaves``);
+* ``tree-auto``: the default now (``exact-graphcut``): the graph cut's parts with their
+  boundaries moved onto concave creases (``segment.creases``), the part tree over
+  them cut where the merge cost jumps;
+* ``tree-auto-nocrease``: the same without the crease refinement (the default before it);
 * ``tree-humansN``: the part tree cut at the humans' most frequent part count of each
   model (``exact-graphcut-humanparts``), the benchmark's protocol for methods that
-  take a count;
+  take a count; ``tree-humansN-nocrease`` without the crease refinement;
 * ``metis-humansN``: METIS given the same count (``exact-metis-humanparts``);
+* ``metis-auto``: METIS given the part tree's automatic count (``exact-metis``);
+* ``neural-tree-auto``: the neural ShDF (the ONNX network) with the default
+  segmentation (``neural-graphcut``);
 * ``cgal``: CGAL's own segmentations (``cgal/*.seg``).
 
 The hierarchy's weights and its automatic count were tuned on the first three
@@ -49,10 +54,14 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_BENCH = REPO_ROOT / ".." / "shared" / "data" / "psb-dev"
 #: Row name -> (method, SegmentParams overrides).
 ROWS: dict[str, tuple[str, dict]] = {
-    "before-tree": ("exact-graphcut-leaves", {"smoothing": 0.12}),
+    "before-tree": ("exact-graphcut-leaves", {"smoothing": 0.12, "crease_boundaries": False}),
+    "tree-auto-nocrease": ("exact-graphcut", {"crease_boundaries": False}),
     "tree-auto": ("exact-graphcut", {}),
+    "tree-humansN-nocrease": ("exact-graphcut-humanparts", {"crease_boundaries": False}),
     "tree-humansN": ("exact-graphcut-humanparts", {}),
     "metis-humansN": ("exact-metis-humanparts", {}),
+    "metis-auto": ("exact-metis", {}),
+    "neural-tree-auto": ("neural-graphcut", {}),
     "cgal": ("cgal", {}),
 }
 

@@ -45,6 +45,17 @@ def test_a_misplaced_boundary_moves_onto_the_concave_crease(dumbbell_case, offse
     assert junction_errors(snapped, z) == 0
 
 
+def test_large_meshes_are_solved_on_coarse_nodes_that_keep_the_crease():
+    _, _, _, graph, areas, centroids = case(24000)
+    z = centroids[:, 2]
+    misplaced = (z > JUNCTION_Z + 0.25).astype(np.int64)
+    coarse = snap_boundaries_to_creases(
+        misplaced, graph, areas, centroids, 0.002, coarse_above=10_000, coarse_nodes=2_000
+    )
+    assert junction_errors(coarse, z) == 0
+    np.testing.assert_array_equal(coarse, canonical_labels(coarse))
+
+
 def test_a_boundary_on_the_crease_stays(dumbbell_case):
     _, _, _, graph, areas, centroids = dumbbell_case
     on_crease = (centroids[:, 2] > JUNCTION_Z).astype(np.int64)

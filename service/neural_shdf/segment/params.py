@@ -36,7 +36,7 @@ MAX_REFINE_DEPTH = 8
 #: Parts smaller than this fraction of the surface area are merged into a neighbour.
 DEFAULT_MIN_PART_FRACTION = 0.002
 #: Boundary refinement onto concave creases (``segment.creases``) by default.
-DEFAULT_CREASE_BOUNDARIES = False
+DEFAULT_CREASE_BOUNDARIES = True
 #: How many times refinement may re-segment a part of a part.
 DEFAULT_REFINE_DEPTH = 2
 

@@ -6,8 +6,9 @@ Steps (Shapira et al. 2008 as implemented by CGAL's ``segmentation_from_sdf_valu
 2. ``graphcut``: alpha-expansion with data ``-log P(cluster | face)`` and
    dihedral edge weights; connected runs of one cluster become parts.
    ``metis``: METIS k-way partition into exactly ``parts`` parts;
-3. optional recursive refinement and boundary smoothing; tiny parts merged
-   (graph cut only); labels renumbered by lowest face index;
+3. optional recursive refinement; tiny parts merged (graph cut only); the graph
+   cut's boundaries moved onto nearby concave creases (``creases``, on by default);
+   optional boundary smoothing; labels renumbered by lowest face index;
 4. graph cut only: the parts are the leaves of a merge tree (``hierarchy``), cut
    at ``parts`` parts or, by default, where the merge cost jumps.
 """
@@ -146,7 +147,7 @@ def segment_with_details(
             parts, graph, geometry.areas, geometry.centroids, params.min_part_fraction
         )
         lap("merge_small")
-        if params.crease_boundaries and params.partitioner == "graphcut":
+        if params.crease_boundaries:  # the tree's leaves (metis: its automatic count)
             parts = snap_boundaries_to_creases(
                 parts, graph, geometry.areas, geometry.centroids, params.min_part_fraction
             )

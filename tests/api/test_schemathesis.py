@@ -96,7 +96,9 @@ def test_stateful_fuzzing_follows_the_links_from_real_uploads(tmp_path):
 
     Workflow.run(
         settings=settings(
-            max_examples=10,
+            # Derandomized: any schema change shifts the stream; at 10 examples adding
+            # `crease_boundaries` left no successful segment_mesh call, 20 reach one.
+            max_examples=20,
             stateful_step_count=5,
             deadline=None,
             suppress_health_check=list(HealthCheck),

@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import build_face_graph
+from neural_shdf.geometry import build_face_graph, face_centroids, face_normals
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import mesh_face_graph
 from neural_shdf.shdf.postprocess import (
@@ -17,6 +17,7 @@ from neural_shdf.shdf.postprocess import (
     fill_missing,
     linear_normalize,
     log_normalize,
+    mesh_ring_length,
     patch_bilateral,
     postprocess_shdf,
     ring_length,
@@ -221,3 +222,12 @@ def test_post_processing_reports_progress_in_steps():
     values = postprocess_shdf(raw, graph, window_size=3, progress=seen.append)
     np.testing.assert_array_equal(values, postprocess_shdf(raw, graph, window_size=3))
     assert seen == sorted(seen) and seen[-1] == 1.0 and len(set(seen)) >= 10
+
+
+def test_ring_length_from_the_mesh_reads_only_the_pairs_it_needs() -> None:
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    normals, _ = face_normals(mesh.vertices, mesh.faces)
+    graph = build_face_graph(mesh.vertices, mesh.faces, normals)
+    expected = ring_length(graph, face_centroids(mesh.vertices, mesh.faces))
+    assert expected > 0
+    assert mesh_ring_length(graph, mesh.vertices, mesh.faces) == expected

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph
+from neural_shdf.geometry import FaceGraph, face_centroids
 
 #: CGAL's ``CGAL_NORMALIZATION_ALPHA``: strength of the log normalisation.
 LOG_NORMALIZATION_ALPHA = 5.0
@@ -411,12 +411,28 @@ def _patch_bilateral_faces(  # noqa: PLR0913
 
 def ring_length(graph: FaceGraph, centroids: NDArray) -> float:
     """Straight-line distance per edge ring of the face graph: ``RING_PER_SPACING`` x the
-    mean distance between the centroids of adjacent faces. Turns a window in rings into a
-    distance on the surface."""
-    if len(graph.pairs) == 0:
+    mean distance between the centroids of adjacent faces (``RING_LENGTH_PAIRS`` pairs
+    evenly spread over the graph's). Turns a window in rings into a distance on the
+    surface."""
+    pairs = _spacing_pairs(graph)
+    return _ring_length(centroids[pairs[:, 0]] - centroids[pairs[:, 1]])
+
+
+def mesh_ring_length(graph: FaceGraph, vertices: NDArray, faces: NDArray) -> float:
+    """``ring_length`` from the mesh, computing only the centroids of the pairs it reads."""
+    pairs = _spacing_pairs(graph)
+    return _ring_length(
+        face_centroids(vertices, faces[pairs[:, 0]]) - face_centroids(vertices, faces[pairs[:, 1]])
+    )
+
+
+def _spacing_pairs(graph: FaceGraph) -> NDArray[np.int64]:
+    return graph.pairs[:: max(1, len(graph.pairs) // RING_LENGTH_PAIRS)]
+
+
+def _ring_length(offset: NDArray) -> float:
+    if len(offset) == 0:
         return 0.0
-    pairs = graph.pairs[:: max(1, len(graph.pairs) // RING_LENGTH_PAIRS)]
-    offset = centroids[pairs[:, 0]] - centroids[pairs[:, 1]]
     return RING_PER_SPACING * float(np.mean(np.sqrt(np.einsum("ij,ij->i", offset, offset))))
 
 

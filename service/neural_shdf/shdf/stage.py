@@ -22,7 +22,9 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Literal
@@ -40,8 +42,8 @@ from neural_shdf.shdf.postprocess import (
     FILTER_COST_PER_PAIR,
     RANGE_SIGMA_FACTOR,
     SPATIAL_SIGMA_FACTOR,
+    mesh_ring_length,
     postprocess_shdf,
-    ring_length,
     smoothing_window,
 )
 
@@ -185,48 +187,72 @@ def fill_samples(values: NDArray, positions: NDArray) -> NDArray[np.float64]:
 
 
 def sample_smoothing(
-    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams, centroids: NDArray
+    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams
 ) -> tuple[float, float]:
     """(radius, spatial sigma) in mesh units of the surface window the exact path's
     bilateral filter covers on this mesh (``window`` edge rings of ``ring_length``)."""
     window = params.window_for(mesh.face_count)
-    spacing = ring_length(graph, centroids)
+    spacing = mesh_ring_length(graph, mesh.vertices, mesh.faces)
     return window * spacing, SPATIAL_SIGMA_FACTOR * window * spacing
 
 
 def sampled_raw_shdf(
-    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams, centroids: NDArray
+    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams, workers: int | None = None
 ) -> NDArray[np.float64]:
     """Per-face raw diameters from the exact cone cast at ``params.samples`` Poisson
-    samples, smoothed at the sample scale and interpolated to the faces."""
-    from neural_shdf.shdf.exact import raw_shdf_at_points
-    from neural_shdf.shdf.neural.graph import GraphSpec, sample_surface_points, samples_to_faces
+    samples, smoothed at the sample scale and interpolated to the faces.
 
+    The Embree scene is built (``low`` quality: a few rays per triangle) while the
+    samples are drawn, and each vertex's nearest samples are found while the rays
+    are cast (``workers`` threads, default one per CPU; the result does not depend
+    on it).
+    """
+    from neural_shdf.shdf.embree import Scene
+    from neural_shdf.shdf.exact import raw_shdf_at_points
+    from neural_shdf.shdf.neural.graph import (
+        GraphSpec,
+        sample_surface_points,
+        samples_to_faces,
+        vertex_normal_sums,
+        with_vertex_map,
+    )
+
+    workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
     normals, areas = mesh.normals_and_areas
-    samples = sample_surface_points(
-        mesh.vertices,
-        mesh.faces,
-        GraphSpec(target_samples=params.samples),
-        seed=params.seed,
-        normals=normals,
-        areas=areas,
-    )
-    diameters, _, _ = raw_shdf_at_points(
-        mesh.vertices,
-        mesh.faces,
-        samples.positions,
-        samples.normals,
-        samples.face_ids,
-        cone_angle=params.cone_angle,
-        ray_count=params.ray_count,
-    )
-    if np.isnan(diameters).all():
-        return np.full(mesh.face_count, np.nan)
-    diameters = fill_samples(diameters, samples.positions)
-    radius, sigma = sample_smoothing(mesh, graph, params, centroids)
-    smoothed = smooth_samples(
-        diameters, samples.positions, samples.normals, radius=radius, spatial_sigma=sigma
-    )
+    spec = GraphSpec(target_samples=params.samples)
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        scene = pool.submit(Scene, mesh.vertices, mesh.faces, "low")
+        normal_sums = vertex_normal_sums(len(mesh.vertices), mesh.faces, normals, areas)
+        samples = sample_surface_points(
+            mesh.vertices,
+            mesh.faces,
+            spec,
+            seed=params.seed,
+            normals=normals,
+            areas=areas,
+            map_vertices=False,
+            normal_sums=normal_sums,
+        )
+        mapped = pool.submit(with_vertex_map, samples, mesh.vertices, normal_sums, spec, 1)
+        diameters, _, _ = raw_shdf_at_points(
+            mesh.vertices,
+            mesh.faces,
+            samples.positions,
+            samples.normals,
+            samples.face_ids,
+            cone_angle=params.cone_angle,
+            ray_count=params.ray_count,
+            threads=workers,
+            scene=scene,
+        )
+        if np.isnan(diameters).all():
+            return np.full(mesh.face_count, np.nan)
+        diameters = fill_samples(diameters, samples.positions)
+        radius, sigma = sample_smoothing(mesh, graph, params)
+        smoothed = smooth_samples(
+            diameters, samples.positions, samples.normals, radius=radius, spatial_sigma=sigma
+        )
+        samples = mapped.result()
     return samples_to_faces(smoothed, samples, mesh.faces)
 
 
@@ -237,12 +263,8 @@ def raw_diameters(
     params: ShdfParams,
     model: object | None = None,
     progress: Progress | None = None,
-    centroids: NDArray | None = None,
 ) -> NDArray[np.float64]:
-    """Raw diameter per triangle (mesh units, NaN = unknown) from one producer
-    (``centroids``: the face centroids, when the caller has them)."""
-    if centroids is None:
-        centroids = face_centroids(mesh.vertices, mesh.faces)
+    """Raw diameter per triangle (mesh units, NaN = unknown) from one producer."""
     if method == "exact":
         from neural_shdf.shdf.exact import raw_shdf
 
@@ -256,12 +278,12 @@ def raw_diameters(
             progress=progress,
         )
     if method == "sampled":
-        return sampled_raw_shdf(mesh, graph, params, centroids)
+        return sampled_raw_shdf(mesh, graph, params)
     if method == "neural":
         from neural_shdf.shdf.neural.inference import neural_raw_shdf
 
         normals, areas = mesh.normals_and_areas
-        radius, sigma = sample_smoothing(mesh, graph, params, centroids)
+        radius, sigma = sample_smoothing(mesh, graph, params)
         return neural_raw_shdf(
             mesh.vertices,
             mesh.faces,
@@ -308,7 +330,6 @@ def run_shdf(
     if resolved == "exact":  # the rays against the filter's expected time
         pairs = 1 + 3 * min(window, EXACT_WINDOW_MAX) * (min(window, EXACT_WINDOW_MAX) + 1) // 2
         ray_share = 1.0 / (1.0 + FILTER_COST_PER_PAIR * pairs)
-    centroids = face_centroids(mesh.vertices, mesh.faces)
     raw = raw_diameters(
         mesh,
         graph,
@@ -316,14 +337,14 @@ def run_shdf(
         params,
         model,
         None if progress is None else (lambda done: progress(ray_share * done)),
-        centroids,
     )
     values = postprocess_shdf(
         raw,
         graph,
         window_size=window,
         smooth=resolved == "exact",
-        centroids=centroids,
+        # the patch filter of wide windows places patches by centroid (exact only)
+        centroids=face_centroids(mesh.vertices, mesh.faces) if resolved == "exact" else None,
         progress=None
         if progress is None
         else (lambda done: progress(ray_share + (1 - ray_share) * done)),

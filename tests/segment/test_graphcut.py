@@ -12,6 +12,7 @@ from neural_shdf.segment.graphcut import (
     LAMBDA_SCALE,
     alpha_expansion,
     banded_alpha_expansion,
+    cut_hierarchy,
     dihedral_weights,
     expansion_move,
     labelling_energy,
@@ -117,3 +118,23 @@ def test_multilevel_is_close_to_the_direct_solution_on_a_sphere():
     e_multi = labelling_energy(multilevel, data, graph.pairs, weights)
     assert e_multi <= 1.05 * e_direct
     assert np.mean(multilevel == direct) > 0.95
+
+
+def test_one_cut_hierarchy_serves_every_smoothing_scale():
+    mesh = trimesh.creation.icosphere(5)
+    normals, areas = face_normals(mesh.vertices, mesh.faces)
+    graph = build_face_graph(mesh.vertices, mesh.faces, normals)
+    centroids = face_centroids(mesh.vertices, mesh.faces)
+    rng = np.random.default_rng(1)
+    p_top = np.clip(0.5 + 0.5 * centroids[:, 2] + rng.normal(0, 0.3, len(centroids)), 0.01, 0.99)
+    data = -np.log(np.column_stack([1 - p_top, p_top, np.full_like(p_top, 0.3)]))
+    unit = dihedral_weights(graph, 1.0)
+    hierarchy = cut_hierarchy(data, graph.pairs, unit, centroids, areas, coarse_nodes=1000)
+    assert len(hierarchy.levels) > 2 and hierarchy.nbytes > data.nbytes
+    for scale in (0.01, 0.05, 0.3):
+        direct = multilevel_alpha_expansion(
+            data, graph.pairs, unit * scale, centroids, areas, coarse_nodes=1000
+        )
+        np.testing.assert_array_equal(hierarchy.solve(scale), direct)
+    # No smoothness term: every face takes its cheapest label.
+    np.testing.assert_array_equal(hierarchy.solve(0.0), np.argmin(data, axis=1))

@@ -1,6 +1,7 @@
 """Canonical labels, connected parts, and merging of tiny parts."""
 
 import numpy as np
+import pytest
 
 from neural_shdf.geometry import FaceGraph
 from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
@@ -63,3 +64,20 @@ def test_all_tiny_shells_stay_apart():
     )
     merged = merge_small_parts(np.arange(4), graph, np.ones(4), np.eye(4, 3), 0.3)
     np.testing.assert_array_equal(merged, np.arange(4))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_connected_parts_match_scipy_components_numbered_by_lowest_face(seed):
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    rng = np.random.default_rng(seed)
+    count = 400
+    pairs = rng.integers(0, count, (600, 2))
+    labels = rng.integers(0, 3, count)
+    keep = labels[pairs[:, 0]] == labels[pairs[:, 1]]
+    matrix = sp.coo_matrix((np.ones(keep.sum()), tuple(pairs[keep].T)), shape=(count, count))
+    _, components = connected_components(matrix, directed=False)
+    np.testing.assert_array_equal(
+        connected_parts(labels, pairs, count), canonical_labels(components)
+    )

@@ -19,9 +19,12 @@ of max-flows over the whole mesh.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf.compiled import kernel
 from neural_shdf.geometry import FaceGraph
 
 #: CGAL: probabilities below this are clamped before ``-log``.
@@ -85,9 +88,81 @@ def length_factor(edge_length: NDArray) -> NDArray[np.float64]:
 
 def labelling_energy(labels: NDArray, data: NDArray, pairs: NDArray, weights: NDArray) -> float:
     """E(l): data cost of each face's label plus the weight of every cut edge."""
-    unary = float(data[np.arange(len(labels)), labels].sum())
-    cut = labels[pairs[:, 0]] != labels[pairs[:, 1]]
-    return unary + float(weights[cut].sum())
+    return float(
+        _labelling_energy(
+            np.asarray(labels, dtype=np.int64),
+            np.asarray(data, dtype=np.float64),
+            np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+            np.asarray(weights, dtype=np.float64),
+        )
+    )
+
+
+@kernel
+def _labelling_energy(labels, data, pairs, weights):  # pragma: no cover - compiled
+    unary = 0.0
+    for node in range(len(labels)):
+        unary += data[node, labels[node]]
+    cut = 0.0
+    for edge in range(len(pairs)):
+        if labels[pairs[edge, 0]] != labels[pairs[edge, 1]]:
+            cut += weights[edge]
+    return unary + cut
+
+
+@kernel
+def _expansion_graph(labels, alpha, data, pairs, weights):  # pragma: no cover - compiled
+    """The max-flow graph of one expansion move, in one pass: the free nodes (label not
+    ``alpha``), their terminal capacities and the edges between free nodes.
+
+    Node x = 1 (sink side) means "switch to alpha" and pays the source capacity. An edge
+    to a node already labelled alpha: keeping our label cuts it. Between two free nodes
+    of one label: Potts w * [x_a != x_b]. Of different labels: w * (1 - x_a x_b)
+    = w * (1 - x_a) + w * x_a (1 - x_b), i.e. a keep cost on a and an edge b -> a.
+    Capacities are shifted by min(keep, switch) per node (the cut changes by a constant).
+    """
+    count = len(labels)
+    node_of = np.full(count, -1, dtype=np.int64)
+    nodes = np.empty(count, dtype=np.int64)
+    free = 0
+    for node in range(count):
+        if labels[node] != alpha:
+            node_of[node] = free
+            nodes[free] = node
+            free += 1
+    nodes = nodes[:free]
+    keep = np.empty(free)
+    switch = np.empty(free)
+    for i in range(free):
+        keep[i] = data[nodes[i], labels[nodes[i]]]
+        switch[i] = data[nodes[i], alpha]
+    edge_a = np.empty(len(pairs), dtype=np.int64)
+    edge_b = np.empty(len(pairs), dtype=np.int64)
+    forward = np.empty(len(pairs))
+    backward = np.empty(len(pairs))
+    edges = 0
+    for edge in range(len(pairs)):
+        a, b = node_of[pairs[edge, 0]], node_of[pairs[edge, 1]]
+        w = weights[edge]
+        if a >= 0 and b >= 0:
+            edge_a[edges] = a
+            edge_b[edges] = b
+            backward[edges] = w
+            if labels[pairs[edge, 0]] == labels[pairs[edge, 1]]:
+                forward[edges] = w
+            else:
+                forward[edges] = 0.0
+                keep[a] += w
+            edges += 1
+        elif a >= 0:
+            keep[a] += w
+        elif b >= 0:
+            keep[b] += w
+    for i in range(free):
+        shift = min(keep[i], switch[i])
+        keep[i] -= shift
+        switch[i] -= shift
+    return nodes, switch, keep, edge_a[:edges], edge_b[:edges], forward[:edges], backward[:edges]
 
 
 def expansion_move(
@@ -96,39 +171,24 @@ def expansion_move(
     """The best labelling reachable by letting any face switch to ``alpha`` (one max-flow)."""
     import maxflow
 
-    free = labels != alpha
-    nodes = np.flatnonzero(free)
+    labels = np.asarray(labels, dtype=np.int64)
+    nodes, source_cap, sink_cap, edge_a, edge_b, forward, backward = _expansion_graph(
+        labels,
+        alpha,
+        np.asarray(data, dtype=np.float64),
+        np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+        np.asarray(weights, dtype=np.float64),
+    )
     if len(nodes) == 0:
         return labels
-    node_of = np.full(len(labels), -1, dtype=np.int64)
-    node_of[nodes] = np.arange(len(nodes))
-    # x = 1 (sink side) means "switch to alpha": it pays the source capacity.
-    keep_cost = data[nodes, labels[nodes]].copy()
-    switch_cost = data[nodes, alpha].copy()
-
-    a, b = pairs[:, 0], pairs[:, 1]
-    free_a, free_b = free[a], free[b]
-    # An edge to a face already labelled alpha: keeping our label cuts it.
-    one_a = free_a & ~free_b
-    one_b = free_b & ~free_a
-    np.add.at(keep_cost, node_of[a[one_a]], weights[one_a])
-    np.add.at(keep_cost, node_of[b[one_b]], weights[one_b])
-
-    both = free_a & free_b
-    pa, pb, w = node_of[a[both]], node_of[b[both]], weights[both]
-    same = labels[a[both]] == labels[b[both]]
-    # Same label: Potts w * [x_a != x_b]. Different labels: w * (1 - x_a x_b)
-    # = w * (1 - x_a) + w * x_a (1 - x_b)  ->  keep cost on a, edge b -> a.
-    np.add.at(keep_cost, pa[~same], w[~same])
-
-    graph = maxflow.Graph[float](len(nodes), len(pa))
+    graph = maxflow.Graph[float](len(nodes), len(edge_a))
     graph.add_nodes(len(nodes))
-    if len(pa):
-        graph.add_edges(pa, pb, np.where(same, w, 0.0), w)
-    shift = np.minimum(keep_cost, switch_cost)
-    graph.add_grid_tedges(np.arange(len(nodes)), switch_cost - shift, keep_cost - shift)
+    if len(edge_a):
+        graph.add_edges(edge_a, edge_b, forward, backward)
+    index = np.arange(len(nodes))
+    graph.add_grid_tedges(index, source_cap, sink_cap)
     graph.maxflow()
-    switch = graph.get_grid_segments(np.arange(len(nodes)))
+    switch = graph.get_grid_segments(index)
     result = labels.copy()
     result[nodes[switch]] = alpha
     return result
@@ -206,11 +266,15 @@ def banded_alpha_expansion(
     local[nodes] = np.arange(len(nodes))
     sub_data = np.array(band_data, dtype=np.float64)
     a, b = pairs[:, 0], pairs[:, 1]
+    label_count = sub_data.shape[1]
     for inner, outer in ((a, b), (b, a)):
         edge = np.flatnonzero(band[inner] & ~band[outer])
         rows = local[inner[edge]]
-        np.add.at(sub_data, rows, weights[edge][:, None])
-        np.add.at(sub_data, (rows, labels[outer[edge]]), -weights[edge])
+        sub_data += np.bincount(rows, weights=weights[edge], minlength=len(nodes))[:, None]
+        cell = rows * label_count + labels[outer[edge]]
+        sub_data -= np.bincount(cell, weights=weights[edge], minlength=sub_data.size).reshape(
+            sub_data.shape
+        )
     inside = np.flatnonzero(band[a] & band[b])
     sub_pairs = local[pairs[inside]]
     # Only labels in or beside the band can win there.
@@ -223,19 +287,30 @@ def banded_alpha_expansion(
     return result
 
 
-def near_boundary(labels: NDArray, pairs: NDArray, node_count: int, rings: int) -> NDArray:
-    """Nodes within ``rings`` hops (1 = the nodes on a cut edge) of a label boundary."""
+def adjacency_matrix(pairs: NDArray, node_count: int):
+    """Symmetric sparse 0/1 adjacency (float32 CSR) of ``pairs``, for ``near_boundary``."""
     import scipy.sparse as sp
 
+    rows = np.concatenate([pairs[:, 0], pairs[:, 1]])
+    cols = np.concatenate([pairs[:, 1], pairs[:, 0]])
+    return sp.csr_matrix(
+        (np.ones(len(rows), dtype=np.float32), (rows, cols)), shape=(node_count, node_count)
+    )
+
+
+def near_boundary(
+    labels: NDArray, pairs: NDArray, node_count: int, rings: int, adjacency=None
+) -> NDArray:
+    """Nodes within ``rings`` hops (1 = the nodes on a cut edge) of a label boundary.
+
+    ``adjacency``: ``adjacency_matrix(pairs, node_count)`` where the caller keeps one.
+    """
     cut = labels[pairs[:, 0]] != labels[pairs[:, 1]]
     band = np.zeros(node_count, dtype=bool)
     band[pairs[cut].reshape(-1)] = True
     if rings > 1 and band.any():
-        rows = np.concatenate([pairs[:, 0], pairs[:, 1]])
-        cols = np.concatenate([pairs[:, 1], pairs[:, 0]])
-        adjacency = sp.csr_matrix(
-            (np.ones(len(rows), dtype=np.float32), (rows, cols)), shape=(node_count, node_count)
-        )
+        if adjacency is None:
+            adjacency = adjacency_matrix(pairs, node_count)
         for _ in range(rings - 1):
             band |= adjacency @ band.astype(np.float32) > 0
     return band
@@ -286,31 +361,85 @@ def coarse_graph(
     return coarse_pairs, np.asarray(summed.data, dtype=np.float64)
 
 
-def multilevel_alpha_expansion(
+@dataclass(frozen=True)
+class CutLevel:
+    """One level of the multilevel graph cut: its graph, data costs and edge weights at a
+    smoothing scale of 1, and the map of its nodes to the next coarser level."""
+
+    pairs: NDArray[np.int64]
+    unit_weights: NDArray[np.float64]
+    data: NDArray[np.float64]
+    #: Node of the next coarser level per node (None at the coarsest level).
+    coarse_of: NDArray[np.int64] | None
+    #: Adjacency for the boundary band (None at the coarsest level).
+    adjacency: object = None
+
+    @property
+    def nbytes(self) -> int:
+        arrays = (self.pairs, self.unit_weights, self.data, self.coarse_of)
+        size = sum(a.nbytes for a in arrays if a is not None)
+        if self.adjacency is not None:
+            size += self.adjacency.data.nbytes + self.adjacency.indices.nbytes
+            size += self.adjacency.indptr.nbytes
+        return size
+
+
+@dataclass(frozen=True)
+class CutHierarchy:
+    """The coarse graphs of a multilevel graph cut, finest first.
+
+    They depend on the data costs, the graph and the edge weights only up to a common
+    scale (the smoothing), so one hierarchy serves every smoothing value: ``solve(scale)``
+    minimises the energy with edge weights ``scale * unit_weights``.
+    """
+
+    levels: tuple[CutLevel, ...]
+    rings: int = BAND_RINGS
+
+    @property
+    def nbytes(self) -> int:
+        return sum(level.nbytes for level in self.levels)
+
+    def solve(self, scale: float) -> NDArray[np.int64]:
+        """Labels minimising E with edge weights ``scale * unit_weights``; deterministic."""
+        finest = self.levels[0]
+        if not scale > 0 or finest.data.shape[1] <= 1:
+            # No smoothness term (or one label): each node's cheapest label is optimal.
+            return np.argmin(finest.data, axis=1).astype(np.int64)
+        top = self.levels[-1]
+        labels = alpha_expansion(top.data, top.pairs, top.unit_weights * scale)
+        for level in reversed(self.levels[:-1]):
+            labels = labels[level.coarse_of]
+            band = near_boundary(labels, level.pairs, len(level.data), self.rings, level.adjacency)
+            labels = banded_alpha_expansion(
+                level.data[band], level.pairs, level.unit_weights * scale, labels, band, BAND_CYCLES
+            )
+        return labels
+
+
+def cut_hierarchy(
     data: NDArray,
     pairs: NDArray,
-    weights: NDArray,
+    unit_weights: NDArray,
     centroids: NDArray,
     areas: NDArray,
     coarse_nodes: int = COARSE_NODES,
     rings: int = BAND_RINGS,
-) -> NDArray[np.int64]:
-    """Alpha-expansion through a hierarchy of coarse graphs (a banded multilevel graph cut).
+) -> CutHierarchy:
+    """Coarsen the graph until at most ``coarse_nodes`` nodes remain (or it stops shrinking).
 
-    Nodes are grouped into connected pieces of a 3-D grid (cells doubling per
-    level; crease edges never grouped), with data and edge weights summed, so
-    a labelling that is constant on groups has the same energy at every level.
-    The coarsest graph is solved by alpha-expansion; each finer level
-    inherits the labels and re-solves only a band of ``rings`` hops around
-    the boundaries. Graphs already at most ``coarse_nodes`` large are solved
-    directly. Deterministic.
+    Nodes are grouped into connected pieces of a 3-D grid (cells doubling per level;
+    crease edges and nodes preferring different labels never grouped), with data and
+    edge weights summed, so a labelling that is constant on groups has the same energy
+    at every level. Scaling ``unit_weights`` scales every level's weights alike, so the
+    hierarchy does not depend on the smoothing.
     """
     data = np.asarray(data, dtype=np.float64)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    weights = np.asarray(weights, dtype=np.float64)
+    weights = np.asarray(unit_weights, dtype=np.float64)
     node_count = len(data)
     if node_count <= coarse_nodes or data.shape[1] <= 1:
-        return alpha_expansion(data, pairs, weights)
+        return CutHierarchy((CutLevel(pairs, weights, data, None),), rings)
 
     mean_area = float(np.mean(areas))
     if not mean_area > 0:
@@ -320,10 +449,9 @@ def multilevel_alpha_expansion(
     cells = np.floor((centroids - centroids.min(axis=0)) / cell_size).astype(np.int64)
     crease_weight = CREASE_FRACTION * float(np.median(weights)) if len(weights) else 0.0
 
-    # Build the hierarchy: (map to coarser, pairs, weights, data) per level.
-    hierarchy = [(None, pairs, weights, data)]
-    while len(hierarchy[-1][3]) > coarse_nodes:
-        _, level_pairs, level_weights, level_data = hierarchy[-1]
+    levels: list[CutLevel] = []
+    level_pairs, level_weights, level_data = pairs, weights, data
+    while len(level_data) > coarse_nodes:
         count = len(level_data)
         coarse_of = coarsen(
             level_pairs, level_weights, count, cells, crease_weight, level_data.argmin(axis=1)
@@ -344,15 +472,38 @@ def multilevel_alpha_expansion(
         first = np.full(coarse_count, -1, dtype=np.int64)
         first[coarse_of[::-1]] = np.arange(count)[::-1]
         cells = cells[first] // 2
-        hierarchy[-1] = (coarse_of, level_pairs, level_weights, level_data)
-        hierarchy.append((None, coarse_pairs, coarse_weights, coarse_data))
-
-    _, top_pairs, top_weights, top_data = hierarchy[-1]
-    labels = alpha_expansion(top_data, top_pairs, top_weights)
-    for coarse_of, level_pairs, level_weights, level_data in reversed(hierarchy[:-1]):
-        labels = labels[coarse_of]
-        band = near_boundary(labels, level_pairs, len(level_data), rings)
-        labels = banded_alpha_expansion(
-            level_data[band], level_pairs, level_weights, labels, band, BAND_CYCLES
+        levels.append(
+            CutLevel(
+                level_pairs,
+                level_weights,
+                level_data,
+                coarse_of,
+                adjacency_matrix(level_pairs, count) if rings > 1 else None,
+            )
         )
-    return labels
+        level_pairs, level_weights, level_data = coarse_pairs, coarse_weights, coarse_data
+    levels.append(CutLevel(level_pairs, level_weights, level_data, None))
+    return CutHierarchy(tuple(levels), rings)
+
+
+def multilevel_alpha_expansion(
+    data: NDArray,
+    pairs: NDArray,
+    weights: NDArray,
+    centroids: NDArray,
+    areas: NDArray,
+    coarse_nodes: int = COARSE_NODES,
+    rings: int = BAND_RINGS,
+) -> NDArray[np.int64]:
+    """Alpha-expansion through a hierarchy of coarse graphs (a banded multilevel graph cut).
+
+    The coarsest graph (``cut_hierarchy``) is solved by alpha-expansion; each finer level
+    inherits the labels and re-solves only a band of ``rings`` hops around the
+    boundaries. Graphs already at most ``coarse_nodes`` large are solved directly.
+    Deterministic.
+    """
+    hierarchy = cut_hierarchy(data, pairs, weights, centroids, areas, coarse_nodes, rings)
+    if len(hierarchy.levels) == 1:
+        level = hierarchy.levels[0]
+        return alpha_expansion(level.data, level.pairs, level.unit_weights)
+    return hierarchy.solve(1.0)

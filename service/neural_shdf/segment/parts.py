@@ -7,6 +7,7 @@ import heapq
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf.compiled import kernel
 from neural_shdf.geometry import FaceGraph
 
 
@@ -23,18 +24,42 @@ def canonical_labels(labels: NDArray) -> NDArray[np.int64]:
 
 def connected_parts(labels: NDArray, pairs: NDArray, face_count: int) -> NDArray[np.int64]:
     """Connected components of faces with equal labels, as canonical part ids."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-
     labels = np.asarray(labels)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    keep = labels[pairs[:, 0]] == labels[pairs[:, 1]]
-    a, b = pairs[keep, 0], pairs[keep, 1]
-    adjacency = sp.coo_matrix(
-        (np.ones(len(a), dtype=np.int8), (a, b)), shape=(face_count, face_count)
-    ).tocsr()
-    _, components = connected_components(adjacency, directed=True, connection="weak")
-    return canonical_labels(components)
+    if face_count == 0:
+        return np.zeros(0, dtype=np.int64)
+    return _connected_parts(labels.astype(np.int64), pairs, face_count)
+
+
+@kernel
+def _connected_parts(labels, pairs, face_count):  # pragma: no cover - compiled
+    """Union-find over the edges joining equal labels, then parts numbered by first face."""
+    root = np.arange(face_count)
+
+    def find(node):
+        while root[node] != node:
+            root[node] = root[root[node]]  # path halving
+            node = root[node]
+        return node
+
+    for edge in range(len(pairs)):
+        a, b = pairs[edge, 0], pairs[edge, 1]
+        if labels[a] == labels[b]:
+            ra, rb = find(a), find(b)
+            if ra < rb:
+                root[rb] = ra
+            elif rb < ra:
+                root[ra] = rb
+    part_of_root = np.full(face_count, -1, dtype=np.int64)
+    parts = np.empty(face_count, dtype=np.int64)
+    next_part = 0
+    for face in range(face_count):
+        top = find(face)
+        if part_of_root[top] < 0:
+            part_of_root[top] = next_part
+            next_part += 1
+        parts[face] = part_of_root[top]
+    return parts
 
 
 def part_sizes(parts: NDArray, areas: NDArray) -> NDArray[np.float64]:

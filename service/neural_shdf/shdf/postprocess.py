@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph, face_centroids
+from neural_shdf.geometry import FaceGraph
 
 #: CGAL's ``CGAL_NORMALIZATION_ALPHA``: strength of the log normalisation.
 LOG_NORMALIZATION_ALPHA = 5.0
@@ -421,9 +421,25 @@ def ring_length(graph: FaceGraph, centroids: NDArray) -> float:
 def mesh_ring_length(graph: FaceGraph, vertices: NDArray, faces: NDArray) -> float:
     """``ring_length`` from the mesh, computing only the centroids of the pairs it reads."""
     pairs = _spacing_pairs(graph)
-    return _ring_length(
-        face_centroids(vertices, faces[pairs[:, 0]]) - face_centroids(vertices, faces[pairs[:, 1]])
+    offset = np.empty((len(pairs), 3))
+    _centroid_offsets(
+        np.ascontiguousarray(vertices, dtype=np.float64),
+        np.ascontiguousarray(faces, dtype=np.int64),
+        np.ascontiguousarray(pairs, dtype=np.int64),
+        offset,
     )
+    return _ring_length(offset)
+
+
+@kernel
+def _centroid_offsets(vertices, faces, pairs, out) -> None:  # noqa: ANN001
+    """Centroid of ``pairs[:, 0]`` minus centroid of ``pairs[:, 1]`` (as ``face_centroids``)."""
+    for row in range(len(pairs)):
+        a, b = faces[pairs[row, 0]], faces[pairs[row, 1]]
+        for axis in range(3):
+            first = (vertices[a[0], axis] + vertices[a[1], axis] + vertices[a[2], axis]) / 3.0
+            second = (vertices[b[0], axis] + vertices[b[1], axis] + vertices[b[2], axis]) / 3.0
+            out[row, axis] = first - second
 
 
 def _spacing_pairs(graph: FaceGraph) -> NDArray[np.int64]:

@@ -134,6 +134,15 @@ def _insert(best_distance, best_index, found, candidate, squared) -> int:  # noq
     return min(found + 1, k)
 
 
+@kernel(inline=True)
+def _insert_point(queries, query, points, slot, original, best_distance, best_index, found) -> int:  # noqa: ANN001, E501
+    """``_insert`` the sorted point ``slot`` as a neighbour of ``query``."""
+    dx = queries[query, 0] - points[slot, 0]
+    dy = queries[query, 1] - points[slot, 1]
+    dz = queries[query, 2] - points[slot, 2]
+    return _insert(best_distance, best_index, found, original[slot], dx * dx + dy * dy + dz * dz)
+
+
 @kernel
 def _grid_nearest(  # noqa: PLR0913
     queries,  # noqa: ANN001
@@ -158,32 +167,49 @@ def _grid_nearest(  # noqa: PLR0913
         for axis in range(3):
             c = np.int64(math.floor((queries[query, axis] - origin[axis]) / cell))
             centre[axis] = min(max(c, 0), dims[axis] - 1)
-        shell = 0
+        shell = 1  # shells 0 and 1 at once: one run of points per column of cells
+        low_x, high_x = max(centre[0] - 1, 0), min(centre[0] + 1, dims[0] - 1)
+        low_y, high_y = max(centre[1] - 1, 0), min(centre[1] + 1, dims[1] - 1)
+        low_z, high_z = max(centre[2] - 1, 0), min(centre[2] + 1, dims[2] - 1)
+        for x in range(low_x, high_x + 1):
+            for y in range(low_y, high_y + 1):
+                column = (x * dims[1] + y) * dims[2]
+                for slot in range(starts[column + low_z], starts[column + high_z + 1]):
+                    found = _insert_point(
+                        queries, query, points, slot, original, best_distance, best_index, found
+                    )
         while True:
-            low_x, high_x = max(centre[0] - shell, 0), min(centre[0] + shell, dims[0] - 1)
-            low_y, high_y = max(centre[1] - shell, 0), min(centre[1] + shell, dims[1] - 1)
-            low_z, high_z = max(centre[2] - shell, 0), min(centre[2] + shell, dims[2] - 1)
-            for x in range(low_x, high_x + 1):
-                for y in range(low_y, high_y + 1):
-                    on_face = abs(x - centre[0]) == shell or abs(y - centre[1]) == shell
-                    z = low_z
-                    while z <= high_z:
-                        if on_face or abs(z - centre[2]) == shell:
-                            linear = (x * dims[1] + y) * dims[2] + z
-                            for slot in range(starts[linear], starts[linear + 1]):
-                                dx = queries[query, 0] - points[slot, 0]
-                                dy = queries[query, 1] - points[slot, 1]
-                                dz = queries[query, 2] - points[slot, 2]
-                                found = _insert(
+            if shell > 1:
+                low_x, high_x = max(centre[0] - shell, 0), min(centre[0] + shell, dims[0] - 1)
+                low_y, high_y = max(centre[1] - shell, 0), min(centre[1] + shell, dims[1] - 1)
+                low_z, high_z = max(centre[2] - shell, 0), min(centre[2] + shell, dims[2] - 1)
+                for x in range(low_x, high_x + 1):
+                    for y in range(low_y, high_y + 1):
+                        column = (x * dims[1] + y) * dims[2]
+                        if abs(x - centre[0]) == shell or abs(y - centre[1]) == shell:
+                            runs = ((low_z, high_z), (1, 0))  # the whole column is new
+                        else:  # only the shell's two ends of the column are new
+                            runs = (
+                                (centre[2] - shell, centre[2] - shell),
+                                (centre[2] + shell, centre[2] + shell),
+                            )
+                        for first_z, last_z in runs:
+                            first_z, last_z = max(first_z, low_z), min(last_z, high_z)
+                            if first_z > last_z:
+                                continue
+                            for slot in range(
+                                starts[column + first_z], starts[column + last_z + 1]
+                            ):
+                                found = _insert_point(
+                                    queries,
+                                    query,
+                                    points,
+                                    slot,
+                                    original,
                                     best_distance,
                                     best_index,
                                     found,
-                                    original[slot],
-                                    dx * dx + dy * dy + dz * dz,
                                 )
-                            z += 1
-                        else:  # inside the shell: walked already; jump to its far face
-                            z = centre[2] + shell
             # Points not walked yet lie outside the box of shells 0..shell: at least the
             # distance from the query to that box's nearest open side.
             bound = np.inf

@@ -15,6 +15,7 @@ Sections (comma-separated ``--sections``; default all):
   at 1,024 / 2,048 / 4,096 samples.
 * ``segmentation``: psb-dev 1-RI with ``auto``, ``exact`` and ``sampled`` ShDF.
 * ``resolution``: psb 1, 181, 281 at x16 / x0.25 / adaptive: MAE of ``auto`` against x1.
+* ``threshold``: exact and sampled side by side on meshes of 10k to ~1M faces.
 * ``robustness``: holes, flipped faces, duplicated shells.
 """
 
@@ -487,6 +488,45 @@ def resolution(args: argparse.Namespace) -> None:
     )
 
 
+def threshold(args: argparse.Namespace) -> None:
+    """``auto``'s exact/sampled threshold: both producers' wall and CPU time and
+    ``sampled``'s fidelity on meshes from 10k to ~1M faces (psb-dev models, the same
+    subdivided x4 and x16, the dense-dev scans), side by side per mesh."""
+    import trimesh
+
+    from neural_shdf.mesh_io import load_mesh
+    from neural_shdf.pipeline import warm_up
+    from neural_shdf.shdf.stage import AUTO_EXACT_MAX_FACES
+
+    print(f"== auto's threshold (today exact up to {AUTO_EXACT_MAX_FACES:,} faces) ==")
+    warm_up(("exact", "sampled"))
+    meshes = []
+    for model_id in (1, 181, 281):
+        base = load_mesh(DATA / "psb-dev" / "off" / f"{model_id}.off")
+        vertices, faces = base.vertices, base.faces
+        for label in ("x1", "x4", "x16"):
+            meshes.append((f"psb {model_id} {label}", TriangleMesh(vertices, faces)))
+            vertices, faces = trimesh.remesh.subdivide(vertices, faces)
+    for path in sorted((DATA / "dense-dev").glob("*.ply")):
+        meshes.append((path.stem.split("__")[-1], load_mesh(path)))
+    for name, mesh in sorted(meshes, key=lambda item: item[1].face_count):
+        graph = mesh_face_graph(mesh)
+        timings = {}
+        for method in ("exact", "sampled"):
+            start, cpu = time.perf_counter(), time.process_time()
+            values = compute_shdf_result(mesh, method=method, graph=graph).values
+            timings[method] = (time.perf_counter() - start, time.process_time() - cpu, values)
+        (exact_s, exact_cpu, exact), (sampled_s, sampled_cpu, sampled) = timings.values()
+        r, mae = pearson(sampled, exact), float(np.abs(sampled - exact).mean())
+        print(
+            f"  {name:<28} {mesh.face_count:>8} faces: exact {exact_s:6.2f}s "
+            f"(CPU {exact_cpu:6.2f}), "
+            f"sampled {sampled_s:5.2f}s (CPU {sampled_cpu:5.2f}): x{exact_cpu / sampled_cpu:5.1f} "
+            f"in CPU; sampled vs exact Pearson {r:.3f}, MAE {mae:.3f}",
+            flush=True,
+        )
+
+
 def robustness(args: argparse.Namespace) -> None:
     from bench_neural import damaged_versions
 
@@ -515,6 +555,7 @@ SECTIONS = {
     "speed": speed,
     "segmentation": segmentation,
     "resolution": resolution,
+    "threshold": threshold,
     "robustness": robustness,
 }
 

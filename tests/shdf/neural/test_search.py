@@ -109,3 +109,13 @@ def test_cone_search_on_an_open_flat_sheet_finds_nothing() -> None:
     samples = surface_samples(trimesh.Trimesh(sheet.vertices, top), 300)
     senders, receivers = cone_neighbours(samples.positions, samples.normals, 4, 0.5, samples.radius)
     assert len(senders) == len(receivers) == 0
+
+
+def test_grid_nearest_with_far_apart_clusters_and_a_tiny_spacing() -> None:
+    rng = np.random.default_rng(5)
+    positions = np.concatenate([rng.random((200, 3)), 1e6 + rng.random((200, 3))])
+    queries = np.concatenate([rng.random((50, 3)), 1e6 + rng.random((50, 3)), [[5e5] * 3]])
+    index, distance = nearest_points(positions, queries, 3, 1e-9)
+    expected_index, expected_distance = brute_nearest(positions, queries, 3)
+    np.testing.assert_array_equal(index, expected_index)
+    np.testing.assert_allclose(distance, expected_distance, rtol=1e-12)

@@ -74,7 +74,7 @@ def nearest_points(
         cell = float(extent.max()) or 1.0
     budget = MAX_CELLS_PER_POINT * len(positions) + 64
     while True:
-        dims = np.minimum(np.floor(extent / cell).astype(np.int64) + 1, 1 << 20)
+        dims = np.minimum(np.floor(extent / cell), 1 << 20).astype(np.int64) + 1
         if int(np.prod(dims, dtype=np.float64)) <= budget:
             break
         cell *= 1.5

@@ -275,7 +275,7 @@ def test_new_smoothing_values_reuse_the_mesh_basis(app_factory, capsule_obj):
         bodies = [{"mesh_id": mesh_id, "smoothing": s} for s in (0.1, 0.2, 0.3)]
         bodies.append({"mesh_id": mesh_id, "smoothing": 0.2, "clusters": 3})
         answers = [client.post("/v1/segment", json=body).json() for body in bodies]
-    prepared = [key for key in engine.cache._memory if ":basis:" in key]
+    prepared = [key for key in engine.cache._working if ":basis:" in key]
     assert len(prepared) == 2, prepared  # default clusters, and clusters=3
     mesh = load_mesh(capsule_obj, file_type="obj")
     shdf = compute_shdf(mesh, method=TEST_METHOD, model=MODEL_FILE)

@@ -187,14 +187,15 @@ class SegmentationService:
         graph = self.meshes.graph(mesh_id, mesh)
         start = time.perf_counter()
         # What does not depend on smoothing, parts or refinement is kept per mesh, ShDF,
-        # clusters and seed (memory LRU), so a slider's new value only re-cuts.
+        # clusters and seed (in memory, within MEMORY_WORKING_SET_BYTES), so a new slider value
+        # only re-cuts.
         shdf_version = self.shdf.version(method, params.seed)
         basis_key = f"{mesh_id}:basis:{shdf_version}:{params.clusters}:{params.seed}"
-        basis = self.cache.recall(basis_key)
+        basis = self.cache.working_set(basis_key)
         if basis is None:
             basis = prepare_segment_mesh(mesh, shdf, params, graph=graph)
-            self.cache.remember(basis_key, basis)
         segmentation = segment_mesh_with_details(mesh, shdf, params, graph=graph, basis=basis)
+        self.cache.keep_working_set(basis_key, basis, basis.nbytes)  # sized with its cut
         seconds = time.perf_counter() - start
         self.metrics.segmentations.inc()
         self.metrics.segment_seconds.observe(seconds)

@@ -502,8 +502,4 @@ def multilevel_alpha_expansion(
     boundaries. Graphs already at most ``coarse_nodes`` large are solved directly.
     Deterministic.
     """
-    hierarchy = cut_hierarchy(data, pairs, weights, centroids, areas, coarse_nodes, rings)
-    if len(hierarchy.levels) == 1:
-        level = hierarchy.levels[0]
-        return alpha_expansion(level.data, level.pairs, level.unit_weights)
-    return hierarchy.solve(1.0)
+    return cut_hierarchy(data, pairs, weights, centroids, areas, coarse_nodes, rings).solve(1.0)

@@ -133,7 +133,11 @@ class SegmentBasis:
         arrays = (self.shdf, self.values, self.posteriors, self.data, self.unit_weights)
         geometry = (self.geometry.areas, self.geometry.centroids, self.geometry.face_weight)
         size = sum(a.nbytes for a in arrays + geometry)
-        return size + (self._cut.nbytes if self._cut is not None else 0)
+        if self._cut is not None:
+            finest = self._cut.levels[0]  # shares the data, weights and the graph's pairs
+            size += self._cut.nbytes - finest.data.nbytes - finest.unit_weights.nbytes
+            size -= finest.pairs.nbytes
+        return size
 
 
 def prepare_segment(

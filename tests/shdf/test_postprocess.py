@@ -106,6 +106,36 @@ def test_bilateral_works_in_small_chunks(sphere_graph, monkeypatch):
     np.testing.assert_array_equal(chunked, whole)
 
 
+def _fill_missing_reference(values: np.ndarray, graph) -> np.ndarray:  # noqa: ANN001
+    """CGAL's fill in face order over the full adjacency (the implementation before
+    the fill read only the pairs touching missing faces)."""
+    out = values.copy()
+    adjacency = graph.csr()
+    smallest, left = float(np.nanmin(out)), []
+    for face in np.flatnonzero(np.isnan(out)):
+        near = out[adjacency.indices[adjacency.indptr[face] : adjacency.indptr[face + 1]]]
+        near = near[~np.isnan(near)]
+        if len(near):
+            total = 0.0
+            for value in near:
+                total += value
+            out[face] = total / len(near)
+        else:
+            left.append(face)
+    out[left] = smallest
+    return out
+
+
+def test_fill_missing_matches_the_full_adjacency_fill(sphere_graph):
+    rng = np.random.default_rng(8)
+    for share in (0.01, 0.3, 0.9):
+        raw = rng.random(sphere_graph.face_count)
+        raw[rng.random(len(raw)) < share] = np.nan
+        np.testing.assert_array_equal(
+            fill_missing(raw, sphere_graph), _fill_missing_reference(raw, sphere_graph)
+        )
+
+
 def test_fill_missing_uses_earlier_fills_then_the_minimum():
     # A strip of faces 0-1-2-3-4 plus an isolated face 5.
     vertices = np.array(

@@ -70,22 +70,27 @@ def fill_missing(values: NDArray, graph: FaceGraph) -> NDArray[np.float64]:
     if len(missing) == len(out):
         return np.zeros_like(out)
     smallest = float(np.nanmin(out))
-    adjacency = graph.csr()
-    indptr, indices = adjacency.indptr, adjacency.indices
+    # Only the pairs that touch a missing face: each missing face's neighbours, ascending.
+    pairs = graph.pairs
+    touching = pairs[np.isnan(out[pairs[:, 0]]) | np.isnan(out[pairs[:, 1]])]
+    owner = np.concatenate([touching[:, 0], touching[:, 1]])
+    other = np.concatenate([touching[:, 1], touching[:, 0]])
+    order = np.lexsort((other, owner))
+    owner, other = owner[order], other[order]
+    first = np.searchsorted(owner, missing, side="left")
+    last = np.searchsorted(owner, missing, side="right")
     still_missing = []
-    current = out.tolist()
-    for face in missing.tolist():
+    for face, start, stop in zip(missing.tolist(), first.tolist(), last.tolist(), strict=True):
         total, count = 0.0, 0
-        for neighbour in indices[indptr[face] : indptr[face + 1]].tolist():
-            value = current[neighbour]
+        for neighbour in other[start:stop].tolist():
+            value = float(out[neighbour])
             if value == value:  # not NaN
                 total += value
                 count += 1
         if count:
-            current[face] = total / count
+            out[face] = total / count
         else:
             still_missing.append(face)
-    out = np.asarray(current)
     out[still_missing] = smallest
     return out
 

@@ -18,7 +18,8 @@ Numpy, scipy and numba only (the service never imports torch).
 * Edges (sender -> receiver): the ``knn`` nearest samples (local surface), plus
   "cone" edges to the ``cone_neighbours`` nearest samples inside the inward
   cone of the receiver's normal (with one radius of lateral slack) that face away
-  from it: the other side of the volume, the surface the ShDF's rays hit.
+  from it: the other side of the volume, the surface the ShDF's rays hit
+  (found on a k-d tree, ``search.cone_neighbours``: linear in the samples).
 * Features are rotation, translation and scale invariant: lengths in units of
   the sampling radius, and dot products of normals and edge directions.
 """

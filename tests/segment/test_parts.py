@@ -81,3 +81,18 @@ def test_connected_parts_match_scipy_components_numbered_by_lowest_face(seed):
     np.testing.assert_array_equal(
         connected_parts(labels, pairs, count), canonical_labels(components)
     )
+
+
+@pytest.mark.parametrize(
+    "labels",
+    [
+        np.array([7, 7, 3, 9, 3, 7]),
+        np.array([-1, 5, -1, 2]),
+        np.array([10**12, 4, 10**12]),  # a wide range takes the sorting path
+        np.array([2.5, 1.0, 2.5]),
+    ],
+)
+def test_canonical_labels_follow_first_appearance_for_any_labels(labels):
+    _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
+    expected = np.argsort(np.argsort(first))[inverse]
+    np.testing.assert_array_equal(canonical_labels(labels), expected)

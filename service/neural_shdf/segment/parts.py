@@ -13,13 +13,31 @@ from neural_shdf.geometry import FaceGraph
 
 def canonical_labels(labels: NDArray) -> NDArray[np.int64]:
     """Labels renumbered 0..P-1 in order of each label's lowest face index."""
-    labels = np.asarray(labels)
+    labels = np.asarray(labels).reshape(-1)
     if len(labels) == 0:
         return np.zeros(0, dtype=np.int64)
+    low, high = int(labels.min()), int(labels.max())
+    if np.issubdtype(labels.dtype, np.integer) and high - low <= 4 * len(labels):
+        # Small integer range (the usual case): one pass in face order.
+        return _first_seen_order(labels.astype(np.int64) - low, high - low + 1)
     _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
     rank = np.empty(len(first), dtype=np.int64)
     rank[np.argsort(first, kind="stable")] = np.arange(len(first))
     return rank[inverse.reshape(-1)]
+
+
+@kernel
+def _first_seen_order(labels, span):  # pragma: no cover - compiled
+    rank = np.full(span, -1, dtype=np.int64)
+    result = np.empty(len(labels), dtype=np.int64)
+    seen = 0
+    for face in range(len(labels)):
+        label = labels[face]
+        if rank[label] < 0:
+            rank[label] = seen
+            seen += 1
+        result[face] = rank[label]
+    return result
 
 
 def connected_parts(labels: NDArray, pairs: NDArray, face_count: int) -> NDArray[np.int64]:

@@ -26,6 +26,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
 from neural_shdf.geometry import FaceGraph
+from neural_shdf.segment.parts import connected_components
 
 #: CGAL: probabilities below this are clamped before ``-log``.
 PROBABILITY_EPS = 5e-6
@@ -287,32 +288,75 @@ def banded_alpha_expansion(
     return result
 
 
-def adjacency_matrix(pairs: NDArray, node_count: int):
-    """Symmetric sparse 0/1 adjacency (float32 CSR) of ``pairs``, for ``near_boundary``."""
-    import scipy.sparse as sp
+def adjacency_lists(pairs: NDArray, node_count: int) -> tuple[NDArray, NDArray]:
+    """(indptr, neighbours): each node's neighbours, CSR-style, for ``near_boundary``."""
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    return _adjacency_lists(pairs, node_count)
 
-    rows = np.concatenate([pairs[:, 0], pairs[:, 1]])
-    cols = np.concatenate([pairs[:, 1], pairs[:, 0]])
-    return sp.csr_matrix(
-        (np.ones(len(rows), dtype=np.float32), (rows, cols)), shape=(node_count, node_count)
-    )
+
+@kernel
+def _adjacency_lists(pairs, node_count):  # pragma: no cover - compiled
+    indptr = np.zeros(node_count + 1, dtype=np.int64)
+    for edge in range(len(pairs)):
+        indptr[pairs[edge, 0] + 1] += 1
+        indptr[pairs[edge, 1] + 1] += 1
+    for node in range(node_count):
+        indptr[node + 1] += indptr[node]
+    fill = indptr[:-1].copy()
+    neighbours = np.empty(2 * len(pairs), dtype=np.int64)
+    for edge in range(len(pairs)):
+        a, b = pairs[edge, 0], pairs[edge, 1]
+        neighbours[fill[a]] = b
+        fill[a] += 1
+        neighbours[fill[b]] = a
+        fill[b] += 1
+    return indptr, neighbours
 
 
 def near_boundary(
-    labels: NDArray, pairs: NDArray, node_count: int, rings: int, adjacency=None
+    labels: NDArray,
+    pairs: NDArray,
+    node_count: int,
+    rings: int,
+    adjacency: tuple[NDArray, NDArray] | None = None,
 ) -> NDArray:
     """Nodes within ``rings`` hops (1 = the nodes on a cut edge) of a label boundary.
 
-    ``adjacency``: ``adjacency_matrix(pairs, node_count)`` where the caller keeps one.
+    ``adjacency``: ``adjacency_lists(pairs, node_count)`` where the caller keeps them.
     """
-    cut = labels[pairs[:, 0]] != labels[pairs[:, 1]]
-    band = np.zeros(node_count, dtype=bool)
-    band[pairs[cut].reshape(-1)] = True
-    if rings > 1 and band.any():
-        if adjacency is None:
-            adjacency = adjacency_matrix(pairs, node_count)
-        for _ in range(rings - 1):
-            band |= adjacency @ band.astype(np.float32) > 0
+    labels = np.asarray(labels, dtype=np.int64)
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    if rings > 1 and adjacency is None:
+        adjacency = adjacency_lists(pairs, node_count)
+    indptr, neighbours = adjacency if rings > 1 else (np.zeros(1, np.int64), np.zeros(0, np.int64))
+    return _near_boundary(labels, pairs, node_count, rings, indptr, neighbours)
+
+
+@kernel
+def _near_boundary(labels, pairs, node_count, rings, indptr, neighbours):  # pragma: no cover
+    band = np.zeros(node_count, dtype=np.bool_)
+    front = np.empty(node_count, dtype=np.int64)
+    size = 0
+    for edge in range(len(pairs)):
+        a, b = pairs[edge, 0], pairs[edge, 1]
+        if labels[a] != labels[b]:
+            for node in (a, b):
+                if not band[node]:
+                    band[node] = True
+                    front[size] = node
+                    size += 1
+    start = 0
+    for _ in range(rings - 1):  # breadth-first, one ring per pass
+        end = size
+        for i in range(start, end):
+            node = front[i]
+            for j in range(indptr[node], indptr[node + 1]):
+                other = neighbours[j]
+                if not band[other]:
+                    band[other] = True
+                    front[size] = other
+                    size += 1
+        start = end
     return band
 
 
@@ -329,36 +373,44 @@ def coarsen(
     Never groups across a crease (an edge lighter than ``crease_weight``) nor
     nodes whose cheapest label (``preferred``) differs.
     """
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-
     a, b = pairs[:, 0], pairs[:, 1]
     span = cells.max(axis=0) + 1 if len(cells) else np.ones(3, dtype=np.int64)
     cell_key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
     keep = (
         (cell_key[a] == cell_key[b]) & (weights >= crease_weight) & (preferred[a] == preferred[b])
     )
-    a, b = pairs[keep, 0], pairs[keep, 1]
-    graph = sp.csr_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(node_count, node_count))
-    _, component = connected_components(graph, directed=True, connection="weak")
-    return component.astype(np.int64)
+    return connected_components(pairs, keep, node_count)
 
 
 def coarse_graph(
     coarse_of: NDArray, pairs: NDArray, weights: NDArray, coarse_count: int
 ) -> tuple[NDArray, NDArray]:
-    """Edges between coarse nodes (sorted pairs) with summed weights."""
-    import scipy.sparse as sp
-
+    """Edges between coarse nodes (pairs sorted by low, then high node) with summed weights;
+    each sum adds its fine edges in their order."""
     ca, cb = coarse_of[pairs[:, 0]], coarse_of[pairs[:, 1]]
-    cross = ca != cb
+    cross = np.flatnonzero(ca != cb)
     low, high = np.minimum(ca[cross], cb[cross]), np.maximum(ca[cross], cb[cross])
-    # CSR conversion sums duplicate (low, high) entries in linear time.
-    summed = sp.csr_matrix((weights[cross], (low, high)), shape=(coarse_count, coarse_count))
-    summed.sum_duplicates()
-    rows = np.repeat(np.arange(coarse_count, dtype=np.int64), np.diff(summed.indptr))
-    coarse_pairs = np.stack([rows, summed.indices.astype(np.int64)], axis=1)
-    return coarse_pairs, np.asarray(summed.data, dtype=np.float64)
+    order = np.argsort(low * np.int64(coarse_count) + high, kind="stable")
+    low, high = low[order], high[order]
+    if len(order) == 0:
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    starts = np.flatnonzero(np.r_[True, (low[1:] != low[:-1]) | (high[1:] != high[:-1])])
+    summed = np.add.reduceat(np.asarray(weights, dtype=np.float64)[cross[order]], starts)
+    return np.stack([low[starts], high[starts]], axis=1), summed
+
+
+def coarse_data(coarse_of: NDArray, data: NDArray, coarse_count: int) -> NDArray[np.float64]:
+    """(coarse_count, k) data costs summed over each coarse node's nodes, in node order."""
+    return _coarse_data(np.asarray(coarse_of, dtype=np.int64), data, coarse_count)
+
+
+@kernel
+def _coarse_data(coarse_of, data, coarse_count):  # pragma: no cover - compiled
+    summed = np.zeros((coarse_count, data.shape[1]))
+    for node in range(len(coarse_of)):
+        for label in range(data.shape[1]):
+            summed[coarse_of[node], label] += data[node, label]
+    return summed
 
 
 @dataclass(frozen=True)
@@ -371,16 +423,15 @@ class CutLevel:
     data: NDArray[np.float64]
     #: Node of the next coarser level per node (None at the coarsest level).
     coarse_of: NDArray[np.int64] | None
-    #: Adjacency for the boundary band (None at the coarsest level).
-    adjacency: object = None
+    #: ``adjacency_lists`` for the boundary band (None at the coarsest level).
+    adjacency: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None
 
     @property
     def nbytes(self) -> int:
         arrays = (self.pairs, self.unit_weights, self.data, self.coarse_of)
         size = sum(a.nbytes for a in arrays if a is not None)
         if self.adjacency is not None:
-            size += self.adjacency.data.nbytes + self.adjacency.indices.nbytes
-            size += self.adjacency.indptr.nbytes
+            size += sum(a.nbytes for a in self.adjacency)
         return size
 
 
@@ -459,13 +510,7 @@ def cut_hierarchy(
         coarse_count = int(coarse_of.max()) + 1
         if coarse_count > 0.8 * count:
             break  # no longer shrinking (many tiny shells, or all creases)
-        coarse_data = np.stack(
-            [
-                np.bincount(coarse_of, weights=column, minlength=coarse_count)
-                for column in level_data.T
-            ],
-            axis=1,
-        )
+        summed_data = coarse_data(coarse_of, level_data, coarse_count)
         coarse_pairs, coarse_weights = coarse_graph(
             coarse_of, level_pairs, level_weights, coarse_count
         )
@@ -478,10 +523,10 @@ def cut_hierarchy(
                 level_weights,
                 level_data,
                 coarse_of,
-                adjacency_matrix(level_pairs, count) if rings > 1 else None,
+                adjacency_lists(level_pairs, count) if rings > 1 else None,
             )
         )
-        level_pairs, level_weights, level_data = coarse_pairs, coarse_weights, coarse_data
+        level_pairs, level_weights, level_data = coarse_pairs, coarse_weights, summed_data
     levels.append(CutLevel(level_pairs, level_weights, level_data, None))
     return CutHierarchy(tuple(levels), rings)
 

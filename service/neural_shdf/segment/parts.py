@@ -24,17 +24,24 @@ def canonical_labels(labels: NDArray) -> NDArray[np.int64]:
 
 def connected_parts(labels: NDArray, pairs: NDArray, face_count: int) -> NDArray[np.int64]:
     """Connected components of faces with equal labels, as canonical part ids."""
-    labels = np.asarray(labels)
+    labels = np.asarray(labels, dtype=np.int64)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    if face_count == 0:
+    return connected_components(pairs, labels[pairs[:, 0]] == labels[pairs[:, 1]], face_count)
+
+
+def connected_components(pairs: NDArray, keep: NDArray, node_count: int) -> NDArray[np.int64]:
+    """Component of each node over the edges ``pairs[keep]``, numbered 0.. in order of each
+    component's lowest node (union-find; linear)."""
+    if node_count == 0:
         return np.zeros(0, dtype=np.int64)
-    return _connected_parts(labels.astype(np.int64), pairs, face_count)
+    return _components(
+        np.asarray(pairs, dtype=np.int64).reshape(-1, 2), np.asarray(keep, bool), node_count
+    )
 
 
 @kernel
-def _connected_parts(labels, pairs, face_count):  # pragma: no cover - compiled
-    """Union-find over the edges joining equal labels, then parts numbered by first face."""
-    root = np.arange(face_count)
+def _components(pairs, keep, node_count):  # pragma: no cover - compiled
+    root = np.arange(node_count)
 
     def find(node):
         while root[node] != node:
@@ -43,23 +50,22 @@ def _connected_parts(labels, pairs, face_count):  # pragma: no cover - compiled
         return node
 
     for edge in range(len(pairs)):
-        a, b = pairs[edge, 0], pairs[edge, 1]
-        if labels[a] == labels[b]:
-            ra, rb = find(a), find(b)
+        if keep[edge]:
+            ra, rb = find(pairs[edge, 0]), find(pairs[edge, 1])
             if ra < rb:
                 root[rb] = ra
             elif rb < ra:
                 root[ra] = rb
-    part_of_root = np.full(face_count, -1, dtype=np.int64)
-    parts = np.empty(face_count, dtype=np.int64)
-    next_part = 0
-    for face in range(face_count):
-        top = find(face)
-        if part_of_root[top] < 0:
-            part_of_root[top] = next_part
-            next_part += 1
-        parts[face] = part_of_root[top]
-    return parts
+    component_of_root = np.full(node_count, -1, dtype=np.int64)
+    components = np.empty(node_count, dtype=np.int64)
+    next_component = 0
+    for node in range(node_count):
+        top = find(node)
+        if component_of_root[top] < 0:
+            component_of_root[top] = next_component
+            next_component += 1
+        components[node] = component_of_root[top]
+    return components
 
 
 def part_sizes(parts: NDArray, areas: NDArray) -> NDArray[np.float64]:

@@ -66,9 +66,10 @@ class Producer:
 def producers() -> list[Producer]:
     rows = [
         Producer("auto", "auto"),
-        Producer("sampled 1024", "sampled", ShdfParams(samples=1024)),
-        Producer("sampled 2048", "sampled", ShdfParams(samples=2048)),
-        Producer("sampled 4096", "sampled", ShdfParams(samples=4096)),
+        Producer("sampled 1024", "sampled", ShdfParams(samples=1024, max_samples=1024)),
+        Producer("sampled 2048", "sampled", ShdfParams(samples=2048, max_samples=2048)),
+        Producer("sampled 4096", "sampled", ShdfParams(samples=4096, max_samples=4096)),
+        Producer("sampled default (4096, thin: more)", "sampled"),
         Producer("neural ray-free (paper), 2x1024", "neural", ShdfParams(), RAY_FREE_MODEL),
     ]
     if RAY_MODEL.is_file():

@@ -61,6 +61,13 @@ AUTO_SAMPLED_METHOD: RawMethod = "sampled"
 #: Poisson samples of the sample-based producers (the count follows the surface area,
 #: not the triangles).
 DEFAULT_SAMPLES = 4096
+#: ``sampled`` casts up to this many samples where the surface has thin parts.
+DEFAULT_MAX_SAMPLES = 16384
+#: Thin parts: ``sampled`` wants the 10th percentile of its diameters to span at least this
+#: many Poisson radii (the sample-space smoothing and the mapping to faces reach over a few
+#: radii); where the first samples show thinner, it draws (this / p10)^2 as many, up to
+#: ``max_samples``. On dense-dev: lucy p10 1.2 radii, zenobia's chains 2.0, skull 1.8.
+THIN_PART_RADII = 3.0
 #: Samples without a valid hit take the mean of their valid ones among this many nearest.
 FILL_NEIGHBOURS = 8
 
@@ -70,7 +77,9 @@ class ShdfParams:
     """Every parameter a ShDF depends on (besides the mesh, the method and the model).
 
     ``cone_angle``/``ray_count``: the ray cone (CGAL's defaults). ``seed``: the
-    Poisson samples of the sample-based producers. ``samples``: their target count.
+    Poisson samples of the sample-based producers. ``samples``: their target count;
+    ``max_samples``: ``sampled``'s count on surfaces with thin parts (see
+    ``THIN_PART_RADII``; equal to ``samples`` for a fixed count).
     ``sample_sets``: the network's averaged sample sets. ``window_size``: the
     bilateral window in edge rings, 0 = CGAL's ``floor(sqrt(F / 2000)) + 1``.
     """
@@ -79,6 +88,7 @@ class ShdfParams:
     ray_count: int = constants.SHDF_RAY_COUNT
     seed: int = constants.DEFAULT_SEED
     samples: int = DEFAULT_SAMPLES
+    max_samples: int = DEFAULT_MAX_SAMPLES
     sample_sets: int = 2
     window_size: int = 0
 
@@ -89,6 +99,10 @@ class ShdfParams:
             raise ParameterError(f"ray_count must be at least 1, got {self.ray_count}")
         if self.samples < 16:
             raise ParameterError(f"samples must be at least 16, got {self.samples}")
+        if self.max_samples < self.samples:
+            raise ParameterError(
+                f"max_samples ({self.max_samples}) must be at least samples ({self.samples})"
+            )
         if self.sample_sets < 1:
             raise ParameterError(f"sample_sets must be at least 1, got {self.sample_sets}")
         if self.window_size < 0:
@@ -127,6 +141,8 @@ def shdf_key(method: RawMethod, params: ShdfParams, model_sha256: str | None) ->
             used.pop(name)
     if method != "neural":
         used.pop("sample_sets", None)
+    if method != "sampled":
+        used.pop("max_samples")
     if method == "neural":
         if not model_sha256:
             raise ParameterError("a neural ShDF key needs the model's checksum")
@@ -196,11 +212,27 @@ def sample_smoothing(
     return window * spacing, SPATIAL_SIGMA_FACTOR * window * spacing
 
 
+def thin_part_samples(diameters_in_radii: NDArray, params: ShdfParams) -> int:
+    """``sampled``'s sample count for a surface whose first ``params.samples`` samples
+    measured these diameters (in Poisson radii, NaN = no hit): more where the 10th
+    percentile spans fewer than ``THIN_PART_RADII`` radii (thin parts), at most
+    ``params.max_samples``; deterministic."""
+    valid = diameters_in_radii[np.isfinite(diameters_in_radii) & (diameters_in_radii > 0)]
+    if len(valid) == 0 or params.max_samples <= params.samples:
+        return params.samples
+    thin = float(np.percentile(valid, 10))
+    factor = (THIN_PART_RADII / thin) ** 2
+    if factor <= 1.1:  # not worth a second pass
+        return params.samples
+    return int(min(params.max_samples, round(params.samples * factor)))
+
+
 def sampled_raw_shdf(
     mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams, workers: int | None = None
 ) -> NDArray[np.float64]:
     """Per-face raw diameters from the exact cone cast at ``params.samples`` Poisson
-    samples, smoothed at the sample scale and interpolated to the faces.
+    samples (again at more of them where those show thin parts: ``thin_part_samples``),
+    smoothed at the sample scale and interpolated to the faces.
 
     The Embree scene is built (``low`` quality: a few rays per triangle) while the
     samples are drawn, and each vertex's nearest samples are found while the rays
@@ -219,32 +251,41 @@ def sampled_raw_shdf(
 
     workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
     normals, areas = mesh.normals_and_areas
-    spec = GraphSpec(target_samples=params.samples)
     with ThreadPoolExecutor(max_workers=2) as pool:
         scene = pool.submit(Scene, mesh.vertices, mesh.faces, "low")
         normal_sums = vertex_normal_sums(len(mesh.vertices), mesh.faces, normals, areas)
-        samples = sample_surface_points(
-            mesh.vertices,
-            mesh.faces,
-            spec,
-            seed=params.seed,
-            normals=normals,
-            areas=areas,
-            map_vertices=False,
-            normal_sums=normal_sums,
-        )
-        mapped = pool.submit(with_vertex_map, samples, mesh.vertices, normal_sums, spec, 1)
-        diameters, _, _ = raw_shdf_at_points(
-            mesh.vertices,
-            mesh.faces,
-            samples.positions,
-            samples.normals,
-            samples.face_ids,
-            cone_angle=params.cone_angle,
-            ray_count=params.ray_count,
-            threads=workers,
-            scene=scene,
-        )
+
+        def cast(count: int) -> tuple:
+            """Samples (their vertex map under way) and their raw diameters."""
+            spec = GraphSpec(target_samples=count)
+            samples = sample_surface_points(
+                mesh.vertices,
+                mesh.faces,
+                spec,
+                seed=params.seed,
+                normals=normals,
+                areas=areas,
+                map_vertices=False,
+                normal_sums=normal_sums,
+            )
+            mapped = pool.submit(with_vertex_map, samples, mesh.vertices, normal_sums, spec, 1)
+            diameters, _, _ = raw_shdf_at_points(
+                mesh.vertices,
+                mesh.faces,
+                samples.positions,
+                samples.normals,
+                samples.face_ids,
+                cone_angle=params.cone_angle,
+                ray_count=params.ray_count,
+                threads=workers,
+                scene=scene,
+            )
+            return samples, mapped, diameters
+
+        samples, mapped, diameters = cast(params.samples)
+        count = thin_part_samples(diameters / samples.radius, params)
+        if count > params.samples:
+            samples, mapped, diameters = cast(count)
         if np.isnan(diameters).all():
             return np.full(mesh.face_count, np.nan)
         diameters = fill_samples(diameters, samples.positions)

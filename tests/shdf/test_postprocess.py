@@ -22,6 +22,7 @@ from neural_shdf.shdf.postprocess import (
     postprocess_shdf,
     ring_length,
     smoothing_window,
+    sorted_adjacency,
 )
 
 
@@ -261,3 +262,14 @@ def test_ring_length_from_the_mesh_reads_only_the_pairs_it_needs() -> None:
     expected = ring_length(graph, face_centroids(mesh.vertices, mesh.faces))
     assert expected > 0
     assert mesh_ring_length(graph, mesh.vertices, mesh.faces) == expected
+
+
+def test_sorted_adjacency_is_the_graphs_csr() -> None:
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    order = np.random.default_rng(2).permutation(len(mesh.faces))  # faces out of order
+    normals, _ = face_normals(mesh.vertices, mesh.faces[order])
+    graph = build_face_graph(mesh.vertices, mesh.faces[order], normals)
+    indptr, indices = sorted_adjacency(graph)
+    expected = graph.csr()
+    np.testing.assert_array_equal(indptr, expected.indptr)
+    np.testing.assert_array_equal(indices, expected.indices)

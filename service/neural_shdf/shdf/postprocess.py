@@ -275,6 +275,36 @@ def bilateral_smooth(
     return _bilateral_vectorised(values, adjacency, window_size, spatial_weight, range_sigma_factor)
 
 
+def sorted_adjacency(graph: FaceGraph) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(indptr, indices) of the face graph, each face's neighbours ascending: the arrays of
+    ``graph.csr()``, in one counting pass over the sorted unique pairs."""
+    pairs = np.ascontiguousarray(graph.pairs, dtype=np.int64).reshape(-1, 2)
+    return _sorted_adjacency(pairs, graph.face_count)
+
+
+@kernel
+def _sorted_adjacency(pairs, face_count):  # noqa: ANN001, ANN202
+    """Pairs are sorted with ``pairs[:, 0] < pairs[:, 1]``: a face's smaller neighbours
+    arrive in ascending order as second members, then its larger ones as first members."""
+    indptr = np.zeros(face_count + 1, dtype=np.int64)
+    for row in range(len(pairs)):
+        indptr[pairs[row, 0] + 1] += 1
+        indptr[pairs[row, 1] + 1] += 1
+    for face in range(face_count):
+        indptr[face + 1] += indptr[face]
+    fill = indptr[:-1].copy()
+    indices = np.empty(2 * len(pairs), dtype=np.int64)
+    for row in range(len(pairs)):  # smaller neighbours, ascending
+        larger = pairs[row, 1]
+        indices[fill[larger]] = pairs[row, 0]
+        fill[larger] += 1
+    for row in range(len(pairs)):  # then the larger ones, ascending
+        smaller = pairs[row, 0]
+        indices[fill[smaller]] = pairs[row, 1]
+        fill[smaller] += 1
+    return indptr, indices
+
+
 @kernel
 def _cover_with_patches(indptr, indices, radius):  # noqa: ANN001, ANN202
     """Patch id per face: seeds at least ``2 radius`` edge rings apart (greedy, in face
@@ -484,9 +514,7 @@ def patch_bilateral(
     values = np.asarray(values, dtype=np.float64)
     face_count = len(values)
     spatial = window_size * SPATIAL_SIGMA_FACTOR if spatial_sigma is None else spatial_sigma
-    adjacency = graph.csr()
-    indptr = adjacency.indptr.astype(np.int64)
-    indices = adjacency.indices.astype(np.int64)
+    indptr, indices = sorted_adjacency(graph)
     radius = max(1, int(round(PATCH_RADIUS_FACTOR * window_size)))
     patch_of = _cover_with_patches(indptr, indices, radius)
     patches = int(patch_of.max()) + 1

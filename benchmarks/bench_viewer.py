@@ -2,14 +2,15 @@
 
 ``python benchmarks/bench_viewer.py [--repeat 8] [--sizes 10000,100000] [--screenshot PNG]``
 
-Starts ``neural-shdf serve`` (temp cache) and headless Chromium (/usr/bin/chromium, WebGL
-on the CPU), opens the viewer, uploads a mesh of about each size (psb-dev 1, 9.4k faces, and
+Starts ``neural-shdf serve`` (temp cache) and headless Chromium (/usr/bin/chromium, WebGL on
+the CPU), opens the viewer, uploads a mesh of about each size (psb-dev 1, 9.4k faces, and
 dense-dev's skull, 100k faces, when ../shared/data is present; otherwise tessellated tori),
 waits for its parts, then releases a slider ``--repeat`` times, each time to a value never
 requested before (so the service really segments: no cache helps), and reads the page's own
-measurement: ``performance.now()`` from the slider's change event to the first animation
-frame after the new colours were drawn. Also reported: the same for a value seen before
-(the page's own cache) and for the parts slider, which cuts the graph cut's part tree in
+measurement: ``performance.now()`` from the slider's change event to the first animation frame
+after the new colours were drawn. Also reported: the same for a value seen before (the page's
+own cache), for a new mixture size k (``new k``: the service fits the mixture and coarsens the
+graph again before cutting) and for the parts slider, which cuts the graph cut's part tree in
 the page (``parts cut``: no request; each release a part count other than the one shown,
 cycling through 1..leaves), where the time goes: ``request`` (fetch of /v1/segment), ``paint``
 (decoding and recolouring), ``service`` (the service's own time for the request, 0 when the
@@ -126,7 +127,13 @@ def main() -> None:
                 ]
                 if segment_requests(page) != sent or not all(r.get("recut") for r in cuts):
                     sys.exit("the parts slider sent a request instead of cutting the part tree")
+                # A new mixture size k: the service fits the mixture and coarsens the graph
+                # again before cutting (its kept basis is per k).
+                new_k = [page.release_slider("clusters", k) for k in (2, 3, 4, 5, 6, 7, 8, 10)][
+                    : args.repeat
+                ]
                 cases = [("new value", cold), ("seen", warm)] + ([("parts cut", cuts)] * bool(cuts))
+                cases.append(("new k", new_k))
                 for case, runs in cases:
                     total = [r["totalMs"] for r in runs]
                     ratio = statistics.median(total) / TARGET_MS

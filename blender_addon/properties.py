@@ -50,7 +50,7 @@ class NeuralShdfSettings(bpy.types.PropertyGroup):
     smoothing: FloatProperty(  # type: ignore[valid-type]
         name="Smoothing",
         description="Smoothness weight of the graph cut (higher: fewer, smoother parts)",
-        default=0.12,
+        default=0.06,
         min=0.0,
         max=100.0,
         soft_max=2.0,

@@ -5,7 +5,7 @@ import pytest
 
 from neural_shdf import geometry, pipeline
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.segment import SegmentParams
+from neural_shdf.segment import SegmentParams, graphcut, mixture, parts
 from neural_shdf.shdf import exact
 from neural_shdf.shdf.neural import inference
 
@@ -15,9 +15,10 @@ def test_warm_up_compiles_every_kernel_it_reaches():
     assert seconds > 0
     assert exact._shdf_of_faces.signatures
     compiled = [
-        getattr(geometry, name)
-        for name in dir(geometry)
-        if hasattr(getattr(geometry, name), "signatures")
+        getattr(module, name)
+        for module in (geometry, graphcut, mixture, parts)
+        for name in dir(module)
+        if hasattr(getattr(module, name), "signatures")
     ]
     called = [k for k in compiled if k.targetoptions.get("inline") != "always"]  # not inlined
     assert called and all(kernel.signatures for kernel in called)
@@ -55,3 +56,24 @@ def test_a_tetrahedron_repeated_in_place_segments_like_one(params):
         assert len(np.unique(labels)) == 4
     again = pipeline.segment_mesh(stack, shdf, params, graph=graph)
     np.testing.assert_array_equal(labels, again)
+
+
+def test_readme_library_examples_run_as_written(tmp_path, monkeypatch, capsys):
+    """The README's library examples, in order, on a capsule saved as model.obj."""
+    import re
+    from pathlib import Path
+
+    import trimesh
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = readme.split("## Library", 1)[1].split("\n## ", 1)[0]
+    blocks = re.findall(r"```python\n(.*?)```", section, re.S)
+    assert len(blocks) == 2
+    capsule = trimesh.creation.capsule(height=2.0, radius=0.4, count=[16, 16])
+    (tmp_path / "model.obj").write_text(capsule.export(file_type="obj"))
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    for block in blocks:
+        exec(block, namespace)  # noqa: S102
+    assert len(namespace["per_input_face"]) == len(capsule.faces)
+    assert len(capsys.readouterr().out.splitlines()) == 3

@@ -253,7 +253,12 @@ def _shdf_engine(cache: str) -> Any:
 
         where = {"redis_url": cache} if "://" in cache else {"cache_dir": Path(cache)}
         settings = Settings(
-            **where, memory_cache_items=0, compute_threads=1, io_threads=1, warm_up=False
+            **where,
+            memory_cache_items=0,
+            memory_working_set_bytes=0,
+            compute_threads=1,
+            io_threads=1,
+            warm_up=False,
         )
         metrics = Metrics()
         engine = _ENGINES[cache] = Engine(settings, build_cache(settings, metrics), metrics)

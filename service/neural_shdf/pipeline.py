@@ -20,7 +20,7 @@ from neural_shdf.segment import SegmentParams
 from neural_shdf.shdf.stage import ShdfMethod, ShdfParams, ShdfResult, run_shdf, with_seed
 
 if TYPE_CHECKING:
-    from neural_shdf.segment.pipeline import SegmentResult
+    from neural_shdf.segment.pipeline import SegmentBasis, SegmentResult
     from neural_shdf.shdf.neural.inference import NeuralModel
 
 Progress = Callable[[float], None]
@@ -96,13 +96,43 @@ def segment_mesh_with_details(
     params: SegmentParams | None = None,
     *,
     graph: FaceGraph | None = None,
+    basis: SegmentBasis | None = None,
 ) -> SegmentResult:
-    """``segment_mesh`` plus the graph cut's part tree, the mixture size and timings."""
+    """``segment_mesh`` plus the graph cut's part tree, the mixture size and timings.
+
+    ``basis``: ``prepare_segment_mesh``'s result for this mesh, ShDF, clusters and seed;
+    keep it to re-segment with other smoothing, parts or refinement values cheaply.
+    """
     from neural_shdf.segment.pipeline import segment_with_details
 
     graph = mesh_face_graph(mesh) if graph is None else graph
     _, areas = mesh.normals_and_areas
     return segment_with_details(
+        mesh.vertices,
+        mesh.faces,
+        np.asarray(shdf),
+        params or SegmentParams(),
+        graph,
+        areas=areas,
+        basis=basis,
+    )
+
+
+def prepare_segment_mesh(
+    mesh: TriangleMesh,
+    shdf: NDArray,
+    params: SegmentParams | None = None,
+    *,
+    graph: FaceGraph | None = None,
+) -> SegmentBasis:
+    """What every segmentation of ``mesh`` with this ShDF, ``params.clusters`` and
+    ``params.seed`` shares (mixture, data costs, the graph cut's coarse graphs): pass it
+    to ``segment_mesh_with_details`` to try other smoothing or part counts quickly."""
+    from neural_shdf.segment.pipeline import prepare_segment
+
+    graph = mesh_face_graph(mesh) if graph is None else graph
+    _, areas = mesh.normals_and_areas
+    return prepare_segment(
         mesh.vertices, mesh.faces, np.asarray(shdf), params or SegmentParams(), graph, areas=areas
     )
 

@@ -67,6 +67,23 @@ def test_disk_cache_is_capped_with_lru_eviction(tmp_path):
     assert cache.get_arrays("k1:x") is None
 
 
+def test_working_sets_stay_within_their_bytes_least_recently_used_first(tmp_path):
+    cache = ResultCache(DiskBackend(tmp_path / "c", 1024**2), working_set_bytes=100)
+    for key in ("m1:a", "m1:b", "m2:a"):
+        cache.keep_working_set(key, key.upper(), 40)
+    assert cache.working_set("m1:a") is None  # 120 bytes: the oldest went
+    assert cache.working_set("m1:b") == "M1:B"  # now the most recently used
+    cache.keep_working_set("m3:a", "M3:A", 40)
+    assert cache.working_set("m2:a") is None and cache.working_set("m1:b") == "M1:B"
+    cache.keep_working_set("m4:a", "too big", 101)
+    assert cache.working_set("m4:a") is None
+    cache.forget_group("m1")  # a deleted mesh's working sets go with it
+    assert cache.working_set("m1:b") is None and cache.working_set("m3:a") == "M3:A"
+    none_kept = ResultCache(DiskBackend(tmp_path / "d", 1024**2), working_set_bytes=0)
+    none_kept.keep_working_set("m1:a", "value", 1)
+    assert none_kept.working_set("m1:a") is None
+
+
 def test_entries_survive_a_restart(tmp_path):
     first = ResultCache(DiskBackend(tmp_path / "c", 10 * 1024**2))
     first.put_json("m:meta", {"a": 1}, group="m")

@@ -259,3 +259,26 @@ def test_auto_reports_the_producer_that_ran(app_factory, capsule_obj):
         assert segmented["method"] == "exact"
         sampled = client.post("/v1/segment", json={"mesh_id": mesh_id, "method": "sampled"})
         assert sampled.json()["method"] == "sampled"
+
+
+def test_new_smoothing_values_reuse_the_mesh_basis(app_factory, capsule_obj):
+    """What does not depend on smoothing is prepared once per mesh, ShDF, clusters and
+    seed; later values only re-cut, with the labels the library gives without it."""
+    from neural_shdf.pipeline import compute_shdf, segment_mesh
+    from neural_shdf.segment import SegmentParams
+
+    app = app_factory()
+    engine = app.state.engine
+    with TestClient(app) as client:
+        mesh_id = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)}).json()
+        mesh_id = mesh_id["mesh"]["mesh_id"]
+        bodies = [{"mesh_id": mesh_id, "smoothing": s} for s in (0.1, 0.2, 0.3)]
+        bodies.append({"mesh_id": mesh_id, "smoothing": 0.2, "clusters": 3})
+        answers = [client.post("/v1/segment", json=body).json() for body in bodies]
+    prepared = [key for key in engine.cache._working if ":basis:" in key]
+    assert len(prepared) == 2, prepared  # default clusters, and clusters=3
+    mesh = load_mesh(capsule_obj, file_type="obj")
+    shdf = compute_shdf(mesh, method=TEST_METHOD, model=MODEL_FILE)
+    for body, answer in zip(bodies, answers, strict=True):
+        params = SegmentParams(smoothing=body["smoothing"], clusters=body.get("clusters"))
+        np.testing.assert_array_equal(answer["labels"], segment_mesh(mesh, shdf, params))

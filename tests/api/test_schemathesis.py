@@ -15,6 +15,10 @@ from schemathesis import GenerationMode  # noqa: E402
 
 from neural_shdf.api.app import create_app  # noqa: E402
 
+#: Seconds a fuzzed request may take: valid ones include an 8192-texel UV atlas, which on a
+#: busy 2-core machine takes longer than the ASGI transport's default 10 s.
+CALL_TIMEOUT_S = 120
+
 
 @pytest.fixture
 def api_schema(tmp_path):
@@ -33,7 +37,7 @@ schema = schemathesis.pytest.from_fixture("api_schema")
     suppress_health_check=list(HealthCheck),
 )
 def test_api_conforms_to_its_schema(case):
-    response = case.call()
+    response = case.call(timeout=CALL_TIMEOUT_S)
     assert response.status_code < 500, response.text
     # A schema-valid request may still carry an unusable mesh (422 saying why): the
     # positive-data check cannot know that, every other built-in check runs.
@@ -79,6 +83,9 @@ def test_stateful_fuzzing_follows_the_links_from_real_uploads(tmp_path):
                 body["file"] = data
                 body["file_type"] = name.rsplit(".", 1)[1]
                 case.body = body
+
+        def get_call_kwargs(self, case):
+            return {"timeout": CALL_TIMEOUT_S}
 
         def after_call(self, response, case):
             statuses[(case.operation.definition.raw.get("operationId"), response.status_code)] += 1

@@ -12,6 +12,9 @@ from neural_shdf.segment.graphcut import (
     LAMBDA_SCALE,
     alpha_expansion,
     banded_alpha_expansion,
+    coarse_data,
+    coarse_graph,
+    cut_hierarchy,
     dihedral_weights,
     expansion_move,
     labelling_energy,
@@ -117,3 +120,44 @@ def test_multilevel_is_close_to_the_direct_solution_on_a_sphere():
     e_multi = labelling_energy(multilevel, data, graph.pairs, weights)
     assert e_multi <= 1.05 * e_direct
     assert np.mean(multilevel == direct) > 0.95
+
+
+def test_one_cut_hierarchy_serves_every_smoothing_scale():
+    mesh = trimesh.creation.icosphere(5)
+    normals, areas = face_normals(mesh.vertices, mesh.faces)
+    graph = build_face_graph(mesh.vertices, mesh.faces, normals)
+    centroids = face_centroids(mesh.vertices, mesh.faces)
+    rng = np.random.default_rng(1)
+    p_top = np.clip(0.5 + 0.5 * centroids[:, 2] + rng.normal(0, 0.3, len(centroids)), 0.01, 0.99)
+    data = -np.log(np.column_stack([1 - p_top, p_top, np.full_like(p_top, 0.3)]))
+    unit = dihedral_weights(graph, 1.0)
+    hierarchy = cut_hierarchy(data, graph.pairs, unit, centroids, areas, coarse_nodes=1000)
+    assert len(hierarchy.levels) > 2 and hierarchy.nbytes > data.nbytes
+    for scale in (0.01, 0.05, 0.3):
+        direct = multilevel_alpha_expansion(
+            data, graph.pairs, unit * scale, centroids, areas, coarse_nodes=1000
+        )
+        np.testing.assert_array_equal(hierarchy.solve(scale), direct)
+    # No smoothness term: every face takes its cheapest label.
+    np.testing.assert_array_equal(hierarchy.solve(0.0), np.argmin(data, axis=1))
+
+
+def test_coarse_graph_sums_the_weights_between_coarse_nodes():
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(2)
+    pairs = rng.integers(0, 300, (2000, 2))
+    weights = rng.uniform(0.1, 1.0, len(pairs))
+    coarse_of = rng.integers(0, 40, 300)
+    coarse_pairs, summed = coarse_graph(coarse_of, pairs, weights, 40)
+    ca, cb = coarse_of[pairs[:, 0]], coarse_of[pairs[:, 1]]
+    cross = ca != cb
+    reference = sp.coo_matrix(
+        (weights[cross], (np.minimum(ca, cb)[cross], np.maximum(ca, cb)[cross])), shape=(40, 40)
+    ).tocsr()
+    np.testing.assert_array_equal(np.lexsort(coarse_pairs.T[::-1]), np.arange(len(summed)))
+    np.testing.assert_allclose(reference[coarse_pairs[:, 0], coarse_pairs[:, 1]].A1, summed)
+    assert len(summed) == reference.nnz
+    data = rng.uniform(0, 1, (300, 3))
+    expected = np.stack([np.bincount(coarse_of, data[:, j], 40) for j in range(3)], axis=1)
+    np.testing.assert_array_equal(coarse_data(coarse_of, data, 40), expected)

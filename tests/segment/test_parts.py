@@ -1,6 +1,7 @@
 """Canonical labels, connected parts, and merging of tiny parts."""
 
 import numpy as np
+import pytest
 
 from neural_shdf.geometry import FaceGraph
 from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
@@ -63,3 +64,35 @@ def test_all_tiny_shells_stay_apart():
     )
     merged = merge_small_parts(np.arange(4), graph, np.ones(4), np.eye(4, 3), 0.3)
     np.testing.assert_array_equal(merged, np.arange(4))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_connected_parts_match_scipy_components_numbered_by_lowest_face(seed):
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    rng = np.random.default_rng(seed)
+    count = 400
+    pairs = rng.integers(0, count, (600, 2))
+    labels = rng.integers(0, 3, count)
+    keep = labels[pairs[:, 0]] == labels[pairs[:, 1]]
+    matrix = sp.coo_matrix((np.ones(keep.sum()), tuple(pairs[keep].T)), shape=(count, count))
+    _, components = connected_components(matrix, directed=False)
+    np.testing.assert_array_equal(
+        connected_parts(labels, pairs, count), canonical_labels(components)
+    )
+
+
+@pytest.mark.parametrize(
+    "labels",
+    [
+        np.array([7, 7, 3, 9, 3, 7]),
+        np.array([-1, 5, -1, 2]),
+        np.array([10**12, 4, 10**12]),  # a wide range takes the sorting path
+        np.array([2.5, 1.0, 2.5]),
+    ],
+)
+def test_canonical_labels_follow_first_appearance_for_any_labels(labels):
+    _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
+    expected = np.argsort(np.argsort(first))[inverse]
+    np.testing.assert_array_equal(canonical_labels(labels), expected)

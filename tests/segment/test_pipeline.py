@@ -9,7 +9,7 @@ import trimesh
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
 from neural_shdf.segment.params import AUTO_CLUSTERS, SegmentParams
-from neural_shdf.segment.pipeline import segment, segment_with_details
+from neural_shdf.segment.pipeline import prepare_segment, segment, segment_with_details
 from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
 
 
@@ -227,3 +227,33 @@ def test_part_count_comparable_to_cgal_on_psb(shared_data, psb_off, model_id):
     )
     ratio = (ours.max() + 1) / (cgal_parts.max() + 1)
     assert 0.5 <= ratio <= 2.0
+
+
+@pytest.mark.parametrize("clusters", [None, AUTO_CLUSTERS])
+def test_a_kept_basis_gives_the_same_labels_for_every_later_parameter(dumbbell_case, clusters):
+    vertices, faces, shdf, graph, _ = dumbbell_case
+    basis = prepare_segment(vertices, faces, shdf, SegmentParams(clusters=clusters), graph)
+    for changes in (
+        {},
+        {"smoothing": 0.3},
+        {"smoothing": 0.0},
+        {"smoothing": 5.0, "reference_faces": 1000},
+        {"parts": 2},
+        {"refine": True},
+        {"boundary_smoothing": True},
+        {"partitioner": "metis", "parts": 3},
+    ):
+        params = SegmentParams(clusters=clusters, **changes)
+        kept = segment_with_details(vertices, faces, shdf, params, graph, basis=basis)
+        fresh = segment_with_details(vertices, faces, shdf, params, graph)
+        np.testing.assert_array_equal(kept.labels, fresh.labels, err_msg=str(changes))
+        assert "prepare" not in kept.timings and "prepare" in fresh.timings
+
+
+def test_a_basis_of_other_clusters_or_seed_is_refused(dumbbell_case):
+    vertices, faces, shdf, graph, _ = dumbbell_case
+    basis = prepare_segment(vertices, faces, shdf, SegmentParams(clusters=3), graph)
+    for params in (SegmentParams(clusters=4), SegmentParams(clusters=3, seed=1)):
+        with pytest.raises(ValueError, match="another mesh, clusters or seed"):
+            segment_with_details(vertices, faces, shdf, params, graph, basis=basis)
+    assert basis.nbytes > shdf.nbytes

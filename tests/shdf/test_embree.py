@@ -38,6 +38,27 @@ def test_packets_hit_the_same_triangles_as_embreex():
     np.testing.assert_array_equal(hits, expected)
 
 
+def test_low_build_quality_hits_the_same_triangles():
+    mesh = trimesh.creation.icosphere(subdivisions=4)
+    mesh.vertices *= np.random.default_rng(2).uniform(0.7, 1.3, len(mesh.vertices))[:, None]
+    origins, directions = random_rays(2000, seed=3)
+    medium = Scene(mesh.vertices, mesh.faces, "medium")
+    low = Scene(mesh.vertices, mesh.faces, "low")
+    local = (origins - medium.center).astype(np.float32)
+    hits = medium.first_hits(local, directions)
+    assert (hits >= 0).all()
+    np.testing.assert_array_equal(low.first_hits(local, directions), hits)
+    with pytest.raises(ValueError, match="build quality"):
+        Scene(mesh.vertices, mesh.faces, "high")
+
+
+def test_bounding_box_is_numpys():
+    points = np.random.default_rng(4).normal(size=(1001, 3))
+    low, high = embree.bounding_box(points)
+    np.testing.assert_array_equal(low, points.min(axis=0))
+    np.testing.assert_array_equal(high, points.max(axis=0))
+
+
 def test_hits_are_the_closest_triangle_along_the_ray():
     box = trimesh.creation.box((2.0, 2.0, 2.0))
     scene = Scene(box.vertices, box.faces)

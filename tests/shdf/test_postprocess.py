@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import build_face_graph
+from neural_shdf.geometry import build_face_graph, face_centroids, face_normals
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import mesh_face_graph
 from neural_shdf.shdf.postprocess import (
@@ -17,10 +17,12 @@ from neural_shdf.shdf.postprocess import (
     fill_missing,
     linear_normalize,
     log_normalize,
+    mesh_ring_length,
     patch_bilateral,
     postprocess_shdf,
     ring_length,
     smoothing_window,
+    sorted_adjacency,
 )
 
 
@@ -103,6 +105,36 @@ def test_bilateral_works_in_small_chunks(sphere_graph, monkeypatch):
     monkeypatch.setattr(postprocess, "PAIRS_PER_CHUNK", 10)
     chunked = bilateral_smooth(values, sphere_graph, window_size=2, compiled=False)
     np.testing.assert_array_equal(chunked, whole)
+
+
+def _fill_missing_reference(values: np.ndarray, graph) -> np.ndarray:  # noqa: ANN001
+    """CGAL's fill in face order over the full adjacency (the implementation before
+    the fill read only the pairs touching missing faces)."""
+    out = values.copy()
+    adjacency = graph.csr()
+    smallest, left = float(np.nanmin(out)), []
+    for face in np.flatnonzero(np.isnan(out)):
+        near = out[adjacency.indices[adjacency.indptr[face] : adjacency.indptr[face + 1]]]
+        near = near[~np.isnan(near)]
+        if len(near):
+            total = 0.0
+            for value in near:
+                total += value
+            out[face] = total / len(near)
+        else:
+            left.append(face)
+    out[left] = smallest
+    return out
+
+
+def test_fill_missing_matches_the_full_adjacency_fill(sphere_graph):
+    rng = np.random.default_rng(8)
+    for share in (0.01, 0.3, 0.9):
+        raw = rng.random(sphere_graph.face_count)
+        raw[rng.random(len(raw)) < share] = np.nan
+        np.testing.assert_array_equal(
+            fill_missing(raw, sphere_graph), _fill_missing_reference(raw, sphere_graph)
+        )
 
 
 def test_fill_missing_uses_earlier_fills_then_the_minimum():
@@ -221,3 +253,23 @@ def test_post_processing_reports_progress_in_steps():
     values = postprocess_shdf(raw, graph, window_size=3, progress=seen.append)
     np.testing.assert_array_equal(values, postprocess_shdf(raw, graph, window_size=3))
     assert seen == sorted(seen) and seen[-1] == 1.0 and len(set(seen)) >= 10
+
+
+def test_ring_length_from_the_mesh_reads_only_the_pairs_it_needs() -> None:
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    normals, _ = face_normals(mesh.vertices, mesh.faces)
+    graph = build_face_graph(mesh.vertices, mesh.faces, normals)
+    expected = ring_length(graph, face_centroids(mesh.vertices, mesh.faces))
+    assert expected > 0
+    assert mesh_ring_length(graph, mesh.vertices, mesh.faces) == expected
+
+
+def test_sorted_adjacency_is_the_graphs_csr() -> None:
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    order = np.random.default_rng(2).permutation(len(mesh.faces))  # faces out of order
+    normals, _ = face_normals(mesh.vertices, mesh.faces[order])
+    graph = build_face_graph(mesh.vertices, mesh.faces[order], normals)
+    indptr, indices = sorted_adjacency(graph)
+    expected = graph.csr()
+    np.testing.assert_array_equal(indptr, expected.indptr)
+    np.testing.assert_array_equal(indices, expected.indices)

@@ -13,7 +13,15 @@ from neural_shdf.pipeline import compute_shdf, compute_shdf_result, mesh_face_gr
 from neural_shdf.shdf import stage
 from neural_shdf.shdf.exact import raw_shdf, raw_shdf_at_points
 from neural_shdf.shdf.neural.inference import DEFAULT_MODEL_PATH
-from neural_shdf.shdf.stage import ShdfParams, resolve_method, shdf_key, smooth_samples
+from neural_shdf.shdf.stage import (
+    DEFAULT_SAMPLES,
+    THIN_PART_RADII,
+    ShdfParams,
+    resolve_method,
+    shdf_key,
+    smooth_samples,
+    thin_part_samples,
+)
 
 
 def two_shells() -> TriangleMesh:
@@ -102,10 +110,13 @@ def test_cache_key_covers_method_model_and_every_parameter() -> None:
         shdf_key("sampled", ShdfParams(samples=1024), None),
         shdf_key("sampled", ShdfParams(seed=1), None),
         shdf_key("neural", ShdfParams(sample_sets=3), "a" * 64),
+        shdf_key("sampled", ShdfParams(max_samples=8192), None),
     }
-    assert len(keys) == 9
+    assert len(keys) == 10
     # Parameters a producer never reads do not split its cache.
     assert shdf_key("exact", ShdfParams(seed=5, samples=64), None) == shdf_key("exact", base, None)
+    fixed = ShdfParams(max_samples=DEFAULT_SAMPLES)
+    assert shdf_key("neural", fixed, "a" * 64) == shdf_key("neural", base, "a" * 64)
     with pytest.raises(ParameterError, match="checksum"):
         shdf_key("neural", base, None)
 
@@ -131,3 +142,39 @@ def test_the_model_argument_decides_which_network_computes(tmp_path) -> None:
     np.testing.assert_array_equal(
         default, compute_shdf(mesh, method="neural", graph=graph, params=params, model=None)
     )
+
+
+def test_thin_parts_get_more_samples_up_to_the_maximum() -> None:
+    params = ShdfParams(samples=1000, max_samples=3000)
+    thick = np.full(500, 10.0)
+    assert thin_part_samples(thick, params) == 1000
+    thin = np.concatenate([np.full(100, 2.0), np.full(400, 10.0)])  # p10 of 2 radii
+    assert thin_part_samples(thin, params) == round(1000 * (THIN_PART_RADII / 2.0) ** 2)
+    assert thin_part_samples(np.full(500, 0.5), params) == 3000
+    assert thin_part_samples(np.full(500, 0.5), ShdfParams(samples=1000, max_samples=1000)) == 1000
+    assert thin_part_samples(np.full(5, np.nan), params) == 1000
+    with pytest.raises(ParameterError, match="max_samples"):
+        ShdfParams(samples=4096, max_samples=1024)
+
+
+def test_sampled_casts_more_samples_on_thin_parts() -> None:
+    # A thin ring (its tube spans about one Poisson radius at 200 samples) beside a ball.
+    ring = trimesh.creation.torus(
+        major_radius=1.0, minor_radius=0.05, major_sections=128, minor_sections=16
+    )
+    ball = trimesh.creation.icosphere(subdivisions=3)
+    ball.apply_translation([3.0, 0.0, 0.0])
+    both = trimesh.util.concatenate([ring, ball])
+    mesh = TriangleMesh(np.asarray(both.vertices), np.asarray(both.faces))
+    graph = mesh_face_graph(mesh)
+    exact = compute_shdf(mesh, method="exact", graph=graph)
+    fixed, adaptive, again = (
+        compute_shdf(mesh, method="sampled", graph=graph, params=params)
+        for params in (
+            ShdfParams(samples=200, max_samples=200),
+            ShdfParams(samples=200),
+            ShdfParams(samples=200),
+        )
+    )
+    assert np.abs(adaptive - exact).mean() < 0.6 * np.abs(fixed - exact).mean()
+    np.testing.assert_array_equal(again, adaptive)

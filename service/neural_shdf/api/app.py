@@ -49,7 +49,12 @@ def build_cache(settings: Settings, metrics: Metrics) -> ResultCache:
         redis.on_error = lambda exc: metrics.cache_errors.inc()
         redis.breaker.on_change = lambda is_open: metrics.cache_degraded.set(int(is_open))
         backend = FallbackBackend(redis, disk)
-    cache = ResultCache(backend, settings.memory_cache_items, lease_s=settings.lock_lease_s)
+    cache = ResultCache(
+        backend,
+        settings.memory_cache_items,
+        lease_s=settings.lock_lease_s,
+        working_set_bytes=settings.memory_working_set_bytes,
+    )
     cache.on_corrupt = lambda key: metrics.cache_corrupt.inc()
     return cache
 

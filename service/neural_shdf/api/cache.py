@@ -670,11 +670,20 @@ class Lease:
 class ResultCache:
     """Typed, checksummed entries over a Backend, with a small in-memory LRU in front."""
 
-    def __init__(self, backend: Backend, memory_items: int = 16, lease_s: float = 5.0) -> None:
+    def __init__(
+        self,
+        backend: Backend,
+        memory_items: int = 16,
+        lease_s: float = 5.0,
+        working_set_bytes: int = 1024**3,
+    ) -> None:
         self.backend = backend
         self.lease_s = lease_s
         self._memory: OrderedDict[str, Any] = OrderedDict()
         self._memory_items = memory_items
+        # Large per-mesh working sets (e.g. segmentation bases), bounded by their bytes.
+        self._working: OrderedDict[str, tuple[Any, int]] = OrderedDict()
+        self._working_bytes = working_set_bytes
         self._memory_guard = threading.Lock()
         self.on_corrupt: Callable[[str], None] = lambda key: None
 
@@ -695,10 +704,33 @@ class ResultCache:
                 self._memory.move_to_end(key)
             return value
 
+    def keep_working_set(self, key: str, value: Any, nbytes: int) -> None:
+        """Keep a large in-process value (never shared), least recently used dropped first
+        so that all kept ones stay within ``working_set_bytes``; one larger is not kept."""
+        with self._memory_guard:
+            self._working.pop(key, None)
+            if nbytes > self._working_bytes:
+                return
+            self._working[key] = (value, nbytes)
+            total = sum(size for _, size in self._working.values())
+            while total > self._working_bytes:
+                _, (_, size) = self._working.popitem(last=False)
+                total -= size
+
+    def working_set(self, key: str) -> Any | None:
+        """A value ``keep_working_set`` kept, or None."""
+        with self._memory_guard:
+            kept = self._working.get(key)
+            if kept is None:
+                return None
+            self._working.move_to_end(key)
+            return kept[0]
+
     def forget_group(self, group: str) -> None:
         with self._memory_guard:
-            for key in [k for k in self._memory if k.startswith(f"{group}:")]:
-                del self._memory[key]
+            for memory in (self._memory, self._working):
+                for key in [k for k in memory if k.startswith(f"{group}:")]:
+                    del memory[key]
 
     # -- shared, checksummed entries -------------------------------------------
     def _payload(self, key: str) -> bytes | None:

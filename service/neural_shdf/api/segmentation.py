@@ -180,13 +180,22 @@ class SegmentationService:
         self.cache.remember(key, result)
 
     def _compute(
-        self, mesh_id: str, mesh: TriangleMesh, shdf: NDArray, params: SegmentParams
+        self, mesh_id: str, method: str, mesh: TriangleMesh, shdf: NDArray, params: SegmentParams
     ) -> SegmentResult:
-        from neural_shdf.pipeline import segment_mesh_with_details
+        from neural_shdf.pipeline import prepare_segment_mesh, segment_mesh_with_details
 
         graph = self.meshes.graph(mesh_id, mesh)
         start = time.perf_counter()
-        segmentation = segment_mesh_with_details(mesh, shdf, params, graph=graph)
+        # What does not depend on smoothing, parts or refinement is kept per mesh, ShDF,
+        # clusters and seed (in memory, within MEMORY_WORKING_SET_BYTES), so a new slider value
+        # only re-cuts.
+        shdf_version = self.shdf.version(method, params.seed)
+        basis_key = f"{mesh_id}:basis:{shdf_version}:{params.clusters}:{params.seed}"
+        basis = self.cache.working_set(basis_key)
+        if basis is None:
+            basis = prepare_segment_mesh(mesh, shdf, params, graph=graph)
+        segmentation = segment_mesh_with_details(mesh, shdf, params, graph=graph, basis=basis)
+        self.cache.keep_working_set(basis_key, basis, basis.nbytes)  # sized with its cut
         seconds = time.perf_counter() - start
         self.metrics.segmentations.inc()
         self.metrics.segment_seconds.observe(seconds)
@@ -229,7 +238,9 @@ class SegmentationService:
                         self.tasks.compute_once,
                         key,
                         functools.partial(self.cached, key),
-                        functools.partial(self._compute, mesh_id, mesh, outcome.values, params),
+                        functools.partial(
+                            self._compute, mesh_id, method, mesh, outcome.values, params
+                        ),
                         functools.partial(self._store, key, mesh_id),
                     ),
                 )

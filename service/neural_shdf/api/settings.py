@@ -50,6 +50,14 @@ class Settings(BaseSettings):
     memory_cache_items: int = Field(
         16, ge=0, description="Meshes, graphs and results kept in process memory (LRU)."
     )
+    memory_working_set_bytes: int = Field(
+        1024**3,
+        ge=0,
+        description="Bytes of segmentation working sets (per mesh, ShDF, clusters and seed: "
+        "mixture, data costs, the graph cut's coarse graphs; about 45 MB per 100k faces) kept "
+        "in process memory (LRU), so that a new smoothing or part count only re-cuts; 0 keeps "
+        "none.",
+    )
 
     default_method: Literal["auto", "exact", "sampled", "neural"] = Field(
         "auto",

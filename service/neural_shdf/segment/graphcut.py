@@ -19,10 +19,14 @@ of max-flows over the whole mesh.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf.compiled import kernel
 from neural_shdf.geometry import FaceGraph
+from neural_shdf.segment.parts import connected_components
 
 #: CGAL: probabilities below this are clamped before ``-log``.
 PROBABILITY_EPS = 5e-6
@@ -85,9 +89,81 @@ def length_factor(edge_length: NDArray) -> NDArray[np.float64]:
 
 def labelling_energy(labels: NDArray, data: NDArray, pairs: NDArray, weights: NDArray) -> float:
     """E(l): data cost of each face's label plus the weight of every cut edge."""
-    unary = float(data[np.arange(len(labels)), labels].sum())
-    cut = labels[pairs[:, 0]] != labels[pairs[:, 1]]
-    return unary + float(weights[cut].sum())
+    return float(
+        _labelling_energy(
+            np.asarray(labels, dtype=np.int64),
+            np.asarray(data, dtype=np.float64),
+            np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+            np.asarray(weights, dtype=np.float64),
+        )
+    )
+
+
+@kernel
+def _labelling_energy(labels, data, pairs, weights):  # pragma: no cover - compiled
+    unary = 0.0
+    for node in range(len(labels)):
+        unary += data[node, labels[node]]
+    cut = 0.0
+    for edge in range(len(pairs)):
+        if labels[pairs[edge, 0]] != labels[pairs[edge, 1]]:
+            cut += weights[edge]
+    return unary + cut
+
+
+@kernel
+def _expansion_graph(labels, alpha, data, pairs, weights):  # pragma: no cover - compiled
+    """The max-flow graph of one expansion move, in one pass: the free nodes (label not
+    ``alpha``), their terminal capacities and the edges between free nodes.
+
+    Node x = 1 (sink side) means "switch to alpha" and pays the source capacity. An edge
+    to a node already labelled alpha: keeping our label cuts it. Between two free nodes
+    of one label: Potts w * [x_a != x_b]. Of different labels: w * (1 - x_a x_b)
+    = w * (1 - x_a) + w * x_a (1 - x_b), i.e. a keep cost on a and an edge b -> a.
+    Capacities are shifted by min(keep, switch) per node (the cut changes by a constant).
+    """
+    count = len(labels)
+    node_of = np.full(count, -1, dtype=np.int64)
+    nodes = np.empty(count, dtype=np.int64)
+    free = 0
+    for node in range(count):
+        if labels[node] != alpha:
+            node_of[node] = free
+            nodes[free] = node
+            free += 1
+    nodes = nodes[:free]
+    keep = np.empty(free)
+    switch = np.empty(free)
+    for i in range(free):
+        keep[i] = data[nodes[i], labels[nodes[i]]]
+        switch[i] = data[nodes[i], alpha]
+    edge_a = np.empty(len(pairs), dtype=np.int64)
+    edge_b = np.empty(len(pairs), dtype=np.int64)
+    forward = np.empty(len(pairs))
+    backward = np.empty(len(pairs))
+    edges = 0
+    for edge in range(len(pairs)):
+        a, b = node_of[pairs[edge, 0]], node_of[pairs[edge, 1]]
+        w = weights[edge]
+        if a >= 0 and b >= 0:
+            edge_a[edges] = a
+            edge_b[edges] = b
+            backward[edges] = w
+            if labels[pairs[edge, 0]] == labels[pairs[edge, 1]]:
+                forward[edges] = w
+            else:
+                forward[edges] = 0.0
+                keep[a] += w
+            edges += 1
+        elif a >= 0:
+            keep[a] += w
+        elif b >= 0:
+            keep[b] += w
+    for i in range(free):
+        shift = min(keep[i], switch[i])
+        keep[i] -= shift
+        switch[i] -= shift
+    return nodes, switch, keep, edge_a[:edges], edge_b[:edges], forward[:edges], backward[:edges]
 
 
 def expansion_move(
@@ -96,39 +172,24 @@ def expansion_move(
     """The best labelling reachable by letting any face switch to ``alpha`` (one max-flow)."""
     import maxflow
 
-    free = labels != alpha
-    nodes = np.flatnonzero(free)
+    labels = np.asarray(labels, dtype=np.int64)
+    nodes, source_cap, sink_cap, edge_a, edge_b, forward, backward = _expansion_graph(
+        labels,
+        alpha,
+        np.asarray(data, dtype=np.float64),
+        np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+        np.asarray(weights, dtype=np.float64),
+    )
     if len(nodes) == 0:
         return labels
-    node_of = np.full(len(labels), -1, dtype=np.int64)
-    node_of[nodes] = np.arange(len(nodes))
-    # x = 1 (sink side) means "switch to alpha": it pays the source capacity.
-    keep_cost = data[nodes, labels[nodes]].copy()
-    switch_cost = data[nodes, alpha].copy()
-
-    a, b = pairs[:, 0], pairs[:, 1]
-    free_a, free_b = free[a], free[b]
-    # An edge to a face already labelled alpha: keeping our label cuts it.
-    one_a = free_a & ~free_b
-    one_b = free_b & ~free_a
-    np.add.at(keep_cost, node_of[a[one_a]], weights[one_a])
-    np.add.at(keep_cost, node_of[b[one_b]], weights[one_b])
-
-    both = free_a & free_b
-    pa, pb, w = node_of[a[both]], node_of[b[both]], weights[both]
-    same = labels[a[both]] == labels[b[both]]
-    # Same label: Potts w * [x_a != x_b]. Different labels: w * (1 - x_a x_b)
-    # = w * (1 - x_a) + w * x_a (1 - x_b)  ->  keep cost on a, edge b -> a.
-    np.add.at(keep_cost, pa[~same], w[~same])
-
-    graph = maxflow.Graph[float](len(nodes), len(pa))
+    graph = maxflow.Graph[float](len(nodes), len(edge_a))
     graph.add_nodes(len(nodes))
-    if len(pa):
-        graph.add_edges(pa, pb, np.where(same, w, 0.0), w)
-    shift = np.minimum(keep_cost, switch_cost)
-    graph.add_grid_tedges(np.arange(len(nodes)), switch_cost - shift, keep_cost - shift)
+    if len(edge_a):
+        graph.add_edges(edge_a, edge_b, forward, backward)
+    index = np.arange(len(nodes))
+    graph.add_grid_tedges(index, source_cap, sink_cap)
     graph.maxflow()
-    switch = graph.get_grid_segments(np.arange(len(nodes)))
+    switch = graph.get_grid_segments(index)
     result = labels.copy()
     result[nodes[switch]] = alpha
     return result
@@ -206,11 +267,15 @@ def banded_alpha_expansion(
     local[nodes] = np.arange(len(nodes))
     sub_data = np.array(band_data, dtype=np.float64)
     a, b = pairs[:, 0], pairs[:, 1]
+    label_count = sub_data.shape[1]
     for inner, outer in ((a, b), (b, a)):
         edge = np.flatnonzero(band[inner] & ~band[outer])
         rows = local[inner[edge]]
-        np.add.at(sub_data, rows, weights[edge][:, None])
-        np.add.at(sub_data, (rows, labels[outer[edge]]), -weights[edge])
+        sub_data += np.bincount(rows, weights=weights[edge], minlength=len(nodes))[:, None]
+        cell = rows * label_count + labels[outer[edge]]
+        sub_data -= np.bincount(cell, weights=weights[edge], minlength=sub_data.size).reshape(
+            sub_data.shape
+        )
     inside = np.flatnonzero(band[a] & band[b])
     sub_pairs = local[pairs[inside]]
     # Only labels in or beside the band can win there.
@@ -223,21 +288,75 @@ def banded_alpha_expansion(
     return result
 
 
-def near_boundary(labels: NDArray, pairs: NDArray, node_count: int, rings: int) -> NDArray:
-    """Nodes within ``rings`` hops (1 = the nodes on a cut edge) of a label boundary."""
-    import scipy.sparse as sp
+def adjacency_lists(pairs: NDArray, node_count: int) -> tuple[NDArray, NDArray]:
+    """(indptr, neighbours): each node's neighbours, CSR-style, for ``near_boundary``."""
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    return _adjacency_lists(pairs, node_count)
 
-    cut = labels[pairs[:, 0]] != labels[pairs[:, 1]]
-    band = np.zeros(node_count, dtype=bool)
-    band[pairs[cut].reshape(-1)] = True
-    if rings > 1 and band.any():
-        rows = np.concatenate([pairs[:, 0], pairs[:, 1]])
-        cols = np.concatenate([pairs[:, 1], pairs[:, 0]])
-        adjacency = sp.csr_matrix(
-            (np.ones(len(rows), dtype=np.float32), (rows, cols)), shape=(node_count, node_count)
-        )
-        for _ in range(rings - 1):
-            band |= adjacency @ band.astype(np.float32) > 0
+
+@kernel
+def _adjacency_lists(pairs, node_count):  # pragma: no cover - compiled
+    indptr = np.zeros(node_count + 1, dtype=np.int64)
+    for edge in range(len(pairs)):
+        indptr[pairs[edge, 0] + 1] += 1
+        indptr[pairs[edge, 1] + 1] += 1
+    for node in range(node_count):
+        indptr[node + 1] += indptr[node]
+    fill = indptr[:-1].copy()
+    neighbours = np.empty(2 * len(pairs), dtype=np.int64)
+    for edge in range(len(pairs)):
+        a, b = pairs[edge, 0], pairs[edge, 1]
+        neighbours[fill[a]] = b
+        fill[a] += 1
+        neighbours[fill[b]] = a
+        fill[b] += 1
+    return indptr, neighbours
+
+
+def near_boundary(
+    labels: NDArray,
+    pairs: NDArray,
+    node_count: int,
+    rings: int,
+    adjacency: tuple[NDArray, NDArray] | None = None,
+) -> NDArray:
+    """Nodes within ``rings`` hops (1 = the nodes on a cut edge) of a label boundary.
+
+    ``adjacency``: ``adjacency_lists(pairs, node_count)`` where the caller keeps them.
+    """
+    labels = np.asarray(labels, dtype=np.int64)
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    if rings > 1 and adjacency is None:
+        adjacency = adjacency_lists(pairs, node_count)
+    indptr, neighbours = adjacency if rings > 1 else (np.zeros(1, np.int64), np.zeros(0, np.int64))
+    return _near_boundary(labels, pairs, node_count, rings, indptr, neighbours)
+
+
+@kernel
+def _near_boundary(labels, pairs, node_count, rings, indptr, neighbours):  # pragma: no cover
+    band = np.zeros(node_count, dtype=np.bool_)
+    front = np.empty(node_count, dtype=np.int64)
+    size = 0
+    for edge in range(len(pairs)):
+        a, b = pairs[edge, 0], pairs[edge, 1]
+        if labels[a] != labels[b]:
+            for node in (a, b):
+                if not band[node]:
+                    band[node] = True
+                    front[size] = node
+                    size += 1
+    start = 0
+    for _ in range(rings - 1):  # breadth-first, one ring per pass
+        end = size
+        for i in range(start, end):
+            node = front[i]
+            for j in range(indptr[node], indptr[node + 1]):
+                other = neighbours[j]
+                if not band[other]:
+                    band[other] = True
+                    front[size] = other
+                    size += 1
+        start = end
     return band
 
 
@@ -254,36 +373,162 @@ def coarsen(
     Never groups across a crease (an edge lighter than ``crease_weight``) nor
     nodes whose cheapest label (``preferred``) differs.
     """
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-
     a, b = pairs[:, 0], pairs[:, 1]
     span = cells.max(axis=0) + 1 if len(cells) else np.ones(3, dtype=np.int64)
     cell_key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
     keep = (
         (cell_key[a] == cell_key[b]) & (weights >= crease_weight) & (preferred[a] == preferred[b])
     )
-    a, b = pairs[keep, 0], pairs[keep, 1]
-    graph = sp.csr_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(node_count, node_count))
-    _, component = connected_components(graph, directed=True, connection="weak")
-    return component.astype(np.int64)
+    return connected_components(pairs, keep, node_count)
 
 
 def coarse_graph(
     coarse_of: NDArray, pairs: NDArray, weights: NDArray, coarse_count: int
 ) -> tuple[NDArray, NDArray]:
-    """Edges between coarse nodes (sorted pairs) with summed weights."""
-    import scipy.sparse as sp
-
+    """Edges between coarse nodes (pairs sorted by low, then high node) with summed weights;
+    each sum adds its fine edges in their order."""
     ca, cb = coarse_of[pairs[:, 0]], coarse_of[pairs[:, 1]]
-    cross = ca != cb
+    cross = np.flatnonzero(ca != cb)
     low, high = np.minimum(ca[cross], cb[cross]), np.maximum(ca[cross], cb[cross])
-    # CSR conversion sums duplicate (low, high) entries in linear time.
-    summed = sp.csr_matrix((weights[cross], (low, high)), shape=(coarse_count, coarse_count))
-    summed.sum_duplicates()
-    rows = np.repeat(np.arange(coarse_count, dtype=np.int64), np.diff(summed.indptr))
-    coarse_pairs = np.stack([rows, summed.indices.astype(np.int64)], axis=1)
-    return coarse_pairs, np.asarray(summed.data, dtype=np.float64)
+    order = np.argsort(low * np.int64(coarse_count) + high, kind="stable")
+    low, high = low[order], high[order]
+    if len(order) == 0:
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    starts = np.flatnonzero(np.r_[True, (low[1:] != low[:-1]) | (high[1:] != high[:-1])])
+    summed = np.add.reduceat(np.asarray(weights, dtype=np.float64)[cross[order]], starts)
+    return np.stack([low[starts], high[starts]], axis=1), summed
+
+
+def coarse_data(coarse_of: NDArray, data: NDArray, coarse_count: int) -> NDArray[np.float64]:
+    """(coarse_count, k) data costs summed over each coarse node's nodes, in node order."""
+    return _coarse_data(np.asarray(coarse_of, dtype=np.int64), data, coarse_count)
+
+
+@kernel
+def _coarse_data(coarse_of, data, coarse_count):  # pragma: no cover - compiled
+    summed = np.zeros((coarse_count, data.shape[1]))
+    for node in range(len(coarse_of)):
+        for label in range(data.shape[1]):
+            summed[coarse_of[node], label] += data[node, label]
+    return summed
+
+
+@dataclass(frozen=True)
+class CutLevel:
+    """One level of the multilevel graph cut: its graph, data costs and edge weights at a
+    smoothing scale of 1, and the map of its nodes to the next coarser level."""
+
+    pairs: NDArray[np.int64]
+    unit_weights: NDArray[np.float64]
+    data: NDArray[np.float64]
+    #: Node of the next coarser level per node (None at the coarsest level).
+    coarse_of: NDArray[np.int64] | None
+    #: ``adjacency_lists`` for the boundary band (None at the coarsest level).
+    adjacency: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None
+
+    @property
+    def nbytes(self) -> int:
+        arrays = (self.pairs, self.unit_weights, self.data, self.coarse_of)
+        size = sum(a.nbytes for a in arrays if a is not None)
+        if self.adjacency is not None:
+            size += sum(a.nbytes for a in self.adjacency)
+        return size
+
+
+@dataclass(frozen=True)
+class CutHierarchy:
+    """The coarse graphs of a multilevel graph cut, finest first.
+
+    They depend on the data costs, the graph and the edge weights only up to a common
+    scale (the smoothing), so one hierarchy serves every smoothing value: ``solve(scale)``
+    minimises the energy with edge weights ``scale * unit_weights``.
+    """
+
+    levels: tuple[CutLevel, ...]
+    rings: int = BAND_RINGS
+
+    @property
+    def nbytes(self) -> int:
+        return sum(level.nbytes for level in self.levels)
+
+    def solve(self, scale: float) -> NDArray[np.int64]:
+        """Labels minimising E with edge weights ``scale * unit_weights``; deterministic."""
+        finest = self.levels[0]
+        if not scale > 0 or finest.data.shape[1] <= 1:
+            # No smoothness term (or one label): each node's cheapest label is optimal.
+            return np.argmin(finest.data, axis=1).astype(np.int64)
+        top = self.levels[-1]
+        labels = alpha_expansion(top.data, top.pairs, top.unit_weights * scale)
+        for level in reversed(self.levels[:-1]):
+            labels = labels[level.coarse_of]
+            band = near_boundary(labels, level.pairs, len(level.data), self.rings, level.adjacency)
+            labels = banded_alpha_expansion(
+                level.data[band], level.pairs, level.unit_weights * scale, labels, band, BAND_CYCLES
+            )
+        return labels
+
+
+def cut_hierarchy(
+    data: NDArray,
+    pairs: NDArray,
+    unit_weights: NDArray,
+    centroids: NDArray,
+    areas: NDArray,
+    coarse_nodes: int = COARSE_NODES,
+    rings: int = BAND_RINGS,
+) -> CutHierarchy:
+    """Coarsen the graph until at most ``coarse_nodes`` nodes remain (or it stops shrinking).
+
+    Nodes are grouped into connected pieces of a 3-D grid (cells doubling per level;
+    crease edges and nodes preferring different labels never grouped), with data and
+    edge weights summed, so a labelling that is constant on groups has the same energy
+    at every level. Scaling ``unit_weights`` scales every level's weights alike, so the
+    hierarchy does not depend on the smoothing.
+    """
+    data = np.asarray(data, dtype=np.float64)
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    weights = np.asarray(unit_weights, dtype=np.float64)
+    node_count = len(data)
+    if node_count <= coarse_nodes or data.shape[1] <= 1:
+        return CutHierarchy((CutLevel(pairs, weights, data, None),), rings)
+
+    mean_area = float(np.mean(areas))
+    if not mean_area > 0:
+        extent = float(np.ptp(centroids, axis=0).max()) or 1.0
+        mean_area = extent**2 / node_count
+    cell_size = np.sqrt(FACES_PER_CELL * mean_area)
+    cells = np.floor((centroids - centroids.min(axis=0)) / cell_size).astype(np.int64)
+    crease_weight = CREASE_FRACTION * float(np.median(weights)) if len(weights) else 0.0
+
+    levels: list[CutLevel] = []
+    level_pairs, level_weights, level_data = pairs, weights, data
+    while len(level_data) > coarse_nodes:
+        count = len(level_data)
+        coarse_of = coarsen(
+            level_pairs, level_weights, count, cells, crease_weight, level_data.argmin(axis=1)
+        )
+        coarse_count = int(coarse_of.max()) + 1
+        if coarse_count > 0.8 * count:
+            break  # no longer shrinking (many tiny shells, or all creases)
+        summed_data = coarse_data(coarse_of, level_data, coarse_count)
+        coarse_pairs, coarse_weights = coarse_graph(
+            coarse_of, level_pairs, level_weights, coarse_count
+        )
+        first = np.full(coarse_count, -1, dtype=np.int64)
+        first[coarse_of[::-1]] = np.arange(count)[::-1]
+        cells = cells[first] // 2
+        levels.append(
+            CutLevel(
+                level_pairs,
+                level_weights,
+                level_data,
+                coarse_of,
+                adjacency_lists(level_pairs, count) if rings > 1 else None,
+            )
+        )
+        level_pairs, level_weights, level_data = coarse_pairs, coarse_weights, summed_data
+    levels.append(CutLevel(level_pairs, level_weights, level_data, None))
+    return CutHierarchy(tuple(levels), rings)
 
 
 def multilevel_alpha_expansion(
@@ -297,62 +542,9 @@ def multilevel_alpha_expansion(
 ) -> NDArray[np.int64]:
     """Alpha-expansion through a hierarchy of coarse graphs (a banded multilevel graph cut).
 
-    Nodes are grouped into connected pieces of a 3-D grid (cells doubling per
-    level; crease edges never grouped), with data and edge weights summed, so
-    a labelling that is constant on groups has the same energy at every level.
-    The coarsest graph is solved by alpha-expansion; each finer level
-    inherits the labels and re-solves only a band of ``rings`` hops around
-    the boundaries. Graphs already at most ``coarse_nodes`` large are solved
-    directly. Deterministic.
+    The coarsest graph (``cut_hierarchy``) is solved by alpha-expansion; each finer level
+    inherits the labels and re-solves only a band of ``rings`` hops around the
+    boundaries. Graphs already at most ``coarse_nodes`` large are solved directly.
+    Deterministic.
     """
-    data = np.asarray(data, dtype=np.float64)
-    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    weights = np.asarray(weights, dtype=np.float64)
-    node_count = len(data)
-    if node_count <= coarse_nodes or data.shape[1] <= 1:
-        return alpha_expansion(data, pairs, weights)
-
-    mean_area = float(np.mean(areas))
-    if not mean_area > 0:
-        extent = float(np.ptp(centroids, axis=0).max()) or 1.0
-        mean_area = extent**2 / node_count
-    cell_size = np.sqrt(FACES_PER_CELL * mean_area)
-    cells = np.floor((centroids - centroids.min(axis=0)) / cell_size).astype(np.int64)
-    crease_weight = CREASE_FRACTION * float(np.median(weights)) if len(weights) else 0.0
-
-    # Build the hierarchy: (map to coarser, pairs, weights, data) per level.
-    hierarchy = [(None, pairs, weights, data)]
-    while len(hierarchy[-1][3]) > coarse_nodes:
-        _, level_pairs, level_weights, level_data = hierarchy[-1]
-        count = len(level_data)
-        coarse_of = coarsen(
-            level_pairs, level_weights, count, cells, crease_weight, level_data.argmin(axis=1)
-        )
-        coarse_count = int(coarse_of.max()) + 1
-        if coarse_count > 0.8 * count:
-            break  # no longer shrinking (many tiny shells, or all creases)
-        coarse_data = np.stack(
-            [
-                np.bincount(coarse_of, weights=column, minlength=coarse_count)
-                for column in level_data.T
-            ],
-            axis=1,
-        )
-        coarse_pairs, coarse_weights = coarse_graph(
-            coarse_of, level_pairs, level_weights, coarse_count
-        )
-        first = np.full(coarse_count, -1, dtype=np.int64)
-        first[coarse_of[::-1]] = np.arange(count)[::-1]
-        cells = cells[first] // 2
-        hierarchy[-1] = (coarse_of, level_pairs, level_weights, level_data)
-        hierarchy.append((None, coarse_pairs, coarse_weights, coarse_data))
-
-    _, top_pairs, top_weights, top_data = hierarchy[-1]
-    labels = alpha_expansion(top_data, top_pairs, top_weights)
-    for coarse_of, level_pairs, level_weights, level_data in reversed(hierarchy[:-1]):
-        labels = labels[coarse_of]
-        band = near_boundary(labels, level_pairs, len(level_data), rings)
-        labels = banded_alpha_expansion(
-            level_data[band], level_pairs, level_weights, labels, band, BAND_CYCLES
-        )
-    return labels
+    return cut_hierarchy(data, pairs, weights, centroids, areas, coarse_nodes, rings).solve(1.0)

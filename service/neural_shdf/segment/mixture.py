@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf.compiled import kernel
 from neural_shdf.segment.params import CLUSTER_CANDIDATES
 
 #: Histogram bins over [0, 1] the mixture is fitted on.
@@ -50,11 +51,32 @@ class Mixture:
 
     def posteriors(self, values: NDArray) -> NDArray[np.float64]:
         """(N, k) probability of each component given each value; rows sum to 1."""
-        log_joint = self.log_joint(values)
-        log_joint -= log_joint.max(axis=1, keepdims=True)
-        np.exp(log_joint, out=log_joint)
-        log_joint /= log_joint.sum(axis=1, keepdims=True)
-        return log_joint
+        return _posteriors(
+            np.asarray(values, dtype=np.float64).reshape(-1),
+            self.means,
+            self.deviations,
+            np.log(self.weights) - np.log(self.deviations),
+        )
+
+
+@kernel
+def _posteriors(values, means, deviations, log_scale):  # pragma: no cover - compiled
+    """Softmax over components of ``log_joint``, row by row (one pass, no (N, k) temporaries)."""
+    count, size = len(values), len(means)
+    result = np.empty((count, size))
+    for row in range(count):
+        top = -np.inf
+        for c in range(size):
+            z = (values[row] - means[c]) / deviations[c]
+            result[row, c] = -0.5 * z * z + log_scale[c]
+            top = max(top, result[row, c])
+        total = 0.0
+        for c in range(size):
+            result[row, c] = np.exp(result[row, c] - top)
+            total += result[row, c]
+        for c in range(size):
+            result[row, c] /= total
+    return result
 
 
 def histogram(values: NDArray, bins: int = HISTOGRAM_BINS) -> tuple[NDArray, NDArray]:

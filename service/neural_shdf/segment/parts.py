@@ -7,34 +7,83 @@ import heapq
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf.compiled import kernel
 from neural_shdf.geometry import FaceGraph
 
 
 def canonical_labels(labels: NDArray) -> NDArray[np.int64]:
     """Labels renumbered 0..P-1 in order of each label's lowest face index."""
-    labels = np.asarray(labels)
+    labels = np.asarray(labels).reshape(-1)
     if len(labels) == 0:
         return np.zeros(0, dtype=np.int64)
+    low, high = int(labels.min()), int(labels.max())
+    if np.issubdtype(labels.dtype, np.integer) and high - low <= 4 * len(labels):
+        # Small integer range (the usual case): one pass in face order.
+        return _first_seen_order(labels.astype(np.int64) - low, high - low + 1)
     _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
     rank = np.empty(len(first), dtype=np.int64)
     rank[np.argsort(first, kind="stable")] = np.arange(len(first))
     return rank[inverse.reshape(-1)]
 
 
+@kernel
+def _first_seen_order(labels, span):  # pragma: no cover - compiled
+    rank = np.full(span, -1, dtype=np.int64)
+    result = np.empty(len(labels), dtype=np.int64)
+    seen = 0
+    for face in range(len(labels)):
+        label = labels[face]
+        if rank[label] < 0:
+            rank[label] = seen
+            seen += 1
+        result[face] = rank[label]
+    return result
+
+
 def connected_parts(labels: NDArray, pairs: NDArray, face_count: int) -> NDArray[np.int64]:
     """Connected components of faces with equal labels, as canonical part ids."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
-
-    labels = np.asarray(labels)
+    labels = np.asarray(labels, dtype=np.int64)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    keep = labels[pairs[:, 0]] == labels[pairs[:, 1]]
-    a, b = pairs[keep, 0], pairs[keep, 1]
-    adjacency = sp.coo_matrix(
-        (np.ones(len(a), dtype=np.int8), (a, b)), shape=(face_count, face_count)
-    ).tocsr()
-    _, components = connected_components(adjacency, directed=True, connection="weak")
-    return canonical_labels(components)
+    return connected_components(pairs, labels[pairs[:, 0]] == labels[pairs[:, 1]], face_count)
+
+
+def connected_components(pairs: NDArray, keep: NDArray, node_count: int) -> NDArray[np.int64]:
+    """Component of each node over the edges ``pairs[keep]``, numbered 0.. in order of each
+    component's lowest node (union-find; linear)."""
+    if node_count == 0:
+        return np.zeros(0, dtype=np.int64)
+    return _components(
+        np.asarray(pairs, dtype=np.int64).reshape(-1, 2), np.asarray(keep, bool), node_count
+    )
+
+
+@kernel
+def _components(pairs, keep, node_count):  # pragma: no cover - compiled
+    root = np.arange(node_count)
+
+    def find(node):
+        while root[node] != node:
+            root[node] = root[root[node]]  # path halving
+            node = root[node]
+        return node
+
+    for edge in range(len(pairs)):
+        if keep[edge]:
+            ra, rb = find(pairs[edge, 0]), find(pairs[edge, 1])
+            if ra < rb:
+                root[rb] = ra
+            elif rb < ra:
+                root[ra] = rb
+    component_of_root = np.full(node_count, -1, dtype=np.int64)
+    components = np.empty(node_count, dtype=np.int64)
+    next_component = 0
+    for node in range(node_count):
+        top = find(node)
+        if component_of_root[top] < 0:
+            component_of_root[top] = next_component
+            next_component += 1
+        components[node] = component_of_root[top]
+    return components
 
 
 def part_sizes(parts: NDArray, areas: NDArray) -> NDArray[np.float64]:

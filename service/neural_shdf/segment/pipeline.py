@@ -24,10 +24,16 @@ from numpy.typing import NDArray
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
 from neural_shdf.segment.creases import snap_boundaries_to_creases
-from neural_shdf.segment.graphcut import data_costs, dihedral_weights, multilevel_alpha_expansion
+from neural_shdf.segment.graphcut import (
+    CutHierarchy,
+    cut_hierarchy,
+    data_costs,
+    dihedral_weights,
+    multilevel_alpha_expansion,
+)
 from neural_shdf.segment.hierarchy import PartTree, automatic_part_count, merge_tree
 from neural_shdf.segment.metis import metis_edge_weights, metis_partition
-from neural_shdf.segment.mixture import fit_best_mixture, fit_mixture
+from neural_shdf.segment.mixture import Mixture, fit_best_mixture, fit_mixture
 from neural_shdf.segment.params import (
     AUTO_CLUSTERS,
     DEFAULT_CLUSTERS,
@@ -78,6 +84,100 @@ class FaceData:
         return FaceData(self.areas[faces], self.centroids[faces], self.face_weight[faces])
 
 
+@dataclass
+class SegmentBasis:
+    """What a segmentation computes before the smoothing, part count, refinement and
+    boundary options enter: face data, the mixture and its posteriors, data costs, edge
+    weights at smoothing 1 and the graph cut's coarse graphs (built on first use).
+
+    It depends on the mesh, its ShDF, ``clusters`` and ``seed`` only, so a caller that
+    keeps it (the service, per mesh) re-segments with new values of the other parameters
+    without refitting the mixture or coarsening the graph again; the labels are the same
+    as without it.
+    """
+
+    clusters: int | None
+    seed: int
+    face_count: int
+    geometry: FaceData
+    shdf: NDArray[np.float64]
+    values: NDArray[np.float64]
+    mixture: Mixture
+    posteriors: NDArray[np.float64]
+    data: NDArray[np.float64]
+    unit_weights: NDArray[np.float64]
+    seconds: float = 0.0
+    _cut: CutHierarchy | None = field(default=None, repr=False)
+
+    def cut(self, graph: FaceGraph) -> CutHierarchy:
+        """The graph cut's coarse graphs over ``graph`` (built once)."""
+        if self._cut is None:
+            self._cut = cut_hierarchy(
+                self.data,
+                graph.pairs,
+                self.unit_weights,
+                self.geometry.centroids,
+                self.geometry.areas,
+            )
+        return self._cut
+
+    def matches(self, params: SegmentParams, face_count: int) -> bool:
+        """Whether this basis is the one ``params`` on a mesh of ``face_count`` faces needs."""
+        return (
+            self.clusters == params.clusters
+            and self.seed == params.seed
+            and self.face_count == face_count
+        )
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held (arrays only), for callers that bound a cache of bases."""
+        arrays = (self.shdf, self.values, self.posteriors, self.data, self.unit_weights)
+        geometry = (self.geometry.areas, self.geometry.centroids, self.geometry.face_weight)
+        size = sum(a.nbytes for a in arrays + geometry)
+        if self._cut is not None:
+            finest = self._cut.levels[0]  # shares the data, weights and the graph's pairs
+            size += self._cut.nbytes - finest.data.nbytes - finest.unit_weights.nbytes
+            size -= finest.pairs.nbytes
+        return size
+
+
+def prepare_segment(
+    vertices: NDArray,
+    faces: NDArray,
+    shdf: NDArray,
+    params: SegmentParams,
+    graph: FaceGraph,
+    *,
+    areas: NDArray | None = None,
+) -> SegmentBasis:
+    """The ``SegmentBasis`` of a mesh, its ShDF and ``params.clusters``/``params.seed``."""
+    start = time.perf_counter()
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    shdf = validate(faces, shdf, params, graph)
+    geometry = FaceData.of(np.asarray(vertices, dtype=np.float64), faces, areas)
+    values = log_normalize(shdf)
+    if params.clusters == AUTO_CLUSTERS:
+        mixture = fit_best_mixture(values, params.seed)
+    else:
+        clusters = DEFAULT_CLUSTERS if params.clusters is None else params.clusters
+        mixture = fit_mixture(values, clusters, params.seed)
+    posteriors = mixture.posteriors(values)
+    return SegmentBasis(
+        clusters=params.clusters,
+        seed=params.seed,
+        face_count=len(faces),
+        geometry=geometry,
+        shdf=shdf,
+        values=values,
+        mixture=mixture,
+        posteriors=posteriors,
+        data=data_costs(posteriors, geometry.face_weight),
+        unit_weights=dihedral_weights(graph, 1.0),
+        seconds=time.perf_counter() - start,
+    )
+
+
 def segment(
     vertices: NDArray,
     faces: NDArray,
@@ -102,10 +202,14 @@ def segment_with_details(
     graph: FaceGraph,
     *,
     areas: NDArray | None = None,
+    basis: SegmentBasis | None = None,
 ) -> SegmentResult:
-    """``segment`` plus the chosen mixture size, smoothing and per-step timings."""
+    """``segment`` plus the chosen mixture size, smoothing and per-step timings.
+
+    ``basis``: a ``prepare_segment`` result for the same mesh, ShDF, clusters and seed
+    (kept by the caller to re-segment cheaply); same labels as without it.
+    """
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    shdf = validate(faces, shdf, params, graph)
     smoothing = DEFAULT_SMOOTHING if params.smoothing is None else float(params.smoothing)
     timings: dict[str, float] = {}
     clock = time.perf_counter()
@@ -116,27 +220,25 @@ def segment_with_details(
         timings[name] = timings.get(name, 0.0) + now - clock
         clock = now
 
+    if basis is not None and not basis.matches(params, len(faces)):
+        raise ValueError("the segment basis was prepared for another mesh, clusters or seed")
+    validate(faces, shdf if basis is None else basis.shdf, params, graph)
     if len(faces) == 0:
         return SegmentResult(np.zeros(0, dtype=np.int64), 0, smoothing, timings)
-    geometry = FaceData.of(np.asarray(vertices, dtype=np.float64), faces, areas)
-    lap("face_data")
-    values = log_normalize(shdf)
-    if params.clusters == AUTO_CLUSTERS:
-        mixture = fit_best_mixture(values, params.seed)
-    else:
-        clusters = DEFAULT_CLUSTERS if params.clusters is None else params.clusters
-        mixture = fit_mixture(values, clusters, params.seed)
-    posteriors = mixture.posteriors(values)
-    lap("mixture")
-    edge_weights = dihedral_weights(graph, smoothing)
-    if params.reference_faces is not None:
-        edge_weights *= np.sqrt(len(faces) / params.reference_faces)
-    lap("edge_weights")
+    if basis is None:
+        basis = prepare_segment(vertices, faces, shdf, params, graph, areas=areas)
+        lap("prepare")
+    geometry, shdf, values, posteriors = basis.geometry, basis.shdf, basis.values, basis.posteriors
+    scale = smoothing * (
+        1.0 if params.reference_faces is None else np.sqrt(len(faces) / params.reference_faces)
+    )
+    edge_weights = basis.unit_weights * scale
 
     need_graphcut = params.partitioner == "graphcut" or params.parts is None
     parts = None
     if need_graphcut:
-        parts = cut_into_parts(posteriors, graph, edge_weights, geometry)
+        clusters = basis.cut(graph).solve(scale)
+        parts = connected_parts(clusters, graph.pairs, graph.face_count)
         lap("graphcut")
         if params.refine:
             from neural_shdf.segment.refine import refine_parts
@@ -189,14 +291,14 @@ def segment_with_details(
             )
         lap("boundary_smoothing")
     if params.partitioner == "metis":
-        return SegmentResult(canonical_labels(parts), mixture.size, smoothing, timings)
+        return SegmentResult(canonical_labels(parts), basis.mixture.size, smoothing, timings)
 
     # Graph cut: its parts are the leaves of the merge tree; cut it at the asked count.
     tree = merge_tree(canonical_labels(parts), graph, geometry.areas, values)
     count = automatic_part_count(tree) if params.parts is None else params.parts
     labels = tree.labels(count)
     lap("hierarchy")
-    return SegmentResult(labels, mixture.size, smoothing, timings, tree)
+    return SegmentResult(labels, basis.mixture.size, smoothing, timings, tree)
 
 
 def cut_into_parts(

@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,6 +45,7 @@ from neural_shdf.shdf.embree import (
     NORMAL_Z,
     TFAR,
     Scene,
+    bounding_box,
     hit_of,
     intersect_packet,
     new_packet,
@@ -287,6 +288,7 @@ def raw_shdf_at_points(
     cone_angle: float = constants.SHDF_CONE_ANGLE,
     ray_count: int = constants.SHDF_RAY_COUNT,
     threads: int | None = None,
+    scene: Scene | Future[Scene] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The exact ShDF's ray cone cast from surface points instead of face centroids.
 
@@ -295,6 +297,8 @@ def raw_shdf_at_points(
     diameter (NaN without a valid hit), the spread of the valid hit distances
     (standard deviation over their mean, 0 without hits) and the fraction of rays
     with a valid hit. Same rays, back-face test and outlier filter as ``raw_shdf``.
+    ``scene``: the mesh's Embree scene (or its future) when the caller built it;
+    otherwise one of ``low`` build quality is built (a few rays per triangle).
     """
     _check_cone(cone_angle, ray_count)
     points = np.asarray(points, dtype=np.float64)
@@ -314,6 +318,8 @@ def raw_shdf_at_points(
         threads=threads,
         progress=None,
         statistics=True,
+        scene=scene,
+        quality="low",
     )
 
 
@@ -331,10 +337,13 @@ def _cast_rays(
     threads: int | None,
     progress: Progress | None,
     statistics: bool,
+    scene: Scene | Future[Scene] | None = None,
+    quality: str = "medium",
 ) -> tuple[NDArray, NDArray, NDArray]:
     """Cones of rays from ``origins`` around their inward ``normals``, in batches over
     threads: (robust mean, spread, hit fraction) per origin; the last two only with
-    ``statistics`` (else empty). Origins with a zero normal get NaN."""
+    ``statistics`` (else empty). Origins with a zero normal get NaN. ``scene``: the
+    mesh's scene (or its future), else one of build ``quality`` is built here."""
     count = len(origins)
     result = np.full(count, np.nan)
     spread = np.zeros(count if statistics else 0)
@@ -345,7 +354,8 @@ def _cast_rays(
             progress(1.0)
         return result, spread, hit_fraction
     threads = max(1, os.cpu_count() or 1) if threads is None else max(1, threads)
-    diagonal = float(np.linalg.norm(vertices.max(axis=0) - vertices.min(axis=0)))
+    low, high = bounding_box(vertices)
+    diagonal = float(np.linalg.norm(high - low))
     origin_offset = np.float32(ORIGIN_OFFSET * diagonal)
     retry_offset = np.float32(RETRY_ORIGIN_OFFSET * diagonal)
     _, weights = disk_samples(ray_count)
@@ -354,7 +364,12 @@ def _cast_rays(
     )
     with ThreadPoolExecutor(max_workers=threads) as pool:
         # Building the Embree scene releases the GIL: overlap it with the set-up.
-        building = pool.submit(Scene, vertices, faces)  # degenerate faces never hit
+        if scene is None:
+            building = pool.submit(Scene, vertices, faces, quality)  # degenerate: never hit
+        elif isinstance(scene, Scene):
+            building = pool.submit(lambda: scene)
+        else:
+            building = scene
         todo = np.flatnonzero(valid)
         todo = todo[spatial_order(origins[todo])]
         size = min(
@@ -362,7 +377,7 @@ def _cast_rays(
             max(MIN_FACES_PER_BATCH, -(-len(todo) // (BATCHES_PER_THREAD * threads))),
         )
         batches = [todo[i : i + size] for i in range(0, len(todo), size)]
-        local_origins = (origins - Scene.center_of(vertices)).astype(np.float32)
+        local_origins = (origins - 0.5 * (low + high)).astype(np.float32)
         coefficients = cone_coefficients(ray_count, cone_angle).astype(np.float32)
 
         def run_batch(batch: NDArray) -> None:

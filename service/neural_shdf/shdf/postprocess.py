@@ -70,22 +70,27 @@ def fill_missing(values: NDArray, graph: FaceGraph) -> NDArray[np.float64]:
     if len(missing) == len(out):
         return np.zeros_like(out)
     smallest = float(np.nanmin(out))
-    adjacency = graph.csr()
-    indptr, indices = adjacency.indptr, adjacency.indices
+    # Only the pairs that touch a missing face: each missing face's neighbours, ascending.
+    pairs = graph.pairs
+    touching = pairs[np.isnan(out[pairs[:, 0]]) | np.isnan(out[pairs[:, 1]])]
+    owner = np.concatenate([touching[:, 0], touching[:, 1]])
+    other = np.concatenate([touching[:, 1], touching[:, 0]])
+    order = np.lexsort((other, owner))
+    owner, other = owner[order], other[order]
+    first = np.searchsorted(owner, missing, side="left")
+    last = np.searchsorted(owner, missing, side="right")
     still_missing = []
-    current = out.tolist()
-    for face in missing.tolist():
+    for face, start, stop in zip(missing.tolist(), first.tolist(), last.tolist(), strict=True):
         total, count = 0.0, 0
-        for neighbour in indices[indptr[face] : indptr[face + 1]].tolist():
-            value = current[neighbour]
+        for neighbour in other[start:stop].tolist():
+            value = float(out[neighbour])
             if value == value:  # not NaN
                 total += value
                 count += 1
         if count:
-            current[face] = total / count
+            out[face] = total / count
         else:
             still_missing.append(face)
-    out = np.asarray(current)
     out[still_missing] = smallest
     return out
 
@@ -270,6 +275,36 @@ def bilateral_smooth(
     return _bilateral_vectorised(values, adjacency, window_size, spatial_weight, range_sigma_factor)
 
 
+def sorted_adjacency(graph: FaceGraph) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(indptr, indices) of the face graph, each face's neighbours ascending: the arrays of
+    ``graph.csr()``, in one counting pass over the sorted unique pairs."""
+    pairs = np.ascontiguousarray(graph.pairs, dtype=np.int64).reshape(-1, 2)
+    return _sorted_adjacency(pairs, graph.face_count)
+
+
+@kernel
+def _sorted_adjacency(pairs, face_count):  # noqa: ANN001, ANN202
+    """Pairs are sorted with ``pairs[:, 0] < pairs[:, 1]``: a face's smaller neighbours
+    arrive in ascending order as second members, then its larger ones as first members."""
+    indptr = np.zeros(face_count + 1, dtype=np.int64)
+    for row in range(len(pairs)):
+        indptr[pairs[row, 0] + 1] += 1
+        indptr[pairs[row, 1] + 1] += 1
+    for face in range(face_count):
+        indptr[face + 1] += indptr[face]
+    fill = indptr[:-1].copy()
+    indices = np.empty(2 * len(pairs), dtype=np.int64)
+    for row in range(len(pairs)):  # smaller neighbours, ascending
+        larger = pairs[row, 1]
+        indices[fill[larger]] = pairs[row, 0]
+        fill[larger] += 1
+    for row in range(len(pairs)):  # then the larger ones, ascending
+        smaller = pairs[row, 0]
+        indices[fill[smaller]] = pairs[row, 1]
+        fill[smaller] += 1
+    return indptr, indices
+
+
 @kernel
 def _cover_with_patches(indptr, indices, radius):  # noqa: ANN001, ANN202
     """Patch id per face: seeds at least ``2 radius`` edge rings apart (greedy, in face
@@ -411,12 +446,44 @@ def _patch_bilateral_faces(  # noqa: PLR0913
 
 def ring_length(graph: FaceGraph, centroids: NDArray) -> float:
     """Straight-line distance per edge ring of the face graph: ``RING_PER_SPACING`` x the
-    mean distance between the centroids of adjacent faces. Turns a window in rings into a
-    distance on the surface."""
-    if len(graph.pairs) == 0:
+    mean distance between the centroids of adjacent faces (``RING_LENGTH_PAIRS`` pairs
+    evenly spread over the graph's). Turns a window in rings into a distance on the
+    surface."""
+    pairs = _spacing_pairs(graph)
+    return _ring_length(centroids[pairs[:, 0]] - centroids[pairs[:, 1]])
+
+
+def mesh_ring_length(graph: FaceGraph, vertices: NDArray, faces: NDArray) -> float:
+    """``ring_length`` from the mesh, computing only the centroids of the pairs it reads."""
+    pairs = _spacing_pairs(graph)
+    offset = np.empty((len(pairs), 3))
+    _centroid_offsets(
+        np.ascontiguousarray(vertices, dtype=np.float64),
+        np.ascontiguousarray(faces, dtype=np.int64),
+        np.ascontiguousarray(pairs, dtype=np.int64),
+        offset,
+    )
+    return _ring_length(offset)
+
+
+@kernel
+def _centroid_offsets(vertices, faces, pairs, out) -> None:  # noqa: ANN001
+    """Centroid of ``pairs[:, 0]`` minus centroid of ``pairs[:, 1]`` (as ``face_centroids``)."""
+    for row in range(len(pairs)):
+        a, b = faces[pairs[row, 0]], faces[pairs[row, 1]]
+        for axis in range(3):
+            first = (vertices[a[0], axis] + vertices[a[1], axis] + vertices[a[2], axis]) / 3.0
+            second = (vertices[b[0], axis] + vertices[b[1], axis] + vertices[b[2], axis]) / 3.0
+            out[row, axis] = first - second
+
+
+def _spacing_pairs(graph: FaceGraph) -> NDArray[np.int64]:
+    return graph.pairs[:: max(1, len(graph.pairs) // RING_LENGTH_PAIRS)]
+
+
+def _ring_length(offset: NDArray) -> float:
+    if len(offset) == 0:
         return 0.0
-    pairs = graph.pairs[:: max(1, len(graph.pairs) // RING_LENGTH_PAIRS)]
-    offset = centroids[pairs[:, 0]] - centroids[pairs[:, 1]]
     return RING_PER_SPACING * float(np.mean(np.sqrt(np.einsum("ij,ij->i", offset, offset))))
 
 
@@ -447,9 +514,7 @@ def patch_bilateral(
     values = np.asarray(values, dtype=np.float64)
     face_count = len(values)
     spatial = window_size * SPATIAL_SIGMA_FACTOR if spatial_sigma is None else spatial_sigma
-    adjacency = graph.csr()
-    indptr = adjacency.indptr.astype(np.int64)
-    indices = adjacency.indices.astype(np.int64)
+    indptr, indices = sorted_adjacency(graph)
     radius = max(1, int(round(PATCH_RADIUS_FACTOR * window_size)))
     patch_of = _cover_with_patches(indptr, indices, radius)
     patches = int(patch_of.max()) + 1

@@ -22,7 +22,9 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Literal
@@ -40,8 +42,8 @@ from neural_shdf.shdf.postprocess import (
     FILTER_COST_PER_PAIR,
     RANGE_SIGMA_FACTOR,
     SPATIAL_SIGMA_FACTOR,
+    mesh_ring_length,
     postprocess_shdf,
-    ring_length,
     smoothing_window,
 )
 
@@ -59,6 +61,13 @@ AUTO_SAMPLED_METHOD: RawMethod = "sampled"
 #: Poisson samples of the sample-based producers (the count follows the surface area,
 #: not the triangles).
 DEFAULT_SAMPLES = 4096
+#: ``sampled`` casts up to this many samples where the surface has thin parts.
+DEFAULT_MAX_SAMPLES = 16384
+#: Thin parts: ``sampled`` wants the 10th percentile of its diameters to span at least this
+#: many Poisson radii (the sample-space smoothing and the mapping to faces reach over a few
+#: radii); where the first samples show thinner, it draws (this / p10)^2 as many, up to
+#: ``max_samples``. On dense-dev: lucy p10 1.2 radii, zenobia's chains 2.0, skull 1.8.
+THIN_PART_RADII = 3.0
 #: Samples without a valid hit take the mean of their valid ones among this many nearest.
 FILL_NEIGHBOURS = 8
 
@@ -68,7 +77,9 @@ class ShdfParams:
     """Every parameter a ShDF depends on (besides the mesh, the method and the model).
 
     ``cone_angle``/``ray_count``: the ray cone (CGAL's defaults). ``seed``: the
-    Poisson samples of the sample-based producers. ``samples``: their target count.
+    Poisson samples of the sample-based producers. ``samples``: their target count;
+    ``max_samples``: ``sampled``'s count on surfaces with thin parts (see
+    ``THIN_PART_RADII``; equal to ``samples`` for a fixed count).
     ``sample_sets``: the network's averaged sample sets. ``window_size``: the
     bilateral window in edge rings, 0 = CGAL's ``floor(sqrt(F / 2000)) + 1``.
     """
@@ -77,6 +88,7 @@ class ShdfParams:
     ray_count: int = constants.SHDF_RAY_COUNT
     seed: int = constants.DEFAULT_SEED
     samples: int = DEFAULT_SAMPLES
+    max_samples: int = DEFAULT_MAX_SAMPLES
     sample_sets: int = 2
     window_size: int = 0
 
@@ -87,6 +99,10 @@ class ShdfParams:
             raise ParameterError(f"ray_count must be at least 1, got {self.ray_count}")
         if self.samples < 16:
             raise ParameterError(f"samples must be at least 16, got {self.samples}")
+        if self.max_samples < self.samples:
+            raise ParameterError(
+                f"max_samples ({self.max_samples}) must be at least samples ({self.samples})"
+            )
         if self.sample_sets < 1:
             raise ParameterError(f"sample_sets must be at least 1, got {self.sample_sets}")
         if self.window_size < 0:
@@ -125,6 +141,8 @@ def shdf_key(method: RawMethod, params: ShdfParams, model_sha256: str | None) ->
             used.pop(name)
     if method != "neural":
         used.pop("sample_sets", None)
+    if method != "sampled":
+        used.pop("max_samples")
     if method == "neural":
         if not model_sha256:
             raise ParameterError("a neural ShDF key needs the model's checksum")
@@ -185,48 +203,97 @@ def fill_samples(values: NDArray, positions: NDArray) -> NDArray[np.float64]:
 
 
 def sample_smoothing(
-    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams, centroids: NDArray
+    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams
 ) -> tuple[float, float]:
     """(radius, spatial sigma) in mesh units of the surface window the exact path's
     bilateral filter covers on this mesh (``window`` edge rings of ``ring_length``)."""
     window = params.window_for(mesh.face_count)
-    spacing = ring_length(graph, centroids)
+    spacing = mesh_ring_length(graph, mesh.vertices, mesh.faces)
     return window * spacing, SPATIAL_SIGMA_FACTOR * window * spacing
 
 
+def thin_part_samples(diameters_in_radii: NDArray, params: ShdfParams) -> int:
+    """``sampled``'s sample count for a surface whose first ``params.samples`` samples
+    measured these diameters (in Poisson radii, NaN = no hit): more where the 10th
+    percentile spans fewer than ``THIN_PART_RADII`` radii (thin parts), at most
+    ``params.max_samples``; deterministic."""
+    valid = diameters_in_radii[np.isfinite(diameters_in_radii) & (diameters_in_radii > 0)]
+    if len(valid) == 0 or params.max_samples <= params.samples:
+        return params.samples
+    thin = float(np.percentile(valid, 10))
+    factor = (THIN_PART_RADII / thin) ** 2
+    if factor <= 1.1:  # not worth a second pass
+        return params.samples
+    return int(min(params.max_samples, round(params.samples * factor)))
+
+
 def sampled_raw_shdf(
-    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams, centroids: NDArray
+    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams, workers: int | None = None
 ) -> NDArray[np.float64]:
     """Per-face raw diameters from the exact cone cast at ``params.samples`` Poisson
-    samples, smoothed at the sample scale and interpolated to the faces."""
-    from neural_shdf.shdf.exact import raw_shdf_at_points
-    from neural_shdf.shdf.neural.graph import GraphSpec, sample_surface_points, samples_to_faces
+    samples (again at more of them where those show thin parts: ``thin_part_samples``),
+    smoothed at the sample scale and interpolated to the faces.
 
+    The Embree scene is built (``low`` quality: a few rays per triangle) while the
+    samples are drawn, and each vertex's nearest samples are found while the rays
+    are cast (``workers`` threads, default one per CPU; the result does not depend
+    on it).
+    """
+    from neural_shdf.shdf.embree import Scene
+    from neural_shdf.shdf.exact import raw_shdf_at_points
+    from neural_shdf.shdf.neural.graph import (
+        GraphSpec,
+        sample_surface_points,
+        samples_to_faces,
+        vertex_normal_sums,
+        with_vertex_map,
+    )
+
+    workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
     normals, areas = mesh.normals_and_areas
-    samples = sample_surface_points(
-        mesh.vertices,
-        mesh.faces,
-        GraphSpec(target_samples=params.samples),
-        seed=params.seed,
-        normals=normals,
-        areas=areas,
-    )
-    diameters, _, _ = raw_shdf_at_points(
-        mesh.vertices,
-        mesh.faces,
-        samples.positions,
-        samples.normals,
-        samples.face_ids,
-        cone_angle=params.cone_angle,
-        ray_count=params.ray_count,
-    )
-    if np.isnan(diameters).all():
-        return np.full(mesh.face_count, np.nan)
-    diameters = fill_samples(diameters, samples.positions)
-    radius, sigma = sample_smoothing(mesh, graph, params, centroids)
-    smoothed = smooth_samples(
-        diameters, samples.positions, samples.normals, radius=radius, spatial_sigma=sigma
-    )
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        scene = pool.submit(Scene, mesh.vertices, mesh.faces, "low")
+        normal_sums = vertex_normal_sums(len(mesh.vertices), mesh.faces, normals, areas)
+
+        def cast(count: int) -> tuple:
+            """Samples (their vertex map under way) and their raw diameters."""
+            spec = GraphSpec(target_samples=count)
+            samples = sample_surface_points(
+                mesh.vertices,
+                mesh.faces,
+                spec,
+                seed=params.seed,
+                normals=normals,
+                areas=areas,
+                map_vertices=False,
+                normal_sums=normal_sums,
+            )
+            mapped = pool.submit(with_vertex_map, samples, mesh.vertices, normal_sums, spec, 1)
+            diameters, _, _ = raw_shdf_at_points(
+                mesh.vertices,
+                mesh.faces,
+                samples.positions,
+                samples.normals,
+                samples.face_ids,
+                cone_angle=params.cone_angle,
+                ray_count=params.ray_count,
+                threads=workers,
+                scene=scene,
+            )
+            return samples, mapped, diameters
+
+        samples, mapped, diameters = cast(params.samples)
+        count = thin_part_samples(diameters / samples.radius, params)
+        if count > params.samples:
+            samples, mapped, diameters = cast(count)
+        if np.isnan(diameters).all():
+            return np.full(mesh.face_count, np.nan)
+        diameters = fill_samples(diameters, samples.positions)
+        radius, sigma = sample_smoothing(mesh, graph, params)
+        smoothed = smooth_samples(
+            diameters, samples.positions, samples.normals, radius=radius, spatial_sigma=sigma
+        )
+        samples = mapped.result()
     return samples_to_faces(smoothed, samples, mesh.faces)
 
 
@@ -237,12 +304,8 @@ def raw_diameters(
     params: ShdfParams,
     model: object | None = None,
     progress: Progress | None = None,
-    centroids: NDArray | None = None,
 ) -> NDArray[np.float64]:
-    """Raw diameter per triangle (mesh units, NaN = unknown) from one producer
-    (``centroids``: the face centroids, when the caller has them)."""
-    if centroids is None:
-        centroids = face_centroids(mesh.vertices, mesh.faces)
+    """Raw diameter per triangle (mesh units, NaN = unknown) from one producer."""
     if method == "exact":
         from neural_shdf.shdf.exact import raw_shdf
 
@@ -256,12 +319,12 @@ def raw_diameters(
             progress=progress,
         )
     if method == "sampled":
-        return sampled_raw_shdf(mesh, graph, params, centroids)
+        return sampled_raw_shdf(mesh, graph, params)
     if method == "neural":
         from neural_shdf.shdf.neural.inference import neural_raw_shdf
 
         normals, areas = mesh.normals_and_areas
-        radius, sigma = sample_smoothing(mesh, graph, params, centroids)
+        radius, sigma = sample_smoothing(mesh, graph, params)
         return neural_raw_shdf(
             mesh.vertices,
             mesh.faces,
@@ -308,7 +371,6 @@ def run_shdf(
     if resolved == "exact":  # the rays against the filter's expected time
         pairs = 1 + 3 * min(window, EXACT_WINDOW_MAX) * (min(window, EXACT_WINDOW_MAX) + 1) // 2
         ray_share = 1.0 / (1.0 + FILTER_COST_PER_PAIR * pairs)
-    centroids = face_centroids(mesh.vertices, mesh.faces)
     raw = raw_diameters(
         mesh,
         graph,
@@ -316,14 +378,14 @@ def run_shdf(
         params,
         model,
         None if progress is None else (lambda done: progress(ray_share * done)),
-        centroids,
     )
     values = postprocess_shdf(
         raw,
         graph,
         window_size=window,
         smooth=resolved == "exact",
-        centroids=centroids,
+        # the patch filter of wide windows places patches by centroid (exact only)
+        centroids=face_centroids(mesh.vertices, mesh.faces) if resolved == "exact" else None,
         progress=None
         if progress is None
         else (lambda done: progress(ray_share + (1 - ray_share) * done)),

@@ -18,7 +18,8 @@ Numpy, scipy and numba only (the service never imports torch).
 * Edges (sender -> receiver): the ``knn`` nearest samples (local surface), plus
   "cone" edges to the ``cone_neighbours`` nearest samples inside the inward
   cone of the receiver's normal (with one radius of lateral slack) that face away
-  from it: the other side of the volume, the surface the ShDF's rays hit.
+  from it: the other side of the volume, the surface the ShDF's rays hit
+  (found on a k-d tree, ``search.cone_neighbours``: linear in the samples).
 * Features are rotation, translation and scale invariant: lengths in units of
   the sampling radius, and dot products of normals and edge directions.
 """
@@ -35,6 +36,7 @@ from scipy.spatial import cKDTree
 from neural_shdf.compiled import kernel
 from neural_shdf.errors import InvalidGeometryError
 from neural_shdf.geometry import face_normals
+from neural_shdf.shdf.neural.search import cone_neighbours, nearest_points
 
 #: Bump when the meaning or order of features changes (checked against the model card).
 FEATURE_SPEC_VERSION = 5
@@ -148,17 +150,47 @@ def poisson_radius(total_area: float, target_samples: int) -> float:
 def sample_surface(
     vertices: NDArray, faces: NDArray, areas: NDArray, count: int, rng: np.random.Generator
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    """``count`` area-uniform random points on the triangles and their face ids."""
+    """``count`` area-uniform random points on the triangles and their face ids.
+
+    The faces are looked up and the points made in the order of the random keys
+    (face order: cache-friendly on large meshes), then put back in draw order.
+    """
     cumulative = np.cumsum(areas)
-    face_ids = np.searchsorted(cumulative, rng.random(count) * cumulative[-1], side="right")
-    face_ids = np.minimum(face_ids, len(faces) - 1)
+    keys = rng.random(count) * cumulative[-1]
     u, v = rng.random(count), rng.random(count)
-    flip = u + v > 1.0
-    u[flip], v[flip] = 1.0 - u[flip], 1.0 - v[flip]
-    tri = faces[face_ids]
-    a = vertices[tri[:, 0]]
-    points = a + u[:, None] * (vertices[tri[:, 1]] - a) + v[:, None] * (vertices[tri[:, 2]] - a)
-    return points, face_ids.astype(np.int64)
+    order = np.argsort(keys, kind="stable")
+    face_ids = np.empty(count, dtype=np.int64)
+    face_ids[order] = np.searchsorted(cumulative, keys[order], side="right")
+    np.minimum(face_ids, len(faces) - 1, out=face_ids)
+    points = np.empty((count, 3))
+    _points_on_faces(
+        np.ascontiguousarray(vertices, dtype=np.float64),
+        np.ascontiguousarray(faces, dtype=np.int64),
+        face_ids,
+        u,
+        v,
+        order,
+        points,
+    )
+    return points, face_ids
+
+
+@kernel
+def _points_on_faces(vertices, faces, face_ids, u, v, order, out) -> None:  # noqa: ANN001
+    """Point ``i`` at barycentric (u, v) of its face (folded into the triangle when
+    u + v > 1), made in the given ``order``."""
+    for i in order:
+        a, b = u[i], v[i]
+        if a + b > 1.0:
+            a, b = 1.0 - a, 1.0 - b
+        face = faces[face_ids[i]]
+        for axis in range(3):
+            first = vertices[face[0], axis]
+            out[i, axis] = (
+                first
+                + a * (vertices[face[1], axis] - first)
+                + b * (vertices[face[2], axis] - first)
+            )
 
 
 #: Above this many grid cells along an axis, the dart thrower's grid coordinates could
@@ -282,45 +314,6 @@ def _cell_hash(x, y, z):  # pragma: no cover - numba
     key ^= np.uint64(z) * np.uint64(0x165667B19E3779F9) + (key >> np.uint64(31))
     key ^= key >> np.uint64(32)
     return np.int64(key >> np.uint64(1))
-
-
-def _cone_edges(
-    positions: NDArray, normals: NDArray, count: int, cone_cos: float, radius: float
-) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """For each receiver, the ``count`` nearest samples that face away from it inside its
-    inward cone. The cone's apex sits ``radius / tan(half angle)`` behind the sample
-    (lateral slack of one radius), so that thin walls, whose far side is closer than
-    the sample spacing, still find samples there; the sender's normal must turn by
-    more than the cone's half angle from the receiver's, so that neighbours on the
-    same convex surface do not count as its far side.
-    """
-    n = len(positions)
-    senders, receivers = [], []
-    if count <= 0 or n < 2:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    tan_half = math.sqrt(max(1.0 - cone_cos**2, 0.0)) / max(cone_cos, 1e-6)
-    pos = positions.astype(np.float32)
-    nrm = normals.astype(np.float32)
-    chunk = max(1, 4_000_000 // n)
-    k = min(count, n - 1)
-    for start in range(0, n, chunk):
-        rows = np.arange(start, min(n, start + chunk))
-        offset = pos[None, :, :] - pos[rows, None, :]  # receiver -> sender
-        squared = np.einsum("ijk,ijk->ij", offset, offset)
-        depth = -np.einsum("ijk,ik->ij", offset, nrm[rows])
-        lateral = np.sqrt(np.maximum(squared - depth**2, 0.0))
-        away = np.einsum("ijk,jk->ij", offset, nrm) > 0
-        opposed = np.einsum("ik,jk->ij", nrm[rows], nrm) <= cone_cos
-        ok = (depth > 0) & (lateral <= depth * tan_half + radius) & away & opposed
-        score = np.where(ok, squared, np.inf)
-        nearest = np.argpartition(score, k - 1, axis=1)[:, :k]
-        chosen_score = np.take_along_axis(score, nearest, axis=1)
-        order = np.argsort(chosen_score, axis=1, kind="stable")
-        nearest = np.take_along_axis(nearest, order, axis=1)
-        valid = np.isfinite(np.take_along_axis(chosen_score, order, axis=1))
-        senders.append(nearest[valid])
-        receivers.append(np.repeat(rows, k).reshape(len(rows), k)[valid])
-    return np.concatenate(senders).astype(np.int64), np.concatenate(receivers).astype(np.int64)
 
 
 def edge_feature_array(
@@ -481,11 +474,6 @@ def sample_surface_points(
     flip = np.einsum("ij,ij->i", sample_normals, around) < 0
     sample_normals[flip] *= -1.0
 
-    # Full-resolution neighbourhoods: each vertex's nearest samples (mapping back).
-    targets = vertices if map_vertices else np.zeros((0, 3))
-    vertex_samples, vertex_distance = nearest_samples(
-        cKDTree(positions), targets, spec.interpolation_neighbours, workers
-    )
     sample_density = np.zeros(len(positions))
     if density:
         near_count = cKDTree(candidates).query_ball_point(
@@ -494,7 +482,7 @@ def sample_surface_points(
         flat_count = len(candidates) / total_area * math.pi * (DENSITY_RADIUS * radius) ** 2
         sample_density = np.asarray(near_count, dtype=np.float64) / flat_count
     no_edges = np.zeros(0, np.int64)
-    return SampleGraph(
+    samples = SampleGraph(
         positions=positions,
         normals=sample_normals,
         face_ids=face_ids,
@@ -504,9 +492,33 @@ def sample_surface_points(
         node_features=np.zeros((len(positions), 0), np.float32),
         edge_features=np.zeros((0, len(EDGE_FEATURES)), np.float32),
         radius=radius,
+        vertex_samples=np.zeros((0, spec.interpolation_neighbours), np.int64),
+        vertex_sample_distance=np.zeros((0, spec.interpolation_neighbours)),
+        vertex_normals=np.zeros((0, 3)),
+    )
+    if map_vertices:
+        samples = with_vertex_map(samples, vertices, normal_sums, spec, workers)
+    return samples
+
+
+def with_vertex_map(
+    samples: SampleGraph,
+    vertices: NDArray,
+    normal_sums: NDArray,
+    spec: GraphSpec,
+    workers: int = 2,
+) -> SampleGraph:
+    """``samples`` with each mesh vertex's ``spec.interpolation_neighbours`` nearest
+    samples and unit normal (``normal_sums``: ``vertex_normal_sums``), which
+    ``samples_to_faces`` reads."""
+    vertex_samples, vertex_distance = nearest_samples(
+        samples.positions, vertices, spec.interpolation_neighbours, samples.radius, workers
+    )
+    return replace(
+        samples,
         vertex_samples=vertex_samples,
         vertex_sample_distance=vertex_distance,
-        vertex_normals=unit_rows(normal_sums) if map_vertices else np.zeros((0, 3)),
+        vertex_normals=unit_rows(normal_sums),
     )
 
 
@@ -554,8 +566,8 @@ def build_sample_graph(
         knn_receivers = np.repeat(np.arange(n, dtype=np.int64), k_near)
     else:
         knn_senders = knn_receivers = np.zeros(0, np.int64)
-    cone_senders, cone_receivers = _cone_edges(
-        positions, sample_normals, spec.cone_neighbours, spec.cone_cos, radius
+    cone_senders, cone_receivers = cone_neighbours(
+        positions, sample_normals, spec.cone_neighbours, spec.cone_cos, radius, workers
     )
     senders = np.concatenate([knn_senders, cone_senders])
     receivers = np.concatenate([knn_receivers, cone_receivers])
@@ -588,16 +600,12 @@ def build_sample_graph(
 
 
 def nearest_samples(
-    tree: cKDTree, points: NDArray, count: int, workers: int = 2
+    positions: NDArray, points: NDArray, count: int, radius: float, workers: int = 2
 ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-    """(P, k) indices of the ``count`` samples in ``tree`` nearest to each point (at
-    most the sample count) and their distances."""
-    k = max(1, min(count, tree.n))
-    distance, index = tree.query(points, k=k, workers=workers)
-    shape = (len(points), k)
-    return np.asarray(index, dtype=np.int64).reshape(shape), np.asarray(
-        distance, dtype=np.float64
-    ).reshape(shape)
+    """(P, k) indices of the ``count`` samples (``positions``, Poisson ``radius``)
+    nearest to each point (k at most the sample count), nearest first, and their
+    distances (``search.nearest_points``)."""
+    return nearest_points(positions, points, max(1, count), radius, workers)
 
 
 def interpolate_samples(
@@ -612,24 +620,40 @@ def interpolate_samples(
 
     Inverse-distance weights, times the agreement of the sample's normal with the
     point's: the other side of a thin wall or a facing part does not leak in; a
-    point with no agreeing sample takes its nearest sample's value.
+    point with no agreeing sample takes its nearest sample's value. float32.
     """
-    values = np.asarray(sample_values, dtype=np.float32)
-    sample_normals = sample_normals.astype(np.float32)
-    normals = point_normals.astype(np.float32)
-    offset = np.float32(0.05 * radius)
-    total = np.zeros(len(normals), dtype=np.float32)
-    mixed = np.zeros(len(normals), dtype=np.float32)
-    for column in range(neighbours.shape[1]):  # one neighbour rank at a time
-        sample = neighbours[:, column]
-        sn = sample_normals[sample]
-        agree = sn[:, 0] * normals[:, 0] + sn[:, 1] * normals[:, 1] + sn[:, 2] * normals[:, 2]
-        weight = np.maximum(agree, 0.0) / (distances[:, column].astype(np.float32) + offset)
-        total += weight
-        mixed += weight * values[sample]
-    nearest = values[neighbours[:, 0]]
-    safe = np.where(total > 1e-12, total, 1.0)
-    return np.where(total > 1e-12, mixed / safe, nearest)
+    out = np.empty(len(neighbours), dtype=np.float32)
+    if len(out):
+        _interpolate(
+            np.ascontiguousarray(sample_values, dtype=np.float32),
+            np.ascontiguousarray(sample_normals, dtype=np.float32),
+            np.ascontiguousarray(neighbours, dtype=np.int64),
+            np.ascontiguousarray(distances, dtype=np.float32),
+            np.ascontiguousarray(point_normals, dtype=np.float32),
+            np.float32(0.05 * radius),
+            out,
+        )
+    return out
+
+
+@kernel
+def _interpolate(values, sample_normals, neighbours, distances, normals, offset, out) -> None:  # noqa: ANN001
+    """``interpolate_samples`` into ``out``, in float32 throughout."""
+    zero = np.float32(0.0)
+    for point in range(len(out)):
+        total = zero
+        mixed = zero
+        for column in range(neighbours.shape[1]):  # one neighbour rank at a time
+            sample = neighbours[point, column]
+            agree = (
+                sample_normals[sample, 0] * normals[point, 0]
+                + sample_normals[sample, 1] * normals[point, 1]
+                + sample_normals[sample, 2] * normals[point, 2]
+            )
+            weight = max(agree, zero) / (distances[point, column] + offset)
+            total += weight
+            mixed += weight * values[sample]
+        out[point] = mixed / total if total > 1e-12 else values[neighbours[point, 0]]
 
 
 def resample(
@@ -638,7 +662,9 @@ def resample(
     """Values given at the samples of ``source``, interpolated at the samples of
     ``target`` (another sample set of the same surface) from their ``neighbours``
     nearest source samples, as ``interpolate_samples``."""
-    index, distances = nearest_samples(cKDTree(source.positions), target.positions, neighbours)
+    index, distances = nearest_samples(
+        source.positions, target.positions, neighbours, source.radius
+    )
     return interpolate_samples(
         sample_values, source.normals, index, distances, target.normals, source.radius
     ).astype(np.float64)
@@ -657,9 +683,17 @@ def samples_to_faces(
         graph.vertex_normals,
         graph.radius,
     )
-    faces = np.asarray(faces)
-    face_values = per_vertex[faces[:, 0]] + per_vertex[faces[:, 1]] + per_vertex[faces[:, 2]]
-    return face_values.astype(np.float64) / 3.0
+    out = np.empty(len(faces))
+    _face_means(per_vertex, np.ascontiguousarray(faces, dtype=np.int64), out)
+    return out
+
+
+@kernel
+def _face_means(per_vertex, faces, out) -> None:  # noqa: ANN001
+    """Mean of each face's three vertex values (summed in float32, as the vertex values)."""
+    for face in range(len(faces)):
+        total = per_vertex[faces[face, 0]] + per_vertex[faces[face, 1]] + per_vertex[faces[face, 2]]
+        out[face] = np.float64(total) / 3.0
 
 
 def sample_targets(

@@ -67,11 +67,31 @@ def crease_capacities(
     graph: FaceGraph, strength: float = CONCAVITY_STRENGTH
 ) -> NDArray[np.float64]:
     """Cost of cutting each edge: its length, divided by 1 + strength * relative concavity."""
-    bend = 1.0 - np.cos(graph.dihedral)
-    mean = float(np.average(bend, weights=graph.edge_length)) if graph.edge_length.sum() else 0.0
-    concave = np.where(graph.concave, bend, 0.0)
-    relative = concave / mean if mean > 0 else np.zeros_like(concave)
-    return graph.edge_length / (1.0 + strength * relative)
+    return _capacities(
+        np.ascontiguousarray(graph.edge_length, dtype=np.float64),
+        np.ascontiguousarray(graph.dihedral, dtype=np.float64),
+        np.ascontiguousarray(graph.concave, dtype=np.bool_),
+        float(strength),
+    )
+
+
+@kernel
+def _capacities(edge_length, dihedral, concave, strength):  # pragma: no cover - numba
+    """``crease_capacities``: the length-weighted mean bend, then one pass over the edges."""
+    bend_sum = 0.0
+    length_sum = 0.0
+    for e in range(len(edge_length)):
+        bend_sum += edge_length[e] * (1.0 - math.cos(dihedral[e]))
+        length_sum += edge_length[e]
+    mean = bend_sum / length_sum if length_sum > 0 else 0.0
+    capacity = edge_length.copy()
+    if mean > 0:
+        for e in range(len(edge_length)):
+            if concave[e]:
+                capacity[e] = edge_length[e] / (
+                    1.0 + strength * (1.0 - math.cos(dihedral[e])) / mean
+                )
+    return capacity
 
 
 def snap_boundaries_to_creases(
@@ -218,36 +238,27 @@ def _coarse_problem(
     total = float(areas.sum())
     extent = float(np.ptp(centroids, axis=0).max()) or 1.0
     cell = math.sqrt(total / target_nodes) if total > 0 else extent / math.sqrt(target_nodes)
-    cells = np.floor((centroids - centroids.min(axis=0)) / cell).astype(np.int64)
-    joinable = capacity >= CREASE_RATIO * graph.edge_length
-    coarse_of, count = _group(np.ascontiguousarray(graph.pairs), joinable, cells, parts)
-    node_parts = np.zeros(count, dtype=np.int64)
-    node_parts[coarse_of] = parts
-    node_areas = np.bincount(coarse_of, weights=areas, minlength=count)
-    weight = areas if total > 0 else np.ones(len(areas))
-    node_weight = np.bincount(coarse_of, weights=weight, minlength=count)
-    node_centroids = (
-        np.stack(
-            [np.bincount(coarse_of, weights=weight * c, minlength=count) for c in centroids.T],
-            axis=1,
-        )
-        / np.maximum(node_weight, np.finfo(np.float64).tiny)[:, None]
+    coarse = _coarsen(
+        np.ascontiguousarray(graph.pairs, dtype=np.int64),
+        np.ascontiguousarray(graph.edge_length, dtype=np.float64),
+        np.ascontiguousarray(capacity, dtype=np.float64),
+        np.ascontiguousarray(centroids, dtype=np.float64),
+        areas if total > 0 else np.ones(len(areas)),
+        parts,
+        cell,
+        CREASE_RATIO,
     )
-    ca, cb = coarse_of[graph.pairs[:, 0]], coarse_of[graph.pairs[:, 1]]
-    cross = np.flatnonzero(ca != cb)
-    low, high = np.minimum(ca[cross], cb[cross]), np.maximum(ca[cross], cb[cross])
-    keys, inverse = np.unique(low * count + high, return_inverse=True)
-    inverse = inverse.reshape(-1)
-    node_pairs = np.stack([keys // count, keys % count], axis=1)
+    coarse_of, node_parts, node_areas, node_centroids, node_pairs, lengths, node_capacity = coarse
+    if not total > 0:
+        node_areas = np.zeros(len(node_areas))
     node_graph = FaceGraph(
         pairs=node_pairs,
-        edge_vertices=np.zeros((len(keys), 2), dtype=np.int64),
-        edge_length=np.bincount(inverse, weights=graph.edge_length[cross], minlength=len(keys)),
-        dihedral=np.zeros(len(keys)),
-        concave=np.zeros(len(keys), dtype=bool),
-        face_count=count,
+        edge_vertices=np.zeros((len(node_pairs), 2), dtype=np.int64),
+        edge_length=lengths,
+        dihedral=np.zeros(len(node_pairs)),
+        concave=np.zeros(len(node_pairs), dtype=bool),
+        face_count=len(node_parts),
     )
-    node_capacity = np.bincount(inverse, weights=capacity[cross], minlength=len(keys))
     return node_parts, node_graph, node_areas, node_centroids, node_capacity, coarse_of
 
 
@@ -302,14 +313,24 @@ def _min_cut_in_bands(
 
 
 @kernel
-def _group(pairs, joinable, cells, parts):  # pragma: no cover - numba
-    """Connected pieces of faces sharing a grid cell and a part, linked by ``joinable``
-    edges: (piece of each face, numbered by lowest face; piece count). Union-find."""
+def _coarsen(
+    pairs, edge_length, capacity, centroids, weight, parts, cell, crease_ratio
+):  # pragma: no cover - numba
+    """Union-find of faces sharing a grid cell and a part across non-crease edges, then
+    the coarse nodes (numbered by lowest face: parts, weights, weighted centroids) and
+    their edges (lengths and capacities summed; duplicates merged without sorting)."""
     node_count = len(parts)
+    low_corner = np.empty(3)
+    for axis in range(3):
+        low_corner[axis] = centroids[:, axis].min()
+    cells = np.empty((node_count, 3), dtype=np.int64)
+    for f in range(node_count):
+        for axis in range(3):
+            cells[f, axis] = np.int64(math.floor((centroids[f, axis] - low_corner[axis]) / cell))
     root = np.arange(node_count)
     for e in range(pairs.shape[0]):
         f, g = pairs[e, 0], pairs[e, 1]
-        if not joinable[e] or parts[f] != parts[g]:
+        if capacity[e] < crease_ratio * edge_length[e] or parts[f] != parts[g]:
             continue
         if cells[f, 0] != cells[g, 0] or cells[f, 1] != cells[g, 1] or cells[f, 2] != cells[g, 2]:
             continue
@@ -335,7 +356,62 @@ def _group(pairs, joinable, cells, parts):  # pragma: no cover - numba
             count += 1
         else:
             piece[f] = piece[r]
-    return piece, count
+    node_parts = np.empty(count, dtype=np.int64)
+    node_weight = np.zeros(count)
+    node_centroids = np.zeros((count, 3))
+    for f in range(node_count):
+        c = piece[f]
+        node_parts[c] = parts[f]
+        node_weight[c] += weight[f]
+        for axis in range(3):
+            node_centroids[c, axis] += weight[f] * centroids[f, axis]
+    for c in range(count):
+        if node_weight[c] > 0:
+            for axis in range(3):
+                node_centroids[c, axis] /= node_weight[c]
+    # Coarse edges: bucket the crossing face edges by their lower node, merge repeats.
+    start = np.zeros(count + 1, dtype=np.int64)
+    for e in range(pairs.shape[0]):
+        a, b = piece[pairs[e, 0]], piece[pairs[e, 1]]
+        if a != b:
+            start[min(a, b) + 1] += 1
+    for c in range(count):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    bucket = np.empty(start[count], dtype=np.int64)
+    for e in range(pairs.shape[0]):
+        a, b = piece[pairs[e, 0]], piece[pairs[e, 1]]
+        if a != b:
+            low = min(a, b)
+            bucket[fill[low]] = e
+            fill[low] += 1
+    slot_of = np.full(count, -1, dtype=np.int64)
+    owner = np.full(count, -1, dtype=np.int64)
+    node_pairs = np.empty((start[count], 2), dtype=np.int64)
+    lengths = np.zeros(start[count])
+    capacities = np.zeros(start[count])
+    edges = 0
+    for low in range(count):
+        for k in range(start[low], start[low + 1]):
+            e = bucket[k]
+            high = max(piece[pairs[e, 0]], piece[pairs[e, 1]])
+            if owner[high] != low:
+                owner[high] = low
+                slot_of[high] = edges
+                node_pairs[edges, 0] = low
+                node_pairs[edges, 1] = high
+                edges += 1
+            lengths[slot_of[high]] += edge_length[e]
+            capacities[slot_of[high]] += capacity[e]
+    return (
+        piece,
+        node_parts,
+        node_weight,
+        node_centroids,
+        node_pairs[:edges].copy(),
+        lengths[:edges].copy(),
+        capacities[:edges].copy(),
+    )
 
 
 @kernel

@@ -236,8 +236,6 @@ def _coarse_problem(
     coarse node of each face); nodes are numbered by their lowest face.
     """
     total = float(areas.sum())
-    extent = float(np.ptp(centroids, axis=0).max()) or 1.0
-    cell = math.sqrt(total / target_nodes) if total > 0 else extent / math.sqrt(target_nodes)
     coarse = _coarsen(
         np.ascontiguousarray(graph.pairs, dtype=np.int64),
         np.ascontiguousarray(graph.edge_length, dtype=np.float64),
@@ -245,7 +243,7 @@ def _coarse_problem(
         np.ascontiguousarray(centroids, dtype=np.float64),
         areas if total > 0 else np.ones(len(areas)),
         parts,
-        cell,
+        total / target_nodes,
         CREASE_RATIO,
     )
     coarse_of, node_parts, node_areas, node_centroids, node_pairs, lengths, node_capacity = coarse
@@ -314,25 +312,35 @@ def _min_cut_in_bands(
 
 @kernel
 def _coarsen(
-    pairs, edge_length, capacity, centroids, weight, parts, cell, crease_ratio
+    pairs, edge_length, capacity, centroids, weight, parts, cell_area, crease_ratio
 ):  # pragma: no cover - numba
     """Union-find of faces sharing a grid cell and a part across non-crease edges, then
     the coarse nodes (numbered by lowest face: parts, weights, weighted centroids) and
-    their edges (lengths and capacities summed; duplicates merged without sorting)."""
+    their edges (lengths and capacities summed; duplicates merged without sorting).
+    Cells are cubes of side sqrt(``cell_area``) (without area: the extent over 200)."""
     node_count = len(parts)
     low_corner = np.empty(3)
+    high_corner = np.empty(3)
     for axis in range(3):
         low_corner[axis] = centroids[:, axis].min()
-    cells = np.empty((node_count, 3), dtype=np.int64)
+        high_corner[axis] = centroids[:, axis].max()
+    extent = (high_corner - low_corner).max()
+    cell = math.sqrt(cell_area) if cell_area > 0 else (extent if extent > 0 else 1.0) / 200.0
+    span = np.empty(3, dtype=np.int64)
+    for axis in range(3):
+        span[axis] = np.int64((high_corner[axis] - low_corner[axis]) / cell) + 1
+    cell_of = np.empty(node_count, dtype=np.int64)
     for f in range(node_count):
+        key = 0
         for axis in range(3):
-            cells[f, axis] = np.int64(math.floor((centroids[f, axis] - low_corner[axis]) / cell))
+            key = key * span[axis] + np.int64((centroids[f, axis] - low_corner[axis]) / cell)
+        cell_of[f] = key
     root = np.arange(node_count)
     for e in range(pairs.shape[0]):
         f, g = pairs[e, 0], pairs[e, 1]
         if capacity[e] < crease_ratio * edge_length[e] or parts[f] != parts[g]:
             continue
-        if cells[f, 0] != cells[g, 0] or cells[f, 1] != cells[g, 1] or cells[f, 2] != cells[g, 2]:
+        if cell_of[f] != cell_of[g]:
             continue
         while root[f] != f:
             root[f] = root[root[f]]

@@ -53,9 +53,9 @@ SIDE_SHARE = 0.5
 #: moved across the whole band pays ``CHANGE_COST`` times its length).
 CHANGE_COST = 0.5
 #: Meshes with more faces are solved on coarse nodes (pieces of grid cells) ...
-COARSE_ABOVE_FACES = 100_000
-#: ... about this many (not fewer: a cell is about 1/200 of a 1M-face mesh's extent).
-COARSE_NODES = 40_000
+COARSE_ABOVE_FACES = 60_000
+#: ... about this many (a cell is about 1/170 of the extent of a compact shape).
+COARSE_NODES = 30_000
 #: Edges whose capacity is below this share of their length (concave creases) are never
 #: inside a coarse node, so the coarse cut can follow them face by face.
 CREASE_RATIO = 0.5

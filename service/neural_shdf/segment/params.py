@@ -35,7 +35,9 @@ MAX_SEED = 2**31 - 1
 MAX_REFINE_DEPTH = 8
 #: Parts smaller than this fraction of the surface area are merged into a neighbour.
 DEFAULT_MIN_PART_FRACTION = 0.002
-#: Boundary refinement onto concave creases (``segment.creases``) by default.
+#: Boundary refinement onto concave creases (``segment.creases``) by default: on the 57
+#: psb-dev tuning models it lowered CD 0.279 -> 0.249 (automatic count) and 0.209 -> 0.197
+#: (humans' count) with 1-RI 0.152 -> 0.149 and 0.136 -> 0.133 (README: held-out models).
 DEFAULT_CREASE_BOUNDARIES = True
 #: How many times refinement may re-segment a part of a part.
 DEFAULT_REFINE_DEPTH = 2

@@ -184,6 +184,14 @@ def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "sampled", "neural")) ->
             continue
         for params in (SegmentParams(), SegmentParams(partitioner="metis", parts=2)):
             segment_mesh(mesh, shdf, params, graph=graph)
+    # The multilevel graph cut's coarsening (meshes above COARSE_NODES faces), on any ShDF.
+    from neural_shdf.segment.graphcut import cut_hierarchy
+
+    ramp = np.linspace(0.0, 1.0, len(mesh.faces))
+    basis = prepare_segment_mesh(mesh, ramp, SegmentParams(), graph=graph)
+    centroids, areas = basis.geometry.centroids, basis.geometry.areas
+    coarse = cut_hierarchy(basis.data, graph.pairs, basis.unit_weights, centroids, areas, 40)
+    coarse.solve(0.06)
     if "exact" in methods:  # the patch filter of wide windows (meshes above ~100k faces)
         from neural_shdf.shdf.postprocess import EXACT_WINDOW_MAX
 

@@ -268,7 +268,9 @@ def sampled_raw_shdf(
                 map_vertices=False,
                 normal_sums=normal_sums,
             )
-            mapped = pool.submit(with_vertex_map, samples, mesh.vertices, normal_sums, spec, 1)
+            mapped = pool.submit(
+                with_vertex_map, samples, mesh.vertices, normal_sums, spec, workers
+            )
             diameters, _, _ = raw_shdf_at_points(
                 mesh.vertices,
                 mesh.faces,

@@ -103,10 +103,11 @@ def test_stateful_fuzzing_follows_the_links_from_real_uploads(tmp_path):
 
     Workflow.run(
         settings=settings(
-            # Derandomized: any schema change shifts the stream; at 10 examples adding
-            # `crease_boundaries` left no successful segment_mesh call, 20 reach one.
+            # Derandomized, yet which links it follows depends on the schema and on
+            # timing (an upload answered by a job offers other links): 10 examples left
+            # get_shdf or segment_mesh unreached once `crease_boundaries` joined the schema.
             max_examples=20,
-            stateful_step_count=5,
+            stateful_step_count=8,
             deadline=None,
             suppress_health_check=list(HealthCheck),
             derandomize=True,

@@ -12,7 +12,7 @@ Rows (wall and CPU seconds, best of ``--repeat``; ratio = time / target):
   parameters: mixture, graph cut (the tree's leaves), tree build, automatic cut;
   target 1.5 s.
 * ``creases``: moving the graph cut's part boundaries onto concave creases
-  (``segment.creases``, on by default: part of ``segment``), from the unrefined leaves;
+  (``segment.creases``, ``crease_boundaries``, off by default), from the unrefined leaves;
   aim 0.15 s.
 * ``resegment``: the same with a kept ``SegmentBasis`` (what the service keeps per
   mesh) and another smoothing value, as a viewer slider asks; target 1.5 s.

@@ -6,10 +6,10 @@ parts are matched one-to-one to the labels (maximum total overlap); faces of an
 unmatched part count as wrong (``evaluate.metrics.matched_accuracy``). Exact ShDF.
 
 Rows: ``before-tree`` (graph cut, lambda 0.12, every part it finds, no crease
-refinement: the segmentation before the part tree), ``tree-auto`` (the default now),
+refinement: the segmentation before the part tree), ``tree-auto`` (the default),
 ``tree-N8`` (the part tree cut at 8 parts), ``metis-N8`` (METIS, exactly 8 parts);
-``-nocrease``: the same without moving boundaries onto concave creases
-(``crease_boundaries=False``, the default before it). ``ceiling``: the labels' own
+``-crease``: the same with boundaries first moved onto concave creases
+(``crease_boundaries=True``, off by default). ``ceiling``: the labels' own
 largest connected region per label; 7 of the 8 labels are left/right pairs (two
 regions), so 8 connected parts cannot match more than this share one-to-one.
 The paper reports 94.2% on this set with its own (per-label) protocol.
@@ -37,10 +37,10 @@ DEFAULT_DIR = REPO_ROOT / ".." / "shared" / "data" / "human-seg"
 DEFAULT_CACHE = Path.home() / ".cache" / "neural-shdf" / "human-seg"
 ROWS = {
     "before-tree": (SegmentParams(smoothing=0.12, crease_boundaries=False), "leaves"),
-    "tree-auto-nocrease": (SegmentParams(crease_boundaries=False), "labels"),
     "tree-auto": (SegmentParams(), "labels"),
-    "tree-N8-nocrease": (SegmentParams(parts=8, crease_boundaries=False), "labels"),
+    "tree-auto-crease": (SegmentParams(crease_boundaries=True), "labels"),
     "tree-N8": (SegmentParams(parts=8), "labels"),
+    "tree-N8-crease": (SegmentParams(parts=8, crease_boundaries=True), "labels"),
     "metis-N8": (SegmentParams(partitioner="metis", parts=8), "labels"),
 }
 

@@ -22,6 +22,7 @@ from neural_shdf.export import UNLABELED_COLOR, part_color_hex
 from neural_shdf.mesh_io import SUPPORTED_FORMATS
 from neural_shdf.segment.params import (
     DEFAULT_CLUSTERS,
+    DEFAULT_CREASE_BOUNDARIES,
     DEFAULT_SMOOTHING,
     MAX_CLUSTERS,
     MAX_PARTS,
@@ -99,6 +100,7 @@ def page_config(settings: Settings) -> dict[str, Any]:
         "maxClusters": MAX_CLUSTERS,
         "defaultClusters": DEFAULT_CLUSTERS,
         "defaultSmoothing": DEFAULT_SMOOTHING,
+        "defaultCreaseBoundaries": DEFAULT_CREASE_BOUNDARIES,
         "unlabeledColor": "#{:02x}{:02x}{:02x}".format(*UNLABELED_COLOR[:3].tolist()),
         "maxParts": MAX_PARTS,
         "partPalette": part_palette(),

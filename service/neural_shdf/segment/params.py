@@ -35,10 +35,12 @@ MAX_SEED = 2**31 - 1
 MAX_REFINE_DEPTH = 8
 #: Parts smaller than this fraction of the surface area are merged into a neighbour.
 DEFAULT_MIN_PART_FRACTION = 0.002
-#: Boundary refinement onto concave creases (``segment.creases``) by default: on the 57
-#: psb-dev tuning models it lowered CD 0.279 -> 0.249 (automatic count) and 0.209 -> 0.197
-#: (humans' count) with 1-RI 0.152 -> 0.149 and 0.136 -> 0.133 (README: held-out models).
-DEFAULT_CREASE_BOUNDARIES = True
+#: Boundary refinement onto concave creases (``segment.creases``) is off by default: on the
+#: 57 psb-dev tuning models it lowered CD 0.279 -> 0.249 (automatic count) and 0.209 -> 0.197
+#: (humans' count), but on the 19 held-out models it raised CD 0.254 -> 0.285 and 1-RI
+#: 0.119 -> 0.133 at the automatic count (0.165 -> 0.170 / 0.113 -> 0.112 at the humans'),
+#: the human body set went 0.631 -> 0.628, and it adds ~40 ms to a 100k-face re-cut.
+DEFAULT_CREASE_BOUNDARIES = False
 #: How many times refinement may re-segment a part of a part.
 DEFAULT_REFINE_DEPTH = 2
 

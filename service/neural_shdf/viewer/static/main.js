@@ -466,6 +466,7 @@ function setUpControls() {
   $('clusters').max = String(config.maxClusters);
   $('clusters').value = String(config.defaultClusters);
   $('smoothing').value = String(config.defaultSmoothing);
+  $('crease-boundaries').checked = config.defaultCreaseBoundaries;
   $('method').value = config.defaultMethod;
   showValues();
   for (const input of document.querySelectorAll('#controls input[type=range]')) {

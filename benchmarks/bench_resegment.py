@@ -12,7 +12,7 @@ cpu_ratio = CPU time / target (<= 1 meets it).
 machine wall time is inflated by waiting, CPU time much less so (the code is
 single-threaded), so both are printed.
 
-    python benchmarks/bench_resegment.py [--sizes 10000,100000,1000000] [--repeat 1]
+    python benchmarks/bench_resegment.py [--sizes 10000,100000,1000000] [--repeat 1] [--crease]
 """
 
 from __future__ import annotations
@@ -34,6 +34,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default="10000,100000,1000000")
     parser.add_argument("--repeat", type=int, default=1, help="runs per case; the best counts")
+    parser.add_argument(
+        "--crease", action="store_true", help="with boundaries moved onto creases (off by default)"
+    )
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
     print(
@@ -49,11 +52,15 @@ def main() -> None:
         graph_seconds = time.perf_counter() - start
         basis = prepare_segment(vertices, faces, shdf, SegmentParams(), graph)
         cases = [
-            ("graphcut", SegmentParams(), None),
-            ("metis", SegmentParams(partitioner="metis"), None),
+            ("graphcut", SegmentParams(crease_boundaries=args.crease), None),
+            ("metis", SegmentParams(partitioner="metis", crease_boundaries=args.crease), None),
             # What the service does for a new slider value: same mesh, ShDF, clusters and
             # seed, another smoothing, with the basis it kept from the first request.
-            ("graphcut+kept", SegmentParams(smoothing=0.08), basis),
+            (
+                "graphcut+kept",
+                SegmentParams(smoothing=0.08, crease_boundaries=args.crease),
+                basis,
+            ),
         ]
         fresh_cpu = None
         for partitioner, params, kept in cases:

@@ -336,3 +336,34 @@ def _first_of_equal_rows(bits):  # pragma: no cover - numba
                 break
             slot = (slot + np.uint64(1)) & mask
     return representative
+
+
+def adjacency_lists(pairs: NDArray, node_count: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(indptr, neighbours) of an undirected graph given as edge ``pairs``, CSR-style, in
+    one counting pass. With sorted unique pairs (``a < b``, as ``FaceGraph.pairs``) each
+    node's neighbours come ascending, the arrays of the symmetric CSR matrix."""
+    pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
+    return _adjacency_lists(pairs, node_count)
+
+
+@kernel
+def _adjacency_lists(pairs, node_count):  # pragma: no cover - numba
+    """A node's smaller neighbours arrive as second members (ascending when the pairs are
+    sorted), then its larger ones as first members."""
+    indptr = np.zeros(node_count + 1, dtype=np.int64)
+    for row in range(len(pairs)):
+        indptr[pairs[row, 0] + 1] += 1
+        indptr[pairs[row, 1] + 1] += 1
+    for node in range(node_count):
+        indptr[node + 1] += indptr[node]
+    fill = indptr[:-1].copy()
+    neighbours = np.empty(2 * len(pairs), dtype=np.int64)
+    for row in range(len(pairs)):  # smaller neighbours
+        larger = pairs[row, 1]
+        neighbours[fill[larger]] = pairs[row, 0]
+        fill[larger] += 1
+    for row in range(len(pairs)):  # then the larger ones
+        smaller = pairs[row, 0]
+        neighbours[fill[smaller]] = pairs[row, 1]
+        fill[smaller] += 1
+    return indptr, neighbours

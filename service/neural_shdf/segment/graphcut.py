@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
-from neural_shdf.geometry import FaceGraph
+from neural_shdf.geometry import FaceGraph, adjacency_lists
 from neural_shdf.segment.parts import connected_components
 
 #: CGAL: probabilities below this are clamped before ``-log``.
@@ -286,31 +286,6 @@ def banded_alpha_expansion(
         sub_data, sub_pairs, weights[inside], labels[nodes], max_cycles, alphas
     )
     return result
-
-
-def adjacency_lists(pairs: NDArray, node_count: int) -> tuple[NDArray, NDArray]:
-    """(indptr, neighbours): each node's neighbours, CSR-style, for ``near_boundary``."""
-    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    return _adjacency_lists(pairs, node_count)
-
-
-@kernel
-def _adjacency_lists(pairs, node_count):  # pragma: no cover - compiled
-    indptr = np.zeros(node_count + 1, dtype=np.int64)
-    for edge in range(len(pairs)):
-        indptr[pairs[edge, 0] + 1] += 1
-        indptr[pairs[edge, 1] + 1] += 1
-    for node in range(node_count):
-        indptr[node + 1] += indptr[node]
-    fill = indptr[:-1].copy()
-    neighbours = np.empty(2 * len(pairs), dtype=np.int64)
-    for edge in range(len(pairs)):
-        a, b = pairs[edge, 0], pairs[edge, 1]
-        neighbours[fill[a]] = b
-        fill[a] += 1
-        neighbours[fill[b]] = a
-        fill[b] += 1
-    return indptr, neighbours
 
 
 def near_boundary(

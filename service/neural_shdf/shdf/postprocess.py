@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph
+from neural_shdf.geometry import FaceGraph, adjacency_lists
 
 #: CGAL's ``CGAL_NORMALIZATION_ALPHA``: strength of the log normalisation.
 LOG_NORMALIZATION_ALPHA = 5.0
@@ -278,31 +278,7 @@ def bilateral_smooth(
 def sorted_adjacency(graph: FaceGraph) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """(indptr, indices) of the face graph, each face's neighbours ascending: the arrays of
     ``graph.csr()``, in one counting pass over the sorted unique pairs."""
-    pairs = np.ascontiguousarray(graph.pairs, dtype=np.int64).reshape(-1, 2)
-    return _sorted_adjacency(pairs, graph.face_count)
-
-
-@kernel
-def _sorted_adjacency(pairs, face_count):  # noqa: ANN001, ANN202
-    """Pairs are sorted with ``pairs[:, 0] < pairs[:, 1]``: a face's smaller neighbours
-    arrive in ascending order as second members, then its larger ones as first members."""
-    indptr = np.zeros(face_count + 1, dtype=np.int64)
-    for row in range(len(pairs)):
-        indptr[pairs[row, 0] + 1] += 1
-        indptr[pairs[row, 1] + 1] += 1
-    for face in range(face_count):
-        indptr[face + 1] += indptr[face]
-    fill = indptr[:-1].copy()
-    indices = np.empty(2 * len(pairs), dtype=np.int64)
-    for row in range(len(pairs)):  # smaller neighbours, ascending
-        larger = pairs[row, 1]
-        indices[fill[larger]] = pairs[row, 0]
-        fill[larger] += 1
-    for row in range(len(pairs)):  # then the larger ones, ascending
-        smaller = pairs[row, 0]
-        indices[fill[smaller]] = pairs[row, 1]
-        fill[smaller] += 1
-    return indptr, indices
+    return adjacency_lists(graph.pairs, graph.face_count)
 
 
 @kernel

@@ -155,6 +155,30 @@ def _bilateral_vectorised(
     return out
 
 
+@kernel(inline=True)
+def _walk_rings(start, max_ring, indptr, indices, seen_by, queue, ring):  # noqa: ANN001, ANN202
+    """Breadth-first walk from ``start`` up to ``max_ring`` edge rings: fills ``queue`` with
+    the nodes reached (``start`` first) and ``ring`` with their rings; returns their count.
+    ``seen_by[node] == start`` marks a node reached by this walk (no clearing between walks)."""
+    queue[0] = start
+    ring[0] = 0
+    seen_by[start] = start
+    head, tail = 0, 1
+    while head < tail:
+        current, level = queue[head], ring[head]
+        head += 1
+        if level == max_ring:
+            continue
+        for edge in range(indptr[current], indptr[current + 1]):
+            other = indices[edge]
+            if seen_by[other] != start:
+                seen_by[other] = start
+                queue[tail] = other
+                ring[tail] = level + 1
+                tail += 1
+    return tail
+
+
 def _bilateral_faces(
     first: int,
     last: int,
@@ -172,22 +196,7 @@ def _bilateral_faces(
     queue = np.empty(face_count, dtype=np.int64)
     ring = np.empty(face_count, dtype=np.int64)
     for face in range(first, last):
-        queue[0] = face
-        ring[0] = 0
-        seen_by[face] = face
-        head, tail = 0, 1
-        while head < tail:
-            current, level = queue[head], ring[head]
-            head += 1
-            if level == window_size:
-                continue
-            for edge in range(indptr[current], indptr[current + 1]):
-                other = indices[edge]
-                if seen_by[other] != face:
-                    seen_by[other] = face
-                    queue[tail] = other
-                    ring[tail] = level + 1
-                    tail += 1
+        tail = _walk_rings(face, window_size, indptr, indices, seen_by, queue, ring)
         centre = values[face]
         variance = 0.0
         for i in range(tail):
@@ -298,24 +307,9 @@ def _cover_with_patches(indptr, indices, radius):  # noqa: ANN001, ANN202
             continue
         seeds[seed_count] = face
         seed_count += 1
-        queue[0] = face
-        ring[0] = 0
-        seen_by[face] = face
-        covered[face] = True
-        head, tail = 0, 1
-        while head < tail:
-            current, level = queue[head], ring[head]
-            head += 1
-            if level == 2 * radius - 1:
-                continue
-            for edge in range(indptr[current], indptr[current + 1]):
-                other = indices[edge]
-                if seen_by[other] != face:
-                    seen_by[other] = face
-                    covered[other] = True
-                    queue[tail] = other
-                    ring[tail] = level + 1
-                    tail += 1
+        tail = _walk_rings(face, 2 * radius - 1, indptr, indices, seen_by, queue, ring)
+        for i in range(tail):
+            covered[queue[i]] = True
     patch_of = np.full(face_count, -1, dtype=np.int64)
     for patch in range(seed_count):
         patch_of[seeds[patch]] = patch
@@ -345,22 +339,7 @@ def _patch_windows(indptr, indices, hops):  # noqa: ANN001, ANN202
     members = np.empty(max(16, count * 8), dtype=np.int64)
     size = 0
     for patch in range(count):
-        queue[0] = patch
-        ring[0] = 0
-        seen_by[patch] = patch
-        head, tail = 0, 1
-        while head < tail:
-            current, level = queue[head], ring[head]
-            head += 1
-            if level == hops:
-                continue
-            for edge in range(indptr[current], indptr[current + 1]):
-                other = indices[edge]
-                if seen_by[other] != patch:
-                    seen_by[other] = patch
-                    queue[tail] = other
-                    ring[tail] = level + 1
-                    tail += 1
+        tail = _walk_rings(patch, hops, indptr, indices, seen_by, queue, ring)
         if size + tail > len(members):
             grown = np.empty(2 * (size + tail), dtype=np.int64)
             grown[:size] = members[:size]

@@ -254,6 +254,9 @@ def test_a_basis_of_other_clusters_or_seed_is_refused(dumbbell_case):
     vertices, faces, shdf, graph, _ = dumbbell_case
     basis = prepare_segment(vertices, faces, shdf, SegmentParams(clusters=3), graph)
     for params in (SegmentParams(clusters=4), SegmentParams(clusters=3, seed=1)):
-        with pytest.raises(ValueError, match="another mesh, clusters or seed"):
+        with pytest.raises(ValueError, match="another ShDF, clusters or seed"):
             segment_with_details(vertices, faces, shdf, params, graph, basis=basis)
+    other = np.roll(shdf, 1)
+    with pytest.raises(ValueError, match="another ShDF, clusters or seed"):
+        segment_with_details(vertices, faces, other, SegmentParams(clusters=3), graph, basis=basis)
     assert basis.nbytes > shdf.nbytes

@@ -98,7 +98,6 @@ class SegmentBasis:
 
     clusters: int | None
     seed: int
-    face_count: int
     geometry: FaceData
     shdf: NDArray[np.float64]
     values: NDArray[np.float64]
@@ -121,12 +120,15 @@ class SegmentBasis:
             )
         return self._cut
 
-    def matches(self, params: SegmentParams, face_count: int) -> bool:
-        """Whether this basis is the one ``params`` on a mesh of ``face_count`` faces needs."""
+    def matches(self, params: SegmentParams, shdf: NDArray) -> bool:
+        """Whether this basis is the one ``params`` on a mesh with this ShDF needs (one pass
+        over the ShDF: a basis never stands in for another field)."""
+        shdf = np.asarray(shdf, dtype=np.float64).reshape(-1)
         return (
             self.clusters == params.clusters
             and self.seed == params.seed
-            and self.face_count == face_count
+            and shdf.shape == self.shdf.shape
+            and np.array_equal(np.clip(shdf, 0.0, 1.0), self.shdf)
         )
 
     @property
@@ -166,7 +168,6 @@ def prepare_segment(
     return SegmentBasis(
         clusters=params.clusters,
         seed=params.seed,
-        face_count=len(faces),
         geometry=geometry,
         shdf=shdf,
         values=values,
@@ -220,8 +221,8 @@ def segment_with_details(
         timings[name] = timings.get(name, 0.0) + now - clock
         clock = now
 
-    if basis is not None and not basis.matches(params, len(faces)):
-        raise ValueError("the segment basis was prepared for another mesh, clusters or seed")
+    if basis is not None and not basis.matches(params, shdf):
+        raise ValueError("the segment basis was prepared for another ShDF, clusters or seed")
     validate(faces, shdf if basis is None else basis.shdf, params, graph)
     if len(faces) == 0:
         return SegmentResult(np.zeros(0, dtype=np.int64), 0, smoothing, timings)

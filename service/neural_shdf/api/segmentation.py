@@ -192,7 +192,7 @@ class SegmentationService:
         shdf_version = self.shdf.version(method, params.seed)
         basis_key = f"{mesh_id}:basis:{shdf_version}:{params.clusters}:{params.seed}"
         basis = self.cache.working_set(basis_key)
-        if basis is None:
+        if basis is None or not basis.matches(params, shdf):
             basis = prepare_segment_mesh(mesh, shdf, params, graph=graph)
         segmentation = segment_mesh_with_details(mesh, shdf, params, graph=graph, basis=basis)
         self.cache.keep_working_set(basis_key, basis, basis.nbytes)  # sized with its cut

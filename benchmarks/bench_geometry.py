@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from timing import best_time
 
 from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
 from neural_shdf.segment.synthetic import dumbbell
@@ -50,17 +51,6 @@ def meshes() -> list[tuple[str, np.ndarray, np.ndarray]]:
         vertices, faces = trimesh.remesh.subdivide(vertices, faces)
         out.append(("psb281-sub2", np.asarray(vertices), np.asarray(faces)))
     return out
-
-
-def best_time(function, repeat: int) -> tuple[float, float, object]:
-    """Best wall and CPU seconds of ``repeat`` calls, and the last result."""
-    wall, cpu, result = np.inf, np.inf, None
-    for _ in range(repeat):
-        start, start_cpu = time.perf_counter(), time.process_time()
-        result = function()
-        wall = min(wall, time.perf_counter() - start)
-        cpu = min(cpu, time.process_time() - start_cpu)
-    return wall, cpu, result
 
 
 def main() -> None:

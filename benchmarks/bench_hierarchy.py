@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from timing import best_time
 
 from neural_shdf.geometry import build_face_graph, face_centroids, face_normals, weld_faces
 from neural_shdf.segment.creases import snap_boundaries_to_creases
@@ -70,17 +71,6 @@ def test_mesh(subdivisions: int) -> tuple[str, np.ndarray, np.ndarray, np.ndarra
     return f"psb-82 x{4**subdivisions}", vertices, faces, base_shdf[nearest]
 
 
-def timed(function, repeat: int):
-    """(best wall seconds, best CPU seconds, last result)."""
-    wall, cpu, result = np.inf, np.inf, None
-    for _ in range(repeat):
-        start, start_cpu = time.perf_counter(), time.process_time()
-        result = function()
-        wall = min(wall, time.perf_counter() - start)
-        cpu = min(cpu, time.process_time() - start_cpu)
-    return wall, cpu, result
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3, help="runs per case; the best counts")
@@ -97,7 +87,7 @@ def main() -> None:
     )
 
     params = SegmentParams()
-    wall, cpu, result = timed(
+    wall, cpu, result = best_time(
         lambda: segment_with_details(vertices, faces, shdf, params, graph, areas=areas),
         args.repeat,
     )
@@ -114,7 +104,7 @@ def main() -> None:
         vertices, faces, shdf, replace(params, crease_boundaries=False), graph, areas=areas
     )
     centroids = face_centroids(vertices, faces)
-    wall, cpu, snapped = timed(
+    wall, cpu, snapped = best_time(
         lambda: snap_boundaries_to_creases(
             plain.tree.leaf_labels, graph, areas, centroids, params.min_part_fraction
         ),
@@ -131,7 +121,7 @@ def main() -> None:
     basis = prepare_segment(vertices, faces, shdf, params, graph, areas=areas)
     basis.cut(graph)
     other = SegmentParams(smoothing=0.08)
-    wall, cpu, again = timed(
+    wall, cpu, again = best_time(
         lambda: segment_with_details(vertices, faces, shdf, other, graph, basis=basis),
         args.repeat,
     )
@@ -149,14 +139,14 @@ def main() -> None:
         built = merge_tree(leaves, graph, areas, values)
         return built.labels(automatic_part_count(built))
 
-    wall, cpu, _ = timed(build_and_cut, args.repeat)
+    wall, cpu, _ = best_time(build_and_cut, args.repeat)
     print(
         f"{'tree+cut':<10} {wall:8.3f} {cpu:7.3f} {'-':>8} {'-':>6} {'-':>9}  (included in segment)"
     )
 
     cut_times = []
     for count in range(1, tree.leaf_count + 1):
-        cut_times.append(timed(lambda count=count: tree.labels(count), args.repeat)[0])
+        cut_times.append(best_time(lambda count=count: tree.labels(count), args.repeat)[0])
     worst, median = max(cut_times), float(np.median(cut_times))
     print(
         f"{'later cut':<10} {worst:8.4f} {'-':>7} {TARGET_CUT_S:8.3f} "

@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import argparse
 import time
+from functools import partial
 
 import numpy as np
+from timing import best_time
 
 from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
 from neural_shdf.segment.params import SegmentParams
@@ -64,12 +66,8 @@ def main() -> None:
         ]
         fresh_cpu = None
         for partitioner, params, kept in cases:
-            best, best_cpu, result = np.inf, np.inf, None
-            for _ in range(args.repeat):
-                start, start_cpu = time.perf_counter(), time.process_time()
-                result = segment_with_details(vertices, faces, shdf, params, graph, basis=kept)
-                best = min(best, time.perf_counter() - start)
-                best_cpu = min(best_cpu, time.process_time() - start_cpu)
+            run = partial(segment_with_details, vertices, faces, shdf, params, graph, basis=kept)
+            best, best_cpu, result = best_time(run, args.repeat)
             fresh_cpu = best_cpu if partitioner == "graphcut" else fresh_cpu
             if kept is not None:
                 result.timings["speedup_cpu_vs_fresh"] = fresh_cpu / best_cpu

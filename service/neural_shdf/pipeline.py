@@ -20,6 +20,7 @@ from neural_shdf.segment import SegmentParams
 from neural_shdf.shdf.stage import ShdfMethod, ShdfParams, ShdfResult, run_shdf, with_seed
 
 if TYPE_CHECKING:
+    from neural_shdf.segment.creases import CreaseGraph
     from neural_shdf.segment.pipeline import SegmentBasis, SegmentResult
     from neural_shdf.shdf.neural.inference import NeuralModel
 
@@ -124,17 +125,36 @@ def prepare_segment_mesh(
     params: SegmentParams | None = None,
     *,
     graph: FaceGraph | None = None,
+    creases: CreaseGraph | None = None,
 ) -> SegmentBasis:
     """What every segmentation of ``mesh`` with this ShDF, ``params.clusters`` and
     ``params.seed`` shares (mixture, data costs, the graph cut's coarse graphs): pass it
-    to ``segment_mesh_with_details`` to try other smoothing or part counts quickly."""
+    to ``segment_mesh_with_details`` to try other smoothing or part counts quickly.
+    ``creases``: ``mesh_crease_graph(mesh, graph)`` where the caller keeps it per mesh."""
     from neural_shdf.segment.pipeline import prepare_segment
 
     graph = mesh_face_graph(mesh) if graph is None else graph
     _, areas = mesh.normals_and_areas
     return prepare_segment(
-        mesh.vertices, mesh.faces, np.asarray(shdf), params or SegmentParams(), graph, areas=areas
+        mesh.vertices,
+        mesh.faces,
+        np.asarray(shdf),
+        params or SegmentParams(),
+        graph,
+        areas=areas,
+        creases=creases,
     )
+
+
+def mesh_crease_graph(mesh: TriangleMesh, graph: FaceGraph | None = None) -> CreaseGraph:
+    """The graph the crease refinement runs on (``segment.creases.crease_graph``); it
+    depends on the mesh only, so a caller may keep it for every ShDF and mixture."""
+    from neural_shdf.geometry import face_centroids
+    from neural_shdf.segment.creases import crease_graph
+
+    graph = mesh_face_graph(mesh) if graph is None else graph
+    _, areas = mesh.normals_and_areas
+    return crease_graph(graph, areas, face_centroids(mesh.vertices, mesh.faces))
 
 
 def input_face_labels(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.int64]:

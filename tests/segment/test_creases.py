@@ -6,7 +6,11 @@ import numpy as np
 import pytest
 
 from neural_shdf.geometry import build_face_graph, face_centroids, face_normals, weld_faces
-from neural_shdf.segment.creases import crease_capacities, snap_boundaries_to_creases
+from neural_shdf.segment.creases import (
+    crease_capacities,
+    crease_graph,
+    snap_boundaries_to_creases,
+)
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import canonical_labels
 from neural_shdf.segment.pipeline import segment_with_details
@@ -49,11 +53,15 @@ def test_large_meshes_are_solved_on_coarse_nodes_that_keep_the_crease():
     _, _, _, graph, areas, centroids = case(24000)
     z = centroids[:, 2]
     misplaced = (z > JUNCTION_Z + 0.25).astype(np.int64)
-    coarse = snap_boundaries_to_creases(
-        misplaced, graph, areas, centroids, 0.002, coarse_above=10_000, coarse_nodes=2_000
-    )
+    creases = crease_graph(graph, areas, centroids, coarse_above=10_000, coarse_nodes=2_000)
+    assert creases.node_of is not None and creases.graph.face_count < 6_000
+    coarse = snap_boundaries_to_creases(misplaced, graph, areas, centroids, 0.002, creases=creases)
     assert junction_errors(coarse, z) == 0
     np.testing.assert_array_equal(coarse, canonical_labels(coarse))
+    # A boundary already on the crease stays face for face: unmoved nodes keep their faces.
+    on_crease = (z > JUNCTION_Z).astype(np.int64)
+    kept = snap_boundaries_to_creases(on_crease, graph, areas, centroids, 0.002, creases=creases)
+    np.testing.assert_array_equal(kept, on_crease)
 
 
 def test_a_boundary_on_the_crease_stays(dumbbell_case):

@@ -16,6 +16,7 @@ from neural_shdf.api.settings import Settings
 from neural_shdf.errors import InvalidGeometryError
 from neural_shdf.geometry import FaceGraph
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.segment.creases import CreaseGraph
 
 logger = logging.getLogger(__name__)
 
@@ -161,3 +162,17 @@ class MeshStore:
                 graph = mesh_face_graph(mesh)
                 self.cache.remember(key, graph)
         return graph
+
+    def creases(self, mesh_id: str, mesh: TriangleMesh) -> CreaseGraph:
+        """The crease refinement's graph of a mesh, built once per process (memory LRU); it
+        serves every ShDF and mixture of the mesh."""
+        from neural_shdf.pipeline import mesh_crease_graph
+
+        key = f"{mesh_id}:creases"
+        graph = self.graph(mesh_id, mesh)  # outside the lock: locks are striped, not reentrant
+        with self._graph_locks[hash(key) % len(self._graph_locks)]:
+            creases = self.cache.recall(key)
+            if creases is None:
+                creases = mesh_crease_graph(mesh, graph)
+                self.cache.remember(key, creases)
+        return creases

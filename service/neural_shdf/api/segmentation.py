@@ -47,6 +47,7 @@ class SegmentResult:
         default_factory=lambda: np.zeros((0, 2), dtype=np.int64)
     )
     tree_costs: NDArray[np.float64] = dataclass_field(default_factory=lambda: np.zeros(0))
+    automatic_parts: int = 0  # the tree's automatic count
 
     @property
     def tree(self) -> PartTree | None:
@@ -73,7 +74,9 @@ class SegmentResult:
             tree = self.tree
             document = None
             if tree is not None:
-                document = part_tree_document(tree, self.leaf_labels, len(self.part_faces))
+                document = part_tree_document(
+                    tree, self.leaf_labels, len(self.part_faces), self.automatic_parts
+                )
                 packed = pack_integers(self.leaf_labels) if compact else (None, None)
                 if compact:
                     document["leaf_labels"] = None
@@ -85,6 +88,7 @@ class SegmentResult:
     def arrays(self) -> dict[str, NDArray]:
         data = asdict(self)
         data["segment_seconds"] = np.array(self.segment_seconds)
+        data["automatic_parts"] = np.array(self.automatic_parts)
         return data
 
     @classmethod
@@ -99,6 +103,7 @@ class SegmentResult:
             leaf_labels=arrays["leaf_labels"],
             tree_merges=arrays["tree_merges"].reshape(-1, 2),
             tree_costs=arrays["tree_costs"],
+            automatic_parts=int(arrays["automatic_parts"]),
         )
 
 
@@ -139,6 +144,7 @@ def summarize(
         result.leaf_labels = leaves.astype(np.int32)
         result.tree_merges = segmentation.tree.merges
         result.tree_costs = segmentation.tree.costs
+        result.automatic_parts = segmentation.automatic_parts
     return result
 
 
@@ -193,7 +199,8 @@ class SegmentationService:
         basis_key = f"{mesh_id}:basis:{shdf_version}:{params.clusters}:{params.seed}"
         basis = self.cache.working_set(basis_key)
         if basis is None or not basis.matches(params, shdf):
-            basis = prepare_segment_mesh(mesh, shdf, params, graph=graph)
+            creases = self.meshes.creases(mesh_id, mesh) if params.crease_boundaries else None
+            basis = prepare_segment_mesh(mesh, shdf, params, graph=graph, creases=creases)
         segmentation = segment_mesh_with_details(mesh, shdf, params, graph=graph, basis=basis)
         self.cache.keep_working_set(basis_key, basis, basis.nbytes)  # sized with its cut
         seconds = time.perf_counter() - start

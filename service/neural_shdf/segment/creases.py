@@ -21,8 +21,10 @@ area). Each face belongs to the band of its nearest boundary only, so bands are
 disjoint and all of them are solved by one max-flow. A band side that would cover its
 whole region (a small part) is cut back to ``SIDE_SHARE`` of its depth, so no part
 vanishes. Meshes over ``COARSE_ABOVE_FACES`` faces are solved on about
-``COARSE_NODES`` coarse nodes (connected pieces of one part in one grid cell, never
-across a concave crease), so the time stays flat from 100k to 1M faces.
+``COARSE_NODES`` coarse nodes (connected pieces of one grid cell, never across a concave
+crease; each takes the part of most of its area, and only nodes the cut moves change
+their faces), so the time stays flat from 100k to 1M faces. The graph and its edge costs
+depend on the mesh only (``crease_graph``; ``SegmentBasis`` keeps them).
 
 Runs on the graph cut's parts before the merge tree is built, so every cut of the tree
 (the server's and the clients' re-cuts) has the refined boundaries. Deterministic.
@@ -32,6 +34,7 @@ from __future__ import annotations
 
 import heapq
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -55,10 +58,10 @@ CHANGE_COST = 0.5
 #: Meshes with more faces are solved on coarse nodes (pieces of grid cells) ...
 COARSE_ABOVE_FACES = 60_000
 #: ... about this many (a cell is about 1/170 of the extent of a compact shape).
-COARSE_NODES = 30_000
+COARSE_NODES = 6_000
 #: Edges whose capacity is below this share of their length (concave creases) are never
 #: inside a coarse node, so the coarse cut can follow them face by face.
-CREASE_RATIO = 0.5
+CREASE_RATIO = 0.25
 #: How much cheaper a concave edge is to cut, per mean bending of the mesh's edges.
 CONCAVITY_STRENGTH = 2.0
 
@@ -94,6 +97,57 @@ def _capacities(edge_length, dihedral, concave, strength):  # pragma: no cover -
     return capacity
 
 
+@dataclass(frozen=True)
+class CreaseGraph:
+    """The graph the banded min cut runs on, with its edge costs; it depends on the mesh
+    only, so a caller can keep it (``SegmentBasis``) and refine many segmentations.
+
+    Meshes up to ``COARSE_ABOVE_FACES`` faces: the face graph itself (``node_of`` None).
+    Larger: coarse nodes, connected pieces of one grid cell never grouped across a concave
+    crease; ``node_of`` is each face's node (nodes numbered by their lowest face).
+    """
+
+    graph: FaceGraph
+    areas: NDArray[np.float64]
+    centroids: NDArray[np.float64]
+    capacity: NDArray[np.float64]
+    indptr: NDArray[np.int64]
+    neighbour: NDArray[np.int64]
+    node_of: NDArray[np.int64] | None = None
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held by the arrays this graph owns (not the face graph it may be)."""
+        arrays = [self.capacity, self.indptr, self.neighbour]
+        if self.node_of is not None:
+            arrays += [self.node_of, self.areas, self.centroids, self.graph.pairs]
+            arrays += [self.graph.edge_length]
+        return sum(a.nbytes for a in arrays)
+
+
+def crease_graph(
+    graph: FaceGraph,
+    areas: NDArray,
+    centroids: NDArray,
+    *,
+    strength: float = CONCAVITY_STRENGTH,
+    coarse_above: int = COARSE_ABOVE_FACES,
+    coarse_nodes: int = COARSE_NODES,
+) -> CreaseGraph:
+    """The ``CreaseGraph`` of a mesh: its face graph, or above ``coarse_above`` faces about
+    ``coarse_nodes`` coarse nodes; edge costs by ``crease_capacities(graph, strength)``."""
+    areas = np.asarray(areas, dtype=np.float64)
+    centroids = np.asarray(centroids, dtype=np.float64)
+    capacity = crease_capacities(graph, strength)
+    node_of = None
+    if graph.face_count > coarse_above:
+        graph, areas, centroids, capacity, node_of = _coarse_graph(
+            graph, areas, centroids, capacity, coarse_nodes
+        )
+    indptr, neighbour = _csr(np.ascontiguousarray(graph.pairs, dtype=np.int64), graph.face_count)
+    return CreaseGraph(graph, areas, centroids, capacity, indptr, neighbour, node_of)
+
+
 def snap_boundaries_to_creases(
     parts: NDArray,
     graph: FaceGraph,
@@ -102,68 +156,46 @@ def snap_boundaries_to_creases(
     min_part_fraction: float,
     *,
     width: float = BAND_WIDTH,
-    strength: float = CONCAVITY_STRENGTH,
     side_share: float = SIDE_SHARE,
     change_cost: float = CHANGE_COST,
-    coarse_above: int = COARSE_ABOVE_FACES,
-    coarse_nodes: int = COARSE_NODES,
+    creases: CreaseGraph | None = None,
 ) -> NDArray[np.int64]:
     """``parts`` with each boundary moved to the cheapest cut in its band; canonical labels.
 
-    ``width``: band half-width in neck radii of each boundary; ``strength``: how much
-    cheaper concave edges are; ``side_share``: depth share kept free where a band side
-    covers its whole region; ``change_cost``: price of moving a face (see
-    ``CHANGE_COST``). Meshes over ``coarse_above`` faces are solved on a coarse graph of
-    about ``coarse_nodes`` nodes. Parts cut in two become two parts; pieces below
-    ``min_part_fraction`` of the area merge into a neighbour (``merge_small_parts``).
+    ``width``: band half-width in neck radii of each boundary; ``side_share``: depth share
+    kept free where a band side covers its whole region; ``change_cost``: price of moving
+    a face (see ``CHANGE_COST``). ``creases``: the mesh's ``crease_graph`` where the caller
+    keeps it (else built here with the defaults). On coarse nodes each node takes the part
+    of most of its area; faces keep their own part unless the cut moved their node. Parts
+    cut in two become two parts; pieces below ``min_part_fraction`` of the area merge into
+    a neighbour (``merge_small_parts``).
     """
     parts = canonical_labels(parts)
     face_count = len(parts)
     if face_count == 0 or parts.max() == 0 or len(graph.pairs) == 0:
         return parts
     areas = np.asarray(areas, dtype=np.float64)
-    capacity = crease_capacities(graph, strength)
-    if face_count > coarse_above:
-        coarse = _coarse_problem(parts, graph, areas, centroids, capacity, coarse_nodes)
-        node_parts, node_graph, node_areas, node_centroids, node_capacity, coarse_of = coarse
+    if creases is None:
+        creases = crease_graph(graph, areas, centroids)
+    if creases.node_of is None:
+        node_parts = parts
     else:
-        node_parts, node_graph, node_areas, node_centroids, node_capacity = (
-            parts,
-            graph,
-            areas,
-            centroids,
-            capacity,
-        )
-        coarse_of = None
-    refined = _snap(
-        node_parts,
-        node_graph,
-        node_areas,
-        node_centroids,
-        node_capacity,
-        width,
-        side_share,
-        change_cost,
-    )
+        node_parts = _majority_parts(creases.node_of, parts, areas, creases.graph.face_count)
+    refined = _snap(node_parts, creases, width, side_share, change_cost)
     if refined is None:
         return parts
-    pieces = connected_parts(refined, node_graph.pairs, node_graph.face_count)
-    merged = merge_small_parts(pieces, node_graph, node_areas, node_centroids, min_part_fraction)
-    # Coarse nodes are numbered by their lowest face: projected labels stay canonical.
-    return merged if coarse_of is None else merged[coarse_of]
+    if creases.node_of is not None:
+        moved = (refined != node_parts)[creases.node_of]
+        refined = np.where(moved, refined[creases.node_of], parts)
+    pieces = connected_parts(refined, graph.pairs, face_count)
+    return merge_small_parts(pieces, graph, areas, centroids, min_part_fraction)
 
 
 def _snap(
-    parts: NDArray,
-    graph: FaceGraph,
-    areas: NDArray,
-    centroids: NDArray,
-    capacity: NDArray,
-    width: float,
-    side_share: float,
-    change_cost: float,
+    parts: NDArray, creases: CreaseGraph, width: float, side_share: float, change_cost: float
 ) -> NDArray[np.int64] | None:
-    """The banded min cut on one graph (faces or coarse nodes); None when nothing moves."""
+    """The banded min cut on the crease graph (parts per node); None when nothing moves."""
+    graph, areas, capacity = creases.graph, creases.areas, creases.capacity
     node_count = len(parts)
     part_count = int(parts.max()) + 1
     pairs = graph.pairs
@@ -186,11 +218,10 @@ def _snap(
     # Seeds: the nodes on each boundary (a node on several: its lowest boundary id).
     seed_boundary = np.full(node_count, boundary_count, dtype=np.int64)
     np.minimum.at(seed_boundary, pairs[cut].reshape(-1), np.repeat(boundary_of_edge, 2))
-    indptr, neighbour = _csr(np.ascontiguousarray(pairs, dtype=np.int64), node_count)
     distance, owner = _dijkstra(
-        indptr,
-        neighbour,
-        np.ascontiguousarray(centroids, dtype=np.float64),
+        creases.indptr,
+        creases.neighbour,
+        creases.centroids,
         parts,
         seed_boundary,
         boundary_low,
@@ -221,32 +252,30 @@ def _snap(
     return None if np.array_equal(refined, parts) else refined
 
 
-def _coarse_problem(
-    parts: NDArray,
+def _coarse_graph(
     graph: FaceGraph,
     areas: NDArray,
     centroids: NDArray,
     capacity: NDArray,
     target_nodes: int,
-) -> tuple[NDArray, FaceGraph, NDArray, NDArray, NDArray, NDArray]:
-    """The problem on coarse nodes: connected pieces of one part in one grid cell, never
-    grouped across a concave crease; cells sized for about ``target_nodes`` nodes.
+) -> tuple[FaceGraph, NDArray, NDArray, NDArray, NDArray]:
+    """Coarse nodes: connected pieces of one grid cell, never grouped across a concave
+    crease; cells sized for about ``target_nodes`` nodes.
 
-    Returns (node parts, node graph, node areas, node centroids, edge capacities,
-    coarse node of each face); nodes are numbered by their lowest face.
+    Returns (node graph, node areas, node centroids, edge capacities, node of each face);
+    nodes are numbered by their lowest face.
     """
     total = float(areas.sum())
     coarse = _coarsen(
         np.ascontiguousarray(graph.pairs, dtype=np.int64),
         np.ascontiguousarray(graph.edge_length, dtype=np.float64),
         np.ascontiguousarray(capacity, dtype=np.float64),
-        np.ascontiguousarray(centroids, dtype=np.float64),
+        centroids,
         areas if total > 0 else np.ones(len(areas)),
-        parts,
         total / target_nodes,
         CREASE_RATIO,
     )
-    coarse_of, node_parts, node_areas, node_centroids, node_pairs, lengths, node_capacity = coarse
+    node_of, node_areas, node_centroids, node_pairs, lengths, node_capacity = coarse
     if not total > 0:
         node_areas = np.zeros(len(node_areas))
     node_graph = FaceGraph(
@@ -255,9 +284,9 @@ def _coarse_problem(
         edge_length=lengths,
         dihedral=np.zeros(len(node_pairs)),
         concave=np.zeros(len(node_pairs), dtype=bool),
-        face_count=len(node_parts),
+        face_count=len(node_areas),
     )
-    return node_parts, node_graph, node_areas, node_centroids, node_capacity, coarse_of
+    return node_graph, node_areas, node_centroids, node_capacity, node_of
 
 
 def _min_cut_in_bands(
@@ -312,13 +341,13 @@ def _min_cut_in_bands(
 
 @kernel
 def _coarsen(
-    pairs, edge_length, capacity, centroids, weight, parts, cell_area, crease_ratio
+    pairs, edge_length, capacity, centroids, weight, cell_area, crease_ratio
 ):  # pragma: no cover - numba
-    """Union-find of faces sharing a grid cell and a part across non-crease edges, then
-    the coarse nodes (numbered by lowest face: parts, weights, weighted centroids) and
+    """Union-find of faces sharing a grid cell across non-crease edges, then the coarse
+    nodes (numbered by lowest face: weights, weighted centroids) and
     their edges (lengths and capacities summed; duplicates merged without sorting).
     Cells are cubes of side sqrt(``cell_area``) (without area: the extent over 200)."""
-    node_count = len(parts)
+    node_count = len(weight)
     low_corner = np.empty(3)
     high_corner = np.empty(3)
     for axis in range(3):
@@ -338,7 +367,7 @@ def _coarsen(
     root = np.arange(node_count)
     for e in range(pairs.shape[0]):
         f, g = pairs[e, 0], pairs[e, 1]
-        if capacity[e] < crease_ratio * edge_length[e] or parts[f] != parts[g]:
+        if capacity[e] < crease_ratio * edge_length[e]:
             continue
         if cell_of[f] != cell_of[g]:
             continue
@@ -364,12 +393,10 @@ def _coarsen(
             count += 1
         else:
             piece[f] = piece[r]
-    node_parts = np.empty(count, dtype=np.int64)
     node_weight = np.zeros(count)
     node_centroids = np.zeros((count, 3))
     for f in range(node_count):
         c = piece[f]
-        node_parts[c] = parts[f]
         node_weight[c] += weight[f]
         for axis in range(3):
             node_centroids[c, axis] += weight[f] * centroids[f, axis]
@@ -413,13 +440,30 @@ def _coarsen(
             capacities[slot_of[high]] += capacity[e]
     return (
         piece,
-        node_parts,
         node_weight,
         node_centroids,
         node_pairs[:edges].copy(),
         lengths[:edges].copy(),
         capacities[:edges].copy(),
     )
+
+
+@kernel
+def _majority_parts(node_of, parts, areas, node_count):  # pragma: no cover - numba
+    """Each node's part: a weighted majority vote (Boyer-Moore) of its faces' parts, by
+    area, in face order; exact wherever one part holds more than half of a node."""
+    choice = np.full(node_count, -1, dtype=np.int64)
+    weight = np.zeros(node_count)
+    for f in range(len(node_of)):
+        node = node_of[f]
+        if choice[node] == parts[f]:
+            weight[node] += areas[f]
+        elif weight[node] > areas[f]:
+            weight[node] -= areas[f]
+        else:
+            weight[node] = areas[f] - weight[node]
+            choice[node] = parts[f]
+    return choice
 
 
 @kernel

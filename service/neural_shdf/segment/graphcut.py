@@ -365,13 +365,36 @@ def coarse_graph(
     ca, cb = coarse_of[pairs[:, 0]], coarse_of[pairs[:, 1]]
     cross = np.flatnonzero(ca != cb)
     low, high = np.minimum(ca[cross], cb[cross]), np.maximum(ca[cross], cb[cross])
-    order = np.argsort(low * np.int64(coarse_count) + high, kind="stable")
+    order = _pair_order(low, high, coarse_count)
     low, high = low[order], high[order]
     if len(order) == 0:
         return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
     starts = np.flatnonzero(np.r_[True, (low[1:] != low[:-1]) | (high[1:] != high[:-1])])
     summed = np.add.reduceat(np.asarray(weights, dtype=np.float64)[cross[order]], starts)
     return np.stack([low[starts], high[starts]], axis=1), summed
+
+
+@kernel
+def _pair_order(low, high, count):  # pragma: no cover - compiled
+    """``argsort(low * count + high, kind="stable")`` for ids in 0..count-1, in O(n + count):
+    a stable counting sort by ``high``, then by ``low``."""
+    by_high = _counting_order(high, np.arange(len(high)), count)
+    return _counting_order(low, by_high, count)
+
+
+@kernel(inline=True)
+def _counting_order(keys, order, count):  # pragma: no cover - compiled
+    """``order`` stably re-sorted by ``keys[order]`` (keys in 0..count-1)."""
+    start = np.zeros(count + 1, dtype=np.int64)
+    for i in range(len(keys)):
+        start[keys[i] + 1] += 1
+    for key in range(count):
+        start[key + 1] += start[key]
+    result = np.empty(len(order), dtype=np.int64)
+    for i in order:
+        result[start[keys[i]]] = i
+        start[keys[i]] += 1
+    return result
 
 
 def coarse_data(coarse_of: NDArray, data: NDArray, coarse_count: int) -> NDArray[np.float64]:

@@ -282,9 +282,17 @@ def merge_tree(
     )
 
 
-#: Automatic part count: merges costing more than this are not made. Tuned on the same
-#: 57 psb-dev models: 1-RI 0.153 for 0.007-0.0095 (6.3-6.8 parts; humans' 6.6).
-AUTO_COST_THRESHOLD = 0.008
+#: Automatic part count: merges costing more than this are not made, for leaves whose
+#: boundaries were moved onto creases (``crease_boundaries``, the default). Tuned on the
+#: same 57 psb-dev models for CD at 1-RI <= 0.15: CD 0.232 / 1-RI 0.149 (0.0045: 0.247,
+#: 0.0055: 0.236, 0.006: 0.250, 0.008: 0.249 / 0.149 but held out 0.285); held out 0.250 /
+#: 0.142. Missing a cut the humans make costs CD more than one extra cut: at the humans'
+#: count +1 CD is 0.26, at -1 it is 0.29, so the threshold errs towards more parts.
+AUTO_COST_THRESHOLD = 0.005
+#: The same for leaves straight from the graph cut (``crease_boundaries`` off), tuned the
+#: same way: 1-RI 0.152 / CD 0.279 (0.007-0.0095: 6.3-6.8 parts; humans' 6.6); 0.005
+#: gives CD 0.261 but 1-RI 0.160.
+AUTO_COST_THRESHOLD_UNREFINED = 0.008
 
 
 def automatic_part_count(tree: PartTree, threshold: float = AUTO_COST_THRESHOLD) -> int:
@@ -295,3 +303,9 @@ def automatic_part_count(tree: PartTree, threshold: float = AUTO_COST_THRESHOLD)
     if tree.leaf_count == 0:
         return 0
     return 1 + int(np.sum(tree.heights > threshold))
+
+
+def automatic_threshold(crease_boundaries: bool) -> float:
+    """The merge cost above which the automatic count stops merging, for leaves with
+    (``AUTO_COST_THRESHOLD``) or without (``..._UNREFINED``) crease-refined boundaries."""
+    return AUTO_COST_THRESHOLD if crease_boundaries else AUTO_COST_THRESHOLD_UNREFINED

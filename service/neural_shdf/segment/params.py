@@ -35,12 +35,12 @@ MAX_SEED = 2**31 - 1
 MAX_REFINE_DEPTH = 8
 #: Parts smaller than this fraction of the surface area are merged into a neighbour.
 DEFAULT_MIN_PART_FRACTION = 0.002
-#: Boundary refinement onto concave creases (``segment.creases``) is off by default: on the
-#: 57 psb-dev tuning models it lowered CD 0.279 -> 0.249 (automatic count) and 0.209 -> 0.197
-#: (humans' count), but on the 19 held-out models it raised CD 0.254 -> 0.285 and 1-RI
-#: 0.119 -> 0.133 at the automatic count (0.165 -> 0.170 / 0.113 -> 0.112 at the humans'),
-#: the human body set went 0.631 -> 0.628, and it adds ~40 ms to a 100k-face re-cut.
-DEFAULT_CREASE_BOUNDARIES = False
+#: Boundary refinement onto concave creases (``segment.creases``) is on by default: with
+#: the automatic count's threshold tuned for it (``hierarchy.AUTO_COST_THRESHOLD``), CD on
+#: all 76 psb-dev models is 0.237 against 0.271 without (1-RI 0.147 / 0.144); on the 19
+#: held-out models 0.250 / 0.142 against 0.254 / 0.119; at the humans' count 0.190 / 0.127
+#: against 0.198 / 0.130. The human body set is unchanged (0.628 / 0.631).
+DEFAULT_CREASE_BOUNDARIES = True
 #: How many times refinement may re-segment a part of a part.
 DEFAULT_REFINE_DEPTH = 2
 

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
-from neural_shdf.segment.creases import snap_boundaries_to_creases
+from neural_shdf.segment.creases import CreaseGraph, crease_graph, snap_boundaries_to_creases
 from neural_shdf.segment.graphcut import (
     CutHierarchy,
     cut_hierarchy,
@@ -31,7 +31,12 @@ from neural_shdf.segment.graphcut import (
     dihedral_weights,
     multilevel_alpha_expansion,
 )
-from neural_shdf.segment.hierarchy import PartTree, automatic_part_count, merge_tree
+from neural_shdf.segment.hierarchy import (
+    PartTree,
+    automatic_part_count,
+    automatic_threshold,
+    merge_tree,
+)
 from neural_shdf.segment.metis import metis_edge_weights, metis_partition
 from neural_shdf.segment.mixture import Mixture, fit_best_mixture, fit_mixture
 from neural_shdf.segment.params import (
@@ -57,6 +62,8 @@ class SegmentResult:
     timings: dict[str, float] = field(default_factory=dict)
     #: The graph cut's merge tree (None for ``metis``): ``labels`` is one of its cuts.
     tree: PartTree | None = None
+    #: The tree's automatic part count (what ``parts=None`` cuts it at); 0 without a tree.
+    automatic_parts: int = 0
 
     @property
     def part_count(self) -> int:
@@ -107,6 +114,7 @@ class SegmentBasis:
     unit_weights: NDArray[np.float64]
     seconds: float = 0.0
     _cut: CutHierarchy | None = field(default=None, repr=False)
+    _creases: CreaseGraph | None = field(default=None, repr=False)
 
     def cut(self, graph: FaceGraph) -> CutHierarchy:
         """The graph cut's coarse graphs over ``graph`` (built once)."""
@@ -119,6 +127,12 @@ class SegmentBasis:
                 self.geometry.areas,
             )
         return self._cut
+
+    def creases(self, graph: FaceGraph) -> CreaseGraph:
+        """The crease refinement's graph and edge costs over ``graph`` (built once)."""
+        if self._creases is None:
+            self._creases = crease_graph(graph, self.geometry.areas, self.geometry.centroids)
+        return self._creases
 
     def matches(self, params: SegmentParams, shdf: NDArray) -> bool:
         """Whether this basis is the one ``params`` on a mesh with this ShDF needs (one pass
@@ -137,6 +151,8 @@ class SegmentBasis:
         arrays = (self.shdf, self.values, self.posteriors, self.data, self.unit_weights)
         geometry = (self.geometry.areas, self.geometry.centroids, self.geometry.face_weight)
         size = sum(a.nbytes for a in arrays + geometry)
+        if self._creases is not None:
+            size += self._creases.nbytes
         if self._cut is not None:
             finest = self._cut.levels[0]  # shares the data, weights and the graph's pairs
             size += self._cut.nbytes - finest.data.nbytes - finest.unit_weights.nbytes
@@ -152,8 +168,13 @@ def prepare_segment(
     graph: FaceGraph,
     *,
     areas: NDArray | None = None,
+    creases: CreaseGraph | None = None,
 ) -> SegmentBasis:
-    """The ``SegmentBasis`` of a mesh, its ShDF and ``params.clusters``/``params.seed``."""
+    """The ``SegmentBasis`` of a mesh, its ShDF and ``params.clusters``/``params.seed``.
+
+    ``creases``: the mesh's ``crease_graph`` where the caller keeps it per mesh (it does
+    not depend on the ShDF or the mixture); else built on first use.
+    """
     start = time.perf_counter()
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     shdf = validate(faces, shdf, params, graph)
@@ -176,6 +197,7 @@ def prepare_segment(
         data=data_costs(posteriors, geometry.face_weight),
         unit_weights=dihedral_weights(graph, 1.0),
         seconds=time.perf_counter() - start,
+        _creases=creases,
     )
 
 
@@ -252,7 +274,12 @@ def segment_with_details(
         lap("merge_small")
         if params.crease_boundaries:  # the tree's leaves (metis: its automatic count)
             parts = snap_boundaries_to_creases(
-                parts, graph, geometry.areas, geometry.centroids, params.min_part_fraction
+                parts,
+                graph,
+                geometry.areas,
+                geometry.centroids,
+                params.min_part_fraction,
+                creases=basis.creases(graph),
             )
             lap("crease_boundaries")
 
@@ -261,7 +288,7 @@ def segment_with_details(
             count = params.parts
         else:  # the graph cut's automatic count
             tree = merge_tree(canonical_labels(parts), graph, geometry.areas, values)
-            count = automatic_part_count(tree)
+            count = automatic_part_count(tree, automatic_threshold(params.crease_boundaries))
         weights = metis_edge_weights(edge_weights, posteriors, graph.pairs)
         parts = metis_partition(
             graph,
@@ -296,10 +323,10 @@ def segment_with_details(
 
     # Graph cut: its parts are the leaves of the merge tree; cut it at the asked count.
     tree = merge_tree(canonical_labels(parts), graph, geometry.areas, values)
-    count = automatic_part_count(tree) if params.parts is None else params.parts
-    labels = tree.labels(count)
+    automatic = automatic_part_count(tree, automatic_threshold(params.crease_boundaries))
+    labels = tree.labels(automatic if params.parts is None else params.parts)
     lap("hierarchy")
-    return SegmentResult(labels, basis.mixture.size, smoothing, timings, tree)
+    return SegmentResult(labels, basis.mixture.size, smoothing, timings, tree, automatic)
 
 
 def cut_into_parts(

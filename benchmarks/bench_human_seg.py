@@ -6,12 +6,13 @@ parts are matched one-to-one to the labels (maximum total overlap); faces of an
 unmatched part count as wrong (``evaluate.metrics.matched_accuracy``). Exact ShDF.
 
 Rows: ``before-tree`` (graph cut, lambda 0.12, every part it finds, no crease
-refinement: the segmentation before the part tree), ``tree-auto`` (the default),
+refinement: the segmentation before the part tree), ``tree-auto`` (the default:
+boundaries moved onto concave creases, then the part tree at its automatic count),
 ``tree-N8`` (the part tree cut at 8 parts), ``metis-N8`` (METIS, exactly 8 parts);
-``-crease``: the same with boundaries first moved onto concave creases
-(``crease_boundaries=True``, off by default). ``ceiling``: the labels' own
-largest connected region per label; 7 of the 8 labels are left/right pairs (two
-regions), so 8 connected parts cannot match more than this share one-to-one.
+``-plain``: the same without the crease refinement (``crease_boundaries=False``).
+``ceiling``: the labels' own largest connected region per label; 7 of the 8 labels
+are left/right pairs (two regions), so 8 connected parts cannot match more than this
+share one-to-one.
 The paper reports 94.2% on this set with its own (per-label) protocol.
 
     python benchmarks/bench_human_seg.py [--limit N] [--every K] [--cache-dir DIR]
@@ -38,9 +39,9 @@ DEFAULT_CACHE = Path.home() / ".cache" / "neural-shdf" / "human-seg"
 ROWS = {
     "before-tree": (SegmentParams(smoothing=0.12, crease_boundaries=False), "leaves"),
     "tree-auto": (SegmentParams(), "labels"),
-    "tree-auto-crease": (SegmentParams(crease_boundaries=True), "labels"),
+    "tree-auto-plain": (SegmentParams(crease_boundaries=False), "labels"),
     "tree-N8": (SegmentParams(parts=8), "labels"),
-    "tree-N8-crease": (SegmentParams(parts=8, crease_boundaries=True), "labels"),
+    "tree-N8-plain": (SegmentParams(parts=8, crease_boundaries=False), "labels"),
     "metis-N8": (SegmentParams(partitioner="metis", parts=8), "labels"),
 }
 

@@ -6,13 +6,14 @@ Default rows, from our exact ShDF unless named ``neural-`` (CGAL's are its own):
 
 * ``before-tree``: the segmentation before the part tree (graph cut, lambda 0.12,
   every part it finds, no crease refinement: ``exact-graphcut-leaves``);
-* ``tree-auto``: the default (``exact-graphcut``): the part tree over the graph cut's
-  parts, cut where the merge cost jumps;
-* ``tree-auto-crease``: the same with the parts' boundaries first moved onto concave
-  creases (``segment.creases``, ``crease_boundaries``, off by default);
+* ``tree-auto``: the default (``exact-graphcut``): the graph cut's part boundaries moved
+  onto concave creases (``segment.creases``), then the part tree over those parts, cut
+  where the merge cost passes the automatic threshold;
+* ``tree-auto-plain``: the same without the crease refinement (``crease_boundaries``
+  off, the default before; its own threshold);
 * ``tree-humansN``: the part tree cut at the humans' most frequent part count of each
   model (``exact-graphcut-humanparts``), the benchmark's protocol for methods that
-  take a count; ``tree-humansN-crease`` with the crease refinement;
+  take a count; ``tree-humansN-plain`` without the crease refinement;
 * ``metis-humansN``: METIS given the same count (``exact-metis-humanparts``);
 * ``metis-auto``: METIS given the part tree's automatic count (``exact-metis``);
 * ``neural-tree-auto``: the neural ShDF (the ONNX network) with the default
@@ -56,9 +57,9 @@ DEFAULT_BENCH = REPO_ROOT / ".." / "shared" / "data" / "psb-dev"
 ROWS: dict[str, tuple[str, dict]] = {
     "before-tree": ("exact-graphcut-leaves", {"smoothing": 0.12, "crease_boundaries": False}),
     "tree-auto": ("exact-graphcut", {}),
-    "tree-auto-crease": ("exact-graphcut", {"crease_boundaries": True}),
+    "tree-auto-plain": ("exact-graphcut", {"crease_boundaries": False}),
     "tree-humansN": ("exact-graphcut-humanparts", {}),
-    "tree-humansN-crease": ("exact-graphcut-humanparts", {"crease_boundaries": True}),
+    "tree-humansN-plain": ("exact-graphcut-humanparts", {"crease_boundaries": False}),
     "metis-humansN": ("exact-metis-humanparts", {}),
     "metis-auto": ("exact-metis", {}),
     "neural-tree-auto": ("neural-graphcut", {}),

@@ -251,7 +251,7 @@ def _add_segment_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--crease-boundaries", action=argparse.BooleanOptionalAction,
                         default=DEFAULT_CREASE_BOUNDARIES,
                         help="move the graph cut's part boundaries onto nearby concave creases "
-                             "(a min cut in a band around each boundary)")
+                             "(a min cut in a band around each boundary; default: on)")
 
 
 def cmd_batch(args: argparse.Namespace) -> int:

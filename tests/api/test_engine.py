@@ -277,6 +277,9 @@ def test_new_smoothing_values_reuse_the_mesh_basis(app_factory, capsule_obj):
         answers = [client.post("/v1/segment", json=body).json() for body in bodies]
     prepared = [key for key in engine.cache._working if ":basis:" in key]
     assert len(prepared) == 2, prepared  # default clusters, and clusters=3
+    # The crease refinement's graph depends on the mesh only: both bases share one.
+    first, second = (engine.cache.working_set(key) for key in prepared)
+    assert first.creases(None) is second.creases(None)
     mesh = load_mesh(capsule_obj, file_type="obj")
     shdf = compute_shdf(mesh, method=TEST_METHOD, model=MODEL_FILE)
     for body, answer in zip(bodies, answers, strict=True):

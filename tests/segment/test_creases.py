@@ -13,7 +13,7 @@ from neural_shdf.segment.creases import (
 )
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import canonical_labels
-from neural_shdf.segment.pipeline import segment_with_details
+from neural_shdf.segment.pipeline import prepare_segment, segment_with_details
 from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
 
 
@@ -122,3 +122,20 @@ def test_every_cut_of_the_tree_has_the_refined_boundaries(dumbbell_case):
         )
         np.testing.assert_array_equal(asked.tree.leaf_labels, whole.tree.leaf_labels)
         np.testing.assert_array_equal(asked.labels, whole.tree.labels(parts))
+
+
+def test_a_kept_crease_graph_serves_every_mixture_of_the_mesh(dumbbell_case):
+    vertices, faces, shdf, graph, areas, centroids = dumbbell_case
+    creases = crease_graph(graph, areas, centroids, coarse_above=1_000, coarse_nodes=800)
+    for clusters in (3, 5):
+        params = SegmentParams(clusters=clusters, smoothing=0.02, crease_boundaries=True)
+        basis = prepare_segment(vertices, faces, shdf, params, graph, areas=areas, creases=creases)
+        kept = segment_with_details(vertices, faces, shdf, params, graph, basis=basis)
+        plain = segment_with_details(
+            vertices, faces, shdf, replace(params, crease_boundaries=False), graph, areas=areas
+        )
+        expected = snap_boundaries_to_creases(
+            plain.tree.leaf_labels, graph, areas, centroids, 0.002, creases=creases
+        )
+        assert basis.creases(graph) is creases
+        np.testing.assert_array_equal(kept.tree.leaf_labels, expected)

@@ -115,6 +115,31 @@ def test_graphcut_parts_cut_its_merge_tree(dumbbell_case):
     np.testing.assert_array_equal(many, whole.tree.leaf_labels)
 
 
+@pytest.mark.parametrize("creases", [True, False])
+def test_the_automatic_count_uses_the_threshold_tuned_for_its_leaves(
+    dumbbell_case, monkeypatch, creases
+):
+    """With boundaries on creases (the default) the tree is cut at AUTO_COST_THRESHOLD,
+    without at AUTO_COST_THRESHOLD_UNREFINED; the result says which count that was."""
+    from neural_shdf.segment import hierarchy
+
+    vertices, faces, shdf, graph, _ = dumbbell_case
+    params = SegmentParams(smoothing=0.02, crease_boundaries=creases)
+    result = segment_with_details(vertices, faces, shdf, params, graph)
+    expected = hierarchy.automatic_part_count(result.tree, hierarchy.automatic_threshold(creases))
+    assert result.automatic_parts == result.part_count == expected > 1
+    # A threshold above every merge cost leaves one part, for its own mode only.
+    name = "AUTO_COST_THRESHOLD" if creases else "AUTO_COST_THRESHOLD_UNREFINED"
+    monkeypatch.setattr(hierarchy, name, 1e9)
+    again = segment_with_details(vertices, faces, shdf, params, graph)
+    assert again.automatic_parts == again.part_count == 1
+    other = replace(params, crease_boundaries=not creases)
+    assert segment_with_details(vertices, faces, shdf, other, graph).automatic_parts > 1
+    # An asked count does not change the automatic one.
+    asked = segment_with_details(vertices, faces, shdf, replace(params, parts=2), graph)
+    assert asked.part_count == 2 and asked.automatic_parts == 1
+
+
 def test_metis_has_no_tree(dumbbell_case):
     vertices, faces, shdf, graph, _ = dumbbell_case
     params = SegmentParams(partitioner="metis", parts=3)
@@ -241,6 +266,7 @@ def test_a_kept_basis_gives_the_same_labels_for_every_later_parameter(dumbbell_c
         {"parts": 2},
         {"refine": True},
         {"boundary_smoothing": True},
+        {"crease_boundaries": False},
         {"partitioner": "metis", "parts": 3},
     ):
         params = SegmentParams(clusters=clusters, **changes)

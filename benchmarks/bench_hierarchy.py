@@ -38,7 +38,7 @@ from timing import best_time
 
 from neural_shdf.geometry import build_face_graph, face_centroids, face_normals, weld_faces
 from neural_shdf.segment.creases import crease_graph, snap_boundaries_to_creases
-from neural_shdf.segment.hierarchy import automatic_part_count, automatic_threshold, merge_tree
+from neural_shdf.segment.hierarchy import automatic_part_count, merge_tree
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.pipeline import prepare_segment, segment_with_details
 from neural_shdf.segment.synthetic import dumbbell
@@ -148,7 +148,7 @@ def main() -> None:
 
     def build_and_cut():
         built = merge_tree(leaves, graph, areas, values)
-        return built.labels(automatic_part_count(built, automatic_threshold(True)))
+        return built.labels(automatic_part_count(built))
 
     wall, cpu, _ = best_time(build_and_cut, args.repeat)
     print(

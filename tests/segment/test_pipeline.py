@@ -116,25 +116,20 @@ def test_graphcut_parts_cut_its_merge_tree(dumbbell_case):
 
 
 @pytest.mark.parametrize("creases", [True, False])
-def test_the_automatic_count_uses_the_threshold_tuned_for_its_leaves(
-    dumbbell_case, monkeypatch, creases
-):
-    """With boundaries on creases (the default) the tree is cut at AUTO_COST_THRESHOLD,
-    without at AUTO_COST_THRESHOLD_UNREFINED; the result says which count that was."""
+def test_the_result_says_which_count_the_automatic_cut_is(dumbbell_case, monkeypatch, creases):
+    """``automatic_parts``: where the tree is cut without ``parts`` (AUTO_COST_THRESHOLD),
+    also when a count was asked."""
     from neural_shdf.segment import hierarchy
 
     vertices, faces, shdf, graph, _ = dumbbell_case
     params = SegmentParams(smoothing=0.02, crease_boundaries=creases)
     result = segment_with_details(vertices, faces, shdf, params, graph)
-    expected = hierarchy.automatic_part_count(result.tree, hierarchy.automatic_threshold(creases))
+    expected = hierarchy.automatic_part_count(result.tree)
     assert result.automatic_parts == result.part_count == expected > 1
-    # A threshold above every merge cost leaves one part, for its own mode only.
-    name = "AUTO_COST_THRESHOLD" if creases else "AUTO_COST_THRESHOLD_UNREFINED"
-    monkeypatch.setattr(hierarchy, name, 1e9)
+    # A threshold above every merge cost leaves one part.
+    monkeypatch.setattr(hierarchy.automatic_part_count, "__defaults__", (1e9,))
     again = segment_with_details(vertices, faces, shdf, params, graph)
     assert again.automatic_parts == again.part_count == 1
-    other = replace(params, crease_boundaries=not creases)
-    assert segment_with_details(vertices, faces, shdf, other, graph).automatic_parts > 1
     # An asked count does not change the automatic one.
     asked = segment_with_details(vertices, faces, shdf, replace(params, parts=2), graph)
     assert asked.part_count == 2 and asked.automatic_parts == 1

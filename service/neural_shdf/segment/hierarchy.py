@@ -37,11 +37,17 @@ from numpy.typing import NDArray
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph
 
-# The weights were tuned on 57 psb-dev models (the 4th model of each category held out)
-# for the Rand index at the humans' most frequent part count: 1-RI 0.1357 (held out 0.1126).
+# The weights were tuned on 57 psb-dev models (the 4th model of each category held out):
+# first for the Rand index at the humans' most frequent part count (1-RI 0.1357, held out
+# 0.1126), then the size exponent (1 -> 0.5) with the automatic threshold for the cut
+# discrepancy at the automatic count, on leaves with boundaries on creases (the
+# default): CD 0.216 / 1-RI 0.139 (held out 0.192 / 0.122) against 0.232 / 0.149 (0.250 /
+# 0.142) with exponent 1. Size exponents 0.25 and 0.5 with neck exponents 1.5-2.5 and
+# concavity weights 6-12 scored 0.208-0.224 at their best thresholds (0.75: 0.218-0.32);
+# of those within 0.01 of the best, 0.5 alone changes only one weight.
 
 #: Exponent of the smaller part's area share: small parts merge first.
-SIZE_EXPONENT = 1.0
+SIZE_EXPONENT = 0.5
 #: Exponent of the neck ratio (shared boundary length over sqrt(smaller area)).
 NECK_EXPONENT = 2.0
 #: Cost of merging two parts with the same ShDF across a flat boundary, relative to
@@ -282,17 +288,13 @@ def merge_tree(
     )
 
 
-#: Automatic part count: merges costing more than this are not made, for leaves whose
-#: boundaries were moved onto creases (``crease_boundaries``, the default). Tuned on the
-#: same 57 psb-dev models for CD at 1-RI <= 0.15: CD 0.232 / 1-RI 0.149 (0.0045: 0.247,
-#: 0.0055: 0.236, 0.006: 0.250, 0.008: 0.249 / 0.149 but held out 0.285); held out 0.250 /
-#: 0.142. Missing a cut the humans make costs CD more than one extra cut: at the humans'
-#: count +1 CD is 0.26, at -1 it is 0.29, so the threshold errs towards more parts.
-AUTO_COST_THRESHOLD = 0.005
-#: The same for leaves straight from the graph cut (``crease_boundaries`` off), tuned the
-#: same way: 1-RI 0.152 / CD 0.279 (0.007-0.0095: 6.3-6.8 parts; humans' 6.6); 0.005
-#: gives CD 0.261 but 1-RI 0.160.
-AUTO_COST_THRESHOLD_UNREFINED = 0.008
+#: Automatic part count: merges costing more than this are not made. Tuned on the same 57
+#: models for CD at 1-RI <= 0.15, the same for leaves with and without boundaries on
+#: creases: with them CD 0.216 / 1-RI 0.139 (0.0175: 0.226, 0.025: 0.223, 0.015: 0.235,
+#: 0.03: 0.243), without 0.227 / 0.143 (0.0175: 0.228, 0.025: 0.243). Missing a cut the
+#: humans make costs CD more than one cut too many, so it errs towards more parts (8.5
+#: on average against the humans' 7.1).
+AUTO_COST_THRESHOLD = 0.02
 
 
 def automatic_part_count(tree: PartTree, threshold: float = AUTO_COST_THRESHOLD) -> int:
@@ -303,9 +305,3 @@ def automatic_part_count(tree: PartTree, threshold: float = AUTO_COST_THRESHOLD)
     if tree.leaf_count == 0:
         return 0
     return 1 + int(np.sum(tree.heights > threshold))
-
-
-def automatic_threshold(crease_boundaries: bool) -> float:
-    """The merge cost above which the automatic count stops merging, for leaves with
-    (``AUTO_COST_THRESHOLD``) or without (``..._UNREFINED``) crease-refined boundaries."""
-    return AUTO_COST_THRESHOLD if crease_boundaries else AUTO_COST_THRESHOLD_UNREFINED

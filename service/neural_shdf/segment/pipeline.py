@@ -31,12 +31,7 @@ from neural_shdf.segment.graphcut import (
     dihedral_weights,
     multilevel_alpha_expansion,
 )
-from neural_shdf.segment.hierarchy import (
-    PartTree,
-    automatic_part_count,
-    automatic_threshold,
-    merge_tree,
-)
+from neural_shdf.segment.hierarchy import PartTree, automatic_part_count, merge_tree
 from neural_shdf.segment.metis import metis_edge_weights, metis_partition
 from neural_shdf.segment.mixture import Mixture, fit_best_mixture, fit_mixture
 from neural_shdf.segment.params import (
@@ -288,7 +283,7 @@ def segment_with_details(
             count = params.parts
         else:  # the graph cut's automatic count
             tree = merge_tree(canonical_labels(parts), graph, geometry.areas, values)
-            count = automatic_part_count(tree, automatic_threshold(params.crease_boundaries))
+            count = automatic_part_count(tree)
         weights = metis_edge_weights(edge_weights, posteriors, graph.pairs)
         parts = metis_partition(
             graph,
@@ -323,7 +318,7 @@ def segment_with_details(
 
     # Graph cut: its parts are the leaves of the merge tree; cut it at the asked count.
     tree = merge_tree(canonical_labels(parts), graph, geometry.areas, values)
-    automatic = automatic_part_count(tree, automatic_threshold(params.crease_boundaries))
+    automatic = automatic_part_count(tree)
     labels = tree.labels(automatic if params.parts is None else params.parts)
     lap("hierarchy")
     return SegmentResult(labels, basis.mixture.size, smoothing, timings, tree, automatic)

@@ -40,7 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
-from neural_shdf.geometry import FaceGraph
+from neural_shdf.geometry import FaceGraph, adjacency_lists
 from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
 
 # Tuned on the 57 psb-dev tuning models (ids 1-3 of each category), exact ShDF, for the
@@ -144,7 +144,7 @@ def crease_graph(
         graph, areas, centroids, capacity, node_of = _coarse_graph(
             graph, areas, centroids, capacity, coarse_nodes
         )
-    indptr, neighbour = _csr(np.ascontiguousarray(graph.pairs, dtype=np.int64), graph.face_count)
+    indptr, neighbour = adjacency_lists(graph.pairs, graph.face_count)
     return CreaseGraph(graph, areas, centroids, capacity, indptr, neighbour, node_of)
 
 
@@ -464,26 +464,6 @@ def _majority_parts(node_of, parts, areas, node_count):  # pragma: no cover - nu
             weight[node] = areas[f] - weight[node]
             choice[node] = parts[f]
     return choice
-
-
-@kernel
-def _csr(pairs, node_count):  # pragma: no cover - numba
-    """CSR adjacency: (indptr, neighbour), each node's neighbours in edge order."""
-    indptr = np.zeros(node_count + 1, dtype=np.int64)
-    for e in range(pairs.shape[0]):
-        indptr[pairs[e, 0] + 1] += 1
-        indptr[pairs[e, 1] + 1] += 1
-    for node in range(node_count):
-        indptr[node + 1] += indptr[node]
-    fill = indptr[:-1].copy()
-    neighbour = np.empty(2 * pairs.shape[0], dtype=np.int64)
-    for e in range(pairs.shape[0]):
-        f, g = pairs[e, 0], pairs[e, 1]
-        neighbour[fill[f]] = g
-        fill[f] += 1
-        neighbour[fill[g]] = f
-        fill[g] += 1
-    return indptr, neighbour
 
 
 @kernel

@@ -119,9 +119,7 @@ def cmd_segment(args: argparse.Namespace) -> int:
     face_labels, face_leaves = input_face_parts(mesh, result)
     write_labels(args.output, face_labels)
     if args.tree:
-        write_part_tree(
-            args.tree, result.tree, face_leaves, result.part_count, result.automatic_parts
-        )
+        write_part_tree(args.tree, result.tree, face_leaves, result.part_count)
     if args.colored:
         Path(args.colored).write_bytes(colored_glb(mesh, labels))
     if args.parts_glb:

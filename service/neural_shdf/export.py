@@ -291,24 +291,23 @@ def read_values(path: str | Path) -> NDArray[np.float64]:
     return np.array(_read_column(path, float, "a number"), dtype=np.float64)
 
 
-def part_tree_document(
-    tree: PartTree, leaf_labels: NDArray, parts: int, automatic_parts: int
-) -> dict[str, Any]:
+def part_tree_document(tree: PartTree, leaf_labels: NDArray, parts: int) -> dict[str, Any]:
     """The part tree as JSON-ready data (the API's ``hierarchy`` and the CLI's ``--tree``).
 
     ``leaf_labels``: leaf per face of the output (e.g. per input face; -1 for none).
     Keys: ``leaf_count`` L; ``parts`` (the count the labels were cut at);
-    ``automatic_parts`` (the segmentation's automatic count, ``SegmentResult``);
-    ``leaf_labels``; ``parent`` (2L - 1 node ids, -1 for the
+    ``automatic_parts``; ``leaf_labels``; ``parent`` (2L - 1 node ids, -1 for the
     root; leaves are 0..L-1, merge i made node L + i); ``merge_cost`` and
     ``merge_height`` (L - 1; height: running maximum of the cost). To cut at N
     parts, give each leaf its highest ancestor with id < 2L - N (itself when its
     parent's id is >= 2L - N) and number the parts by their smallest leaf.
     """
+    from neural_shdf.segment.hierarchy import automatic_part_count
+
     return {
         "leaf_count": tree.leaf_count,
         "parts": int(parts),
-        "automatic_parts": int(automatic_parts),
+        "automatic_parts": automatic_part_count(tree),
         "leaf_labels": np.asarray(leaf_labels, dtype=np.int64).tolist(),
         "parent": tree.parent.tolist(),
         "merge_cost": [float(c) for c in tree.costs],
@@ -316,12 +315,9 @@ def part_tree_document(
     }
 
 
-def write_part_tree(
-    path: str | Path, tree: PartTree, leaf_labels: NDArray, parts: int, automatic_parts: int
-) -> None:
+def write_part_tree(path: str | Path, tree: PartTree, leaf_labels: NDArray, parts: int) -> None:
     """Write ``part_tree_document`` as a JSON file."""
-    document = part_tree_document(tree, leaf_labels, parts, automatic_parts)
-    Path(path).write_text(json.dumps(document))
+    Path(path).write_text(json.dumps(part_tree_document(tree, leaf_labels, parts)))
 
 
 __all__ = [

@@ -116,23 +116,18 @@ def test_graphcut_parts_cut_its_merge_tree(dumbbell_case):
 
 
 @pytest.mark.parametrize("creases", [True, False])
-def test_the_result_says_which_count_the_automatic_cut_is(dumbbell_case, monkeypatch, creases):
-    """``automatic_parts``: where the tree is cut without ``parts`` (AUTO_COST_THRESHOLD),
-    also when a count was asked."""
+def test_without_parts_the_tree_is_cut_at_its_automatic_count(dumbbell_case, monkeypatch, creases):
+    """``parts=None``: the cut where merge costs pass AUTO_COST_THRESHOLD, with and without
+    boundaries on creases."""
     from neural_shdf.segment import hierarchy
 
     vertices, faces, shdf, graph, _ = dumbbell_case
     params = SegmentParams(smoothing=0.02, crease_boundaries=creases)
     result = segment_with_details(vertices, faces, shdf, params, graph)
-    expected = hierarchy.automatic_part_count(result.tree)
-    assert result.automatic_parts == result.part_count == expected > 1
+    assert result.part_count == hierarchy.automatic_part_count(result.tree) > 1
     # A threshold above every merge cost leaves one part.
     monkeypatch.setattr(hierarchy.automatic_part_count, "__defaults__", (1e9,))
-    again = segment_with_details(vertices, faces, shdf, params, graph)
-    assert again.automatic_parts == again.part_count == 1
-    # An asked count does not change the automatic one.
-    asked = segment_with_details(vertices, faces, shdf, replace(params, parts=2), graph)
-    assert asked.part_count == 2 and asked.automatic_parts == 1
+    assert segment_with_details(vertices, faces, shdf, params, graph).part_count == 1
 
 
 def test_metis_has_no_tree(dumbbell_case):

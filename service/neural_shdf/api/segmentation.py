@@ -47,7 +47,6 @@ class SegmentResult:
         default_factory=lambda: np.zeros((0, 2), dtype=np.int64)
     )
     tree_costs: NDArray[np.float64] = dataclass_field(default_factory=lambda: np.zeros(0))
-    automatic_parts: int = 0  # the tree's automatic count
 
     @property
     def tree(self) -> PartTree | None:
@@ -74,9 +73,7 @@ class SegmentResult:
             tree = self.tree
             document = None
             if tree is not None:
-                document = part_tree_document(
-                    tree, self.leaf_labels, len(self.part_faces), self.automatic_parts
-                )
+                document = part_tree_document(tree, self.leaf_labels, len(self.part_faces))
                 packed = pack_integers(self.leaf_labels) if compact else (None, None)
                 if compact:
                     document["leaf_labels"] = None
@@ -88,7 +85,6 @@ class SegmentResult:
     def arrays(self) -> dict[str, NDArray]:
         data = asdict(self)
         data["segment_seconds"] = np.array(self.segment_seconds)
-        data["automatic_parts"] = np.array(self.automatic_parts)
         return data
 
     @classmethod
@@ -103,7 +99,6 @@ class SegmentResult:
             leaf_labels=arrays["leaf_labels"],
             tree_merges=arrays["tree_merges"].reshape(-1, 2),
             tree_costs=arrays["tree_costs"],
-            automatic_parts=int(arrays["automatic_parts"]),
         )
 
 
@@ -144,7 +139,6 @@ def summarize(
         result.leaf_labels = leaves.astype(np.int32)
         result.tree_merges = segmentation.tree.merges
         result.tree_costs = segmentation.tree.costs
-        result.automatic_parts = segmentation.automatic_parts
     return result
 
 

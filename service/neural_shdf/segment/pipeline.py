@@ -57,8 +57,6 @@ class SegmentResult:
     timings: dict[str, float] = field(default_factory=dict)
     #: The graph cut's merge tree (None for ``metis``): ``labels`` is one of its cuts.
     tree: PartTree | None = None
-    #: The tree's automatic part count (what ``parts=None`` cuts it at); 0 without a tree.
-    automatic_parts: int = 0
 
     @property
     def part_count(self) -> int:
@@ -318,10 +316,10 @@ def segment_with_details(
 
     # Graph cut: its parts are the leaves of the merge tree; cut it at the asked count.
     tree = merge_tree(canonical_labels(parts), graph, geometry.areas, values)
-    automatic = automatic_part_count(tree)
-    labels = tree.labels(automatic if params.parts is None else params.parts)
+    count = automatic_part_count(tree) if params.parts is None else params.parts
+    labels = tree.labels(count)
     lap("hierarchy")
-    return SegmentResult(labels, basis.mixture.size, smoothing, timings, tree, automatic)
+    return SegmentResult(labels, basis.mixture.size, smoothing, timings, tree)
 
 
 def cut_into_parts(

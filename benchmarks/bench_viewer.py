@@ -16,8 +16,8 @@ cycling through 1..leaves), where the time goes: ``request`` (fetch of /v1/segme
 (decoding and recolouring), ``service`` (the service's own time for the request, 0 when the
 page's cache answered), ``segment`` (its partitioning), ``viewer`` (release to frame minus the
 service's time: HTTP, decoding, recolouring, drawing). The service's CPU time per new value
-(its process, all threads) is printed too: on an oversubscribed machine wall times mostly
-measure waiting for a core, CPU time much less so.
+and per new k (its process, all threads) is printed too: on an oversubscribed machine wall
+times mostly measure waiting for a core, CPU time much less so.
 
 Target: release to new colours < 150 ms at 100k faces; ratio = median / target.
 ``--screenshot`` also saves the page showing psb-dev model 381 (the README's picture).
@@ -129,9 +129,11 @@ def main() -> None:
                     sys.exit("the parts slider sent a request instead of cutting the part tree")
                 # A new mixture size k: the service fits the mixture and coarsens the graph
                 # again before cutting (its kept basis is per k).
+                cpu_before = cpu_seconds(pid)
                 new_k = [page.release_slider("clusters", k) for k in (2, 3, 4, 5, 6, 7, 8, 10)][
                     : args.repeat
                 ]
+                new_k_cpu_ms = (cpu_seconds(pid) - cpu_before) * 1000 / len(new_k)
                 cases = [("new value", cold), ("seen", warm)] + ([("parts cut", cuts)] * bool(cuts))
                 cases.append(("new k", new_k))
                 for case, runs in cases:
@@ -150,7 +152,8 @@ def main() -> None:
                     )
                 print(
                     f"  part tree: {leaves} leaves; "
-                    f"service CPU per new value: {service_cpu_ms:.0f} ms (all its threads); "
+                    f"service CPU per new value: {service_cpu_ms:.0f} ms, per new k: "
+                    f"{new_k_cpu_ms:.0f} ms (all its threads); "
                     f"upload to first parts on screen: {upload_s:.1f} s"
                 )
             errors = [e for e in page.read_console() if e["level"] == "SEVERE"]

@@ -106,17 +106,8 @@ def segment_mesh_with_details(
     """
     from neural_shdf.segment.pipeline import segment_with_details
 
-    graph = mesh_face_graph(mesh) if graph is None else graph
-    _, areas = mesh.normals_and_areas
-    return segment_with_details(
-        mesh.vertices,
-        mesh.faces,
-        np.asarray(shdf),
-        params or SegmentParams(),
-        graph,
-        areas=areas,
-        basis=basis,
-    )
+    arguments, areas = _segment_arguments(mesh, shdf, params, graph)
+    return segment_with_details(*arguments, areas=areas, basis=basis)
 
 
 def prepare_segment_mesh(
@@ -133,17 +124,18 @@ def prepare_segment_mesh(
     ``creases``: ``mesh_crease_graph(mesh, graph)`` where the caller keeps it per mesh."""
     from neural_shdf.segment.pipeline import prepare_segment
 
+    arguments, areas = _segment_arguments(mesh, shdf, params, graph)
+    return prepare_segment(*arguments, areas=areas, creases=creases)
+
+
+def _segment_arguments(
+    mesh: TriangleMesh, shdf: NDArray, params: SegmentParams | None, graph: FaceGraph | None
+) -> tuple[tuple[NDArray, NDArray, NDArray, SegmentParams, FaceGraph], NDArray]:
+    """(vertices, faces, ShDF, params, graph) for ``segment.pipeline``, and the face areas
+    the mesh caches; the default params and the welded face graph where none are given."""
     graph = mesh_face_graph(mesh) if graph is None else graph
     _, areas = mesh.normals_and_areas
-    return prepare_segment(
-        mesh.vertices,
-        mesh.faces,
-        np.asarray(shdf),
-        params or SegmentParams(),
-        graph,
-        areas=areas,
-        creases=creases,
-    )
+    return (mesh.vertices, mesh.faces, np.asarray(shdf), params or SegmentParams(), graph), areas
 
 
 def mesh_crease_graph(mesh: TriangleMesh, graph: FaceGraph | None = None) -> CreaseGraph:

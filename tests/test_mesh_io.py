@@ -47,7 +47,18 @@ VALID = _valid_files()
 
 
 def test_supported_formats_and_detection():
-    assert set(SUPPORTED_FORMATS) == {"obj", "off", "ply", "stl", "glb", "gltf"}
+    assert set(SUPPORTED_FORMATS) == {
+        "obj",
+        "off",
+        "ply",
+        "stl",
+        "glb",
+        "gltf",
+        "usd",
+        "usda",
+        "usdc",
+        "usdz",
+    }
     assert detect_format("a/b/Model.OBJ") == "obj"
     assert detect_format("scan.ply") == "ply"
     with pytest.raises(UnsupportedFormatError, match="no file extension"):

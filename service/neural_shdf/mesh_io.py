@@ -15,6 +15,9 @@ Face order rules (per-face outputs of the project follow them):
   primitive in a depth-first walk of the default scene's nodes (in listed
   order), node transforms applied, once per instancing node (details in
   ``neural_shdf.exchange.gltf``).
+* USD (``.usd``, ``.usda``, ``.usdc``, ``.usdz``): each polygon of each Mesh prim is
+  one input face, fan-triangulated as above; prims in stage traversal order,
+  instances expanded, world transforms applied (details in ``neural_shdf.exchange.usd``).
 
 Nothing is merged, dropped or reordered: duplicate vertices and degenerate
 faces stay. A mesh with no face of non-zero area, non-finite coordinates or
@@ -28,13 +31,15 @@ from pathlib import Path
 from neural_shdf.errors import MeshParseError, UnsupportedFormatError
 from neural_shdf.exchange import READERS
 from neural_shdf.exchange._common import MeshLimits, parse_guard
+from neural_shdf.exchange.usd import sniff_usd
 from neural_shdf.mesh import TriangleMesh
 
 #: File extensions load_mesh reads (lower case, without the dot).
 SUPPORTED_FORMATS: tuple[str, ...] = tuple(READERS)
 
 _FORMAT_NAMES = {"obj": "OBJ", "off": "OFF", "ply": "PLY", "stl": "STL", "glb": "GLB",
-                 "gltf": "glTF"}  # fmt: skip
+                 "gltf": "glTF", "usd": "USD", "usda": "USD", "usdc": "USD",
+                 "usdz": "USDZ"}  # fmt: skip
 
 
 def normalize_format(file_type: str) -> str:
@@ -62,6 +67,9 @@ def detect_format(filename: str | Path) -> str:
 
 def sniff_format(data: bytes) -> str | None:
     """Best guess of the format from the first bytes, or None when unsure."""
+    usd = sniff_usd(data)
+    if usd is not None:
+        return usd
     head = data[:512].lstrip()
     if head.startswith(b"glTF"):
         return "glb"

@@ -6,6 +6,7 @@ from neural_shdf.exchange.obj import read_obj
 from neural_shdf.exchange.off import read_off
 from neural_shdf.exchange.ply import read_ply
 from neural_shdf.exchange.stl import read_stl
+from neural_shdf.exchange.usd import read_usd, read_usda, read_usdc, read_usdz
 
 #: Reader for each supported file extension (lower case, without the dot).
 READERS: dict[str, Reader] = {
@@ -15,6 +16,10 @@ READERS: dict[str, Reader] = {
     "stl": read_stl,
     "glb": read_glb,
     "gltf": read_gltf,
+    "usd": read_usd,
+    "usda": read_usda,
+    "usdc": read_usdc,
+    "usdz": read_usdz,
 }
 
 __all__ = ["READERS", "MeshLimits", "Reader", "fan_triangulate"]

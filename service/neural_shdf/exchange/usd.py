@@ -1,0 +1,414 @@
+"""USD reader (``.usd``, ``.usda``, ``.usdc``, ``.usdz``) with Pixar's ``usd-core``.
+
+What is read, and the face order (what "input face order" means for USD):
+
+* Every ``UsdGeom.Mesh`` prim of the composed stage, in stage traversal order
+  (depth first, children in namespace order), instance proxies included: a mesh
+  under an instanceable prim appears once per instance. Meshes whose computed
+  purpose is ``guide`` or ``proxy`` are left out: they stand in for, or annotate,
+  the render geometry and would overlap it. ``mesh_prims`` gives that list; the
+  writer (``neural_shdf.exchange.usd_write``) uses the same one.
+* Input faces are each prim's ``faceVertexCounts`` in order, prim after prim.
+  Polygons are fan-triangulated (``fan_triangulate``). Faces listed in
+  ``holeIndices`` and faces with fewer than 3 vertices are input faces without
+  triangles (label -1 in per-face outputs).
+* Geometry at the earliest time sample (the first frame of animated meshes; the
+  default value otherwise), with the prim's local-to-world transform applied.
+  ``orientation = "leftHanded"`` and mirroring transforms reverse each polygon's
+  winding (its first vertex kept), so normals point outwards.
+* ``UsdGeom.PointInstancer`` prims are refused (their instances cannot carry a
+  per-face result back into the file); so are stages that load layers from outside
+  the uploaded file or package, since a server must not read its own disk for a
+  client.
+
+usd-core opens files, not bytes: the data is written to a private temporary
+folder first. Size limits: every prim's ``faceVertexCounts`` are read and the
+face and triangle budgets checked before indices and points are read.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.errors import MeshParseError, ParameterError, UnsupportedFormatError
+from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, build_mesh, fan_triangulate
+from neural_shdf.mesh import TriangleMesh
+
+FORMAT_NAME = "USD"
+#: File extensions of USD (lower case, without the dot).
+USD_EXTENSIONS = ("usd", "usda", "usdc", "usdz")
+#: Cap on the layers a stage may pull in (sublayers, references, payloads, all within
+#: the uploaded file or package).
+MAX_LAYERS = 1000
+_SKIPPED_PURPOSES = ("guide", "proxy")
+#: GeomSubset family of the parts that write_usd_parts adds.
+PART_FAMILY = "part"
+
+
+def sniff_usd(data: bytes) -> str | None:
+    """``"usda"``, ``"usdc"`` or ``"usdz"`` when the bytes start like that kind of USD."""
+    if data.startswith(b"#usda"):
+        return "usda"
+    if data.startswith(b"PXR-USDC"):
+        return "usdc"
+    # A USDZ is a zip whose first entry is a USD layer (local header: name at byte 30).
+    if data.startswith(b"PK\x03\x04") and len(data) > 30:
+        name_length = int.from_bytes(data[26:28], "little")
+        first = data[30 : 30 + name_length].lower()
+        if first.endswith((b".usd", b".usda", b".usdc")):
+            return "usdz"
+    return None
+
+
+@contextmanager
+def usd_file(data: bytes, extension: str) -> Iterator[Path]:
+    """The bytes as a file in a private temporary folder, removed afterwards."""
+    with tempfile.TemporaryDirectory(prefix="neural-shdf-usd-") as folder:
+        path = Path(folder) / f"upload.{extension}"
+        path.write_bytes(data)
+        yield path
+
+
+def _inside(path: str, folder: Path) -> bool:
+    """Whether a layer's real path lies in ``folder`` (package paths: ``pkg.usdz[a.usd]``)."""
+    real = path.split("[", 1)[0]
+    return bool(real) and os.path.realpath(real).startswith(str(folder.resolve()) + os.sep)
+
+
+def check_layers_inside(path: Path) -> None:
+    """UnsupportedFormatError unless every layer the file composes (sublayers, references,
+    payloads, recursively) is the file itself or inside it (a USDZ's own layers)."""
+    from pxr import Sdf
+
+    root = Sdf.Layer.FindOrOpen(str(path))
+    if root is None:
+        raise MeshParseError("usd-core could not open the file as a USD layer")
+    seen = {root.identifier}
+    pending = [root]
+    while pending:
+        layer = pending.pop()
+        for asset in sorted(layer.GetCompositionAssetDependencies()):
+            if not asset:  # an internal reference (to a prim of the same layer)
+                continue
+            resolved = layer.ComputeAbsolutePath(asset)
+            if not _inside(resolved, path.parent):
+                raise UnsupportedFormatError(
+                    f"the USD stage loads the layer {asset!r} from outside the uploaded file; "
+                    "flatten the stage into one file (usdcat --flatten) or package it as "
+                    ".usdz (usdzip)"
+                )
+            if resolved in seen:
+                continue
+            seen.add(resolved)
+            if len(seen) > MAX_LAYERS:
+                raise UnsupportedFormatError(f"the USD stage has more than {MAX_LAYERS} layers")
+            child = Sdf.Layer.FindOrOpen(resolved)
+            if child is None:
+                raise MeshParseError(f"the USD layer {asset!r} is missing from the file")
+            pending.append(child)
+
+
+def open_stage(path: Path) -> Any:
+    """The composed stage of a USD file whose layers were checked with check_layers_inside."""
+    from pxr import Usd
+
+    check_layers_inside(path)
+    stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+    if stage is None:
+        raise MeshParseError("usd-core could not open the file as a USD stage")
+    return stage
+
+
+def mesh_prims(stage: Any) -> list[Any]:
+    """The stage's mesh prims in reading order (module docstring); UnsupportedFormatError
+    at a point instancer."""
+    from pxr import Usd, UsdGeom
+
+    prims = []
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
+        if prim.IsA(UsdGeom.PointInstancer):
+            raise UnsupportedFormatError(
+                f"the USD point instancer {prim.GetPath()} is not supported: make its "
+                "instances real meshes (Blender: Realize Instances; Houdini: Unpack) or "
+                "export the scene without point instancing"
+            )
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        if UsdGeom.Imageable(prim).ComputePurpose() in _SKIPPED_PURPOSES:
+            continue
+        prims.append(prim)
+    return prims
+
+
+@dataclass(frozen=True)
+class _PrimFaces:
+    """One mesh prim's polygons, read before its indices and points."""
+
+    prim: Any
+    counts: NDArray[np.int64]
+    holes: NDArray[np.int64]
+
+
+def _array(attribute: Any, time: Any, dtype: Any) -> NDArray:
+    value = attribute.Get(time)
+    return np.zeros(0, dtype=dtype) if value is None else np.asarray(value, dtype=dtype)
+
+
+def _reverse_windings(counts: NDArray[np.int64], flat: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Each polygon's ring ``v0, v1, ..., vn-1`` as ``v0, vn-1, ..., v1`` (same first vertex,
+    so the fan convention holds)."""
+    starts = np.repeat(np.cumsum(counts) - counts, counts)
+    sizes = np.repeat(counts, counts)
+    k = np.arange(len(flat), dtype=np.int64) - starts
+    return flat[starts + (sizes - k) % sizes]
+
+
+def _prim_label(prim: Any) -> str:
+    return f"USD mesh {prim.GetPath()}"
+
+
+def read_usd_stage(stage: Any, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
+    """All mesh prims of an open stage as one TriangleMesh (order: module docstring)."""
+    from pxr import Usd, UsdGeom
+
+    time = Usd.TimeCode.EarliestTime()
+    polygons: list[_PrimFaces] = []
+    face_total = triangle_total = 0
+    for prim in mesh_prims(stage):
+        mesh = UsdGeom.Mesh(prim)
+        counts = _array(mesh.GetFaceVertexCountsAttr(), time, np.int64)
+        holes = _array(mesh.GetHoleIndicesAttr(), time, np.int64)
+        if len(counts) and counts.min() < 0:
+            raise MeshParseError(f"{_prim_label(prim)} has a negative faceVertexCount")
+        face_total += len(counts)
+        triangle_total += int(np.maximum(counts - 2, 0).sum())
+        limits.check_faces(face_total, at_least=True)
+        limits.check_faces(triangle_total, "triangles", at_least=True)
+        polygons.append(_PrimFaces(prim, counts, holes))
+    if not polygons:
+        raise MeshParseError("the USD stage has no Mesh prim (UsdGeom.Mesh) to read")
+
+    xforms = UsdGeom.XformCache(time)
+    vertex_parts: list[NDArray] = []
+    face_parts: list[NDArray] = []
+    origin_parts: list[NDArray] = []
+    vertex_offset = face_offset = 0
+    for entry in polygons:
+        prim, counts = entry.prim, entry.counts
+        mesh = UsdGeom.Mesh(prim)
+        flat = _array(mesh.GetFaceVertexIndicesAttr(), time, np.int64)
+        if len(flat) != int(counts.sum()):
+            raise MeshParseError(
+                f"{_prim_label(prim)}: faceVertexIndices has {len(flat)} entries but "
+                f"faceVertexCounts adds up to {int(counts.sum())}"
+            )
+        points = _array(mesh.GetPointsAttr(), time, np.float64).reshape(-1, 3)
+        limits.check_vertices(vertex_offset + len(points), at_least=True)
+        matrix = np.array(xforms.GetLocalToWorldTransform(prim), dtype=np.float64)
+        points = points @ matrix[:3, :3] + matrix[3, :3]  # USD transforms row vectors
+        left_handed = mesh.GetOrientationAttr().Get(time) == UsdGeom.Tokens.leftHanded
+        if left_handed != (np.linalg.det(matrix[:3, :3]) < 0):
+            flat = _reverse_windings(counts, flat)
+        usable = counts.copy()
+        holes = entry.holes[(entry.holes >= 0) & (entry.holes < len(counts))]
+        usable[holes] = 0  # a hole stays an input face, without triangles
+        if len(holes):
+            keep = np.repeat(usable > 0, counts)
+            flat, triangulated = flat[keep], usable[usable > 0]
+            faces, local_origin = fan_triangulate(triangulated, flat)
+            local_origin = np.flatnonzero(usable > 0)[local_origin]
+        else:
+            faces, local_origin = fan_triangulate(counts, flat)
+        bad = (faces < 0) | (faces >= len(points))
+        if bad.any():
+            face = int(local_origin[np.flatnonzero(bad.any(axis=1))[0]])
+            raise MeshParseError(
+                f"{_prim_label(prim)}: face {face} refers to a point that does not exist "
+                f"(the prim has {len(points)} points)"
+            )
+        vertex_parts.append(points)
+        face_parts.append(faces + vertex_offset)
+        origin_parts.append(local_origin + face_offset)
+        vertex_offset += len(points)
+        face_offset += len(counts)
+    return build_mesh(
+        np.concatenate(vertex_parts),
+        np.concatenate(face_parts),
+        np.concatenate(origin_parts),
+        face_offset,
+        format_name=FORMAT_NAME,
+        limits=limits,
+    )
+
+
+def read_usd_path(path: str | Path, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
+    """Read a USD file on disk (its layers must lie inside it: see check_layers_inside)."""
+    return read_usd_stage(open_stage(Path(path)), limits)
+
+
+def _read_usd_bytes(extension: str, data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
+    if extension == "usd":
+        extension = sniff_usd(data) or "usd"
+    if extension == "usdz" and not data.startswith(b"PK\x03\x04"):
+        raise MeshParseError("a .usdz file is a zip archive, and this file is not one")
+    with usd_file(data, extension) as path:
+        return read_usd_path(path, limits)
+
+
+#: Readers for the registry, one per extension (the extension tells usd-core the encoding).
+read_usd = partial(_read_usd_bytes, "usd")
+read_usda = partial(_read_usd_bytes, "usda")
+read_usdc = partial(_read_usd_bytes, "usdc")
+read_usdz = partial(_read_usd_bytes, "usdz")
+
+
+def srgb_to_linear(srgb: NDArray) -> NDArray[np.float64]:
+    """sRGB-encoded components in [0, 1] as linear values (the IEC 61966-2-1 curve)."""
+    c = np.asarray(srgb, dtype=np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def linear_face_colors(face_labels: NDArray[np.int64]) -> NDArray[np.float64]:
+    """(F, 3) linear RGB per face: ``export.part_colors`` by label (sRGB swatches, the API's
+    ``color``), ``export.UNLABELED_COLOR`` for negative labels."""
+    from neural_shdf.export import UNLABELED_COLOR, part_colors
+
+    top = int(face_labels.max()) + 1 if len(face_labels) else 0
+    palette = srgb_to_linear(part_colors(max(top, 0))[:, :3] / 255.0)
+    colors = np.tile(srgb_to_linear(UNLABELED_COLOR[:3] / 255.0), (len(face_labels), 1))
+    labelled = face_labels >= 0
+    colors[labelled] = palette[face_labels[labelled]]
+    return colors
+
+
+def _uninstance(stage: Any, paths: list[Any]) -> None:
+    """Make the instances above instance-proxy meshes ordinary prims, so that each copy
+    can carry its own subsets (instance proxies cannot be edited)."""
+    for path in paths:
+        prim = stage.GetPrimAtPath(path)
+        while prim.IsInstanceProxy():
+            ancestor = prim.GetParent()
+            while not ancestor.IsInstance():
+                ancestor = ancestor.GetParent()
+            stage.GetPrimAtPath(ancestor.GetPath()).SetInstanceable(False)
+            prim = stage.GetPrimAtPath(path)
+
+
+def _replace_part_subsets(stage: Any, mesh: Any, labels: NDArray[np.int64]) -> None:
+    """One GeomSubset per label of ``labels`` (per face of the prim), family ``part``."""
+    from pxr import UsdGeom, Vt
+
+    from neural_shdf.export import part_name
+
+    for old in UsdGeom.Subset.GetGeomSubsets(mesh, UsdGeom.Tokens.face, PART_FAMILY):
+        path = old.GetPrim().GetPath()
+        stage.RemovePrim(path)
+        if stage.GetPrimAtPath(path):  # defined in a layer below the root: switch it off
+            stage.GetPrimAtPath(path).SetActive(False)
+    for label in np.unique(labels).tolist():
+        faces = Vt.IntArray.FromNumpy(np.flatnonzero(labels == label).astype(np.int32))
+        UsdGeom.Subset.CreateGeomSubset(
+            mesh, part_name(label), UsdGeom.Tokens.face, faces, PART_FAMILY
+        )
+    UsdGeom.Subset.SetFamilyType(mesh, PART_FAMILY, UsdGeom.Tokens.partition)
+
+
+def _set_display_colors(mesh: Any, labels: NDArray[np.int64]) -> None:
+    from pxr import Sdf, UsdGeom, Vt
+
+    primvar = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(
+        "displayColor", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.uniform
+    )
+    primvar.SetInterpolation(UsdGeom.Tokens.uniform)
+    if primvar.IsIndexed():
+        primvar.BlockIndices()
+    primvar.Set(Vt.Vec3fArray.FromNumpy(linear_face_colors(labels).astype(np.float32)))
+
+
+def write_usd_parts(
+    source: str | Path, face_labels: NDArray, output: str | Path, *, input_format: str | None = None
+) -> None:
+    """Write the USD stage of ``source`` with its parts: on every mesh prim that
+    ``read_usd_path`` reads, one ``UsdGeom.Subset`` per part (family ``part``,
+    partition of the faces, element type face, named by ``export.part_name``;
+    faces without a part, such as holes, in ``unlabeled``) and a per-face
+    ``primvars:displayColor`` (uniform; the part colours, converted to linear).
+
+    ``face_labels``: one label per input face, in the reader's order (e.g.
+    ``pipeline.input_face_parts``). Everything else in the stage is kept. A stage of
+    one layer is written as that layer; one composed of several layers (a USDZ with
+    sublayers or references) is flattened. Instances holding meshes are made ordinary
+    prims, so each copy gets its own subsets. ``output`` ends in .usda, .usdc, .usd or
+    .usdz (a package of the one written layer: a USDZ input's textures are not carried).
+    """
+    from pxr import Usd, UsdGeom, UsdUtils
+
+    output = Path(output)
+    suffix = output.suffix.lower().lstrip(".")
+    if suffix not in USD_EXTENSIONS:
+        raise ParameterError(
+            f"the USD output must end in .usda, .usdc, .usd or .usdz, got {output.name!r}"
+        )
+    labels = np.asarray(face_labels)
+    if labels.ndim != 1 or labels.dtype.kind not in "iu":
+        raise ParameterError("face_labels must be a 1-D integer array (one label per face)")
+    labels = labels.astype(np.int64)
+    source = Path(source)
+    extension = (input_format or source.suffix).lower().lstrip(".")
+    data = source.read_bytes()
+    if extension == "usd":
+        extension = sniff_usd(data) or "usd"
+    with usd_file(data, extension) as path:
+        stage = open_stage(path)
+        paths = [prim.GetPath() for prim in mesh_prims(stage)]
+        _uninstance(stage, paths)
+        meshes = [UsdGeom.Mesh(stage.GetPrimAtPath(p)) for p in paths]
+        time = Usd.TimeCode.EarliestTime()
+        counts = [len(m.GetFaceVertexCountsAttr().Get(time) or []) for m in meshes]
+        if sum(counts) != len(labels):
+            raise ParameterError(
+                f"{len(labels)} labels for a USD stage of {sum(counts)} faces in "
+                f"{len(meshes)} mesh prims; pass one label per input face"
+            )
+        offsets = np.cumsum([0, *counts])
+        for mesh, start, end in zip(meshes, offsets[:-1], offsets[1:], strict=True):
+            _replace_part_subsets(stage, mesh, labels[start:end])
+            _set_display_colors(mesh, labels[start:end])
+        single = len([layer for layer in stage.GetUsedLayers() if not layer.anonymous]) == 1
+        layer = stage.GetRootLayer() if single and extension != "usdz" else stage.Flatten()
+        if suffix != "usdz":
+            if not layer.Export(str(output)):
+                raise OSError(f"could not write {output}")
+            return
+        packed = path.parent / "parts.usdc"
+        layer.Export(str(packed))
+        if not UsdUtils.CreateNewUsdzPackage(str(packed), str(output)):
+            raise OSError(f"could not write {output}")
+
+
+__all__ = [
+    "PART_FAMILY",
+    "USD_EXTENSIONS",
+    "check_layers_inside",
+    "mesh_prims",
+    "open_stage",
+    "read_usd",
+    "read_usd_path",
+    "read_usd_stage",
+    "read_usda",
+    "read_usdc",
+    "read_usdz",
+    "sniff_usd",
+    "usd_file",
+    "write_usd_parts",
+]

@@ -29,8 +29,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from neural_shdf.errors import MeshParseError, UnsupportedFormatError
-from neural_shdf.exchange import READERS
+from neural_shdf.exchange import READERS, REFUSED
 from neural_shdf.exchange._common import MeshLimits, parse_guard
+from neural_shdf.exchange.fbx import looks_like_fbx
 from neural_shdf.exchange.usd import sniff_usd
 from neural_shdf.mesh import TriangleMesh
 
@@ -46,6 +47,8 @@ def normalize_format(file_type: str) -> str:
     """The format name of a file type as a user may write it (``" .OBJ"`` -> ``"obj"``);
     UnsupportedFormatError naming the value as given (shortened) for anything else."""
     name = file_type.strip().lower().removeprefix(".")
+    if name in REFUSED:
+        raise UnsupportedFormatError(REFUSED[name])
     if name not in READERS:
         shown = file_type if len(file_type) <= 40 else file_type[:40] + "..."
         raise UnsupportedFormatError(
@@ -70,6 +73,8 @@ def sniff_format(data: bytes) -> str | None:
     usd = sniff_usd(data)
     if usd is not None:
         return usd
+    if looks_like_fbx(data):
+        return "fbx"  # refused by name, with what to do instead
     head = data[:512].lstrip()
     if head.startswith(b"glTF"):
         return "glb"

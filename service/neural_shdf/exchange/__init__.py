@@ -1,6 +1,7 @@
 """One reader per mesh file format, registered by extension (see ``neural_shdf.mesh_io``)."""
 
 from neural_shdf.exchange._common import MeshLimits, Reader, fan_triangulate
+from neural_shdf.exchange.fbx import FBX_REFUSAL
 from neural_shdf.exchange.gltf import read_glb, read_gltf
 from neural_shdf.exchange.obj import read_obj
 from neural_shdf.exchange.off import read_off
@@ -22,4 +23,7 @@ READERS: dict[str, Reader] = {
     "usdz": read_usdz,
 }
 
-__all__ = ["READERS", "MeshLimits", "Reader", "fan_triangulate"]
+#: Formats refused on purpose, with the message that says what to do instead.
+REFUSED: dict[str, str] = {"fbx": FBX_REFUSAL}
+
+__all__ = ["READERS", "REFUSED", "MeshLimits", "Reader", "fan_triangulate"]

@@ -123,6 +123,58 @@ def test_quads_keep_one_label_and_input_order(tmp_path: Path):
     assert set(seg[:6]).isdisjoint(seg[6:])
 
 
+def _part_subsets(path: Path, prim_path: str) -> dict[str, list[int]]:
+    from pxr import Usd, UsdGeom
+
+    stage = Usd.Stage.Open(str(path))  # kept alive while its prims are read
+    mesh = UsdGeom.Mesh.Get(stage, prim_path)
+    subsets = UsdGeom.Subset.GetGeomSubsets(mesh, UsdGeom.Tokens.face, "part")
+    return {s.GetPrim().GetName(): list(s.GetIndicesAttr().Get()) for s in subsets}
+
+
+def _faces_of_each_part(labels: np.ndarray) -> dict[str, list[int]]:
+    from neural_shdf.export import part_name
+
+    return {part_name(p): np.flatnonzero(labels == p).tolist() for p in np.unique(labels)}
+
+
+def test_segment_writes_a_usd_input_back_as_usd_with_a_subset_per_part(tmp_path: Path):
+    from tests.exchange.test_usd import _dumbbell_stage
+
+    source = tmp_path / "dumbbell.usda"
+    counts = _dumbbell_stage(source)
+    labels, parts = tmp_path / "parts.seg", tmp_path / "parts.usdc"
+    assert main(["segment", str(source), "-o", str(labels), "--method", "exact",
+                 "--usd", str(parts), "-q"]) == 0
+    seg = np.array(_read_lines(labels), dtype=int)
+    assert len(seg) == sum(counts)
+    assert _part_subsets(parts, "/World/Bar/Shape") == _faces_of_each_part(seg[: counts[0]])
+    assert _part_subsets(parts, "/World/Drum/Shape") == _faces_of_each_part(seg[counts[0] :])
+
+
+def test_segment_writes_other_inputs_as_a_new_usd_stage_of_their_faces(tmp_path: Path):
+    from neural_shdf.mesh_io import load_mesh
+
+    mesh_path = tmp_path / "quads.obj"
+    faces = _quad_box_obj(mesh_path)
+    labels, parts = tmp_path / "l.seg", tmp_path / "parts.usda"
+    assert main(["segment", str(mesh_path), "-o", str(labels), "--method", "exact",
+                 "--usd", str(parts), "-q"]) == 0
+    seg = np.array(_read_lines(labels), dtype=int)
+    assert _part_subsets(parts, "/World/Mesh") == _faces_of_each_part(seg)
+    written, original = load_mesh(parts), load_mesh(mesh_path)
+    assert written.input_face_count == faces  # 6 quads and 2 triangles, as in the OBJ
+    assert np.array_equal(written.faces, original.faces)
+    assert np.array_equal(written.face_origin, original.face_origin)
+
+
+def test_segment_refuses_a_usd_output_it_cannot_write(dumbbell_obj: Path, tmp_path: Path, capsys):
+    code = main(["segment", str(dumbbell_obj), "-o", str(tmp_path / "l.seg"),
+                 "--usd", str(tmp_path / "parts.glb"), "-q"])
+    assert code == EXIT_BAD_INPUT
+    assert "--usd must end in .usda" in capsys.readouterr().err
+
+
 def test_same_input_same_labels(dumbbell_obj: Path, tmp_path: Path):
     outputs = []
     for name in ("a.seg", "b.seg"):

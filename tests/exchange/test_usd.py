@@ -352,3 +352,39 @@ def test_srgb_to_linear_matches_the_standard_curve():
     assert usd.srgb_to_linear(np.array([0.0, 0.04045, 0.5, 1.0])) == pytest.approx(
         [0.0, 0.04045 / 12.92, 0.21404114, 1.0], rel=1e-6
     )
+
+
+def test_input_polygons_read_the_fans_back():
+    from neural_shdf.mesh import TriangleMesh
+
+    obj = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\nv 3 0 0\n" \
+          b"f 1 2 3 4\nf 2 5 6 3\nf 1 2\nf 5 7 6 3 3\nf 5 7 6\n"  # fmt: skip
+    counts, flat, input_face = usd.input_polygons(load_mesh(obj, "obj"))
+    assert counts.tolist() == [4, 4, 5, 3]  # the 2-vertex face has no triangle
+    assert flat.tolist() == [0, 1, 2, 3, 1, 4, 5, 2, 4, 6, 5, 2, 2, 4, 6, 5]
+    assert input_face.tolist() == [0, 1, 3, 4]
+    # Two triangles of one face that are not a fan come back as two triangles.
+    not_a_fan = TriangleMesh(np.eye(4)[:, :3], np.array([[0, 1, 2], [2, 3, 0]]), np.array([0, 0]))
+    counts, flat, input_face = usd.input_polygons(not_a_fan)
+    assert counts.tolist() == [3, 3] and flat.tolist() == [0, 1, 2, 2, 3, 0]
+    assert input_face.tolist() == [0, 0]
+
+
+def test_a_mesh_from_another_format_becomes_a_valid_stage_of_its_faces(tmp_path: Path):
+    source = tmp_path / "dumbbell.usda"
+    counts = _dumbbell_stage(source)
+    mesh = load_mesh(source)
+    labels = np.repeat([0, 1], counts)
+    labels[3] = -1
+    output = tmp_path / "parts.usda"
+    usd.write_mesh_parts_usd(mesh, labels, output)
+    _check_compliance(output)
+    written = load_mesh(output)
+    assert np.array_equal(written.faces, mesh.faces)
+    assert np.array_equal(written.face_origin, mesh.face_origin)
+    assert np.allclose(written.vertices, mesh.vertices, atol=1e-6)
+    stage = Usd.Stage.Open(str(output))
+    subsets = _subsets(UsdGeom.Mesh.Get(stage, "/World/Mesh"))
+    assert subsets.keys() == {part_name(-1), part_name(0), part_name(1)}
+    assert subsets[part_name(-1)].tolist() == [3]
+    assert usd.mesh_parts_usda(mesh, labels) == output.read_bytes()

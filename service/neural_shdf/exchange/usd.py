@@ -335,6 +335,49 @@ def _set_display_colors(mesh: Any, labels: NDArray[np.int64]) -> None:
     primvar.Set(Vt.Vec3fArray.FromNumpy(linear_face_colors(labels).astype(np.float32)))
 
 
+def _add_parts(stage: Any, paths: list[Any], counts: list[int], labels: NDArray) -> None:
+    """Subsets and display colours on the mesh prims at ``paths`` (``counts`` faces each,
+    ``labels`` one per face of all of them, prim after prim)."""
+    from pxr import UsdGeom
+
+    if sum(counts) != len(labels):
+        raise ParameterError(
+            f"{len(labels)} labels for a USD stage of {sum(counts)} faces in "
+            f"{len(paths)} mesh prims; pass one label per input face"
+        )
+    offsets = np.cumsum([0, *counts])
+    for path, start, end in zip(paths, offsets[:-1], offsets[1:], strict=True):
+        mesh = UsdGeom.Mesh(stage.GetPrimAtPath(path))
+        _replace_part_subsets(stage, mesh, labels[start:end])
+        _set_display_colors(mesh, labels[start:end])
+
+
+def _check_output(output: str | Path, face_labels: NDArray) -> tuple[Path, NDArray[np.int64]]:
+    output = Path(output)
+    if output.suffix.lower().lstrip(".") not in USD_EXTENSIONS:
+        raise ParameterError(
+            f"the USD output must end in .usda, .usdc, .usd or .usdz, got {output.name!r}"
+        )
+    labels = np.asarray(face_labels)
+    if labels.ndim != 1 or labels.dtype.kind not in "iu":
+        raise ParameterError("face_labels must be a 1-D integer array (one label per face)")
+    return output, labels.astype(np.int64)
+
+
+def _export(layer: Any, output: Path, scratch: Path) -> None:
+    """Write ``layer`` as ``output`` (format from the extension; .usdz: a package of it)."""
+    from pxr import UsdUtils
+
+    if output.suffix.lower() != ".usdz":
+        if not layer.Export(str(output)):
+            raise OSError(f"could not write {output}")
+        return
+    packed = scratch / "parts.usdc"
+    layer.Export(str(packed))
+    if not UsdUtils.CreateNewUsdzPackage(str(packed), str(output)):
+        raise OSError(f"could not write {output}")
+
+
 def write_usd_parts(
     source: str | Path, face_labels: NDArray, output: str | Path, *, input_format: str | None = None
 ) -> None:
@@ -351,18 +394,9 @@ def write_usd_parts(
     prims, so each copy gets its own subsets. ``output`` ends in .usda, .usdc, .usd or
     .usdz (a package of the one written layer: a USDZ input's textures are not carried).
     """
-    from pxr import Usd, UsdGeom, UsdUtils
+    from pxr import Usd, UsdGeom
 
-    output = Path(output)
-    suffix = output.suffix.lower().lstrip(".")
-    if suffix not in USD_EXTENSIONS:
-        raise ParameterError(
-            f"the USD output must end in .usda, .usdc, .usd or .usdz, got {output.name!r}"
-        )
-    labels = np.asarray(face_labels)
-    if labels.ndim != 1 or labels.dtype.kind not in "iu":
-        raise ParameterError("face_labels must be a 1-D integer array (one label per face)")
-    labels = labels.astype(np.int64)
+    output, labels = _check_output(output, face_labels)
     source = Path(source)
     extension = (input_format or source.suffix).lower().lstrip(".")
     data = source.read_bytes()
@@ -372,34 +406,87 @@ def write_usd_parts(
         stage = open_stage(path)
         paths = [prim.GetPath() for prim in mesh_prims(stage)]
         _uninstance(stage, paths)
-        meshes = [UsdGeom.Mesh(stage.GetPrimAtPath(p)) for p in paths]
         time = Usd.TimeCode.EarliestTime()
-        counts = [len(m.GetFaceVertexCountsAttr().Get(time) or []) for m in meshes]
-        if sum(counts) != len(labels):
-            raise ParameterError(
-                f"{len(labels)} labels for a USD stage of {sum(counts)} faces in "
-                f"{len(meshes)} mesh prims; pass one label per input face"
-            )
-        offsets = np.cumsum([0, *counts])
-        for mesh, start, end in zip(meshes, offsets[:-1], offsets[1:], strict=True):
-            _replace_part_subsets(stage, mesh, labels[start:end])
-            _set_display_colors(mesh, labels[start:end])
+        counts = [
+            len(UsdGeom.Mesh(stage.GetPrimAtPath(p)).GetFaceVertexCountsAttr().Get(time) or [])
+            for p in paths
+        ]
+        _add_parts(stage, paths, counts, labels)
         single = len([layer for layer in stage.GetUsedLayers() if not layer.anonymous]) == 1
         layer = stage.GetRootLayer() if single and extension != "usdz" else stage.Flatten()
-        if suffix != "usdz":
-            if not layer.Export(str(output)):
-                raise OSError(f"could not write {output}")
-            return
-        packed = path.parent / "parts.usdc"
-        layer.Export(str(packed))
-        if not UsdUtils.CreateNewUsdzPackage(str(packed), str(output)):
-            raise OSError(f"could not write {output}")
+        _export(layer, output, path.parent)
+
+
+def input_polygons(mesh: TriangleMesh) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray]:
+    """The input faces as polygons, read back from their triangle fans.
+
+    Returns ``(counts, flat_indices, input_face)``: one polygon per input face that has
+    triangles, in input order; a face whose triangles are not one fan (first vertex
+    shared, each triangle continuing the last) is given as its triangles instead.
+    ``input_face[i]``: the input face of polygon ``i``.
+    """
+    faces, origin = mesh.faces, mesh.face_origin
+    first = np.ones(len(faces), dtype=bool)
+    first[1:] = origin[1:] != origin[:-1]
+    run_start = np.maximum.accumulate(np.where(first, np.arange(len(faces)), 0))
+    continues = np.zeros(len(faces), dtype=bool)
+    continues[1:] = (faces[1:, 0] == faces[run_start[1:], 0]) & (faces[1:, 1] == faces[:-1, 2])
+    broken = np.zeros(mesh.input_face_count, dtype=bool)
+    broken[origin[~first & ~continues]] = True
+    start = first | broken[origin]  # a broken face: every triangle is a polygon of its own
+    last = np.ones(len(faces), dtype=bool)
+    last[:-1] = start[1:]
+    corners = np.stack([start, np.ones(len(faces), dtype=bool), last], axis=1)
+    polygon = np.cumsum(start) - 1
+    counts = np.bincount(polygon) + 2
+    return counts.astype(np.int64), faces[corners], origin[start]
+
+
+def write_mesh_parts_usd(mesh: TriangleMesh, face_labels: NDArray, output: str | Path) -> None:
+    """A new USD stage of ``mesh`` with its parts, for inputs that are not USD (or whose
+    file is gone, as in the service): one Mesh prim ``/World/Mesh`` whose faces are the
+    input faces (``input_polygons``), with the subsets and display colours of
+    ``write_usd_parts``. Y up, metres per unit 1 (other formats do not say).
+    """
+    from pxr import Sdf, Usd, UsdGeom, Vt
+
+    output, labels = _check_output(output, face_labels)
+    if len(labels) != mesh.input_face_count:
+        raise ParameterError(
+            f"{len(labels)} labels for a mesh of {mesh.input_face_count} input faces; "
+            "pass one label per input face"
+        )
+    counts, flat, input_face = input_polygons(mesh)
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/World").GetPrim())
+    prim = UsdGeom.Mesh.Define(stage, "/World/Mesh")
+    prim.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(mesh.vertices.astype(np.float32)))
+    prim.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(counts.astype(np.int32)))
+    prim.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(flat.astype(np.int32)))
+    prim.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    lower, upper = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
+    prim.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([lower, upper]).astype(np.float32)))
+    _add_parts(stage, [Sdf.Path("/World/Mesh")], [len(counts)], labels[input_face])
+    with tempfile.TemporaryDirectory(prefix="neural-shdf-usd-") as scratch:
+        _export(stage.GetRootLayer(), output, Path(scratch))
+
+
+def mesh_parts_usda(mesh: TriangleMesh, face_labels: NDArray) -> bytes:
+    """``write_mesh_parts_usd`` as the bytes of a .usda file."""
+    with tempfile.TemporaryDirectory(prefix="neural-shdf-usd-") as scratch:
+        path = Path(scratch) / "parts.usda"
+        write_mesh_parts_usd(mesh, face_labels, path)
+        return path.read_bytes()
 
 
 __all__ = [
     "PART_FAMILY",
     "USD_EXTENSIONS",
     "check_layers_inside",
+    "input_polygons",
+    "mesh_parts_usda",
     "mesh_prims",
     "open_stage",
     "read_usd",
@@ -410,5 +497,6 @@ __all__ = [
     "read_usdz",
     "sniff_usd",
     "usd_file",
+    "write_mesh_parts_usd",
     "write_usd_parts",
 ]

@@ -138,6 +138,38 @@ def test_glb_outputs(client, capsule_obj):
     assert sizes == {f"part_{k:03d}": labels.count(k) for k in range(3)}
 
 
+def test_usd_uploads_and_parts_come_back_as_usd(client, tmp_path):
+    from pxr import Usd, UsdGeom
+
+    from neural_shdf.export import part_name
+    from tests.exchange.test_usd import _dumbbell_stage
+
+    source = tmp_path / "dumbbell.usda"
+    counts = _dumbbell_stage(source)
+    uploaded = client.post(
+        "/v1/segment/file",
+        files={"file": ("dumbbell.usda", source.read_bytes())},
+        data={"method": TEST_METHOD},
+    )
+    assert uploaded.status_code == 200, uploaded.text
+    labels = np.array(uploaded.json()["labels"])
+    assert len(labels) == sum(counts)
+    mesh_id = uploaded.json()["mesh_id"]
+    answer = client.get(f"/v1/meshes/{mesh_id}/segmentation/parts.usda?method={TEST_METHOD}")
+    assert answer.status_code == 200 and answer.headers["content-type"] == "model/vnd.usda"
+    path = tmp_path / "parts.usda"
+    path.write_bytes(answer.content)
+    stage = Usd.Stage.Open(str(path))
+    mesh = UsdGeom.Mesh.Get(stage, "/World/Mesh")
+    subsets = UsdGeom.Subset.GetGeomSubsets(mesh, UsdGeom.Tokens.face, "part")
+    found = {s.GetPrim().GetName(): list(s.GetIndicesAttr().Get()) for s in subsets}
+    assert found == {part_name(k): np.flatnonzero(labels == k).tolist() for k in set(labels)}
+    written, original = load_mesh(path), load_mesh(source)  # same faces, float32 points
+    assert np.array_equal(written.faces, original.faces)
+    assert np.array_equal(written.face_origin, original.face_origin)
+    assert np.allclose(written.vertices, original.vertices, atol=1e-6)
+
+
 def test_large_mesh_runs_as_a_job(app_factory, capsule_obj):
     from fastapi.testclient import TestClient
 

@@ -263,3 +263,12 @@ class SegmentationService:
         mesh = await self.tasks.io(self.meshes.load, mesh_id)
         writer = colored_glb if style == "colored" else parts_glb
         return await self.tasks.run(writer, mesh, result.triangle_labels.astype(np.int64))
+
+    async def usda(self, mesh_id: str, method: str, params: SegmentParams) -> bytes:
+        """The segmentation as a new USD stage of the stored mesh's input faces, one
+        GeomSubset per part (the uploaded file is not kept, so its own stage cannot be)."""
+        from neural_shdf.exchange.usd import mesh_parts_usda
+
+        result, _ = await self.get(mesh_id, method, params)
+        mesh = await self.tasks.io(self.meshes.load, mesh_id)
+        return await self.tasks.run(mesh_parts_usda, mesh, result.labels.astype(np.int64))

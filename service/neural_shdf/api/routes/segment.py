@@ -1,4 +1,4 @@
-"""Segmentation: labels JSON, coloured GLB, parts GLB."""
+"""Segmentation: labels JSON, coloured GLB, parts GLB, parts USD."""
 
 from __future__ import annotations
 
@@ -108,3 +108,36 @@ router.add_api_route(
     response_class=Response,
     responses=_GLB_RESPONSES,
 )
+
+
+#: Media type of USD text layers (IANA ``model/vnd.usda``).
+USDA_MEDIA_TYPE = "model/vnd.usda"
+
+
+@router.get(
+    "/meshes/{mesh_id}/segmentation/parts.usda",
+    operation_id="get_parts_usda",
+    summary="Segmentation as a USD stage with one GeomSubset per part",
+    description="A USD layer with one Mesh prim `/World/Mesh` whose faces are the input faces "
+    "(in input order; faces without triangles are left out), one `GeomSubset` per part "
+    "(family `part`, named `part_000`, ...) and a per-face `primvars:displayColor`. The "
+    "uploaded file is not kept: segment USD files with the CLI's `--usd` to get parts on "
+    "their own stage.",
+    response_class=Response,
+    responses={
+        200: {
+            "content": {USDA_MEDIA_TYPE: {"schema": {"type": "string"}}},
+            "description": "USD text layer (.usda).",
+        },
+        **SEGMENT_ERRORS,
+    },
+)
+async def get_parts_usda(
+    engine: EngineDep, mesh_id: MeshId, options: Annotated[SegmentOptions, Query()]
+) -> Response:
+    """The segmentation as USD, written from the stored mesh."""
+    params = options.segment_params()
+    method = await engine.resolved_method(mesh_id, options.method)
+    body = await engine.segmentations.usda(mesh_id, method, params)
+    disposition = f'attachment; filename="{mesh_id[:16]}-parts.usda"'
+    return Response(body, media_type=USDA_MEDIA_TYPE, headers={"Content-Disposition": disposition})

@@ -61,12 +61,17 @@ async def ingest(
 async def upload_mesh(
     engine: EngineDep,
     file: Annotated[
-        UploadFile, File(description="OBJ, GLB/glTF (embedded buffers), OFF, PLY or STL.")
+        UploadFile,
+        File(
+            description="OBJ, GLB/glTF (embedded buffers), OFF, PLY, STL or USD (.usd, .usda, "
+            ".usdc, .usdz; one file or package)."
+        ),
     ],
     file_type: Annotated[
         str | None,
         Form(
-            description="Format (obj, glb, gltf, off, ply, stl); default: the file extension.",
+            description="Format (obj, glb, gltf, off, ply, stl, usd, usda, usdc, usdz); "
+            "default: the file extension.",
             examples=["obj"],
         ),
     ] = None,

@@ -1,0 +1,78 @@
+"""USD reading against an uncompressed GLB of the same mesh, at about 1M faces.
+
+The mesh: an icosphere subdivided 8 times (1.31M triangles, 655k vertices), written as
+an uncompressed GLB (trimesh), a crate ``.usdc``, a text ``.usda`` and a ``.usdz``
+(one Mesh prim, triangles as faces), plus the same vertices as 655k quads where
+the icosphere's triangles pair up (``--quads``: polygons take the fan path). Each
+file is read with ``mesh_io.load_mesh`` from its path; the table prints the best
+wall and CPU seconds of ``--repeat`` reads and the difference from the GLB (issue
+#19's target: USD at most 1 s beyond the GLB).
+
+    python benchmarks/bench_usd.py [--repeat 3] [--subdivisions 8]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from timing import best_time
+
+from neural_shdf.mesh_io import load_mesh
+
+
+def write_usd(path: Path, vertices: np.ndarray, counts: np.ndarray, flat: np.ndarray) -> None:
+    """One Mesh prim under /World with these polygons."""
+    from pxr import Usd, UsdGeom, UsdUtils, Vt
+
+    target = path.with_suffix(".usdc") if path.suffix == ".usdz" else path
+    stage = Usd.Stage.CreateNew(str(target))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/World").GetPrim())
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Mesh")
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(vertices.astype(np.float32)))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(counts.astype(np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(flat.astype(np.int32)))
+    stage.GetRootLayer().Save()
+    if path.suffix == ".usdz":
+        UsdUtils.CreateNewUsdzPackage(str(target), str(path))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--subdivisions", type=int, default=8)
+    args = parser.parse_args()
+    sphere = trimesh.creation.icosphere(subdivisions=args.subdivisions)
+    vertices = np.asarray(sphere.vertices, dtype=np.float32).astype(np.float64)
+    faces = np.asarray(sphere.faces, dtype=np.int64)
+    print(f"mesh: {len(faces)} triangles, {len(vertices)} vertices")
+    with tempfile.TemporaryDirectory(prefix="bench-usd-") as folder:
+        root = Path(folder)
+        files = {"glb": root / "mesh.glb"}
+        trimesh.Trimesh(vertices, faces, process=False).export(files["glb"])
+        triangles = np.full(len(faces), 3)
+        for suffix in ("usdc", "usda", "usdz"):
+            files[suffix] = root / f"mesh.{suffix}"
+            write_usd(files[suffix], vertices, triangles, faces.reshape(-1))
+        # Quads: each pair of consecutive triangles as one 6-corner polygon ring, read by
+        # the fan path (polygons of mixed sizes are the common DCC case).
+        pairs = len(faces) // 2
+        quads = np.concatenate([faces[0 : 2 * pairs : 2], faces[1 : 2 * pairs : 2]], axis=1)
+        files["usdc polygons"] = root / "polygons.usdc"
+        write_usd(files["usdc polygons"], vertices, np.full(pairs, 6), quads.reshape(-1))
+        print(f"{'file':<15}{'MB':>8}{'faces':>10}{'wall_s':>9}{'cpu_s':>8}{'vs_glb_s':>10}")
+        glb_wall = None
+        for name, path in files.items():
+            wall, cpu, mesh = best_time(lambda p=path: load_mesh(p), args.repeat)
+            glb_wall = wall if glb_wall is None else glb_wall
+            size = path.stat().st_size / 1e6
+            print(f"{name:<15}{size:>8.1f}{mesh.input_face_count:>10}{wall:>9.3f}{cpu:>8.3f}"
+                  f"{wall - glb_wall:>+10.3f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -388,3 +388,37 @@ def test_a_mesh_from_another_format_becomes_a_valid_stage_of_its_faces(tmp_path:
     assert subsets.keys() == {part_name(-1), part_name(0), part_name(1)}
     assert subsets[part_name(-1)].tolist() == [3]
     assert usd.mesh_parts_usda(mesh, labels) == output.read_bytes()
+
+
+def _crate_with_face_counts(path: Path, faces: int) -> None:
+    """A crate file whose one mesh declares ``faces`` triangles (compressed to a few kB)."""
+    stage = _new_stage(path)
+    mesh = UsdGeom.Mesh.Define(stage, "/World/Bomb")
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(faces, 3, np.int32)))
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.eye(3, dtype=np.float32)))
+    stage.GetRootLayer().Save()
+
+
+def test_compressed_arrays_are_checked_before_usd_core_expands_them(tmp_path: Path):
+    path = tmp_path / "bomb.usdc"
+    _crate_with_face_counts(path, 3_000_000)
+    assert path.stat().st_size < 20_000  # 12 MB of face sizes, compressed
+    with pytest.raises(MeshTooLargeError, match="declares an array of 3000000 values"):
+        load_mesh(path, max_faces=100_000, max_vertices=300_000)
+    package = tmp_path / "bomb.usdz"
+    assert UsdUtils.CreateNewUsdzPackage(str(path), str(package))
+    with pytest.raises(MeshTooLargeError, match="'bomb.usdc' declares an array of 3000000"):
+        load_mesh(package, max_faces=100_000, max_vertices=300_000)
+
+
+def test_crate_array_sizes_include_every_time_sample(tmp_path: Path):
+    from neural_shdf.exchange._usdc import crate_array_sizes
+
+    path = tmp_path / "animated.usdc"
+    stage = _new_stage(path)
+    mesh = _define_mesh(stage, "/World/Tube", *_tube(6, 1.0, 0.5))
+    for time, count in ((1.0, 7), (2.0, 12345), (3.0, 777)):
+        points = Vt.Vec3fArray.FromNumpy(np.linspace(0, 1, 3 * count, dtype=np.float32))
+        mesh.GetPointsAttr().Set(points, time)
+    stage.GetRootLayer().Save()
+    assert {7, 12345, 777, 8, 6 * 4 + 2 * 6} <= set(crate_array_sizes(path.read_bytes()))

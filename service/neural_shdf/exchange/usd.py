@@ -22,14 +22,19 @@ What is read, and the face order (what "input face order" means for USD):
   client.
 
 usd-core opens files, not bytes: the data is written to a private temporary
-folder first. Size limits: every prim's ``faceVertexCounts`` are read and the
-face and triangle budgets checked before indices and points are read.
+folder first. Size limits: before usd-core opens anything, every array a crate
+layer declares (the file, or each layer of a USDZ) must fit a mesh within the
+limits (``check_crate_arrays``: compressed arrays could otherwise expand thousands
+of times); then every prim's ``faceVertexCounts`` are read and the face and
+triangle budgets checked before indices and points are read.
 """
 
 from __future__ import annotations
 
+import io
 import os
 import tempfile
+import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -40,8 +45,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf.errors import MeshParseError, ParameterError, UnsupportedFormatError
+from neural_shdf.errors import (
+    MeshParseError,
+    MeshTooLargeError,
+    ParameterError,
+    UnsupportedFormatError,
+)
 from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, build_mesh, fan_triangulate
+from neural_shdf.exchange._usdc import crate_array_sizes
 from neural_shdf.mesh import TriangleMesh
 
 FORMAT_NAME = "USD"
@@ -256,11 +267,50 @@ def read_usd_path(path: str | Path, limits: MeshLimits = NO_LIMITS) -> TriangleM
     return read_usd_stage(open_stage(Path(path)), limits)
 
 
+def _crate_layers(data: bytes) -> Iterator[tuple[str, bytes]]:
+    """(name, bytes) of each crate layer: the file itself, or the ones in a USDZ."""
+    if data.startswith(b"PXR-USDC"):
+        yield "the file", data
+    elif data.startswith(b"PK\x03\x04"):
+        with zipfile.ZipFile(io.BytesIO(data)) as package:
+            for entry in package.infolist():
+                if entry.compress_type != zipfile.ZIP_STORED:
+                    raise MeshParseError(
+                        f"the USDZ entry {entry.filename!r} is compressed; a USDZ package "
+                        "stores its files uncompressed (make it with usdzip)"
+                    )
+                with package.open(entry) as member:
+                    if member.read(8) == b"PXR-USDC":
+                        yield repr(entry.filename), package.read(entry)
+
+
+def check_crate_arrays(data: bytes, limits: MeshLimits) -> None:
+    """MeshTooLargeError when a crate layer declares an array longer than a mesh within
+    ``limits`` needs: ``max_vertices`` points, or 3 corners per triangle of ``max_faces``
+    (per-corner data such as faceVertexIndices, UVs and normals). Read from the file's
+    tables before usd-core decompresses anything; no check without both limits."""
+    if limits.max_faces is None or limits.max_vertices is None:
+        return
+    bound = max(3 * limits.max_faces, limits.max_vertices)
+    for name, layer in _crate_layers(data):
+        largest = max(crate_array_sizes(layer), default=0)
+        if largest > bound:
+            raise MeshTooLargeError(
+                f"{name} declares an array of {largest} values, more than a mesh within the "
+                f"limits holds (max_faces {limits.max_faces}: {3 * limits.max_faces} corners; "
+                f"max_vertices {limits.max_vertices}); simplify (decimate) it before uploading",
+                limit="max_faces",
+                maximum=limits.max_faces,
+                found=largest // 3,
+            )
+
+
 def _read_usd_bytes(extension: str, data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     if extension == "usd":
         extension = sniff_usd(data) or "usd"
     if extension == "usdz" and not data.startswith(b"PK\x03\x04"):
         raise MeshParseError("a .usdz file is a zip archive, and this file is not one")
+    check_crate_arrays(data, limits)
     with usd_file(data, extension) as path:
         return read_usd_path(path, limits)
 

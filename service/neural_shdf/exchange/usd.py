@@ -172,7 +172,11 @@ class _PrimFaces:
 
 def _array(attribute: Any, time: Any, dtype: Any) -> NDArray:
     value = attribute.Get(time)
-    return np.zeros(0, dtype=dtype) if value is None else np.asarray(value, dtype=dtype)
+    if value is None:
+        return np.zeros(0, dtype=dtype)
+    # View the Vt array's buffer, then convert: converting directly walks Vec3f elements
+    # one by one in Python.
+    return np.asarray(value).astype(dtype)
 
 
 def _reverse_windings(counts: NDArray[np.int64], flat: NDArray[np.int64]) -> NDArray[np.int64]:

@@ -199,6 +199,19 @@ def test_point_instancers_and_outside_layers_are_refused(tmp_path: Path):
     stage.GetRootLayer().Save()
     with pytest.raises(UnsupportedFormatError, match="outside the uploaded file.*usdzip"):
         load_mesh(path)
+    expression = tmp_path / "expression.usda"
+    stage = _new_stage(expression)
+    stage.GetRootLayer().subLayerPaths.append("`'/etc/' + 'layer.usda'`")
+    stage.GetRootLayer().Save()
+    with pytest.raises(UnsupportedFormatError, match="variable expression"):
+        load_mesh(expression)
+    clips = tmp_path / "clips.usda"
+    stage = _new_stage(clips)
+    _define_mesh(stage, "/World/Tube", *_tube(6, 1.0, 0.5))
+    Usd.ClipsAPI(stage.GetPrimAtPath("/World/Tube")).SetClipAssetPaths([Sdf.AssetPath("a.usd")])
+    stage.GetRootLayer().Save()
+    with pytest.raises(UnsupportedFormatError, match="/World/Tube takes its values from clips"):
+        load_mesh(clips)
     # Packed into a USDZ, the referenced layer is inside the upload: it reads.
     package = tmp_path / "references.usdz"
     assert UsdUtils.CreateNewUsdzPackage(str(path), str(package))

@@ -18,8 +18,8 @@ What is read, and the face order (what "input face order" means for USD):
   winding (its first vertex kept), so normals point outwards.
 * ``UsdGeom.PointInstancer`` prims are refused (their instances cannot carry a
   per-face result back into the file); so are stages that load layers from outside
-  the uploaded file or package, since a server must not read its own disk for a
-  client.
+  the uploaded file or package (a server must not read its own disk for a client),
+  layers named by variable expressions, and value clips.
 
 usd-core opens files, not bytes: the data is written to a private temporary
 folder first. Size limits: before usd-core opens anything, every array a crate
@@ -111,6 +111,11 @@ def check_layers_inside(path: Path) -> None:
         for asset in sorted(layer.GetCompositionAssetDependencies()):
             if not asset:  # an internal reference (to a prim of the same layer)
                 continue
+            if asset.startswith("`"):
+                raise UnsupportedFormatError(
+                    f"the USD stage names a layer with a variable expression ({asset}); "
+                    "flatten the stage into one file (usdcat --flatten)"
+                )
             resolved = layer.ComputeAbsolutePath(asset)
             if not _inside(resolved, path.parent):
                 raise UnsupportedFormatError(
@@ -147,6 +152,11 @@ def mesh_prims(stage: Any) -> list[Any]:
 
     prims = []
     for prim in stage.Traverse(Usd.TraverseInstanceProxies()):
+        if prim.HasAuthoredMetadata("clips"):  # value clips load layers of their own
+            raise UnsupportedFormatError(
+                f"the USD prim {prim.GetPath()} takes its values from clips (other layers); "
+                "flatten the stage into one file (usdcat --flatten)"
+            )
         if prim.IsA(UsdGeom.PointInstancer):
             raise UnsupportedFormatError(
                 f"the USD point instancer {prim.GetPath()} is not supported: make its "

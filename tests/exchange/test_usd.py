@@ -10,6 +10,7 @@ pxr = pytest.importorskip("pxr")
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdUtils, Vt  # noqa: E402
 
 from neural_shdf.errors import (  # noqa: E402
+    InvalidGeometryError,
     MeshParseError,
     MeshTooLargeError,
     ParameterError,
@@ -218,6 +219,17 @@ def test_point_instancers_and_outside_layers_are_refused(tmp_path: Path):
     assert load_mesh(package).input_face_count == load_mesh(outside).input_face_count
 
 
+def test_too_many_mesh_prims_are_refused(tmp_path: Path, monkeypatch):
+    monkeypatch.setattr(usd, "MAX_MESH_PRIMS", 2)
+    path = tmp_path / "many.usda"
+    stage = _new_stage(path)
+    for i in range(3):
+        _define_mesh(stage, f"/World/Tube{i}", *_tube(6, 1.0, 0.5))
+    stage.GetRootLayer().Save()
+    with pytest.raises(MeshTooLargeError, match="more than 2 mesh prims"):
+        load_mesh(path)
+
+
 def test_animated_points_read_at_the_first_time_sample(tmp_path: Path):
     path = tmp_path / "animated.usda"
     stage = _new_stage(path)
@@ -238,9 +250,15 @@ def test_bad_and_oversized_stages_are_refused_before_reading_points(tmp_path: Pa
         load_mesh(path, max_faces=7)
     with pytest.raises(MeshTooLargeError, match="max_vertices"):
         load_mesh(path, max_vertices=11)
+    UsdGeom.Mesh.Get(stage, "/World/Tube").GetFaceVertexCountsAttr().Set([3])
+    UsdGeom.Mesh.Get(stage, "/World/Tube").GetFaceVertexIndicesAttr().Set([0, 1, 99])
+    stage.GetRootLayer().Save()
+    with pytest.raises(InvalidGeometryError, match="/World/Tube: face 0 refers to a point"):
+        load_mesh(path)
+    UsdGeom.Mesh.Get(stage, "/World/Tube").GetFaceVertexCountsAttr().Set([4, 4])
     UsdGeom.Mesh.Get(stage, "/World/Tube").GetFaceVertexIndicesAttr().Set([0, 1, 2])
     stage.GetRootLayer().Save()
-    with pytest.raises(MeshParseError, match="/World/Tube: faceVertexIndices has 3 entries"):
+    with pytest.raises(MeshParseError, match="/World/Tube: faceVertexIndices has 3 entries but"):
         load_mesh(path)
     empty = tmp_path / "empty.usda"
     empty_stage = _new_stage(empty)

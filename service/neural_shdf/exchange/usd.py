@@ -46,6 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.errors import (
+    InvalidGeometryError,
     MeshParseError,
     MeshTooLargeError,
     ParameterError,
@@ -62,6 +63,8 @@ USD_EXTENSIONS = ("usd", "usda", "usdc", "usdz")
 #: the uploaded file or package).
 MAX_LAYERS = 1000
 _SKIPPED_PURPOSES = ("guide", "proxy")
+#: Most mesh prims read from one stage (each costs a fixed time, whatever its size).
+MAX_MESH_PRIMS = 100_000
 #: GeomSubset family of the parts that write_usd_parts adds.
 PART_FAMILY = "part"
 
@@ -168,6 +171,14 @@ def mesh_prims(stage: Any) -> list[Any]:
         if UsdGeom.Imageable(prim).ComputePurpose() in _SKIPPED_PURPOSES:
             continue
         prims.append(prim)
+        if len(prims) > MAX_MESH_PRIMS:
+            raise MeshTooLargeError(
+                f"the USD stage has more than {MAX_MESH_PRIMS} mesh prims; merge them into "
+                "fewer meshes before uploading",
+                limit="mesh_prims",
+                maximum=MAX_MESH_PRIMS,
+                found=len(prims),
+            )
     return prims
 
 
@@ -257,7 +268,7 @@ def read_usd_stage(stage: Any, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
         bad = (faces < 0) | (faces >= len(points))
         if bad.any():
             face = int(local_origin[np.flatnonzero(bad.any(axis=1))[0]])
-            raise MeshParseError(
+            raise InvalidGeometryError(
                 f"{_prim_label(prim)}: face {face} refers to a point that does not exist "
                 f"(the prim has {len(points)} points)"
             )

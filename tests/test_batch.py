@@ -114,6 +114,16 @@ def test_collects_folders_recursively_manifests_and_keeps_names_apart(tmp_path: 
     assert len(set(outputs)) == len(outputs)
 
 
+def test_a_folder_scan_picks_up_every_format_the_readers_take(tmp_path: Path):
+    from neural_shdf.mesh_io import SUPPORTED_FORMATS
+
+    for name in SUPPORTED_FORMATS:
+        (tmp_path / f"mesh.{name}").write_text("")
+    (tmp_path / "mesh.fbx").write_text("")
+    found = sorted(Path(asset.path).suffix[1:] for asset in collect_assets([tmp_path]))
+    assert found == sorted(SUPPORTED_FORMATS)  # USD included, FBX (refused) left out
+
+
 def test_bad_assets_are_reported_and_the_rest_is_done(tmp_path: Path):
     _library(tmp_path / "in", 3, bad=2)
     listing = tmp_path / "list.txt"

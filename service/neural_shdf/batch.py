@@ -38,6 +38,7 @@ from typing import Any
 from neural_shdf import __version__
 from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
 from neural_shdf.errors import ModelUnavailableError, NeuralShdfError, ParameterError
+from neural_shdf.mesh_io import SUPPORTED_FORMATS
 from neural_shdf.segment import SegmentParams
 
 #: Outputs a batch can write per asset, and their file suffixes.
@@ -69,7 +70,7 @@ MANIFEST_COLUMNS = (
     "worker",
 )
 #: Extensions a folder scan picks up (the formats ``mesh_io`` reads).
-MESH_EXTENSIONS = frozenset({".obj", ".off", ".ply", ".stl", ".glb", ".gltf"})
+MESH_EXTENSIONS = frozenset("." + name for name in SUPPORTED_FORMATS)
 #: Extensions read as manifests: one path per line (``.txt``, ``.lst``) or a CSV with a
 #: ``path`` column (``.csv``, e.g. an earlier batch's manifest).
 MANIFEST_EXTENSIONS = frozenset({".txt", ".lst", ".csv"})

@@ -453,3 +453,20 @@ def test_crate_array_sizes_include_every_time_sample(tmp_path: Path):
         mesh.GetPointsAttr().Set(points, time)
     stage.GetRootLayer().Save()
     assert {7, 12345, 777, 8, 6 * 4 + 2 * 6} <= set(crate_array_sizes(path.read_bytes()))
+
+
+def test_a_usdz_input_is_written_back_with_its_parts(tmp_path: Path):
+    source = tmp_path / "dumbbell.usda"
+    counts = _dumbbell_stage(source)
+    package = tmp_path / "dumbbell.usdz"
+    assert UsdUtils.CreateNewUsdzPackage(str(source), str(package))
+    labels = np.arange(sum(counts)) % 3
+    output = tmp_path / "parts.usdz"
+    usd.write_usd_parts(package, labels, output)
+    _check_compliance(output)
+    assert load_mesh(output).content_hash() == load_mesh(package).content_hash()
+    stage = Usd.Stage.Open(str(output))
+    drum = _subsets(UsdGeom.Mesh.Get(stage, "/World/Drum/Shape"))
+    assert {name: faces.tolist() for name, faces in drum.items()} == {
+        part_name(k): np.flatnonzero(labels[counts[0] :] == k).tolist() for k in range(3)
+    }

@@ -222,9 +222,10 @@ def test_buffer_length_beyond_its_data_is_rejected():
          "does not exist"),
         (lambda d: d["meshes"][0]["primitives"][0].update(indices=-1), MeshParseError,
          "does not exist"),
-        (lambda d: d["accessors"][0].update(sparse={}), UnsupportedFormatError, "sparse"),
-        (lambda d: d.update(extensionsRequired=["KHR_draco_mesh_compression"]),
-         UnsupportedFormatError, "Draco"),
+        (lambda d: d["accessors"][0].update(sparse={}), MeshParseError, "sparse"),
+        (lambda d: d["meshes"][0]["primitives"][0].update(
+            extensions={"KHR_draco_mesh_compression": {"bufferView": 0}}), MeshParseError,
+         "Draco-compressed data of glTF mesh 0 cannot be decoded"),
         (lambda d: d.update(nodes=[{"mesh": 0, "children": [1]}, {"children": [0]}],
                             scenes=[{"nodes": [0]}]), MeshParseError, "cycle"),
         (lambda d: d["asset"].update(version="1.0"), UnsupportedFormatError, "version"),

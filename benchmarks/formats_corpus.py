@@ -114,8 +114,12 @@ def _text_cases() -> list[Case]:
     obj = _obj_text(sphere).encode()
     add("obj_bom_vertex_line1", "obj", BOM + obj, truth)
     spare = _obj_text(sphere).replace("\nf ", "\nv 9 9 9\nf ", 1)  # one unused vertex
-    add("obj_bom_vertex_line1_spare_vertex", "obj", BOM + spare.encode(),
-        Truth(np.vstack([truth.vertices, [[9, 9, 9]]]), truth.faces, truth.input_faces))  # fmt: skip
+    add(
+        "obj_bom_vertex_line1_spare_vertex",
+        "obj",
+        BOM + spare.encode(),
+        Truth(np.vstack([truth.vertices, [[9, 9, 9]]]), truth.faces, truth.input_faces),
+    )
     add("obj_crlf", "obj", obj.replace(b"\n", b"\r\n"), truth)
     commented = _obj_text(
         sphere,
@@ -127,20 +131,39 @@ def _text_cases() -> list[Case]:
     records.insert(5, "f 1")
     records.insert(9, "f 2 3")
     origin = np.delete(np.arange(len(records)), [5, 9])
-    add("obj_point_and_edge_records", "obj", _obj_text(sphere, faces=records).encode(),
-        Truth(truth.vertices, truth.faces, len(records), origin))  # fmt: skip
+    add(
+        "obj_point_and_edge_records",
+        "obj",
+        _obj_text(sphere, faces=records).encode(),
+        Truth(truth.vertices, truth.faces, len(records), origin),
+    )
     negative = "".join(
         f"v {x:.17g} {y:.17g} {z:.17g}\n" + ("f -3 -2 -1\n" if i % 3 == 2 else "")
         for i, (x, y, z) in enumerate(sphere.vertices[sphere.faces].reshape(-1, 3))
     )
-    add("obj_negative_indices", "obj", negative.encode(),
-        _soup_truth(trimesh.Trimesh(sphere.vertices[sphere.faces].reshape(-1, 3),
-                                    np.arange(3 * len(sphere.faces)).reshape(-1, 3), process=False)))  # fmt: skip
+    add(
+        "obj_negative_indices",
+        "obj",
+        negative.encode(),
+        _soup_truth(
+            trimesh.Trimesh(
+                sphere.vertices[sphere.faces].reshape(-1, 3),
+                np.arange(3 * len(sphere.faces)).reshape(-1, 3),
+                process=False,
+            )
+        ),
+    )
     box = trimesh.creation.box()
-    quads = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0.5 0\nv 0.5 2 0\nf 1 2 3 4\nf 2 5 3\nf 1 2 5 3 6 4\n"
-    quad_truth = Truth(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0.5, 0], [0.5, 2, 0]], float),
-                       np.array([[0, 1, 2], [0, 2, 3], [1, 4, 2], [0, 1, 4], [0, 4, 2], [0, 2, 5], [0, 5, 3]]),
-                       3, np.array([0, 0, 1, 2, 2, 2, 2]))  # fmt: skip
+    quads = (
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0.5 0\nv 0.5 2 0\n"
+        "f 1 2 3 4\nf 2 5 3\nf 1 2 5 3 6 4\n"
+    )
+    quad_truth = Truth(
+        np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0.5, 0], [0.5, 2, 0]], float),
+        np.array([[0, 1, 2], [0, 2, 3], [1, 4, 2], [0, 1, 4], [0, 4, 2], [0, 2, 5], [0, 5, 3]]),
+        3,
+        np.array([0, 0, 1, 2, 2, 2, 2]),
+    )
     add("obj_quads_ngons", "obj", quads.encode(), quad_truth)
     coloured = "".join(f"v {x:.17g} {y:.17g} {z:.17g} 0.5 0.25 1\n" for x, y, z in box.vertices)
     coloured += "vt 0 0\nvn 0 0 1\n" + "".join(
@@ -157,14 +180,30 @@ def _text_cases() -> list[Case]:
     off_short = (
         off.replace(f"{len(sphere.faces)} 0\n", f"{len(sphere.faces) + 1} 0\n", 1) + "2 0 1\n"
     )
-    add("off_edge_record", "off", off_short.encode(),
-        Truth(truth.vertices, truth.faces, len(sphere.faces) + 1))  # fmt: skip
+    add(
+        "off_edge_record",
+        "off",
+        off_short.encode(),
+        Truth(truth.vertices, truth.faces, len(sphere.faces) + 1),
+    )
     add("off_truncated", "off", off.encode()[: len(off) // 2], None)
 
     # PLY: extra vertex properties, a face property, big endian, mixed polygons.
-    vertex = np.zeros(len(box.vertices), dtype=[("x", ">f4"), ("y", ">f4"), ("z", ">f4"), ("nx", ">f4"),
-                                                 ("ny", ">f4"), ("nz", ">f4"), ("red", "u1"), ("green", "u1"),
-                                                 ("blue", "u1"), ("quality", ">f8")])  # fmt: skip
+    vertex = np.zeros(
+        len(box.vertices),
+        dtype=[
+            ("x", ">f4"),
+            ("y", ">f4"),
+            ("z", ">f4"),
+            ("nx", ">f4"),
+            ("ny", ">f4"),
+            ("nz", ">f4"),
+            ("red", "u1"),
+            ("green", "u1"),
+            ("blue", "u1"),
+            ("quality", ">f8"),
+        ],
+    )
     for axis, column in zip("xyz", box.vertices.T, strict=True):
         vertex[axis] = column
     face = np.zeros(
@@ -190,13 +229,17 @@ def _text_cases() -> list[Case]:
     add("ply_little_endian_extra_properties", "ply", little, _soup_truth(box))
     ply_ascii = (
         "ply\r\nformat ascii 1.0\r\nelement vertex 6\r\nproperty float x\r\nproperty float y\r\n"
-        "property float z\r\nelement face 3\r\nproperty list uchar int vertex_indices\r\nend_header\r\n"
-        "0 0 0\r\n1 0 0\r\n1 1 0\r\n0 1 0\r\n2 0.5 0\r\n0.5 2 0\r\n4 0 1 2 3\r\n3 1 4 2\r\n6 0 1 4 2 5 3\r\n"
+        "property float z\r\nelement face 3\r\nproperty list uchar int vertex_indices\r\n"
+        "end_header\r\n0 0 0\r\n1 0 0\r\n1 1 0\r\n0 1 0\r\n2 0.5 0\r\n0.5 2 0\r\n"
+        "4 0 1 2 3\r\n3 1 4 2\r\n6 0 1 4 2 5 3\r\n"
     )
     add("ply_ascii_crlf_mixed_polygons", "ply", ply_ascii.encode(), quad_truth)
 
-    stl_soup = trimesh.Trimesh(sphere.vertices[sphere.faces].reshape(-1, 3),
-                               np.arange(3 * len(sphere.faces)).reshape(-1, 3), process=False)  # fmt: skip
+    stl_soup = trimesh.Trimesh(
+        sphere.vertices[sphere.faces].reshape(-1, 3),
+        np.arange(3 * len(sphere.faces)).reshape(-1, 3),
+        process=False,
+    )
     stl_truth = _soup_truth(stl_soup)
     binary = sphere.export(file_type="stl")
     half = bytearray(binary)
@@ -227,8 +270,15 @@ class _Gltf:
 
     def __init__(self) -> None:
         self.blob = bytearray()
-        self.doc: dict = {"asset": {"version": "2.0"}, "accessors": [], "bufferViews": [], "meshes": [],
-                          "nodes": [], "scenes": [{"nodes": []}], "scene": 0}  # fmt: skip
+        self.doc: dict = {
+            "asset": {"version": "2.0"},
+            "accessors": [],
+            "bufferViews": [],
+            "meshes": [],
+            "nodes": [],
+            "scenes": [{"nodes": []}],
+            "scene": 0,
+        }
 
     def view(self, payload: bytes) -> int:
         while len(self.blob) % 4:
@@ -241,8 +291,13 @@ class _Gltf:
 
     def accessor(self, array: np.ndarray, kind: str, component: int, **extra) -> int:
         count = len(array)
-        spec = {"bufferView": self.view(np.ascontiguousarray(array).tobytes()), "componentType": component,
-                "type": kind, "count": count, **extra}  # fmt: skip
+        spec = {
+            "bufferView": self.view(np.ascontiguousarray(array).tobytes()),
+            "componentType": component,
+            "type": kind,
+            "count": count,
+            **extra,
+        }
         if kind == "VEC3" and component == 5126:
             spec["min"], spec["max"] = array.min(axis=0).tolist(), array.max(axis=0).tolist()
         self.doc["accessors"].append(spec)
@@ -301,19 +356,32 @@ def _flip_if_mirrored(faces: np.ndarray, matrix: np.ndarray) -> np.ndarray:
 def _draco_glb(mesh: trimesh.Trimesh, matrix: np.ndarray, *, required: bool) -> bytes:
     import DracoPy
 
-    encoded = DracoPy.encode(mesh.vertices.astype(np.float32), mesh.faces.astype(np.uint32),
-                             quantization_bits=16, compression_level=1)  # fmt: skip
+    encoded = DracoPy.encode(
+        mesh.vertices.astype(np.float32),
+        mesh.faces.astype(np.uint32),
+        quantization_bits=16,
+        compression_level=1,
+    )
     decoded = DracoPy.decode(encoded)
     builder = _Gltf()
     view = builder.view(encoded)
     builder.doc["accessors"] += [
         {"componentType": 5125, "type": "SCALAR", "count": 3 * len(decoded.faces)},
-        {"componentType": 5126, "type": "VEC3", "count": len(decoded.points),
-         "min": decoded.points.min(axis=0).tolist(), "max": decoded.points.max(axis=0).tolist()},
-    ]  # fmt: skip
+        {
+            "componentType": 5126,
+            "type": "VEC3",
+            "count": len(decoded.points),
+            "min": decoded.points.min(axis=0).tolist(),
+            "max": decoded.points.max(axis=0).tolist(),
+        },
+    ]
     draco = {"bufferView": view, "attributes": {"POSITION": 0}}
-    primitive = {"attributes": {"POSITION": 1}, "indices": 0, "mode": 4,
-                 "extensions": {"KHR_draco_mesh_compression": draco}}  # fmt: skip
+    primitive = {
+        "attributes": {"POSITION": 1},
+        "indices": 0,
+        "mode": 4,
+        "extensions": {"KHR_draco_mesh_compression": draco},
+    }
     builder.node(builder.mesh([primitive]), matrix=matrix.T.reshape(-1).tolist())
     builder.doc["extensionsUsed"] = ["KHR_draco_mesh_compression"]
     if required:
@@ -362,19 +430,37 @@ def _gltf_cases() -> list[Case]:
         scene_truth = Truth(
             np.asarray(loaded.vertices, float), np.asarray(loaded.faces), len(loaded.faces)
         )
-        for name, tolerance in (("scene_draco.glb", 1e-3), ("scene_gltfpack_meshopt.glb", 1e-3),
-                                ("scene_gltf_transform_meshopt.glb", 1e-3)):  # fmt: skip
+        for name, tolerance in (
+            ("scene_draco.glb", 1e-3),
+            ("scene_gltfpack_meshopt.glb", 1e-3),
+            ("scene_gltf_transform_meshopt.glb", 1e-3),
+        ):
             data = (DATA / name).read_bytes()
             independent = _trimesh_reader(data, "glb") if "draco" not in name else None
-            cases.append(Case("ref_" + name.removesuffix(".glb"), "glb", data, scene_truth, independent,
-                              tolerance=tolerance))  # fmt: skip
+            cases.append(
+                Case(
+                    "ref_" + name.removesuffix(".glb"),
+                    "glb",
+                    data,
+                    scene_truth,
+                    independent,
+                    tolerance=tolerance,
+                )
+            )
         plain = reference.read_bytes()
         cases.append(
             Case("ref_scene_trimesh", "glb", plain, scene_truth, _trimesh_reader(plain, "glb"))
         )
 
-    def simple(name: str, builder: _Gltf, truth: Truth | None, *, text: bool = False, prefix: bytes = b"",
-               tolerance: float = 1e-6) -> None:  # fmt: skip
+    def simple(
+        name: str,
+        builder: _Gltf,
+        truth: Truth | None,
+        *,
+        text: bool = False,
+        prefix: bytes = b"",
+        tolerance: float = 1e-6,
+    ) -> None:
         data = prefix + (builder.gltf() if text else builder.glb())
         file_type = "gltf" if text else "glb"
         cases.append(
@@ -387,13 +473,29 @@ def _gltf_cases() -> list[Case]:
     box_truth = _soup_truth(box)
     for name, text, prefix in (("gltf_data_uri", True, b""), ("gltf_bom", True, BOM)):
         builder = _Gltf()
-        builder.node(builder.mesh([{"attributes": {"POSITION": _positions(builder, box.vertices)},
-                                    "indices": _indices(builder, box.faces.reshape(-1), np.uint32)}]))  # fmt: skip
+        builder.node(
+            builder.mesh(
+                [
+                    {
+                        "attributes": {"POSITION": _positions(builder, box.vertices)},
+                        "indices": _indices(builder, box.faces.reshape(-1), np.uint32),
+                    }
+                ]
+            )
+        )
         simple(name, builder, box_truth, text=text, prefix=prefix)
     for dtype in (np.uint8, np.uint16):
         builder = _Gltf()
-        builder.node(builder.mesh([{"attributes": {"POSITION": _positions(builder, box.vertices)},
-                                    "indices": _indices(builder, box.faces.reshape(-1), dtype)}]))  # fmt: skip
+        builder.node(
+            builder.mesh(
+                [
+                    {
+                        "attributes": {"POSITION": _positions(builder, box.vertices)},
+                        "indices": _indices(builder, box.faces.reshape(-1), dtype),
+                    }
+                ]
+            )
+        )
         simple(f"glb_{np.dtype(dtype).name}_indices", builder, box_truth)
 
     # Triangle strip and fan over a grid row / a disc.
@@ -402,8 +504,17 @@ def _gltf_cases() -> list[Case]:
         [[i, i + 1, i + 2] if i % 2 == 0 else [i, i + 2, i + 1] for i in range(6)]
     )
     builder = _Gltf()
-    builder.node(builder.mesh([{"attributes": {"POSITION": _positions(builder, strip_vertices)},
-                                "indices": _indices(builder, np.arange(8), np.uint16), "mode": 5}]))  # fmt: skip
+    builder.node(
+        builder.mesh(
+            [
+                {
+                    "attributes": {"POSITION": _positions(builder, strip_vertices)},
+                    "indices": _indices(builder, np.arange(8), np.uint16),
+                    "mode": 5,
+                }
+            ]
+        )
+    )
     simple("glb_triangle_strip", builder, Truth(strip_vertices, strip_faces, 6))
     angles = np.linspace(0, np.pi, 7)
     fan_vertices = np.concatenate(
@@ -419,23 +530,40 @@ def _gltf_cases() -> list[Case]:
     soup = box.vertices[box.faces].reshape(-1, 3)
     builder = _Gltf()
     builder.node(builder.mesh([{"attributes": {"POSITION": _positions(builder, soup)}}]))
-    simple("glb_non_indexed", builder, _soup_truth(trimesh.Trimesh(soup, np.arange(len(soup)).reshape(-1, 3),
-                                                                    process=False)))  # fmt: skip
+    simple(
+        "glb_non_indexed",
+        builder,
+        _soup_truth(trimesh.Trimesh(soup, np.arange(len(soup)).reshape(-1, 3), process=False)),
+    )
 
     # KHR_mesh_quantization: normalized int16 positions, the node scales them back.
     quantized = np.round(box.vertices / 0.5 * 32767).astype(np.int16)
     builder = _Gltf()
     position = builder.accessor(quantized, "VEC3", 5122, normalized=True)
-    builder.node(builder.mesh([{"attributes": {"POSITION": position},
-                                "indices": _indices(builder, box.faces.reshape(-1), np.uint16)}]),
-                 scale=[0.5, 0.5, 0.5])  # fmt: skip
+    builder.node(
+        builder.mesh(
+            [
+                {
+                    "attributes": {"POSITION": position},
+                    "indices": _indices(builder, box.faces.reshape(-1), np.uint16),
+                }
+            ]
+        ),
+        scale=[0.5, 0.5, 0.5],
+    )
     builder.doc["extensionsUsed"] = builder.doc["extensionsRequired"] = ["KHR_mesh_quantization"]
     simple("glb_khr_mesh_quantization", builder, box_truth, tolerance=1e-4)
 
     # Scene: one mesh instanced by three nodes (one mirrored by a matrix), a parent transform.
     builder = _Gltf()
-    mesh = builder.mesh([{"attributes": {"POSITION": _positions(builder, box.vertices)},
-                          "indices": _indices(builder, box.faces.reshape(-1), np.uint16)}])  # fmt: skip
+    mesh = builder.mesh(
+        [
+            {
+                "attributes": {"POSITION": _positions(builder, box.vertices)},
+                "indices": _indices(builder, box.faces.reshape(-1), np.uint16),
+            }
+        ]
+    )
     mirror = np.diag([-1.0, 1, 1, 1])
     mirror[:3, 3] = [3, 0, 0]
     child_a = builder.node(mesh, root=False, translation=[0, 2, 0])
@@ -465,25 +593,61 @@ def _gltf_cases() -> list[Case]:
     }
     builder.doc["accessors"][position]["min"] = box.vertices.min(axis=0).tolist()
     builder.doc["accessors"][position]["max"] = box.vertices.max(axis=0).tolist()
-    builder.node(builder.mesh([{"attributes": {"POSITION": position},
-                                "indices": _indices(builder, box.faces.reshape(-1), np.uint16)}]))  # fmt: skip
+    builder.node(
+        builder.mesh(
+            [
+                {
+                    "attributes": {"POSITION": position},
+                    "indices": _indices(builder, box.faces.reshape(-1), np.uint16),
+                }
+            ]
+        )
+    )
     simple("glb_sparse_accessor", builder, box_truth)
 
     # Sparse without a bufferView (all zeros, then substitutions), 3 triangles of a box.
     builder = _Gltf()
-    builder.doc["accessors"].append({"componentType": 5126, "type": "VEC3", "count": 8, "sparse": {
-        "count": 8, "indices": {"bufferView": builder.view(np.arange(8, dtype=np.uint8).tobytes()),
-                                "componentType": 5121},
-        "values": {"bufferView": builder.view(box.vertices.astype(np.float32).tobytes())}},
-        "min": box.vertices.min(axis=0).tolist(), "max": box.vertices.max(axis=0).tolist()})  # fmt: skip
-    builder.node(builder.mesh([{"attributes": {"POSITION": 0},
-                                "indices": _indices(builder, box.faces.reshape(-1), np.uint16)}]))  # fmt: skip
+    builder.doc["accessors"].append(
+        {
+            "componentType": 5126,
+            "type": "VEC3",
+            "count": 8,
+            "sparse": {
+                "count": 8,
+                "indices": {
+                    "bufferView": builder.view(np.arange(8, dtype=np.uint8).tobytes()),
+                    "componentType": 5121,
+                },
+                "values": {"bufferView": builder.view(box.vertices.astype(np.float32).tobytes())},
+            },
+            "min": box.vertices.min(axis=0).tolist(),
+            "max": box.vertices.max(axis=0).tolist(),
+        }
+    )
+    builder.node(
+        builder.mesh(
+            [
+                {
+                    "attributes": {"POSITION": 0},
+                    "indices": _indices(builder, box.faces.reshape(-1), np.uint16),
+                }
+            ]
+        )
+    )
     simple("glb_sparse_without_bufferview", builder, box_truth)
 
     # Truncated GLB: must be refused.
     builder = _Gltf()
-    builder.node(builder.mesh([{"attributes": {"POSITION": _positions(builder, box.vertices)},
-                                "indices": _indices(builder, box.faces.reshape(-1), np.uint16)}]))  # fmt: skip
+    builder.node(
+        builder.mesh(
+            [
+                {
+                    "attributes": {"POSITION": _positions(builder, box.vertices)},
+                    "indices": _indices(builder, box.faces.reshape(-1), np.uint16),
+                }
+            ]
+        )
+    )
     cases.append(Case("glb_truncated", "glb", builder.glb()[:-40], None, None))
     return cases
 
@@ -520,7 +684,8 @@ def _run(case: Case) -> tuple[str, str, str, str]:
     except Exception as exc:  # noqa: BLE001 - reported as a crash row
         ours, verdict = f"CRASH {type(exc).__name__}: {exc}"[:120], "CRASH"
     else:
-        ours = f"{mesh.face_count} tri / {mesh.input_face_count} faces, area {_area(mesh.vertices, mesh.faces):.5g}"
+        area = _area(mesh.vertices, mesh.faces)
+        ours = f"{mesh.face_count} tri / {mesh.input_face_count} faces, area {area:.5g}"
         if case.truth is None:
             verdict = "MISREAD (bad file accepted)"
         else:
@@ -555,8 +720,16 @@ def _time_draco(faces: int) -> None:
     subdivisions = max(1, int(round(np.log(faces / 20) / np.log(4))))
     sphere = trimesh.creation.icosphere(subdivisions)
     plain = _Gltf()
-    plain.node(plain.mesh([{"attributes": {"POSITION": _positions(plain, sphere.vertices)},
-                            "indices": _indices(plain, sphere.faces.reshape(-1), np.uint32)}]))  # fmt: skip
+    plain.node(
+        plain.mesh(
+            [
+                {
+                    "attributes": {"POSITION": _positions(plain, sphere.vertices)},
+                    "indices": _indices(plain, sphere.faces.reshape(-1), np.uint32),
+                }
+            ]
+        )
+    )
     plain_glb = plain.glb()
     started = time.perf_counter()
     draco_glb = _draco_glb(sphere, np.eye(4), required=True)
@@ -573,8 +746,9 @@ def _time_draco(faces: int) -> None:
 
     plain_s, draco_s = best(plain_glb), best(draco_glb)
     print(
-        f"\nDraco timing: {len(sphere.faces)} faces; uncompressed GLB {len(plain_glb) / 1e6:.1f} MB "
-        f"loads in {plain_s:.3f} s, Draco GLB {len(draco_glb) / 1e6:.1f} MB (encoded in {encode_s:.1f} s) "
+        f"\nDraco timing: {len(sphere.faces)} faces; uncompressed GLB "
+        f"{len(plain_glb) / 1e6:.1f} MB loads in {plain_s:.3f} s, Draco GLB "
+        f"{len(draco_glb) / 1e6:.1f} MB (encoded in {encode_s:.1f} s) "
         f"in {draco_s:.3f} s: {draco_s - plain_s:+.3f} s beyond (target at most +1 s), "
         f"ratio {draco_s / plain_s:.2f}"
     )
@@ -595,8 +769,10 @@ def main() -> None:
         print(" | ".join(str(v).ljust(w) for v, w in zip(row, widths, strict=True)))
     misread = sum(row[4].startswith("MISREAD") for row in rows)
     refused = sum(row[4] in ("REFUSED", "CRASH") for row in rows)
-    print(f"\n{len(rows)} files: {len(rows) - misread - refused} as expected, "
-          f"{refused} good files refused or crashed, {misread} silent misreads")  # fmt: skip
+    print(
+        f"\n{len(rows)} files: {len(rows) - misread - refused} as expected, "
+        f"{refused} good files refused or crashed, {misread} silent misreads"
+    )
     if args.draco_faces:
         _time_draco(args.draco_faces)
 

@@ -9,6 +9,13 @@ transform mirrors (negative determinant) the winding is flipped so normals keep
 pointing outwards. Triangle strips and fans are expanded to triangles; points
 and lines primitives are ignored. Each triangle is one input face. Files without
 scenes use every root node in index order, or every mesh if there are no nodes.
+
+Compressed and core encodings read: KHR_draco_mesh_compression primitives (DracoPy;
+whether or not the file lists Draco as required; the decoded counts must equal the
+primitive's declared, budgeted accessor counts), EXT_/KHR_meshopt_compression
+bufferViews (meshopt; a view may decode to no more bytes than the budgeted accessors
+read from it need), KHR_mesh_quantization, sparse accessors, and a UTF-8 byte-order
+mark before the JSON.
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ from pathlib import Path
 
 from neural_shdf.errors import MeshParseError, UnsupportedFormatError
 from neural_shdf.exchange import READERS
-from neural_shdf.exchange._common import MeshLimits, parse_guard
+from neural_shdf.exchange._common import MeshLimits, parse_guard, strip_bom
 from neural_shdf.mesh import TriangleMesh
 
 #: File extensions load_mesh reads (lower case, without the dot).
@@ -62,7 +62,7 @@ def detect_format(filename: str | Path) -> str:
 
 def sniff_format(data: bytes) -> str | None:
     """Best guess of the format from the first bytes, or None when unsure."""
-    head = data[:512].lstrip()
+    head = strip_bom(data[:512]).lstrip()
     if head.startswith(b"glTF"):
         return "glb"
     if head.startswith(b"ply"):

@@ -614,4 +614,5 @@ window.shdfViewer.openFile = openFile;
 window.shdfViewer.select = select;
 window.shdfViewer.controlValues = controlValues;
 window.shdfViewer.smoothingPosition = smoothingPosition;
+window.shdfViewer.smoothingValues = SMOOTHING_VALUES;
 window.shdfViewer.ready = true;

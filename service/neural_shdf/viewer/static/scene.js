@@ -11,8 +11,11 @@ const PLAIN = [200, 200, 200];
 const DIM = 0.3;
 /** Viridis at 5 stops (thin = dark blue, thick = yellow), sRGB. */
 const RAMP = [[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]];
-/** Where the camera looks from, per up axis: in front, a little above and to the right. */
-const VIEW_DIRECTIONS = { y: [0.3, 0.35, 1], z: [0.3, -1, 0.35] };
+/** Per up axis: the up vector and the two horizontal axes (front first, DCC convention). */
+const AXES = {
+  y: { up: [0, 1, 0], horizontal: [[0, 0, 1], [1, 0, 0]] },
+  z: { up: [0, 0, 1], horizontal: [[0, -1, 0], [1, 0, 0]] },
+};
 
 /** sRGB component in [0, 1] to linear light. */
 export function srgbToLinear(c) {
@@ -147,13 +150,20 @@ export class MeshView {
   }
 
   /**
-   * Point the camera at the whole mesh from the front (up axis up), a little above and to
-   * the right, at a distance that fits its bounding sphere.
+   * Point the camera at the whole mesh with the up axis up, looking across its wider
+   * horizontal side (the front unless the mesh is deeper than wide), a little from above
+   * and to the side, at a distance that fits its bounding sphere.
    */
   frame() {
-    const { center, radius } = this.mesh.geometry.boundingSphere;
-    const up = this.up === 'z' ? new THREE.Vector3(0, 0, 1) : new THREE.Vector3(0, 1, 0);
-    const direction = new THREE.Vector3(...VIEW_DIRECTIONS[this.up]).normalize();
+    const geometry = this.mesh.geometry;
+    const { center, radius } = geometry.boundingSphere;
+    const size = geometry.boundingBox.getSize(new THREE.Vector3());
+    const axes = AXES[this.up];
+    const up = new THREE.Vector3(...axes.up);
+    let [front, side] = axes.horizontal.map((axis) => new THREE.Vector3(...axis));
+    const extent = (axis) => Math.abs(size.dot(axis));
+    if (extent(front) > extent(side)) [front, side] = [side, front.negate()];
+    const direction = front.addScaledVector(side, 0.3).addScaledVector(up, 0.35).normalize();
     const halfHeight = Math.tan(THREE.MathUtils.degToRad(this.camera.fov / 2));
     const halfView = Math.min(halfHeight, halfHeight * this.camera.aspect);
     const distance = (1.1 * (radius || 1)) / halfView;

@@ -148,8 +148,9 @@ def test_new_parameters_reuse_the_mesh_id_without_uploading(session, service_url
             clusters=9,
         )
     assert after["labels"] == expected.labels.tolist()
-    # Uploads: the dumbbell once and the subdivided one once; the re-run went by id.
-    assert session["uploads"] == 2 and session["by_id"] == 2
+    # Uploads: each dumbbell once (the subdivided one, the one with its own materials); the
+    # re-runs went by id (the dumbbell twice, the one with materials three times).
+    assert session["uploads"] == 3 and session["by_id"] == 5
 
 
 def test_modifiers_are_applied_and_parts_split_into_objects(session):

@@ -27,8 +27,11 @@ export function linearToSrgb(c) {
   return c <= 0.0031308 ? c * 12.92 : 1.055 * c ** (1 / 2.4) - 0.055;
 }
 
-/** Linear value of each sRGB byte. */
-const LINEAR = Float32Array.from({ length: 256 }, (_, i) => srgbToLinear(i / 255));
+/** Vertex colours are linear 16-bit integers: 8 bits would band in the darks (and lose
+ * the palette's exact values), floats cost twice the upload. */
+const LINEAR_MAX = 65535;
+/** Linear value of each sRGB byte, in LINEAR_MAX units. */
+const LINEAR = Uint16Array.from({ length: 256 }, (_, i) => Math.round(srgbToLinear(i / 255) * LINEAR_MAX));
 
 /** RGB bytes (sRGB) of a value in [0, 1] on the heat map ramp, interpolated as CSS does. */
 export function heatColor(value) {
@@ -50,9 +53,9 @@ export function parseHex(hex) {
   return [(n >> 16) & 255, (n >> 8) & 255, n & 255];
 }
 
-/** Linear RGB floats of sRGB bytes (`bytes`: r, g, b, r, g, b, ...), scaled by `scale`. */
+/** Linear RGB of sRGB bytes (`bytes`: r, g, b, r, g, b, ...), scaled by `scale`. */
 function linearOf(bytes, scale = 1) {
-  return Float32Array.from(bytes, (c) => LINEAR[c] * scale);
+  return Uint16Array.from(bytes, (c) => Math.round(LINEAR[c] * scale));
 }
 
 export class MeshView {
@@ -124,8 +127,7 @@ export class MeshView {
     const geometry = new THREE.BufferGeometry();
     geometry.setAttribute('position', new THREE.BufferAttribute(position, 3));
     geometry.setAttribute('normal', new THREE.BufferAttribute(normal, 3));
-    // Linear floats: 8-bit linear colours would band in the darks.
-    const color = new THREE.BufferAttribute(new Float32Array(count * 9).fill(LINEAR[PLAIN[0]]), 3);
+    const color = new THREE.BufferAttribute(new Uint16Array(count * 9).fill(LINEAR[PLAIN[0]]), 3, true);
     color.setUsage(THREE.DynamicDrawUsage);
     geometry.setAttribute('color', color);
     geometry.computeBoundingSphere();
@@ -266,7 +268,7 @@ export class MeshView {
     const colors = this.mesh.geometry.getAttribute('color').array;
     const out = new Uint8Array(this.faceOrigin.length * 3);
     for (let t = 0; t < this.faceOrigin.length; t++) {
-      for (let k = 0; k < 3; k++) out[t * 3 + k] = Math.round(linearToSrgb(colors[t * 9 + k]) * 255);
+      for (let k = 0; k < 3; k++) out[t * 3 + k] = Math.round(linearToSrgb(colors[t * 9 + k] / LINEAR_MAX) * 255);
     }
     return out;
   }

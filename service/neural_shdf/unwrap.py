@@ -857,7 +857,13 @@ def _layout_strips(atlas: UvAtlas, size: int | None, checker: int) -> Iterator[N
     palette = np.stack([colors * 1.0, colors * 0.72], axis=1).astype(np.uint8)
     outline = chart_outline_edges(atlas.corner_uvs, atlas.chart) * size
     corner_uvs = np.ascontiguousarray(atlas.corner_uvs, dtype=np.float64)
-    chart = np.ascontiguousarray(atlas.chart, dtype=np.int64)
+    chart = np.array(atlas.chart, dtype=np.int64)
+    # A triangle on the same UVs as an earlier one claims no texel: drawn once, copies of
+    # a triangle cost one triangle's texels, not one each.
+    _, first = np.unique(corner_uvs.reshape(-1, 6), axis=0, return_index=True)
+    repeated = np.ones(len(chart), dtype=bool)
+    repeated[first] = False
+    chart[repeated] = -1
     segments = np.ascontiguousarray(outline.reshape(-1, 4))
     for row_hi in range(size, 0, -LAYOUT_STRIP_ROWS):
         row_lo = max(row_hi - LAYOUT_STRIP_ROWS, 0)

@@ -192,21 +192,31 @@ def unwrapped_glb(mesh: TriangleMesh, atlas: UvAtlas, *, texture_png: bytes | No
     """GLB of the mesh with its atlas UVs (TEXCOORD_0), triangles in the mesh's order.
 
     Vertices are split where a seam gives one position two UVs. ``texture_png`` becomes the
-    material's base colour texture (e.g. ``unwrap.png_bytes(atlas_layout_image(atlas))``).
+    material's base colour texture (e.g. ``unwrap.atlas_layout_png(atlas)``).
     """
-    import io
-
     import trimesh
-    from PIL import Image
 
     vertices, faces, uvs = uv_split_vertices(mesh, atlas)
-    image = Image.open(io.BytesIO(texture_png)) if texture_png else None
+    image = _EncodedImage(texture_png) if texture_png else None
     material = trimesh.visual.material.PBRMaterial(
         baseColorTexture=image, metallicFactor=0.0, roughnessFactor=0.9
     )
     visual = trimesh.visual.TextureVisuals(uv=uvs, material=material)
     out = trimesh.Trimesh(vertices, faces, visual=visual, process=False)
     return out.export(file_type="glb")
+
+
+class _EncodedImage:
+    """An encoded PNG that trimesh's glTF writer embeds as it is: it only reads ``format``
+    and calls ``save``, so the picture is never decoded into memory and re-encoded."""
+
+    format = "PNG"
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+    def save(self, file: Any, format: str | None = None, **_: Any) -> None:  # noqa: A002
+        file.write(self.data)
 
 
 def uv_split_vertices(

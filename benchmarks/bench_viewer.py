@@ -46,6 +46,8 @@ from tests.api.viewer_browser import (  # noqa: E402
     neural_shdf_serve,
 )
 
+#: Smoothing values the runs release (positions of the viewer's mapped slider), none the default.
+SMOOTHING_VALUES = (0.1, 0.12, 0.14, 0.16, 0.18, 0.2, 0.25, 0.3, 0.4, 0.5, 0.7, 1, 1.5, 2)
 TARGET_MS = 150.0
 DATA = REPO_ROOT.parent / "shared" / "data"
 MESHES = {
@@ -109,15 +111,10 @@ def main() -> None:
                 upload_s = time.perf_counter() - start
                 faces = page.js("return window.shdfViewer.state.meta.faces")
                 cpu_before = cpu_seconds(pid)
-                cold = [
-                    page.release_slider("smoothing", round(0.2 + 0.01 * i, 2))
-                    for i in range(args.repeat)
-                ]
+                values = SMOOTHING_VALUES[: args.repeat]
+                cold = [page.release_smoothing(value) for value in values]
                 service_cpu_ms = (cpu_seconds(pid) - cpu_before) * 1000 / args.repeat
-                warm = [
-                    page.release_slider("smoothing", round(0.2 + 0.01 * i, 2))
-                    for i in range(args.repeat)
-                ]
+                warm = [page.release_smoothing(value) for value in values]
                 leaves = page.js("return window.shdfViewer.state.body.hierarchy.leaf_count")
                 sent = segment_requests(page)
                 cuts = [

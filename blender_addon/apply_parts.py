@@ -1,28 +1,21 @@
 """Write a segmentation back into Blender: an integer face attribute, a colour per part
 (face colour attribute and, optionally, one material per part), and optionally one object
-per part."""
+per part. Part colours are the service's (each part's ``color``), linear as Blender wants."""
 
 from __future__ import annotations
-
-import colorsys
 
 import bpy
 import numpy as np
 
+from .colors import UNLABELED_LINEAR
+
 #: Integer face attribute holding the part label of each polygon (-1: a degenerate polygon).
 PART_ATTRIBUTE = "neural_shdf_part"
-#: Face colour attribute with the part colours.
+#: Face colour attribute with the part colours (linear floats).
 COLOR_ATTRIBUTE = "neural_shdf_color"
+#: Integer face attribute keeping each polygon's own material slot while part materials show.
+OWN_MATERIAL_ATTRIBUTE = "neural_shdf_own_material"
 MATERIAL_PREFIX = "neural_shdf part"
-UNASSIGNED_COLOR = (0.3, 0.3, 0.3, 1.0)
-
-
-def part_colors(count: int) -> np.ndarray:
-    """Distinct colours (golden-ratio hues), one RGBA row per part: part i has the same
-    colour on every object and in the service's coloured GLB order."""
-    hues = (np.arange(count) * 0.618033988749895) % 1.0
-    rows = [(*colorsys.hsv_to_rgb(h, 0.65, 0.95), 1.0) for h in hues]
-    return np.array(rows, dtype=np.float32).reshape(count, 4)
 
 
 def _fresh_attribute(mesh: bpy.types.Mesh, name: str, data_type: str) -> bpy.types.Attribute:
@@ -32,22 +25,30 @@ def _fresh_attribute(mesh: bpy.types.Mesh, name: str, data_type: str) -> bpy.typ
     return mesh.attributes.new(name, data_type, "FACE")
 
 
-def write_labels(mesh: bpy.types.Mesh, labels: np.ndarray, part_count: int) -> None:
-    """The labels as the integer face attribute and the part colours as a colour attribute."""
+def _palette(colors: list[tuple[float, ...]]) -> np.ndarray:
+    """(parts + 1, 4) linear RGBA: the parts' colours, then the unlabeled grey."""
+    return np.array([*colors, UNLABELED_LINEAR], dtype=np.float32).reshape(-1, 4)
+
+
+def write_labels(mesh: bpy.types.Mesh, labels: np.ndarray, colors: list[tuple[float, ...]]) -> None:
+    """The labels as the integer face attribute and the part colours (linear RGBA per label,
+    ``colors.part_colors``) as a FLOAT_COLOR face attribute."""
     if len(labels) != len(mesh.polygons):
         raise ValueError(
             f"{len(labels)} labels for the {len(mesh.polygons)} polygons of {mesh.name!r}"
         )
     labels = np.ascontiguousarray(labels, dtype=np.int32)
     _fresh_attribute(mesh, PART_ATTRIBUTE, "INT").data.foreach_set("value", labels)
-    palette = np.vstack([part_colors(part_count), np.array([UNASSIGNED_COLOR], np.float32)])
-    colors = palette[np.where(labels >= 0, labels, part_count)]
-    _fresh_attribute(mesh, COLOR_ATTRIBUTE, "BYTE_COLOR").data.foreach_set("color", colors.ravel())
+    part_count = len(colors)
+    per_face = _palette(colors)[np.where(labels >= 0, labels, part_count)]
+    attribute = _fresh_attribute(mesh, COLOR_ATTRIBUTE, "FLOAT_COLOR")
+    attribute.data.foreach_set("color", per_face.ravel())
     mesh.update()
 
 
 def part_material(index: int, color: tuple[float, ...]) -> bpy.types.Material:
-    """The shared material of part ``index`` (created once, its colour kept up to date)."""
+    """The shared material of part ``index`` (created once, its colour kept up to date);
+    ``color``: linear RGBA, as Blender's colours are."""
     name = f"{MATERIAL_PREFIX} {index:03d}" if index >= 0 else f"{MATERIAL_PREFIX} none"
     material = bpy.data.materials.get(name) or bpy.data.materials.new(name)
     material.diffuse_color = color
@@ -58,18 +59,50 @@ def part_material(index: int, color: tuple[float, ...]) -> bpy.types.Material:
     return material
 
 
-def assign_materials(mesh: bpy.types.Mesh, labels: np.ndarray, part_count: int) -> None:
-    """Replace the mesh's materials by one per part (slot i = part i; degenerate polygons
-    get a grey slot at the end)."""
-    colors = part_colors(part_count)
-    mesh.materials.clear()
-    for index in range(part_count):
-        mesh.materials.append(part_material(index, tuple(colors[index].tolist())))
+def _is_part_material(material: bpy.types.Material | None) -> bool:
+    return material is not None and material.name.startswith(MATERIAL_PREFIX)
+
+
+def _drop_part_slots(mesh: bpy.types.Mesh) -> None:
+    """Remove the part materials' slots (the last ones); the object's own slots stay."""
+    for index in reversed(range(len(mesh.materials))):
+        if _is_part_material(mesh.materials[index]):
+            mesh.materials.pop(index=index)
+
+
+def assign_materials(
+    mesh: bpy.types.Mesh, labels: np.ndarray, colors: list[tuple[float, ...]]
+) -> None:
+    """Show one material per part: the part materials go in slots after the object's own,
+    which are never removed; each polygon's own slot is kept in OWN_MATERIAL_ATTRIBUTE
+    (restore_materials puts it back). Degenerate polygons get a grey slot at the end."""
+    if mesh.attributes.get(OWN_MATERIAL_ATTRIBUTE) is None:
+        own = np.empty(len(mesh.polygons), dtype=np.int32)
+        mesh.polygons.foreach_get("material_index", own)
+        _fresh_attribute(mesh, OWN_MATERIAL_ATTRIBUTE, "INT").data.foreach_set("value", own)
+    _drop_part_slots(mesh)
+    first = len(mesh.materials)
+    part_count = len(colors)
+    for index, color in enumerate(colors):
+        mesh.materials.append(part_material(index, color))
     unassigned = labels < 0
     if unassigned.any():
-        mesh.materials.append(part_material(-1, UNASSIGNED_COLOR))
-    slots = np.where(unassigned, part_count, labels).astype(np.int32)
+        mesh.materials.append(part_material(-1, UNLABELED_LINEAR))
+    slots = first + np.where(unassigned, part_count, labels).astype(np.int32)
     mesh.polygons.foreach_set("material_index", slots)
+    mesh.update()
+
+
+def restore_materials(mesh: bpy.types.Mesh) -> None:
+    """Undo assign_materials: the part slots go, each polygon gets its own slot back."""
+    saved = mesh.attributes.get(OWN_MATERIAL_ATTRIBUTE)
+    if saved is None:
+        return
+    own = np.empty(len(mesh.polygons), dtype=np.int32)
+    saved.data.foreach_get("value", own)
+    _drop_part_slots(mesh)
+    mesh.polygons.foreach_set("material_index", own)
+    mesh.attributes.remove(mesh.attributes[OWN_MATERIAL_ATTRIBUTE])
     mesh.update()
 
 

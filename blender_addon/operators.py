@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
-from . import apply_parts, mesh_payload, service
+from . import apply_parts, colors, mesh_payload, service
 from .properties import DIGEST_KEY, MESH_ID_KEY, PARTS_KEY, SERVER_KEY
 
 
@@ -156,9 +156,12 @@ def apply(context: bpy.types.Context, task: SegmentTask, settings) -> list[str]:
         obj[PARTS_KEY] = outcome.part_count
         target = target_object(context, obj, request)
         labels = np.frombuffer(outcome.labels, dtype=np.int32)
-        apply_parts.write_labels(target.data, labels, outcome.part_count)
+        part_colors = colors.part_colors(outcome.parts)  # the service's, linear
+        apply_parts.write_labels(target.data, labels, part_colors)
         if settings.assign_materials or settings.split_parts:
-            apply_parts.assign_materials(target.data, labels, outcome.part_count)
+            apply_parts.assign_materials(target.data, labels, part_colors)
+        else:
+            apply_parts.restore_materials(target.data)
         if settings.split_parts:
             apply_parts.split_parts(target, outcome.part_count)
         sent = "uploaded" if outcome.uploaded else "by mesh id"

@@ -71,8 +71,9 @@ class NeuralShdfSettings(bpy.types.PropertyGroup):
     )
     assign_materials: BoolProperty(  # type: ignore[valid-type]
         name="Material per Part",
-        description="Replace the object's materials by one material per part",
-        default=True,
+        description="Show one material per part (added after the object's own materials, "
+        "which stay; each polygon's own material returns when segmenting with this off)",
+        default=False,
     )
     split_parts: BoolProperty(  # type: ignore[valid-type]
         name="Split into Objects",

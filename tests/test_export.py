@@ -12,6 +12,7 @@ from neural_shdf.export import (
     UNLABELED_COLOR,
     colored_glb,
     display_geometry,
+    linear_color_bytes,
     part_color_hex,
     part_colors,
     part_name,
@@ -19,6 +20,7 @@ from neural_shdf.export import (
     read_labels,
     read_values,
     split_by_part,
+    srgb_to_linear,
     write_labels,
     write_values,
 )
@@ -64,12 +66,22 @@ def test_colored_glb_faces_have_their_part_colour(sphere_mesh):
     (geometry,) = scene.geometry.values()
     corner_colors = geometry.visual.vertex_colors[geometry.faces]
     expected = np.where(labels[:, None] >= 0, part_colors(3)[labels.clip(0)], UNLABELED_COLOR)
+    expected = linear_color_bytes(expected)  # glTF's COLOR_0 is linear
     np.testing.assert_array_equal(corner_colors, np.repeat(expected[:, None], 3, axis=1))
+
+
+def test_srgb_to_linear_is_the_srgb_transfer_function():
+    np.testing.assert_allclose(srgb_to_linear([0.0, 0.04045, 0.5, 1.0]),
+                               [0.0, 0.04045 / 12.92, 0.214041, 1.0], atol=1e-6)  # fmt: skip
+    # Orange #e69f00 (part 0): what a linear format must hold so that it shows as #e69f00.
+    np.testing.assert_array_equal(linear_color_bytes([230, 159, 0, 255]), [202, 88, 0, 255])
+    assert (np.diff(linear_color_bytes(np.arange(256, dtype=np.uint8))) >= 0).all()
 
 
 def test_colored_glb_custom_rgb_colors(box_mesh):
     labels = np.repeat([0, 1], 6)
     data = colored_glb(box_mesh, labels, colors=np.array([[255, 0, 0], [0, 0, 255]], np.uint8))
+    # Pure primaries are the same in sRGB and linear.
     scene = trimesh.load(trimesh.util.wrap_as_stream(data), file_type="glb", process=False)
     (geometry,) = scene.geometry.values()
     colors = geometry.visual.vertex_colors[geometry.faces[:, 0]]

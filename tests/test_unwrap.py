@@ -142,3 +142,87 @@ def test_a_chart_whose_border_crosses_itself_is_an_overlap():
 
     assert not _overlaps_itself(*_ring_strip(300.0))
     assert _overlaps_itself(*_ring_strip(420.0))
+
+
+def _repeated_triangle(copies: int) -> TriangleMesh:
+    """One triangle written ``copies`` times over the same three vertices."""
+    vertices = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    return TriangleMesh(vertices, np.tile([[0, 1, 2]], (copies, 1)))
+
+
+def test_pieces_of_an_edge_shared_by_thousands_of_faces_take_linear_memory():
+    import tracemalloc
+
+    from neural_shdf.unwrap import _connected_pieces
+
+    faces = _repeated_triangle(3000).faces
+    tracemalloc.start()
+    try:
+        pieces = _connected_pieces(faces, np.arange(len(faces)))
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert len(pieces) == 1 and np.array_equal(pieces[0], np.arange(len(faces)))
+    # A face-by-face product would hold 3000^2 links (over 100 MB).
+    assert peak < 10 * 2**20
+
+
+def test_copies_of_one_triangle_share_its_chart_and_uvs():
+    mesh = _repeated_triangle(2000)
+    rotated = mesh.faces.copy()
+    rotated[1::2] = rotated[1::2][:, [1, 2, 0]]  # same triangle, other first corner
+    mesh = TriangleMesh(mesh.vertices, rotated)
+    atlas = unwrap(mesh, np.zeros(mesh.face_count, dtype=np.int64))
+    assert atlas.chart_count == 1 and np.all(atlas.chart == 0)
+    # Each corner's UV follows its vertex, whatever the corner order.
+    by_vertex = np.zeros((3, 2))
+    by_vertex[mesh.faces[0]] = atlas.corner_uvs[0]
+    assert np.array_equal(atlas.corner_uvs, by_vertex[mesh.faces])
+
+
+def test_more_pieces_than_the_chart_budget_are_refused_before_work():
+    from neural_shdf.errors import MeshTooLargeError
+    from neural_shdf.unwrap import MAX_CHARTS
+
+    count = MAX_CHARTS + 1
+    corners = np.arange(count)[:, None, None] * 2.0 + np.array(
+        [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+    )
+    mesh = TriangleMesh(corners.reshape(-1, 3), np.arange(3 * count).reshape(-1, 3))
+    with pytest.raises(MeshTooLargeError, match="charts") as raised:
+        unwrap(mesh, np.zeros(count, dtype=np.int64))
+    assert raised.value.detail() == {"limit": "max_charts", "maximum": MAX_CHARTS, "found": count}
+
+
+def test_layout_png_is_the_layout_image_drawn_in_strips_with_bounded_memory():
+    import io
+    import tracemalloc
+
+    from PIL import Image
+
+    from neural_shdf.unwrap import atlas_layout_png
+
+    mesh, labels = _capsule_parts()
+    atlas = unwrap(mesh, labels, UnwrapParams(atlas_size=512))
+    for size, checker in ((300, 7), (512, 16)):  # a partial last strip, and whole strips
+        png = atlas_layout_png(atlas, size=size, checker=checker)
+        decoded = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+        assert np.array_equal(decoded, atlas_layout_image(atlas, size=size, checker=checker))
+    tracemalloc.start()
+    try:
+        atlas_layout_png(atlas, size=4096)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    # The whole picture would be 48 MB as uint8 (and several times that in floats).
+    assert peak < 24 * 2**20
+
+
+@pytest.mark.parametrize("size", [16, 8193, 100_000])
+def test_layout_sizes_outside_the_documented_range_are_refused(size):
+    from neural_shdf.unwrap import atlas_layout_png
+
+    mesh, labels = _capsule_parts()
+    atlas = unwrap(mesh, labels, UnwrapParams(atlas_size=256))
+    with pytest.raises(ParameterError, match="size"):
+        atlas_layout_png(atlas, size=size)

@@ -152,7 +152,7 @@ def cmd_unwrap(args: argparse.Namespace) -> int:
     from neural_shdf.export import unwrapped_glb, write_labels, write_obj_with_uvs
     from neural_shdf.pipeline import input_face_labels, mesh_face_graph, segment_mesh
     from neural_shdf.segment import SegmentParams
-    from neural_shdf.unwrap import UnwrapParams, atlas_layout_image, png_bytes, unwrap
+    from neural_shdf.unwrap import UnwrapParams, atlas_layout_png, unwrap
 
     output = Path(args.output)
     if output.suffix.lower() not in (".glb", ".obj"):
@@ -167,7 +167,7 @@ def cmd_unwrap(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     labels = segment_mesh(mesh, shdf, params, graph=graph)
     atlas = unwrap(mesh, labels, unwrap_params)
-    layout = png_bytes(atlas_layout_image(atlas, size=args.atlas_size))
+    layout = atlas_layout_png(atlas, size=args.atlas_size)
     split = 0
     if output.suffix.lower() == ".glb":
         output.write_bytes(unwrapped_glb(mesh, atlas, texture_png=layout))

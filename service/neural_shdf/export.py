@@ -49,6 +49,20 @@ def part_colors(n_parts: int) -> NDArray[np.uint8]:
     return colors
 
 
+def srgb_to_linear(srgb: NDArray) -> NDArray[np.float64]:
+    """sRGB components in [0, 1] to linear light (the inverse sRGB transfer function):
+    the palette is defined in sRGB, glTF's COLOR_0 and renderers' vertex colours are linear."""
+    srgb = np.asarray(srgb, dtype=np.float64)
+    return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+
+
+def linear_color_bytes(rgba: NDArray) -> NDArray[np.uint8]:
+    """RGB(A) sRGB bytes to linear bytes (alpha is linear already and kept)."""
+    out = np.array(rgba, dtype=np.uint8, copy=True)
+    out[..., :3] = np.round(srgb_to_linear(out[..., :3] / 255.0) * 255.0)
+    return out
+
+
 def part_color_hex(n_parts: int) -> list[str]:
     """part_colors as ``#rrggbb`` strings (what the API returns with each part)."""
     return [f"#{r:02x}{g:02x}{b:02x}" for r, g, b, _ in part_colors(n_parts).tolist()]
@@ -126,7 +140,8 @@ def colored_glb(
 ) -> bytes:
     """GLB of the mesh with one colour per part (vertex colours; parts never share a vertex).
 
-    ``colors`` overrides the palette: (n_labels, 3 or 4) uint8, indexed by label.
+    ``colors`` overrides the palette: (n_labels, 3 or 4) sRGB uint8, indexed by label. COLOR_0
+    holds them linear, as glTF defines it, so viewers show the sRGB colours of the API.
     """
     import trimesh
 
@@ -139,6 +154,7 @@ def colored_glb(
         if palette.shape[1] == 3:
             palette = np.concatenate([palette, np.full((len(palette), 1), 255, np.uint8)], 1)
         vertex_colors = palette[vertex_label]
+    vertex_colors = linear_color_bytes(vertex_colors)
     out = trimesh.Trimesh(vertices, faces, vertex_colors=vertex_colors, process=False)
     return out.export(file_type="glb")
 
@@ -176,21 +192,31 @@ def unwrapped_glb(mesh: TriangleMesh, atlas: UvAtlas, *, texture_png: bytes | No
     """GLB of the mesh with its atlas UVs (TEXCOORD_0), triangles in the mesh's order.
 
     Vertices are split where a seam gives one position two UVs. ``texture_png`` becomes the
-    material's base colour texture (e.g. ``unwrap.png_bytes(atlas_layout_image(atlas))``).
+    material's base colour texture (e.g. ``unwrap.atlas_layout_png(atlas)``).
     """
-    import io
-
     import trimesh
-    from PIL import Image
 
     vertices, faces, uvs = uv_split_vertices(mesh, atlas)
-    image = Image.open(io.BytesIO(texture_png)) if texture_png else None
+    image = _EncodedImage(texture_png) if texture_png else None
     material = trimesh.visual.material.PBRMaterial(
         baseColorTexture=image, metallicFactor=0.0, roughnessFactor=0.9
     )
     visual = trimesh.visual.TextureVisuals(uv=uvs, material=material)
     out = trimesh.Trimesh(vertices, faces, visual=visual, process=False)
     return out.export(file_type="glb")
+
+
+class _EncodedImage:
+    """An encoded PNG that trimesh's glTF writer embeds as it is: it only reads ``format``
+    and calls ``save``, so the picture is never decoded into memory and re-encoded."""
+
+    format = "PNG"
+
+    def __init__(self, data: bytes) -> None:
+        self.data = data
+
+    def save(self, file: Any, format: str | None = None, **_: Any) -> None:  # noqa: A002
+        file.write(self.data)
 
 
 def uv_split_vertices(
@@ -239,7 +265,8 @@ def write_obj_with_uvs(path: str | Path, mesh: TriangleMesh, atlas: UvAtlas) -> 
                 base = len(uv_rows)
                 uv_rows.extend(atlas.corner_uvs[triangle])
                 faces_text.append(
-                    "f " + " ".join(
+                    "f "
+                    + " ".join(
                         f"{v + 1}/{base + k + 1}" for k, v in enumerate(mesh.faces[triangle])
                     )
                 )
@@ -324,6 +351,7 @@ __all__ = [
     "UNLABELED_COLOR",
     "colored_glb",
     "display_geometry",
+    "linear_color_bytes",
     "part_color_hex",
     "part_colors",
     "part_name",
@@ -332,6 +360,7 @@ __all__ = [
     "read_labels",
     "read_values",
     "split_by_part",
+    "srgb_to_linear",
     "unwrapped_glb",
     "uv_split_vertices",
     "write_labels",

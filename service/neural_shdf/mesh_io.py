@@ -30,7 +30,7 @@ from pathlib import Path
 
 from neural_shdf.errors import MeshParseError, UnsupportedFormatError
 from neural_shdf.exchange import READERS, REFUSED
-from neural_shdf.exchange._common import MeshLimits, parse_guard
+from neural_shdf.exchange._common import MeshLimits, parse_guard, strip_bom
 from neural_shdf.exchange.fbx import looks_like_fbx
 from neural_shdf.exchange.usd import sniff_usd
 from neural_shdf.mesh import TriangleMesh
@@ -75,7 +75,7 @@ def sniff_format(data: bytes) -> str | None:
         return usd
     if looks_like_fbx(data):
         return "fbx"  # refused by name, with what to do instead
-    head = data[:512].lstrip()
+    head = strip_bom(data[:512]).lstrip()
     if head.startswith(b"glTF"):
         return "glb"
     if head.startswith(b"ply"):

@@ -10,13 +10,15 @@ GLB writer flips it for glTF).
 from __future__ import annotations
 
 import math
+from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
-from neural_shdf.errors import ParameterError
+from neural_shdf.errors import MeshTooLargeError, ParameterError
 from neural_shdf.geometry import weld_faces
 from neural_shdf.mesh import TriangleMesh
 
@@ -127,17 +129,22 @@ def unwrap(mesh: TriangleMesh, labels: NDArray, params: UnwrapParams | None = No
     params = params or UnwrapParams()
     labels = part_labels_per_triangle(mesh, labels)
     welded = weld_faces(mesh.vertices, mesh.faces)
+    representative = _coincident_representative(welded, labels)
+    first = representative == np.arange(mesh.face_count)
+    parts = np.unique(labels)
+    pieces = [_connected_pieces(welded, np.flatnonzero((labels == part) & first)) for part in parts]
+    later = sum(len(found) for found in pieces)
+    _check_chart_budget(later)
     diagonal_pairs = _polygon_diagonals(mesh, welded)
     corner_uvs = np.zeros((mesh.face_count, 3, 2), dtype=np.float64)
     chart = np.full(mesh.face_count, -1, dtype=np.int64)
     chart_part: list[int] = []
     leftovers: list[tuple[int, NDArray[np.int64]]] = []
-    for part in np.unique(labels):
-        pending = [
-            (piece, 0) for piece in _connected_pieces(welded, np.flatnonzero(labels == part))
-        ]
+    for part, found in zip(parts, pieces, strict=True):
+        pending = deque((piece, 0) for piece in found)
+        later -= len(found)
         while pending:
-            piece, depth = pending.pop(0)
+            piece, depth = pending.popleft()
             used, local = np.unique(welded[piece], return_inverse=True)
             local = local.reshape(-1, 3)
             diagonals = _local_diagonals(diagonal_pairs, used)
@@ -153,6 +160,7 @@ def unwrap(mesh: TriangleMesh, labels: NDArray, params: UnwrapParams | None = No
                 for half in (0, 1):
                     for sub in _connected_pieces(welded, piece[halves == half]):
                         pending.append((sub, depth + 1))
+                _check_chart_budget(len(chart_part) + len(leftovers) + len(pending) + later)
             else:
                 leftovers.append((int(part), piece))
     for part, piece in leftovers:
@@ -160,7 +168,52 @@ def unwrap(mesh: TriangleMesh, labels: NDArray, params: UnwrapParams | None = No
             corner_uvs[faces] = uvs
             chart[faces] = len(chart_part)
             chart_part.append(part)
-    return _pack(mesh, corner_uvs, chart, np.asarray(chart_part, dtype=np.int64), params)
+        _check_chart_budget(len(chart_part))
+    atlas = _pack(mesh, corner_uvs, chart, np.asarray(chart_part, dtype=np.int64), params)
+    _copy_to_coincident(atlas, welded, representative)
+    return atlas
+
+
+#: Most charts one atlas is packed with; each costs a few milliseconds to chart and pack,
+#: and past this a 8192-texel atlas gives each under ~80 x 80 texels.
+MAX_CHARTS = 10_000
+
+
+def _check_chart_budget(charts: int) -> None:
+    """MeshTooLargeError once the charts (or pieces that become at least one chart each)
+    pass MAX_CHARTS: checked before the work that would make more."""
+    if charts > MAX_CHARTS:
+        raise MeshTooLargeError(
+            f"unwrapping needs at least {charts} charts (separate pieces of the parts), more "
+            f"than the limit of {MAX_CHARTS}: merge the mesh's loose pieces or segment it "
+            "into fewer, connected parts",
+            limit="max_charts",
+            maximum=MAX_CHARTS,
+            found=charts,
+        )
+
+
+def _coincident_representative(
+    welded: NDArray[np.int64], labels: NDArray[np.int64]
+) -> NDArray[np.int64]:
+    """Per face, the first face of the same part on the same (welded) vertices, in any
+    order: copies of one triangle are charted once and share its UVs."""
+    keys = np.column_stack([labels, np.sort(welded, axis=1)])
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    return first[inverse.reshape(-1)].astype(np.int64)
+
+
+def _copy_to_coincident(
+    atlas: UvAtlas, welded: NDArray[np.int64], representative: NDArray[np.int64]
+) -> None:
+    """Give every copy its first face's chart and UVs, corner by matching vertex."""
+    copies = np.flatnonzero(representative != np.arange(len(representative)))
+    if len(copies) == 0:
+        return
+    source = representative[copies]
+    corner = np.argmax(welded[source][:, None, :] == welded[copies][:, :, None], axis=2)
+    atlas.corner_uvs[copies] = atlas.corner_uvs[source[:, None], corner]
+    atlas.chart[copies] = atlas.chart[source]
 
 
 def _polygon_diagonals(mesh: TriangleMesh, welded: NDArray[np.int64]) -> NDArray[np.int64]:
@@ -183,7 +236,11 @@ def _local_diagonals(pairs: NDArray[np.int64], used: NDArray[np.int64]) -> NDArr
 
 
 def _connected_pieces(welded: NDArray[np.int64], faces: NDArray[np.int64]) -> list[NDArray]:
-    """``faces`` split into edge-connected pieces, each in ascending face order."""
+    """``faces`` split into edge-connected pieces, each in ascending face order.
+
+    Components of the bipartite face-edge graph (3 links per face), not of the face-face
+    product: an edge shared by k faces costs k links, not k^2 (a triangle repeated in place).
+    """
     import scipy.sparse as sp
     from scipy.sparse.csgraph import connected_components
 
@@ -191,13 +248,23 @@ def _connected_pieces(welded: NDArray[np.int64], faces: NDArray[np.int64]) -> li
         return []
     edges = np.sort(welded[faces][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     _, edge_id = np.unique(edges, axis=0, return_inverse=True)
-    owner = np.repeat(np.arange(len(faces)), 3)
-    incidence = sp.csr_matrix(
-        (np.ones(len(owner)), (owner, edge_id.reshape(-1))), shape=(len(faces), edge_id.max() + 1)
+    n_faces, n_edges = len(faces), int(edge_id.max()) + 1
+    owner = np.repeat(np.arange(n_faces), 3)
+    # Faces are nodes [0, F), edges [F, F + E): face labels come first, in face order.
+    links = sp.csr_matrix(
+        (np.ones(len(owner), dtype=np.int8), (owner, n_faces + edge_id.reshape(-1))),
+        shape=(n_faces + n_edges, n_faces + n_edges),
     )
-    count, component = connected_components(incidence @ incidence.T, directed=False)
+    _, node_component = connected_components(links, directed=False)
+    # Renumber by first face so that pieces come in the order of their lowest face.
+    _, first, component = np.unique(
+        node_component[:n_faces], return_index=True, return_inverse=True
+    )
+    rank = np.empty(len(first), dtype=np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(len(first))
+    component = rank[component.reshape(-1)]
     order = np.argsort(component, kind="stable")
-    return np.split(faces[order], np.cumsum(np.bincount(component, minlength=count))[:-1])
+    return np.split(faces[order], np.cumsum(np.bincount(component))[:-1])
 
 
 def _bisect(
@@ -256,8 +323,18 @@ def _lscm(vertices: NDArray, faces: NDArray) -> NDArray[np.float64] | None:
     return uv * np.sqrt(area_3d / area_uv)
 
 
+#: Most boundary loops joined by cuts (each cut is a shortest-path search over the piece);
+#: a piece with more holes is split or left to xatlas.
+MAX_JOINED_LOOPS = 64
+#: Longest chart border tested for self-overlap (the test compares every pair of border
+#: edges); a chart with a longer border is split or left to xatlas.
+MAX_CHECKED_BORDER = 20_000
 #: Edge-length factor that keeps cuts off the diagonals inside input polygons.
 DIAGONAL_PENALTY = 1e6
+
+
+class _CutFailedError(Exception):
+    """A cut gave no usable mesh: the piece is left to xatlas."""
 
 
 class _Piece:
@@ -316,9 +393,20 @@ class _Piece:
             keys = np.minimum(a, b) * n + np.maximum(a, b)
             flags[:, k] = np.isin(keys, wanted)
         vertices, faces, copied_from = igl.cut_mesh(self.vertices, self.faces, flags)
-        self.origin = self.origin[np.asarray(copied_from, dtype=np.int64)]
-        self.vertices = np.asarray(vertices)
-        self.faces = np.asarray(faces, dtype=np.int64)
+        vertices = np.asarray(vertices)
+        faces = np.asarray(faces, dtype=np.int64)
+        copied_from = np.asarray(copied_from, dtype=np.int64)
+        used = np.unique(faces)
+        if len(used) < len(vertices):
+            # A cut along a slit can leave an unreferenced copy whose source is itself.
+            remap = np.full(len(vertices), -1, dtype=np.int64)
+            remap[used] = np.arange(len(used))
+            vertices, faces, copied_from = vertices[used], remap[faces], copied_from[used]
+        if copied_from.max(initial=0) >= len(self.origin):
+            raise _CutFailedError("libigl's cut_mesh copied a vertex that does not exist")
+        self.origin = self.origin[copied_from]
+        self.vertices = vertices
+        self.faces = faces
 
 
 def _shortest_path(graph, sources: NDArray[np.int64], targets: NDArray[np.int64]) -> list[int]:
@@ -355,6 +443,8 @@ def _open_to_disk(piece: _Piece) -> bool:
             return False
         piece.cut(path)
         loops = piece.loops()
+    if len(loops) > MAX_JOINED_LOOPS:
+        return False
     while len(loops) > 1:
         path = _shortest_path(piece.edge_graph(), loops[0], np.concatenate(loops[1:]))
         if len(path) < 2:
@@ -390,6 +480,16 @@ def _flatten_piece(
     if areas.min() <= 1e-12 * areas.max():
         return None
     piece = _Piece(vertices, faces, np.zeros(0, np.int64) if diagonals is None else diagonals)
+    try:
+        return _flatten_disk(piece, areas, max_stretch, max_cuts)
+    except _CutFailedError:
+        return None
+
+
+def _flatten_disk(
+    piece: _Piece, areas: NDArray, max_stretch: float, max_cuts: int
+) -> NDArray[np.float64] | None:
+    """``_flatten_piece`` once the piece passed its checks: cut to a disk, map, cut more."""
     if not _open_to_disk(piece):
         return None
     for cut in range(max_cuts + 1):
@@ -434,6 +534,8 @@ def _overlaps_itself(uv: NDArray, faces: NDArray) -> bool:
     edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     unique, counts = np.unique(edges, axis=0, return_counts=True)
     border = unique[counts == 1]
+    if len(border) > MAX_CHECKED_BORDER:
+        return True  # too long a border to test pair by pair: not kept as one chart
     same = border
     start, end = uv[border[:, 0]], uv[border[:, 1]]
     block = max(1, 4_000_000 // max(len(border), 1))
@@ -644,19 +746,67 @@ def rasterize_charts(
 
 
 @kernel
-def _draw_segments(segments, image, color):  # pragma: no cover - numba
-    """Set the texels along each (x0, y0, x1, y1) segment (texel units) to ``color``."""
-    height, width = image.shape[0], image.shape[1]
+def _draw_layout_rows(
+    corner_uvs, chart, chart_part, palette, segments, size, checker, row_lo, out
+):  # pragma: no cover - numba
+    """Rows ``row_lo`` .. ``row_lo + len(out)`` (row 0 at v = 0) of the atlas picture into
+    ``out`` (white on entry): each texel takes the first chart (in face order) whose
+    triangle covers its centre, coloured ``palette[part, checker square]``, then the
+    outline ``segments`` (x0, y0, x1, y1 in texels) are drawn dark."""
+    rows = out.shape[0]
+    row_hi = row_lo + rows
+    owner = np.full((rows, size), -1, dtype=np.int64)
+    for face in range(len(chart)):
+        label = chart[face]
+        if label < 0:
+            continue
+        x0 = corner_uvs[face, 0, 0] * size
+        y0 = corner_uvs[face, 0, 1] * size
+        x1 = corner_uvs[face, 1, 0] * size
+        y1 = corner_uvs[face, 1, 1] * size
+        x2 = corner_uvs[face, 2, 0] * size
+        y2 = corner_uvs[face, 2, 1] * size
+        ymin = max(int(math.floor(min(y0, y1, y2))), row_lo)
+        ymax = min(int(math.ceil(max(y0, y1, y2))), row_hi - 1)
+        if ymin > ymax:
+            continue
+        area = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+        if area == 0.0:
+            continue
+        sign = 1.0 if area > 0 else -1.0
+        xmin = max(int(math.floor(min(x0, x1, x2))), 0)
+        xmax = min(int(math.ceil(max(x0, x1, x2))), size - 1)
+        for py in range(ymin, ymax + 1):
+            cy = py + 0.5
+            for px in range(xmin, xmax + 1):
+                if owner[py - row_lo, px] >= 0:
+                    continue
+                cx = px + 0.5
+                w0 = sign * ((x1 - cx) * (y2 - cy) - (x2 - cx) * (y1 - cy))
+                w1 = sign * ((x2 - cx) * (y0 - cy) - (x0 - cx) * (y2 - cy))
+                w2 = sign * ((x0 - cx) * (y1 - cy) - (x1 - cx) * (y0 - cy))
+                if w0 >= 0.0 and w1 >= 0.0 and w2 >= 0.0:
+                    owner[py - row_lo, px] = label
+    for r in range(rows):
+        square_row = (row_lo + r) * checker // size
+        for px in range(size):
+            label = owner[r, px]
+            if label >= 0:
+                square = (square_row + px * checker // size) % 2
+                for c in range(3):
+                    out[r, px, c] = palette[chart_part[label], square, c]
     for i in range(len(segments)):
         x0, y0, x1, y1 = segments[i, 0], segments[i, 1], segments[i, 2], segments[i, 3]
+        if max(y0, y1) < row_lo - 1 or min(y0, y1) > row_hi + 1:
+            continue
         steps = int(max(abs(x1 - x0), abs(y1 - y0))) + 1
         for s in range(steps + 1):
             t = s / steps
             px = int(x0 + t * (x1 - x0))
             py = int(y0 + t * (y1 - y0))
-            if 0 <= px < width and 0 <= py < height:
-                for c in range(image.shape[2]):
-                    image[py, px, c] = color[c]
+            if 0 <= px < size and row_lo <= py < row_hi:
+                for c in range(3):
+                    out[py - row_lo, px, c] = 40
 
 
 def chart_outline_edges(corner_uvs: NDArray, chart: NDArray) -> NDArray[np.float64]:
@@ -679,30 +829,99 @@ def chart_outline_edges(corner_uvs: NDArray, chart: NDArray) -> NDArray[np.float
     return np.stack([starts[outline], ends[outline]], axis=1)
 
 
+#: Rows of the atlas picture drawn at a time: memory stays at a strip, not the picture.
+LAYOUT_STRIP_ROWS = 256
+
+
+def _layout_strips(atlas: UvAtlas, size: int | None, checker: int) -> Iterator[NDArray[np.uint8]]:
+    """The atlas picture (see ``atlas_layout_image``) as strips of rows, top first."""
+    from neural_shdf.export import part_colors
+
+    size = (
+        min(max(atlas.width, atlas.height, MIN_ATLAS_SIZE), MAX_ATLAS_SIZE)
+        if size is None
+        else size
+    )
+    if not MIN_ATLAS_SIZE <= size <= MAX_ATLAS_SIZE:
+        raise ParameterError(
+            f"the atlas picture's size must be in [{MIN_ATLAS_SIZE}, {MAX_ATLAS_SIZE}] "
+            f"texels, got {size}"
+        )
+    if not 1 <= checker <= size:
+        raise ParameterError(f"checker must be in [1, {size}] squares, got {checker}")
+    parts = np.asarray(atlas.chart_part, dtype=np.int64)
+    if len(parts) and (parts.min() < 0 or parts.max() >= 2 * len(parts) + 64):
+        # Sparse or negative labels: colour by rank, so the palette stays as small as the charts.
+        parts = np.unique(parts, return_inverse=True)[1].reshape(-1)
+    colors = part_colors(int(parts.max()) + 1 if len(parts) else 0)[:, :3].astype(np.float64)
+    palette = np.stack([colors * 1.0, colors * 0.72], axis=1).astype(np.uint8)
+    outline = chart_outline_edges(atlas.corner_uvs, atlas.chart) * size
+    corner_uvs = np.ascontiguousarray(atlas.corner_uvs, dtype=np.float64)
+    chart = np.array(atlas.chart, dtype=np.int64)
+    # A triangle on the same UVs as an earlier one claims no texel: drawn once, copies of
+    # a triangle cost one triangle's texels, not one each.
+    _, first = np.unique(corner_uvs.reshape(-1, 6), axis=0, return_index=True)
+    repeated = np.ones(len(chart), dtype=bool)
+    repeated[first] = False
+    chart[repeated] = -1
+    segments = np.ascontiguousarray(outline.reshape(-1, 4))
+    for row_hi in range(size, 0, -LAYOUT_STRIP_ROWS):
+        row_lo = max(row_hi - LAYOUT_STRIP_ROWS, 0)
+        strip = np.full((row_hi - row_lo, size, 3), 255, dtype=np.uint8)
+        _draw_layout_rows(corner_uvs, chart, parts, palette, segments, size, checker, row_lo, strip)
+        yield strip[::-1]
+
+
 def atlas_layout_image(
     atlas: UvAtlas, *, size: int | None = None, checker: int = 16
 ) -> NDArray[np.uint8]:
     """An RGB picture of the atlas for people: charts filled with their part's colour
     under a checker pattern (``checker`` squares per side; shows stretch when used as a
-    texture), chart outlines dark, empty space white. Row 0 is the top (v = 1)."""
-    from neural_shdf.export import part_colors
+    texture), chart outlines dark, empty space white. Row 0 is the top (v = 1).
+    ``size``: side in texels, in [MIN_ATLAS_SIZE, MAX_ATLAS_SIZE] (default: the atlas's)."""
+    return np.ascontiguousarray(np.concatenate(list(_layout_strips(atlas, size, checker))))
 
-    size = size or max(atlas.width, atlas.height, 64)
-    owner, _ = rasterize_charts(atlas.corner_uvs, atlas.chart, size)
-    parts = atlas.chart_part
-    colors = part_colors(int(parts.max()) + 1 if len(parts) else 0)[:, :3].astype(np.float64)
-    image = np.full((size, size, 3), 255.0)
-    filled = owner >= 0
-    rows, cols = np.nonzero(filled)
-    squares = ((rows * checker // size) + (cols * checker // size)) % 2
-    shade = np.where(squares == 0, 1.0, 0.72)
-    image[rows, cols] = colors[parts[owner[rows, cols]]] * shade[:, None]
-    image = image.astype(np.uint8)
-    outline = chart_outline_edges(atlas.corner_uvs, atlas.chart) * size
-    _draw_segments(
-        np.ascontiguousarray(outline.reshape(-1, 4)), image, np.array([40, 40, 40], np.uint8)
+
+#: zlib level of the atlas PNG: the picture is flat colour, so a fast level is enough.
+PNG_COMPRESSION = 6
+
+
+def atlas_layout_png(atlas: UvAtlas, *, size: int | None = None, checker: int = 16) -> bytes:
+    """``atlas_layout_image`` as PNG bytes, drawn and compressed a strip at a time so that
+    memory is a strip plus the compressed output, whatever the size."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        body = kind + data
+        return struct.pack(">I", len(data)) + body + struct.pack(">I", zlib.crc32(body))
+
+    strips = _layout_strips(atlas, size, checker)
+    parts: list[bytes] = []
+    compressor = zlib.compressobj(PNG_COMPRESSION)
+    previous = None
+    width = 0
+    for strip in strips:
+        width = strip.shape[1]
+        if previous is None:
+            previous = np.zeros_like(strip[0])
+        # PNG filter "up" per row: flat colour between rows compresses to runs of zeros.
+        above = np.concatenate([previous[None], strip[:-1]])
+        filtered = np.empty((len(strip), 1 + 3 * width), dtype=np.uint8)
+        filtered[:, 0] = 2
+        filtered[:, 1:] = (strip - above).reshape(len(strip), -1)
+        previous = strip[-1].copy()
+        parts.append(compressor.compress(filtered.tobytes()))
+    parts.append(compressor.flush())
+    header = struct.pack(">IIBBBBB", width, width, 8, 2, 0, 0, 0)
+    return b"".join(
+        [
+            b"\x89PNG\r\n\x1a\n",
+            chunk(b"IHDR", header),
+            chunk(b"IDAT", b"".join(parts)),
+            chunk(b"IEND", b""),
+        ]  # fmt: skip
     )
-    return np.ascontiguousarray(image[::-1])
 
 
 def png_bytes(image: NDArray[np.uint8]) -> bytes:
@@ -720,6 +939,7 @@ __all__ = [
     "UnwrapParams",
     "UvAtlas",
     "atlas_layout_image",
+    "atlas_layout_png",
     "chart_outline_edges",
     "input_face_corner_uvs",
     "part_labels_per_triangle",

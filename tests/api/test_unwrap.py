@@ -83,3 +83,28 @@ def test_a_large_mesh_is_unwrapped_in_a_job(app_factory, capsule_obj):
         assert done.status_code == 200 and done.headers["content-type"] == "model/gltf-binary"
         png = client.get(f"/v1/meshes/{mesh_id}/segmentation/atlas.png", params=query)
         assert png.status_code == 200  # the same atlas, cached: no second job
+
+
+def test_the_atlas_png_is_drawn_once_and_shared_with_the_glb_texture(client, capsule_obj):
+    mesh_id = _upload(client, capsule_obj)
+    query = {"method": TEST_METHOD, "clusters": 3, "atlas_size": 512}
+    url = f"/v1/meshes/{mesh_id}/segmentation"
+    first = client.get(f"{url}/atlas.png", params=query)
+    assert first.status_code == 200, first.text
+    drawn = metric(client.app, "neural_shdf_cache_misses_total", kind="atlas_png")
+    assert drawn >= 1  # looked up, not found, drawn
+    again = client.get(f"{url}/atlas.png", params=query)
+    assert again.content == first.content
+    glb = client.get(f"{url}/unwrapped.glb", params=query)
+    assert glb.status_code == 200 and first.content in glb.content  # the same PNG embedded
+    assert metric(client.app, "neural_shdf_cache_misses_total", kind="atlas_png") == drawn
+
+
+def test_atlas_sizes_outside_the_documented_range_get_422(client, capsule_obj):
+    mesh_id = _upload(client, capsule_obj)
+    for route in ("atlas.png", "unwrapped.glb"):
+        for size in (63, 8193, 65536):
+            response = client.get(f"/v1/meshes/{mesh_id}/segmentation/{route}",
+                                  params={"method": TEST_METHOD, "atlas_size": size})  # fmt: skip
+            assert response.status_code == 422, response.text
+            assert "atlas_size" in response.json()["error"]["message"]

@@ -94,3 +94,17 @@ def test_every_module_the_scripts_import_is_served(app_factory):
             assert client.get(f"/viewer/static/{target}").status_code == 200, target
     assert {"api.js", "scene.js"} <= relative
     assert "three" in bare and all(b == "three" or b.startswith("three/addons/") for b in bare)
+
+
+def test_page_names_the_fix_when_three_js_cannot_load(app_factory, tmp_path):
+    """The page carries what to do if three.js does not load: offline with the CDN default,
+    install the npm copy the service then serves."""
+    with TestClient(app_factory(viewer_three_dir=tmp_path / "nothing-here")) as client:
+        _, config = page_scripts(client.get("/viewer/").text)
+    assert config["threeUrl"].startswith("https://cdn.jsdelivr.net/npm/three@")
+    assert "CDN" in config["threeHelp"] and "offline" in config["threeHelp"]
+    assert f"`npm ci` in {VIEWER_DIR}" in config["threeHelp"]
+    assert "NEURAL_SHDF_VIEWER_THREE_DIR" in config["threeHelp"]
+    with TestClient(app_factory(viewer_three_url="https://x.test/three")) as client:
+        _, config = page_scripts(client.get("/viewer/").text)
+    assert "NEURAL_SHDF_VIEWER_THREE_URL (https://x.test/three/)" in config["threeHelp"]

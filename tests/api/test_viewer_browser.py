@@ -17,6 +17,7 @@ import pytest
 import trimesh
 
 from neural_shdf.api.viewer import VIEWER_DIR
+from neural_shdf.export import linear_color_bytes, srgb_to_linear
 from neural_shdf.mesh_io import load_mesh
 from tests.api.api_helpers import TEST_METHOD, obj_bytes
 from tests.api.viewer_browser import ViewerPage, chromium_missing, neural_shdf_serve
@@ -294,8 +295,8 @@ def test_a_newer_slider_value_supersedes_the_request_in_flight(page, server, mes
         const seen = [];
         addEventListener('shdf:segmented', (e) => seen.push(e.detail));
         const input = document.getElementById('smoothing');
-        for (const value of ['0.5', '0.05']) {
-          input.value = value;
+        for (const value of [0.5, 0.05]) {
+          input.value = String(window.shdfViewer.smoothingPosition(value));
           input.dispatchEvent(new Event('change'));
         }
         setTimeout(() => done(seen), 3000);
@@ -389,7 +390,8 @@ def test_downloads_hold_the_shown_segmentation(page, meshes):
     document = json.loads(wait_file(folder, "small-segmentation.json").read_text())
     assert document["labels"] == shown["labels"] and document["parts"] == shown["parts"]
     colored = trimesh.load(wait_file(folder, "small-colored.glb"), file_type="glb", force="mesh")
-    expected = {tuple(rgb(p["color"])) for p in shown["parts"]}
+    # glTF's COLOR_0 is linear: the API's sRGB colours converted.
+    expected = {tuple(linear_color_bytes(rgb(p["color"])).tolist()) for p in shown["parts"]}
     assert {tuple(c) for c in colored.visual.vertex_colors[:, :3].tolist()} == expected
     scene = trimesh.load(wait_file(folder, "small-parts.glb"), file_type="glb")
     assert len(scene.geometry) == len(shown["parts"])
@@ -464,16 +466,17 @@ def test_dragging_keeps_one_request_in_flight_and_ends_on_the_released_value(pag
           return original(url, options).then((response) => pause(600).then(() => response));
         };
         const input = document.getElementById('smoothing');
+        const position = window.shdfViewer.smoothingPosition;
         (async () => {
-          for (const value of ['0.3', '0.31', '0.32', '0.33', '0.34', '0.35']) {
-            input.value = value;  // held still past the page's 150 ms each time
+          for (const value of [0.1, 0.12, 0.14, 0.16, 0.18, 0.2]) {
+            input.value = String(position(value));  // held still past the page's 150 ms each time
             input.dispatchEvent(new Event('input'));
             await pause(200);
           }
           const last = new Promise((resolve) => addEventListener('shdf:segmented', (e) => {
-            if (e.detail.request.smoothing === 0.36) resolve(e.detail);
+            if (e.detail.request.smoothing === 0.3) resolve(e.detail);
           }));
-          input.value = '0.36';
+          input.value = String(position(0.3));
           input.dispatchEvent(new Event('input'));
           input.dispatchEvent(new Event('change'));
           const detail = await last;
@@ -491,7 +494,192 @@ def test_dragging_keeps_one_request_in_flight_and_ends_on_the_released_value(pag
     assert result["abortedBeforeRelease"] <= 1, result  # only the release aborts one
     assert result["reason"] == "release"
     shown = page.segmentation()
-    assert shown["controls"]["smoothing"] == 0.36
+    assert shown["controls"]["smoothing"] == 0.3
     mesh_id = page.js("return window.shdfViewer.state.meshId")
     assert_colours_match(shown, api_labels(server, mesh_id, controls_of(shown)))
+    assert severe(page) == []
+
+
+#: The stage's background (scene.js), as the screen shows it.
+BACKGROUND = np.array([0xF3, 0xF4, 0xF6])
+
+
+def stage_pixels(page: ViewerPage, shot: np.ndarray) -> np.ndarray:
+    """(N, 3) pixels of the mesh on the canvas: not the background, not under the tools."""
+    scale = shot.shape[1] / page.js("return innerWidth")
+    canvas, tools = page.rect("#canvas"), page.rect("#view-tools")
+    box = lambda r: tuple(int(round(r[k] * scale)) for k in ("left", "top", "right", "bottom"))  # noqa: E731
+    left, top, right, bottom = box(canvas)
+    mask = np.zeros(shot.shape[:2], dtype=bool)
+    mask[top:bottom, left:right] = True
+    t_left, t_top, t_right, t_bottom = box(tools)
+    mask[max(t_top - 2, 0) : t_bottom + 2, max(t_left - 2, 0) : t_right + 2] = False
+    mask &= np.abs(shot.astype(int) - BACKGROUND).max(axis=-1) > 8
+    return shot[mask].astype(int)
+
+
+def chromaticity(srgb: np.ndarray) -> np.ndarray:
+    """Linear RGB over its sum: what white light of any strength leaves unchanged."""
+    linear = srgb_to_linear(np.asarray(srgb) / 255.0)
+    return linear / linear.sum(axis=-1, keepdims=True)
+
+
+def test_screen_colours_are_the_api_colours_and_the_swatches(page, server, meshes):
+    """A real screenshot: flat, the mesh is drawn in exactly the API's colours and the parts
+    table's swatches; shaded, in their hues; the heat map in the legend's colours."""
+    page.upload(meshes["small"])
+    set_up_axis(page, "z")  # the dumbbell along z stands: every part in sight
+    mesh_id = page.js("return window.shdfViewer.state.meshId")
+    body = api_labels(server, mesh_id, controls_of(page.segmentation()))
+    palette = np.array([rgb(p["color"]) for p in body["parts"]])
+    assert len(palette) >= 2
+
+    page.js("document.getElementById('flat').click()")
+    flat = stage_pixels(page, page.pixels())
+    distance = np.abs(flat[:, None, :] - palette[None]).max(axis=-1)  # (pixels, parts)
+    assert (distance.min(axis=1) <= 1).mean() > 0.9  # the rest: anti-aliased edges
+    drawn = np.bincount(distance.argmin(axis=1)[distance.min(axis=1) <= 1], minlength=len(palette))
+    assert (drawn > 100).all(), drawn  # every part on screen, in its API colour
+
+    shot = page.pixels()
+    scale = shot.shape[1] / page.js("return innerWidth")
+    for label, colour in enumerate(palette):
+        swatch = page.rect(f'#parts-table tr[data-label="{label}"] .swatch')
+        x = int((swatch["left"] + swatch["right"]) / 2 * scale)
+        y = int((swatch["top"] + swatch["bottom"]) / 2 * scale)
+        assert np.abs(shot[y, x].astype(int) - colour).max() <= 1, (label, shot[y, x], colour)
+
+    # Lit: white lights scale linear RGB, so each pixel keeps its part's linear chromaticity
+    # (sRGB bytes drawn as if linear shift it by 0.1 and more: orange turns yellow).
+    page.js("document.getElementById('flat').click()")
+    lit = stage_pixels(page, page.pixels())
+    lit = lit[lit.max(axis=1) > 60]  # dark pixels: too few levels for a ratio
+    gap = np.abs(chromaticity(lit)[:, None, :] - chromaticity(palette)[None]).max(axis=-1)
+    assert (gap.min(axis=1) < 0.03).mean() > 0.85, np.percentile(gap.min(axis=1), [50, 90])
+
+    # The heat map, flat, in the colours of its legend.
+    page.js("document.querySelector('input[name=view][value=shdf]').click()")
+    page.js("document.getElementById('flat').click()")
+    shot = page.pixels()
+    ramp = page.rect("#shdf-legend .ramp")
+    row = int((ramp["top"] + ramp["bottom"]) / 2 * scale)
+    legend = shot[row, int(ramp["left"] * scale) + 2 : int(ramp["right"] * scale) - 2].astype(int)
+    heat = stage_pixels(page, shot)
+    heat = heat[np.abs(heat - BACKGROUND).max(axis=1) > 20]
+    gap = np.abs(heat[:, None, :] - legend[None]).max(axis=-1).min(axis=1)
+    assert (gap <= 4).mean() > 0.9, np.percentile(gap, [50, 90])
+    page.js("document.getElementById('flat').click()")
+    set_up_axis(page, "y")
+    assert severe(page) == []
+
+
+def set_up_axis(page: ViewerPage, axis: str) -> None:
+    """Choose the up axis as a user would (the page remembers it)."""
+    page.js(
+        "const s = document.getElementById('up-axis'); s.value = arguments[0];"
+        "s.dispatchEvent(new Event('change'))",
+        axis,
+    )
+
+
+def test_a_missing_three_js_says_so_and_names_the_fix(page):
+    """three.js unreachable (blocked, as offline): a message naming `npm ci`, no dead page."""
+    driver = page.driver
+    driver.execute_cdp_cmd("Network.enable", {})
+    driver.execute_cdp_cmd("Network.setBlockedURLs", {"urls": ["*/viewer/three/*"]})
+    try:
+        driver.get(f"{page.base_url}/viewer/")
+        page.wait_for("return document.body.dataset.status === 'no-three'", timeout_s=30)
+        message = page.message()
+        assert "could not load three.js" in message and "npm ci" in message
+        assert str(VIEWER_DIR) in message and "NEURAL_SHDF_VIEWER_THREE_DIR" in message
+        assert page.js("return document.getElementById('file-input').disabled") is True
+        assert "three.js" in page.js("return document.getElementById('empty-hint').textContent")
+    finally:
+        driver.execute_cdp_cmd("Network.setBlockedURLs", {"urls": []})
+        driver.execute_cdp_cmd("Network.disable", {})
+    page.open()  # unblocked: the viewer works again
+    assert page.message() is None and page.status() == "empty"
+    page.read_console()  # the blocked loads' errors
+
+
+def screen_vector(page: ViewerPage, start: list[float], end: list[float]) -> np.ndarray:
+    """Screen pixels (x right, y down) from world point ``start`` to ``end``."""
+    return np.asarray(
+        page.js(
+            """
+            const [a, b] = arguments;
+            const v = window.shdfViewer.view;
+            const rect = v.canvas.getBoundingClientRect();
+            const project = (p) => {
+              const q = v.camera.position.clone().set(...p).project(v.camera);
+              return [(q.x + 1) / 2 * rect.width, (1 - q.y) / 2 * rect.height];
+            };
+            const [p, q] = [project(a), project(b)];
+            return [q[0] - p[0], q[1] - p[1]];
+            """,
+            start,
+            end,
+        )
+    )
+
+
+def test_controls_fit_720p_frame_by_up_axis_and_name_the_method(page, server, meshes):
+    driver = page.driver
+    metrics = {"width": 1280, "height": 720, "deviceScaleFactor": 1, "mobile": False}
+    driver.execute_cdp_cmd("Emulation.setDeviceMetricsOverride", metrics)
+    try:
+        page.open()
+        page.js("document.getElementById('method').value = 'auto'")
+        page.upload(meshes["small"])  # a dumbbell along z
+        assert page.status() == "ready", page.message()
+        ran = page.js("return window.shdfViewer.state.body.method")
+        assert ran in {"exact", "sampled", "neural"}
+        stats = page.js("return document.getElementById('mesh-stats').textContent")
+        assert stats.endswith(f"ShDF: {ran} (auto)"), stats
+
+        # Every control and download on screen at 1280x720; the ShDF view moves nothing.
+        sidebar = page.js(
+            "const s = document.getElementById('sidebar');"
+            "return [s.scrollHeight - s.clientHeight, s.scrollWidth - s.clientWidth]"
+        )
+        assert sidebar == [0, 0]
+        assert page.rect("#downloads")["bottom"] <= 720
+        boxes = ["#sidebar", "#controls", "#downloads", "#canvas", "#parts-panel"]
+        before = [page.rect(b) for b in boxes]
+        page.js("document.querySelector('input[name=view][value=shdf]').click()")
+        assert [page.rect(b) for b in boxes] == before
+        page.js("document.querySelector('input[name=view][value=parts]').click()")
+
+        # Smoothing: most of the track for the useful range; the default where it was.
+        values = page.js("return window.shdfViewer.smoothingValues")
+        assert values == sorted(values) and values[0] == 0 and values[-1] >= 1
+        assert sum(0.01 <= v <= 0.2 for v in values) >= len(values) / 2
+        assert page.js("return window.shdfViewer.controlValues().smoothing") == 0.06
+        detail = page.release_smoothing(0.12)
+        assert page.js("return document.getElementById('smoothing-out').textContent") == "0.12"
+        assert detail["request"]["smoothing"] == 0.12
+
+        # Up axis: the chosen axis points up on screen; the dumbbell stands with Z up.
+        for axis, up in (("y", [0, 1, 0]), ("z", [0, 0, 1])):
+            set_up_axis(page, axis)
+            dx, dy = screen_vector(page, [0, 0, 0], up)
+            assert dy < 0 and abs(dx) < 1e-3 * abs(dy), (axis, dx, dy)
+        tall = screen_vector(page, [0, 0, -2], [0, 0, 2])
+        wide = screen_vector(page, [-1, 0, 0], [1, 0, 0])
+        assert abs(tall[1]) > 1.5 * abs(wide[0])
+
+        # Frame: after orbiting away, the button brings the framed view back.
+        framed = page.js("return window.shdfViewer.view.camera.position.toArray()")
+        page.js(
+            "const v = window.shdfViewer.view; v.camera.position.set(9, 1, 3);v.controls.update()"
+        )
+        page.js("document.getElementById('frame').click()")
+        moved_back = page.js("return window.shdfViewer.view.camera.position.toArray()")
+        np.testing.assert_allclose(moved_back, framed, rtol=1e-6)
+        page.open()  # the up axis is remembered
+        assert page.js("return document.getElementById('up-axis').value") == "z"
+    finally:
+        page.js("localStorage.clear()")
+        driver.execute_cdp_cmd("Emulation.clearDeviceMetricsOverride", {})
     assert severe(page) == []

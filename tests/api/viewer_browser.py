@@ -172,6 +172,32 @@ class ViewerPage:
             value,
         )
 
+    def release_smoothing(self, value: float) -> dict[str, Any]:
+        """Move the smoothing slider to the position of ``value`` (one of its values)."""
+        position = self.js("return window.shdfViewer.smoothingPosition(arguments[0])", value)
+        detail = self.release_slider("smoothing", position)
+        assert detail["request"]["smoothing"] == value, (value, detail["request"])
+        return detail
+
+    def pixels(self) -> Any:
+        """The page as the screen shows it: an (H, W, 3) uint8 array of a real screenshot."""
+        import io
+
+        import numpy as np
+        from PIL import Image
+
+        png = self.driver.get_screenshot_as_png()
+        return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+
+    def rect(self, selector: str) -> dict[str, float]:
+        """An element's box in CSS pixels (left, top, right, bottom, width, height)."""
+        return self.js(
+            "const r = document.querySelector(arguments[0]).getBoundingClientRect();"
+            "return {left: r.left, top: r.top, right: r.right, bottom: r.bottom,"
+            " width: r.width, height: r.height}",
+            selector,
+        )
+
     def segmentation(self) -> dict[str, Any]:
         """What the page shows: labels per input face, triangle colours, the face map."""
         return self.js(
@@ -185,7 +211,7 @@ class ViewerPage:
               controls: {
                 partitioner: document.getElementById('partitioner').value,
                 clusters: Number(document.getElementById('clusters').value),
-                smoothing: Number(document.getElementById('smoothing').value),
+                smoothing: v.controlValues().smoothing,
               },
             };
             """

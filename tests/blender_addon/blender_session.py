@@ -32,19 +32,24 @@ def install(zip_path: str) -> dict:
     result = bpy.ops.extensions.package_install_files(
         filepath=zip_path, repo="user_default", enable_on_install=True
     )
+    panel = bpy.context.scene.neural_shdf.bl_rna.properties
     return {
         "result": sorted(result),
         "enabled": ADDON_MODULE in bpy.context.preferences.addons,
         "operator": hasattr(bpy.ops.neural_shdf, "segment_selected"),
+        "defaults": {name: panel[name].default for name in ("assign_materials", "split_parts")},
     }
 
 
-def dumbbell(name: str, cuts: int = 0, subsurf: int = 0, stretch: float = 1.0) -> dict:
+def dumbbell(
+    name: str, cuts: int = 0, subsurf: int = 0, stretch: float = 1.0, materials: int = 0
+) -> dict:
     """Two unit boxes (x in [-2, -1] and [1, 2]) joined by a 0.2-thick bar, one connected
     closed mesh: the left box's +x face is inset and extruded into the bar, whose end face
     is widened and extruded into the right box. ``cuts`` subdivides every edge; ``subsurf``
     adds a (simple) Subdivision modifier, which changes the evaluated topology; ``stretch``
-    scales x (another geometry, same topology)."""
+    scales x (another geometry, same topology); ``materials`` gives the object that many
+    materials of its own ("<name> own i"), polygon i in slot i mod ``materials``."""
     bm = bmesh.new()
     bmesh.ops.create_cube(bm, size=1.0, matrix=Matrix.Translation((-1.5, 0.0, 0.0)))
     cap = max(bm.faces, key=lambda f: f.calc_center_median().x)
@@ -65,6 +70,11 @@ def dumbbell(name: str, cuts: int = 0, subsurf: int = 0, stretch: float = 1.0) -
     bm.free()
     obj = bpy.data.objects.new(name, mesh)
     bpy.context.scene.collection.objects.link(obj)
+    for index in range(materials):
+        mesh.materials.append(bpy.data.materials.new(f"{name} own {index}"))
+    if materials:
+        slots = np.arange(len(mesh.polygons), dtype=np.int32) % materials
+        mesh.polygons.foreach_set("material_index", slots)
     if subsurf:
         modifier = obj.modifiers.new("Subdivision", "SUBSURF")
         modifier.levels = subsurf
@@ -166,6 +176,15 @@ def phases(names: list[str], settings: dict, payload_path: str | None = None) ->
     }
 
 
+def material_color(material: bpy.types.Material | None) -> dict | None:
+    """A material's viewport colour and its Principled BSDF's base colour (linear RGBA)."""
+    if material is None:
+        return None
+    shader = material.node_tree.nodes.get("Principled BSDF") if material.node_tree else None
+    base = list(shader.inputs["Base Color"].default_value) if shader else None
+    return {"diffuse": list(material.diffuse_color), "base": base}
+
+
 def inspect(name: str) -> dict:
     """What the add-on left on an object: attribute, materials, custom properties, parts."""
     obj = bpy.data.objects.get(name)
@@ -186,7 +205,14 @@ def inspect(name: str) -> dict:
     mesh.polygons.foreach_get("material_index", material_index)
     record["material_index"] = material_index.tolist()
     record["materials"] = [m.name if m else None for m in mesh.materials]
+    record["material_colors"] = [material_color(m) for m in mesh.materials]
     record["has_colors"] = "neural_shdf_color" in mesh.attributes
+    if record["has_colors"]:
+        colors = mesh.attributes["neural_shdf_color"]
+        values = np.empty(len(mesh.polygons) * 4, dtype=np.float32)
+        colors.data.foreach_get("color", values)
+        record["color_type"] = [colors.domain, colors.data_type]
+        record["colors"] = values.reshape(-1, 4).tolist()
     record["props"] = {k: obj[k] for k in obj.keys() if k.startswith("neural_shdf")}  # noqa: SIM118
     positions = np.empty(len(mesh.vertices) * 3, dtype=np.float64)
     mesh.vertices.foreach_get("co", positions)

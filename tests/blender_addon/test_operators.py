@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from neural_shdf.client import Client
+from neural_shdf.export import srgb_to_linear
 from tests.api.api_helpers import free_port, obj_bytes
 
 pytestmark = pytest.mark.slow
@@ -54,6 +55,23 @@ def session(run_blender, service_url) -> dict:
             },
         },
         {"inspect": "Dumbbell"},
+        # An object with materials of its own: parts as colours only (the default), then as
+        # materials (twice), then back without.
+        {"make": "dumbbell", "name": "Labelled", "cuts": 1, "materials": 2},
+        {
+            "segment": ["Labelled"],
+            "settings": {"use_parts": False, "assign_materials": False, "split_parts": False},
+        },
+        {"inspect": "Labelled"},
+        {"segment": ["Labelled"], "settings": {"assign_materials": True}},
+        {"inspect": "Labelled"},
+        {
+            "segment": ["Labelled"],
+            "settings": {"partitioner": "metis", "use_parts": True, "parts": 4},
+        },
+        {"inspect": "Labelled"},
+        {"segment": ["Labelled"], "settings": {"assign_materials": False}},
+        {"inspect": "Labelled"},
     ]
     records = run_blender(steps)
     return {
@@ -82,7 +100,13 @@ def requests_to(base: str, route: str) -> float:
 
 
 def test_addon_installs_from_its_zip_and_registers_the_operator(session):
-    assert session["install"] == {"result": ["FINISHED"], "enabled": True, "operator": True}
+    assert session["install"] == {
+        "result": ["FINISHED"],
+        "enabled": True,
+        "operator": True,
+        # Parts show as a colour attribute; materials and objects only when asked for.
+        "defaults": {"assign_materials": False, "split_parts": False},
+    }
 
 
 def test_labels_cover_every_polygon_in_blender_order(session, service_url):
@@ -104,9 +128,8 @@ def test_labels_cover_every_polygon_in_blender_order(session, service_url):
     for name, counter in found.items():
         assert counter[majority[name]] == sum(counter.values()), (name, counter)
     assert record["props"]["neural_shdf_part_count"] == 3
-    assert record["material_index"] == record["labels"]
-    assert record["materials"] == [f"neural_shdf part {i:03d}" for i in range(3)]
-    assert record["has_colors"]
+    assert record["materials"] == [] and set(record["material_index"]) == {0}  # the default
+    assert record["has_colors"] and record["color_type"] == ["FACE", "FLOAT_COLOR"]
 
 
 def test_new_parameters_reuse_the_mesh_id_without_uploading(session, service_url):
@@ -125,8 +148,9 @@ def test_new_parameters_reuse_the_mesh_id_without_uploading(session, service_url
             clusters=9,
         )
     assert after["labels"] == expected.labels.tolist()
-    # Uploads: the dumbbell once and the subdivided one once; the re-run went by id.
-    assert session["uploads"] == 2 and session["by_id"] == 2
+    # Uploads: each dumbbell once (the subdivided one, the one with its own materials); the
+    # re-runs went by id (the dumbbell twice, the one with materials three times).
+    assert session["uploads"] == 3 and session["by_id"] == 5
 
 
 def test_modifiers_are_applied_and_parts_split_into_objects(session):
@@ -158,3 +182,56 @@ def test_part_count_for_the_graph_cut_cuts_its_part_tree(session, service_url):
     assert record["labels"] == expected.labels.tolist()
     found = regions(record)
     assert found["left"].most_common(1)[0][0] != found["right"].most_common(1)[0][0]
+
+
+def api_colors(service_url: str, mesh_id: str, **options) -> np.ndarray:
+    """The API's part colours for a segmentation, in linear light, one RGBA row per label."""
+    body = httpx.post(
+        f"{service_url}/v1/segment", json={"mesh_id": mesh_id, "clusters": 9, **options}
+    ).json()
+    colors = [(*srgb_to_linear(np.array(rgb(p["color"])) / 255.0), 1.0) for p in body["parts"]]
+    return np.array(colors)
+
+
+def rgb(hex_color: str) -> list[int]:
+    return [int(hex_color[i : i + 2], 16) for i in (1, 3, 5)]
+
+
+def test_part_colours_are_the_services_in_linear_light(session, service_url):
+    """The colour attribute and the part materials hold the API's `color` of each part,
+    converted from sRGB to linear (what Blender's colours are)."""
+    colours_only, materials = session["inspections"][5], session["inspections"][6]
+    mesh_id = colours_only["props"]["neural_shdf_mesh_id"]
+    expected = api_colors(service_url, mesh_id)
+    labels = np.asarray(colours_only["labels"])
+    assert len(expected) == colours_only["props"]["neural_shdf_part_count"] >= 2
+    np.testing.assert_allclose(colours_only["colors"], expected[labels], atol=1e-6)
+    part_slots = materials["material_colors"][2:]
+    assert len(part_slots) == len(expected)
+    for slot, colour in zip(part_slots, expected, strict=True):
+        np.testing.assert_allclose(slot["base"], colour, atol=1e-6)
+        np.testing.assert_allclose(slot["diffuse"], colour, atol=1e-6)
+
+
+def test_part_materials_never_remove_the_objects_own(session, service_url):
+    colours_only, first, again, restored = session["inspections"][5:9]
+    own = ["Labelled own 0", "Labelled own 1"]
+    polygons = colours_only["polygons"]
+    own_slots = [i % 2 for i in range(polygons)]
+    # Off (the default): the object's materials and slots as they were.
+    assert colours_only["materials"] == own and colours_only["material_index"] == own_slots
+    # On: the part materials come after the object's own, each polygon in its part's slot.
+    parts = first["props"]["neural_shdf_part_count"]
+    assert first["materials"] == own + [f"neural_shdf part {i:03d}" for i in range(parts)]
+    assert first["material_index"] == [2 + label for label in first["labels"]]
+    # Again with other parameters: the part slots are replaced, never stacked.
+    assert again["props"]["neural_shdf_part_count"] == 4
+    assert again["materials"] == own + [f"neural_shdf part {i:03d}" for i in range(4)]
+    assert again["material_index"] == [2 + label for label in again["labels"]]
+    mesh_id = again["props"]["neural_shdf_mesh_id"]
+    expected = api_colors(service_url, mesh_id, partitioner="metis", parts=4)
+    for slot, colour in zip(again["material_colors"][2:], expected, strict=True):
+        np.testing.assert_allclose(slot["base"], colour, atol=1e-6)
+    # Off again: each polygon has its own material back; the labels stay.
+    assert restored["materials"] == own and restored["material_index"] == own_slots
+    assert len(restored["labels"]) == polygons

@@ -5,6 +5,7 @@ import copy
 import json
 import math
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,7 +18,7 @@ from neural_shdf.errors import (
     UnsupportedFormatError,
 )
 from neural_shdf.exchange import gltf as gltf_reader
-from neural_shdf.mesh_io import load_mesh
+from neural_shdf.mesh_io import load_mesh, sniff_format
 
 TRIANGLE = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float32)
 SQUARE = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=np.float32)
@@ -222,9 +223,10 @@ def test_buffer_length_beyond_its_data_is_rejected():
          "does not exist"),
         (lambda d: d["meshes"][0]["primitives"][0].update(indices=-1), MeshParseError,
          "does not exist"),
-        (lambda d: d["accessors"][0].update(sparse={}), UnsupportedFormatError, "sparse"),
-        (lambda d: d.update(extensionsRequired=["KHR_draco_mesh_compression"]),
-         UnsupportedFormatError, "Draco"),
+        (lambda d: d["accessors"][0].update(sparse={}), MeshParseError, "sparse"),
+        (lambda d: d["meshes"][0]["primitives"][0].update(
+            extensions={"KHR_draco_mesh_compression": {"bufferView": 0}}), MeshParseError,
+         "Draco-compressed data of glTF mesh 0 cannot be decoded"),
         (lambda d: d.update(nodes=[{"mesh": 0, "children": [1]}, {"children": [0]}],
                             scenes=[{"nodes": [0]}]), MeshParseError, "cycle"),
         (lambda d: d["asset"].update(version="1.0"), UnsupportedFormatError, "version"),
@@ -346,3 +348,120 @@ def test_a_cycle_deep_in_a_chain_is_named():
     b.doc["scenes"] = [{"nodes": [0]}]
     with pytest.raises(MeshParseError, match="cycle through node 1500"):
         load_mesh(b.glb(), "glb")
+
+
+DATA = Path(__file__).parent / "data"
+
+
+def _glb_json(data: bytes) -> tuple[dict, bytes]:
+    length = struct.unpack_from("<I", data, 12)[0]
+    return json.loads(data[20 : 20 + length]), data[20 + length + 8 :]
+
+
+def _glb(document: dict, blob: bytes) -> bytes:
+    text = json.dumps(document).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text
+    body += struct.pack("<II", len(blob), 0x004E4942) + blob
+    return b"glTF" + struct.pack("<II", 2, 12 + len(body)) + body
+
+
+def _reference_scene() -> trimesh.Trimesh:
+    return trimesh.load(DATA / "scene.glb", force="mesh", process=False)
+
+
+def _assert_same_surface(mesh, reference, tolerance):
+    assert mesh.face_count == len(reference.faces) == 344
+    ours = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    assert ours.area == pytest.approx(reference.area, rel=tolerance)
+    assert ours.volume == pytest.approx(reference.volume, rel=tolerance)  # winding kept
+    np.testing.assert_allclose(ours.bounds, reference.bounds, atol=tolerance * 10)
+
+
+@pytest.mark.parametrize(
+    "name", ["scene_draco.glb", "scene_gltfpack_meshopt.glb", "scene_gltf_transform_meshopt.glb"]
+)
+def test_reference_encoder_files_read_to_the_uncompressed_scene(name):
+    _assert_same_surface(load_mesh(DATA / name), _reference_scene(), 1e-3)
+
+
+def test_draco_listed_only_in_extensions_used_is_decoded():
+    document, blob = _glb_json((DATA / "scene_draco.glb").read_bytes())
+    del document["extensionsRequired"]
+    _assert_same_surface(load_mesh(_glb(document, blob), "glb"), _reference_scene(), 1e-3)
+
+
+def test_draco_counts_other_than_the_accessors_declare_are_refused():
+    document, blob = _glb_json((DATA / "scene_draco.glb").read_bytes())
+    document["accessors"][0]["count"] = 957  # the sphere's indices
+    with pytest.raises(MeshParseError, match="Draco data of glTF mesh 0 decodes to"):
+        load_mesh(_glb(document, blob), "glb")
+
+
+def test_meshopt_view_larger_than_its_accessors_need_is_refused_before_decoding():
+    document, blob = _glb_json((DATA / "scene_gltfpack_meshopt.glb").read_bytes())
+    view = document["bufferViews"][0]
+    view["extensions"]["EXT_meshopt_compression"]["count"] = 10**8
+    view["byteLength"] = 8 * 10**8
+    with pytest.raises(MeshParseError, match="would decompress"):
+        load_mesh(_glb(document, blob), "glb")
+
+
+def test_corrupt_meshopt_data_is_a_parse_error():
+    document, blob = _glb_json((DATA / "scene_gltfpack_meshopt.glb").read_bytes())
+    with pytest.raises(MeshParseError, match="meshopt"):
+        load_mesh(_glb(document, bytes(len(blob))), "glb")
+
+
+def _sparse_box(with_base: bool) -> bytes:
+    box = trimesh.creation.box()
+    builder = _Builder()
+    targets = np.array([1, 6], dtype=np.uint16)
+    base = box.vertices.astype(np.float32)
+    base[targets] = 0
+    position = builder.accessor(base, "VEC3", 5126)
+    spec = builder.doc["accessors"][position]
+    target_view = builder.accessor(targets, "SCALAR", 5123)
+    value_view = builder.accessor(box.vertices[targets].astype(np.float32), "VEC3", 5126)
+    spec["sparse"] = {
+        "count": 2,
+        "indices": {"bufferView": builder.doc["accessors"][target_view]["bufferView"],
+                    "componentType": 5123},
+        "values": {"bufferView": builder.doc["accessors"][value_view]["bufferView"]},
+    }  # fmt: skip
+    if not with_base:
+        del spec["bufferView"]
+        spec["sparse"]["count"] = 8
+        spec["sparse"]["indices"]["bufferView"] = builder.doc["accessors"][
+            builder.accessor(np.arange(8, dtype=np.uint16), "SCALAR", 5123)
+        ]["bufferView"]
+        spec["sparse"]["values"]["bufferView"] = builder.doc["accessors"][
+            builder.accessor(box.vertices.astype(np.float32), "VEC3", 5126)
+        ]["bufferView"]
+    indices = builder.accessor(box.faces.reshape(-1).astype(np.uint16), "SCALAR", 5123)
+    builder.doc["meshes"].append(
+        {"primitives": [{"attributes": {"POSITION": position}, "indices": indices}]}
+    )
+    return builder.glb()
+
+
+@pytest.mark.parametrize("with_base", [True, False])
+def test_sparse_accessors_substitute_their_values(with_base):
+    mesh = load_mesh(_sparse_box(with_base), "glb")
+    box = trimesh.creation.box()
+    np.testing.assert_allclose(mesh.vertices, box.vertices)
+    assert mesh.faces.tolist() == box.faces.tolist()
+
+
+def test_sparse_indices_beyond_the_accessor_are_refused():
+    data = _sparse_box(True)
+    document, blob = _glb_json(data)
+    document["accessors"][0]["sparse"]["count"] = 9
+    with pytest.raises(MeshParseError, match="sparse part of accessor 0"):
+        load_mesh(_glb(document, blob), "glb")
+
+
+def test_text_gltf_with_a_byte_order_mark():
+    text = b"\xef\xbb\xbf" + _simple().gltf()
+    assert load_mesh(text, "gltf").faces.tolist() == [[0, 1, 2], [0, 2, 3]]
+    assert sniff_format(text) == "gltf"

@@ -131,3 +131,32 @@ def test_human_seg_labels_match_input_faces(shared_data):
         pytest.skip("human-seg sample is absent")
     labels = label_path.read_text().split()
     assert load_mesh(mesh_path).input_face_count == len(labels)
+
+
+def test_byte_order_mark_keeps_the_vertex_on_line_one():
+    # With a spare vertex at the end, dropping line 1 would shift every face silently.
+    text = "v 5 5 5\nv 1 0 0\nv 0 1 0\nv 9 9 9\nf 1 2 3\n"
+    mesh = load_mesh(b"\xef\xbb\xbf" + text.encode(), "obj")
+    np.testing.assert_array_equal(mesh.vertices[0], [5, 5, 5])
+    assert mesh.faces.tolist() == [[0, 1, 2]]
+
+
+def test_comments_after_records_are_ignored():
+    mesh = _load("v 0 0 0 # origin\nv 1 0 0\nv 0 1 0\nf 1 2 3 # first\nf 1 3 2#second\n")
+    assert mesh.faces.tolist() == [[0, 1, 2], [0, 2, 1]]
+    np.testing.assert_array_equal(mesh.vertices[0], [0, 0, 0])
+
+
+def test_records_without_a_polygon_keep_their_line_in_per_face_outputs():
+    # A bare f, a point and an edge record are input faces 1..3, without triangles.
+    mesh = _load(SQUARE_AND_MORE + "f 1 2 3\nf\nf 1\nf 2 3\nf 2 5 3\n")
+    assert mesh.input_face_count == 5
+    assert mesh.face_origin.tolist() == [0, 4]
+    assert mesh.labels_to_input_faces(np.array([4, 6])).tolist() == [4, -1, -1, -1, 6]
+
+
+def test_errors_name_the_line():
+    with pytest.raises(InvalidGeometryError, match="OBJ line 7: .*face 1 of the file"):
+        _load(SQUARE_AND_MORE + "f 1 2 3\nf 1 2 9\n")
+    with pytest.raises(MeshParseError, match="OBJ line 2: .*'v 0,5 0 0'"):
+        _load("v 0 0 0\nv 0,5 0 0\nv 0 1 0\nf 1 2 3\n")

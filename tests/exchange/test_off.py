@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from neural_shdf.errors import MeshParseError, MeshTooLargeError, UnsupportedFormatError
-from neural_shdf.mesh_io import load_mesh
+from neural_shdf.mesh_io import load_mesh, sniff_format
 
 
 def test_polygons_comments_and_counts_on_header_line():
@@ -66,3 +66,16 @@ def test_psb_segmentations_have_one_label_per_input_face(psb_off, shared_data):
         paths = sorted(seg.glob("*.seg")) if seg.is_dir() else [seg]
         for path in paths[:2]:
             assert len(path.read_text().split()) == mesh.input_face_count
+
+
+def test_byte_order_mark_is_skipped():
+    text = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+    mesh = load_mesh(b"\xef\xbb\xbf" + text.encode(), "off")
+    assert mesh.faces.tolist() == [[0, 1, 2]]
+    assert sniff_format(b"\xef\xbb\xbf" + text.encode()) == "off"
+
+
+def test_face_errors_name_the_line():
+    text = "OFF\n# made by hand\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n3 0 x 2\n"
+    with pytest.raises(MeshParseError, match="OFF line 8: face 1"):
+        load_mesh(text.encode(), "off")

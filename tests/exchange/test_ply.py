@@ -139,3 +139,12 @@ def test_dense_scan_matches_header_count(shared_data):
     declared = int(header.split("element face ")[1].split()[0])
     mesh = load_mesh(path)
     assert mesh.face_count == mesh.input_face_count == declared
+
+
+def test_byte_order_mark_is_skipped():
+    text = (
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+        "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
+    )
+    assert load_mesh(b"\xef\xbb\xbf" + text.encode(), "ply").faces.tolist() == [[0, 1, 2]]

@@ -66,3 +66,33 @@ def test_nan_coordinate_is_invalid():
 def test_max_faces():
     with pytest.raises(MeshTooLargeError):
         load_mesh(trimesh.creation.box().export(file_type="stl"), "stl", max_faces=11)
+
+
+def _binary_with_count(count: int) -> tuple[bytes, int]:
+    data = bytearray(trimesh.creation.icosphere(1).export(file_type="stl"))
+    facets = struct.unpack_from("<I", data, 80)[0]
+    data[80:84] = struct.pack("<I", count)
+    return bytes(data), facets
+
+
+@pytest.mark.parametrize("declared", ["half", "zero"])
+def test_header_count_below_the_file_size_reads_every_facet(declared, caplog):
+    facets = 80
+    data, actual = _binary_with_count(facets // 2 if declared == "half" else 0)
+    assert actual == facets
+    mesh = load_mesh(data, "stl")
+    assert mesh.face_count == mesh.input_face_count == facets
+    assert "reading 80" in caplog.text
+
+
+def test_extra_bytes_that_are_not_whole_facets_are_refused():
+    data, _ = _binary_with_count(40)
+    with pytest.raises(MeshParseError, match="not a whole number of 50-byte facets"):
+        load_mesh(data + bytes(20), "stl")
+
+
+def test_ascii_with_byte_order_mark_and_odd_whitespace():
+    text = trimesh.creation.box().export(file_type="stl_ascii")
+    text = text.replace("vertex", "\tVERTEX  ").replace("\n", "\r\n")
+    mesh = load_mesh(b"\xef\xbb\xbf" + text.encode(), "stl")
+    assert mesh.face_count == 12

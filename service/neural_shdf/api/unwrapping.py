@@ -123,7 +123,7 @@ class UnwrapService:
         from neural_shdf.export import unwrapped_glb
 
         mesh, atlas = await self.get(mesh_id, method, params, unwrap)
-        texture = await self.tasks.run(self._layout_png, atlas, unwrap)
+        texture = await self._layout_png(mesh_id, method, params, unwrap, atlas)
         return await self.tasks.run(unwrapped_glb, mesh, atlas, texture_png=texture)
 
     async def atlas_png(
@@ -131,10 +131,47 @@ class UnwrapService:
     ) -> bytes:
         """The atlas layout as a PNG: charts coloured by part, outlined."""
         _, atlas = await self.get(mesh_id, method, params, unwrap)
-        return await self.tasks.run(self._layout_png, atlas, unwrap)
+        return await self._layout_png(mesh_id, method, params, unwrap, atlas)
+
+    async def _layout_png(
+        self,
+        mesh_id: str,
+        method: str,
+        params: SegmentParams,
+        unwrap: UnwrapParams,
+        atlas: UvAtlas,
+    ) -> bytes:
+        """The atlas picture's PNG, drawn once per atlas and cached as bytes (the GLB's
+        texture and ``atlas.png`` share it)."""
+        key = f"{self.key(mesh_id, method, params, unwrap)}:png"
+        png = self.cache.recall(key) or await self.tasks.io(self._cached_png, key)
+        if png is not None:
+            return png
+        compute = functools.partial(
+            self.tasks.compute_once,
+            key,
+            functools.partial(self._cached_png, key),
+            functools.partial(self._draw_png, atlas, unwrap),
+            functools.partial(self._store_png, key, mesh_id),
+        )
+        png, _ = await self.tasks.with_timeout(self.tasks.single_flight(key, compute))
+        return png
+
+    def _cached_png(self, key: str) -> bytes | None:
+        png = self.cache.recall_arrays(key, _png_from_arrays)
+        self.metrics.count_cache("atlas_png", hit=png is not None)
+        return png
+
+    def _store_png(self, key: str, mesh_id: str, png: bytes) -> None:
+        self.cache.put_arrays(key, {"png": np.frombuffer(png, dtype=np.uint8)}, group=mesh_id)
+        self.cache.remember(key, png)
 
     @staticmethod
-    def _layout_png(atlas: UvAtlas, unwrap: UnwrapParams) -> bytes:
-        from neural_shdf.unwrap import atlas_layout_image, png_bytes
+    def _draw_png(atlas: UvAtlas, unwrap: UnwrapParams) -> bytes:
+        from neural_shdf.unwrap import atlas_layout_png
 
-        return png_bytes(atlas_layout_image(atlas, size=unwrap.atlas_size))
+        return atlas_layout_png(atlas, size=unwrap.atlas_size)
+
+
+def _png_from_arrays(arrays: dict[str, NDArray]) -> bytes:
+    return arrays["png"].tobytes()

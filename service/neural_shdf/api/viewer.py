@@ -3,8 +3,9 @@
 three.js is never part of the repository. ``npm ci`` in the viewer's folder (the tests and the
 Docker image run it) installs the npm package ``three``; the service then serves that copy at
 ``/viewer/three/``. Without it (a plain ``pip install``) the import map points at the jsDelivr
-CDN, pinned to the version locked in the viewer's ``package.json``. ``viewer_three_url``
-overrides both.
+CDN, pinned to the version locked in the viewer's ``package.json``: the viewer then needs the
+internet, and the page says so, with the fix (``three_help``), when three.js does not load.
+``viewer_three_url`` overrides both.
 """
 
 from __future__ import annotations
@@ -63,6 +64,28 @@ def three_source(settings: Settings) -> ThreeSource:
     return ThreeSource(CDN_TEMPLATE.format(version=three_version()), None)
 
 
+def three_help(settings: Settings) -> str:
+    """What a person does when the page cannot load three.js from where it points."""
+    source = three_source(settings)
+    npm = (
+        f"run `npm ci` in {VIEWER_DIR} (Node.js; it installs three {three_version()}) and "
+        "restart `neural-shdf serve`, or set NEURAL_SHDF_VIEWER_THREE_DIR to a folder holding "
+        "the npm package three"
+    )
+    if settings.viewer_three_url:
+        return (
+            f"It comes from NEURAL_SHDF_VIEWER_THREE_URL ({source.base_url}), which this "
+            "browser could not load: fix or unset that URL (the npm package three's folder, "
+            f"with build/ and examples/), or {npm}."
+        )
+    if source.local_dir is not None:
+        return f"The service's copy in {source.local_dir} did not load: reinstall it ({npm})."
+    return (
+        f"It comes from the CDN ({source.base_url}), which this browser could not reach "
+        f"(offline, or blocked). To use the viewer offline, {npm}."
+    )
+
+
 def import_map(base_url: str) -> dict[str, Any]:
     """The page's import map: ``three`` and ``three/addons/`` under one base URL."""
     return {
@@ -104,6 +127,8 @@ def page_config(settings: Settings) -> dict[str, Any]:
         "unlabeledColor": "#{:02x}{:02x}{:02x}".format(*UNLABELED_COLOR[:3].tolist()),
         "maxParts": MAX_PARTS,
         "partPalette": part_palette(),
+        "threeUrl": three_source(settings).base_url,
+        "threeHelp": three_help(settings),
     }
 
 

@@ -83,8 +83,24 @@ def parse_guard(format_name: str) -> Iterator[None]:
         ) from exc
 
 
+UTF8_BOM = b"\xef\xbb\xbf"
+_UTF16_BOMS = (b"\xff\xfe", b"\xfe\xff")
+
+
+def strip_bom(data: bytes) -> bytes:
+    """The bytes without a leading UTF-8 byte-order mark (editors on Windows add one to
+    text files; it is not part of the first record)."""
+    return data[len(UTF8_BOM) :] if data.startswith(UTF8_BOM) else data
+
+
 def decode_text(data: bytes, format_name: str) -> str:
-    """Bytes of a text format as str; binary content is a parse error with a clear message."""
+    """Bytes of a text format as str, without a UTF-8 byte-order mark; UTF-16 text and
+    binary content are parse errors with a clear message."""
+    data = strip_bom(data)
+    if data[:2] in _UTF16_BOMS:
+        raise MeshParseError(
+            f"the {format_name} file is UTF-16 text; save it as UTF-8 or ASCII text"
+        )
     if b"\x00" in data[:65536]:
         raise MeshParseError(
             f"the file contains binary data, so it is not a text {format_name} file; "

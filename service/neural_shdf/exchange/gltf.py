@@ -9,6 +9,13 @@ transform mirrors (negative determinant) the winding is flipped so normals keep
 pointing outwards. Triangle strips and fans are expanded to triangles; points
 and lines primitives are ignored. Each triangle is one input face. Files without
 scenes use every root node in index order, or every mesh if there are no nodes.
+
+Compressed and core encodings read: KHR_draco_mesh_compression primitives (DracoPy;
+whether or not the file lists Draco as required; the decoded counts must equal the
+primitive's declared, budgeted accessor counts), EXT_/KHR_meshopt_compression
+bufferViews (meshopt; a view may decode to no more bytes than the budgeted accessors
+read from it need), KHR_mesh_quantization, sparse accessors, and a UTF-8 byte-order
+mark before the JSON.
 """
 
 from __future__ import annotations
@@ -27,7 +34,7 @@ from neural_shdf.errors import (
     MeshTooLargeError,
     UnsupportedFormatError,
 )
-from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, build_mesh
+from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, build_mesh, strip_bom
 from neural_shdf.mesh import TriangleMesh
 
 _GLB_MAGIC = b"glTF"
@@ -36,7 +43,9 @@ _CHUNK_BIN = 0x004E4942
 _COMPONENTS = {5120: "i1", 5121: "u1", 5122: "i2", 5123: "u2", 5125: "u4", 5126: "f4"}
 _WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _TRIANGLES, _STRIP, _FAN = 4, 5, 6
-_COMPRESSION = ("KHR_draco_mesh_compression", "EXT_meshopt_compression")
+_DRACO = "KHR_draco_mesh_compression"
+_MESHOPT = ("EXT_meshopt_compression", "KHR_meshopt_compression")
+_MESHOPT_MODES = ("ATTRIBUTES", "TRIANGLES", "INDICES")
 #: Cap on node visits, so a node graph that instances exponentially cannot blow up
 #: (vertices and triangles are budgeted by ``MeshLimits`` before anything is expanded).
 MAX_NODE_VISITS = 100_000
@@ -65,16 +74,15 @@ class _Document:
         version = str(gltf.get("asset", {}).get("version", "2.0"))
         if not version.startswith("2"):
             raise UnsupportedFormatError(f"glTF version {version} is not supported (only 2.x)")
-        required = set(gltf.get("extensionsRequired", []))
-        if required & set(_COMPRESSION):
-            raise UnsupportedFormatError(
-                f"compressed glTF ({', '.join(sorted(required & set(_COMPRESSION)))}) is not "
-                "supported; export without Draco/meshopt compression"
-            )
         self.gltf = gltf
         self.glb_bin = glb_bin
         self._buffers: dict[int, bytes] = {}
         self._accessors: dict[int, NDArray] = {}
+        self._decoded_views: dict[int, bytes] = {}
+        self._draco: dict[int, tuple[NDArray, NDArray]] = {}
+        #: Bytes each compressed bufferView may decode to: what the accessors read from it
+        #: need (set by ``_check_budget`` from the declared, budgeted counts).
+        self.view_allowance: dict[int, int] = {}
 
     def buffer(self, index: int) -> bytes:
         if index in self._buffers:
@@ -108,45 +116,109 @@ class _Document:
         self._buffers[index] = data
         return data
 
+    def _view(self, view_index: Any) -> tuple[bytes, int, int, int]:
+        """(bytes, offset, length, byteStride or 0) of a bufferView, decoding a
+        meshopt-compressed one first."""
+        view = _item(self.gltf, "bufferViews", view_index)
+        meshopt = _meshopt_extension(view)
+        if meshopt is not None:
+            data = self._meshopt_view(view_index, view, meshopt)
+            return data, 0, len(data), int(view.get("byteStride", 0))
+        buffer = self.buffer(view.get("buffer", -1))
+        view_offset = int(view.get("byteOffset", 0))
+        view_length = int(view.get("byteLength", -1))
+        if view_offset < 0 or view_length < 0 or view_offset + view_length > len(buffer):
+            raise MeshParseError(
+                f"glTF bufferView {view_index} lies outside its buffer (corrupt file)"
+            )
+        return buffer, view_offset, view_length, int(view.get("byteStride", 0))
+
+    def _meshopt_view(self, view_index: int, view: dict, meshopt: dict) -> bytes:
+        """A bufferView's bytes decoded from its EXT/KHR_meshopt_compression data, after
+        checking that they are no more than the accessors read from it need."""
+        if view_index in self._decoded_views:
+            return self._decoded_views[view_index]
+        count, stride = meshopt.get("count"), meshopt.get("byteStride")
+        mode, filter_name = meshopt.get("mode"), meshopt.get("filter", "NONE")
+        if not (_is_count(count) and _is_count(stride)) or mode not in _MESHOPT_MODES:
+            raise MeshParseError(
+                f"glTF bufferView {view_index} has invalid meshopt compression settings"
+            )
+        decoded_size = count * stride
+        allowed = self.view_allowance.get(view_index, 0)
+        if decoded_size > allowed or decoded_size != int(view.get("byteLength", -1)):
+            raise MeshParseError(
+                f"glTF bufferView {view_index} would decompress (meshopt) to {decoded_size} "
+                f"bytes, but declares {view.get('byteLength')!r} and its accessors read "
+                f"{allowed}: the file is corrupt"
+            )
+        source = self.buffer(meshopt.get("buffer", -1))
+        offset, length = int(meshopt.get("byteOffset", 0)), int(meshopt.get("byteLength", -1))
+        if offset < 0 or length < 0 or offset + length > len(source):
+            raise MeshParseError(
+                f"the meshopt data of glTF bufferView {view_index} lies outside its buffer"
+            )
+        import meshopt as meshopt_codec  # noqa: PLC0415 - only files that need it pay for it
+
+        try:
+            rows = meshopt_codec.decode_gltf_buffer(
+                source[offset : offset + length], count, stride, mode, filter_name
+            )
+        except (RuntimeError, ValueError) as exc:
+            raise MeshParseError(
+                f"the meshopt-compressed glTF bufferView {view_index} cannot be decoded "
+                f"({exc}): the file is corrupt"
+            ) from None
+        data = np.ascontiguousarray(rows).tobytes()
+        self._decoded_views[view_index] = data
+        return data
+
+    def _array(
+        self, view_index: Any, byte_offset: int, count: int, width: int, dtype: np.dtype,
+        *, what: str, strided: bool = True,
+    ) -> NDArray:  # fmt: skip
+        """``count`` elements of ``width`` values read from a bufferView, bounds checked."""
+        buffer, view_offset, view_length, stride = self._view(view_index)
+        element_size = dtype.itemsize * width
+        stride = (stride if strided else 0) or element_size
+        needed = byte_offset + stride * (count - 1) + element_size if count > 0 else 0
+        if count < 0 or byte_offset < 0 or stride < element_size or needed > view_length:
+            raise MeshParseError(
+                f"glTF {what} declares {count} elements, more than its bufferView "
+                "holds (corrupt or truncated file)"
+            )
+        return np.ndarray(
+            (count, width),
+            dtype=dtype,
+            buffer=buffer,
+            offset=view_offset + byte_offset,
+            strides=(stride, dtype.itemsize),
+        )
+
     def accessor(self, index: int) -> NDArray:
-        """Accessor values as a (count, width) array (float64, or int64 for integer data)."""
+        """Accessor values as a (count, width) array (float64, or int64 for integer data),
+        with sparse substitutions applied."""
         if index in self._accessors:
             return self._accessors[index]
         spec = _item(self.gltf, "accessors", index)
-        if "sparse" in spec:
-            raise UnsupportedFormatError("sparse glTF accessors are not supported")
-        if "bufferView" not in spec:
-            raise MeshParseError(f"glTF accessor {index} has no bufferView (no data)")
         component = spec.get("componentType")
         width = _WIDTHS.get(spec.get("type"))
         count = spec.get("count")
         if component not in _COMPONENTS or width is None or not isinstance(count, int):
             raise MeshParseError(f"glTF accessor {index} has an invalid type or count")
         dtype = np.dtype("<" + _COMPONENTS[component])
-        view = _item(self.gltf, "bufferViews", spec["bufferView"])
-        buffer = self.buffer(view.get("buffer", -1))
-        view_offset = int(view.get("byteOffset", 0))
-        view_length = int(view.get("byteLength", -1))
-        if view_offset < 0 or view_length < 0 or view_offset + view_length > len(buffer):
-            raise MeshParseError(
-                f"glTF bufferView {spec['bufferView']} lies outside its buffer (corrupt file)"
-            )
-        element_size = dtype.itemsize * width
-        stride = int(view.get("byteStride", 0)) or element_size
-        offset = int(spec.get("byteOffset", 0))
-        needed = offset + stride * (count - 1) + element_size if count > 0 else 0
-        if count < 0 or offset < 0 or stride < element_size or needed > view_length:
-            raise MeshParseError(
-                f"glTF accessor {index} declares {count} elements, more than its bufferView "
-                "holds (corrupt or truncated file)"
-            )
-        raw = np.ndarray(
-            (count, width),
-            dtype=dtype,
-            buffer=buffer,
-            offset=view_offset + offset,
-            strides=(stride, dtype.itemsize),
-        )
+        sparse = spec.get("sparse")
+        if "bufferView" in spec:
+            raw = self._array(
+                spec["bufferView"], int(spec.get("byteOffset", 0)), count, width, dtype,
+                what=f"accessor {index}",
+            )  # fmt: skip
+        elif isinstance(sparse, dict) and count >= 0:
+            raw = np.zeros((count, width), dtype=dtype)  # the spec's initial values
+        else:
+            raise MeshParseError(f"glTF accessor {index} has no bufferView (no data)")
+        if sparse is not None:
+            raw = self._apply_sparse(index, raw, sparse, dtype, width)
         if dtype.kind == "f":
             values = raw.astype(np.float64)
         elif spec.get("normalized", False):
@@ -156,6 +228,99 @@ class _Document:
             values = raw.astype(np.int64)
         self._accessors[index] = values
         return values
+
+    def _apply_sparse(
+        self, index: int, base: NDArray, sparse: Any, dtype: np.dtype, width: int
+    ) -> NDArray:
+        """``base`` with a sparse accessor's substitutions (core glTF 2.0)."""
+        what = f"the sparse part of accessor {index}"
+        if not isinstance(sparse, dict):
+            raise MeshParseError(f"{what} is not an object")
+        count = sparse.get("count")
+        indices, values = sparse.get("indices"), sparse.get("values")
+        if not _is_count(count) or count > len(base) or not isinstance(indices, dict):
+            raise MeshParseError(
+                f"{what} substitutes {count!r} elements of {len(base)} (corrupt file)"
+            )
+        if not isinstance(values, dict) or indices.get("componentType") not in (5121, 5123, 5125):
+            raise MeshParseError(f"{what} has invalid indices or values")
+        index_type = np.dtype("<" + _COMPONENTS[indices["componentType"]])
+        targets = self._array(
+            indices.get("bufferView"), int(indices.get("byteOffset", 0)), count, 1, index_type,
+            what=what + " (indices)", strided=False,
+        )[:, 0].astype(np.int64)  # fmt: skip
+        replacements = self._array(
+            values.get("bufferView"), int(values.get("byteOffset", 0)), count, width, dtype,
+            what=what + " (values)", strided=False,
+        )  # fmt: skip
+        if count and (int(targets.max()) >= len(base) or (np.diff(targets) <= 0).any()):
+            raise MeshParseError(
+                f"{what} has indices that are not increasing or beyond its {len(base)} elements"
+            )
+        result = np.array(base)
+        result[targets] = replacements
+        return result
+
+    def draco(self, mesh_index: int, primitive: dict, extension: Any) -> tuple[NDArray, NDArray]:
+        """(positions, triangles) of a KHR_draco_mesh_compression primitive, decoded once,
+        and checked against the primitive's declared (and budgeted) accessor counts."""
+        if not isinstance(extension, dict):
+            raise MeshParseError(f"glTF mesh {mesh_index} has invalid Draco settings")
+        view_index = extension.get("bufferView")
+        if view_index in self._draco:
+            return self._draco[view_index]
+        buffer, offset, length, _ = self._view(view_index)
+        import DracoPy  # noqa: PLC0415, N813 - only files that need it pay for it
+
+        try:
+            decoded = DracoPy.decode(buffer[offset : offset + length])
+        except Exception as exc:  # noqa: BLE001 - the decoder's errors are not typed
+            raise MeshParseError(
+                f"the Draco-compressed data of glTF mesh {mesh_index} cannot be decoded "
+                f"({exc or type(exc).__name__}): the file is corrupt"
+            ) from None
+        attribute_id = (extension.get("attributes") or {}).get("POSITION")
+        attribute = (
+            decoded.get_attribute_by_unique_id(attribute_id) if _is_count(attribute_id) else None
+        )
+        positions = np.asarray(
+            attribute["data"] if attribute is not None else decoded.points, dtype=np.float64
+        ).reshape(-1, 3)
+        triangles = np.asarray(decoded.faces, dtype=np.int64).reshape(-1, 3)
+        declared_vertices = _declared_count(
+            _item(self.gltf, "accessors", primitive["attributes"]["POSITION"])
+        )
+        declared_indices = (
+            _declared_count(_item(self.gltf, "accessors", primitive["indices"]))
+            if "indices" in primitive
+            else 3 * len(triangles)
+        )
+        if len(positions) != declared_vertices or 3 * len(triangles) != declared_indices:
+            raise MeshParseError(
+                f"the Draco data of glTF mesh {mesh_index} decodes to {len(positions)} vertices "
+                f"and {3 * len(triangles)} indices, but its accessors declare "
+                f"{declared_vertices} and {declared_indices}: the file is corrupt"
+            )
+        self._draco[view_index] = (positions, triangles)
+        return positions, triangles
+
+
+def _is_count(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _meshopt_extension(view: dict) -> dict | None:
+    extensions = view.get("extensions") or {}
+    for name in _MESHOPT:
+        if name in extensions:
+            if not isinstance(extensions[name], dict):
+                raise MeshParseError(f"glTF {name} settings must be an object")
+            return extensions[name]
+    return None
+
+
+def _draco_extension(primitive: dict) -> Any:
+    return (primitive.get("extensions") or {}).get(_DRACO)
 
 
 def _local_matrix(node: dict) -> NDArray:
@@ -280,6 +445,7 @@ def _check_budget(
     before a single accessor is read."""
     gltf = document.gltf
     vertices = triangles = 0
+    allowed_meshes: set[int] = set()
     uses: dict[int, int] = {}
     for mesh_index, _ in instances:
         uses[mesh_index] = uses.get(mesh_index, 0) + 1
@@ -293,10 +459,36 @@ def _check_budget(
             vertex_count = _declared_count(_item(gltf, "accessors", position))
             vertices += count * vertex_count
             triangles += count * _triangle_count(document, primitive, vertex_count)
+            if mesh_index not in allowed_meshes:
+                for accessor in (position, primitive.get("indices")):
+                    if accessor is not None:
+                        _allow_views(document, _item(gltf, "accessors", accessor))
+        allowed_meshes.add(mesh_index)
     plural = "s" if len(instances) != 1 else ""
     context = f" after expanding its {len(instances)} glTF mesh instance{plural}"
     limits.check_faces(triangles, "triangles", context=context)
     limits.check_vertices(vertices, context=context)
+
+
+def _allow_views(document: _Document, spec: dict) -> None:
+    """Let the bufferViews an accessor reads decompress to what it declares it needs."""
+    component, width = spec.get("componentType"), _WIDTHS.get(spec.get("type"))
+    if component not in _COMPONENTS or width is None:
+        return  # reported when the accessor is read
+    element_size = np.dtype(_COMPONENTS[component]).itemsize * width
+    count = _declared_count(spec)
+    allowance = document.view_allowance
+    if _is_count(spec.get("bufferView")):
+        view = _item(document.gltf, "bufferViews", spec["bufferView"])
+        stride = max(int(view.get("byteStride", 0) or 0), element_size)
+        allowance[spec["bufferView"]] = allowance.get(spec["bufferView"], 0) + count * stride + 16
+    sparse = spec.get("sparse")
+    if isinstance(sparse, dict) and _is_count(sparse.get("count")):
+        for part, size in (("indices", 4), ("values", element_size)):
+            view_index = (sparse.get(part) or {}).get("bufferView")
+            if _is_count(view_index):
+                extra = min(sparse["count"], count) * size + 16
+                allowance[view_index] = allowance.get(view_index, 0) + extra
 
 
 def _read_document(document: _Document, format_name: str, limits: MeshLimits) -> TriangleMesh:
@@ -315,10 +507,22 @@ def _read_document(document: _Document, format_name: str, limits: MeshLimits) ->
                 continue  # points and lines
             if "POSITION" not in primitive.get("attributes", {}):
                 raise MeshParseError("a glTF primitive has no POSITION attribute")
-            positions = document.accessor(primitive["attributes"]["POSITION"])
+            draco = _draco_extension(primitive)
+            if draco is not None:  # whether or not the file lists Draco as required
+                if mode != _TRIANGLES:
+                    raise UnsupportedFormatError(
+                        f"glTF mesh {mesh_index} has Draco-compressed triangle strips or "
+                        "fans; export triangles"
+                    )
+                positions, indices = document.draco(mesh_index, primitive, draco)
+                indices = indices.reshape(-1)
+            else:
+                positions = document.accessor(primitive["attributes"]["POSITION"])
             if positions.shape[1] != 3:
                 raise MeshParseError("glTF POSITION must be VEC3")
-            if "indices" in primitive:
+            if draco is not None:
+                pass
+            elif "indices" in primitive:
                 indices = document.accessor(primitive["indices"])
                 if indices.shape[1] != 1 or indices.dtype.kind != "i":
                     raise MeshParseError("glTF indices must be unsigned integer scalars")
@@ -345,7 +549,7 @@ def _read_document(document: _Document, format_name: str, limits: MeshLimits) ->
 def _parse_json(text: bytes, format_name: str) -> Any:
     """The glTF JSON, with parse errors a user can act on."""
     try:
-        return json.loads(text.decode("utf-8"))
+        return json.loads(strip_bom(text).decode("utf-8"))
     except UnicodeDecodeError as exc:
         raise MeshParseError(f"the {format_name} JSON is not UTF-8 text: {exc}") from None
     except json.JSONDecodeError as exc:
@@ -359,7 +563,7 @@ def _parse_json(text: bytes, format_name: str) -> Any:
 
 def read_glb(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     """Parse binary glTF (GLB) bytes; declared lengths are checked before anything is read."""
-    if data.lstrip()[:1] == b"{":  # a text glTF sent as GLB
+    if strip_bom(data).lstrip()[:1] == b"{":  # a text glTF sent as GLB
         return read_gltf(data, limits)
     if len(data) < 12 or data[:4] != _GLB_MAGIC:
         raise MeshParseError("a GLB file must start with the 'glTF' magic bytes; is it a GLB?")

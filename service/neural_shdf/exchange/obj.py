@@ -4,15 +4,24 @@ Groups (``g``/``o``) and materials (``usemtl``) are ignored, so faces are never
 regrouped or reordered (trimesh's OBJ loader splits by material, which is why
 this reader exists). Only the position index of ``v/vt/vn`` references is used;
 negative indices are relative to the vertices defined so far. Texture coordinates,
-normals, lines (``l``) and points (``p``) are ignored.
+normals, lines (``l``) and points (``p``) are ignored. A UTF-8 byte-order mark
+and ``#`` comments after a record are skipped; errors name the file's line.
 """
 
 from __future__ import annotations
 
+from array import array
+
 import numpy as np
 
 from neural_shdf.errors import InvalidGeometryError, MeshParseError
-from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, decode_text, polygon_mesh
+from neural_shdf.exchange._common import (
+    NO_LIMITS,
+    MeshLimits,
+    decode_text,
+    polygon_mesh,
+    strip_bom,
+)
 from neural_shdf.mesh import TriangleMesh
 
 FORMAT_NAME = "OBJ"
@@ -32,23 +41,46 @@ def _record_count(data: bytes, keyword: bytes) -> int:
     return count + (data[:2] in (keyword + b" ", keyword + b"\t"))
 
 
+def _first_bad_coordinate(lines: list[str]) -> tuple[int, str]:
+    """(line number, text) of the first ``v`` record whose coordinates are not numbers."""
+    for line_number, raw in enumerate(lines, start=1):
+        parts = raw.split("#", 1)[0].split()
+        if parts and parts[0] == "v":
+            try:
+                [float(value) for value in parts[1:4]]
+            except ValueError:
+                return line_number, raw.strip()
+    return 0, ""
+
+
 def read_obj(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
-    """Parse OBJ bytes; polygons are fan-triangulated, one input face per ``f`` record."""
+    """Parse OBJ bytes; polygons are fan-triangulated, one input face per ``f`` record.
+
+    An ``f`` record with fewer than 3 vertices (a point or an edge) is still an input
+    face: it gets no triangle, and per-face outputs keep its line (label -1, ShDF NaN),
+    so the faces after it keep their place.
+    """
+    data = strip_bom(data)
     limits.check_faces(_record_count(data, b"f"))
     limits.check_vertices(_record_count(data, b"v"))
-    text = decode_text(data, FORMAT_NAME)
+    lines = _logical_lines(decode_text(data, FORMAT_NAME))
     coordinates: list[str] = []
     counts: list[int] = []
     flat: list[int] = []
+    face_lines = array("q")  # line of each f record, to name it in errors
     vertex_count = 0
     polygon_count = 0
     vertex_limit = limits.max_vertices if limits.max_vertices is not None else len(data)
     face_limit = limits.max_faces if limits.max_faces is not None else len(data)
-    for line_number, raw in enumerate(_logical_lines(text), start=1):
+    for line_number, raw in enumerate(lines, start=1):
         line = raw.lstrip()
-        if len(line) < 2 or line[0] not in "vf" or line[1] not in " \t":
+        if not line or line[0] not in "vf":
             continue
+        if "#" in line:  # a comment may follow a record
+            line = line.split("#", 1)[0]
         parts = line.split()
+        if not parts or parts[0] not in ("v", "f"):
+            continue
         if parts[0] == "v":
             if len(parts) < 4:
                 raise MeshParseError(
@@ -75,6 +107,7 @@ def read_obj(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
                 )
             flat.append(index - 1 if index > 0 else vertex_count + index)
         counts.append(len(references))
+        face_lines.append(line_number)
         if len(references) >= 3:
             polygon_count += 1
             if polygon_count > face_limit:
@@ -83,12 +116,25 @@ def read_obj(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
         raise MeshParseError("no vertex ('v') or face ('f') records found: this is not an OBJ mesh")
     try:
         vertices = np.array(coordinates, dtype=np.float64).reshape(-1, 3)
-    except ValueError as exc:
-        raise MeshParseError(f"OBJ vertex coordinates are not all numbers: {exc}") from None
+    except ValueError:
+        line_number, text = _first_bad_coordinate(lines)
+        raise MeshParseError(
+            f"OBJ line {line_number}: vertex coordinates are not all numbers: {text[:80]!r}"
+        ) from None
+    flat_indices = np.array(flat, dtype=np.int64)
+    outside = (flat_indices < 0) | (flat_indices >= vertex_count)
+    if outside.any():
+        corner = int(np.flatnonzero(outside)[0])
+        face = int(np.searchsorted(np.cumsum(counts), corner, side="right"))
+        raise InvalidGeometryError(
+            f"OBJ line {face_lines[face]}: {int(outside.sum())} face corners refer to "
+            f"vertices that do not exist (first: face {face} of the file; there are "
+            f"{vertex_count} vertices); the file is corrupt or truncated"
+        )
     return polygon_mesh(
         vertices,
         np.array(counts, dtype=np.int64),
-        np.array(flat, dtype=np.int64),
+        flat_indices,
         format_name=FORMAT_NAME,
         limits=limits,
     )

@@ -1,7 +1,9 @@
 """Object File Format (OFF, incl. COFF/NOFF/STOFF headers) reader.
 
 Each face record is one input face, in file order; per-face colours after the
-vertex indices are ignored.
+vertex indices are ignored. A face record with fewer than 3 vertices is still an
+input face (no triangle; its line stays in per-face outputs). A UTF-8 byte-order mark
+is skipped; errors in the body name the file's line.
 """
 
 from __future__ import annotations
@@ -11,20 +13,28 @@ import re
 import numpy as np
 
 from neural_shdf.errors import MeshParseError, UnsupportedFormatError
-from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, decode_text, polygon_mesh
+from neural_shdf.exchange._common import (
+    NO_LIMITS,
+    MeshLimits,
+    decode_text,
+    polygon_mesh,
+    strip_bom,
+)
 from neural_shdf.mesh import TriangleMesh
 
 FORMAT_NAME = "OFF"
 
 
-def _content_lines(text: str) -> list[str]:
-    """Non-empty lines with ``#`` comments removed."""
-    lines = []
-    for raw in text.splitlines():
+def _content_lines(text: str) -> tuple[list[str], list[int]]:
+    """Non-empty lines with ``#`` comments removed, and the file line number of each."""
+    lines: list[str] = []
+    numbers: list[int] = []
+    for number, raw in enumerate(text.splitlines(), start=1):
         line = raw.split("#", 1)[0].strip()
         if line:
             lines.append(line)
-    return lines
+            numbers.append(number)
+    return lines, numbers
 
 
 def _header(text: str) -> tuple[list[str], list[str], int]:
@@ -58,6 +68,7 @@ def _header(text: str) -> tuple[list[str], list[str], int]:
 
 def read_off(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     """Parse OFF bytes; polygons are fan-triangulated, one input face per face record."""
+    data = strip_bom(data)
     if data[:64].lstrip().upper().startswith(b"OFF BINARY"):
         raise UnsupportedFormatError("binary OFF is not supported; save the mesh as text OFF")
     text = decode_text(data, FORMAT_NAME)
@@ -78,7 +89,7 @@ def read_off(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
         )
     limits.check_faces(face_count)
     limits.check_vertices(vertex_count)
-    lines = _content_lines(text)
+    lines, line_numbers = _content_lines(text)
     available = len(lines) - body_start
     if vertex_count + face_count > available:
         raise MeshParseError(
@@ -89,25 +100,37 @@ def read_off(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     vertex_lines = lines[body_start : body_start + vertex_count]
     try:
         vertices = np.array([line.split()[:3] for line in vertex_lines], dtype=np.float64)
-    except ValueError as exc:
-        raise MeshParseError(f"OFF vertex lines must hold 3 numbers each: {exc}") from None
+    except ValueError:
+        vertices = np.zeros((0, 3))
     if vertices.shape != (vertex_count, 3):
-        raise MeshParseError("every OFF vertex line needs 3 coordinates")
+        for i, line in enumerate(vertex_lines):
+            values = line.split()[:3]
+            try:
+                [float(value) for value in values]
+            except ValueError:
+                values = []
+            if len(values) < 3:
+                raise MeshParseError(
+                    f"OFF line {line_numbers[body_start + i]}: vertex {i} needs 3 numbers, "
+                    f"got {line[:80]!r}"
+                )
 
-    face_lines = lines[body_start + vertex_count : body_start + vertex_count + face_count]
+    first_face = body_start + vertex_count
+    face_lines = lines[first_face : first_face + face_count]
     counts = np.empty(face_count, dtype=np.int64)
     flat: list[str] = []
     for i, line in enumerate(face_lines):
         tokens = line.split()
-        n = int(tokens[0])
+        n = int(tokens[0]) if tokens[0].isdigit() else -1
+        where = f"OFF line {line_numbers[first_face + i]}: face {i}"
         if n < 0 or len(tokens) < n + 1:
+            listed = len(tokens) - 1
             raise MeshParseError(
-                f"OFF face {i} declares {n} vertices but lists {len(tokens) - 1} values"
+                f"{where} declares {tokens[0][:20]} vertices but lists {listed} values"
             )
+        if not all(token.lstrip("-").isdigit() for token in tokens[1 : n + 1]):
+            raise MeshParseError(f"{where} has vertex indices that are not integers: {line[:80]!r}")
         counts[i] = n
         flat.extend(tokens[1 : n + 1])
-    try:
-        flat_indices = np.array(flat, dtype=np.int64)
-    except ValueError as exc:
-        raise MeshParseError(f"OFF face indices must be integers: {exc}") from None
+    flat_indices = np.array(flat, dtype=np.int64)
     return polygon_mesh(vertices, counts, flat_indices, format_name=FORMAT_NAME, limits=limits)

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.errors import InvalidGeometryError, MeshParseError, UnsupportedFormatError
-from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, polygon_mesh
+from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, polygon_mesh, strip_bom
 from neural_shdf.mesh import TriangleMesh
 
 FORMAT_NAME = "PLY"
@@ -248,7 +248,9 @@ def _read_binary_element(
 
 
 def read_ply(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
-    """Parse PLY bytes; polygons are fan-triangulated, one input face per face row."""
+    """Parse PLY bytes; polygons are fan-triangulated, one input face per face row
+    (a row of fewer than 3 vertices is an input face without a triangle)."""
+    data = strip_bom(data)
     endian, elements, body = _parse_header(data)
     names = [e.name for e in elements]
     if "vertex" not in names:

@@ -347,16 +347,10 @@ read_usdc = partial(_read_usd_bytes, "usdc")
 read_usdz = partial(_read_usd_bytes, "usdz")
 
 
-def srgb_to_linear(srgb: NDArray) -> NDArray[np.float64]:
-    """sRGB-encoded components in [0, 1] as linear values (the IEC 61966-2-1 curve)."""
-    c = np.asarray(srgb, dtype=np.float64)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
 def linear_face_colors(face_labels: NDArray[np.int64]) -> NDArray[np.float64]:
     """(F, 3) linear RGB per face: ``export.part_colors`` by label (sRGB swatches, the API's
     ``color``), ``export.UNLABELED_COLOR`` for negative labels."""
-    from neural_shdf.export import UNLABELED_COLOR, part_colors
+    from neural_shdf.export import UNLABELED_COLOR, part_colors, srgb_to_linear
 
     top = int(face_labels.max()) + 1 if len(face_labels) else 0
     palette = srgb_to_linear(part_colors(max(top, 0))[:, :3] / 255.0)

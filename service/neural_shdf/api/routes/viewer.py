@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import logging
+
 from fastapi import APIRouter, FastAPI, Request
 from fastapi.responses import HTMLResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
@@ -10,6 +12,7 @@ from neural_shdf.api.settings import Settings
 from neural_shdf.api.viewer import LOCAL_THREE_PATH, STATIC_DIR, render_page, three_source
 
 router = APIRouter(include_in_schema=False)
+logger = logging.getLogger(__name__)
 
 
 @router.get("/")
@@ -30,6 +33,13 @@ def install_viewer(app: FastAPI, settings: Settings) -> None:
     """Add the page, its static files and (when installed) the local three.js copy."""
     app.include_router(router)
     app.mount("/viewer/static", StaticFiles(directory=STATIC_DIR), name="viewer-static")
-    local = three_source(settings).local_dir
-    if local is not None:
-        app.mount(LOCAL_THREE_PATH.rstrip("/"), StaticFiles(directory=local), name="viewer-three")
+    source = three_source(settings)
+    if source.local_dir is not None:
+        three = StaticFiles(directory=source.local_dir)
+        app.mount(LOCAL_THREE_PATH.rstrip("/"), three, name="viewer-three")
+    elif not settings.viewer_three_url:
+        logger.warning(
+            "web viewer: three.js comes from %s (needs the internet); offline: %s",
+            source.base_url,
+            "run `npm ci` in neural_shdf/viewer or set NEURAL_SHDF_VIEWER_THREE_DIR",
+        )

@@ -11,6 +11,25 @@ const CLIENT_CACHE_SIZE = 24;
 const DEFAULT_PARTS_MAX = Number(document.getElementById('parts').max);
 /** The service's colour of part `label` (the same palette as its answers). */
 const partColor = (label) => '#' + config.partPalette.slice(6 * label, 6 * label + 6);
+/**
+ * The smoothing slider's values, one per position: most of the track goes to the useful
+ * range (0.01 to 0.2) that a linear 0..1 slider squeezed into its first fifth.
+ */
+const SMOOTHING_VALUES = [
+  0, 0.005, 0.01, 0.015, 0.02, 0.025, 0.03, 0.035, 0.04, 0.045, 0.05, 0.06, 0.07, 0.08, 0.09,
+  0.1, 0.12, 0.14, 0.16, 0.18, 0.2, 0.25, 0.3, 0.4, 0.5, 0.7, 1, 1.5, 2,
+];
+if (!SMOOTHING_VALUES.includes(config.defaultSmoothing)) {
+  SMOOTHING_VALUES.push(config.defaultSmoothing);
+  SMOOTHING_VALUES.sort((a, b) => a - b);
+}
+/** The slider position of the smoothing value nearest `value`. */
+function smoothingPosition(value) {
+  let best = 0;
+  SMOOTHING_VALUES.forEach((v, i) => { if (Math.abs(v - value) < Math.abs(SMOOTHING_VALUES[best] - value)) best = i; });
+  return best;
+}
+const smoothingValue = () => SMOOTHING_VALUES[Number($('smoothing').value)];
 
 const state = {
   meshId: null,
@@ -138,7 +157,7 @@ async function loadMesh(meta, method) {
   $('empty-hint').hidden = true;
   $('mesh-info').hidden = false;
   $('mesh-name').textContent = meta.filename || meta.mesh_id.slice(0, 12);
-  $('mesh-stats').textContent = `${meta.faces.toLocaleString()} faces · ${meta.vertices.toLocaleString()} vertices · ShDF: ${method}`;
+  showMeshStats();
   paint();
   hideProgress();
   await resegment({ reason: 'load' });
@@ -154,7 +173,7 @@ function controlValues() {
   return {
     partitioner,
     clusters: Number($('clusters').value),
-    smoothing: Number($('smoothing').value),
+    smoothing: smoothingValue(),
     parts: Number($('parts').value) || null,  // 0: automatic
     refine: $('refine').checked,
     boundary_smoothing: $('boundary-smoothing').checked,
@@ -317,6 +336,7 @@ function applySegmentation(body, request, labels = null) {
   const palette = new Uint8Array(body.parts.length * 3);
   body.parts.forEach((part, i) => palette.set(parseHex(part.color), i * 3));
   Object.assign(state, { labels, body, palette, shownRequest: request });
+  showMeshStats();
   if (state.selected >= body.part_count) state.selected = -1;
   state.hidden = new Set([...state.hidden].filter((label) => label < body.part_count));
   if (state.isolated >= body.part_count) state.isolated = -1;
@@ -331,7 +351,7 @@ function paint() {
   if (state.view === 'shdf' && state.shdf) view.paintShdf(state.shdf);
   else if (state.view === 'parts' && state.labels) view.paintParts(state.labels, state.palette, UNLABELED, state.selected);
   else view.paintPlain();
-  $('shdf-legend').hidden = state.view !== 'shdf';
+  $('shdf-legend').hidden = state.view !== 'shdf';  // an overlay: nothing else moves
   view.render();
 }
 
@@ -445,7 +465,7 @@ $('download-parts').onclick = () => downloadGlb('parts');
 function showValues() {
   const clusters = Number($('clusters').value);
   $('clusters-out').textContent = clusters === 0 ? 'auto' : String(clusters);
-  $('smoothing-out').textContent = Number($('smoothing').value).toFixed(2);
+  $('smoothing-out').textContent = String(smoothingValue());
   const parts = Number($('parts').value);
   $('parts-out').textContent = parts === 0 ? 'auto' : String(parts);
   $('parts').closest('label').title = $('partitioner').value === 'metis'
@@ -465,7 +485,8 @@ function setUpControls() {
   fillSelect($('partitioner'), config.partitioners);
   $('clusters').max = String(config.maxClusters);
   $('clusters').value = String(config.defaultClusters);
-  $('smoothing').value = String(config.defaultSmoothing);
+  $('smoothing').max = String(SMOOTHING_VALUES.length - 1);
+  $('smoothing').value = String(smoothingPosition(config.defaultSmoothing));
   $('crease-boundaries').checked = config.defaultCreaseBoundaries;
   $('method').value = config.defaultMethod;
   showValues();
@@ -499,7 +520,7 @@ function setUpControls() {
       state.shdf = await fetchShdf(state.meshId, method);
       state.method = method;
       hideProgress();
-      $('mesh-stats').textContent = `${state.meta.faces.toLocaleString()} faces · ${state.meta.vertices.toLocaleString()} vertices · ShDF: ${method}`;
+      showMeshStats();
       paint();
       await resegment({ reason: 'method' });
     } catch (error) {
@@ -511,11 +532,40 @@ function setUpControls() {
   for (const radio of document.querySelectorAll('input[name=view]')) {
     radio.addEventListener('change', () => { state.view = radio.value; paint(); });
   }
+  setUpViewTools();
   $('shdf-legend').querySelector('.ramp').style.background = heatGradient();
   $('selection-hide').onclick = () => toggleHidden(state.selected);
   $('selection-isolate').onclick = () => toggleIsolated(state.selected);
   $('selection-clear').onclick = () => select(-1);
   $('show-all').onclick = showAll;
+}
+
+/** Faces, vertices and the ShDF method that ran ("exact (auto)" when auto chose it). */
+function showMeshStats() {
+  const { meta, method, body } = state;
+  if (!meta) return;
+  const ran = body?.method;
+  const shdf = !ran ? method : ran === method ? ran : `${ran} (${method})`;
+  $('mesh-stats').textContent = `${meta.faces.toLocaleString()} faces · ${meta.vertices.toLocaleString()} vertices · ShDF: ${shdf}`;
+}
+
+const UP_KEY = 'neural-shdf.up';
+
+/** The stage's tools: up axis (remembered), frame, flat colours; F frames too. */
+function setUpViewTools() {
+  const up = $('up-axis');
+  up.value = localStorage.getItem(UP_KEY) === 'z' ? 'z' : 'y';
+  view.setUp(up.value);
+  up.addEventListener('change', () => {
+    localStorage.setItem(UP_KEY, up.value);
+    view.setUp(up.value);
+  });
+  $('frame').onclick = () => { if (view.mesh) view.frame(); };
+  $('flat').addEventListener('change', () => view.setLit(!$('flat').checked));
+  window.addEventListener('keydown', (event) => {
+    const typing = event.target instanceof HTMLInputElement && event.target.type !== 'range' && event.target.type !== 'checkbox';
+    if (event.key.toLowerCase() === 'f' && !event.ctrlKey && !event.metaKey && !event.altKey && !typing && view.mesh) view.frame();
+  });
 }
 
 function setUpFileInput() {
@@ -555,6 +605,14 @@ setUpControls();
 setUpFileInput();
 setUpPicking();
 setStatus('empty');
+if ($('message').dataset.code === 'three_missing') {  // three.js came, after a long wait
+  clearError();
+  $('file-input').disabled = false;
+  $('empty-hint').textContent = 'Open or drop a mesh to segment it';
+}
 window.shdfViewer.openFile = openFile;
 window.shdfViewer.select = select;
+window.shdfViewer.controlValues = controlValues;
+window.shdfViewer.smoothingPosition = smoothingPosition;
+window.shdfViewer.smoothingValues = SMOOTHING_VALUES;
 window.shdfViewer.ready = true;

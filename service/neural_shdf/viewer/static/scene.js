@@ -1,14 +1,39 @@
 // The 3-D view: one three.js mesh drawn with a colour per triangle, orbit controls, picking.
+//
+// Colours: the palette, the heat map and the swatches are sRGB (as the API's `color` and CSS).
+// three.js treats vertex colours as linear light and encodes its output to sRGB, so every
+// colour is converted with the sRGB transfer function before it becomes a vertex colour.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
 const NO_VALUE = [110, 110, 110];
 const PLAIN = [200, 200, 200];
 const DIM = 0.3;
-/** Viridis at 5 stops (thin = dark blue, thick = yellow). */
+/** Viridis at 5 stops (thin = dark blue, thick = yellow), sRGB. */
 const RAMP = [[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98], [253, 231, 37]];
+/** Per up axis: the up vector and the two horizontal axes (front first, DCC convention). */
+const AXES = {
+  y: { up: [0, 1, 0], horizontal: [[0, 0, 1], [1, 0, 0]] },
+  z: { up: [0, 0, 1], horizontal: [[0, -1, 0], [1, 0, 0]] },
+};
 
-/** RGB bytes of a value in [0, 1] on the heat map ramp. */
+/** sRGB component in [0, 1] to linear light. */
+export function srgbToLinear(c) {
+  return c <= 0.04045 ? c / 12.92 : ((c + 0.055) / 1.055) ** 2.4;
+}
+
+/** Linear component in [0, 1] to sRGB. */
+export function linearToSrgb(c) {
+  return c <= 0.0031308 ? c * 12.92 : 1.055 * c ** (1 / 2.4) - 0.055;
+}
+
+/** Vertex colours are linear 16-bit integers: 8 bits would band in the darks (and lose
+ * the palette's exact values), floats cost twice the upload. */
+const LINEAR_MAX = 65535;
+/** Linear value of each sRGB byte, in LINEAR_MAX units. */
+const LINEAR = Uint16Array.from({ length: 256 }, (_, i) => Math.round(srgbToLinear(i / 255) * LINEAR_MAX));
+
+/** RGB bytes (sRGB) of a value in [0, 1] on the heat map ramp, interpolated as CSS does. */
 export function heatColor(value) {
   if (!Number.isFinite(value)) return NO_VALUE;
   const x = Math.min(Math.max(value, 0), 1) * (RAMP.length - 1);
@@ -28,6 +53,11 @@ export function parseHex(hex) {
   return [(n >> 16) & 255, (n >> 8) & 255, n & 255];
 }
 
+/** Linear RGB of sRGB bytes (`bytes`: r, g, b, r, g, b, ...), scaled by `scale`. */
+function linearOf(bytes, scale = 1) {
+  return Uint16Array.from(bytes, (c) => Math.round(LINEAR[c] * scale));
+}
+
 export class MeshView {
   constructor(canvas) {
     this.canvas = canvas;
@@ -45,6 +75,12 @@ export class MeshView {
     this.controls.addEventListener('change', () => this.render());
     this.mesh = null;
     this.faceOrigin = null;
+    this.up = 'y';
+    this.lit = true;
+    this.materials = {
+      lit: new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.DoubleSide }),
+      flat: new THREE.MeshBasicMaterial({ vertexColors: true, side: THREE.DoubleSide }),
+    };
     new ResizeObserver(() => this.resize()).observe(canvas.parentElement);
     this.resize();
   }
@@ -77,7 +113,6 @@ export class MeshView {
     if (this.mesh) {
       this.scene.remove(this.mesh);
       this.mesh.geometry.dispose();
-      this.mesh.material.dispose();
     }
     const count = faceOrigin.length;
     const vertexNormals = smoothNormals(positions, triangles);
@@ -92,30 +127,45 @@ export class MeshView {
     const geometry = new THREE.BufferGeometry();
     geometry.setAttribute('position', new THREE.BufferAttribute(position, 3));
     geometry.setAttribute('normal', new THREE.BufferAttribute(normal, 3));
-    const color = new THREE.BufferAttribute(new Uint8Array(count * 9).fill(200), 3, true);
+    const color = new THREE.BufferAttribute(new Uint16Array(count * 9).fill(LINEAR[PLAIN[0]]), 3, true);
     color.setUsage(THREE.DynamicDrawUsage);
     geometry.setAttribute('color', color);
     geometry.computeBoundingSphere();
-    const material = new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.DoubleSide });
-    this.mesh = new THREE.Mesh(geometry, material);
+    geometry.computeBoundingBox();
+    this.mesh = new THREE.Mesh(geometry, this.lit ? this.materials.lit : this.materials.flat);
     this.scene.add(this.mesh);
     this.faceOrigin = faceOrigin;
     this.frame();
   }
 
+  /** Shade with the lights (true) or draw the colours flat, exactly as the swatches. */
+  setLit(lit) {
+    this.lit = lit;
+    if (this.mesh) this.mesh.material = lit ? this.materials.lit : this.materials.flat;
+    this.render();
+  }
+
+  /** The up axis of the mesh's file ('y' or 'z'); the camera is framed again. */
+  setUp(axis) {
+    this.up = axis === 'z' ? 'z' : 'y';
+    if (this.mesh) this.frame();
+  }
+
   /**
-   * Point the camera at the whole mesh, looking across its longest side: the box's shortest
-   * axis points at the viewer (tilted a little), its middle axis is up.
+   * Point the camera at the whole mesh with the up axis up, looking across its wider
+   * horizontal side (the front unless the mesh is deeper than wide), a little from above
+   * and to the side, at a distance that fits its bounding sphere.
    */
   frame() {
     const geometry = this.mesh.geometry;
-    geometry.computeBoundingBox();
-    const size = geometry.boundingBox.getSize(new THREE.Vector3());
-    const axes = [0, 1, 2].sort((a, b) => size.getComponent(a) - size.getComponent(b));
-    const unit = (axis) => new THREE.Vector3().setComponent(axis, 1);
-    const [depth, up, across] = axes.map(unit);
-    const direction = depth.clone().add(up.clone().multiplyScalar(0.35)).add(across.clone().multiplyScalar(0.25)).normalize();
     const { center, radius } = geometry.boundingSphere;
+    const size = geometry.boundingBox.getSize(new THREE.Vector3());
+    const axes = AXES[this.up];
+    const up = new THREE.Vector3(...axes.up);
+    let [front, side] = axes.horizontal.map((axis) => new THREE.Vector3(...axis));
+    const extent = (axis) => Math.abs(size.dot(axis));
+    if (extent(front) > extent(side)) [front, side] = [side, front.negate()];
+    const direction = front.addScaledVector(side, 0.3).addScaledVector(up, 0.35).normalize();
     const halfHeight = Math.tan(THREE.MathUtils.degToRad(this.camera.fov / 2));
     const halfView = Math.min(halfHeight, halfHeight * this.camera.aspect);
     const distance = (1.1 * (radius || 1)) / halfView;
@@ -130,27 +180,34 @@ export class MeshView {
     this.controls.addEventListener('change', () => this.render());
     this.controls.target.copy(center);
     this.controls.update();
+    this.render();
   }
 
   /**
-   * Colour every triangle by part: `labels` per input face, `palette` RGB bytes per label,
-   * `unlabeled` RGB of a negative label; all but the `selected` part dimmed when one is.
+   * Colour every triangle by part: `labels` per input face, `palette` sRGB bytes per label,
+   * `unlabeled` sRGB bytes of a negative label; all but the `selected` part dimmed when one is.
    */
   paintParts(labels, palette, unlabeled, selected = -1) {
-    const color = this.mesh.geometry.getAttribute('color');
-    const out = color.array;
+    const parts = palette.length / 3;
+    const bright = linearOf(palette);
+    const dim = linearOf(palette, DIM);
+    const none = linearOf(unlabeled, selected >= 0 ? DIM : 1);
+    const out = this.mesh.geometry.getAttribute('color').array;
     const origin = this.faceOrigin;
     for (let t = 0; t < origin.length; t++) {
       const label = labels[origin[t]];
-      let r = unlabeled[0], g = unlabeled[1], b = unlabeled[2];
-      if (label >= 0) { r = palette[label * 3]; g = palette[label * 3 + 1]; b = palette[label * 3 + 2]; }
-      if (selected >= 0 && label !== selected) { r *= DIM; g *= DIM; b *= DIM; }
+      let source = none, i = 0;
+      if (label >= 0 && label < parts) {
+        source = selected >= 0 && label !== selected ? dim : bright;
+        i = label * 3;
+      }
+      const r = source[i], g = source[i + 1], b = source[i + 2];
       const o = t * 9;
       out[o] = out[o + 3] = out[o + 6] = r;
       out[o + 1] = out[o + 4] = out[o + 7] = g;
       out[o + 2] = out[o + 5] = out[o + 8] = b;
     }
-    color.needsUpdate = true;
+    this.mesh.geometry.getAttribute('color').needsUpdate = true;
   }
 
   /** Colour every triangle by its input face's ShDF on the heat map ramp. */
@@ -161,16 +218,16 @@ export class MeshView {
     for (let t = 0; t < origin.length; t++) {
       const [r, g, b] = heatColor(values[origin[t]]);
       const o = t * 9;
-      out[o] = out[o + 3] = out[o + 6] = r;
-      out[o + 1] = out[o + 4] = out[o + 7] = g;
-      out[o + 2] = out[o + 5] = out[o + 8] = b;
+      out[o] = out[o + 3] = out[o + 6] = LINEAR[r];
+      out[o + 1] = out[o + 4] = out[o + 7] = LINEAR[g];
+      out[o + 2] = out[o + 5] = out[o + 8] = LINEAR[b];
     }
     color.needsUpdate = true;
   }
 
   paintPlain() {
     const color = this.mesh.geometry.getAttribute('color');
-    for (let i = 0; i < color.array.length; i += 3) color.array.set(PLAIN, i);
+    color.array.fill(LINEAR[PLAIN[0]]);
     color.needsUpdate = true;
   }
 
@@ -206,11 +263,13 @@ export class MeshView {
     return hit ? this.faceOrigin[Math.floor(hit.face.a / 3)] : -1;
   }
 
-  /** RGB bytes of each triangle as drawn (tests compare them with the service's labels). */
+  /** sRGB bytes of each triangle's colour (tests compare them with the service's colours). */
   triangleColors() {
     const colors = this.mesh.geometry.getAttribute('color').array;
     const out = new Uint8Array(this.faceOrigin.length * 3);
-    for (let t = 0; t < this.faceOrigin.length; t++) out.set(colors.subarray(t * 9, t * 9 + 3), t * 3);
+    for (let t = 0; t < this.faceOrigin.length; t++) {
+      for (let k = 0; k < 3; k++) out[t * 3 + k] = Math.round(linearToSrgb(colors[t * 9 + k] / LINEAR_MAX) * 255);
+    }
     return out;
   }
 }

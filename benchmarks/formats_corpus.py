@@ -1,8 +1,9 @@
 """Corpus of real-world mesh file flavours, read by load_mesh and checked against the truth.
 
 Generates every file in memory (OBJ, OFF, PLY, STL, glTF/GLB flavours, Draco, meshopt,
-sparse, BOMs, header lies), reads each through ``neural_shdf.mesh_io.load_mesh`` and
-through an independent reader (trimesh; DracoPy for Draco), and prints one row per file:
+sparse, BOMs, header lies; USD stages and an FBX header), reads each through
+``neural_shdf.mesh_io.load_mesh`` and through an independent reader (trimesh; DracoPy
+for Draco; none for USD, checked against the generator alone), and prints one row per file:
 the expected outcome, ours (triangles, input faces, area and bounds against the
 generator's own geometry, or the refusal message), the independent reader's, and a
 verdict. ``MISREAD`` (a file read to the wrong geometry or face count) is what must
@@ -652,6 +653,118 @@ def _gltf_cases() -> list[Case]:
     return cases
 
 
+# --- USD and FBX ----------------------------------------------------------------------
+
+
+def _usd_cases() -> list[Case]:
+    """USD stages written with usd-core (the truth: each polygon fanned in prim order, in
+    world space); point instancers, outside layers, broken files and FBX are refused."""
+    import tempfile
+
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdUtils
+
+    quad_box = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
+                         [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]], float)  # fmt: skip
+    box_counts = [4, 4, 4, 4, 4, 4]
+    box_flat = [0, 3, 2, 1, 4, 5, 6, 7, 0, 1, 5, 4, 1, 2, 6, 5, 2, 3, 7, 6, 3, 0, 4, 7]
+    angle = 2 * np.pi * np.arange(7) / 7
+    heptagon = np.stack([np.cos(angle), np.sin(angle), np.zeros(7)], axis=1)
+
+    def fan(counts: list[int], flat: list[int]) -> np.ndarray:
+        triangles, at = [], 0
+        for count in counts:
+            ring = flat[at : at + count]
+            triangles += [[ring[0], ring[k], ring[k + 1]] for k in range(1, count - 1)]
+            at += count
+        return np.array(triangles).reshape(-1, 3)
+
+    def define(stage, path: str, points, counts, flat):
+        mesh = UsdGeom.Mesh.Define(stage, path)
+        mesh.CreatePointsAttr([Gf.Vec3f(*p) for p in points])
+        mesh.CreateFaceVertexCountsAttr(counts)
+        mesh.CreateFaceVertexIndicesAttr(flat)
+        return mesh
+
+    cases: list[Case] = []
+    with tempfile.TemporaryDirectory(prefix="corpus-usd-") as folder:
+        root = Path(folder)
+
+        def save(stage, name: str) -> bytes:
+            stage.GetRootLayer().Save()
+            return (root / name).read_bytes()
+
+        # Two prims under transforms: a box of quads moved by (5, 0, 0), a heptagon scaled.
+        stage = Usd.Stage.CreateNew(str(root / "scene.usda"))
+        UsdGeom.Xform.Define(stage, "/World").AddTranslateOp().Set(Gf.Vec3d(5, 0, 0))
+        define(stage, "/World/Box", quad_box, box_counts, box_flat)
+        UsdGeom.Xform.Define(stage, "/Wide").AddScaleOp().Set(Gf.Vec3f(2, 3, 1))
+        define(stage, "/Wide/Heptagon", heptagon, [7], list(range(7)))
+        scene = save(stage, "scene.usda")
+        vertices = np.concatenate([quad_box + [5, 0, 0], heptagon * [2, 3, 1]])
+        faces = np.concatenate([fan(box_counts, box_flat), fan([7], list(range(7))) + 8])
+        origin = np.concatenate([np.repeat(np.arange(6), 2), np.full(5, 6)])
+        truth = Truth(vertices, faces, 7, origin)
+        cases.append(Case("usda_two_prims_transforms", "usda", scene, truth))
+        layer = Sdf.Layer.FindOrOpen(str(root / "scene.usda"))
+        for name in ("scene.usdc", "scene_crate.usd"):
+            layer.Export(str(root / name))
+            kind = name.rsplit(".", 1)[1]
+            cases.append(Case(f"{kind}_two_prims_crate", kind, (root / name).read_bytes(), truth))
+        UsdUtils.CreateNewUsdzPackage(str(root / "scene.usdc"), str(root / "scene.usdz"))
+        cases.append(Case("usdz_package", "usdz", (root / "scene.usdz").read_bytes(), truth))
+
+        # Left-handed prim: the winding is reversed (first vertex kept), faces in order.
+        stage = Usd.Stage.CreateNew(str(root / "left.usda"))
+        define(stage, "/Box", quad_box, box_counts, box_flat).CreateOrientationAttr("leftHanded")
+        reversed_flat = []
+        for k in range(6):
+            ring = box_flat[4 * k : 4 * k + 4]
+            reversed_flat += [ring[0], *ring[:0:-1]]
+        left = Truth(quad_box, fan(box_counts, reversed_flat), 6, np.repeat(np.arange(6), 2))
+        cases.append(Case("usda_left_handed", "usda", save(stage, "left.usda"), left))
+
+        # Two instances of one prototype, and a hole.
+        stage = Usd.Stage.CreateNew(str(root / "instances.usda"))
+        define(stage, "/Proto/Box", quad_box, box_counts, box_flat)
+        stage.GetPrimAtPath("/Proto").SetSpecifier(Sdf.SpecifierClass)
+        for i in range(2):
+            copy = UsdGeom.Xform.Define(stage, f"/Copy{i}")
+            copy.AddTranslateOp().Set(Gf.Vec3d(0, 3 * i, 0))
+            copy.GetPrim().GetReferences().AddInternalReference("/Proto")
+            copy.GetPrim().SetInstanceable(True)
+        instanced = Truth(
+            np.concatenate([quad_box, quad_box + [0, 3, 0]]),
+            np.concatenate([fan(box_counts, box_flat), fan(box_counts, box_flat) + 8]),
+            12,
+            np.repeat(np.arange(12), 2),
+        )
+        cases.append(Case("usda_instances", "usda", save(stage, "instances.usda"), instanced))
+        stage = Usd.Stage.CreateNew(str(root / "hole.usda"))
+        define(stage, "/Box", quad_box, box_counts, box_flat).CreateHoleIndicesAttr([1])
+        kept = np.r_[0:2, 4:12]
+        holed_origin = np.repeat(np.arange(6), 2)[kept]
+        holed = Truth(quad_box, fan(box_counts, box_flat)[kept], 6, holed_origin)
+        cases.append(Case("usda_hole_index", "usda", save(stage, "hole.usda"), holed))
+
+        # Refused: a point instancer, a layer from outside the upload, broken files.
+        stage = Usd.Stage.CreateNew(str(root / "points.usda"))
+        UsdGeom.PointInstancer.Define(stage, "/Scatter")
+        define(stage, "/Scatter/Prototypes/Box", quad_box, box_counts, box_flat)
+        cases.append(Case("usda_point_instancer", "usda", save(stage, "points.usda"), None))
+        stage = Usd.Stage.CreateNew(str(root / "outside.usda"))
+        stage.DefinePrim("/Ref").GetReferences().AddReference(str(root / "scene.usda"))
+        cases.append(Case("usda_outside_reference", "usda", save(stage, "outside.usda"), None))
+        usdc = (root / "scene.usdc").read_bytes()
+        cases.append(Case("usdc_truncated", "usdc", usdc[: len(usdc) // 2], None))
+        cases.append(Case("usdz_not_a_zip", "usdz", scene, None))
+        stage = Usd.Stage.CreateNew(str(root / "lines.usda"))
+        UsdGeom.BasisCurves.Define(stage, "/Curves")
+        cases.append(Case("usda_no_mesh", "usda", save(stage, "lines.usda"), None))
+    fbx = b"Kaydara FBX Binary  \x00\x1a\x00" + (7400).to_bytes(4, "little") + bytes(64)
+    cases.append(Case("fbx_binary_refused", "fbx", fbx, None))
+    return cases
+
+
 # --- running --------------------------------------------------------------------------
 
 
@@ -759,7 +872,7 @@ def main() -> None:
     parser.add_argument("--draco-faces", type=int, default=1_000_000)
     parser.add_argument("--only", default="", help="run the cases whose name contains this")
     args = parser.parse_args()
-    cases = [c for c in _text_cases() + _gltf_cases() if args.only in c.name]
+    cases = [c for c in _text_cases() + _gltf_cases() + _usd_cases() if args.only in c.name]
     rows = [(case.name, *_run(case)) for case in cases]
     header = ("file", "expected", "ours", "independent", "verdict")
     widths = [max(len(str(row[i])) for row in [header, *rows]) for i in range(5)]

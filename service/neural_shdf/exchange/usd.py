@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import io
 import os
+import re
 import tempfile
 import zipfile
 from collections.abc import Iterator
@@ -287,9 +288,20 @@ def read_usd_stage(stage: Any, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     )
 
 
+def _usd_message(error: Exception) -> str:
+    """usd-core's own words from its error (without the C++ function and source line)."""
+    found = re.findall(r" : '(.*?)'\s*$", str(error), flags=re.MULTILINE)
+    return "; ".join(found) or str(error).strip()
+
+
 def read_usd_path(path: str | Path, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     """Read a USD file on disk (its layers must lie inside it: see check_layers_inside)."""
-    return read_usd_stage(open_stage(Path(path)), limits)
+    from pxr import Tf
+
+    try:
+        return read_usd_stage(open_stage(Path(path)), limits)
+    except Tf.ErrorException as error:
+        raise MeshParseError(f"usd-core could not read the file: {_usd_message(error)}") from None
 
 
 def _crate_layers(data: bytes) -> Iterator[tuple[str, bytes]]:

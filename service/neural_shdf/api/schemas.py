@@ -22,6 +22,8 @@ ShdfMethodName = Literal["auto", "exact", "sampled", "neural"]
 #: The ShDF producer that ran (``auto`` resolved).
 ShdfProducerName = Literal["exact", "sampled", "neural"]
 JobState = Literal["queued", "running", "succeeded", "failed"]
+#: What a job computes: a ShDF, or a UV atlas for ``unwrapped.glb`` or ``atlas.png``.
+JobKind = Literal["shdf", "unwrap", "atlas"]
 
 MESH_ID_EXAMPLE = "3f1c0b6e2d4a8f7e9c1b2a3d4e5f60718293a4b5c6d7e8f9a0b1c2d3e4f5a6b7"
 MESH_ID_PATTERN = "^[0-9a-f]{64}$"
@@ -160,6 +162,7 @@ class Job(BaseModel):
                     "state": "running",
                     "progress": 0.4,
                     "mesh_id": MESH_ID_EXAMPLE,
+                    "kind": "shdf",
                     "method": "exact",
                     "seed": 0,
                     "attempt": 1,
@@ -178,8 +181,16 @@ class Job(BaseModel):
     )
     progress: float = Field(ge=0, le=1, description="Fraction done.", examples=[0.4])
     mesh_id: str = Field(description="The mesh the job computes.", examples=[MESH_ID_EXAMPLE])
-    method: ShdfProducerName = Field(
-        description="ShDF producer that ran (auto resolved).", examples=["exact"]
+    kind: JobKind = Field(
+        "shdf",
+        description="What the job computes: `shdf`, or the atlas of `unwrap` (unwrapped.glb) "
+        "or `atlas` (atlas.png).",
+        examples=["shdf"],
+    )
+    method: ShdfMethodName = Field(
+        description="ShDF producer that runs (`auto` is resolved per mesh when the job is "
+        "created; a record written by an older version may still say `auto`).",
+        examples=["exact"],
     )
     seed: int = Field(description="ShDF seed.", examples=[0])
     attempt: int = Field(

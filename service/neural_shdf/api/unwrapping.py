@@ -21,6 +21,9 @@ from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
 from neural_shdf.unwrap import UnwrapParams, UvAtlas
 
+#: The file each kind of atlas job serves once it succeeded.
+RESULT_FILES = {"unwrap": "unwrapped.glb", "atlas": "atlas.png"}
+
 
 def _atlas_arrays(atlas: UvAtlas) -> dict[str, NDArray]:
     return {
@@ -83,11 +86,19 @@ class UnwrapService:
         return unwrap_mesh(mesh, np.asarray(triangle_labels, dtype=np.int64), unwrap)
 
     async def get(
-        self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
+        self,
+        mesh_id: str,
+        method: str,
+        params: SegmentParams,
+        unwrap: UnwrapParams,
+        *,
+        kind: str = "unwrap",
     ) -> tuple[TriangleMesh, UvAtlas]:
         """The mesh and its atlas (cached, else from the cached segmentation, itself from
         the cached ShDF). A large mesh (over ``sync_face_threshold`` faces) answers 202 with
-        a job: first the ShDF's, then the atlas's; repeat the request once it succeeded."""
+        a job: first the ShDF's, then the atlas's (``kind`` ``unwrap`` or ``atlas``: the
+        route whose result it points to); repeat the request once it succeeded. ``method``
+        is a resolved producer (``Engine.resolved_method``)."""
         key = self.key(mesh_id, method, params, unwrap)
         result, _ = await self.segmentations.get(mesh_id, method, params)
         mesh = await self.tasks.io(self.meshes.load, mesh_id)
@@ -109,8 +120,8 @@ class UnwrapService:
                 method,
                 params.seed,
                 compute,
-                kind="unwrap",
-                result_url=f"/v1/meshes/{mesh_id}/segmentation/unwrapped.glb",
+                kind=kind,
+                result_url=f"/v1/meshes/{mesh_id}/segmentation/{RESULT_FILES[kind]}",
             )
             raise JobAccepted(job)
         atlas, _ = await self.tasks.with_timeout(self.tasks.single_flight(key, compute))
@@ -130,7 +141,7 @@ class UnwrapService:
         self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
     ) -> bytes:
         """The atlas layout as a PNG: charts coloured by part, outlined."""
-        _, atlas = await self.get(mesh_id, method, params, unwrap)
+        _, atlas = await self.get(mesh_id, method, params, unwrap, kind="atlas")
         return await self.tasks.run(self._layout_png, atlas, unwrap)
 
     @staticmethod

@@ -120,6 +120,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         BodySizeLimitMiddleware,
         limit=settings.max_upload_bytes,
         read_timeout_s=settings.body_read_timeout_s,
+        json_limit=settings.max_json_bytes,
     )
     app.add_middleware(RequestMetricsMiddleware, metrics=metrics)
     return app

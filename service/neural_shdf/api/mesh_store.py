@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -37,6 +38,18 @@ def mesh_from_arrays(arrays: dict[str, NDArray]) -> TriangleMesh:
         arrays["face_origin"],
         int(arrays["input_face_count"]),
     )
+
+
+#: Metadata of one upload, answered to that uploader only. A mesh is stored under the hash
+#: of its geometry, so several clients may upload the same one: they share the geometry's
+#: facts and everything computed from it, never each other's file name or upload time.
+UPLOAD_FIELDS = ("format", "filename", "uploaded_at")
+
+
+def shared_meta(meta: dict[str, Any]) -> dict[str, Any]:
+    """The geometry's metadata without any upload's own fields (entries stored by older
+    versions held the first uploader's)."""
+    return {name: value for name, value in meta.items() if name not in UPLOAD_FIELDS}
 
 
 def mesh_missing(mesh_id: str) -> ApiError:
@@ -75,7 +88,9 @@ class MeshStore:
     def store(
         self, mesh: TriangleMesh, file_type: str | None, filename: str | None
     ) -> dict[str, Any]:
-        """Store the mesh (if new) and return its metadata."""
+        """Store the mesh (if new) and return its metadata as this upload's answer: the
+        shared facts of the geometry plus this upload's own file name, format and time,
+        which are not stored (``UPLOAD_FIELDS``)."""
         mesh_id = mesh.content_hash()
         meta_key = f"{mesh_id}:meta"
         meta = self.cache.get_json(meta_key)
@@ -87,8 +102,6 @@ class MeshStore:
                 "faces": mesh.input_face_count,
                 "triangles": mesh.face_count,
                 "vertices": len(mesh.vertices),
-                "format": file_type,
-                "filename": filename,
                 "bounds": [mesh.vertices.min(0).tolist(), mesh.vertices.max(0).tolist()],
                 "surface_area": float(area.sum()),
             }
@@ -98,14 +111,16 @@ class MeshStore:
             )
             self.cache.put_json(meta_key, meta, group=mesh_id, keep_local=True)
         self.cache.remember(f"{mesh_id}:mesh", mesh)
-        return meta
+        upload = {"format": file_type, "filename": filename, "uploaded_at": time.time()}
+        return {**shared_meta(meta), **upload}
 
     def meta(self, mesh_id: str) -> dict[str, Any]:
-        """Metadata of a mesh that can be used: one whose geometry is gone is gone."""
+        """Metadata of a mesh that can be used (one whose geometry is gone is gone): what
+        every uploader of the geometry shares, never one uploader's file name."""
         meta = self.cache.get_json(f"{mesh_id}:meta")
         if meta is None or self._geometry_lost(mesh_id):
             raise mesh_missing(mesh_id)
-        return meta
+        return shared_meta(meta)
 
     def _geometry_lost(self, mesh_id: str) -> bool:
         """Whether the mesh's geometry entry is known to be gone (evicted, or dropped as

@@ -95,7 +95,11 @@ class Readiness(BaseModel):
 
 
 class MeshInfo(BaseModel):
-    """A stored mesh: its id (content hash of the canonical geometry) and its size."""
+    """A stored mesh: its id (content hash of the canonical geometry) and its size.
+
+    Shared by every client that uploads the same geometry: the id, the size, bounds and
+    area, and all results computed from it (ShDF, segmentations, atlases). Per upload and
+    never shown to another client: the file name, its format and the upload time."""
 
     model_config = ConfigDict(
         json_schema_extra={
@@ -120,9 +124,23 @@ class MeshInfo(BaseModel):
     faces: int = Field(description="Faces of the input file (polygons).", examples=[6])
     triangles: int = Field(description="Triangles after triangulation.", examples=[12])
     vertices: int = Field(description="Vertices.", examples=[8])
-    format: str | None = Field(None, description="Detected input format.", examples=["obj"])
+    format: str | None = Field(
+        None,
+        description="Format of this upload's file (only in the upload's answer: null when "
+        "the mesh is read back).",
+        examples=["obj"],
+    )
     filename: str | None = Field(
-        None, description="Name of the uploaded file.", examples=["cube.obj"]
+        None,
+        description="Name of this upload's file, as sent (only in the upload's answer: a mesh "
+        "is stored by its geometry, which several clients may upload under their own names, "
+        "so none is kept with it).",
+        examples=["cube.obj"],
+    )
+    uploaded_at: float | None = Field(
+        None,
+        description="Unix time of this upload (only in the upload's answer).",
+        examples=[1763791200.0],
     )
     bounds: list[list[float]] = Field(
         description="Axis-aligned bounding box `[[min x,y,z], [max x,y,z]]`.",

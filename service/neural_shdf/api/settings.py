@@ -76,6 +76,13 @@ class Settings(BaseSettings):
         description="Largest request body accepted (checked while reading). Text OBJ "
         "parsing peaks at about 13x the file size in memory; size workers accordingly.",
     )
+    max_json_bytes: int = Field(
+        64 * 1024,
+        ge=1,
+        description="Largest JSON request body accepted (a segmentation request is a few "
+        "hundred bytes); JSON is parsed and validated on the event loop, so this bounds "
+        "how long one request can hold it.",
+    )
     max_faces: int = Field(
         DEFAULT_MAX_FACES,
         ge=1,

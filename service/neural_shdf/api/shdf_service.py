@@ -25,6 +25,7 @@ from neural_shdf.api.mesh_store import MeshStore
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.settings import Settings
 from neural_shdf.api.tasks import TaskRunner
+from neural_shdf.constants import ALGORITHM_VERSION
 from neural_shdf.errors import ModelUnavailableError
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.params import check_seed
@@ -54,7 +55,9 @@ def model_version(path: Path) -> str | None:
 
 
 def shdf_version(method: str, model_version: str | None, seed: int = 0) -> str:
-    """What a cached ShDF depends on besides the mesh: the code version, the method
+    """What a cached ShDF depends on besides the mesh: the code and algorithm versions
+    (``constants.ALGORITHM_VERSION``; every other result's key starts from this one, so it
+    carries that version too), the method
     (resolved by callers that know the mesh), the model's version where the method can
     run the network (refused when there is none) and every ShDF parameter
     (``stage.shdf_key``)."""
@@ -64,7 +67,7 @@ def shdf_version(method: str, model_version: str | None, seed: int = 0) -> str:
     if uses_model(method) and not model_version:
         raise ModelUnavailableError(f"the ShDF method {method!r} needs a neural model; none found")
     model = model_version if uses_model(method) else None
-    return f"{__version__}:{stage_key(method, ShdfParams(seed=seed), model)}"
+    return f"{__version__}:a{ALGORITHM_VERSION}:{stage_key(method, ShdfParams(seed=seed), model)}"
 
 
 def shdf_key(mesh_id: str, method: str, seed: int, model_version: str | None) -> str:

@@ -59,9 +59,7 @@ def test_upload_read_shdf_and_delete(client, capsule_obj):
     assert client.delete(f"/v1/meshes/{mesh_id}").status_code == 404
 
 
-def test_a_second_uploader_of_the_same_geometry_sees_only_their_own_file_name(
-    client, capsule_obj
-):
+def test_a_second_uploader_of_the_same_geometry_sees_only_their_own_file_name(client, capsule_obj):
     """Meshes are stored by geometry: the second upload shares the mesh and its ShDF, but
     its answer names its own file and time, and nobody reads back the first one's name."""
     first = upload(client, capsule_obj, "alice-secret-project.obj").json()["mesh"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+import uuid
 from typing import Any
 
 import numpy as np
@@ -44,12 +45,15 @@ def mesh_from_arrays(arrays: dict[str, NDArray]) -> TriangleMesh:
 #: of its geometry, so several clients may upload the same one: they share the geometry's
 #: facts and everything computed from it, never each other's file name or upload time.
 UPLOAD_FIELDS = ("format", "filename", "uploaded_at")
+#: Bookkeeping in the stored metadata that no client sees.
+PRIVATE_FIELDS = ("generation",)
 
 
 def shared_meta(meta: dict[str, Any]) -> dict[str, Any]:
     """The geometry's metadata without any upload's own fields (entries stored by older
     versions held the first uploader's)."""
-    return {name: value for name, value in meta.items() if name not in UPLOAD_FIELDS}
+    hidden = UPLOAD_FIELDS + PRIVATE_FIELDS
+    return {name: value for name, value in meta.items() if name not in hidden}
 
 
 def mesh_missing(mesh_id: str) -> ApiError:
@@ -104,12 +108,18 @@ class MeshStore:
                 "vertices": len(mesh.vertices),
                 "bounds": [mesh.vertices.min(0).tolist(), mesh.vertices.max(0).tolist()],
                 "surface_area": float(area.sum()),
+                # New with every store after a deletion: the meta entry is the guard
+                # results are stored under (``TaskRunner.compute_once``), so a result of
+                # the deleted mesh never lands in the cache of the one uploaded again.
+                "generation": uuid.uuid4().hex,
             }
             # keep_local: readable through a Redis outage (only the client could restore it)
             self.cache.put_arrays(
                 f"{mesh_id}:mesh", mesh_arrays(mesh), group=mesh_id, keep_local=True
             )
-            self.cache.put_json(meta_key, meta, group=mesh_id, keep_local=True)
+            # Concurrent first uploads: one meta (one generation) wins, the others read it.
+            if not self.cache.add_json(meta_key, meta, group=mesh_id, keep_local=True):
+                meta = self.cache.get_json(meta_key) or meta
         self.cache.remember(f"{mesh_id}:mesh", mesh)
         upload = {"format": file_type, "filename": filename, "uploaded_at": time.time()}
         return {**shared_meta(meta), **upload}
@@ -159,6 +169,31 @@ class MeshStore:
         mesh = mesh_from_arrays(arrays)
         self.cache.remember(key, mesh)
         return mesh
+
+    def guard(self, mesh_id: str) -> tuple[str, bytes]:
+        """What a result of the mesh is stored under (``ResultCache.put_arrays``): its meta
+        entry as it is now; 404 when the mesh is not stored (deleted)."""
+        key = f"{mesh_id}:meta"
+        stored = self.cache.get_raw(key)
+        if stored is None:
+            raise mesh_missing(mesh_id)
+        return key, stored
+
+    def store_result(
+        self,
+        key: str,
+        mesh_id: str,
+        arrays: dict[str, NDArray],
+        guard: tuple[str, bytes] | None,
+    ) -> None:
+        """Store a result computed from the mesh, only while ``guard`` (``guard``, taken
+        before computing) holds; 404 when the mesh was deleted meanwhile. No guard: stored
+        as is (batch workers, whose meshes are not uploaded)."""
+        if not self.cache.put_arrays(key, arrays, group=mesh_id, guard=guard):
+            self.cache.forget_group(mesh_id)
+            error = mesh_missing(mesh_id)
+            error.message = f"mesh {mesh_id!r} was deleted while this result was computed"
+            raise error
 
     def delete(self, mesh_id: str) -> None:
         """Delete the mesh and everything derived from it; 404 when there was nothing."""

@@ -175,8 +175,10 @@ class SegmentationService:
         self.metrics.count_cache("segmentation", hit=result is not None)
         return result
 
-    def _store(self, key: str, mesh_id: str, result: SegmentResult) -> None:
-        self.cache.put_arrays(key, result.arrays(), group=mesh_id)
+    def _store(
+        self, key: str, mesh_id: str, result: SegmentResult, guard: tuple[str, bytes] | None
+    ) -> None:
+        self.meshes.store_result(key, mesh_id, result.arrays(), guard)
         self.cache.remember(key, result)
 
     def _compute(
@@ -243,6 +245,7 @@ class SegmentationService:
                             self._compute, mesh_id, method, mesh, outcome.values, params
                         ),
                         functools.partial(self._store, key, mesh_id),
+                        functools.partial(self.meshes.guard, mesh_id),
                     ),
                 )
             )

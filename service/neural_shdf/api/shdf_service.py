@@ -143,8 +143,10 @@ class ShdfService:
         self.metrics.count_cache("shdf", hit=values is not None)
         return values
 
-    def _store(self, key: str, mesh_id: str, outcome: ShdfOutcome) -> None:
-        self.cache.put_arrays(key, {"shdf": outcome.values}, group=mesh_id)
+    def _store(
+        self, key: str, mesh_id: str, outcome: ShdfOutcome, guard: tuple[str, bytes] | None
+    ) -> None:
+        self.meshes.store_result(key, mesh_id, {"shdf": outcome.values}, guard)
         self.cache.remember(key, outcome.values)
 
     def _compute(
@@ -177,9 +179,17 @@ class ShdfService:
         return ShdfOutcome(np.ascontiguousarray(values, dtype=np.float64), False, seconds, method)
 
     def _compute_once(
-        self, key: str, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
+        self,
+        key: str,
+        mesh_id: str,
+        mesh: TriangleMesh,
+        method: str,
+        seed: int,
+        *,
+        stored_mesh: bool = True,
     ) -> ShdfOutcome:
-        """Blocking: the cached ShDF, else computed and stored under the cache lock."""
+        """Blocking: the cached ShDF, else computed and stored under the cache lock (for a
+        ``stored_mesh``, only while it is not deleted: ``MeshStore.store_result``)."""
 
         def lookup() -> ShdfOutcome | None:
             values = self.cached(key)
@@ -190,19 +200,21 @@ class ShdfService:
             lookup,
             functools.partial(self._compute, key, mesh_id, mesh, method, seed),
             functools.partial(self._store, key, mesh_id),
+            functools.partial(self.meshes.guard, mesh_id) if stored_mesh else None,
         )
         return outcome
 
     def get_blocking(self, mesh_id: str, mesh: TriangleMesh, method: str, seed: int) -> ShdfOutcome:
         """The cached ShDF, else computed once under the cache lock and stored (blocking:
-        for batch workers outside an event loop). ``method`` may be ``auto``."""
+        for batch workers outside an event loop, whose meshes are not uploaded: stored
+        without a guard). ``method`` may be ``auto``."""
         seed = check_seed(seed)
         method = self.resolve(method, mesh.face_count)
         key = self.key(mesh_id, method, seed)
         values = self.cached(key)
         if values is not None:
             return ShdfOutcome(values, True, 0.0, method)
-        return self._compute_once(key, mesh_id, mesh, method, seed)
+        return self._compute_once(key, mesh_id, mesh, method, seed, stored_mesh=False)
 
     async def get(
         self,

@@ -20,6 +20,7 @@ from neural_shdf.api.errors import ApiError
 from neural_shdf.api.settings import Settings
 
 T = TypeVar("T")
+G = TypeVar("G")
 
 
 class TaskRunner:
@@ -79,17 +80,21 @@ class TaskRunner:
         key: str,
         lookup: Callable[[], T | None],
         compute: Callable[[], T],
-        store: Callable[[T], None],
+        store: Callable[[T, G | None], None],
+        guard: Callable[[], G] | None = None,
     ) -> tuple[T, bool]:
         """Under the cache's lock for ``key``: ``lookup`` again (another worker may have
         finished meanwhile), else ``compute`` and ``store``. Returns (result, was cached).
+        ``guard``: taken before computing (it raises when the mesh is gone) and handed to
+        ``store``, which stores only while it still holds (deletion is final).
         Blocking: call it on the compute pool (``single_flight``)."""
         with self.cache.lock(key, self.settings.lock_timeout_s):
             found = lookup()
             if found is not None:
                 return found, True
+            held = guard() if guard is not None else None
             result = compute()
-            store(result)
+            store(result, held)
             return result, False
 
     def spawn(self, coroutine: Coroutine[Any, Any, Any]) -> asyncio.Task[Any]:

@@ -75,8 +75,10 @@ class UnwrapService:
         self.metrics.count_cache("unwrap", hit=atlas is not None)
         return atlas
 
-    def _store(self, key: str, mesh_id: str, atlas: UvAtlas) -> None:
-        self.cache.put_arrays(key, _atlas_arrays(atlas), group=mesh_id)
+    def _store(
+        self, key: str, mesh_id: str, atlas: UvAtlas, guard: tuple[str, bytes] | None
+    ) -> None:
+        self.meshes.store_result(key, mesh_id, _atlas_arrays(atlas), guard)
         self.cache.remember(key, atlas)
 
     @staticmethod
@@ -111,6 +113,7 @@ class UnwrapService:
             functools.partial(self.cached, key),
             functools.partial(self._compute, mesh, result.triangle_labels, unwrap),
             functools.partial(self._store, key, mesh_id),
+            functools.partial(self.meshes.guard, mesh_id),
         )
         if mesh.face_count > self.segmentations.shdf.settings.sync_face_threshold:
             shdf = self.segmentations.shdf

@@ -13,6 +13,7 @@ from fastapi.responses import JSONResponse
 
 from neural_shdf import __version__
 from neural_shdf.api.cache import DiskBackend, FallbackBackend, RedisBackend, ResultCache
+from neural_shdf.api.clients import ClientMiddleware
 from neural_shdf.api.docs import install_docs
 from neural_shdf.api.engine import Engine
 from neural_shdf.api.errors import BodySizeLimitMiddleware, install_error_handlers
@@ -122,6 +123,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         read_timeout_s=settings.body_read_timeout_s,
         json_limit=settings.max_json_bytes,
     )
+    app.add_middleware(ClientMiddleware)  # who asks, and whether they are still there
     app.add_middleware(RequestMetricsMiddleware, metrics=metrics)
     return app
 

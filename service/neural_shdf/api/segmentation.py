@@ -19,7 +19,7 @@ from neural_shdf.api.cache import ResultCache
 from neural_shdf.api.mesh_store import MeshStore, mesh_missing
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.shdf_service import ShdfService
-from neural_shdf.api.tasks import TaskRunner
+from neural_shdf.api.tasks import TaskRunner, checkpoint
 from neural_shdf.export import part_tree_document
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
@@ -196,7 +196,9 @@ class SegmentationService:
         basis = self.cache.working_set(basis_key)
         if basis is None or not basis.matches(params, shdf):
             creases = self.meshes.creases(mesh_id, mesh) if params.crease_boundaries else None
+            checkpoint()
             basis = prepare_segment_mesh(mesh, shdf, params, graph=graph, creases=creases)
+        checkpoint()
         segmentation = segment_mesh_with_details(mesh, shdf, params, graph=graph, basis=basis)
         self.cache.keep_working_set(basis_key, basis, basis.nbytes)  # sized with its cut
         seconds = time.perf_counter() - start
@@ -265,4 +267,8 @@ class SegmentationService:
         result, _ = await self.get(mesh_id, method, params)
         mesh = await self.tasks.io(self.meshes.load, mesh_id)
         writer = colored_glb if style == "colored" else parts_glb
-        return await self.tasks.run(writer, mesh, result.triangle_labels.astype(np.int64))
+        labels = result.triangle_labels.astype(np.int64)
+        # Identical requests share one writer; it runs within the request timeout.
+        write = functools.partial(writer, mesh, labels)
+        key = f"{self.key(mesh_id, method, params)}:glb:{style}"
+        return await self.tasks.with_timeout(self.tasks.single_flight(key, write))

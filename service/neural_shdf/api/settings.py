@@ -106,6 +106,14 @@ class Settings(BaseSettings):
         60.0, gt=0, description="Longest pause between two chunks of a request body (408)."
     )
     compute_threads: int = Field(2, ge=1, description="Threads running ShDF and segmentation.")
+    compute_share: int | None = Field(
+        None,
+        ge=1,
+        description="Computations one client (by address; background jobs count as one "
+        "client) runs at once; its further requests wait for one of them to end. Default: "
+        "all compute threads but one, so that no client can hold the whole pool. Behind a "
+        "proxy, let uvicorn trust its forwarded address (FORWARDED_ALLOW_IPS).",
+    )
     warm_up: bool = Field(
         True,
         description="At start-up, run a small mesh through every compiled path (kernels "

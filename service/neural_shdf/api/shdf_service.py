@@ -24,7 +24,7 @@ from neural_shdf.api.jobs import JobAccepted, JobStore, public_job, worker_name
 from neural_shdf.api.mesh_store import MeshStore
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.settings import Settings
-from neural_shdf.api.tasks import TaskRunner
+from neural_shdf.api.tasks import TaskRunner, cancellation, checkpoint
 from neural_shdf.constants import ALGORITHM_VERSION
 from neural_shdf.errors import ModelUnavailableError
 from neural_shdf.mesh import TriangleMesh
@@ -157,8 +157,10 @@ class ShdfService:
 
         graph = self.meshes.graph(mesh_id, mesh)
         self._progress[key] = 0.0
+        cancelled = cancellation()  # progress may be reported from the library's threads
 
         def progress(fraction: float) -> None:
+            checkpoint(cancelled)  # every report is a checkpoint: stop if no one waits
             self._progress[key] = float(fraction)
 
         start = time.perf_counter()
@@ -290,7 +292,7 @@ class ShdfService:
         self.metrics.jobs_running.inc()
         try:
             await self.tasks.io(self.jobs.update, job, state="running")
-            work = asyncio.ensure_future(self.tasks.single_flight(key, compute))
+            work = asyncio.ensure_future(self.tasks.single_flight(key, compute, keep=True))
             written = time.monotonic()
             while not work.done():
                 await asyncio.wait({work}, timeout=0.5)

@@ -16,7 +16,7 @@ from neural_shdf.api.jobs import JobAccepted
 from neural_shdf.api.mesh_store import MeshStore
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.segmentation import SegmentationService
-from neural_shdf.api.tasks import TaskRunner
+from neural_shdf.api.tasks import TaskRunner, checkpoint
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
 from neural_shdf.unwrap import UnwrapParams, UvAtlas
@@ -137,15 +137,24 @@ class UnwrapService:
         from neural_shdf.export import unwrapped_glb
 
         mesh, atlas = await self.get(mesh_id, method, params, unwrap)
-        texture = await self.tasks.run(self._layout_png, atlas, unwrap)
-        return await self.tasks.run(unwrapped_glb, mesh, atlas, texture_png=texture)
+        key = self.key(mesh_id, method, params, unwrap)
+
+        def write() -> bytes:
+            texture = self._layout_png(atlas, unwrap)
+            checkpoint()
+            return unwrapped_glb(mesh, atlas, texture_png=texture)
+
+        # Identical requests share one writer; it runs within the request timeout.
+        return await self.tasks.with_timeout(self.tasks.single_flight(f"{key}:glb", write))
 
     async def atlas_png(
         self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
     ) -> bytes:
         """The atlas layout as a PNG: charts coloured by part, outlined."""
         _, atlas = await self.get(mesh_id, method, params, unwrap, kind="atlas")
-        return await self.tasks.run(self._layout_png, atlas, unwrap)
+        key = f"{self.key(mesh_id, method, params, unwrap)}:png"
+        draw = functools.partial(self._layout_png, atlas, unwrap)
+        return await self.tasks.with_timeout(self.tasks.single_flight(key, draw))
 
     @staticmethod
     def _layout_png(atlas: UvAtlas, unwrap: UnwrapParams) -> bytes:

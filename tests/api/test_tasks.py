@@ -61,11 +61,10 @@ def test_a_computation_whose_client_left_stops_at_its_next_checkpoint(tmp_path):
 
     async def scenario() -> None:
         peer, started, stopped = FakePeer(), threading.Event(), []
-        request = asyncio.create_task(
-            as_client(
-                "a", peer, lambda: tasks.single_flight("k", lambda: until_cancelled(started, stopped))
-            )
-        )
+        def compute() -> None:
+            until_cancelled(started, stopped)
+
+        request = asyncio.create_task(as_client("a", peer, lambda: tasks.single_flight("k", compute)))
         await asyncio.to_thread(started.wait, 30)
         peer.hung_up.set()
         with pytest.raises(ApiError) as left:
@@ -92,9 +91,12 @@ def test_a_computation_another_request_still_waits_for_goes_on(tmp_path):
             checkpoint()
             return "done"
 
-        first = asyncio.create_task(as_client("a", leaving, lambda: tasks.single_flight("k", work)))
+        def request(peer: FakePeer, name: str) -> asyncio.Task:
+            return asyncio.create_task(as_client(name, peer, lambda: tasks.single_flight("k", work)))
+
+        first = request(leaving, "a")
         await asyncio.sleep(0.05)
-        second = asyncio.create_task(as_client("b", staying, lambda: tasks.single_flight("k", work)))
+        second = request(staying, "b")
         await asyncio.sleep(0.05)
         leaving.hung_up.set()
         with pytest.raises(ApiError):

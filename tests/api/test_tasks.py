@@ -61,10 +61,12 @@ def test_a_computation_whose_client_left_stops_at_its_next_checkpoint(tmp_path):
 
     async def scenario() -> None:
         peer, started, stopped = FakePeer(), threading.Event(), []
+
         def compute() -> None:
             until_cancelled(started, stopped)
 
-        request = asyncio.create_task(as_client("a", peer, lambda: tasks.single_flight("k", compute)))
+        flight = lambda: tasks.single_flight("k", compute)  # noqa: E731
+        request = asyncio.create_task(as_client("a", peer, flight))
         await asyncio.to_thread(started.wait, 30)
         peer.hung_up.set()
         with pytest.raises(ApiError) as left:
@@ -92,7 +94,8 @@ def test_a_computation_another_request_still_waits_for_goes_on(tmp_path):
             return "done"
 
         def request(peer: FakePeer, name: str) -> asyncio.Task:
-            return asyncio.create_task(as_client(name, peer, lambda: tasks.single_flight("k", work)))
+            flight = lambda: tasks.single_flight("k", work)  # noqa: E731
+            return asyncio.create_task(as_client(name, peer, flight))
 
         first = request(leaving, "a")
         await asyncio.sleep(0.05)

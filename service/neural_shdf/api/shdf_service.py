@@ -56,11 +56,10 @@ def model_version(path: Path) -> str | None:
 
 def shdf_version(method: str, model_version: str | None, seed: int = 0) -> str:
     """What a cached ShDF depends on besides the mesh: the code and algorithm versions
-    (``constants.ALGORITHM_VERSION``; every other result's key starts from this one, so it
-    carries that version too), the method
-    (resolved by callers that know the mesh), the model's version where the method can
-    run the network (refused when there is none) and every ShDF parameter
-    (``stage.shdf_key``)."""
+    (``constants.ALGORITHM_VERSION``; every other result's key starts from this one, so
+    it carries that version too), the method (resolved by callers that know the mesh),
+    the model's version where the method can run the network (refused when there is
+    none) and every ShDF parameter (``stage.shdf_key``)."""
     from neural_shdf.shdf.stage import ShdfParams
     from neural_shdf.shdf.stage import shdf_key as stage_key
 

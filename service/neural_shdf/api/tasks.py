@@ -108,7 +108,7 @@ class TaskRunner:
         """Run ``fn`` on the compute pool once per key at a time in this process;
         concurrent callers share it. ``keep``: never cancel it (a job's)."""
         flight = self._inflight.get(key)
-        if flight is None:
+        if flight is None or flight.cancel.is_set():  # a cancelled one is on its way out
             flight = await self._start(fn, key)
         flight.keep |= keep
         return await self._wait(flight)
@@ -120,9 +120,10 @@ class TaskRunner:
         share_key = client.key if client is not None else BACKGROUND
         share = self._shares.setdefault(share_key, asyncio.Semaphore(self.share))
         await self._until_client_gone(share.acquire())
-        if key is not None and key in self._inflight:  # started while this one waited
+        started = self._inflight.get(key) if key is not None else None
+        if started is not None and not started.cancel.is_set():  # started meanwhile: join
             share.release()
-            return self._inflight[key]
+            return started
         flag = threading.Event()
         context = contextvars.copy_context()
         context.run(_cancellation.set, flag)

@@ -31,6 +31,11 @@ Upload a mesh once (`POST /v1/meshes`): it is stored under the hash of its geome
 its ShDF is computed once and cached. Then segment it as often as you like
 (`POST /v1/segment`): only the partitioning runs. Every error has the same shape:
 `{"error": {"code", "message", "detail"}}`.
+
+Clients that upload the same geometry share its id and everything computed from it; each
+upload's file name, format and time are answered to that upload only and never stored.
+Deleting a mesh deletes it for all of them, for good: nothing computed from it is stored
+after the delete.
 """
 
 logger = logging.getLogger(__name__)

@@ -116,7 +116,9 @@ async def get_mesh(engine: EngineDep, mesh_id: MeshId) -> MeshInfo:
     responses=error_responses(404),
 )
 async def delete_mesh(engine: EngineDep, mesh_id: MeshId) -> Response:
-    """Delete the mesh and everything computed from it (ShDF, segmentations, jobs)."""
+    """Delete the mesh and everything computed from it (ShDF, segmentations, jobs), for
+    every client that uploaded it. Final: a computation still running for it stores
+    nothing (its request or job answers 404), and the mesh uploaded again starts afresh."""
     await engine.io(engine.meshes.delete, mesh_id)
     return Response(status_code=204)
 

@@ -20,3 +20,10 @@ DEFAULT_SEED = 0
 #: a triangle soup, the most a sane mesh needs).
 DEFAULT_MAX_FACES = 2_000_000
 DEFAULT_MAX_VERTICES = 6_000_000
+
+#: Version of the algorithms' results (ShDF, segmentation, atlas): part of the cache key of
+#: every computed result, so an upgrade that changes results never serves ones cached by
+#: the code before (the package version alone did not change between such commits). Bump
+#: it whenever a result changes; tests/test_constants.py keeps the golden result of each
+#: version and fails when the result changes under the same version.
+ALGORITHM_VERSION = 1

@@ -285,3 +285,19 @@ def test_new_smoothing_values_reuse_the_mesh_basis(app_factory, capsule_obj):
     for body, answer in zip(bodies, answers, strict=True):
         params = SegmentParams(smoothing=body["smoothing"], clusters=body.get("clusters"))
         np.testing.assert_array_equal(answer["labels"], segment_mesh(mesh, shdf, params))
+
+
+def test_every_result_key_carries_the_algorithm_version(client):
+    """ShDF, segmentation and atlas keys all change with ALGORITHM_VERSION."""
+    from neural_shdf.constants import ALGORITHM_VERSION
+    from neural_shdf.segment import SegmentParams
+    from neural_shdf.unwrap import UnwrapParams
+
+    engine = client.app.state.engine
+    mesh_id, params = "0" * 64, SegmentParams()
+    keys = [
+        engine.shdf.key(mesh_id, "exact", 0),
+        engine.segmentations.key(mesh_id, "exact", params),
+        engine.unwraps.key(mesh_id, "exact", params, UnwrapParams()),
+    ]
+    assert all(f":a{ALGORITHM_VERSION}:" in key for key in keys), keys

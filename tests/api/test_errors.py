@@ -340,3 +340,22 @@ def test_deeply_nested_gltf_json_is_a_parse_error_saying_so(small_client):
     doc = b'{"asset": {"version": "2.0"}, "extras": ' + b"[" * 5000 + b"]" * 5000 + b"}"
     error = assert_error(post_file(small_client, doc, "deep.gltf"), 422, "mesh_parse_error")
     assert "nests" in error["message"] and "recursion" not in error["message"]
+
+
+@pytest.mark.parametrize("route", ["/v1/meshes", "/v1/segment/file"])
+def test_two_files_in_one_upload_are_422_naming_the_field(small_client, route):
+    tetrahedron = _tetrahedron_obj()
+    files = [("file", ("a.obj", tetrahedron)), ("file", ("b.obj", tetrahedron))]
+    error = assert_error(small_client.post(route, files=files), 422, "repeated_form_field")
+    assert "'file' 2 times" in error["message"] and error["detail"] == {"repeated": {"file": 2}}
+
+
+def test_unknown_keys_get_a_bounded_answer(small_client):
+    """A body of many unknown keys: 422 listing the first problems and their count (the
+    answer stays small); past the JSON limit, 413 before parsing."""
+    body = {"mesh_id": "0" * 64, **{f"k{i}": 1 for i in range(2_000)}}
+    error = assert_error(small_client.post("/v1/segment", json=body), 422, "validation_error")
+    assert len(error["detail"]) == 20 and "2000 problems" in error["message"]
+    huge = {"mesh_id": "0" * 64, **{f"k{i:06d}": 1 for i in range(20_000)}}
+    error = assert_error(small_client.post("/v1/segment", json=huge), 413, "payload_too_large")
+    assert error["detail"] == {"max_json_bytes": 64_000}  # the upload limit is lower here

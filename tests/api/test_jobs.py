@@ -172,3 +172,27 @@ def test_a_frozen_redis_costs_one_timeout_not_one_per_request(
         while client.get("/readyz").json()["status"] != "ready":
             assert time.monotonic() < deadline, "the breaker never closed"
             time.sleep(0.05)
+
+
+def test_every_kind_of_job_can_be_polled_when_the_method_is_auto(app_factory, capsule_obj):
+    """ShDF, unwrap and atlas jobs asked for with `auto`: each poll answers the job (the
+    producer resolved, its kind and result named), never a 500."""
+    app = app_factory(sync_face_threshold=10, default_method="auto", warm_up=False)
+    with TestClient(app) as client:
+        form = {"method": "auto"}
+        accepted = client.post("/v1/meshes", files={"file": ("c.obj", capsule_obj)}, data=form)
+        assert accepted.status_code == 202, accepted.text
+        mesh_id = accepted.json()["mesh_id"]
+        jobs = {"shdf": accepted.json()}
+        for kind, name, size in (("unwrap", "unwrapped.glb", 256), ("atlas", "atlas.png", 512)):
+            url = f"/v1/meshes/{mesh_id}/segmentation/{name}"
+            assert wait_job(client, jobs["shdf"])["state"] == "succeeded"
+            response = client.get(url, params={"method": "auto", "atlas_size": size})
+            assert response.status_code == 202, response.text
+            jobs[kind] = response.json()
+            assert jobs[kind]["result_url"].endswith(f"/segmentation/{name}")
+        for kind, job in jobs.items():
+            polled = client.get(f"/v1/jobs/{job['job_id']}")
+            assert polled.status_code == 200, polled.text
+            assert polled.json()["kind"] == kind and polled.json()["method"] != "auto"
+            assert wait_job(client, job)["state"] == "succeeded"

@@ -38,7 +38,8 @@ def test_upload_read_shdf_and_delete(client, capsule_obj):
     assert again["shdf"]["cached"] is True and again["shdf"]["seconds"] == 0
 
     info = client.get(f"/v1/meshes/{mesh_id}").json()
-    assert info["triangles"] == mesh.face_count and info["format"] == "obj"
+    assert info["triangles"] == mesh.face_count and body["mesh"]["format"] == "obj"
+    assert info["format"] is None and info["filename"] is None  # per upload, not kept
     assert info["bounds"] == [mesh.vertices.min(0).tolist(), mesh.vertices.max(0).tolist()]
 
     as_json = client.get(f"/v1/meshes/{mesh_id}/shdf").json()
@@ -56,6 +57,22 @@ def test_upload_read_shdf_and_delete(client, capsule_obj):
     assert gone.status_code == 404 and gone.json()["error"]["code"] == "mesh_not_found"
     assert client.post("/v1/segment", json={"mesh_id": mesh_id}).status_code == 404
     assert client.delete(f"/v1/meshes/{mesh_id}").status_code == 404
+
+
+def test_a_second_uploader_of_the_same_geometry_sees_only_their_own_file_name(client, capsule_obj):
+    """Meshes are stored by geometry: the second upload shares the mesh and its ShDF, but
+    its answer names its own file and time, and nobody reads back the first one's name."""
+    first = upload(client, capsule_obj, "alice-secret-project.obj").json()["mesh"]
+    second = upload(client, capsule_obj, "bob.obj").json()
+    assert second["mesh"]["mesh_id"] == first["mesh_id"] and second["shdf"]["cached"]
+    assert second["mesh"]["filename"] == "bob.obj"
+    assert second["mesh"]["uploaded_at"] >= first["uploaded_at"]
+    read_back = client.get(f"/v1/meshes/{first['mesh_id']}")
+    assert "alice" not in read_back.text and "bob" not in read_back.text
+    one_shot = client.post(
+        "/v1/segment/file", files={"file": ("carol.obj", capsule_obj)}, data={"clusters": 2}
+    )
+    assert one_shot.status_code == 200 and "alice" not in one_shot.text
 
 
 def test_segment_reruns_only_the_partitioning(client, capsule_obj):

@@ -63,7 +63,8 @@ def test_upload_segment_and_shdf_match_the_raw_api(service, tmp_path):
     raw_shdf = httpx.get(f"{service}/v1/meshes/{uploaded.mesh_id}/shdf", timeout=60).json()
     assert shdf.dtype == np.float32 and len(shdf) == faces
     np.testing.assert_allclose(shdf, np.array(raw_shdf["values"], dtype=np.float32), rtol=1e-6)
-    assert info.mesh_id == uploaded.mesh_id and info.filename == "capsule.obj"
+    assert uploaded.mesh.filename == "capsule.obj"
+    assert info.mesh_id == uploaded.mesh_id and info.filename is None  # per upload, not kept
 
 
 def test_part_tree_gives_the_services_labels_for_any_part_count(service, tmp_path):

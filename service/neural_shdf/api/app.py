@@ -13,6 +13,7 @@ from fastapi.responses import JSONResponse
 
 from neural_shdf import __version__
 from neural_shdf.api.cache import DiskBackend, FallbackBackend, RedisBackend, ResultCache
+from neural_shdf.api.clients import ClientMiddleware
 from neural_shdf.api.docs import install_docs
 from neural_shdf.api.engine import Engine
 from neural_shdf.api.errors import BodySizeLimitMiddleware, install_error_handlers
@@ -30,6 +31,11 @@ Upload a mesh once (`POST /v1/meshes`): it is stored under the hash of its geome
 its ShDF is computed once and cached. Then segment it as often as you like
 (`POST /v1/segment`): only the partitioning runs. Every error has the same shape:
 `{"error": {"code", "message", "detail"}}`.
+
+Clients that upload the same geometry share its id and everything computed from it; each
+upload's file name, format and time are answered to that upload only and never stored.
+Deleting a mesh deletes it for all of them, for good: nothing computed from it is stored
+after the delete.
 """
 
 logger = logging.getLogger(__name__)
@@ -120,7 +126,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         BodySizeLimitMiddleware,
         limit=settings.max_upload_bytes,
         read_timeout_s=settings.body_read_timeout_s,
+        json_limit=settings.max_json_bytes,
     )
+    app.add_middleware(ClientMiddleware)  # who asks, and whether they are still there
     app.add_middleware(RequestMetricsMiddleware, metrics=metrics)
     return app
 

@@ -98,8 +98,14 @@ class Backend(Protocol):
         expire: float | None = None,
         keep_local: bool = False,
     ) -> None: ...
+    # add: set only if absent; set_if: only while ``guard`` holds ``expected`` (one of
+    # several guard keys, for stores that keep copies under other names); both atomic
+    def add(self, key: str, value: bytes, *, group: str, keep_local: bool = False) -> bool: ...
+    def set_if(
+        self, key: str, value: bytes, *, group: str, guard: str, expected: bytes
+    ) -> bool: ...
     def delete(self, key: str) -> None: ...
-    def delete_group(self, group: str) -> int: ...
+    def delete_group(self, group: str) -> int: ...  # atomic against set_if
     def acquire_lease(self, key: str, token: str, ttl_s: float) -> bool: ...
     def renew_lease(self, key: str, token: str, ttl_s: float) -> bool: ...
     def release_lease(self, key: str, token: str) -> None: ...  # only if ``token`` holds it
@@ -163,11 +169,32 @@ class DiskBackend:
         # transaction: a reader never sees a half-written entry, a crash leaves none.
         self._cache.set(key, value, expire=expire, tag=group, retry=True)
 
+    def add(self, key: str, value: bytes, *, group: str, keep_local: bool = False) -> bool:
+        return bool(self._cache.add(key, value, tag=group, retry=True))
+
+    def set_if(
+        self,
+        key: str,
+        value: bytes,
+        *,
+        group: str,
+        guard: str | tuple[str, ...],
+        expected: bytes,
+    ) -> bool:
+        guards = (guard,) if isinstance(guard, str) else guard
+        with self._cache.transact(retry=True):
+            if not any(self._cache.get(g, default=None) == expected for g in guards):
+                return False
+            self._cache.set(key, value, tag=group)
+        return True
+
     def delete(self, key: str) -> None:
         self._cache.delete(key, retry=True)
 
     def delete_group(self, group: str) -> int:
-        return int(self._cache.evict(group, retry=True))
+        # One transaction: a set_if either lands before (and is evicted) or sees no guard.
+        with self._cache.transact(retry=True):
+            return int(self._cache.evict(group))
 
     def acquire_lease(self, key: str, token: str, ttl_s: float) -> bool:
         # add() is atomic across processes and treats an expired entry as absent.
@@ -284,6 +311,33 @@ if redis.call('get', KEYS[1]) == ARGV[1] then
 end
 return 0
 """
+# KEYS: key, group set, guard (or the key again for add); ARGV: value, expiry s (0: none),
+# group expiry s (0: none), expected guard value ('' for add: set only if the key is absent).
+_WRITE_GROUPED = """
+if ARGV[4] == '' then
+    if redis.call('exists', KEYS[1]) == 1 then return 0 end
+elseif redis.call('get', KEYS[3]) ~= ARGV[4] then
+    return 0
+end
+if tonumber(ARGV[2]) > 0 then
+    redis.call('set', KEYS[1], ARGV[1], 'EX', ARGV[2])
+else
+    redis.call('set', KEYS[1], ARGV[1])
+end
+redis.call('sadd', KEYS[2], ARGV[5])
+if tonumber(ARGV[3]) > 0 then redis.call('expire', KEYS[2], ARGV[3]) end
+return 1
+"""
+# KEYS: the group set; ARGV: the namespace prefix of member keys. Atomic: no write lands
+# between reading the members and deleting them.
+_DELETE_GROUP = """
+local removed = 0
+for _, member in ipairs(redis.call('smembers', KEYS[1])) do
+    removed = removed + redis.call('del', ARGV[1] .. member)
+end
+redis.call('del', KEYS[1])
+return removed
+"""
 
 
 class RedisBackend:
@@ -321,6 +375,8 @@ class RedisBackend:
         self._ttl_s = ttl_s
         self._renew = self._redis.register_script(_RENEW_LEASE)
         self._release = self._redis.register_script(_RELEASE_LEASE)
+        self._write_grouped = self._redis.register_script(_WRITE_GROUPED)
+        self._delete_group = self._redis.register_script(_DELETE_GROUP)
         self.breaker = CircuitBreaker("redis", self._redis.ping, retry_s)
         self.on_error: Callable[[Exception], None] = lambda exc: None
 
@@ -369,18 +425,24 @@ class RedisBackend:
             pipe.expire(self._key(f"group:{group}"), max(1, int(self._ttl_s)))
         pipe.execute()
 
+    def _write_if(self, key: str, value: bytes, group: str, guard: str, expected: bytes) -> bool:
+        seconds = max(1, int(self._ttl_s)) if self._ttl_s else 0
+        keys = [self._key(key), self._key(f"group:{group}"), self._key(guard)]
+        args = [value, seconds, seconds, expected, key]
+        return bool(self._call(self._write_grouped, keys=keys, args=args))
+
+    def add(self, key: str, value: bytes, *, group: str, keep_local: bool = False) -> bool:
+        return self._write_if(key, value, group, key, b"")
+
+    def set_if(self, key: str, value: bytes, *, group: str, guard: str, expected: bytes) -> bool:
+        return self._write_if(key, value, group, guard, expected)
+
     def delete(self, key: str) -> None:
         self._call(self._redis.delete, self._key(key))
 
     def delete_group(self, group: str) -> int:
-        def remove() -> int:
-            members = self._redis.smembers(self._key(f"group:{group}"))
-            keys = [self._key(m.decode()) for m in members]
-            removed = self._redis.delete(*keys) if keys else 0
-            self._redis.delete(self._key(f"group:{group}"))
-            return int(removed)
-
-        return self._call(remove)
+        keys, args = [self._key(f"group:{group}")], [self._key("")]
+        return int(self._call(self._delete_group, keys=keys, args=args))
 
     def acquire_lease(self, key: str, token: str, ttl_s: float) -> bool:
         lease = self._key(_lease_key(key))
@@ -493,6 +555,26 @@ class FallbackBackend:
             self.fallback.set(f"pending:{key}", value, group=group, expire=expire)
         if keep_local:  # also after the pending copy has moved to Redis
             self.fallback.set(f"mirror:{key}", value, group=group, expire=expire)
+
+    def add(self, key: str, value: bytes, *, group: str, keep_local: bool = False) -> bool:
+        try:
+            added = self.primary.add(key, value, group=group)
+        except BackendUnavailable:
+            added = self._local(key) is None and self.fallback.add(
+                f"pending:{key}", value, group=group
+            )
+        if added and keep_local:
+            self.fallback.set(f"mirror:{key}", value, group=group)
+        return added
+
+    def set_if(self, key: str, value: bytes, *, group: str, guard: str, expected: bytes) -> bool:
+        try:
+            return self.primary.set_if(key, value, group=group, guard=guard, expected=expected)
+        except BackendUnavailable:
+            guards = (f"pending:{guard}", f"mirror:{guard}")
+            return self.fallback.set_if(
+                f"pending:{key}", value, group=group, guard=guards, expected=expected
+            )
 
     def delete(self, key: str) -> None:
         with contextlib.suppress(BackendUnavailable):
@@ -773,11 +855,33 @@ class ResultCache:
         return value
 
     def put_arrays(
-        self, key: str, arrays: dict[str, NDArray], *, group: str, keep_local: bool = False
-    ) -> None:
+        self,
+        key: str,
+        arrays: dict[str, NDArray],
+        *,
+        group: str,
+        keep_local: bool = False,
+        guard: tuple[str, bytes] | None = None,
+    ) -> bool:
         """Store arrays; ``keep_local``: also readable from this host while Redis is down
-        (for what cannot be recomputed: uploaded meshes, job records)."""
-        self.backend.set(key, seal(encode_arrays(arrays)), group=group, keep_local=keep_local)
+        (for what cannot be recomputed: uploaded meshes, job records). ``guard``: (key,
+        stored bytes) that must still be there, checked atomically with the write (a
+        result of a mesh deleted meanwhile is never stored); whether it was stored."""
+        blob = seal(encode_arrays(arrays))
+        if guard is None:
+            self.backend.set(key, blob, group=group, keep_local=keep_local)
+            return True
+        guard_key, expected = guard
+        return self.backend.set_if(key, blob, group=group, guard=guard_key, expected=expected)
+
+    def get_raw(self, key: str) -> bytes | None:
+        """The stored bytes of ``key`` as they are (a ``guard`` for ``put_arrays``)."""
+        return self.backend.get(key)
+
+    def add_json(self, key: str, value: Any, *, group: str, keep_local: bool = False) -> bool:
+        """Store ``value`` unless ``key`` exists (atomic); whether it was stored."""
+        blob = seal(json.dumps(value).encode())
+        return self.backend.add(key, blob, group=group, keep_local=keep_local)
 
     def get_json(self, key: str) -> Any | None:
         payload = self._payload(key)

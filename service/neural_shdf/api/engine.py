@@ -35,6 +35,7 @@ class Engine:
         self.cache = cache
         self.metrics = metrics
         self.tasks = TaskRunner(settings, cache)
+        self.tasks.on_cancelled = metrics.computations_cancelled.inc
         self.jobs = JobStore(cache, settings.job_ttl_s, settings.job_max_attempts)
         self.meshes = MeshStore(settings, cache, metrics)
         self.shdf = ShdfService(settings, cache, metrics, self.tasks, self.meshes, self.jobs)

@@ -25,6 +25,10 @@ from neural_shdf.errors import (
 
 logger = logging.getLogger(__name__)
 
+#: Validation problems listed in a 422 (the message gives their count): a body with
+#: thousands of unknown keys must not get an answer thousands of times its size.
+MAX_REPORTED_PROBLEMS = 20
+
 
 class ApiError(StarletteHTTPException):
     """An error answered with ``status`` and the standard JSON body.
@@ -52,7 +56,15 @@ def not_found(what: str, identifier: str) -> ApiError:
     return ApiError(404, f"{what}_not_found", f"no {what} with id {identifier!r}")
 
 
-def payload_too_large(limit: int) -> ApiError:
+def payload_too_large(limit: int, *, json: bool = False) -> ApiError:
+    if json:
+        return ApiError(
+            413,
+            "payload_too_large",
+            f"the JSON request body exceeds the limit of {limit} bytes; a request names a "
+            "mesh id and a few options (upload meshes as multipart/form-data)",
+            {"max_json_bytes": limit},
+        )
     return ApiError(
         413,
         "payload_too_large",
@@ -152,13 +164,16 @@ def install_error_handlers(app: FastAPI) -> None:
                 f"the request body is not valid JSON: {reason}{where}; send a JSON object "
                 "with content-type application/json",
             )
+        errors = exc.errors()
         problems = [
             {"loc": list(e.get("loc", ())), "msg": e.get("msg", ""), "type": e.get("type", "")}
-            for e in exc.errors()
+            for e in errors[:MAX_REPORTED_PROBLEMS]
         ]
         summary = "; ".join(
             f"{'.'.join(str(p) for p in item['loc'])}: {item['msg']}" for item in problems[:5]
         )
+        if len(errors) > len(problems):
+            summary += f" ({len(errors)} problems; the first {len(problems)} are in detail)"
         return error_response(422, "validation_error", f"invalid request: {summary}", problems)
 
     app.add_exception_handler(ApiError, api_error)
@@ -173,29 +188,46 @@ def install_error_handlers(app: FastAPI) -> None:
 
 class BodySizeLimitMiddleware:
     """Reject bodies over ``limit`` bytes (by Content-Length up front, else while reading)
-    and clients that stall for ``read_timeout_s`` between two body chunks (408)."""
+    and clients that stall for ``read_timeout_s`` between two body chunks (408). JSON
+    bodies (requests, never meshes) have their own, small ``json_limit``: parsing and
+    validating them runs on the event loop, so their size bounds that time."""
 
-    def __init__(self, app: ASGIApp, limit: int, read_timeout_s: float = 60.0) -> None:
+    def __init__(
+        self,
+        app: ASGIApp,
+        limit: int,
+        read_timeout_s: float = 60.0,
+        json_limit: int | None = None,
+    ) -> None:
         self.app = app
         self.limit = limit
         self.read_timeout_s = read_timeout_s
+        self.json_limit = limit if json_limit is None else min(json_limit, limit)
 
-    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] != "http":
-            await self.app(scope, receive, send)
-            return
-        for name, value in scope.get("headers", []):
+    def _limit_of(self, headers: list[tuple[bytes, bytes]]) -> tuple[int, int, bool]:
+        """(the limit for this body, its declared length or -1, whether it is JSON)."""
+        limit, declared, is_json = self.limit, -1, False
+        for name, value in headers:
             if name == b"content-length":
                 try:
                     declared = int(value)
                 except ValueError:
                     declared = -1
-                if declared > self.limit:
-                    err = payload_too_large(self.limit)
-                    response = error_response(413, err.code, err.message, err.extra)
-                    response.headers["Connection"] = "close"
-                    await response(scope, receive, send)
-                    return
+            elif name == b"content-type" and b"json" in value.split(b";")[0].lower():
+                limit, is_json = self.json_limit, True
+        return limit, declared, is_json
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] != "http":
+            await self.app(scope, receive, send)
+            return
+        limit, declared, is_json = self._limit_of(scope.get("headers", []))
+        if declared > limit:
+            err = payload_too_large(limit, json=is_json)
+            response = error_response(413, err.code, err.message, err.extra)
+            response.headers["Connection"] = "close"
+            await response(scope, receive, send)
+            return
         received = 0
         body_done = False
 
@@ -214,8 +246,8 @@ class BodySizeLimitMiddleware:
             if message["type"] == "http.request":
                 body_done = not message.get("more_body", False)
                 received += len(message.get("body", b""))
-                if received > self.limit:
-                    raise payload_too_large(self.limit)
+                if received > limit:
+                    raise payload_too_large(limit, json=is_json)
             return message
 
         await self.app(scope, limited_receive, send)

@@ -23,6 +23,7 @@ PUBLIC_FIELDS = (
     "state",
     "progress",
     "mesh_id",
+    "kind",
     "method",
     "seed",
     "attempt",
@@ -48,7 +49,8 @@ def job_key(job_id: str) -> str:
 
 def public_job(job: dict[str, Any]) -> dict[str, Any]:
     """The record as the API shows it."""
-    return {name: job.get(name, 1 if name == "attempt" else None) for name in PUBLIC_FIELDS}
+    defaults = {"attempt": 1, "kind": "shdf"}
+    return {name: job.get(name, defaults.get(name)) for name in PUBLIC_FIELDS}
 
 
 def worker_name() -> str:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
+import uuid
 from typing import Any
 
 import numpy as np
@@ -37,6 +39,21 @@ def mesh_from_arrays(arrays: dict[str, NDArray]) -> TriangleMesh:
         arrays["face_origin"],
         int(arrays["input_face_count"]),
     )
+
+
+#: Metadata of one upload, answered to that uploader only. A mesh is stored under the hash
+#: of its geometry, so several clients may upload the same one: they share the geometry's
+#: facts and everything computed from it, never each other's file name or upload time.
+UPLOAD_FIELDS = ("format", "filename", "uploaded_at")
+#: Bookkeeping in the stored metadata that no client sees.
+PRIVATE_FIELDS = ("generation",)
+
+
+def shared_meta(meta: dict[str, Any]) -> dict[str, Any]:
+    """The geometry's metadata without any upload's own fields (entries stored by older
+    versions held the first uploader's)."""
+    hidden = UPLOAD_FIELDS + PRIVATE_FIELDS
+    return {name: value for name, value in meta.items() if name not in hidden}
 
 
 def mesh_missing(mesh_id: str) -> ApiError:
@@ -75,7 +92,9 @@ class MeshStore:
     def store(
         self, mesh: TriangleMesh, file_type: str | None, filename: str | None
     ) -> dict[str, Any]:
-        """Store the mesh (if new) and return its metadata."""
+        """Store the mesh (if new) and return its metadata as this upload's answer: the
+        shared facts of the geometry plus this upload's own file name, format and time,
+        which are not stored (``UPLOAD_FIELDS``)."""
         mesh_id = mesh.content_hash()
         meta_key = f"{mesh_id}:meta"
         meta = self.cache.get_json(meta_key)
@@ -87,25 +106,31 @@ class MeshStore:
                 "faces": mesh.input_face_count,
                 "triangles": mesh.face_count,
                 "vertices": len(mesh.vertices),
-                "format": file_type,
-                "filename": filename,
                 "bounds": [mesh.vertices.min(0).tolist(), mesh.vertices.max(0).tolist()],
                 "surface_area": float(area.sum()),
+                # New with every store after a deletion: the meta entry is the guard
+                # results are stored under (``TaskRunner.compute_once``), so a result of
+                # the deleted mesh never lands in the cache of the one uploaded again.
+                "generation": uuid.uuid4().hex,
             }
             # keep_local: readable through a Redis outage (only the client could restore it)
             self.cache.put_arrays(
                 f"{mesh_id}:mesh", mesh_arrays(mesh), group=mesh_id, keep_local=True
             )
-            self.cache.put_json(meta_key, meta, group=mesh_id, keep_local=True)
+            # Concurrent first uploads: one meta (one generation) wins, the others read it.
+            if not self.cache.add_json(meta_key, meta, group=mesh_id, keep_local=True):
+                meta = self.cache.get_json(meta_key) or meta
         self.cache.remember(f"{mesh_id}:mesh", mesh)
-        return meta
+        upload = {"format": file_type, "filename": filename, "uploaded_at": time.time()}
+        return {**shared_meta(meta), **upload}
 
     def meta(self, mesh_id: str) -> dict[str, Any]:
-        """Metadata of a mesh that can be used: one whose geometry is gone is gone."""
+        """Metadata of a mesh that can be used (one whose geometry is gone is gone): what
+        every uploader of the geometry shares, never one uploader's file name."""
         meta = self.cache.get_json(f"{mesh_id}:meta")
         if meta is None or self._geometry_lost(mesh_id):
             raise mesh_missing(mesh_id)
-        return meta
+        return shared_meta(meta)
 
     def _geometry_lost(self, mesh_id: str) -> bool:
         """Whether the mesh's geometry entry is known to be gone (evicted, or dropped as
@@ -144,6 +169,31 @@ class MeshStore:
         mesh = mesh_from_arrays(arrays)
         self.cache.remember(key, mesh)
         return mesh
+
+    def guard(self, mesh_id: str) -> tuple[str, bytes]:
+        """What a result of the mesh is stored under (``ResultCache.put_arrays``): its meta
+        entry as it is now; 404 when the mesh is not stored (deleted)."""
+        key = f"{mesh_id}:meta"
+        stored = self.cache.get_raw(key)
+        if stored is None:
+            raise mesh_missing(mesh_id)
+        return key, stored
+
+    def store_result(
+        self,
+        key: str,
+        mesh_id: str,
+        arrays: dict[str, NDArray],
+        guard: tuple[str, bytes] | None,
+    ) -> None:
+        """Store a result computed from the mesh, only while ``guard`` (``guard``, taken
+        before computing) holds; 404 when the mesh was deleted meanwhile. No guard: stored
+        as is (batch workers, whose meshes are not uploaded)."""
+        if not self.cache.put_arrays(key, arrays, group=mesh_id, guard=guard):
+            self.cache.forget_group(mesh_id)
+            error = mesh_missing(mesh_id)
+            error.message = f"mesh {mesh_id!r} was deleted while this result was computed"
+            raise error
 
     def delete(self, mesh_id: str) -> None:
         """Delete the mesh and everything derived from it; 404 when there was nothing."""

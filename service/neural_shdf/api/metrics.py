@@ -77,6 +77,12 @@ class Metrics:
             "Jobs re-run because the worker running them stopped.",
             registry=r,
         )
+        self.computations_cancelled = Counter(
+            "neural_shdf_computations_cancelled",
+            "Computations stopped at a checkpoint because every client waiting for them "
+            "had disconnected.",
+            registry=r,
+        )
         self.jobs_running = Gauge(
             "neural_shdf_jobs_running",
             "Jobs running (summed over live workers).",

@@ -22,6 +22,8 @@ ShdfMethodName = Literal["auto", "exact", "sampled", "neural"]
 #: The ShDF producer that ran (``auto`` resolved).
 ShdfProducerName = Literal["exact", "sampled", "neural"]
 JobState = Literal["queued", "running", "succeeded", "failed"]
+#: What a job computes: a ShDF, or a UV atlas for ``unwrapped.glb`` or ``atlas.png``.
+JobKind = Literal["shdf", "unwrap", "atlas"]
 
 MESH_ID_EXAMPLE = "3f1c0b6e2d4a8f7e9c1b2a3d4e5f60718293a4b5c6d7e8f9a0b1c2d3e4f5a6b7"
 MESH_ID_PATTERN = "^[0-9a-f]{64}$"
@@ -93,7 +95,11 @@ class Readiness(BaseModel):
 
 
 class MeshInfo(BaseModel):
-    """A stored mesh: its id (content hash of the canonical geometry) and its size."""
+    """A stored mesh: its id (content hash of the canonical geometry) and its size.
+
+    Shared by every client that uploads the same geometry: the id, the size, bounds and
+    area, and all results computed from it (ShDF, segmentations, atlases). Per upload and
+    never shown to another client: the file name, its format and the upload time."""
 
     model_config = ConfigDict(
         json_schema_extra={
@@ -118,9 +124,23 @@ class MeshInfo(BaseModel):
     faces: int = Field(description="Faces of the input file (polygons).", examples=[6])
     triangles: int = Field(description="Triangles after triangulation.", examples=[12])
     vertices: int = Field(description="Vertices.", examples=[8])
-    format: str | None = Field(None, description="Detected input format.", examples=["obj"])
+    format: str | None = Field(
+        None,
+        description="Format of this upload's file (only in the upload's answer: null when "
+        "the mesh is read back).",
+        examples=["obj"],
+    )
     filename: str | None = Field(
-        None, description="Name of the uploaded file.", examples=["cube.obj"]
+        None,
+        description="Name of this upload's file, as sent (only in the upload's answer: a mesh "
+        "is stored by its geometry, which several clients may upload under their own names, "
+        "so none is kept with it).",
+        examples=["cube.obj"],
+    )
+    uploaded_at: float | None = Field(
+        None,
+        description="Unix time of this upload (only in the upload's answer).",
+        examples=[1763791200.0],
     )
     bounds: list[list[float]] = Field(
         description="Axis-aligned bounding box `[[min x,y,z], [max x,y,z]]`.",
@@ -160,6 +180,7 @@ class Job(BaseModel):
                     "state": "running",
                     "progress": 0.4,
                     "mesh_id": MESH_ID_EXAMPLE,
+                    "kind": "shdf",
                     "method": "exact",
                     "seed": 0,
                     "attempt": 1,
@@ -178,8 +199,16 @@ class Job(BaseModel):
     )
     progress: float = Field(ge=0, le=1, description="Fraction done.", examples=[0.4])
     mesh_id: str = Field(description="The mesh the job computes.", examples=[MESH_ID_EXAMPLE])
-    method: ShdfProducerName = Field(
-        description="ShDF producer that ran (auto resolved).", examples=["exact"]
+    kind: JobKind = Field(
+        "shdf",
+        description="What the job computes: `shdf`, or the atlas of `unwrap` (unwrapped.glb) "
+        "or `atlas` (atlas.png).",
+        examples=["shdf"],
+    )
+    method: ShdfMethodName = Field(
+        description="ShDF producer that runs (`auto` is resolved per mesh when the job is "
+        "created; a record written by an older version may still say `auto`).",
+        examples=["exact"],
     )
     seed: int = Field(description="ShDF seed.", examples=[0])
     attempt: int = Field(

@@ -19,7 +19,7 @@ from neural_shdf.api.cache import ResultCache
 from neural_shdf.api.mesh_store import MeshStore, mesh_missing
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.shdf_service import ShdfService
-from neural_shdf.api.tasks import TaskRunner
+from neural_shdf.api.tasks import TaskRunner, checkpoint
 from neural_shdf.export import part_tree_document
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
@@ -175,8 +175,10 @@ class SegmentationService:
         self.metrics.count_cache("segmentation", hit=result is not None)
         return result
 
-    def _store(self, key: str, mesh_id: str, result: SegmentResult) -> None:
-        self.cache.put_arrays(key, result.arrays(), group=mesh_id)
+    def _store(
+        self, key: str, mesh_id: str, result: SegmentResult, guard: tuple[str, bytes] | None
+    ) -> None:
+        self.meshes.store_result(key, mesh_id, result.arrays(), guard)
         self.cache.remember(key, result)
 
     def _compute(
@@ -194,7 +196,9 @@ class SegmentationService:
         basis = self.cache.working_set(basis_key)
         if basis is None or not basis.matches(params, shdf):
             creases = self.meshes.creases(mesh_id, mesh) if params.crease_boundaries else None
+            checkpoint()
             basis = prepare_segment_mesh(mesh, shdf, params, graph=graph, creases=creases)
+        checkpoint()
         segmentation = segment_mesh_with_details(mesh, shdf, params, graph=graph, basis=basis)
         self.cache.keep_working_set(basis_key, basis, basis.nbytes)  # sized with its cut
         seconds = time.perf_counter() - start
@@ -243,6 +247,7 @@ class SegmentationService:
                             self._compute, mesh_id, method, mesh, outcome.values, params
                         ),
                         functools.partial(self._store, key, mesh_id),
+                        functools.partial(self.meshes.guard, mesh_id),
                     ),
                 )
             )
@@ -262,7 +267,11 @@ class SegmentationService:
         result, _ = await self.get(mesh_id, method, params)
         mesh = await self.tasks.io(self.meshes.load, mesh_id)
         writer = colored_glb if style == "colored" else parts_glb
-        return await self.tasks.run(writer, mesh, result.triangle_labels.astype(np.int64))
+        labels = result.triangle_labels.astype(np.int64)
+        # Identical requests share one writer; it runs within the request timeout.
+        write = functools.partial(writer, mesh, labels)
+        key = f"{self.key(mesh_id, method, params)}:glb:{style}"
+        return await self.tasks.with_timeout(self.tasks.single_flight(key, write))
 
     async def usda(self, mesh_id: str, method: str, params: SegmentParams) -> bytes:
         """The segmentation as a new USD stage of the stored mesh's input faces, one
@@ -271,4 +280,6 @@ class SegmentationService:
 
         result, _ = await self.get(mesh_id, method, params)
         mesh = await self.tasks.io(self.meshes.load, mesh_id)
-        return await self.tasks.run(mesh_parts_usda, mesh, result.labels.astype(np.int64))
+        write = functools.partial(mesh_parts_usda, mesh, result.labels.astype(np.int64))
+        key = f"{self.key(mesh_id, method, params)}:usda"
+        return await self.tasks.with_timeout(self.tasks.single_flight(key, write))

@@ -76,6 +76,13 @@ class Settings(BaseSettings):
         description="Largest request body accepted (checked while reading). Text OBJ "
         "parsing peaks at about 13x the file size in memory; size workers accordingly.",
     )
+    max_json_bytes: int = Field(
+        64 * 1024,
+        ge=1,
+        description="Largest JSON request body accepted (a segmentation request is a few "
+        "hundred bytes); JSON is parsed and validated on the event loop, so this bounds "
+        "how long one request can hold it.",
+    )
     max_faces: int = Field(
         DEFAULT_MAX_FACES,
         ge=1,
@@ -99,6 +106,14 @@ class Settings(BaseSettings):
         60.0, gt=0, description="Longest pause between two chunks of a request body (408)."
     )
     compute_threads: int = Field(2, ge=1, description="Threads running ShDF and segmentation.")
+    compute_share: int | None = Field(
+        None,
+        ge=1,
+        description="Computations one client (by address; background jobs count as one "
+        "client) runs at once; its further requests wait for one of them to end. Default: "
+        "all compute threads but one, so that no client can hold the whole pool. Behind a "
+        "proxy, let uvicorn trust its forwarded address (FORWARDED_ALLOW_IPS).",
+    )
     warm_up: bool = Field(
         True,
         description="At start-up, run a small mesh through every compiled path (kernels "

@@ -24,7 +24,8 @@ from neural_shdf.api.jobs import JobAccepted, JobStore, public_job, worker_name
 from neural_shdf.api.mesh_store import MeshStore
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.settings import Settings
-from neural_shdf.api.tasks import TaskRunner
+from neural_shdf.api.tasks import TaskRunner, cancellation, checkpoint
+from neural_shdf.constants import ALGORITHM_VERSION
 from neural_shdf.errors import ModelUnavailableError
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.params import check_seed
@@ -54,17 +55,18 @@ def model_version(path: Path) -> str | None:
 
 
 def shdf_version(method: str, model_version: str | None, seed: int = 0) -> str:
-    """What a cached ShDF depends on besides the mesh: the code version, the method
-    (resolved by callers that know the mesh), the model's version where the method can
-    run the network (refused when there is none) and every ShDF parameter
-    (``stage.shdf_key``)."""
+    """What a cached ShDF depends on besides the mesh: the code and algorithm versions
+    (``constants.ALGORITHM_VERSION``; every other result's key starts from this one, so
+    it carries that version too), the method (resolved by callers that know the mesh),
+    the model's version where the method can run the network (refused when there is
+    none) and every ShDF parameter (``stage.shdf_key``)."""
     from neural_shdf.shdf.stage import ShdfParams
     from neural_shdf.shdf.stage import shdf_key as stage_key
 
     if uses_model(method) and not model_version:
         raise ModelUnavailableError(f"the ShDF method {method!r} needs a neural model; none found")
     model = model_version if uses_model(method) else None
-    return f"{__version__}:{stage_key(method, ShdfParams(seed=seed), model)}"
+    return f"{__version__}:a{ALGORITHM_VERSION}:{stage_key(method, ShdfParams(seed=seed), model)}"
 
 
 def shdf_key(mesh_id: str, method: str, seed: int, model_version: str | None) -> str:
@@ -140,8 +142,10 @@ class ShdfService:
         self.metrics.count_cache("shdf", hit=values is not None)
         return values
 
-    def _store(self, key: str, mesh_id: str, outcome: ShdfOutcome) -> None:
-        self.cache.put_arrays(key, {"shdf": outcome.values}, group=mesh_id)
+    def _store(
+        self, key: str, mesh_id: str, outcome: ShdfOutcome, guard: tuple[str, bytes] | None
+    ) -> None:
+        self.meshes.store_result(key, mesh_id, {"shdf": outcome.values}, guard)
         self.cache.remember(key, outcome.values)
 
     def _compute(
@@ -152,8 +156,10 @@ class ShdfService:
 
         graph = self.meshes.graph(mesh_id, mesh)
         self._progress[key] = 0.0
+        cancelled = cancellation()  # progress may be reported from the library's threads
 
         def progress(fraction: float) -> None:
+            checkpoint(cancelled)  # every report is a checkpoint: stop if no one waits
             self._progress[key] = float(fraction)
 
         start = time.perf_counter()
@@ -174,9 +180,17 @@ class ShdfService:
         return ShdfOutcome(np.ascontiguousarray(values, dtype=np.float64), False, seconds, method)
 
     def _compute_once(
-        self, key: str, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
+        self,
+        key: str,
+        mesh_id: str,
+        mesh: TriangleMesh,
+        method: str,
+        seed: int,
+        *,
+        stored_mesh: bool = True,
     ) -> ShdfOutcome:
-        """Blocking: the cached ShDF, else computed and stored under the cache lock."""
+        """Blocking: the cached ShDF, else computed and stored under the cache lock (for a
+        ``stored_mesh``, only while it is not deleted: ``MeshStore.store_result``)."""
 
         def lookup() -> ShdfOutcome | None:
             values = self.cached(key)
@@ -187,19 +201,21 @@ class ShdfService:
             lookup,
             functools.partial(self._compute, key, mesh_id, mesh, method, seed),
             functools.partial(self._store, key, mesh_id),
+            functools.partial(self.meshes.guard, mesh_id) if stored_mesh else None,
         )
         return outcome
 
     def get_blocking(self, mesh_id: str, mesh: TriangleMesh, method: str, seed: int) -> ShdfOutcome:
         """The cached ShDF, else computed once under the cache lock and stored (blocking:
-        for batch workers outside an event loop). ``method`` may be ``auto``."""
+        for batch workers outside an event loop, whose meshes are not uploaded: stored
+        without a guard). ``method`` may be ``auto``."""
         seed = check_seed(seed)
         method = self.resolve(method, mesh.face_count)
         key = self.key(mesh_id, method, seed)
         values = self.cached(key)
         if values is not None:
             return ShdfOutcome(values, True, 0.0, method)
-        return self._compute_once(key, mesh_id, mesh, method, seed)
+        return self._compute_once(key, mesh_id, mesh, method, seed, stored_mesh=False)
 
     async def get(
         self,
@@ -275,7 +291,7 @@ class ShdfService:
         self.metrics.jobs_running.inc()
         try:
             await self.tasks.io(self.jobs.update, job, state="running")
-            work = asyncio.ensure_future(self.tasks.single_flight(key, compute))
+            work = asyncio.ensure_future(self.tasks.single_flight(key, compute, keep=True))
             written = time.monotonic()
             while not work.done():
                 await asyncio.wait({work}, timeout=0.5)

@@ -2,41 +2,101 @@
 
 CPU-heavy steps run on a compute thread pool, short blocking steps (cache I/O,
 bookkeeping) on an I/O pool, never on the event loop. Deduplication works at two
-levels: concurrent requests for one key in a process share one in-flight future
+levels: concurrent requests for one key in a process share one in-flight computation
 (``single_flight``); workers and replicas serialise on the cache's lock and look
 the result up again under it (``compute_once``), so only the first computes.
+
+Work no one waits for: each computation counts the requests waiting for it. When the
+last of them is gone because its client disconnected, the computation is cancelled: it
+stops at its next checkpoint (``checkpoint``; the ShDF's progress reports, the steps
+between stages, and before it starts at all). A request that timed out (504) keeps its
+computation going, and a retry joins it. Background jobs are never cancelled.
+
+Fair shares: every client (by address; background jobs count as one client) runs at most
+``compute_share`` computations on the pool at once; its further requests wait, without a
+thread, for one of its own to finish (or for their client to leave). One client, however
+many requests it abandons, cannot take every compute thread from the others.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import contextvars
 import functools
+import threading
 from collections.abc import Awaitable, Callable, Coroutine
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 from neural_shdf.api.cache import ResultCache
+from neural_shdf.api.clients import BACKGROUND, current_client
 from neural_shdf.api.errors import ApiError
 from neural_shdf.api.settings import Settings
 
 T = TypeVar("T")
+G = TypeVar("G")
+
+
+class ComputationCancelled(Exception):  # noqa: N818 - a signal, raised at checkpoints
+    """Raised at a checkpoint of a computation no one waits for any more."""
+
+
+#: The cancellation flag of the computation running on this compute thread.
+_cancellation: contextvars.ContextVar[threading.Event | None] = contextvars.ContextVar(
+    "cancellation", default=None
+)
+
+
+def cancellation() -> threading.Event | None:
+    """The flag of the computation running on this thread (capture it for callbacks that
+    other threads may call), or None outside the task runner."""
+    return _cancellation.get()
+
+
+def checkpoint(flag: threading.Event | None = None) -> None:
+    """Stop here (ComputationCancelled) if this computation (or ``flag``) was cancelled."""
+    flag = flag if flag is not None else _cancellation.get()
+    if flag is not None and flag.is_set():
+        raise ComputationCancelled("no request waits for this computation any more")
+
+
+def client_gone() -> ApiError:
+    """What a request whose client disconnected answers (nobody reads it)."""
+    return ApiError(499, "client_closed_request", "the client closed the connection")
+
+
+@dataclass
+class Flight:
+    """One computation on the compute pool and the requests waiting for it."""
+
+    future: asyncio.Future[Any]
+    cancel: threading.Event = field(default_factory=threading.Event)
+    waiters: int = 0
+    keep: bool = False  # a job or a timed-out request counts on it: never cancelled
 
 
 class TaskRunner:
-    """Thread pools, single flight, request timeouts and background tasks of one process."""
+    """Thread pools, single flight, fair shares, cancellation, request timeouts and
+    background tasks of one process."""
 
     def __init__(self, settings: Settings, cache: ResultCache) -> None:
         self.settings = settings
         self.cache = cache
         self.executor = ThreadPoolExecutor(settings.compute_threads, thread_name_prefix="compute")
         self.io_executor = ThreadPoolExecutor(settings.io_threads, thread_name_prefix="io")
-        self._inflight: dict[str, asyncio.Future[Any]] = {}
+        self.share = settings.compute_share or max(1, settings.compute_threads - 1)
+        self._inflight: dict[str, Flight] = {}
+        self._shares: dict[str, asyncio.Semaphore] = {}
         self._background: set[asyncio.Task[Any]] = set()
+        self.on_cancelled: Callable[[], None] = lambda: None  # a computation stopped
 
     async def run(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
-        """Run a CPU-heavy ``fn`` on the compute thread pool."""
-        loop = asyncio.get_running_loop()
-        return await loop.run_in_executor(self.executor, functools.partial(fn, *args, **kwargs))
+        """Run a CPU-heavy ``fn`` on the compute pool (within its client's share; cancelled
+        when the client leaves)."""
+        flight = await self._start(functools.partial(fn, *args, **kwargs))
+        return await self._wait(flight)
 
     async def io(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
         """Run a short blocking step on the I/O thread pool, so it never waits behind
@@ -44,23 +104,90 @@ class TaskRunner:
         loop = asyncio.get_running_loop()
         return await loop.run_in_executor(self.io_executor, functools.partial(fn, *args, **kwargs))
 
-    async def single_flight(self, key: str, fn: Callable[[], T]) -> T:
+    async def single_flight(self, key: str, fn: Callable[[], T], *, keep: bool = False) -> T:
         """Run ``fn`` on the compute pool once per key at a time in this process;
-        concurrent callers share it."""
-        future = self._inflight.get(key)
-        if future is None:
-            loop = asyncio.get_running_loop()
-            future = loop.run_in_executor(self.executor, fn)
-            self._inflight[key] = future
+        concurrent callers share it. ``keep``: never cancel it (a job's)."""
+        flight = self._inflight.get(key)
+        if flight is None or flight.cancel.is_set():  # a cancelled one is on its way out
+            flight = await self._start(fn, key)
+        flight.keep |= keep
+        return await self._wait(flight)
 
-            def _done(done: asyncio.Future[Any], key: str = key) -> None:
-                if self._inflight.get(key) is done:
-                    del self._inflight[key]
-                if not done.cancelled():
-                    done.exception()  # mark retrieved; callers get it through await
+    async def _start(self, fn: Callable[[], T], key: str | None = None) -> Flight:
+        """Wait for a slot of the client's share, then submit ``fn`` (keyed: shared by
+        concurrent callers of the key, who join it meanwhile)."""
+        client = current_client.get()
+        share_key = client.key if client is not None else BACKGROUND
+        share = self._shares.setdefault(share_key, asyncio.Semaphore(self.share))
+        await self._until_client_gone(share.acquire())
+        started = self._inflight.get(key) if key is not None else None
+        if started is not None and not started.cancel.is_set():  # started meanwhile: join
+            share.release()
+            return started
+        flag = threading.Event()
+        context = contextvars.copy_context()
+        context.run(_cancellation.set, flag)
 
-            future.add_done_callback(_done)
-        return await asyncio.shield(future)
+        def call() -> T:
+            checkpoint(flag)  # cancelled while it queued
+            return context.run(fn)
+
+        loop = asyncio.get_running_loop()
+        future = loop.run_in_executor(self.executor, call)
+        flight = Flight(future, flag)
+        if key is not None:
+            self._inflight[key] = flight
+
+        def done(finished: asyncio.Future[Any]) -> None:
+            share.release()
+            if key is not None and self._inflight.get(key) is flight:
+                del self._inflight[key]
+            if not finished.cancelled():
+                error = finished.exception()  # marks it retrieved; waiters get it through await
+                if isinstance(error, ComputationCancelled):
+                    self.on_cancelled()
+
+        future.add_done_callback(done)
+        return flight
+
+    async def _until_client_gone(self, awaitable: Awaitable[T]) -> T:
+        """``awaitable``'s result, or 499 as soon as the request's client disconnects."""
+        task = asyncio.ensure_future(awaitable)
+        client = current_client.get()
+        if client is None:
+            return await task
+        gone = asyncio.ensure_future(client.gone().wait())
+        try:
+            await asyncio.wait({task, gone}, return_when=asyncio.FIRST_COMPLETED)
+        except asyncio.CancelledError:
+            task.cancel()
+            raise
+        finally:
+            gone.cancel()
+        if task.done():
+            return task.result()
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task  # a cancelled Semaphore.acquire passes on a slot it was handed
+        raise client_gone()
+
+    async def _wait(self, flight: Flight) -> Any:
+        """The flight's result for one waiter; the last waiter to leave because its client
+        disconnected cancels it (unless it is kept)."""
+        flight.waiters += 1
+        client_left = False
+        try:
+            return await self._until_client_gone(asyncio.shield(flight.future))
+        except ApiError as exc:
+            client_left = exc.status_code == 499
+            raise
+        except asyncio.CancelledError:  # a timeout (504) or shutdown: the work goes on
+            flight.keep = True
+            raise
+        finally:
+            flight.waiters -= 1
+            if client_left and flight.waiters == 0 and not flight.keep:
+                flight.cancel.set()
 
     async def with_timeout(self, awaitable: Awaitable[T]) -> T:
         """``awaitable`` within the request timeout, else a 504 (the work goes on)."""
@@ -79,22 +206,31 @@ class TaskRunner:
         key: str,
         lookup: Callable[[], T | None],
         compute: Callable[[], T],
-        store: Callable[[T], None],
+        store: Callable[[T, G | None], None],
+        guard: Callable[[], G] | None = None,
     ) -> tuple[T, bool]:
         """Under the cache's lock for ``key``: ``lookup`` again (another worker may have
         finished meanwhile), else ``compute`` and ``store``. Returns (result, was cached).
+        ``guard``: taken before computing (it raises when the mesh is gone) and handed to
+        ``store``, which stores only while it still holds (deletion is final).
         Blocking: call it on the compute pool (``single_flight``)."""
         with self.cache.lock(key, self.settings.lock_timeout_s):
             found = lookup()
             if found is not None:
                 return found, True
+            checkpoint()  # it waited for the lock: still wanted?
+            held = guard() if guard is not None else None
             result = compute()
-            store(result)
+            store(result, held)
             return result, False
 
     def spawn(self, coroutine: Coroutine[Any, Any, Any]) -> asyncio.Task[Any]:
-        """Run ``coroutine`` in the background, kept alive until it ends or ``close``."""
-        task = asyncio.create_task(coroutine)
+        """Run ``coroutine`` in the background, kept alive until it ends or ``close``; it
+        belongs to no request (its work is not cancelled when that request's client
+        leaves, and counts in the background share)."""
+        context = contextvars.copy_context()
+        context.run(current_client.set, None)
+        task = asyncio.create_task(coroutine, context=context)
         self._background.add(task)
         task.add_done_callback(self._background.discard)
         return task

@@ -21,6 +21,9 @@ from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
 from neural_shdf.unwrap import UnwrapParams, UvAtlas
 
+#: The file each kind of atlas job serves once it succeeded.
+RESULT_FILES = {"unwrap": "unwrapped.glb", "atlas": "atlas.png"}
+
 
 def _atlas_arrays(atlas: UvAtlas) -> dict[str, NDArray]:
     return {
@@ -72,8 +75,10 @@ class UnwrapService:
         self.metrics.count_cache("unwrap", hit=atlas is not None)
         return atlas
 
-    def _store(self, key: str, mesh_id: str, atlas: UvAtlas) -> None:
-        self.cache.put_arrays(key, _atlas_arrays(atlas), group=mesh_id)
+    def _store(
+        self, key: str, mesh_id: str, atlas: UvAtlas, guard: tuple[str, bytes] | None
+    ) -> None:
+        self.meshes.store_result(key, mesh_id, _atlas_arrays(atlas), guard)
         self.cache.remember(key, atlas)
 
     @staticmethod
@@ -83,11 +88,19 @@ class UnwrapService:
         return unwrap_mesh(mesh, np.asarray(triangle_labels, dtype=np.int64), unwrap)
 
     async def get(
-        self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
+        self,
+        mesh_id: str,
+        method: str,
+        params: SegmentParams,
+        unwrap: UnwrapParams,
+        *,
+        kind: str = "unwrap",
     ) -> tuple[TriangleMesh, UvAtlas]:
         """The mesh and its atlas (cached, else from the cached segmentation, itself from
         the cached ShDF). A large mesh (over ``sync_face_threshold`` faces) answers 202 with
-        a job: first the ShDF's, then the atlas's; repeat the request once it succeeded."""
+        a job: first the ShDF's, then the atlas's (``kind`` ``unwrap`` or ``atlas``: the
+        route whose result it points to); repeat the request once it succeeded. ``method``
+        is a resolved producer (``Engine.resolved_method``)."""
         key = self.key(mesh_id, method, params, unwrap)
         result, _ = await self.segmentations.get(mesh_id, method, params)
         mesh = await self.tasks.io(self.meshes.load, mesh_id)
@@ -100,6 +113,7 @@ class UnwrapService:
             functools.partial(self.cached, key),
             functools.partial(self._compute, mesh, result.triangle_labels, unwrap),
             functools.partial(self._store, key, mesh_id),
+            functools.partial(self.meshes.guard, mesh_id),
         )
         if mesh.face_count > self.segmentations.shdf.settings.sync_face_threshold:
             shdf = self.segmentations.shdf
@@ -109,8 +123,8 @@ class UnwrapService:
                 method,
                 params.seed,
                 compute,
-                kind="unwrap",
-                result_url=f"/v1/meshes/{mesh_id}/segmentation/unwrapped.glb",
+                kind=kind,
+                result_url=f"/v1/meshes/{mesh_id}/segmentation/{RESULT_FILES[kind]}",
             )
             raise JobAccepted(job)
         atlas, _ = await self.tasks.with_timeout(self.tasks.single_flight(key, compute))
@@ -124,13 +138,16 @@ class UnwrapService:
 
         mesh, atlas = await self.get(mesh_id, method, params, unwrap)
         texture = await self._layout_png(mesh_id, method, params, unwrap, atlas)
-        return await self.tasks.run(unwrapped_glb, mesh, atlas, texture_png=texture)
+        key = self.key(mesh_id, method, params, unwrap)
+        write = functools.partial(unwrapped_glb, mesh, atlas, texture_png=texture)
+        # Identical requests share one writer; it runs within the request timeout.
+        return await self.tasks.with_timeout(self.tasks.single_flight(f"{key}:glb", write))
 
     async def atlas_png(
         self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
     ) -> bytes:
         """The atlas layout as a PNG: charts coloured by part, outlined."""
-        _, atlas = await self.get(mesh_id, method, params, unwrap)
+        _, atlas = await self.get(mesh_id, method, params, unwrap, kind="atlas")
         return await self._layout_png(mesh_id, method, params, unwrap, atlas)
 
     async def _layout_png(
@@ -153,6 +170,7 @@ class UnwrapService:
             functools.partial(self._cached_png, key),
             functools.partial(self._draw_png, atlas, unwrap),
             functools.partial(self._store_png, key, mesh_id),
+            functools.partial(self.meshes.guard, mesh_id),
         )
         png, _ = await self.tasks.with_timeout(self.tasks.single_flight(key, compute))
         return png
@@ -162,8 +180,10 @@ class UnwrapService:
         self.metrics.count_cache("atlas_png", hit=png is not None)
         return png
 
-    def _store_png(self, key: str, mesh_id: str, png: bytes) -> None:
-        self.cache.put_arrays(key, {"png": np.frombuffer(png, dtype=np.uint8)}, group=mesh_id)
+    def _store_png(
+        self, key: str, mesh_id: str, png: bytes, guard: tuple[str, bytes] | None
+    ) -> None:
+        self.meshes.store_result(key, mesh_id, {"png": np.frombuffer(png, dtype=np.uint8)}, guard)
         self.cache.remember(key, png)
 
     @staticmethod

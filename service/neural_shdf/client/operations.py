@@ -221,7 +221,9 @@ def upload(
     status = ShdfStatus(
         method=job.method, seed=job.seed, cached=False, seconds=time.monotonic() - started
     )
-    return Upload(MeshInfo.model_validate(info.json()), status)
+    # The service keeps no upload's file name with the shared mesh: this upload's is ours.
+    mesh = MeshInfo.model_validate(info.json()).model_copy(update={"filename": file_part[0]})
+    return Upload(mesh, status)
 
 
 def segment(mesh_id: str, options: Mapping[str, Any], poll: PollPolicy) -> Operation:

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import PurePosixPath
 from typing import Annotated, Any
 
 from fastapi import Depends, Request, UploadFile
 
 from neural_shdf.api.engine import Engine
+from neural_shdf.api.errors import ApiError
 from neural_shdf.api.schemas import ErrorResponse
 
 
@@ -48,3 +50,22 @@ async def read_upload(upload: UploadFile) -> bytes:
         return await upload.read()
     finally:
         await upload.close()
+
+
+async def single_form_fields(request: Request) -> None:
+    """422 when a multipart form gives a field twice (two files, say): FastAPI would use
+    the last one and drop the others without a word. The form is parsed once (Starlette
+    keeps it), so this costs a scan of its field names."""
+    form = await request.form()
+    counts = {n: c for n, c in Counter(name for name, _ in form.multi_items()).items() if c > 1}
+    if counts:
+        listed = ", ".join(f"{name!r} {count} times" for name, count in counts.items())
+        raise ApiError(
+            422,
+            "repeated_form_field",
+            f"the form gives {listed}; send one mesh file per request (and each option once)",
+            {"repeated": counts},
+        )
+
+
+SingleFormFields = Depends(single_form_fields)

@@ -8,7 +8,13 @@ from fastapi import APIRouter, File, Form, Header, Path, Query, Response, Upload
 
 from neural_shdf.api.engine import Engine
 from neural_shdf.api.responses import F32_MEDIA_TYPE, shdf_response, upload_result
-from neural_shdf.api.routes.deps import EngineDep, error_responses, read_upload, upload_format
+from neural_shdf.api.routes.deps import (
+    EngineDep,
+    SingleFormFields,
+    error_responses,
+    read_upload,
+    upload_format,
+)
 from neural_shdf.api.schemas import (
     MESH_ID_EXAMPLE,
     MESH_ID_PATTERN,
@@ -53,6 +59,7 @@ async def ingest(
     operation_id="upload_mesh",
     summary="Upload a mesh and compute its ShDF",
     response_model=UploadResult,
+    dependencies=[SingleFormFields],
     responses={
         202: {"model": Job, "description": "Large mesh: the ShDF is computed by a job."},
         **error_responses(400, 408, 413, 415, 422, 503, 504),
@@ -114,7 +121,9 @@ async def get_mesh(engine: EngineDep, mesh_id: MeshId) -> MeshInfo:
     responses=error_responses(404),
 )
 async def delete_mesh(engine: EngineDep, mesh_id: MeshId) -> Response:
-    """Delete the mesh and everything computed from it (ShDF, segmentations, jobs)."""
+    """Delete the mesh and everything computed from it (ShDF, segmentations, jobs), for
+    every client that uploaded it. Final: a computation still running for it stores
+    nothing (its request or job answers 404), and the mesh uploaded again starts afresh."""
     await engine.io(engine.meshes.delete, mesh_id)
     return Response(status_code=204)
 
@@ -152,7 +161,9 @@ async def get_shdf(
     values = await engine.io(mesh.to_input_faces, outcome.values)
     binary = format == "f32" or (format is None and F32_MEDIA_TYPE in (accept or ""))
     version = engine.shdf.model_version
-    return shdf_response(mesh_id, outcome.method, seed, version, values, binary=binary)
+    return await engine.io(
+        shdf_response, mesh_id, outcome.method, seed, version, values, binary=binary
+    )
 
 
 @router.get(

@@ -8,7 +8,7 @@ from fastapi import APIRouter, Form, Query, Response
 
 from neural_shdf.api.engine import Engine
 from neural_shdf.api.responses import GLB_MEDIA_TYPE, glb_response, segmentation_response
-from neural_shdf.api.routes.deps import EngineDep, error_responses
+from neural_shdf.api.routes.deps import EngineDep, SingleFormFields, error_responses
 from neural_shdf.api.routes.meshes import MeshId, ingest
 from neural_shdf.api.schemas import (
     Job,
@@ -36,7 +36,10 @@ async def segment_response(
 ) -> Response:
     method = await engine.resolved_method(mesh_id, options.method)
     result, timings = await engine.segmentations.get(mesh_id, method, params)
-    return segmentation_response(mesh_id, method, options.labels_format, result, timings)
+    # Serialising a million labels takes a while: never on the event loop.
+    return await engine.io(
+        segmentation_response, mesh_id, method, options.labels_format, result, timings
+    )
 
 
 @router.post(
@@ -57,6 +60,7 @@ async def segment_mesh(engine: EngineDep, request: SegmentRequest) -> Response:
     operation_id="segment_file",
     summary="Upload and segment a mesh in one call",
     response_model=Segmentation,
+    dependencies=[SingleFormFields],
     responses=SEGMENT_ERRORS,
 )
 async def segment_file(

@@ -37,7 +37,7 @@ async def unwrapped_glb(
     """Each part of the segmentation is its own chart where its stretch allows (the cached
     ShDF and segmentation are reused; the atlas is cached per parameters)."""
     params, unwrap = options.segment_params(), options.unwrap_params()
-    method = engine.method_of(options.method)
+    method = await engine.resolved_method(mesh_id, options.method)
     glb = await engine.unwraps.glb(mesh_id, method, params, unwrap)
     return glb_response(glb, mesh_id, "unwrapped")
 
@@ -60,6 +60,6 @@ async def atlas_png(
 ) -> Response:
     """The atlas of ``unwrapped.glb`` with the same parameters, for people to look at."""
     params, unwrap = options.segment_params(), options.unwrap_params()
-    method = engine.method_of(options.method)
+    method = await engine.resolved_method(mesh_id, options.method)
     png = await engine.unwraps.atlas_png(mesh_id, method, params, unwrap)
     return Response(png, media_type=PNG_MEDIA_TYPE)

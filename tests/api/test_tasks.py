@@ -1,0 +1,174 @@
+"""The task runner: work no one waits for stops at its next checkpoint, and one client's
+requests (abandoned or not) never hold every compute thread."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+import trimesh
+
+from neural_shdf.api.cache import DiskBackend, ResultCache
+from neural_shdf.api.clients import Client, current_client
+from neural_shdf.api.errors import ApiError
+from neural_shdf.api.tasks import TaskRunner, checkpoint
+from tests.api.api_helpers import make_settings
+from tests.api.conftest import running_server
+
+
+class FakePeer:
+    """The ASGI receive of a client that sent its request and may hang up later."""
+
+    def __init__(self) -> None:
+        self.hung_up = asyncio.Event()
+
+    async def receive(self) -> dict:
+        await self.hung_up.wait()
+        return {"type": "http.disconnect"}
+
+
+def runner(tmp_path: Path, **settings: object) -> TaskRunner:
+    cache = ResultCache(DiskBackend(tmp_path / "cache", 2**30))
+    return TaskRunner(make_settings(tmp_path / "cache", **settings), cache)
+
+
+async def as_client(name: str, peer: FakePeer, work) -> object:
+    """Run ``work()`` (a coroutine function) as a request of client ``name``."""
+    current_client.set(Client(name, peer.receive))
+    return await work()
+
+
+def until_cancelled(started: threading.Event, stopped: list[str]) -> None:
+    """A long computation that reaches a checkpoint every millisecond."""
+    started.set()
+    try:
+        while True:
+            checkpoint()
+            time.sleep(0.001)
+    except Exception as exc:
+        stopped.append(type(exc).__name__)
+        raise
+
+
+def test_a_computation_whose_client_left_stops_at_its_next_checkpoint(tmp_path):
+    tasks = runner(tmp_path, compute_threads=2)
+    cancelled: list[int] = []
+    tasks.on_cancelled = lambda: cancelled.append(1)
+
+    async def scenario() -> None:
+        peer, started, stopped = FakePeer(), threading.Event(), []
+
+        def compute() -> None:
+            until_cancelled(started, stopped)
+
+        flight = lambda: tasks.single_flight("k", compute)  # noqa: E731
+        request = asyncio.create_task(as_client("a", peer, flight))
+        await asyncio.to_thread(started.wait, 30)
+        peer.hung_up.set()
+        with pytest.raises(ApiError) as left:
+            await request
+        assert left.value.status_code == 499
+        for _ in range(3000):  # the computation's thread reaches its next checkpoint
+            if cancelled:
+                break
+            await asyncio.sleep(0.01)
+        assert stopped == ["ComputationCancelled"] and cancelled == [1]
+
+    asyncio.run(scenario())
+    tasks.executor.shutdown(wait=True)
+
+
+def test_a_computation_another_request_still_waits_for_goes_on(tmp_path):
+    tasks = runner(tmp_path, compute_threads=2, compute_share=2)
+
+    async def scenario() -> None:
+        leaving, staying, release = FakePeer(), FakePeer(), threading.Event()
+
+        def work() -> str:
+            release.wait(30)
+            checkpoint()
+            return "done"
+
+        def request(peer: FakePeer, name: str) -> asyncio.Task:
+            flight = lambda: tasks.single_flight("k", work)  # noqa: E731
+            return asyncio.create_task(as_client(name, peer, flight))
+
+        first = request(leaving, "a")
+        await asyncio.sleep(0.05)
+        second = request(staying, "b")
+        await asyncio.sleep(0.05)
+        leaving.hung_up.set()
+        with pytest.raises(ApiError):
+            await first
+        release.set()
+        assert await second == "done"
+
+    asyncio.run(scenario())
+    tasks.executor.shutdown(wait=True)
+
+
+def test_one_client_cannot_hold_every_compute_thread(tmp_path):
+    """Client a sends three blocking computations on a two-thread pool and hangs up; the
+    first holds its one thread until it ends, the others never start, and client b's
+    computation runs meanwhile on the other thread."""
+    tasks = runner(tmp_path, compute_threads=2)
+    assert tasks.share == 1
+
+    async def scenario() -> None:
+        attacker, other, release = FakePeer(), FakePeer(), threading.Event()
+        ran: list[int] = []
+
+        def hog(index: int) -> None:
+            ran.append(index)
+            release.wait(60)  # no checkpoint: like a writer that cannot stop midway
+
+        abandoned = [
+            asyncio.create_task(as_client("a", attacker, lambda i=i: tasks.run(hog, i)))
+            for i in range(3)
+        ]
+        await asyncio.sleep(0.1)
+        attacker.hung_up.set()
+        ordinary = as_client("b", other, lambda: tasks.run(lambda: "b's answer"))
+        assert await asyncio.wait_for(ordinary, 30) == "b's answer"  # while a's still runs
+        assert ran == [0]
+        release.set()
+        for task in abandoned:
+            with pytest.raises(ApiError):
+                await task
+
+    asyncio.run(scenario())
+    tasks.executor.shutdown(wait=True)
+
+
+def test_an_abandoned_shdf_request_is_cancelled_in_the_service(tmp_path):
+    """Through uvicorn: a client asks for the exact ShDF of an 82k-face sphere and hangs
+    up; the computation stops (counted) instead of running to its end."""
+    sphere = trimesh.creation.icosphere(subdivisions=6)
+    data = sphere.export(file_type="stl")
+    settings = {"max_upload_bytes": 20_000_000, "sync_face_threshold": 1_000_000}
+    with running_server(tmp_path / "cache", warm_up=False, **settings) as base:
+        upload = httpx.post(
+            f"{base}/v1/meshes",
+            files={"file": ("sphere.stl", data)},
+            data={"method": "neural"},
+            timeout=300,
+        )
+        assert upload.status_code == 200, upload.text
+        url = f"{base}/v1/meshes/{upload.json()['mesh']['mesh_id']}/shdf"
+        with pytest.raises(httpx.TimeoutException):
+            httpx.get(url, params={"method": "exact"}, timeout=1.0)
+
+        def metric(name: str) -> float:
+            text = httpx.get(f"{base}/metrics", timeout=10).text
+            lines = [line for line in text.splitlines() if line.startswith(name)]
+            return sum(float(line.split()[-1]) for line in lines)
+
+        deadline = time.monotonic() + 120
+        while metric("neural_shdf_computations_cancelled_total") < 1:
+            assert time.monotonic() < deadline, "the abandoned computation was not cancelled"
+            time.sleep(0.2)
+        assert metric('neural_shdf_shdf_computations_total{method="exact"}') == 0

@@ -1,0 +1,52 @@
+"""ALGORITHM_VERSION: the golden result of each version, so that a change of results
+without a new version (which would serve stale cached results after an upgrade) fails."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import trimesh
+
+from neural_shdf.constants import ALGORITHM_VERSION
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.pipeline import compute_shdf, segment_mesh
+from neural_shdf.segment import SegmentParams
+
+#: ALGORITHM_VERSION -> sha256 of the golden mesh's (ShDF rounded to 6 decimals, labels).
+#: When results change on purpose: bump ALGORITHM_VERSION and add its pair here.
+GOLDEN = {
+    1: "5ee33c7d099cd0d92512580967e781745716be427f636ccacadcf67d5ec44fe9",
+}
+
+
+def golden_mesh() -> TriangleMesh:
+    """Two balls of different sizes joined by a thin bar: parts a segmentation must find."""
+    left = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
+    right = trimesh.creation.icosphere(subdivisions=2, radius=0.6)
+    right.apply_translation([2.6, 0.0, 0.0])
+    bar = trimesh.creation.cylinder(radius=0.2, height=1.4, sections=12)
+    bar.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
+    bar.apply_translation([1.3, 0.0, 0.0])
+    joined = trimesh.util.concatenate([left, bar, right])
+    return TriangleMesh(np.asarray(joined.vertices, float), np.asarray(joined.faces, np.int64))
+
+
+def golden_digest() -> str:
+    mesh = golden_mesh()
+    shdf = compute_shdf(mesh, method="exact", seed=0)
+    labels = segment_mesh(mesh, shdf, SegmentParams())
+    digest = hashlib.sha256(np.round(shdf, 6).astype("<f8").tobytes())
+    digest.update(np.asarray(labels, dtype="<i8").tobytes())
+    return digest.hexdigest()
+
+
+def test_results_change_only_with_the_algorithm_version():
+    assert ALGORITHM_VERSION in GOLDEN, (
+        f"ALGORITHM_VERSION {ALGORITHM_VERSION} has no golden result: add it to GOLDEN"
+    )
+    assert golden_digest() == GOLDEN[ALGORITHM_VERSION], (
+        "the ShDF or the labels of the golden mesh changed: bump ALGORITHM_VERSION in "
+        "neural_shdf/constants.py (cached results of the code before must not be served) "
+        "and add the new version's digest to GOLDEN"
+    )

@@ -133,11 +133,16 @@ def split_by_part(
     each vertex used by triangles of one label only.
     """
     labels = _check_labels(mesh, labels)
-    corner_labels = np.repeat(labels, 3)
     corners = mesh.faces.reshape(-1)
-    keys = np.stack([corners, corner_labels], axis=1)
-    unique, inverse = np.unique(keys, axis=0, return_inverse=True)
-    return mesh.vertices[unique[:, 0]], inverse.reshape(-1, 3).astype(np.int64), unique[:, 1]
+    if len(corners) == 0:
+        return mesh.vertices[:0], mesh.faces.astype(np.int64), labels[:0]
+    # One integer per (vertex, label): sorts like the pairs, far faster than unique rows.
+    low = int(labels.min())
+    span = int(labels.max()) - low + 1
+    keys = corners * span + (np.repeat(labels, 3) - low)
+    unique, inverse = np.unique(keys, return_inverse=True)
+    vertex, label = np.divmod(unique, span)
+    return mesh.vertices[vertex], inverse.reshape(-1, 3).astype(np.int64), label + low
 
 
 def colored_glb(
@@ -197,53 +202,64 @@ def parts_glb(mesh: TriangleMesh, labels: NDArray) -> bytes:
 
     blocks = [indices.tobytes(), positions.tobytes(), np.ascontiguousarray(colors).tobytes()]
     offsets = np.cumsum([0] + [len(block) for block in blocks]).tolist()
-    views = [
+    document: dict[str, Any] = {
+        "asset": {"version": "2.0", "generator": "neural-shdf"},
+        "scene": 0,
+        "scenes": [{"nodes": list(range(part_count))} if part_count else {}],
+    }
+    if not part_count:  # glTF allows no empty arrays
+        return glb_bytes(json.dumps(document, separators=(",", ":")), b"")
+    document["bufferViews"] = [
         {"buffer": 0, "byteOffset": offsets[0], "byteLength": len(blocks[0]), "target": 34963},
         {"buffer": 0, "byteOffset": offsets[1], "byteLength": len(blocks[1]),
          "byteStride": 12, "target": 34962},
         {"buffer": 0, "byteOffset": offsets[2], "byteLength": len(blocks[2]),
          "byteStride": 4, "target": 34962},
     ]  # fmt: skip
-    accessors: list[dict[str, Any]] = []
-    meshes: list[dict[str, Any]] = []
-    nodes: list[dict[str, Any]] = []
-    for part, (label, first_face, faces, first_vertex, vertices) in enumerate(
-        zip(
-            values.tolist(),
-            face_start.tolist(),
-            face_count.tolist(),
-            vertex_start.tolist(),
-            vertex_count.tolist(),
-            strict=True,
-        )
-    ):
-        accessors += [
-            {"bufferView": 0, "byteOffset": 12 * first_face, "componentType": 5125,
-             "count": 3 * faces, "type": "SCALAR"},
-            {"bufferView": 1, "byteOffset": 12 * first_vertex, "componentType": 5126,
-             "count": vertices, "type": "VEC3", "min": low[part], "max": high[part]},
-            {"bufferView": 2, "byteOffset": 4 * first_vertex, "componentType": 5121,
-             "normalized": True, "count": vertices, "type": "VEC4"},
-        ]  # fmt: skip
-        name = part_name(label)
-        primitive = {"attributes": {"POSITION": 3 * part + 1, "COLOR_0": 3 * part + 2},
-                     "indices": 3 * part, "mode": 4}  # fmt: skip
-        meshes.append({"name": name, "primitives": [primitive]})
-        nodes.append({"name": name, "mesh": part})
-    document: dict[str, Any] = {
-        "asset": {"version": "2.0", "generator": "neural-shdf"},
-        "scene": 0,
-        "scenes": [{"nodes": list(range(part_count))} if part_count else {}],
-    }
-    if part_count:  # glTF allows no empty arrays
-        document |= {"nodes": nodes, "meshes": meshes, "accessors": accessors}
-        document |= {"bufferViews": views, "buffers": [{"byteLength": offsets[-1]}]}
-    return glb_bytes(document, b"".join(blocks))
+    document["buffers"] = [{"byteLength": offsets[-1]}]
+    # Per-part entries as text from templates: json.dumps of a dict per accessor would
+    # take most of the time with many parts.
+    names = [part_name(label) for label in values.tolist()]
+    rows = zip(
+        (12 * face_start).tolist(),
+        (3 * face_count).tolist(),
+        (12 * vertex_start).tolist(),
+        vertex_count.tolist(),
+        low,
+        high,
+        (4 * vertex_start).tolist(),
+        strict=True,
+    )
+    accessors = ",".join(
+        _PART_ACCESSORS % (index_at, corners, position_at, vertices, *lo, *hi, color_at, vertices)
+        for index_at, corners, position_at, vertices, lo, hi, color_at in rows
+    )
+    meshes = ",".join(
+        _PART_MESH % (name, 3 * part + 1, 3 * part + 2, 3 * part) for part, name in enumerate(names)
+    )
+    nodes = ",".join(_PART_NODE % (name, part) for part, name in enumerate(names))
+    text = json.dumps(document, separators=(",", ":"))[:-1]  # without its closing brace
+    text += f',"nodes":[{nodes}],"meshes":[{meshes}],"accessors":[{accessors}]}}'
+    return glb_bytes(text, b"".join(blocks))
 
 
-def glb_bytes(document: dict[str, Any], binary: bytes) -> bytes:
-    """A binary glTF: the JSON ``document`` and one binary chunk (``binary``)."""
-    text = json.dumps(document, separators=(",", ":")).encode()
+#: parts_glb's JSON per part (three accessors, a mesh, a node); names are part_name's.
+_PART_ACCESSORS = (
+    '{"bufferView":0,"byteOffset":%d,"componentType":5125,"count":%d,"type":"SCALAR"},'
+    '{"bufferView":1,"byteOffset":%d,"componentType":5126,"count":%d,"type":"VEC3",'
+    '"min":[%r,%r,%r],"max":[%r,%r,%r]},'
+    '{"bufferView":2,"byteOffset":%d,"componentType":5121,"normalized":true,"count":%d,'
+    '"type":"VEC4"}'
+)
+_PART_MESH = (
+    '{"name":"%s","primitives":[{"attributes":{"POSITION":%d,"COLOR_0":%d},"indices":%d,"mode":4}]}'
+)
+_PART_NODE = '{"name":"%s","mesh":%d}'
+
+
+def glb_bytes(document: str, binary: bytes) -> bytes:
+    """A binary glTF: the JSON text ``document`` and one binary chunk (``binary``)."""
+    text = document.encode()
     text += b" " * (-len(text) % 4)
     binary += b"\0" * (-len(binary) % 4)
     chunks = [struct.pack("<I4s", len(text), b"JSON"), text]

@@ -158,13 +158,9 @@ class PartTree:
             return np.zeros(0, dtype=np.int64)
         count = min(max(int(count), 1), leaves)
         owner = np.arange(2 * leaves - 1, dtype=np.int64)
-        for i in range(leaves - count):  # union of the first L - count merges
-            a, b = self.merges[i]
-            owner[a] = owner[b] = leaves + i
-        # Merge nodes come after their children: resolving from the top is one pass.
-        for node in range(2 * leaves - 2, -1, -1):
-            owner[node] = owner[owner[node]]
-        root_of_leaf = owner[:leaves]
+        made = leaves - count  # union of the first L - count merges
+        owner[self.merges[:made].reshape(-1)] = np.repeat(np.arange(leaves, leaves + made), 2)
+        root_of_leaf = _resolve_owners(owner)[:leaves]
         smallest = np.full(2 * leaves - 1, leaves, dtype=np.int64)
         np.minimum.at(smallest, root_of_leaf, np.arange(leaves))
         _, dense = np.unique(smallest[root_of_leaf], return_inverse=True)
@@ -278,13 +274,26 @@ def merge_tree(
     # Separate shells: smallest first into the part of nearest mean ShDF.
     roots = np.flatnonzero(alive)
     pairs = _shell_merge_order(roots, node_area, node_moment, leaf_count + len(merges))
+    shell_area, shell_moment = node_area.tolist(), node_moment.tolist()  # Python floats: fast
     for smallest, target in pairs.tolist():
         merges.append((min(smallest, target), max(smallest, target)))
-        costs.append(pair_cost(smallest, target, 0.0, 0.0))
+        area_s, area_t = shell_area[smallest], shell_area[target]
+        mean_s = shell_moment[smallest] / area_s if area_s > 0 else 0.0
+        mean_t = shell_moment[target] / area_t if area_t > 0 else 0.0
+        costs.append(cost(area_s, area_t, mean_s, mean_t, 0.0, 0.0, total_area))
 
     return PartTree(
         leaves, np.array(merges, dtype=np.int64).reshape(-1, 2), np.array(costs, dtype=np.float64)
     )
+
+
+@kernel
+def _resolve_owners(owner: NDArray) -> NDArray:
+    """Each node's highest merged ancestor, in place: merge nodes come after their
+    children, so one pass from the top resolves every chain."""
+    for node in range(len(owner) - 1, -1, -1):
+        owner[node] = owner[owner[node]]
+    return owner
 
 
 #: "No group / no part" in the shell merge's linked lists.

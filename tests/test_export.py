@@ -1,7 +1,10 @@
 """Exports: palette, coloured GLB without blending across parts, per-part GLB, label files,
 unwrapped GLB."""
 
+import colorsys
 import io
+import json
+import struct
 
 import numpy as np
 import pytest
@@ -43,6 +46,16 @@ def test_palette_is_deterministic_distinct_and_opaque():
     assert len(np.unique(colors[:, :3], axis=0)) == 60
     assert (colors[:, 3] == 255).all()
     assert part_colors(0).shape == (0, 4)
+
+
+def test_palette_beyond_the_base_colours_is_golden_angle_hsv():
+    colors = part_colors(500)
+    golden = (np.sqrt(5.0) - 1.0) / 2.0
+    for i in (12, 13, 14, 100, 499):
+        k = i - 12
+        rgb = colorsys.hsv_to_rgb((0.13 + k * golden) % 1.0, (0.55, 0.8, 0.4)[k % 3],
+                                  (0.9, 0.7, 0.8)[(k // 3) % 3])  # fmt: skip
+        np.testing.assert_array_equal(colors[i, :3], np.round(np.array(rgb) * 255))
 
 
 def test_split_by_part_never_shares_a_vertex(sphere_mesh):
@@ -102,6 +115,38 @@ def test_parts_glb_round_trips_parts_and_triangle_counts(sphere_mesh):
     np.testing.assert_allclose(
         back.vertices[back.faces], sphere_mesh.vertices[sphere_mesh.faces[order]], atol=1e-6
     )
+
+
+def test_parts_glb_writes_ten_thousand_parts():
+    sphere = trimesh.creation.icosphere(subdivisions=5)
+    mesh = TriangleMesh(np.asarray(sphere.vertices), np.asarray(sphere.faces)[:20_000])
+    labels = np.arange(mesh.face_count)[::-1] // 2  # parts in reverse face order
+    data = parts_glb(mesh, labels)
+    length = struct.unpack_from("<I", data, 12)[0]
+    document = json.loads(data[20 : 20 + length])
+    assert len(document["nodes"]) == len(document["meshes"]) == 10_000
+    assert document["nodes"][9_999] == {"name": "part_9999", "mesh": 9_999}
+    scene = trimesh.load(trimesh.util.wrap_as_stream(data), file_type="glb", process=False)
+    assert len(scene.geometry) == 10_000
+    assert all(len(g.faces) == 2 for g in scene.geometry.values())
+    part = scene.geometry["part_1234"]
+    faces = mesh.faces[np.sort(np.flatnonzero(labels == 1234))]
+    np.testing.assert_allclose(part.vertices[part.faces], mesh.vertices[faces], atol=1e-6)
+    np.testing.assert_array_equal(part.visual.vertex_colors, np.tile(part_colors(1235)[-1], (4, 1)))
+    back = load_mesh(data, "glb")
+    order = np.argsort(labels, kind="stable")
+    np.testing.assert_allclose(
+        back.vertices[back.faces], mesh.vertices[mesh.faces[order]], atol=1e-6
+    )
+
+
+def test_parts_glb_of_no_faces_is_an_empty_scene():
+    mesh = TriangleMesh(np.eye(3), np.zeros((0, 3), dtype=np.int64))
+    scene = trimesh.load(
+        trimesh.util.wrap_as_stream(parts_glb(mesh, np.zeros(0, dtype=np.int64))),
+        file_type="glb",
+    )
+    assert len(scene.geometry) == 0
 
 
 def test_labels_must_be_one_integer_per_triangle(box_mesh):

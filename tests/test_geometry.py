@@ -7,7 +7,13 @@ import pytest
 import trimesh
 
 from neural_shdf.constants import AREA_EPS
-from neural_shdf.geometry import EDGE_CLIQUE, build_face_graph, face_normals, weld_faces
+from neural_shdf.geometry import (
+    EDGE_CLIQUE,
+    build_face_graph,
+    face_normals,
+    weld_faces,
+    zero_area_limit,
+)
 
 
 def test_normals_and_areas_of_a_box():
@@ -15,6 +21,25 @@ def test_normals_and_areas_of_a_box():
     normals, areas = face_normals(box.vertices, box.faces)
     np.testing.assert_allclose(normals, box.face_normals, atol=1e-12)
     assert np.isclose(areas.sum(), 2 * (1 * 2 + 2 * 3 + 1 * 3))
+
+
+@pytest.mark.parametrize("scale", [1e-12, 1e-9, 1e9, 1e15])
+def test_degenerate_faces_are_the_same_at_every_scale(scale):
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    vertices = np.concatenate([sphere.vertices, [[0, 0, 0], [0.25, 0.5, 0.75], [0.5, 1, 1.5]]])
+    n = len(sphere.vertices)
+    degenerate = np.array([[n, n + 1, n + 2], [0, 0, 1], [n + 1, n + 1, n + 1]])
+    faces = np.concatenate([sphere.faces, degenerate])
+    normals, areas = face_normals(vertices, faces)
+    scaled_normals, scaled_areas = face_normals(vertices * scale, faces)
+    np.testing.assert_allclose(scaled_normals, normals, atol=1e-12)
+    np.testing.assert_allclose(scaled_areas, areas * scale**2, rtol=1e-12)
+    has_normal = np.linalg.norm(scaled_normals, axis=1) > 0
+    assert has_normal[: len(sphere.faces)].all() and not has_normal[len(sphere.faces) :].any()
+    assert zero_area_limit(vertices * scale, faces) == pytest.approx(
+        zero_area_limit(vertices, faces) * scale**2, rel=1e-12
+    )
+    assert zero_area_limit(np.zeros((3, 3)), np.array([[0, 1, 2]])) == 0.0
 
 
 def test_closed_mesh_has_three_neighbours_per_face_and_no_concave_edge():
@@ -95,11 +120,13 @@ def test_weld_matches_an_exact_row_sort_and_folds_negative_zero():
 
 
 def _reference_normals(vertices, faces):
-    cross = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]],
-                     vertices[faces[:, 2]] - vertices[faces[:, 0]])
+    cross = np.cross(
+        vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]]
+    )
     norm = np.linalg.norm(cross, axis=1)
     normals = np.zeros_like(cross)
-    ok = norm > AREA_EPS
+    corners = vertices[faces].reshape(-1, 3)
+    ok = norm > AREA_EPS * np.sum((corners.max(axis=0) - corners.min(axis=0)) ** 2)
     normals[ok] = cross[ok] / norm[ok, None]
     return normals, norm / 2
 
@@ -126,14 +153,19 @@ def _reference_graph(vertices, faces, normals):
     for (a, b), (lo, hi) in zip(pairs, edges, strict=True):
         off = [v for v in faces[b].tolist() if v not in (lo, hi)]
         off_vertex = max(off) if off else int(faces[b, 0])
-        rows.append((
-            math.acos(min(1.0, max(-1.0, float(normals[a] @ normals[b])))),
-            float(np.linalg.norm(vertices[lo] - vertices[hi])),
-            float((vertices[off_vertex] - vertices[lo]) @ normals[a]),
-        ))
+        rows.append(
+            (
+                math.acos(min(1.0, max(-1.0, float(normals[a] @ normals[b])))),
+                float(np.linalg.norm(vertices[lo] - vertices[hi])),
+                float((vertices[off_vertex] - vertices[lo]) @ normals[a]),
+            )
+        )
     table = np.array(rows, dtype=float).reshape(-1, 3)
-    return (np.array(pairs, dtype=np.int64).reshape(-1, 2),
-            np.array(edges, dtype=np.int64).reshape(-1, 2), table)
+    return (
+        np.array(pairs, dtype=np.int64).reshape(-1, 2),
+        np.array(edges, dtype=np.int64).reshape(-1, 2),
+        table,
+    )
 
 
 def _messy_mesh(seed: int):
@@ -142,8 +174,9 @@ def _messy_mesh(seed: int):
     points = rng.normal(size=(12, 3))
     points[3] = points[4]  # two vertices at one position
     points[5] = 0.5 * (points[6] + points[7])  # collinear triangles (zero area)
-    vertices = np.concatenate([points, points[rng.integers(0, 12, 6)], [[-0.0, 0.0, 0.0]],
-                               [[0.0, 0.0, 0.0]]])
+    vertices = np.concatenate(
+        [points, points[rng.integers(0, 12, 6)], [[-0.0, 0.0, 0.0]], [[0.0, 0.0, 0.0]]]
+    )
     faces = rng.integers(0, len(vertices), size=(int(rng.integers(1, 300)), 3))
     repeat = rng.random(len(faces)) < 0.1
     faces[repeat, 2] = faces[repeat, 0]

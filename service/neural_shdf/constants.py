@@ -2,7 +2,9 @@
 
 import math
 
-#: Triangles with twice-area below this (relative to nothing: absolute) have no normal.
+#: Triangles whose twice-area is at most this fraction of the squared diagonal of the
+#: triangles' bounding box have no normal (``geometry.zero_area_limit``): relative, so a
+#: mesh in nanometres or in kilometres has the same degenerate faces.
 AREA_EPS = 1e-20
 #: Largest coordinate magnitude accepted: squared lengths must stay finite in float32
 #: (the ray tracer and the network's sample graph), whose largest value is 3.4e38.

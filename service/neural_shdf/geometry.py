@@ -26,8 +26,34 @@ def face_normals(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
     faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
     normals = np.empty((len(faces), 3), dtype=np.float64)
     areas = np.empty(len(faces), dtype=np.float64)
-    _normals_and_areas(vertices, faces, AREA_EPS, normals, areas)
+    _normals_and_areas(vertices, faces, zero_area_limit(vertices, faces), normals, areas)
     return normals, areas
+
+
+def zero_area_limit(vertices: NDArray, faces: NDArray) -> float:
+    """Twice-area at or below which a triangle is degenerate (has no normal):
+    ``AREA_EPS`` times the squared diagonal of the triangles' bounding box, so the same
+    faces are degenerate at every scale (0 when every corner is one point)."""
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    return AREA_EPS * _squared_diagonal(vertices, faces)
+
+
+@kernel
+def _squared_diagonal(vertices, faces):  # pragma: no cover - numba
+    """Squared diagonal of the bounding box of the faces' corners (0 for no faces)."""
+    if faces.shape[0] == 0:
+        return 0.0
+    low = vertices[faces[0, 0]].copy()
+    high = low.copy()
+    for face in range(faces.shape[0]):
+        for corner in range(3):
+            vertex = faces[face, corner]
+            for axis in range(3):
+                value = vertices[vertex, axis]
+                low[axis] = min(low[axis], value)
+                high[axis] = max(high[axis], value)
+    return (high[0] - low[0]) ** 2 + (high[1] - low[1]) ** 2 + (high[2] - low[2]) ** 2
 
 
 @kernel

@@ -142,6 +142,77 @@ def test_separate_shells_still_make_one_tree():
     assert np.all(tree.costs > 0)
 
 
+def tetrahedra(count: int, scales: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` separate tetrahedra on a line, tetrahedron i scaled by ``scales[i]``."""
+    corner = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=np.float64)
+    vertices = corner[None] * scales[:, None, None]
+    vertices[:, :, 0] += 3.0 * np.arange(count)[:, None]
+    triangles = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    return vertices.reshape(-1, 3), (triangles[None] + 4 * np.arange(count)[:, None, None]).reshape(
+        -1, 3
+    )
+
+
+def reference_shell_merges(area: np.ndarray, moment: np.ndarray) -> list[list[int]]:
+    """The shell rule written plainly (quadratic): smallest part (then lowest id) into the
+    part of nearest mean (then lowest id)."""
+    area, moment = list(area), list(moment)
+    alive = set(range(len(area)))
+    merges = []
+    while len(alive) > 1:
+
+        def mean(node):
+            return moment[node] / area[node] if area[node] > 0 else 0.0
+
+        smallest = min(alive, key=lambda n: (area[n], n))
+        target = min(alive - {smallest}, key=lambda n: (abs(mean(n) - mean(smallest)), n))
+        merges.append(sorted([smallest, target]))
+        alive -= {smallest, target}
+        alive.add(len(area))
+        area.append(area[smallest] + area[target])
+        moment.append(moment[smallest] + moment[target])
+    return merges
+
+
+@pytest.mark.parametrize("case", ["random", "equal", "few values", "rounding ties"])
+def test_shells_merge_in_the_order_of_the_plain_rule(case):
+    rng = np.random.default_rng(7)
+    count = 300
+    scales = {"random": 1 + rng.random(count), "equal": np.ones(count)}.get(
+        case, rng.choice([1.0, 2.0], count)
+    )
+    vertices, faces = tetrahedra(count, scales)
+    graph, areas = graph_and_areas(vertices, faces)
+    if case == "random":
+        shell_values = rng.random(count)
+    elif case == "equal":
+        shell_values = np.full(count, 0.3)
+    elif case == "few values":
+        shell_values = rng.choice([0.125, 0.25, 0.5, 0.75, 0.875], count)
+    else:  # means one ulp apart, whose gaps to a far centre round to the same value
+        shell_values = np.where(
+            rng.random(count) < 0.3, 0.75, 0.1 + rng.integers(0, 4, count) * np.spacing(0.1)
+        )
+    values = np.repeat(shell_values, 4)
+    leaves = np.repeat(np.arange(count), 4)
+    tree = merge_tree(leaves, graph, areas, values)
+    area = np.bincount(leaves, weights=areas)
+    moment = np.bincount(leaves, weights=areas * values)
+    assert tree.merges.tolist() == reference_shell_merges(area, moment)
+
+
+def test_twenty_thousand_shells_make_one_tree():
+    count = 20_000
+    vertices, faces = tetrahedra(count, 1 + np.random.default_rng(0).random(count))
+    graph, areas = graph_and_areas(vertices, faces)
+    leaves = connected_parts(np.zeros(len(faces), dtype=np.int64), graph.pairs, len(faces))
+    tree = merge_tree(leaves, graph, areas, np.full(len(faces), 0.5))
+    assert tree.leaf_count == count and tree.parent[-1] == -1
+    assert len(np.unique(tree.merges)) == 2 * count - 2
+    assert np.array_equal(tree.labels(count), leaves)
+    assert np.all(tree.labels(1) == 0)
+
+
 def test_a_single_leaf_and_an_empty_mesh():
     mesh = trimesh.creation.icosphere(1)
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)

@@ -276,3 +276,25 @@ def test_a_basis_of_other_clusters_or_seed_is_refused(dumbbell_case):
     with pytest.raises(ValueError, match="another ShDF, clusters or seed"):
         segment_with_details(vertices, faces, other, SegmentParams(clusters=3), graph, basis=basis)
     assert basis.nbytes > shdf.nbytes
+
+
+def test_the_same_shape_at_any_scale_gets_the_same_parts():
+    # Every threshold is relative to the mesh's size: the ShDF is equal up to the rounding
+    # of the scaled coordinates (exactly so at powers of two), and so are the parts.
+    from neural_shdf.mesh import TriangleMesh
+    from neural_shdf.pipeline import compute_shdf_result, mesh_face_graph, segment_mesh
+
+    mesh, _ = dumbbell(3000)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    results = {}
+    for scale in (1e-9, 2.0**-30, 1.0, 2.0**30, 1e9):
+        scaled = TriangleMesh(vertices * scale, faces)
+        graph = mesh_face_graph(scaled)
+        shdf = compute_shdf_result(scaled, method="exact", seed=0, graph=graph).values
+        results[scale] = shdf, segment_mesh(scaled, shdf, SegmentParams(), graph=graph)
+    shdf, labels = results[1.0]
+    assert labels.max() == 2  # two balls and the neck
+    for scale, (scaled_shdf, scaled_labels) in results.items():
+        np.testing.assert_array_equal(scaled_labels, labels)
+        tolerance = 1e-12 if scale in (2.0**-30, 2.0**30) else 0.1
+        np.testing.assert_allclose(scaled_shdf, shdf, atol=tolerance)

@@ -16,6 +16,7 @@ from neural_shdf.errors import (
     MeshParseError,
     MeshTooLargeError,
 )
+from neural_shdf.geometry import zero_area_limit
 from neural_shdf.mesh import TriangleMesh
 
 
@@ -139,11 +140,11 @@ def fan_triangulate(
     return faces, origin
 
 
-def _has_area(vertices: NDArray, faces: NDArray) -> bool:
-    """Whether any of the triangles has non-zero area."""
+def _has_area(vertices: NDArray, faces: NDArray, limit: float) -> bool:
+    """Whether any of the triangles has twice its area above ``limit``."""
     tri = vertices[faces]
     doubled_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    return bool((doubled_area > AREA_EPS).any())
+    return bool((doubled_area > limit).any())
 
 
 def build_mesh(
@@ -194,14 +195,16 @@ def build_mesh(
             f"{face} of the file, 0-based vertex indices {faces[index].tolist()}, but there "
             f"are {len(vertices)} vertices); the file is corrupt or truncated"
         )
-    if not _has_area(vertices, faces[:1024]) and not _has_area(vertices, faces):
+    limit = zero_area_limit(vertices, faces)  # relative to the mesh's own size
+    if not _has_area(vertices, faces[:1024], limit) and not _has_area(vertices, faces, limit):
         used = vertices[np.unique(faces)]
         extent = float((used.max(axis=0) - used.min(axis=0)).max())
         raise InvalidGeometryError(
-            f"all {len(faces)} triangles have zero area (twice the area at most {AREA_EPS:g}), "
+            f"all {len(faces)} triangles have zero area (twice the area at most {AREA_EPS:g} "
+            "of the squared bounding-box diagonal), "
             f"so the mesh has no surface; its triangles span {extent:.3g} units: "
             + (
-                "rescale the mesh if it is that small"
+                "each triangle's corners lie on one line"
                 if extent > 0
                 else "all their corners are at one point"
             )

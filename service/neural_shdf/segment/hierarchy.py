@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf.compiled import kernel
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph
 
@@ -157,13 +158,9 @@ class PartTree:
             return np.zeros(0, dtype=np.int64)
         count = min(max(int(count), 1), leaves)
         owner = np.arange(2 * leaves - 1, dtype=np.int64)
-        for i in range(leaves - count):  # union of the first L - count merges
-            a, b = self.merges[i]
-            owner[a] = owner[b] = leaves + i
-        # Merge nodes come after their children: resolving from the top is one pass.
-        for node in range(2 * leaves - 2, -1, -1):
-            owner[node] = owner[owner[node]]
-        root_of_leaf = owner[:leaves]
+        made = leaves - count  # union of the first L - count merges
+        owner[self.merges[:made].reshape(-1)] = np.repeat(np.arange(leaves, leaves + made), 2)
+        root_of_leaf = _resolve_owners(owner)[:leaves]
         smallest = np.full(2 * leaves - 1, leaves, dtype=np.int64)
         np.minimum.at(smallest, root_of_leaf, np.arange(leaves))
         _, dense = np.unique(smallest[root_of_leaf], return_inverse=True)
@@ -275,17 +272,227 @@ def merge_tree(
             merge(i, j, merge_cost)
 
     # Separate shells: smallest first into the part of nearest mean ShDF.
-    while int(alive.sum()) > 1:
-        roots = np.flatnonzero(alive)
-        smallest = int(roots[np.lexsort((roots, node_area[roots]))[0]])
-        others = roots[roots != smallest]
-        gaps = np.abs(np.array([mean(o) for o in others]) - mean(smallest))
-        target = int(others[np.lexsort((others, gaps))[0]])
-        merge(smallest, target, pair_cost(smallest, target, 0.0, 0.0))
+    roots = np.flatnonzero(alive)
+    pairs = _shell_merge_order(roots, node_area, node_moment, leaf_count + len(merges))
+    shell_area, shell_moment = node_area.tolist(), node_moment.tolist()  # Python floats: fast
+    for smallest, target in pairs.tolist():
+        merges.append((min(smallest, target), max(smallest, target)))
+        area_s, area_t = shell_area[smallest], shell_area[target]
+        mean_s = shell_moment[smallest] / area_s if area_s > 0 else 0.0
+        mean_t = shell_moment[target] / area_t if area_t > 0 else 0.0
+        costs.append(cost(area_s, area_t, mean_s, mean_t, 0.0, 0.0, total_area))
 
     return PartTree(
         leaves, np.array(merges, dtype=np.int64).reshape(-1, 2), np.array(costs, dtype=np.float64)
     )
+
+
+@kernel
+def _resolve_owners(owner: NDArray) -> NDArray:
+    """Each node's highest merged ancestor, in place: merge nodes come after their
+    children, so one pass from the top resolves every chain."""
+    for node in range(len(owner) - 1, -1, -1):
+        owner[node] = owner[owner[node]]
+    return owner
+
+
+#: "No group / no part" in the shell merge's linked lists.
+_NONE = -1
+
+
+@kernel(inline=True)
+def _node_mean(node_area: NDArray, node_moment: NDArray, node: int) -> float:
+    """A node's mean ShDF, as ``merge_tree``'s ``mean`` (0 for a part of no area)."""
+    return node_moment[node] / node_area[node] if node_area[node] > 0 else 0.0
+
+
+@kernel(inline=True)
+def _before(area: NDArray, ids: NDArray, i: int, j: int) -> bool:
+    """Whether heap entry ``i`` comes before ``j``: less area, then lower id."""
+    return area[i] < area[j] or (area[i] == area[j] and ids[i] < ids[j])
+
+
+@kernel(inline=True)
+def _heap_push(area: NDArray, ids: NDArray, size: int, value: float, node: int) -> int:
+    """Push (value, node) onto the heap of ``size`` entries; return the new size."""
+    area[size], ids[size] = value, node
+    child = size
+    while child > 0:
+        parent = (child - 1) // 2
+        if not _before(area, ids, child, parent):
+            break
+        area[child], area[parent] = area[parent], area[child]
+        ids[child], ids[parent] = ids[parent], ids[child]
+        child = parent
+    return size + 1
+
+
+@kernel(inline=True)
+def _heap_pop(area: NDArray, ids: NDArray, size: int) -> int:
+    """Remove the first entry of the heap of ``size`` entries; return its node."""
+    node = ids[0]
+    size -= 1
+    area[0], ids[0] = area[size], ids[size]
+    parent = 0
+    while True:
+        child = 2 * parent + 1
+        if child >= size:
+            break
+        if child + 1 < size and _before(area, ids, child + 1, child):
+            child += 1
+        if not _before(area, ids, child, parent):
+            break
+        area[child], area[parent] = area[parent], area[child]
+        ids[child], ids[parent] = ids[parent], ids[child]
+        parent = child
+    return node
+
+
+@kernel(inline=True)
+def _take_out(node, node_group, member_prev, member_next, head, tail, group_prev, group_next):
+    """Remove ``node`` from its group; a group left empty leaves the list of groups.
+
+    Returns the (previous, next) groups of the node's group.
+    """
+    group = node_group[node]
+    before, after = member_prev[node], member_next[node]
+    if before == _NONE:
+        head[group] = after
+    else:
+        member_next[before] = after
+    if after == _NONE:
+        tail[group] = before
+    else:
+        member_prev[after] = before
+    left, right = group_prev[group], group_next[group]
+    if head[group] == _NONE:
+        if left != _NONE:
+            group_next[left] = right
+        if right != _NONE:
+            group_prev[right] = left
+    return left, right
+
+
+@kernel
+def _shell_merge_order(
+    roots: NDArray, node_area: NDArray, node_moment: NDArray, first_node: int
+) -> NDArray:
+    """(len(roots) - 1, 2) the (smallest, target) pairs that merge the parts ``roots``
+    (no shared edge left) into one, in order; fills ``node_area`` and ``node_moment`` of
+    the new nodes ``first_node, first_node + 1, ...``.
+
+    Each step merges the smallest part (least area, then lowest id) into the part of
+    nearest mean (least ``|mean - mean_smallest|``, then lowest id). A heap over (area,
+    id) and a list of the distinct means in order, each with its parts in id order, make
+    a step about constant time where a rescan of every part made the loop quadratic in
+    the number of shells: a merged part's mean lies between its parts' means, which are
+    neighbours in that list, so its place is a step or two from theirs.
+    """
+    count = len(roots)
+    nodes = len(node_area)
+    pairs = np.empty((max(count - 1, 0), 2), dtype=np.int64)
+    if count < 2:
+        return pairs
+    heap_area = np.empty(count, dtype=np.float64)
+    heap_id = np.empty(count, dtype=np.int64)
+    merged = np.zeros(nodes, dtype=np.bool_)
+    value = np.empty(2 * count, dtype=np.float64)
+    group_prev = np.full(2 * count, _NONE, dtype=np.int64)
+    group_next = np.full(2 * count, _NONE, dtype=np.int64)
+    head = np.full(2 * count, _NONE, dtype=np.int64)
+    tail = np.full(2 * count, _NONE, dtype=np.int64)
+    node_group = np.full(nodes, _NONE, dtype=np.int64)
+    member_prev = np.full(nodes, _NONE, dtype=np.int64)
+    member_next = np.full(nodes, _NONE, dtype=np.int64)
+
+    means = np.empty(count, dtype=np.float64)
+    for k in range(count):
+        means[k] = _node_mean(node_area, node_moment, roots[k])
+    groups = 0
+    for k in np.argsort(means, kind="mergesort"):  # stable: ids increase within a mean
+        node = roots[k]
+        if groups == 0 or value[groups - 1] != means[k]:
+            value[groups] = means[k]
+            if groups:
+                group_prev[groups] = groups - 1
+                group_next[groups - 1] = groups
+            head[groups] = node
+            groups += 1
+        else:
+            member_prev[node] = tail[groups - 1]
+            member_next[tail[groups - 1]] = node
+        tail[groups - 1] = node
+        node_group[node] = groups - 1
+    size = 0
+    for k in range(count):
+        size = _heap_push(heap_area, heap_id, size, node_area[roots[k]], roots[k])
+
+    for step in range(count - 1):
+        smallest = _heap_pop(heap_area, heap_id, size)
+        size -= 1
+        while merged[smallest]:
+            smallest = _heap_pop(heap_area, heap_id, size)
+            size -= 1
+        centre = _node_mean(node_area, node_moment, smallest)
+        left, right = _take_out(
+            smallest, node_group, member_prev, member_next, head, tail, group_prev, group_next
+        )
+        if head[node_group[smallest]] != _NONE:  # another part of the same mean: gap 0
+            target = head[node_group[smallest]]
+        else:  # the gap grows away from the centre: the ties are runs next to it
+            best = np.inf
+            if left != _NONE:
+                best = min(best, abs(value[left] - centre))
+            if right != _NONE:
+                best = min(best, abs(value[right] - centre))
+            target = nodes
+            while right != _NONE and abs(value[right] - centre) == best:
+                target = min(target, head[right])
+                right = group_next[right]
+            while left != _NONE and abs(value[left] - centre) == best:
+                target = min(target, head[left])
+                left = group_prev[left]
+        left, right = _take_out(
+            target, node_group, member_prev, member_next, head, tail, group_prev, group_next
+        )
+        pairs[step, 0], pairs[step, 1] = smallest, target
+        merged[smallest] = merged[target] = True
+
+        node = first_node + step
+        node_area[node] = node_area[smallest] + node_area[target]
+        node_moment[node] = node_moment[smallest] + node_moment[target]
+        mean = _node_mean(node_area, node_moment, node)
+        # Its group: the last group of mean <= its mean, found from where the target was
+        # (``first``: the first group, when every group's mean is above it).
+        group = node_group[target] if head[node_group[target]] != _NONE else left
+        group = right if group == _NONE else group
+        first = _NONE
+        while group != _NONE and value[group] > mean:
+            first = group
+            group = group_prev[group]
+        if group != _NONE:
+            while group_next[group] != _NONE and value[group_next[group]] <= mean:
+                group = group_next[group]
+        if group != _NONE and value[group] == mean:
+            member_prev[node] = tail[group]
+            member_next[tail[group]] = node
+            tail[group] = node
+        else:  # a new group after ``group`` (or before ``first``)
+            new = groups
+            groups += 1
+            value[new] = mean
+            head[new] = tail[new] = node
+            following = group_next[group] if group != _NONE else first
+            if following != _NONE:
+                group_prev[following] = new
+                group_next[new] = following
+            if group != _NONE:
+                group_next[group] = new
+                group_prev[new] = group
+            group = new
+        node_group[node] = group
+        size = _heap_push(heap_area, heap_id, size, node_area[node], node)
+    return pairs
 
 
 #: Automatic part count: merges costing more than this are not made. Tuned on the same 57

@@ -8,6 +8,8 @@ parts are shared out between components in proportion to their area.
 
 from __future__ import annotations
 
+import heapq
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -62,11 +64,18 @@ def share_parts(
     by_size = np.lexsort((np.arange(len(sizes)), -sizes))
     significant = by_size[sizes[by_size] >= min_fraction * sizes.sum()]
     given[significant[:parts]] = 1
-    while given.sum() < parts:
-        room = given < counts
-        deficit = np.where(room, share - given, -np.inf)
-        order = np.lexsort((np.arange(len(sizes)), -sizes, -deficit))
-        given[order[0]] += 1
+    # One part at a time to the largest deficit (then the largest size, the lowest index)
+    # among components with room: a heap, as only the receiving component's deficit moves.
+    deficit = (share - given).tolist()
+    heap = [
+        (-deficit[c], -size, c) for c, size in enumerate(sizes.tolist()) if given[c] < counts[c]
+    ]
+    heapq.heapify(heap)
+    for _ in range(parts - int(given.sum())):
+        _, negative_size, c = heapq.heappop(heap)
+        given[c] += 1
+        if given[c] < counts[c]:
+            heapq.heappush(heap, (-float(share[c] - given[c]), negative_size, c))
     return given
 
 
@@ -117,18 +126,17 @@ def metis_partition(
         labels[faces] = local + next_label
         next_label += int(given[c])
 
-    unassigned = labels < 0
-    if unassigned.any():
+    unassigned = np.flatnonzero(labels < 0)
+    if len(unassigned):
         from scipy.spatial import cKDTree
 
-        assigned = np.flatnonzero(~unassigned)
-        _, nearest = cKDTree(centroids[assigned]).query(centroids[unassigned])
         # Whole components join one part: the part nearest to their first face.
-        for c in np.unique(component[unassigned]):
-            members = component[unassigned] == c
-            labels[np.flatnonzero(unassigned)[members]] = labels[
-                assigned[nearest[np.flatnonzero(members)[0]]]
-            ]
+        assigned = np.flatnonzero(labels >= 0)
+        joining, first = np.unique(component[unassigned], return_index=True)
+        _, nearest = cKDTree(centroids[assigned]).query(centroids[unassigned[first]])
+        joined = np.full(component_count, -1, dtype=np.int64)
+        joined[joining] = labels[assigned[nearest]]
+        labels[unassigned] = joined[component[unassigned]]
     return canonical_labels(labels)
 
 
@@ -156,19 +164,22 @@ def _partition_component(
         return np.zeros(len(faces), dtype=np.int64)
     local = np.searchsorted(faces, pairs)  # faces are sorted ascending
     labels = _metis(len(faces), local, weights, parts, seed)
-    # METIS may leave a part empty on tiny graphs: split the largest part until all exist.
-    while len(np.unique(labels)) < parts:
-        present = np.unique(labels)
-        missing = np.setdiff1d(np.arange(parts), present)[0]
-        counts = np.bincount(labels, minlength=parts)
+    # METIS may leave parts empty (tiny graphs, many parts): fill each missing label, lowest
+    # first, with half of the largest part. Each step costs one pass over the faces and
+    # edges (a part never empties again: both halves keep faces).
+    counts = np.bincount(labels, minlength=parts)
+    for missing in np.flatnonzero(counts == 0).tolist():
         largest = int(np.argmax(counts))
         members = np.flatnonzero(labels == largest)
-        keep = np.isin(local, members).all(axis=1)
+        keep = (labels[local[:, 0]] == largest) & (labels[local[:, 1]] == largest)
         sub_pairs = np.searchsorted(members, local[keep])
         halves = _metis(len(members), sub_pairs, weights[keep], 2, seed)
         if halves.min() == halves.max():
             halves = (np.arange(len(members)) >= len(members) // 2).astype(np.int64)
-        labels[members[halves == 1]] = missing
+        moved = members[halves == 1]
+        labels[moved] = missing
+        counts[largest] -= len(moved)
+        counts[missing] = len(moved)
     return labels
 
 

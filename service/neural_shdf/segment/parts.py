@@ -121,9 +121,12 @@ def merge_small_parts(
 
     neighbours = _part_boundaries(parts, graph, part_count)
     owner = np.arange(part_count)
-    heap = [(float(size[i]), int(i)) for i in np.flatnonzero(size < threshold)]
+    # A tiny part without neighbours stays so (no merge gives it one): set it aside now,
+    # so that many small shells cost no heap work.
+    tiny = np.flatnonzero(size < threshold).tolist()
+    isolated = [i for i in tiny if not neighbours[i]]
+    heap = [(float(size[i]), i) for i in tiny if neighbours[i]]
     heapq.heapify(heap)
-    isolated = []
     while heap:
         part_size, part = heapq.heappop(heap)
         if owner[part] != part or part_size != size[part]:

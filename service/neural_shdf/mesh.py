@@ -5,11 +5,15 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf.geometry import face_normals
+from neural_shdf.geometry import face_normals, weld_faces
+
+if TYPE_CHECKING:
+    from neural_shdf.orientation import Orientation
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,6 +67,45 @@ class TriangleMesh:
         normals.flags.writeable = False
         areas.flags.writeable = False
         return normals, areas
+
+    @cached_property
+    def welded_faces(self) -> NDArray[np.int64]:
+        """``faces`` with coincident vertices sharing one index (``geometry.weld_faces``),
+        computed once per mesh: the adjacency every graph of the mesh uses."""
+        welded = weld_faces(self.vertices, self.faces)
+        welded.flags.writeable = False
+        return welded
+
+    @cached_property
+    def orientation(self) -> Orientation:
+        """Which triangles to reverse so that every shell faces out of its solid, and what
+        the pass found in the mesh (``orientation.orient_faces``); computed once per mesh."""
+        from neural_shdf.orientation import orient_faces
+
+        return orient_faces(
+            self.vertices, self.faces, welded=self.welded_faces, areas=self.normals_and_areas[1]
+        )
+
+    @cached_property
+    def oriented(self) -> TriangleMesh:
+        """The same triangles in the same order, each wound to face out of its solid
+        (``orientation``): what the ShDF and the segmentation work on, whatever the file's
+        winding. ``self`` where no triangle is reversed; its own ``oriented`` is itself."""
+        flips = self.orientation.flips
+        if not flips.any():
+            return self
+        faces, welded = self.faces.copy(), self.welded_faces.copy()
+        for reversed_, source in ((faces, self.faces), (welded, self.welded_faces)):
+            reversed_[flips, 1], reversed_[flips, 2] = source[flips, 2], source[flips, 1]
+        oriented = TriangleMesh(self.vertices, faces, self.face_origin, self.input_face_count)
+        normals, areas = self.normals_and_areas
+        normals = np.where(flips[:, None], -normals, normals)  # reversed exactly: the same cross
+        normals.flags.writeable = False
+        welded.flags.writeable = False
+        # Seed the caches: the reversed normals are exact, the welding is the same.
+        oriented.__dict__.update(normals_and_areas=(normals, areas), welded_faces=welded)
+        oriented.__dict__["oriented"] = oriented
+        return oriented
 
     def content_hash(self) -> str:
         """SHA-256 of the canonical geometry: vertices, triangles and face origins."""

@@ -37,6 +37,7 @@ from neural_shdf import constants
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, face_centroids
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.orientation import MeshDiagnostics
 from neural_shdf.shdf.postprocess import (
     EXACT_WINDOW_MAX,
     FILTER_COST_PER_PAIR,
@@ -342,10 +343,13 @@ def raw_diameters(
 
 @dataclass(frozen=True)
 class ShdfResult:
-    """A post-processed ShDF in [0, 1] per triangle and the producer that made it."""
+    """A post-processed ShDF in [0, 1] per triangle, the producer that made it and what
+    the orientation pass found in the mesh (its rays went into the solid whatever the
+    file's winding)."""
 
     values: NDArray[np.float64]
     method: RawMethod
+    diagnostics: MeshDiagnostics | None = None
 
 
 def run_shdf(
@@ -361,7 +365,11 @@ def run_shdf(
 
     ``model``: a loaded ``NeuralModel`` or the path of an ONNX model, used by
     ``neural`` (default: the installed model); ignored by the other producers.
+    Every producer works on ``mesh.oriented``: the rays go into the solid whatever the
+    file's winding; ``graph``: the face graph of that mesh (``pipeline.mesh_face_graph``).
     """
+    diagnostics = mesh.orientation.diagnostics
+    mesh = mesh.oriented
     params = params or ShdfParams()
     resolved = resolve_method(method, mesh.face_count)
     if resolved == "neural":
@@ -392,7 +400,7 @@ def run_shdf(
         if progress is None
         else (lambda done: progress(ray_share + (1 - ray_share) * done)),
     )
-    return ShdfResult(values, resolved)
+    return ShdfResult(values, resolved, diagnostics)
 
 
 def with_seed(params: ShdfParams | None, seed: int | None) -> ShdfParams:

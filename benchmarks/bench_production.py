@@ -44,7 +44,11 @@ from neural_shdf.segment import SegmentParams
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_BENCH = REPO_ROOT / ".." / "shared" / "data" / "psb-dev"
-HELD_OUT = tuple(20 * category + 4 for category in range(19))
+
+
+def is_held_out(model_id: int) -> bool:
+    """The 4th psb-dev model of each category, never used for tuning (as bench_psb.py)."""
+    return (model_id - 1) % 20 == 3
 
 
 class Variant:
@@ -152,7 +156,9 @@ def score(
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--bench-dir", type=Path, default=DEFAULT_BENCH)
-    parser.add_argument("--models", type=int, nargs="+", default=list(HELD_OUT))
+    parser.add_argument(
+        "--models", type=int, nargs="+", help="model ids (default: the held-out 4th of each)"
+    )
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     parser.add_argument("--json", type=Path, help="write the per-model scores here")
     parser.add_argument("--verbose", action="store_true", help="a line per model and variant")
@@ -161,6 +167,7 @@ def main() -> int:
         print(f"no benchmark folder at {args.bench_dir}", file=sys.stderr)
         return 1
     models = {m.model_id: m for m in list_models(args.bench_dir)}
+    args.models = args.models or [model_id for model_id in models if is_held_out(model_id)]
     missing = sorted(set(args.models) - set(models))
     if missing:
         print(f"models not in {args.bench_dir}: {missing}", file=sys.stderr)

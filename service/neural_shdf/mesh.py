@@ -90,19 +90,22 @@ class TriangleMesh:
     def oriented(self) -> TriangleMesh:
         """The same triangles in the same order, each wound to face out of its solid
         (``orientation``): what the ShDF and the segmentation work on, whatever the file's
-        winding. ``self`` where no triangle is reversed; its own ``oriented`` is itself."""
+        winding. A reversed triangle lists its vertices backwards, (a, b, c) -> (c, b, a),
+        so a file reversed that way gives back the original triangles exactly. ``self``
+        where no triangle is reversed; its own ``oriented`` is itself."""
         flips = self.orientation.flips
         if not flips.any():
             return self
         faces, welded = self.faces.copy(), self.welded_faces.copy()
-        for reversed_, source in ((faces, self.faces), (welded, self.welded_faces)):
-            reversed_[flips, 1], reversed_[flips, 2] = source[flips, 2], source[flips, 1]
+        faces[flips] = self.faces[flips][:, ::-1]
+        welded[flips] = self.welded_faces[flips][:, ::-1]
         oriented = TriangleMesh(self.vertices, faces, self.face_origin, self.input_face_count)
         normals, areas = self.normals_and_areas
-        normals = np.where(flips[:, None], -normals, normals)  # reversed exactly: the same cross
+        normals = normals.copy()
+        normals[flips] = face_normals(self.vertices, faces[flips])[0]
         normals.flags.writeable = False
         welded.flags.writeable = False
-        # Seed the caches: the reversed normals are exact, the welding is the same.
+        # Seed the caches: the areas and the welding do not change with the winding.
         oriented.__dict__.update(normals_and_areas=(normals, areas), welded_faces=welded)
         oriented.__dict__["oriented"] = oriented
         return oriented

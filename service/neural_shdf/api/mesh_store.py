@@ -91,6 +91,7 @@ class MeshStore:
                 "filename": filename,
                 "bounds": [mesh.vertices.min(0).tolist(), mesh.vertices.max(0).tolist()],
                 "surface_area": float(area.sum()),
+                "diagnostics": mesh.orientation.diagnostics.as_dict(),
             }
             # keep_local: readable through a Redis outage (only the client could restore it)
             self.cache.put_arrays(

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from neural_shdf.geometry import build_face_graph, weld_faces
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import load_mesh
 from neural_shdf.orientation import orient_faces
@@ -206,3 +207,18 @@ def test_labels_of_a_reversed_benchmark_mesh_are_the_published_ones(psb_off):
     published = load_mesh(psb_off(4))
     reversed_ = TriangleMesh(published.vertices, published.faces[:, ::-1])
     np.testing.assert_array_equal(_labels(reversed_).labels, _labels(published).labels)
+
+
+def test_the_face_graph_from_the_shared_edges_is_the_one_built_afresh():
+    published = _dumbbell()
+    mixed = np.random.default_rng(4).random(published.face_count) < 0.3
+    variant = TriangleMesh(published.vertices, _reverse(published.faces, mixed))
+    oriented = variant.oriented
+    shared = mesh_face_graph(variant)
+    afresh = build_face_graph(
+        oriented.vertices,
+        weld_faces(oriented.vertices, oriented.faces),
+        oriented.normals_and_areas[0],
+    )
+    for name in ("pairs", "edge_vertices", "edge_length", "dihedral", "concave"):
+        np.testing.assert_array_equal(getattr(shared, name), getattr(afresh, name))

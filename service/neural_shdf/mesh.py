@@ -77,13 +77,25 @@ class TriangleMesh:
         return welded
 
     @cached_property
+    def welded_edges(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """The edges of ``welded_faces`` sorted by vertex pair (``orientation.welded_edges``),
+        computed once per mesh for the orientation pass and the face graph."""
+        from neural_shdf.orientation import welded_edges
+
+        return welded_edges(self.welded_faces)
+
+    @cached_property
     def orientation(self) -> Orientation:
         """Which triangles to reverse so that every shell faces out of its solid, and what
         the pass found in the mesh (``orientation.orient_faces``); computed once per mesh."""
         from neural_shdf.orientation import orient_faces
 
         return orient_faces(
-            self.vertices, self.faces, welded=self.welded_faces, areas=self.normals_and_areas[1]
+            self.vertices,
+            self.faces,
+            welded=self.welded_faces,
+            areas=self.normals_and_areas[1],
+            edges=self.welded_edges,
         )
 
     @cached_property
@@ -93,20 +105,26 @@ class TriangleMesh:
         winding. A reversed triangle lists its vertices backwards, (a, b, c) -> (c, b, a),
         so a file reversed that way gives back the original triangles exactly. ``self``
         where no triangle is reversed; its own ``oriented`` is itself."""
+        from neural_shdf.orientation import reversed_slots
+
         flips = self.orientation.flips
         if not flips.any():
             return self
-        faces, welded = self.faces.copy(), self.welded_faces.copy()
-        faces[flips] = self.faces[flips][:, ::-1]
-        welded[flips] = self.welded_faces[flips][:, ::-1]
+        backwards = flips[:, None]
+        faces = np.where(backwards, self.faces[:, ::-1], self.faces)
+        welded = np.where(backwards, self.welded_faces[:, ::-1], self.welded_faces)
         oriented = TriangleMesh(self.vertices, faces, self.face_origin, self.input_face_count)
         normals, areas = self.normals_and_areas
-        normals = normals.copy()
-        normals[flips] = face_normals(self.vertices, faces[flips])[0]
+        normals = np.where(backwards, face_normals(self.vertices, faces)[0], normals)
         normals.flags.writeable = False
         welded.flags.writeable = False
-        # Seed the caches: the areas and the welding do not change with the winding.
-        oriented.__dict__.update(normals_and_areas=(normals, areas), welded_faces=welded)
+        # Seed the caches: the areas, the welding and the edges do not change with the winding.
+        edge_table, slot = self.welded_edges
+        oriented.__dict__.update(
+            normals_and_areas=(normals, areas),
+            welded_faces=welded,
+            welded_edges=(edge_table, reversed_slots(slot, flips)),
+        )
         oriented.__dict__["oriented"] = oriented
         return oriented
 

@@ -41,6 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
+from neural_shdf.constants import AREA_EPS
 from neural_shdf.geometry import _sorted_edges, face_normals, weld_faces
 
 #: An open patch whose capped signed volume is below this times its area^1.5 is treated
@@ -96,11 +97,13 @@ def orient_faces(
     *,
     welded: NDArray | None = None,
     areas: NDArray | None = None,
+    edges: tuple[NDArray, NDArray] | None = None,
 ) -> Orientation:
     """Per-triangle flips that make every shell consistently wound and facing outward.
 
-    ``welded``: ``weld_faces(vertices, faces)`` where the caller has it; ``areas``: the
-    triangles' areas (``face_normals``). Deterministic; the arrays are not modified.
+    Where the caller has them: ``welded``, ``weld_faces(vertices, faces)``; ``areas``,
+    the triangles' areas (``face_normals``); ``edges``, ``welded_edges(welded)``.
+    Deterministic; the arrays are not modified.
     """
     vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
     faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
@@ -110,57 +113,52 @@ def orient_faces(
     welded = weld_faces(vertices, faces) if welded is None else np.asarray(welded, np.int64)
     if areas is None:
         _, areas = face_normals(vertices, faces)
-    collapsed = (
-        (welded[:, 0] == welded[:, 1])
-        | (welded[:, 1] == welded[:, 2])
-        | (welded[:, 0] == welded[:, 2])
+    areas = np.asarray(areas, dtype=np.float64)
+    edge_table, slot = welded_edges(welded) if edges is None else edges
+    n_vertices = int(welded.max()) + 1
+    (first_copy, patch, relative, volume, is_open, shells, loops, non_manifold) = _orient_patches(
+        welded, edge_table, slot, n_vertices, vertices, vertices.mean(axis=0)
     )
+    active = patch >= 0
+    patch_of = patch[active]
+    patch_area = np.bincount(patch_of, weights=areas[active], minlength=len(volume))
+    # Area per patch that the search's relative winding reverses against the file.
+    flipped_area = np.bincount(patch_of, weights=(areas * relative)[active], minlength=len(volume))
+    ambiguous = (volume == 0) | (is_open & (np.abs(volume) < AMBIGUOUS_VOLUME * patch_area**1.5))
+    # Where the volume cannot decide, the winding of most of the patch's area in the file.
+    patch_flip = np.where(ambiguous, flipped_area > 0.5 * patch_area, volume < 0)
     flips = np.zeros(count, dtype=bool)
-    duplicate = np.zeros(count, dtype=bool)
-    shells = loops = non_manifold = 0
-    kept = np.flatnonzero(~collapsed) if collapsed.any() else None
-    kept_faces = welded if kept is None else np.ascontiguousarray(welded[kept])
-    if len(kept_faces):
-        n_vertices = int(kept_faces.max()) + 1
-        edge_table, _ = _sorted_edges(kept_faces, n_vertices)
-        origin = vertices.mean(axis=0)
-        (first_copy, patch, relative, volume, is_open, shells, loops, non_manifold) = (
-            _orient_patches(kept_faces, edge_table, n_vertices, vertices, origin)
-        )
-        active = patch >= 0
-        kept_areas = np.asarray(areas, dtype=np.float64)
-        kept_areas = kept_areas if kept is None else kept_areas[kept]
-        patch_of = patch[active]
-        patch_area = np.bincount(patch_of, weights=kept_areas[active], minlength=len(volume))
-        # Area per patch that the search's relative winding reverses against the file.
-        flipped_area = np.bincount(
-            patch_of, weights=(kept_areas * relative)[active], minlength=len(volume)
-        )
-        ambiguous = (volume == 0) | (
-            is_open & (np.abs(volume) < AMBIGUOUS_VOLUME * patch_area**1.5)
-        )
-        # Where the volume cannot decide, the winding of most of the patch's area in the file.
-        patch_flip = np.where(ambiguous, flipped_area > 0.5 * patch_area, volume < 0)
-        kept_flips = np.zeros(len(kept_faces), dtype=bool)
-        kept_flips[active] = relative[active].astype(bool) ^ patch_flip[patch_of]
-        # Duplicates face as their first copy does.
-        copies = np.flatnonzero(~active)
-        originals = first_copy[copies]
-        same_turn = _same_cyclic_order(kept_faces[copies], kept_faces[originals])
-        kept_flips[copies] = kept_flips[originals] ^ ~same_turn
-        kept_index = np.arange(count) if kept is None else kept
-        flips[kept_index] = kept_flips
-        duplicate[kept_index[copies]] = True
-    degenerate = collapsed | (np.asarray(areas) <= 0)
+    flips[active] = relative[active].astype(bool) ^ patch_flip[patch_of]
+    # Duplicates face as their first copy does; collapsed faces keep the file's winding.
+    copies = np.flatnonzero(first_copy >= 0)
+    originals = first_copy[copies]
+    same_turn = _same_cyclic_order(welded[copies], welded[originals])
+    flips[copies] = flips[originals] ^ ~same_turn
     diagnostics = MeshDiagnostics(
         shells=int(shells),
         boundary_loops=int(loops),
         non_manifold_edges=int(non_manifold),
         reoriented_faces=int(flips.sum()),
-        degenerate_faces=int(degenerate.sum()),
-        duplicate_faces=int(duplicate.sum()),
+        degenerate_faces=int(np.count_nonzero(2.0 * areas <= AREA_EPS)),
+        duplicate_faces=len(copies),
     )
     return Orientation(flips, diagnostics)
+
+
+def welded_edges(welded: NDArray) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The edges of (welded) triangles sorted by vertex pair, as ``geometry.build_face_graph``
+    takes them (``edges``): (edge table (E, 2) of key and face, slot (3F,) of each corner's
+    edge). One sort shared by the orientation pass and the face graph."""
+    welded = np.ascontiguousarray(welded, dtype=np.int64).reshape(-1, 3)
+    return _sorted_edges(welded, int(welded.max(initial=-1)) + 1)
+
+
+def reversed_slots(slot: NDArray, flips: NDArray) -> NDArray[np.int64]:
+    """``slot`` of ``welded_edges`` for the same triangles with those in ``flips`` listed
+    backwards, (a, b, c) -> (c, b, a): their edges (c, b), (b, a), (a, c) were corners 1, 0, 2.
+    The edge table itself does not depend on the winding."""
+    slots = np.asarray(slot).reshape(-1, 3)
+    return np.where(np.asarray(flips)[:, None], slots[:, [1, 0, 2]], slots).reshape(-1)
 
 
 def _same_cyclic_order(faces: NDArray, others: NDArray) -> NDArray[np.bool_]:
@@ -181,185 +179,211 @@ def _find(parent, node):  # pragma: no cover - numba
 
 
 @kernel(inline=True)
-def _runs_forward(faces, face, lo, hi):  # pragma: no cover - numba
-    """Whether triangle ``face`` traverses its edge (lo, hi) from lo to hi."""
-    for corner in range(3):
-        if faces[face, corner] == lo and faces[face, (corner + 1) % 3] == hi:
-            return True
-    return False
+def _find_parity(parent, parity, node):  # pragma: no cover - numba
+    """(root, parity of ``node`` against it); the path is pointed at the root."""
+    root, total = node, np.int8(0)
+    while parent[root] != root:
+        total ^= parity[root]
+        root = parent[root]
+    remaining = total
+    while parent[node] != root and parent[node] != node:
+        following, step = parent[node], parity[node]
+        parent[node], parity[node] = root, remaining
+        remaining ^= step
+        node = following
+    return root, total
 
 
 @kernel(inline=True)
-def _signed_volume(a, b, c, origin):  # pragma: no cover - numba
-    """Six times the signed volume of the tetrahedron (origin, a, b, c); points as rows."""
-    ax, ay, az = a[0] - origin[0], a[1] - origin[1], a[2] - origin[2]
-    bx, by, bz = b[0] - origin[0], b[1] - origin[1], b[2] - origin[2]
-    cx, cy, cz = c[0] - origin[0], c[1] - origin[1], c[2] - origin[2]
+def _join(parent, parity, a, b, differ):  # pragma: no cover - numba
+    """Put ``a`` and ``b`` in one set with parity(a) ^ parity(b) == ``differ`` (kept as
+    found where they already share one: a non-orientable surface)."""
+    root_a, parity_a = _find_parity(parent, parity, a)
+    root_b, parity_b = _find_parity(parent, parity, b)
+    if root_a != root_b:
+        low, high = min(root_a, root_b), max(root_a, root_b)
+        parent[high] = low
+        parity[high] = parity_a ^ parity_b ^ differ
+
+
+@kernel(inline=True)
+def _union(parent, a, b):  # pragma: no cover - numba
+    """Join the sets of ``a`` and ``b`` under the smaller root; that root."""
+    a, b = _find(parent, a), _find(parent, b)
+    if a != b:
+        parent[max(a, b)] = min(a, b)
+    return min(a, b)
+
+
+@kernel(inline=True)
+def _signed_volume(vertices, a, b, c, origin):  # pragma: no cover - numba
+    """Six times the signed volume of the tetrahedron (origin, a, b, c); a, b, c vertex
+    indices, or -1 for ``origin[3:]`` (a cap's centre)."""
+    ax, ay, az = vertices[a, 0] - origin[0], vertices[a, 1] - origin[1], vertices[a, 2] - origin[2]
+    bx, by, bz = vertices[b, 0] - origin[0], vertices[b, 1] - origin[1], vertices[b, 2] - origin[2]
+    if c < 0:
+        cx, cy, cz = origin[3] - origin[0], origin[4] - origin[1], origin[5] - origin[2]
+    else:
+        cx, cy = vertices[c, 0] - origin[0], vertices[c, 1] - origin[1]
+        cz = vertices[c, 2] - origin[2]
     return ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
 
 
-@kernel(inline=True)
-def _third_vertex(faces, face, lo, hi):  # pragma: no cover - numba
-    """The vertex of triangle ``face`` off its edge (lo, hi)."""
-    for corner in range(3):
-        if faces[face, corner] != lo and faces[face, corner] != hi:
-            return faces[face, corner]
-    return -1
-
-
 @kernel
-def _orient_patches(faces, edge_table, n_vertices, vertices, origin):  # pragma: no cover
+def _orient_patches(faces, edge_table, slot, n_vertices, vertices, centre):  # pragma: no cover
     """Duplicates, patches over manifold edges with a consistent relative winding, per
     patch its capped signed volume and openness; shell, loop and non-manifold counts.
 
-    Returns (first copy (F,) or -1, patch (F,) or -1 for duplicates, relative flip (F,)
-    int8, volume (P,), open (P,), shells, boundary loops, non-manifold edges).
-    ``edge_table`` from ``_sorted_edges``; faces repeat no vertex.
+    Returns (first copy (F,) or -1, patch (F,) or -1 (duplicates and collapsed faces),
+    relative flip (F,) int8, volume (P,), open (P,), shells, boundary loops,
+    non-manifold edges). ``edge_table, slot`` from ``welded_edges``.
     """
     face_count = faces.shape[0]
     edge_count = edge_table.shape[0]
-    group_start = np.empty(edge_count + 1, dtype=np.int64)
-    groups = 0
-    for position in range(edge_count):
-        if position == 0 or edge_table[position, 0] != edge_table[position - 1, 0]:
-            group_start[groups] = position
-            groups += 1
-    group_start[groups] = edge_count
-    # Duplicates: two faces on one edge with the same third vertex (earlier = first copy);
-    # within very crowded edges only against the few faces before.
-    first_copy = np.full(face_count, -1, dtype=np.int64)
-    for group in range(groups):
-        i, j = group_start[group], group_start[group + 1]
-        if j - i < 2:
+    # Per edge entry: whether its face runs it lo -> hi, and the face's vertex off it (one
+    # pass in face order, so the edges need no look-up of their faces). Faces that repeat a
+    # vertex take no part (their edges would pair them with themselves).
+    skip = np.zeros(face_count, dtype=np.bool_)
+    forward = np.zeros(edge_count, dtype=np.bool_)
+    third = np.empty(edge_count, dtype=np.int64)
+    for face in range(face_count):
+        a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
+        if a == b or b == c or a == c:  # noqa: SIM109 - compiled
+            skip[face] = True
             continue
-        key = edge_table[i, 0]
-        lo, hi = key // n_vertices, key % n_vertices
-        for k in range(i + 1, j):
-            later = edge_table[k, 1]
-            third = _third_vertex(faces, later, lo, hi)
-            for m in range(max(i, k - 8), k):
-                earlier = edge_table[m, 1]
-                if _third_vertex(faces, earlier, lo, hi) == third:
-                    original = earlier if first_copy[earlier] < 0 else first_copy[earlier]
-                    if first_copy[later] < 0 or original < first_copy[later]:
-                        first_copy[later] = original
-                    break
-    neighbour = np.full((face_count, 3), -1, dtype=np.int64)
-    same_direction = np.zeros((face_count, 3), dtype=np.bool_)
-    degree = np.zeros(face_count, dtype=np.int64)
+        for corner in range(3):
+            position = slot[3 * face + corner]
+            forward[position] = faces[face, corner] < faces[face, (corner + 1) % 3]
+            third[position] = faces[face, (corner + 2) % 3]
+    # Manifold edges link faces; boundary and non-manifold edges join loops to cap.
+    first_copy = np.full(face_count, -1, dtype=np.int64)
+    # Patches: a union-find over faces whose parity says whether a face is wound against
+    # its root (the patch's lowest face); joined across each manifold edge.
+    parent = np.arange(face_count)
+    parity = np.zeros(face_count, dtype=np.int8)
     vertex_parent = np.arange(n_vertices)
     on_hole = np.zeros(n_vertices, dtype=np.bool_)  # on an edge of one face
-    on_cut = np.zeros(n_vertices, dtype=np.bool_)  # on an edge of one face or of three or more
-    members = np.zeros(groups, dtype=np.int64)  # faces on each edge, duplicates left out
+    cut_start = np.empty(edge_count, dtype=np.int64)  # edges of one face, or of 3 or more
+    cut_end = np.empty(edge_count, dtype=np.int64)
+    cuts = 0
     non_manifold = 0
-    for group in range(groups):
-        i, j = group_start[group], group_start[group + 1]
-        f = g = -1
+    i = 0
+    while i < edge_count:
+        j = i + 1
+        while j < edge_count and edge_table[j, 0] == edge_table[i, 0]:
+            j += 1
+        if j - i > 2:
+            # Duplicates: the same third vertex on one edge (the earlier is the first copy;
+            # every edge of a copy holds its original, so the first edge met finds it).
+            # Within very crowded edges only against the few faces before.
+            for k in range(i + 1, j):
+                later = edge_table[k, 1]
+                if skip[later]:
+                    continue
+                for m in range(max(i, k - 8), k):
+                    earlier = edge_table[m, 1]
+                    if not skip[earlier] and third[m] == third[k]:
+                        first_copy[later] = earlier
+                        skip[later] = True
+                        break
+        members, f, g, f_at, g_at = 0, -1, -1, -1, -1
         for k in range(i, j):
-            if first_copy[edge_table[k, 1]] < 0:
-                members[group] += 1
+            face = edge_table[k, 1]
+            if not skip[face]:
+                members += 1
                 if f < 0:
-                    f = edge_table[k, 1]
+                    f, f_at = face, k
                 elif g < 0:
-                    g = edge_table[k, 1]
-        if members[group] == 0:
-            continue
-        lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
-        if members[group] == 2:
-            same = _runs_forward(faces, f, lo, hi) == _runs_forward(faces, g, lo, hi)
-            neighbour[f, degree[f]], same_direction[f, degree[f]] = g, same
-            neighbour[g, degree[g]], same_direction[g, degree[g]] = f, same
-            degree[f] += 1
-            degree[g] += 1
-            continue
-        # A boundary or a non-manifold cut: part of a loop to cap.
-        if members[group] > 2:
-            non_manifold += 1
-        else:
-            on_hole[lo] = True
-        on_cut[lo] = True
-        on_cut[hi] = True
-        a, b = _find(vertex_parent, lo), _find(vertex_parent, hi)
-        if a != b:
-            vertex_parent[max(a, b)] = min(a, b)
-    # Breadth-first search over manifold edges: patches and relative windings.
+                    g, g_at = face, k
+        if members == 2:
+            if third[f_at] == third[g_at]:
+                # Two faces on the same vertices with no other neighbour: one sheet.
+                first_copy[g] = f
+                skip[g] = True
+            else:
+                # Faces wound alike run their shared edge in opposite directions.
+                _join(parent, parity, f, g, np.int8(forward[f_at] == forward[g_at]))
+        elif members > 0:
+            lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
+            if members > 2:
+                non_manifold += 1
+            else:
+                on_hole[lo] = True
+            cut_start[cuts], cut_end[cuts] = i, j
+            cuts += 1
+            _union(vertex_parent, lo, hi)
+        i = j
+    # Patch numbers by lowest face, relative windings and signed volumes in one pass.
     patch = np.full(face_count, -1, dtype=np.int64)
     relative = np.zeros(face_count, dtype=np.int8)
-    queue = np.empty(face_count, dtype=np.int64)
+    volume = np.zeros(face_count)
+    point = np.zeros(6)
+    point[:3] = centre
     patch_count = 0
-    for seed in range(face_count):
-        if patch[seed] >= 0 or first_copy[seed] >= 0:
+    for face in range(face_count):
+        if skip[face]:
             continue
-        patch[seed] = patch_count
-        head, tail = 0, 1
-        queue[0] = seed
-        while head < tail:
-            face = queue[head]
-            head += 1
-            for k in range(degree[face]):
-                other = neighbour[face, k]
-                if patch[other] < 0:
-                    patch[other] = patch_count
-                    relative[other] = relative[face] ^ np.int8(same_direction[face, k])
-                    queue[tail] = other
-                    tail += 1
-        patch_count += 1
-    # Loop centroids: vertices of boundary and non-manifold edges, grouped by component.
+        root, flipped = _find_parity(parent, parity, face)
+        if root == face:
+            patch[face] = patch_count
+            patch_count += 1
+        else:
+            patch[face] = patch[root]
+        relative[face] = flipped
+        a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
+        if flipped:
+            b, c = c, b
+        volume[patch[face]] += _signed_volume(vertices, a, b, c, point)
+    volume = volume[:patch_count]
+    # Loop centres: the vertices of each component of open edges.
     loop_sum = np.zeros((n_vertices, 3))
     loop_size = np.zeros(n_vertices, dtype=np.int64)
     counted = np.zeros(n_vertices, dtype=np.bool_)
+    seen = np.zeros(n_vertices, dtype=np.bool_)
     loops = 0
-    for vertex in range(n_vertices):
-        if on_cut[vertex]:
+    for cut in range(cuts):
+        key = edge_table[cut_start[cut], 0]
+        for vertex in (key // n_vertices, key % n_vertices):
             root = _find(vertex_parent, vertex)
-            loop_size[root] += 1
-            loop_sum[root, 0] += vertices[vertex, 0]
-            loop_sum[root, 1] += vertices[vertex, 1]
-            loop_sum[root, 2] += vertices[vertex, 2]
+            if not seen[vertex]:
+                seen[vertex] = True
+                loop_size[root] += 1
+                loop_sum[root] += vertices[vertex]
             if on_hole[vertex] and not counted[root]:
                 counted[root] = True
                 loops += 1
-    # Signed volume per patch, then the caps of its open edges; shells over all edges.
-    volume = np.zeros(patch_count)
     is_open = np.zeros(patch_count, dtype=np.bool_)
-    for face in range(face_count):
-        if patch[face] < 0:
-            continue
-        a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
-        if relative[face]:
-            b, c = c, b
-        volume[patch[face]] += _signed_volume(vertices[a], vertices[b], vertices[c], origin)
     patch_parent = np.arange(patch_count)
-    centre = np.empty(3)
-    for group in range(groups):
-        if members[group] == 2 or members[group] == 0:
-            continue
-        i, j = group_start[group], group_start[group + 1]
+    for cut in range(cuts):
+        i, j = cut_start[cut], cut_end[cut]
         lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
         root = _find(vertex_parent, lo)
-        centre[:] = loop_sum[root] / loop_size[root]
+        point[3:] = loop_sum[root] / loop_size[root]
         first = -1
         for k in range(i, j):
             face = edge_table[k, 1]
-            if first_copy[face] >= 0:
+            if skip[face]:
                 continue
-            forward = _runs_forward(faces, face, lo, hi) != (relative[face] == 1)
+            runs_forward = forward[k] != (relative[face] == 1)
             # The cap runs the edge the other way round: (hi, lo, centre) after lo -> hi.
-            if forward:
-                cap = _signed_volume(vertices[hi], vertices[lo], centre, origin)
+            if runs_forward:
+                volume[patch[face]] += _signed_volume(vertices, hi, lo, -1, point)
             else:
-                cap = _signed_volume(vertices[lo], vertices[hi], centre, origin)
-            volume[patch[face]] += cap
+                volume[patch[face]] += _signed_volume(vertices, lo, hi, -1, point)
             is_open[patch[face]] = True
-            if first < 0:
-                first = _find(patch_parent, patch[face])
-            else:
-                other = _find(patch_parent, patch[face])
-                if other != first:
-                    patch_parent[max(first, other)] = min(first, other)
-                    first = min(first, other)
+            # Shells: patches joined through non-manifold edges.
+            first = patch[face] if first < 0 else _union(patch_parent, first, patch[face])
     shells = 0
     for p in range(patch_count):
         if _find(patch_parent, p) == p:
             shells += 1
-    return first_copy, patch, relative, volume / 6.0, is_open, shells, loops, non_manifold
+    return (
+        first_copy,
+        patch,
+        relative,
+        volume / 6.0,
+        is_open,
+        shells,
+        loops,
+        non_manifold,
+    )

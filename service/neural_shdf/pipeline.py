@@ -37,7 +37,9 @@ def mesh_face_graph(mesh: TriangleMesh) -> FaceGraph:
     dihedral angles and concave flags follow the oriented normals (``mesh.oriented``)."""
     oriented = mesh.oriented
     normals, _ = oriented.normals_and_areas
-    return build_face_graph(oriented.vertices, oriented.welded_faces, normals)
+    return build_face_graph(
+        oriented.vertices, oriented.welded_faces, normals, edges=oriented.welded_edges
+    )
 
 
 def compute_shdf(

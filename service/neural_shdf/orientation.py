@@ -387,3 +387,60 @@ def _orient_patches(faces, edge_table, slot, n_vertices, vertices, centre):  # p
         loops,
         non_manifold,
     )
+
+
+def hole_caps(
+    vertices: NDArray, faces: NDArray, edges: tuple[NDArray, NDArray]
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Triangles that close every open boundary loop of ``faces`` for ray casting only.
+
+    ``faces``: (welded) triangles that already face outward; ``edges``: their
+    ``welded_edges``. Each boundary edge (on one triangle) gets the triangle from its ends
+    to the centroid of its loop, wound as its triangle's neighbour across the edge would
+    be: a ray that leaves through a hole then meets the cap there, as it would have met
+    the missing surface, instead of whatever lies beyond. Returns the vertices with one
+    centroid per loop appended, and the cap triangles (indices into those vertices).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    edge_table, _ = edges
+    keys = edge_table[:, 0]
+    alone = np.ones(len(keys), dtype=bool)  # the only entry of its vertex pair
+    if len(keys) > 1:
+        repeated = keys[1:] == keys[:-1]
+        alone[1:] &= ~repeated
+        alone[:-1] &= ~repeated
+    boundary = np.flatnonzero(alone)
+    if len(boundary) == 0:
+        return vertices, np.zeros((0, 3), dtype=np.int64)
+    n_vertices = int(faces.max()) + 1
+    lo, hi = keys[boundary] // n_vertices, keys[boundary] % n_vertices
+    owner = faces[edge_table[boundary, 1]]
+    runs_forward = np.zeros(len(boundary), dtype=bool)
+    for corner in range(3):
+        runs_forward |= (owner[:, corner] == lo) & (owner[:, (corner + 1) % 3] == hi)
+    start, end = np.where(runs_forward, hi, lo), np.where(runs_forward, lo, hi)
+    # Loops: components of the boundary edges over their vertices.
+    used, local = np.unique(np.concatenate([start, end]), return_inverse=True)
+    graph = coo_matrix(
+        (np.ones(len(boundary)), (local[: len(boundary)], local[len(boundary) :])),
+        shape=(len(used), len(used)),
+    )
+    count, loop_of = connected_components(graph, directed=False)
+    size = np.bincount(loop_of, minlength=count)
+    centres = (
+        np.stack(
+            [
+                np.bincount(loop_of, weights=vertices[used, axis], minlength=count)
+                for axis in range(3)
+            ],
+            axis=1,
+        )
+        / size[:, None]
+    )
+    loop = loop_of[local[: len(boundary)]]
+    caps = np.stack([start, end, len(vertices) + loop], axis=1)
+    return np.vstack([vertices, centres]), caps

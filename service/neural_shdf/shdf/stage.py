@@ -228,8 +228,25 @@ def thin_part_samples(diameters_in_radii: NDArray, params: ShdfParams) -> int:
     return int(min(params.max_samples, round(params.samples * factor)))
 
 
+def ray_targets(mesh: TriangleMesh, close_holes: bool) -> tuple[NDArray, NDArray]:
+    """(vertices, triangles) the ShDF's rays are cast into: the mesh's triangles in order,
+    then with ``close_holes`` a cap over each open boundary loop (``orientation.hole_caps``;
+    ``mesh`` already faces outward), so that a ray leaving through a hole stops where the
+    missing surface was instead of reading whatever lies beyond as material."""
+    if not close_holes:
+        return mesh.vertices, mesh.faces
+    from neural_shdf.orientation import hole_caps
+
+    vertices, caps = hole_caps(mesh.vertices, mesh.welded_faces, mesh.welded_edges)
+    return vertices, np.vstack([mesh.faces, caps])
+
+
 def sampled_raw_shdf(
-    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams, workers: int | None = None
+    mesh: TriangleMesh,
+    graph: FaceGraph,
+    params: ShdfParams,
+    workers: int | None = None,
+    close_holes: bool = False,
 ) -> NDArray[np.float64]:
     """Per-face raw diameters from the exact cone cast at ``params.samples`` Poisson
     samples (again at more of them where those show thin parts: ``thin_part_samples``),
@@ -253,7 +270,7 @@ def sampled_raw_shdf(
     workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
     normals, areas = mesh.normals_and_areas
     with ThreadPoolExecutor(max_workers=2) as pool:
-        scene = pool.submit(Scene, mesh.vertices, mesh.faces, "low")
+        scene = pool.submit(Scene, *ray_targets(mesh, close_holes), "low")
         normal_sums = vertex_normal_sums(len(mesh.vertices), mesh.faces, normals, areas)
 
         def cast(count: int) -> tuple:
@@ -307,9 +324,15 @@ def raw_diameters(
     params: ShdfParams,
     model: object | None = None,
     progress: Progress | None = None,
+    close_holes: bool = False,
 ) -> NDArray[np.float64]:
-    """Raw diameter per triangle (mesh units, NaN = unknown) from one producer."""
+    """Raw diameter per triangle (mesh units, NaN = unknown) from one producer.
+
+    ``mesh`` faces outward (``TriangleMesh.oriented``); ``close_holes``: its open boundary
+    loops are capped for the rays of ``exact`` and ``sampled`` (``ray_targets``).
+    """
     if method == "exact":
+        from neural_shdf.shdf.embree import Scene
         from neural_shdf.shdf.exact import raw_shdf
 
         normals, _ = mesh.normals_and_areas
@@ -320,9 +343,10 @@ def raw_diameters(
             ray_count=params.ray_count,
             normals=normals,
             progress=progress,
+            scene=Scene(*ray_targets(mesh, True)) if close_holes else None,
         )
     if method == "sampled":
-        return sampled_raw_shdf(mesh, graph, params)
+        return sampled_raw_shdf(mesh, graph, params, close_holes=close_holes)
     if method == "neural":
         from neural_shdf.shdf.neural.inference import neural_raw_shdf
 
@@ -388,6 +412,7 @@ def run_shdf(
         params,
         model,
         None if progress is None else (lambda done: progress(ray_share * done)),
+        close_holes=diagnostics.boundary_loops > 0,
     )
     values = postprocess_shdf(
         raw,

@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from neural_shdf.geometry import build_face_graph, weld_faces
+from neural_shdf.geometry import build_face_graph, face_centroids, weld_faces
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import load_mesh
-from neural_shdf.orientation import orient_faces
+from neural_shdf.orientation import hole_caps, orient_faces
 from neural_shdf.pipeline import compute_shdf_result, mesh_face_graph, segment_mesh_with_details
+from neural_shdf.shdf.stage import ShdfParams, raw_diameters
 
 
 def _sphere(subdivisions: int = 3, radius: float = 1.0, centre=(0.0, 0.0, 0.0)):
@@ -222,3 +223,35 @@ def test_the_face_graph_from_the_shared_edges_is_the_one_built_afresh():
     )
     for name in ("pairs", "edge_vertices", "edge_length", "dihedral", "concave"):
         np.testing.assert_array_equal(getattr(shared, name), getattr(afresh, name))
+
+
+def test_caps_close_each_hole_facing_outward():
+    vertices, faces = _sphere(3)
+    centres = vertices[faces].mean(axis=1)
+    kept = faces[(centres[:, 2] > -0.9) & (np.abs(centres[:, 0]) < 0.9)]  # three holes
+    mesh = TriangleMesh(vertices, kept[:, ::-1]).oriented
+    capped_vertices, caps = hole_caps(mesh.vertices, mesh.welded_faces, mesh.welded_edges)
+    assert len(capped_vertices) == len(vertices) + 3
+    closed = orient_faces(capped_vertices, np.vstack([mesh.faces, caps]))
+    assert closed.diagnostics.boundary_loops == 0
+    assert not closed.flips.any()  # the caps are wound as the surface around them
+
+
+def test_rays_through_a_hole_stop_where_the_surface_was():
+    """A ball of the dumbbell with a hole: the faces across the ball from the hole keep
+    the diameters of the closed mesh."""
+    published = _dumbbell()
+    graph = mesh_face_graph(published)
+    params = ShdfParams()
+    closed = raw_diameters(published, graph, "exact", params)
+    centres = face_centroids(published.vertices, published.faces)
+    hole = np.linalg.norm(centres - [-2.5, 0.0, 1.0], axis=1) < 0.35  # top of the left ball
+    kept = np.flatnonzero(~hole)
+    holed = TriangleMesh(published.vertices, published.faces[kept])
+    assert holed.orientation.diagnostics.boundary_loops == 1
+    across = np.linalg.norm(centres[kept] - [-2.5, 0.0, -1.0], axis=1) < 0.4
+    capped = raw_diameters(holed, mesh_face_graph(holed), "exact", params, close_holes=True)
+    np.testing.assert_allclose(capped[across], closed[kept][across], rtol=0.05)
+    # Without the caps, rays leave through the hole: those faces read other diameters.
+    open_ = raw_diameters(holed, mesh_face_graph(holed), "exact", params)
+    assert np.nanmax(np.abs(open_[across] / closed[kept][across] - 1)) > 0.05

@@ -114,8 +114,8 @@ class TriangleMesh:
         faces = np.where(backwards, self.faces[:, ::-1], self.faces)
         welded = np.where(backwards, self.welded_faces[:, ::-1], self.welded_faces)
         oriented = TriangleMesh(self.vertices, faces, self.face_origin, self.input_face_count)
-        normals, areas = self.normals_and_areas
-        normals = np.where(backwards, face_normals(self.vertices, faces)[0], normals)
+        _, areas = self.normals_and_areas
+        normals, _ = face_normals(self.vertices, faces)  # unchanged rows: the same values
         normals.flags.writeable = False
         welded.flags.writeable = False
         # Seed the caches: the areas, the welding and the edges do not change with the winding.

@@ -216,6 +216,15 @@ def _union(parent, a, b):  # pragma: no cover - numba
 
 
 @kernel(inline=True)
+def _third_vertex(faces, face, lo, hi):  # pragma: no cover - numba
+    """The vertex of triangle ``face`` off its edge (lo, hi)."""
+    for corner in range(3):
+        if faces[face, corner] != lo and faces[face, corner] != hi:
+            return faces[face, corner]
+    return -1
+
+
+@kernel(inline=True)
 def _signed_volume(vertices, a, b, c, origin):  # pragma: no cover - numba
     """Six times the signed volume of the tetrahedron (origin, a, b, c); a, b, c vertex
     indices, or -1 for ``origin[3:]`` (a cap's centre)."""
@@ -240,21 +249,19 @@ def _orient_patches(faces, edge_table, slot, n_vertices, vertices, centre):  # p
     """
     face_count = faces.shape[0]
     edge_count = edge_table.shape[0]
-    # Per edge entry: whether its face runs it lo -> hi, and the face's vertex off it (one
-    # pass in face order, so the edges need no look-up of their faces). Faces that repeat a
-    # vertex take no part (their edges would pair them with themselves).
+    # Per edge entry: whether its face runs it lo -> hi (one pass in face order, so the
+    # edges need no look-up of their faces). Faces that repeat a vertex take no part
+    # (their edges would pair them with themselves).
     skip = np.zeros(face_count, dtype=np.bool_)
     forward = np.zeros(edge_count, dtype=np.bool_)
-    third = np.empty(edge_count, dtype=np.int64)
     for face in range(face_count):
         a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
         if a == b or b == c or a == c:  # noqa: SIM109 - compiled
             skip[face] = True
             continue
-        for corner in range(3):
-            position = slot[3 * face + corner]
-            forward[position] = faces[face, corner] < faces[face, (corner + 1) % 3]
-            third[position] = faces[face, (corner + 2) % 3]
+        forward[slot[3 * face]] = a < b
+        forward[slot[3 * face + 1]] = b < c
+        forward[slot[3 * face + 2]] = c < a
     # Manifold edges link faces; boundary and non-manifold edges join loops to cap.
     first_copy = np.full(face_count, -1, dtype=np.int64)
     # Patches: a union-find over faces whose parity says whether a face is wound against
@@ -273,6 +280,7 @@ def _orient_patches(faces, edge_table, slot, n_vertices, vertices, centre):  # p
         while j < edge_count and edge_table[j, 0] == edge_table[i, 0]:
             j += 1
         if j - i > 2:
+            lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
             # Duplicates: the same third vertex on one edge (the earlier is the first copy;
             # every edge of a copy holds its original, so the first edge met finds it).
             # Within very crowded edges only against the few faces before.
@@ -280,9 +288,10 @@ def _orient_patches(faces, edge_table, slot, n_vertices, vertices, centre):  # p
                 later = edge_table[k, 1]
                 if skip[later]:
                     continue
+                third = _third_vertex(faces, later, lo, hi)
                 for m in range(max(i, k - 8), k):
                     earlier = edge_table[m, 1]
-                    if not skip[earlier] and third[m] == third[k]:
+                    if not skip[earlier] and _third_vertex(faces, earlier, lo, hi) == third:
                         first_copy[later] = earlier
                         skip[later] = True
                         break
@@ -296,13 +305,8 @@ def _orient_patches(faces, edge_table, slot, n_vertices, vertices, centre):  # p
                 elif g < 0:
                     g, g_at = face, k
         if members == 2:
-            if third[f_at] == third[g_at]:
-                # Two faces on the same vertices with no other neighbour: one sheet.
-                first_copy[g] = f
-                skip[g] = True
-            else:
-                # Faces wound alike run their shared edge in opposite directions.
-                _join(parent, parity, f, g, np.int8(forward[f_at] == forward[g_at]))
+            # Faces wound alike run their shared edge in opposite directions.
+            _join(parent, parity, f, g, np.int8(forward[f_at] == forward[g_at]))
         elif members > 0:
             lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
             if members > 2:

@@ -255,3 +255,12 @@ def test_rays_through_a_hole_stop_where_the_surface_was():
     # Without the caps, rays leave through the hole: those faces read other diameters.
     open_ = raw_diameters(holed, mesh_face_graph(holed), "exact", params)
     assert np.nanmax(np.abs(open_[across] / closed[kept][across] - 1)) > 0.05
+
+
+def test_a_mostly_open_surface_gets_no_caps():
+    vertices, faces = _sphere(2)
+    apart = vertices[faces].reshape(-1, 3) + np.repeat(np.arange(len(faces)), 3)[:, None] * 1e-3
+    soup = TriangleMesh(apart, np.arange(len(apart)).reshape(-1, 3))
+    assert soup.orientation.diagnostics.boundary_loops == len(faces)
+    capped_vertices, caps = hole_caps(soup.vertices, soup.welded_faces, soup.welded_edges)
+    assert len(caps) == 0 and len(capped_vertices) == len(apart)

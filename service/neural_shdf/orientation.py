@@ -44,6 +44,10 @@ from neural_shdf.compiled import kernel
 from neural_shdf.constants import AREA_EPS
 from neural_shdf.geometry import _sorted_edges, face_normals, weld_faces
 
+#: ``hole_caps`` closes nothing where boundary edges outnumber this share of the triangles:
+#: such a surface is mostly open (a soup of separate sheets), and caps would not stand for
+#: missing surface but add triangles in proportion to the mesh.
+MAX_BOUNDARY_SHARE = 0.25
 #: An open patch whose capped signed volume is below this times its area^1.5 is treated
 #: as a sheet with no inside (a sphere has 0.094, a tube 1000 radii long about 0.006).
 AMBIGUOUS_VOLUME = 1e-3
@@ -403,7 +407,8 @@ def hole_caps(
     to the centroid of its loop, wound as its triangle's neighbour across the edge would
     be: a ray that leaves through a hole then meets the cap there, as it would have met
     the missing surface, instead of whatever lies beyond. Returns the vertices with one
-    centroid per loop appended, and the cap triangles (indices into those vertices).
+    centroid per loop appended, and the cap triangles (indices into those vertices); none
+    where boundary edges outnumber ``MAX_BOUNDARY_SHARE`` of the triangles.
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -418,7 +423,7 @@ def hole_caps(
         alone[1:] &= ~repeated
         alone[:-1] &= ~repeated
     boundary = np.flatnonzero(alone)
-    if len(boundary) == 0:
+    if len(boundary) == 0 or len(boundary) > MAX_BOUNDARY_SHARE * len(faces):
         return vertices, np.zeros((0, 3), dtype=np.int64)
     n_vertices = int(faces.max()) + 1
     lo, hi = keys[boundary] // n_vertices, keys[boundary] % n_vertices

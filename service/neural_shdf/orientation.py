@@ -9,12 +9,13 @@ reverse it so that every shell faces out of its solid, plus what the pass found
 How, in one compiled pass over the welded edges (coincident vertices merged, so a
 triangle soup is connected):
 
-* Duplicate faces (the same three vertices, either winding) and faces that repeat a
-  vertex are left out of the edge graph: duplicates take the facing of their first
-  copy (a double-sided card becomes one sheet), collapsed faces keep the file's.
+* Duplicate faces (the same three vertices, either winding, found on edges of three
+  faces or more) and faces that repeat a vertex are left out of the edge graph:
+  duplicates take the facing of their first copy (a double-sided card becomes one
+  sheet), collapsed faces keep the file's.
 * *Patches*: faces connected across manifold edges (two faces on the edge) get one
-  consistent winding by breadth-first search (neighbours traverse the shared edge in
-  opposite directions). A non-manifold edge (three faces or more) cuts patches
+  consistent winding from a union-find with parity (neighbours traverse the shared
+  edge in opposite directions). A non-manifold edge (three faces or more) cuts patches
   apart: which pairs of its faces belong together is not known, and a vote over them
   can be forced to contradict itself (a fin on a box), so each side is decided on its
   own geometry instead.
@@ -31,6 +32,9 @@ eyes inside a head face out of the eyes. The inner wall of a hollow solid's cavi
 is a shell of its own too and is also turned to face out of the region it encloses
 (into the cavity), which is not what a solid modeller writes for a cavity; the
 geometry alone cannot tell an eye from a cavity.
+
+``hole_caps`` closes the open boundary loops of an oriented mesh with the same fans,
+for the ShDF's rays only (``shdf.stage.ray_targets``).
 """
 
 from __future__ import annotations

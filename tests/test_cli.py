@@ -339,4 +339,22 @@ def test_redirected_stderr_gets_only_the_summary(dumbbell_obj: Path, tmp_path: P
     out = tmp_path / "labels.seg"
     assert main(["segment", str(dumbbell_obj), "-o", str(out), "--method", "exact"]) == 0
     err = capsys.readouterr().err
-    assert "\r" not in err and err.count("\n") == 1 and "parts" in err
+    # The summary, then what the mesh had.
+    assert "\r" not in err and err.count("\n") == 2 and "parts" in err
+    assert err.splitlines()[1].startswith("mesh: 3 shells")
+
+
+@pytest.mark.parametrize("command", ["segment", "shdf"])
+def test_the_mesh_diagnostics_line_says_what_was_reoriented(tmp_path: Path, capsys, command):
+    inside_out = _dumbbell()
+    inside_out.faces = inside_out.faces[:, ::-1]
+    path = tmp_path / "inside_out.obj"
+    inside_out.export(path)
+    out = tmp_path / "values.txt"
+    assert main([command, str(path), "-o", str(out), "--method", "exact"]) == 0
+    line = capsys.readouterr().err.splitlines()[-1]
+    count = len(inside_out.faces)
+    assert line == (
+        f"mesh: 3 shells, 0 open boundary loops, 0 non-manifold edges, {count} faces "
+        "re-oriented, 0 degenerate, 0 duplicate"
+    )

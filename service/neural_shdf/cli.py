@@ -99,6 +99,7 @@ def cmd_shdf(args: argparse.Namespace) -> int:
     write_values(args.output, input_face_shdf(mesh, values))
     if not args.quiet:
         print(f"{mesh.input_face_count} faces, {note}", file=sys.stderr)
+        print(mesh.orientation.diagnostics.summary(), file=sys.stderr)
     return 0
 
 
@@ -133,6 +134,7 @@ def cmd_segment(args: argparse.Namespace) -> int:
         elapsed = time.perf_counter() - start
         print(f"{parts} parts, {mesh.input_face_count} faces, {note}, segmented in "
               f"{elapsed:.2f} s", file=sys.stderr)
+        print(mesh.orientation.diagnostics.summary(), file=sys.stderr)
     return 0
 
 

@@ -136,7 +136,11 @@ class FaceGraph:
 
 
 def build_face_graph(
-    vertices: NDArray, faces: NDArray, normals: NDArray | None = None
+    vertices: NDArray,
+    faces: NDArray,
+    normals: NDArray | None = None,
+    *,
+    edges: tuple[NDArray, NDArray] | None = None,
 ) -> FaceGraph:
     """Face adjacency over shared edges.
 
@@ -147,7 +151,8 @@ def build_face_graph(
     thousands of faces share one edge (a shape repeated in place).
     Edges are found by vertex index, so callers that want welding must weld first.
     Two faces that share several edges are linked once, through the edge shared by
-    the fewest faces (ties: the lowest vertex pair).
+    the fewest faces (ties: the lowest vertex pair). ``edges``: ``_sorted_edges`` of
+    ``faces`` where the caller has them (``orientation.welded_edges``).
     """
     vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
     faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
@@ -160,7 +165,7 @@ def build_face_graph(
     _check_indices(faces, len(vertices))
     normals = np.ascontiguousarray(normals, dtype=np.float64).reshape(n_faces, 3)
     n_vertices = int(faces.max()) + 1
-    edge_table, slot = _sorted_edges(faces, n_vertices)
+    edge_table, slot = _sorted_edges(faces, n_vertices) if edges is None else edges
     pairs, edge_vertices = _adjacent_pairs(faces, edge_table, slot, n_vertices, EDGE_CLIQUE)
     edge_length, dihedral, concave = _pair_geometry(vertices, faces, normals, pairs, edge_vertices)
     return FaceGraph(pairs, edge_vertices, edge_length, dihedral, concave, n_faces)

@@ -5,11 +5,15 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf.geometry import face_normals
+from neural_shdf.geometry import face_normals, weld_faces
+
+if TYPE_CHECKING:
+    from neural_shdf.orientation import Orientation
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,6 +67,66 @@ class TriangleMesh:
         normals.flags.writeable = False
         areas.flags.writeable = False
         return normals, areas
+
+    @cached_property
+    def welded_faces(self) -> NDArray[np.int64]:
+        """``faces`` with coincident vertices sharing one index (``geometry.weld_faces``),
+        computed once per mesh: the adjacency every graph of the mesh uses."""
+        welded = weld_faces(self.vertices, self.faces)
+        welded.flags.writeable = False
+        return welded
+
+    @cached_property
+    def welded_edges(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """The edges of ``welded_faces`` sorted by vertex pair (``orientation.welded_edges``),
+        computed once per mesh for the orientation pass and the face graph."""
+        from neural_shdf.orientation import welded_edges
+
+        return welded_edges(self.welded_faces)
+
+    @cached_property
+    def orientation(self) -> Orientation:
+        """Which triangles to reverse so that every shell faces out of its solid, and what
+        the pass found in the mesh (``orientation.orient_faces``); computed once per mesh."""
+        from neural_shdf.orientation import orient_faces
+
+        return orient_faces(
+            self.vertices,
+            self.faces,
+            welded=self.welded_faces,
+            areas=self.normals_and_areas[1],
+            edges=self.welded_edges,
+        )
+
+    @cached_property
+    def oriented(self) -> TriangleMesh:
+        """The same triangles in the same order, each wound to face out of its solid
+        (``orientation``): what the ShDF and the segmentation work on, whatever the file's
+        winding. A reversed triangle lists its vertices backwards, (a, b, c) -> (c, b, a),
+        so a file reversed that way gives back the original triangles exactly. ``self``
+        where no triangle is reversed; its own ``oriented`` is itself."""
+        from neural_shdf.orientation import reversed_slots
+
+        flips = self.orientation.flips
+        if not flips.any():
+            return self
+        backwards = flips[:, None]
+        faces = np.where(backwards, self.faces[:, ::-1], self.faces)
+        welded = np.where(backwards, self.welded_faces[:, ::-1], self.welded_faces)
+        oriented = TriangleMesh(self.vertices, faces, self.face_origin, self.input_face_count)
+        _, areas = self.normals_and_areas
+        normals, _ = face_normals(self.vertices, faces)  # unchanged rows: the same values
+        normals.flags.writeable = False
+        welded.flags.writeable = False
+        # Seed the caches: the areas, the welding and the edges do not change with the winding.
+        edge_table, slot = self.welded_edges
+        oriented.__dict__.update(
+            normals_and_areas=(normals, areas),
+            welded_faces=welded,
+            welded_edges=(edge_table, reversed_slots(slot, flips)),
+        )
+        oriented.__dict__["oriented"] = oriented
+        return oriented
 
     def content_hash(self) -> str:
         """SHA-256 of the canonical geometry: vertices, triangles and face origins."""

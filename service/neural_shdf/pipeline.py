@@ -2,6 +2,11 @@
 
 Every array here is per triangle of ``mesh`` (``TriangleMesh.faces``); map to the
 input file's faces with ``mesh.to_input_faces`` / ``mesh.labels_to_input_faces``.
+Every step works on ``mesh.oriented`` (each shell facing out of its solid, whatever
+the file's winding; ``orientation``), whose triangles are ``mesh``'s in the same
+order; ``mesh`` itself is never changed. ``mesh.orientation.diagnostics`` says what
+the mesh had (shells, holes, non-manifold edges, reversed, degenerate and duplicate
+faces); the ShDF and segmentation results carry it too.
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf.geometry import FaceGraph, build_face_graph, weld_faces
+from neural_shdf.geometry import FaceGraph, build_face_graph
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
 from neural_shdf.shdf.stage import ShdfMethod, ShdfParams, ShdfResult, run_shdf, with_seed
@@ -28,9 +33,13 @@ Progress = Callable[[float], None]
 
 
 def mesh_face_graph(mesh: TriangleMesh) -> FaceGraph:
-    """Face adjacency of the mesh with coincident vertices welded (input order kept)."""
-    normals, _ = mesh.normals_and_areas
-    return build_face_graph(mesh.vertices, weld_faces(mesh.vertices, mesh.faces), normals)
+    """Face adjacency of the mesh with coincident vertices welded (input order kept); its
+    dihedral angles and concave flags follow the oriented normals (``mesh.oriented``)."""
+    oriented = mesh.oriented
+    normals, _ = oriented.normals_and_areas
+    return build_face_graph(
+        oriented.vertices, oriented.welded_faces, normals, edges=oriented.welded_edges
+    )
 
 
 def compute_shdf(
@@ -107,7 +116,9 @@ def segment_mesh_with_details(
     from neural_shdf.segment.pipeline import segment_with_details
 
     arguments, areas = _segment_arguments(mesh, shdf, params, graph)
-    return segment_with_details(*arguments, areas=areas, basis=basis)
+    result = segment_with_details(*arguments, areas=areas, basis=basis)
+    result.diagnostics = mesh.orientation.diagnostics
+    return result
 
 
 def prepare_segment_mesh(
@@ -134,6 +145,7 @@ def _segment_arguments(
     """(vertices, faces, ShDF, params, graph) for ``segment.pipeline``, and the face areas
     the mesh caches; the default params and the welded face graph where none are given."""
     graph = mesh_face_graph(mesh) if graph is None else graph
+    mesh = mesh.oriented
     _, areas = mesh.normals_and_areas
     return (mesh.vertices, mesh.faces, np.asarray(shdf), params or SegmentParams(), graph), areas
 

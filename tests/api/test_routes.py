@@ -10,7 +10,7 @@ import trimesh
 
 from neural_shdf.mesh_io import load_mesh
 from neural_shdf.pipeline import compute_shdf
-from tests.api.api_helpers import TEST_METHOD, capsule, metric, wait_job
+from tests.api.api_helpers import TEST_METHOD, capsule, metric, off_bytes, wait_job
 
 
 def upload(client, data: bytes, name: str = "mesh.obj", **form):
@@ -326,3 +326,26 @@ def test_graphcut_returns_its_part_tree_for_cuts_without_a_request(client, capsu
         "/v1/segment", json={"mesh_id": mesh_id, "partitioner": "metis", "parts": 2}
     ).json()
     assert metis["hierarchy"] is None
+
+
+def test_an_inside_out_upload_says_so_and_gets_the_published_shdf(client):
+    published = capsule()
+    faces = np.asarray(published.faces)
+    reference = upload(client, off_bytes(published.vertices, faces), "capsule.off").json()
+    response = upload(client, off_bytes(published.vertices, faces[:, ::-1]), "inside_out.off")
+    assert response.status_code == 200, response.text
+    diagnostics = response.json()["mesh"]["diagnostics"]
+    assert diagnostics == {
+        "shells": 1,
+        "boundary_loops": 0,
+        "non_manifold_edges": 0,
+        "reoriented_faces": len(faces),
+        "degenerate_faces": 0,
+        "duplicate_faces": 0,
+    }
+    mesh_id = response.json()["mesh"]["mesh_id"]
+    assert client.get(f"/v1/meshes/{mesh_id}").json()["diagnostics"] == diagnostics
+    assert reference["mesh"]["diagnostics"]["reoriented_faces"] == 0
+    values = client.get(f"/v1/meshes/{mesh_id}/shdf").json()["values"]
+    expected = client.get(f"/v1/meshes/{reference['mesh']['mesh_id']}/shdf").json()["values"]
+    np.testing.assert_allclose(values, expected, atol=1e-9)

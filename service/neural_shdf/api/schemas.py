@@ -94,6 +94,26 @@ class Readiness(BaseModel):
     )
 
 
+class MeshDiagnosticsInfo(BaseModel):
+    """What the mesh had and what was done about it before the ShDF and segmentation
+    (the file itself is kept as uploaded)."""
+
+    shells: int = Field(description="Connected pieces (faces linked by edges).", examples=[1])
+    boundary_loops: int = Field(
+        description="Open boundary loops (holes, missing bases, sheet rims).", examples=[0]
+    )
+    non_manifold_edges: int = Field(description="Edges shared by 3+ faces.", examples=[0])
+    reoriented_faces: int = Field(
+        description="Triangles whose winding the ShDF and segmentation use reversed, so that "
+        "every shell faces out of its solid.",
+        examples=[0],
+    )
+    degenerate_faces: int = Field(description="Triangles of zero area.", examples=[0])
+    duplicate_faces: int = Field(
+        description="Triangles on the same three vertices as an earlier one.", examples=[0]
+    )
+
+
 class MeshInfo(BaseModel):
     """A stored mesh: its id (content hash of the canonical geometry) and its size.
 
@@ -113,6 +133,14 @@ class MeshInfo(BaseModel):
                     "filename": "cube.obj",
                     "bounds": [[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]],
                     "surface_area": 6.0,
+                    "diagnostics": {
+                        "shells": 1,
+                        "boundary_loops": 0,
+                        "non_manifold_edges": 0,
+                        "reoriented_faces": 0,
+                        "degenerate_faces": 0,
+                        "duplicate_faces": 0,
+                    },
                 }
             ]
         }
@@ -147,6 +175,9 @@ class MeshInfo(BaseModel):
         examples=[[[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]],
     )
     surface_area: float = Field(description="Total triangle area.", examples=[6.0])
+    diagnostics: MeshDiagnosticsInfo | None = Field(
+        None, description="What the mesh had (shells, holes, winding, degenerate faces)."
+    )
 
 
 class ShdfStatus(BaseModel):

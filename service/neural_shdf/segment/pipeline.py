@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
+from neural_shdf.orientation import MeshDiagnostics
 from neural_shdf.segment.creases import CreaseGraph, crease_graph, snap_boundaries_to_creases
 from neural_shdf.segment.graphcut import (
     CutHierarchy,
@@ -57,6 +58,8 @@ class SegmentResult:
     timings: dict[str, float] = field(default_factory=dict)
     #: The graph cut's merge tree (None for ``metis``): ``labels`` is one of its cuts.
     tree: PartTree | None = None
+    #: What the orientation pass found in the mesh (``pipeline.segment_mesh_with_details``).
+    diagnostics: MeshDiagnostics | None = None
 
     @property
     def part_count(self) -> int:

@@ -237,6 +237,7 @@ def raw_shdf(
     normals: NDArray | None = None,
     threads: int | None = None,
     progress: Progress | None = None,
+    scene: Scene | Future[Scene] | None = None,
 ) -> NDArray[np.float64]:
     """Raw diameter per triangle (mesh units), NaN where no ray gave a valid hit.
 
@@ -253,6 +254,9 @@ def raw_shdf(
         threads: batches run in this many threads, default one per CPU (the result
             does not depend on it).
         progress: called with the fraction of faces done, in [0, 1].
+        scene: the Embree scene the rays are cast into (or its future), when the caller
+            built it: ``faces`` first, in order, then any triangles that only stop rays
+            (``shdf.stage.ray_targets``); default: one of ``faces``.
     """
     _check_cone(cone_angle, ray_count)
     vertices = np.asarray(vertices, dtype=np.float64)
@@ -274,6 +278,7 @@ def raw_shdf(
         threads=threads,
         progress=progress,
         statistics=False,
+        scene=scene,
     )
     return result
 

@@ -37,6 +37,7 @@ from neural_shdf import constants
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, face_centroids
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.orientation import MeshDiagnostics
 from neural_shdf.shdf.postprocess import (
     EXACT_WINDOW_MAX,
     FILTER_COST_PER_PAIR,
@@ -227,8 +228,25 @@ def thin_part_samples(diameters_in_radii: NDArray, params: ShdfParams) -> int:
     return int(min(params.max_samples, round(params.samples * factor)))
 
 
+def ray_targets(mesh: TriangleMesh, close_holes: bool) -> tuple[NDArray, NDArray]:
+    """(vertices, triangles) the ShDF's rays are cast into: the mesh's triangles in order,
+    then with ``close_holes`` a cap over each open boundary loop (``orientation.hole_caps``;
+    ``mesh`` already faces outward), so that a ray leaving through a hole stops where the
+    missing surface was instead of reading whatever lies beyond as material."""
+    if not close_holes:
+        return mesh.vertices, mesh.faces
+    from neural_shdf.orientation import hole_caps
+
+    vertices, caps = hole_caps(mesh.vertices, mesh.welded_faces, mesh.welded_edges)
+    return vertices, np.vstack([mesh.faces, caps])
+
+
 def sampled_raw_shdf(
-    mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams, workers: int | None = None
+    mesh: TriangleMesh,
+    graph: FaceGraph,
+    params: ShdfParams,
+    workers: int | None = None,
+    close_holes: bool = False,
 ) -> NDArray[np.float64]:
     """Per-face raw diameters from the exact cone cast at ``params.samples`` Poisson
     samples (again at more of them where those show thin parts: ``thin_part_samples``),
@@ -252,7 +270,7 @@ def sampled_raw_shdf(
     workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
     normals, areas = mesh.normals_and_areas
     with ThreadPoolExecutor(max_workers=2) as pool:
-        scene = pool.submit(Scene, mesh.vertices, mesh.faces, "low")
+        scene = pool.submit(Scene, *ray_targets(mesh, close_holes), "low")
         normal_sums = vertex_normal_sums(len(mesh.vertices), mesh.faces, normals, areas)
 
         def cast(count: int) -> tuple:
@@ -306,9 +324,15 @@ def raw_diameters(
     params: ShdfParams,
     model: object | None = None,
     progress: Progress | None = None,
+    close_holes: bool = False,
 ) -> NDArray[np.float64]:
-    """Raw diameter per triangle (mesh units, NaN = unknown) from one producer."""
+    """Raw diameter per triangle (mesh units, NaN = unknown) from one producer.
+
+    ``mesh`` faces outward (``TriangleMesh.oriented``); ``close_holes``: its open boundary
+    loops are capped for the rays of ``exact`` and ``sampled`` (``ray_targets``).
+    """
     if method == "exact":
+        from neural_shdf.shdf.embree import Scene
         from neural_shdf.shdf.exact import raw_shdf
 
         normals, _ = mesh.normals_and_areas
@@ -319,9 +343,10 @@ def raw_diameters(
             ray_count=params.ray_count,
             normals=normals,
             progress=progress,
+            scene=Scene(*ray_targets(mesh, True)) if close_holes else None,
         )
     if method == "sampled":
-        return sampled_raw_shdf(mesh, graph, params)
+        return sampled_raw_shdf(mesh, graph, params, close_holes=close_holes)
     if method == "neural":
         from neural_shdf.shdf.neural.inference import neural_raw_shdf
 
@@ -342,10 +367,13 @@ def raw_diameters(
 
 @dataclass(frozen=True)
 class ShdfResult:
-    """A post-processed ShDF in [0, 1] per triangle and the producer that made it."""
+    """A post-processed ShDF in [0, 1] per triangle, the producer that made it and what
+    the orientation pass found in the mesh (its rays went into the solid whatever the
+    file's winding)."""
 
     values: NDArray[np.float64]
     method: RawMethod
+    diagnostics: MeshDiagnostics | None = None
 
 
 def run_shdf(
@@ -361,7 +389,11 @@ def run_shdf(
 
     ``model``: a loaded ``NeuralModel`` or the path of an ONNX model, used by
     ``neural`` (default: the installed model); ignored by the other producers.
+    Every producer works on ``mesh.oriented``: the rays go into the solid whatever the
+    file's winding; ``graph``: the face graph of that mesh (``pipeline.mesh_face_graph``).
     """
+    diagnostics = mesh.orientation.diagnostics
+    mesh = mesh.oriented
     params = params or ShdfParams()
     resolved = resolve_method(method, mesh.face_count)
     if resolved == "neural":
@@ -380,6 +412,7 @@ def run_shdf(
         params,
         model,
         None if progress is None else (lambda done: progress(ray_share * done)),
+        close_holes=diagnostics.boundary_loops > 0,
     )
     values = postprocess_shdf(
         raw,
@@ -392,7 +425,7 @@ def run_shdf(
         if progress is None
         else (lambda done: progress(ray_share + (1 - ray_share) * done)),
     )
-    return ShdfResult(values, resolved)
+    return ShdfResult(values, resolved, diagnostics)
 
 
 def with_seed(params: ShdfParams | None, seed: int | None) -> ShdfParams:

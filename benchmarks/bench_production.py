@@ -1,0 +1,226 @@
+"""Production-like variants of psb-dev meshes against the published meshes, side by side.
+
+Each variant keeps the published faces' identity (a map back to the file's faces), so
+the humans' segmentations still score it. Per variant and model: the default
+``segment`` path (``compute_shdf`` with ``auto``, then ``segment_mesh_with_details``
+with default ``SegmentParams``), scored with the benchmark's metrics (1-RI and CD,
+averaged over the humans) next to the published mesh's own segmentation scored on
+the same faces. Variants:
+
+* ``reversed``: every face's winding reversed (an inside-out export);
+* ``mixed30``: 30% of the faces reversed at random (inconsistent winding);
+* ``holes``: 4% of the faces removed in 12 holes (scored on the kept faces);
+* ``nobase``: the lowest 6% of the faces (by centroid height, y) removed;
+* ``shuffled``: faces and vertices in random order;
+* ``transform``: a random rotation, scale x1000 and a shift far from the origin;
+* ``soup``: every triangle with its own three vertices (an STL), order shuffled.
+
+Default models: the held-out fourth of each category (ids 4, 24, ..., 384), never used
+for tuning. Run it on two checkouts to compare code (``PYTHONPATH=.../service``).
+
+    python benchmarks/bench_production.py [--bench-dir DIR] [--models 4 24 ...]
+        [--variants reversed holes ...] [--json out.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections import deque
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.evaluate.benchmark import list_models, load_benchmark_mesh
+from neural_shdf.evaluate.metrics import cut_distance_field, cut_graph, score_against_humans
+from neural_shdf.geometry import adjacency_lists, build_face_graph, weld_faces
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.pipeline import compute_shdf, mesh_face_graph, segment_mesh_with_details
+from neural_shdf.segment import SegmentParams
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_BENCH = REPO_ROOT / ".." / "shared" / "data" / "psb-dev"
+
+
+def is_held_out(model_id: int) -> bool:
+    """The 4th psb-dev model of each category, never used for tuning (as bench_psb.py)."""
+    return (model_id - 1) % 20 == 3
+
+
+class Variant:
+    """A changed mesh, and for each of its faces the published face it is."""
+
+    def __init__(self, vertices: NDArray, faces: NDArray, origin: NDArray) -> None:
+        self.mesh = TriangleMesh(vertices, faces)
+        self.origin = np.asarray(origin, dtype=np.int64)
+
+
+def reversed_faces(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+    return Variant(v, f[:, ::-1], np.arange(len(f)))
+
+
+def mixed_winding(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+    flip = rng.random(len(f)) < 0.3
+    faces = f.copy()
+    faces[flip] = f[flip][:, ::-1]
+    return Variant(v, faces, np.arange(len(f)))
+
+
+def kept_variant(v: NDArray, f: NDArray, kept: NDArray) -> Variant:
+    """The faces in ``kept`` (sorted), vertices unchanged."""
+    kept = np.sort(kept)
+    return Variant(v, f[kept], kept)
+
+
+def holes(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+    """12 holes grown breadth-first from random faces, 4% of the faces in all."""
+    graph = build_face_graph(v, weld_faces(v, f))
+    indptr, neighbours = adjacency_lists(graph.pairs, len(f))
+    removed = np.zeros(len(f), dtype=bool)
+    per_hole = max(1, int(0.04 * len(f)) // 12)
+    for seed in rng.choice(len(f), size=12, replace=False):
+        queue, taken = deque([int(seed)]), 0
+        while queue and taken < per_hole:
+            face = queue.popleft()
+            if removed[face]:
+                continue
+            removed[face] = True
+            taken += 1
+            queue.extend(int(n) for n in neighbours[indptr[face] : indptr[face + 1]])
+    return kept_variant(v, f, np.flatnonzero(~removed))
+
+
+def no_base(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+    height = v[f].mean(axis=1)[:, 1]
+    return kept_variant(v, f, np.argsort(height, kind="stable")[int(0.06 * len(f)) :])
+
+
+def shuffled(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+    face_order = rng.permutation(len(f))
+    vertex_order = rng.permutation(len(v))
+    new_index = np.empty(len(v), dtype=np.int64)
+    new_index[vertex_order] = np.arange(len(v))
+    return Variant(v[vertex_order], new_index[f[face_order]], face_order)
+
+
+def transformed(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    rotation = q * np.sign(np.diag(r))
+    if np.linalg.det(rotation) < 0:
+        rotation[:, 0] *= -1
+    shift = rng.uniform(-1, 1, size=3) * 1e4
+    return Variant(1000.0 * v @ rotation.T + shift, f, np.arange(len(f)))
+
+
+def soup(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+    order = rng.permutation(len(f))
+    return Variant(v[f[order]].reshape(-1, 3), np.arange(3 * len(f)).reshape(-1, 3), order)
+
+
+VARIANTS: dict[str, Callable[[NDArray, NDArray, np.random.Generator], Variant]] = {
+    "reversed": reversed_faces,
+    "mixed30": mixed_winding,
+    "holes": holes,
+    "nobase": no_base,
+    "shuffled": shuffled,
+    "transform": transformed,
+    "soup": soup,
+}
+
+
+def default_segmentation(mesh: TriangleMesh) -> tuple[NDArray[np.int64], str]:
+    """Labels per input face from the default path, and the mesh diagnostics if reported."""
+    graph = mesh_face_graph(mesh)
+    shdf = compute_shdf(mesh, graph=graph)
+    result = segment_mesh_with_details(mesh, shdf, SegmentParams(), graph=graph)
+    diagnostics = getattr(result, "diagnostics", None)
+    note = diagnostics.summary() if diagnostics is not None else ""
+    return mesh.labels_to_input_faces(result.labels), note
+
+
+def score(
+    vertices: NDArray, faces: NDArray, faces_kept: NDArray, labels: NDArray, humans: list
+) -> tuple[float, float]:
+    """(1-RI, CD) of ``labels`` (per kept face) against the humans on the kept faces."""
+    metric_mesh = cut_graph(vertices, faces[faces_kept])
+    references = [human[faces_kept] for human in humans]
+    fields = [cut_distance_field(metric_mesh, reference) for reference in references]
+    scores = score_against_humans(metric_mesh, labels, references, reference_fields=fields)
+    return float(scores.ri_error), float(scores.cd)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--bench-dir", type=Path, default=DEFAULT_BENCH)
+    parser.add_argument(
+        "--models", type=int, nargs="+", help="model ids (default: the held-out 4th of each)"
+    )
+    parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    parser.add_argument("--json", type=Path, help="write the per-model scores here")
+    parser.add_argument("--verbose", action="store_true", help="a line per model and variant")
+    args = parser.parse_args()
+    if not (args.bench_dir / "off").is_dir():
+        print(f"no benchmark folder at {args.bench_dir}", file=sys.stderr)
+        return 1
+    models = {m.model_id: m for m in list_models(args.bench_dir)}
+    args.models = args.models or [model_id for model_id in models if is_held_out(model_id)]
+    missing = sorted(set(args.models) - set(models))
+    if missing:
+        print(f"models not in {args.bench_dir}: {missing}", file=sys.stderr)
+        return 1
+    # variant -> list of (published 1-RI, CD, variant 1-RI, CD)
+    rows: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name in args.variants}
+    per_model: list[dict] = []
+    start = time.perf_counter()
+    for model_id in args.models:
+        model = models[model_id]
+        mesh = load_benchmark_mesh(model.mesh_path)
+        v, f = mesh.vertices, mesh.faces
+        humans = [np.asarray(h) for h in model.human_segmentations()]
+        published, _ = default_segmentation(mesh)
+        for name in args.variants:
+            rng = np.random.default_rng(model_id)
+            variant = VARIANTS[name](v, f, rng)
+            labels, note = default_segmentation(variant.mesh)
+            order = np.argsort(variant.origin, kind="stable")
+            kept = variant.origin[order]
+            base = score(v, f, kept, published[kept], humans)
+            ours = score(v, f, kept, labels[order], humans)
+            rows[name].append((*base, *ours))
+            per_model.append(
+                {
+                    "model": model_id,
+                    "variant": name,
+                    "published": base,
+                    "variant_scores": ours,
+                    "diagnostics": note,
+                }
+            )
+            if args.verbose:
+                print(
+                    f"{model_id:4d} {name:10s} published 1-RI {base[0]:.3f} CD {base[1]:.3f}"
+                    f"  variant 1-RI {ours[0]:.3f} CD {ours[1]:.3f}  {note}",
+                    file=sys.stderr,
+                )
+    print(f"{len(args.models)} models, {time.perf_counter() - start:.0f} s")
+    print(
+        f"{'variant':10s} {'published 1-RI':>15s} {'variant 1-RI':>13s} {'diff':>7s}"
+        f" {'published CD':>13s} {'variant CD':>11s} {'diff':>7s}"
+    )
+    for name, values in rows.items():
+        b_ri, b_cd, v_ri, v_cd = np.nanmean(np.asarray(values), axis=0)
+        print(
+            f"{name:10s} {b_ri:15.3f} {v_ri:13.3f} {v_ri - b_ri:+7.3f}"
+            f" {b_cd:13.3f} {v_cd:11.3f} {v_cd - b_cd:+7.3f}"
+        )
+    if args.json:
+        args.json.write_text(json.dumps(per_model, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,459 @@
+"""Which way each triangle faces, decided from the geometry rather than the file's winding.
+
+Exporters get winding wrong all the time (an inside-out export, a few flipped
+faces, mixed shells), and the ShDF's rays go against the face normal, so a wrong
+winding reads air as material. ``orient_faces`` returns, per triangle, whether to
+reverse it so that every shell faces out of its solid, plus what the pass found
+(``MeshDiagnostics``). The input is never modified.
+
+How, in one compiled pass over the welded edges (coincident vertices merged, so a
+triangle soup is connected):
+
+* Duplicate faces (the same three vertices, either winding, found on edges of three
+  faces or more) and faces that repeat a vertex are left out of the edge graph:
+  duplicates take the facing of their first copy (a double-sided card becomes one
+  sheet), collapsed faces keep the file's.
+* *Patches*: faces connected across manifold edges (two faces on the edge) get one
+  consistent winding from a union-find with parity (neighbours traverse the shared
+  edge in opposite directions). A non-manifold edge (three faces or more) cuts patches
+  apart: which pairs of its faces belong together is not known, and a vote over them
+  can be forced to contradict itself (a fin on a box), so each side is decided on its
+  own geometry instead.
+* Each patch faces outward when its signed volume is positive. Open patches are
+  closed first, for this measure only, by a fan from each boundary loop (and each
+  non-manifold cut) to the loop's centroid: the volume is then the integral of the
+  closed surface's winding number, which holes, missing bases and self-intersections
+  perturb only in proportion to their size. Where the volume cannot decide (a flat or
+  nearly flat open sheet: ``|volume| < AMBIGUOUS_VOLUME * area ** 1.5``) the patch
+  keeps the winding most of its area has in the file.
+
+Every shell faces outward on its own, as a solid modeller exports separate solids:
+eyes inside a head face out of the eyes. The inner wall of a hollow solid's cavity
+is a shell of its own too and is also turned to face out of the region it encloses
+(into the cavity), which is not what a solid modeller writes for a cavity; the
+geometry alone cannot tell an eye from a cavity.
+
+``hole_caps`` closes the open boundary loops of an oriented mesh with the same fans,
+for the ShDF's rays only (``shdf.stage.ray_targets``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.compiled import kernel
+from neural_shdf.constants import AREA_EPS
+from neural_shdf.geometry import _sorted_edges, face_normals, weld_faces
+
+#: ``hole_caps`` closes nothing where boundary edges outnumber this share of the triangles:
+#: such a surface is mostly open (a soup of separate sheets), and caps would not stand for
+#: missing surface but add triangles in proportion to the mesh.
+MAX_BOUNDARY_SHARE = 0.25
+#: An open patch whose capped signed volume is below this times its area^1.5 is treated
+#: as a sheet with no inside (a sphere has 0.094, a tube 1000 radii long about 0.006).
+AMBIGUOUS_VOLUME = 1e-3
+
+
+@dataclass(frozen=True)
+class MeshDiagnostics:
+    """What the orientation pass found in a mesh and what it did about it.
+
+    Attributes:
+        shells: connected pieces (faces linked through shared edges, manifold or not).
+        boundary_loops: open boundary loops (holes, missing bases, open sheets' rims).
+        non_manifold_edges: edges shared by three faces or more.
+        reoriented_faces: triangles whose winding the ShDF and segmentation use reversed.
+        degenerate_faces: triangles of zero area (collinear or repeated vertices).
+        duplicate_faces: triangles on the same three vertices as an earlier one.
+    """
+
+    shells: int
+    boundary_loops: int
+    non_manifold_edges: int
+    reoriented_faces: int
+    degenerate_faces: int
+    duplicate_faces: int
+
+    def as_dict(self) -> dict[str, int]:
+        return asdict(self)
+
+    def summary(self) -> str:
+        """One line for a log or a terminal."""
+        return (
+            f"mesh: {self.shells} shell{'s' * (self.shells != 1)}, "
+            f"{self.boundary_loops} open boundary loop{'s' * (self.boundary_loops != 1)}, "
+            f"{self.non_manifold_edges} non-manifold edge{'s' * (self.non_manifold_edges != 1)}, "
+            f"{self.reoriented_faces} face{'s' * (self.reoriented_faces != 1)} re-oriented, "
+            f"{self.degenerate_faces} degenerate, {self.duplicate_faces} duplicate"
+        )
+
+
+@dataclass(frozen=True)
+class Orientation:
+    """``flips[i]``: triangle ``i`` is reversed to face out of its solid; and the diagnostics."""
+
+    flips: NDArray[np.bool_]
+    diagnostics: MeshDiagnostics
+
+
+def orient_faces(
+    vertices: NDArray,
+    faces: NDArray,
+    *,
+    welded: NDArray | None = None,
+    areas: NDArray | None = None,
+    edges: tuple[NDArray, NDArray] | None = None,
+) -> Orientation:
+    """Per-triangle flips that make every shell consistently wound and facing outward.
+
+    Where the caller has them: ``welded``, ``weld_faces(vertices, faces)``; ``areas``,
+    the triangles' areas (``face_normals``); ``edges``, ``welded_edges(welded)``.
+    Deterministic; the arrays are not modified.
+    """
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    count = len(faces)
+    if count == 0:
+        return Orientation(np.zeros(0, dtype=bool), MeshDiagnostics(0, 0, 0, 0, 0, 0))
+    welded = weld_faces(vertices, faces) if welded is None else np.asarray(welded, np.int64)
+    if areas is None:
+        _, areas = face_normals(vertices, faces)
+    areas = np.asarray(areas, dtype=np.float64)
+    edge_table, slot = welded_edges(welded) if edges is None else edges
+    n_vertices = int(welded.max()) + 1
+    (first_copy, patch, relative, volume, is_open, shells, loops, non_manifold) = _orient_patches(
+        welded, edge_table, slot, n_vertices, vertices, vertices.mean(axis=0)
+    )
+    active = patch >= 0
+    patch_of = patch[active]
+    patch_area = np.bincount(patch_of, weights=areas[active], minlength=len(volume))
+    # Area per patch that the search's relative winding reverses against the file.
+    flipped_area = np.bincount(patch_of, weights=(areas * relative)[active], minlength=len(volume))
+    ambiguous = (volume == 0) | (is_open & (np.abs(volume) < AMBIGUOUS_VOLUME * patch_area**1.5))
+    # Where the volume cannot decide, the winding of most of the patch's area in the file.
+    patch_flip = np.where(ambiguous, flipped_area > 0.5 * patch_area, volume < 0)
+    flips = np.zeros(count, dtype=bool)
+    flips[active] = relative[active].astype(bool) ^ patch_flip[patch_of]
+    # Duplicates face as their first copy does; collapsed faces keep the file's winding.
+    copies = np.flatnonzero(first_copy >= 0)
+    originals = first_copy[copies]
+    same_turn = _same_cyclic_order(welded[copies], welded[originals])
+    flips[copies] = flips[originals] ^ ~same_turn
+    diagnostics = MeshDiagnostics(
+        shells=int(shells),
+        boundary_loops=int(loops),
+        non_manifold_edges=int(non_manifold),
+        reoriented_faces=int(flips.sum()),
+        degenerate_faces=int(np.count_nonzero(2.0 * areas <= AREA_EPS)),
+        duplicate_faces=len(copies),
+    )
+    return Orientation(flips, diagnostics)
+
+
+def welded_edges(welded: NDArray) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The edges of (welded) triangles sorted by vertex pair, as ``geometry.build_face_graph``
+    takes them (``edges``): (edge table (E, 2) of key and face, slot (3F,) of each corner's
+    edge). One sort shared by the orientation pass and the face graph."""
+    welded = np.ascontiguousarray(welded, dtype=np.int64).reshape(-1, 3)
+    return _sorted_edges(welded, int(welded.max(initial=-1)) + 1)
+
+
+def reversed_slots(slot: NDArray, flips: NDArray) -> NDArray[np.int64]:
+    """``slot`` of ``welded_edges`` for the same triangles with those in ``flips`` listed
+    backwards, (a, b, c) -> (c, b, a): their edges (c, b), (b, a), (a, c) were corners 1, 0, 2.
+    The edge table itself does not depend on the winding."""
+    slots = np.asarray(slot).reshape(-1, 3)
+    return np.where(np.asarray(flips)[:, None], slots[:, [1, 0, 2]], slots).reshape(-1)
+
+
+def _same_cyclic_order(faces: NDArray, others: NDArray) -> NDArray[np.bool_]:
+    """Whether each triangle lists the same three vertices as its partner in the same turn."""
+    same = np.zeros(len(faces), dtype=bool)
+    for shift in range(3):
+        same |= (np.roll(others, shift, axis=1) == faces).all(axis=1)
+    return same
+
+
+@kernel(inline=True)
+def _find(parent, node):  # pragma: no cover - numba
+    """Union-find root with path halving."""
+    while parent[node] != node:
+        parent[node] = parent[parent[node]]
+        node = parent[node]
+    return node
+
+
+@kernel(inline=True)
+def _find_parity(parent, parity, node):  # pragma: no cover - numba
+    """(root, parity of ``node`` against it); the path is pointed at the root."""
+    root, total = node, np.int8(0)
+    while parent[root] != root:
+        total ^= parity[root]
+        root = parent[root]
+    remaining = total
+    while parent[node] != root and parent[node] != node:
+        following, step = parent[node], parity[node]
+        parent[node], parity[node] = root, remaining
+        remaining ^= step
+        node = following
+    return root, total
+
+
+@kernel(inline=True)
+def _join(parent, parity, a, b, differ):  # pragma: no cover - numba
+    """Put ``a`` and ``b`` in one set with parity(a) ^ parity(b) == ``differ`` (kept as
+    found where they already share one: a non-orientable surface)."""
+    root_a, parity_a = _find_parity(parent, parity, a)
+    root_b, parity_b = _find_parity(parent, parity, b)
+    if root_a != root_b:
+        low, high = min(root_a, root_b), max(root_a, root_b)
+        parent[high] = low
+        parity[high] = parity_a ^ parity_b ^ differ
+
+
+@kernel(inline=True)
+def _union(parent, a, b):  # pragma: no cover - numba
+    """Join the sets of ``a`` and ``b`` under the smaller root; that root."""
+    a, b = _find(parent, a), _find(parent, b)
+    if a != b:
+        parent[max(a, b)] = min(a, b)
+    return min(a, b)
+
+
+@kernel(inline=True)
+def _third_vertex(faces, face, lo, hi):  # pragma: no cover - numba
+    """The vertex of triangle ``face`` off its edge (lo, hi)."""
+    for corner in range(3):
+        if faces[face, corner] != lo and faces[face, corner] != hi:
+            return faces[face, corner]
+    return -1
+
+
+@kernel(inline=True)
+def _signed_volume(vertices, a, b, c, origin):  # pragma: no cover - numba
+    """Six times the signed volume of the tetrahedron (origin, a, b, c); a, b, c vertex
+    indices, or -1 for ``origin[3:]`` (a cap's centre)."""
+    ax, ay, az = vertices[a, 0] - origin[0], vertices[a, 1] - origin[1], vertices[a, 2] - origin[2]
+    bx, by, bz = vertices[b, 0] - origin[0], vertices[b, 1] - origin[1], vertices[b, 2] - origin[2]
+    if c < 0:
+        cx, cy, cz = origin[3] - origin[0], origin[4] - origin[1], origin[5] - origin[2]
+    else:
+        cx, cy = vertices[c, 0] - origin[0], vertices[c, 1] - origin[1]
+        cz = vertices[c, 2] - origin[2]
+    return ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
+
+
+@kernel
+def _orient_patches(faces, edge_table, slot, n_vertices, vertices, centre):  # pragma: no cover
+    """Duplicates, patches over manifold edges with a consistent relative winding, per
+    patch its capped signed volume and openness; shell, loop and non-manifold counts.
+
+    Returns (first copy (F,) or -1, patch (F,) or -1 (duplicates and collapsed faces),
+    relative flip (F,) int8, volume (P,), open (P,), shells, boundary loops,
+    non-manifold edges). ``edge_table, slot`` from ``welded_edges``.
+    """
+    face_count = faces.shape[0]
+    edge_count = edge_table.shape[0]
+    # Per edge entry: whether its face runs it lo -> hi (one pass in face order, so the
+    # edges need no look-up of their faces). Faces that repeat a vertex take no part
+    # (their edges would pair them with themselves).
+    skip = np.zeros(face_count, dtype=np.bool_)
+    forward = np.zeros(edge_count, dtype=np.bool_)
+    for face in range(face_count):
+        a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
+        if a == b or b == c or a == c:  # noqa: SIM109 - compiled
+            skip[face] = True
+            continue
+        forward[slot[3 * face]] = a < b
+        forward[slot[3 * face + 1]] = b < c
+        forward[slot[3 * face + 2]] = c < a
+    # Manifold edges link faces; boundary and non-manifold edges join loops to cap.
+    first_copy = np.full(face_count, -1, dtype=np.int64)
+    # Patches: a union-find over faces whose parity says whether a face is wound against
+    # its root (the patch's lowest face); joined across each manifold edge.
+    parent = np.arange(face_count)
+    parity = np.zeros(face_count, dtype=np.int8)
+    vertex_parent = np.arange(n_vertices)
+    on_hole = np.zeros(n_vertices, dtype=np.bool_)  # on an edge of one face
+    cut_start = np.empty(edge_count, dtype=np.int64)  # edges of one face, or of 3 or more
+    cut_end = np.empty(edge_count, dtype=np.int64)
+    cuts = 0
+    non_manifold = 0
+    i = 0
+    while i < edge_count:
+        j = i + 1
+        while j < edge_count and edge_table[j, 0] == edge_table[i, 0]:
+            j += 1
+        if j - i > 2:
+            lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
+            # Duplicates: the same third vertex on one edge (the earlier is the first copy;
+            # every edge of a copy holds its original, so the first edge met finds it).
+            # Within very crowded edges only against the few faces before.
+            for k in range(i + 1, j):
+                later = edge_table[k, 1]
+                if skip[later]:
+                    continue
+                third = _third_vertex(faces, later, lo, hi)
+                for m in range(max(i, k - 8), k):
+                    earlier = edge_table[m, 1]
+                    if not skip[earlier] and _third_vertex(faces, earlier, lo, hi) == third:
+                        first_copy[later] = earlier
+                        skip[later] = True
+                        break
+        members, f, g, f_at, g_at = 0, -1, -1, -1, -1
+        for k in range(i, j):
+            face = edge_table[k, 1]
+            if not skip[face]:
+                members += 1
+                if f < 0:
+                    f, f_at = face, k
+                elif g < 0:
+                    g, g_at = face, k
+        if members == 2:
+            # Faces wound alike run their shared edge in opposite directions.
+            _join(parent, parity, f, g, np.int8(forward[f_at] == forward[g_at]))
+        elif members > 0:
+            lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
+            if members > 2:
+                non_manifold += 1
+            else:
+                on_hole[lo] = True
+            cut_start[cuts], cut_end[cuts] = i, j
+            cuts += 1
+            _union(vertex_parent, lo, hi)
+        i = j
+    # Patch numbers by lowest face, relative windings and signed volumes in one pass.
+    patch = np.full(face_count, -1, dtype=np.int64)
+    relative = np.zeros(face_count, dtype=np.int8)
+    volume = np.zeros(face_count)
+    point = np.zeros(6)
+    point[:3] = centre
+    patch_count = 0
+    for face in range(face_count):
+        if skip[face]:
+            continue
+        root, flipped = _find_parity(parent, parity, face)
+        if root == face:
+            patch[face] = patch_count
+            patch_count += 1
+        else:
+            patch[face] = patch[root]
+        relative[face] = flipped
+        a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
+        if flipped:
+            b, c = c, b
+        volume[patch[face]] += _signed_volume(vertices, a, b, c, point)
+    volume = volume[:patch_count]
+    # Loop centres: the vertices of each component of open edges.
+    loop_sum = np.zeros((n_vertices, 3))
+    loop_size = np.zeros(n_vertices, dtype=np.int64)
+    counted = np.zeros(n_vertices, dtype=np.bool_)
+    seen = np.zeros(n_vertices, dtype=np.bool_)
+    loops = 0
+    for cut in range(cuts):
+        key = edge_table[cut_start[cut], 0]
+        for vertex in (key // n_vertices, key % n_vertices):
+            root = _find(vertex_parent, vertex)
+            if not seen[vertex]:
+                seen[vertex] = True
+                loop_size[root] += 1
+                loop_sum[root] += vertices[vertex]
+            if on_hole[vertex] and not counted[root]:
+                counted[root] = True
+                loops += 1
+    is_open = np.zeros(patch_count, dtype=np.bool_)
+    patch_parent = np.arange(patch_count)
+    for cut in range(cuts):
+        i, j = cut_start[cut], cut_end[cut]
+        lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
+        root = _find(vertex_parent, lo)
+        point[3:] = loop_sum[root] / loop_size[root]
+        first = -1
+        for k in range(i, j):
+            face = edge_table[k, 1]
+            if skip[face]:
+                continue
+            runs_forward = forward[k] != (relative[face] == 1)
+            # The cap runs the edge the other way round: (hi, lo, centre) after lo -> hi.
+            if runs_forward:
+                volume[patch[face]] += _signed_volume(vertices, hi, lo, -1, point)
+            else:
+                volume[patch[face]] += _signed_volume(vertices, lo, hi, -1, point)
+            is_open[patch[face]] = True
+            # Shells: patches joined through non-manifold edges.
+            first = patch[face] if first < 0 else _union(patch_parent, first, patch[face])
+    shells = 0
+    for p in range(patch_count):
+        if _find(patch_parent, p) == p:
+            shells += 1
+    return (
+        first_copy,
+        patch,
+        relative,
+        volume / 6.0,
+        is_open,
+        shells,
+        loops,
+        non_manifold,
+    )
+
+
+def hole_caps(
+    vertices: NDArray, faces: NDArray, edges: tuple[NDArray, NDArray]
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Triangles that close every open boundary loop of ``faces`` for ray casting only.
+
+    ``faces``: (welded) triangles that already face outward; ``edges``: their
+    ``welded_edges``. Each boundary edge (on one triangle) gets the triangle from its ends
+    to the centroid of its loop, wound as its triangle's neighbour across the edge would
+    be: a ray that leaves through a hole then meets the cap there, as it would have met
+    the missing surface, instead of whatever lies beyond. Returns the vertices with one
+    centroid per loop appended, and the cap triangles (indices into those vertices); none
+    where boundary edges outnumber ``MAX_BOUNDARY_SHARE`` of the triangles.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    edge_table, _ = edges
+    keys = edge_table[:, 0]
+    alone = np.ones(len(keys), dtype=bool)  # the only entry of its vertex pair
+    if len(keys) > 1:
+        repeated = keys[1:] == keys[:-1]
+        alone[1:] &= ~repeated
+        alone[:-1] &= ~repeated
+    boundary = np.flatnonzero(alone)
+    if len(boundary) == 0 or len(boundary) > MAX_BOUNDARY_SHARE * len(faces):
+        return vertices, np.zeros((0, 3), dtype=np.int64)
+    n_vertices = int(faces.max()) + 1
+    lo, hi = keys[boundary] // n_vertices, keys[boundary] % n_vertices
+    owner = faces[edge_table[boundary, 1]]
+    runs_forward = np.zeros(len(boundary), dtype=bool)
+    for corner in range(3):
+        runs_forward |= (owner[:, corner] == lo) & (owner[:, (corner + 1) % 3] == hi)
+    start, end = np.where(runs_forward, hi, lo), np.where(runs_forward, lo, hi)
+    # Loops: components of the boundary edges over their vertices.
+    used, local = np.unique(np.concatenate([start, end]), return_inverse=True)
+    graph = coo_matrix(
+        (np.ones(len(boundary)), (local[: len(boundary)], local[len(boundary) :])),
+        shape=(len(used), len(used)),
+    )
+    count, loop_of = connected_components(graph, directed=False)
+    size = np.bincount(loop_of, minlength=count)
+    centres = (
+        np.stack(
+            [
+                np.bincount(loop_of, weights=vertices[used, axis], minlength=count)
+                for axis in range(3)
+            ],
+            axis=1,
+        )
+        / size[:, None]
+    )
+    loop = loop_of[local[: len(boundary)]]
+    caps = np.stack([start, end, len(vertices) + loop], axis=1)
+    return np.vstack([vertices, centres]), caps

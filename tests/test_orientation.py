@@ -1,0 +1,266 @@
+"""Orientation that does not trust the file: flips, diagnostics, and what the ShDF and the
+segmentation see on reversed, mixed, multi-shell, open and non-manifold meshes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from neural_shdf.geometry import build_face_graph, face_centroids, weld_faces
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.mesh_io import load_mesh
+from neural_shdf.orientation import hole_caps, orient_faces
+from neural_shdf.pipeline import compute_shdf_result, mesh_face_graph, segment_mesh_with_details
+from neural_shdf.shdf.stage import ShdfParams, raw_diameters
+
+
+def _sphere(subdivisions: int = 3, radius: float = 1.0, centre=(0.0, 0.0, 0.0)):
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    return np.asarray(sphere.vertices) + centre, np.asarray(sphere.faces)
+
+
+def _reverse(faces: np.ndarray, which: np.ndarray) -> np.ndarray:
+    out = faces.copy()
+    out[which] = faces[which][:, ::-1]
+    return out
+
+
+def _dumbbell() -> TriangleMesh:
+    left = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    right = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    left.apply_translation([-2.5, 0, 0])
+    right.apply_translation([2.5, 0, 0])
+    bar = trimesh.creation.cylinder(radius=0.3, height=3.5, sections=24)
+    bar.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
+    mesh = trimesh.util.concatenate([left, bar, right])
+    return TriangleMesh(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+
+
+def test_an_outward_closed_mesh_is_left_alone():
+    vertices, faces = _sphere()
+    result = orient_faces(vertices, faces)
+    assert not result.flips.any()
+    assert result.diagnostics.as_dict() == {
+        "shells": 1,
+        "boundary_loops": 0,
+        "non_manifold_edges": 0,
+        "reoriented_faces": 0,
+        "degenerate_faces": 0,
+        "duplicate_faces": 0,
+    }
+
+
+def test_an_inside_out_mesh_is_turned_round_and_mixed_winding_made_consistent():
+    vertices, faces = _sphere()
+    assert orient_faces(vertices, faces[:, ::-1]).flips.all()
+    mixed = np.random.default_rng(0).random(len(faces)) < 0.3
+    result = orient_faces(vertices, _reverse(faces, mixed))
+    np.testing.assert_array_equal(result.flips, mixed)
+    assert result.diagnostics.reoriented_faces == mixed.sum()
+
+
+def test_every_shell_faces_out_of_its_own_solid():
+    """Two spheres apart and a small one inside the first (an eye), each given any winding."""
+    eye = _sphere(1, radius=0.2, centre=(0.5, 0, 0))
+    shells = [_sphere(2), _sphere(2, centre=(3.0, 0, 0)), eye]
+    vertices = np.vstack([v for v, _ in shells])
+    offsets = np.cumsum([0] + [len(v) for v, _ in shells])[:-1]
+    faces = [f + offset for (_, f), offset in zip(shells, offsets, strict=True)]
+    given = [faces[0][:, ::-1], faces[1], faces[2][:, ::-1]]
+    result = orient_faces(vertices, np.vstack(given))
+    sizes = np.cumsum([0] + [len(f) for f in faces])
+    assert result.flips[sizes[0] : sizes[1]].all()
+    assert not result.flips[sizes[1] : sizes[2]].any()
+    assert result.flips[sizes[2] : sizes[3]].all()
+    assert result.diagnostics.shells == 3
+
+
+@pytest.mark.parametrize("cut", [-0.8, 0.0])  # a small hole; half the sphere gone
+def test_open_shells_face_outward(cut: float):
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    kept = sphere.triangles_center[:, 2] > cut
+    faces = np.asarray(sphere.faces)[kept]
+    mixed = np.random.default_rng(1).random(len(faces)) < 0.5
+    result = orient_faces(np.asarray(sphere.vertices), _reverse(faces, mixed))
+    np.testing.assert_array_equal(result.flips, mixed)
+    assert result.diagnostics.boundary_loops == 1
+
+
+def test_a_flat_sheet_keeps_the_winding_most_of_it_has_in_the_file():
+    plane = trimesh.creation.box(extents=(1, 1, 1))
+    grid = trimesh.remesh.subdivide_to_size(plane.vertices, plane.faces, 0.1)
+    vertices, faces = np.asarray(grid[0]), np.asarray(grid[1])
+    top = vertices[faces].mean(axis=1)[:, 2] > 0.49
+    sheet = faces[top]
+    odd = np.random.default_rng(2).random(len(sheet)) < 0.2
+    result = orient_faces(vertices, _reverse(sheet, odd))
+    np.testing.assert_array_equal(result.flips, odd)
+
+
+def test_solids_touching_along_an_edge_are_decided_each_on_its_own():
+    """Two cubes sharing one edge (four faces on it): the edge is non-manifold."""
+    first = trimesh.creation.box(extents=(1, 1, 1))
+    second = trimesh.creation.box(extents=(1, 1, 1))
+    second.apply_translation([1.0, 1.0, 0.0])
+    vertices = np.vstack([first.vertices, second.vertices])
+    faces = np.vstack([first.faces, second.faces[:, ::-1] + len(first.vertices)])
+    result = orient_faces(vertices, faces)
+    assert not result.flips[:12].any()
+    assert result.flips[12:].all()
+    assert result.diagnostics.non_manifold_edges == 1
+    assert result.diagnostics.shells == 1
+
+
+def test_a_fin_does_not_turn_the_box_it_stands_on():
+    """A box with a sheet standing on its top: the sheet's edge is non-manifold."""
+    box = trimesh.creation.box(extents=(1, 1, 1))
+    top = [i for i, v in enumerate(box.vertices) if v[2] > 0 and v[1] < 0]  # an edge of the top
+    a, b = box.vertices[top[0]], box.vertices[top[1]]
+    vertices = np.vstack([box.vertices, a + [0, 0, 1], b + [0, 0, 1]])
+    fin = np.array([[top[0], top[1], 8], [top[1], 9, 8]])
+    faces = np.vstack([np.asarray(box.faces)[:, ::-1], fin])
+    result = orient_faces(vertices, faces)
+    assert result.flips[:12].all()
+    assert result.diagnostics.non_manifold_edges == 1
+
+
+def test_a_triangle_soup_is_welded_before_it_is_oriented():
+    vertices, faces = _sphere(2)
+    soup_vertices = vertices[faces[:, ::-1]].reshape(-1, 3)
+    soup_faces = np.arange(len(soup_vertices)).reshape(-1, 3)
+    result = orient_faces(soup_vertices, soup_faces)
+    assert result.flips.all()
+    assert result.diagnostics.shells == 1
+
+
+def test_duplicate_and_degenerate_faces_are_counted_and_duplicates_follow_their_first_copy():
+    vertices, faces = _sphere(2)
+    extra = np.vstack([faces[:4][:, ::-1], faces[4:6], [[0, 0, 1], [0, 1, 1]]])
+    result = orient_faces(vertices, np.vstack([faces, extra]))
+    n = len(faces)
+    assert not result.flips[:n].any()
+    np.testing.assert_array_equal(result.flips[n : n + 6], [True] * 4 + [False] * 2)
+    assert result.diagnostics.duplicate_faces == 6
+    assert result.diagnostics.degenerate_faces == 2
+    assert result.diagnostics.boundary_loops == 0
+
+
+def test_an_empty_mesh_has_nothing_to_report():
+    result = orient_faces(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+    assert len(result.flips) == 0
+    assert result.diagnostics.shells == 0
+
+
+def test_the_oriented_mesh_keeps_the_input_and_is_its_own_orientation():
+    vertices, faces = _sphere(2)
+    mesh = TriangleMesh(vertices, faces[:, ::-1])
+    oriented = mesh.oriented
+    np.testing.assert_array_equal(mesh.faces, faces[:, ::-1])  # the input stays as given
+    clean = TriangleMesh(vertices, faces)
+    # Reversed backwards, each triangle is the clean one again, normals and all.
+    np.testing.assert_array_equal(oriented.faces, faces)
+    np.testing.assert_array_equal(oriented.normals_and_areas[0], clean.normals_and_areas[0])
+    np.testing.assert_array_equal(oriented.face_origin, mesh.face_origin)
+    assert oriented.oriented is oriented
+    assert not oriented.orientation.flips.any()
+    assert clean.oriented is clean
+
+
+@pytest.mark.parametrize("method", ["exact", "sampled", "neural"])
+def test_the_shdf_of_a_reversed_or_mixed_mesh_is_the_published_one(method: str):
+    published = _dumbbell()
+    reference = compute_shdf_result(published, method=method)
+    assert reference.diagnostics is not None and reference.diagnostics.reoriented_faces == 0
+    mixed = np.random.default_rng(3).random(published.face_count) < 0.3
+    for which in (np.ones(published.face_count, dtype=bool), mixed):
+        variant = TriangleMesh(published.vertices, _reverse(published.faces, which))
+        result = compute_shdf_result(variant, method=method)
+        np.testing.assert_allclose(result.values, reference.values, atol=1e-6)
+        assert result.diagnostics.reoriented_faces == which.sum()
+
+
+def test_the_face_graph_sees_the_oriented_creases():
+    published = _dumbbell()
+    reversed_ = TriangleMesh(published.vertices, published.faces[:, ::-1])
+    np.testing.assert_array_equal(
+        mesh_face_graph(reversed_).concave, mesh_face_graph(published).concave
+    )
+
+
+def _labels(mesh: TriangleMesh):
+    graph = mesh_face_graph(mesh)
+    result = segment_mesh_with_details(
+        mesh, compute_shdf_result(mesh, graph=graph).values, graph=graph
+    )
+    return result
+
+
+def test_labels_of_a_reversed_mesh_are_the_published_ones():
+    published = _dumbbell()
+    reversed_ = TriangleMesh(published.vertices, published.faces[:, ::-1])
+    result = _labels(reversed_)
+    np.testing.assert_array_equal(result.labels, _labels(published).labels)
+    assert result.diagnostics.reoriented_faces == published.face_count
+
+
+def test_labels_of_a_reversed_benchmark_mesh_are_the_published_ones(psb_off):
+    published = load_mesh(psb_off(4))
+    reversed_ = TriangleMesh(published.vertices, published.faces[:, ::-1])
+    np.testing.assert_array_equal(_labels(reversed_).labels, _labels(published).labels)
+
+
+def test_the_face_graph_from_the_shared_edges_is_the_one_built_afresh():
+    published = _dumbbell()
+    mixed = np.random.default_rng(4).random(published.face_count) < 0.3
+    variant = TriangleMesh(published.vertices, _reverse(published.faces, mixed))
+    oriented = variant.oriented
+    shared = mesh_face_graph(variant)
+    afresh = build_face_graph(
+        oriented.vertices,
+        weld_faces(oriented.vertices, oriented.faces),
+        oriented.normals_and_areas[0],
+    )
+    for name in ("pairs", "edge_vertices", "edge_length", "dihedral", "concave"):
+        np.testing.assert_array_equal(getattr(shared, name), getattr(afresh, name))
+
+
+def test_caps_close_each_hole_facing_outward():
+    vertices, faces = _sphere(3)
+    centres = vertices[faces].mean(axis=1)
+    kept = faces[(centres[:, 2] > -0.9) & (np.abs(centres[:, 0]) < 0.9)]  # three holes
+    mesh = TriangleMesh(vertices, kept[:, ::-1]).oriented
+    capped_vertices, caps = hole_caps(mesh.vertices, mesh.welded_faces, mesh.welded_edges)
+    assert len(capped_vertices) == len(vertices) + 3
+    closed = orient_faces(capped_vertices, np.vstack([mesh.faces, caps]))
+    assert closed.diagnostics.boundary_loops == 0
+    assert not closed.flips.any()  # the caps are wound as the surface around them
+
+
+def test_rays_through_a_hole_stop_where_the_surface_was():
+    """A ball of the dumbbell with a hole: the faces across the ball from the hole keep
+    the diameters of the closed mesh."""
+    published = _dumbbell()
+    graph = mesh_face_graph(published)
+    params = ShdfParams()
+    closed = raw_diameters(published, graph, "exact", params)
+    centres = face_centroids(published.vertices, published.faces)
+    hole = np.linalg.norm(centres - [-2.5, 0.0, 1.0], axis=1) < 0.35  # top of the left ball
+    kept = np.flatnonzero(~hole)
+    holed = TriangleMesh(published.vertices, published.faces[kept])
+    assert holed.orientation.diagnostics.boundary_loops == 1
+    across = np.linalg.norm(centres[kept] - [-2.5, 0.0, -1.0], axis=1) < 0.4
+    capped = raw_diameters(holed, mesh_face_graph(holed), "exact", params, close_holes=True)
+    np.testing.assert_allclose(capped[across], closed[kept][across], rtol=0.05)
+    # Without the caps, rays leave through the hole: those faces read other diameters.
+    open_ = raw_diameters(holed, mesh_face_graph(holed), "exact", params)
+    assert np.nanmax(np.abs(open_[across] / closed[kept][across] - 1)) > 0.05
+
+
+def test_a_mostly_open_surface_gets_no_caps():
+    vertices, faces = _sphere(2)
+    apart = vertices[faces].reshape(-1, 3) + np.repeat(np.arange(len(faces)), 3)[:, None] * 1e-3
+    soup = TriangleMesh(apart, np.arange(len(apart)).reshape(-1, 3))
+    assert soup.orientation.diagnostics.boundary_loops == len(faces)
+    capped_vertices, caps = hole_caps(soup.vertices, soup.welded_faces, soup.welded_edges)
+    assert len(caps) == 0 and len(capped_vertices) == len(apart)

@@ -25,10 +25,26 @@ def _dumbbell() -> trimesh.Trimesh:
 def _quad_box_obj(path: Path) -> int:
     """A box of 6 quads followed by 2 triangles of a separate shell; returns face count."""
     lines = [
-        "v 0 0 0", "v 1 0 0", "v 1 1 0", "v 0 1 0", "v 0 0 1", "v 1 0 1", "v 1 1 1", "v 0 1 1",
-        "v 3 0 0", "v 4 0 0", "v 3 1 0", "v 3 0 1",
-        "f 1 4 3 2", "f 5 6 7 8", "f 1 2 6 5", "f 2 3 7 6", "f 3 4 8 7", "f 4 1 5 8",
-        "f 9 11 10", "f 9 10 12",
+        "v 0 0 0",
+        "v 1 0 0",
+        "v 1 1 0",
+        "v 0 1 0",
+        "v 0 0 1",
+        "v 1 0 1",
+        "v 1 1 1",
+        "v 0 1 1",
+        "v 3 0 0",
+        "v 4 0 0",
+        "v 3 1 0",
+        "v 3 0 1",
+        "f 1 4 3 2",
+        "f 5 6 7 8",
+        "f 1 2 6 5",
+        "f 2 3 7 6",
+        "f 3 4 8 7",
+        "f 4 1 5 8",
+        "f 9 11 10",
+        "f 9 10 12",
     ]
     path.write_text("\n".join(lines) + "\n")
     return 8
@@ -48,8 +64,19 @@ def _read_lines(path: Path) -> list[str]:
 def test_segment_writes_one_label_per_input_face(dumbbell_obj: Path, tmp_path: Path):
     out = tmp_path / "labels.seg"
     colored = tmp_path / "colored.glb"
-    code = main(["segment", str(dumbbell_obj), "-o", str(out), "--method", "exact",
-                 "--colored", str(colored), "-q"])
+    code = main(
+        [
+            "segment",
+            str(dumbbell_obj),
+            "-o",
+            str(out),
+            "--method",
+            "exact",
+            "--colored",
+            str(colored),
+            "-q",
+        ]
+    )
     assert code == 0
     labels = np.array(_read_lines(out), dtype=int)
     assert len(labels) == len(_dumbbell().faces)
@@ -64,8 +91,24 @@ def test_segment_writes_one_label_per_input_face(dumbbell_obj: Path, tmp_path: P
 
 def test_metis_gives_the_requested_number_of_parts(dumbbell_obj: Path, tmp_path: Path):
     out = tmp_path / "labels.seg"
-    assert main(["segment", str(dumbbell_obj), "-o", str(out), "--method", "exact",
-                 "--partitioner", "metis", "--parts", "3", "-q"]) == 0
+    assert (
+        main(
+            [
+                "segment",
+                str(dumbbell_obj),
+                "-o",
+                str(out),
+                "--method",
+                "exact",
+                "--partitioner",
+                "metis",
+                "--parts",
+                "3",
+                "-q",
+            ]
+        )
+        == 0
+    )
     assert len(np.unique(np.array(_read_lines(out), dtype=int))) == 3
 
 
@@ -73,8 +116,26 @@ def test_tree_json_recuts_to_every_part_count(dumbbell_obj: Path, tmp_path: Path
     import json
 
     out, tree_path = tmp_path / "labels.seg", tmp_path / "tree.json"
-    assert main(["segment", str(dumbbell_obj), "-o", str(out), "--method", "exact",
-                 "--smoothing", "0.03", "--parts", "2", "--tree", str(tree_path), "-q"]) == 0
+    assert (
+        main(
+            [
+                "segment",
+                str(dumbbell_obj),
+                "-o",
+                str(out),
+                "--method",
+                "exact",
+                "--smoothing",
+                "0.03",
+                "--parts",
+                "2",
+                "--tree",
+                str(tree_path),
+                "-q",
+            ]
+        )
+        == 0
+    )
     labels = np.array(_read_lines(out), dtype=int)
     tree = json.loads(tree_path.read_text())
     leaves = np.array(tree["leaf_labels"])
@@ -103,8 +164,21 @@ def test_tree_json_recuts_to_every_part_count(dumbbell_obj: Path, tmp_path: Path
 
 
 def test_tree_needs_the_graph_cut(dumbbell_obj: Path, tmp_path: Path, capsys):
-    code = main(["segment", str(dumbbell_obj), "-o", str(tmp_path / "l.seg"), "--partitioner",
-                 "metis", "--parts", "2", "--tree", str(tmp_path / "t.json"), "-q"])
+    code = main(
+        [
+            "segment",
+            str(dumbbell_obj),
+            "-o",
+            str(tmp_path / "l.seg"),
+            "--partitioner",
+            "metis",
+            "--parts",
+            "2",
+            "--tree",
+            str(tmp_path / "t.json"),
+            "-q",
+        ]
+    )
     assert code == EXIT_BAD_INPUT
     assert "--tree needs the graphcut partitioner" in capsys.readouterr().err
 
@@ -144,8 +218,22 @@ def test_segment_writes_a_usd_input_back_as_usd_with_a_subset_per_part(tmp_path:
     source = tmp_path / "dumbbell.usda"
     counts = _dumbbell_stage(source)
     labels, parts = tmp_path / "parts.seg", tmp_path / "parts.usdc"
-    assert main(["segment", str(source), "-o", str(labels), "--method", "exact",
-                 "--usd", str(parts), "-q"]) == 0
+    assert (
+        main(
+            [
+                "segment",
+                str(source),
+                "-o",
+                str(labels),
+                "--method",
+                "exact",
+                "--usd",
+                str(parts),
+                "-q",
+            ]
+        )
+        == 0
+    )
     seg = np.array(_read_lines(labels), dtype=int)
     assert len(seg) == sum(counts)
     assert _part_subsets(parts, "/World/Bar/Shape") == _faces_of_each_part(seg[: counts[0]])
@@ -158,8 +246,22 @@ def test_segment_writes_other_inputs_as_a_new_usd_stage_of_their_faces(tmp_path:
     mesh_path = tmp_path / "quads.obj"
     faces = _quad_box_obj(mesh_path)
     labels, parts = tmp_path / "l.seg", tmp_path / "parts.usda"
-    assert main(["segment", str(mesh_path), "-o", str(labels), "--method", "exact",
-                 "--usd", str(parts), "-q"]) == 0
+    assert (
+        main(
+            [
+                "segment",
+                str(mesh_path),
+                "-o",
+                str(labels),
+                "--method",
+                "exact",
+                "--usd",
+                str(parts),
+                "-q",
+            ]
+        )
+        == 0
+    )
     seg = np.array(_read_lines(labels), dtype=int)
     assert _part_subsets(parts, "/World/Mesh") == _faces_of_each_part(seg)
     written, original = load_mesh(parts), load_mesh(mesh_path)
@@ -169,8 +271,17 @@ def test_segment_writes_other_inputs_as_a_new_usd_stage_of_their_faces(tmp_path:
 
 
 def test_segment_refuses_a_usd_output_it_cannot_write(dumbbell_obj: Path, tmp_path: Path, capsys):
-    code = main(["segment", str(dumbbell_obj), "-o", str(tmp_path / "l.seg"),
-                 "--usd", str(tmp_path / "parts.glb"), "-q"])
+    code = main(
+        [
+            "segment",
+            str(dumbbell_obj),
+            "-o",
+            str(tmp_path / "l.seg"),
+            "--usd",
+            str(tmp_path / "parts.glb"),
+            "-q",
+        ]
+    )
     assert code == EXIT_BAD_INPUT
     assert "--usd must end in .usda" in capsys.readouterr().err
 
@@ -178,8 +289,20 @@ def test_segment_refuses_a_usd_output_it_cannot_write(dumbbell_obj: Path, tmp_pa
 def test_same_input_same_labels(dumbbell_obj: Path, tmp_path: Path):
     outputs = []
     for name in ("a.seg", "b.seg"):
-        assert main(["segment", str(dumbbell_obj), "-o", str(tmp_path / name),
-                     "--method", "exact", "-q"]) == 0
+        assert (
+            main(
+                [
+                    "segment",
+                    str(dumbbell_obj),
+                    "-o",
+                    str(tmp_path / name),
+                    "--method",
+                    "exact",
+                    "-q",
+                ]
+            )
+            == 0
+        )
         outputs.append((tmp_path / name).read_text())
     assert outputs[0] == outputs[1]
 
@@ -205,8 +328,21 @@ def test_bad_input_exits_with_a_message(tmp_path: Path, capsys, content, name, n
 def test_missing_file_and_bad_parameters(tmp_path: Path, dumbbell_obj: Path, capsys):
     assert main(["shdf", str(tmp_path / "nope.obj"), "-o", "x.txt", "-q"]) == EXIT_BAD_INPUT
     assert "not found" in capsys.readouterr().err
-    code = main(["segment", str(dumbbell_obj), "-o", str(tmp_path / "o.seg"), "--method", "exact",
-                 "--partitioner", "metis", "--parts", "0", "-q"])
+    code = main(
+        [
+            "segment",
+            str(dumbbell_obj),
+            "-o",
+            str(tmp_path / "o.seg"),
+            "--method",
+            "exact",
+            "--partitioner",
+            "metis",
+            "--parts",
+            "0",
+            "-q",
+        ]
+    )
     assert code == EXIT_BAD_INPUT
     assert "parts" in capsys.readouterr().err
 
@@ -214,9 +350,21 @@ def test_missing_file_and_bad_parameters(tmp_path: Path, dumbbell_obj: Path, cap
 def test_console_script_is_installed(dumbbell_obj: Path, tmp_path: Path):
     out = tmp_path / "labels.seg"
     result = subprocess.run(
-        [sys.executable, "-m", "neural_shdf.cli", "segment", str(dumbbell_obj), "-o", str(out),
-         "--method", "exact", "-q"],
-        capture_output=True, text=True, timeout=300,
+        [
+            sys.executable,
+            "-m",
+            "neural_shdf.cli",
+            "segment",
+            str(dumbbell_obj),
+            "-o",
+            str(out),
+            "--method",
+            "exact",
+            "-q",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert result.returncode == 0, result.stderr
     assert len(_read_lines(out)) == len(_dumbbell().faces)
@@ -233,8 +381,18 @@ def test_eval_prints_a_table_over_a_benchmark_folder(tmp_path: Path, capsys):
     np.savetxt(tmp_path / "seg" / "1" / "1_0.seg", human, fmt="%d")
     # "CGAL" here is a copy of the human segmentation, so it must score a perfect 0.
     np.savetxt(tmp_path / "cgal" / "1.seg", human, fmt="%d")
-    code = main(["eval", str(tmp_path), "--methods", "cgal", "exact-graphcut",
-                 "--cache-dir", str(tmp_path / "cache"), "-q"])
+    code = main(
+        [
+            "eval",
+            str(tmp_path),
+            "--methods",
+            "cgal",
+            "exact-graphcut",
+            "--cache-dir",
+            str(tmp_path / "cache"),
+            "-q",
+        ]
+    )
     assert code == 0
     out = capsys.readouterr().out
     assert "cgal" in out and "exact-graphcut" in out
@@ -256,8 +414,23 @@ def test_unwrap_writes_a_glb_and_an_obj_that_keep_the_input_faces(tmp_path: Path
     source = tmp_path / "quads.obj"
     count = _quad_box_obj(source)
     glb, obj, png, seg = (tmp_path / n for n in ("u.glb", "u.obj", "atlas.png", "u.seg"))
-    code = main(["unwrap", str(source), "-o", str(glb), "--method", "exact", "--atlas-size",
-                 "256", "--atlas-png", str(png), "--labels", str(seg), "-q"])
+    code = main(
+        [
+            "unwrap",
+            str(source),
+            "-o",
+            str(glb),
+            "--method",
+            "exact",
+            "--atlas-size",
+            "256",
+            "--atlas-png",
+            str(png),
+            "--labels",
+            str(seg),
+            "-q",
+        ]
+    )
     assert code == 0
     mesh = load_mesh(source)
     loaded = trimesh.load(glb, force="mesh", process=False)

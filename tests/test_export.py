@@ -132,7 +132,9 @@ def test_parts_glb_writes_ten_thousand_parts():
     part = scene.geometry["part_1234"]
     faces = mesh.faces[np.sort(np.flatnonzero(labels == 1234))]
     np.testing.assert_allclose(part.vertices[part.faces], mesh.vertices[faces], atol=1e-6)
-    np.testing.assert_array_equal(part.visual.vertex_colors, np.tile(part_colors(1235)[-1], (4, 1)))
+    np.testing.assert_array_equal(
+        part.visual.vertex_colors, np.tile(linear_color_bytes(part_colors(1235))[-1], (4, 1))
+    )
     back = load_mesh(data, "glb")
     order = np.argsort(labels, kind="stable")
     np.testing.assert_allclose(

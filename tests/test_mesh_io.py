@@ -225,12 +225,11 @@ def test_coordinates_too_large_for_float32_geometry_are_named():
         load_mesh(data, "obj")
 
 
-def test_tiny_or_collapsed_triangles_say_how_big_they_are():
+def test_tiny_triangles_load_and_collapsed_ones_say_why():
     from neural_shdf.errors import InvalidGeometryError
 
     tiny = b"v 0 0 0\nv 1e-12 0 0\nv 0 1e-12 0\nf 1 2 3\n"
-    with pytest.raises(InvalidGeometryError, match=r"span 1e-12 units: rescale"):
-        load_mesh(tiny, "obj")
+    assert load_mesh(tiny, "obj").face_count == 1  # small is not degenerate: relative limit
     point = b"v 1 1 1\nv 1 1 1\nv 1 1 1\nf 1 2 3\n"
     with pytest.raises(InvalidGeometryError, match="corners are at one point"):
         load_mesh(point, "obj")

@@ -68,7 +68,18 @@ def test_page_config_reflects_the_service_limits(app_factory):
     with TestClient(app_factory(max_upload_bytes=12345, default_method="exact")) as client:
         _, config = page_scripts(client.get("/viewer/").text)
     assert config["maxUploadBytes"] == 12345 and config["defaultMethod"] == "exact"
-    assert set(config["formats"]) == {"obj", "glb", "gltf", "off", "ply", "stl"}
+    assert set(config["formats"]) == {
+        "obj",
+        "glb",
+        "gltf",
+        "off",
+        "ply",
+        "stl",
+        "usd",
+        "usda",
+        "usdc",
+        "usdz",
+    }
     assert config["defaultClusters"] == 9 and config["maxClusters"] == 32
     assert config["methods"] == ["auto", "exact", "sampled", "neural"]
     assert config["partitioners"] == ["graphcut", "metis"]

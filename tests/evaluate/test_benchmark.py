@@ -59,9 +59,7 @@ def bench(tmp_path: Path) -> Path:
             write_seg(human_dir / f"{model_id}_{n}.seg", split_by_height(centroids, cuts))
         write_seg(tmp_path / "cgal" / f"{model_id}.seg", split_by_height(centroids, [0.3]))
         sdf = np.clip(np.abs(centroids[:, 2]) / 1.5, 0, 1)
-        (tmp_path / "cgal" / f"{model_id}.sdf").write_text(
-            "".join(f"{x:.6f}\n" for x in sdf)
-        )
+        (tmp_path / "cgal" / f"{model_id}.sdf").write_text("".join(f"{x:.6f}\n" for x in sdf))
     return tmp_path
 
 
@@ -89,9 +87,7 @@ def test_cgal_scores_follow_the_benchmark_averaging(bench: Path):
         mesh = load_benchmark_mesh(model.mesh_path)
         graph = cut_graph(mesh.vertices, mesh.faces)
         labels = np.loadtxt(bench / "cgal" / f"{model.model_id}.seg", dtype=int)
-        per_model[model.model_id] = score_against_humans(
-            graph, labels, model.human_segmentations()
-        )
+        per_model[model.model_id] = score_against_humans(graph, labels, model.human_segmentations())
     got = {r.model_id: r.scores for r in cgal.models}
     for model_id, expected in per_model.items():
         assert got[model_id].as_dict() == pytest.approx(expected.as_dict())

@@ -62,8 +62,20 @@ def test_data_train_export_end_to_end(tmp_path, monkeypatch) -> None:
     for index in (0, 1):
         written = data.process_shape(f"procedural/{index:04d}", index, cache, lambda m: None)
         assert written >= 3
-    train.main(["--cache", str(cache), "--max-steps", "4", "--val-every", "2",
-                "--latent", "16", "--message-steps", "2"])
+    train.main(
+        [
+            "--cache",
+            str(cache),
+            "--max-steps",
+            "4",
+            "--val-every",
+            "2",
+            "--latent",
+            "16",
+            "--message-steps",
+            "2",
+        ]
+    )
     log = (cache / "run" / "train.log").read_text()
     assert '"final": true' in log
     out = tmp_path / "emd.onnx"

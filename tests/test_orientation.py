@@ -264,3 +264,27 @@ def test_a_mostly_open_surface_gets_no_caps():
     assert soup.orientation.diagnostics.boundary_loops == len(faces)
     capped_vertices, caps = hole_caps(soup.vertices, soup.welded_faces, soup.welded_edges)
     assert len(caps) == 0 and len(capped_vertices) == len(apart)
+
+
+@pytest.mark.parametrize("copies", [2, 3, 9, 10, 1000])
+def test_every_copy_of_a_repeated_triangle_is_found(copies):
+    faces = np.tile([[0, 1, 2]], (copies, 1))
+    faces[1::2] = faces[1::2, ::-1]  # copies wound either way
+    orientation = orient_faces(np.eye(3), faces)
+    assert orientation.diagnostics.duplicate_faces == copies - 1
+    np.testing.assert_array_equal(orientation.first_copy, [-1] + [0] * (copies - 1))
+
+
+def test_a_double_sided_shell_is_read_as_its_single_sided_self():
+    """Every face of a sphere doubled with the opposite winding (a double-sided export):
+    the copies face as their originals and the ShDF is the single-sided sphere's."""
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    single = TriangleMesh(sphere.vertices, sphere.faces)
+    double = TriangleMesh(sphere.vertices, np.vstack([sphere.faces, sphere.faces[:, ::-1]]))
+    orientation = double.orientation
+    assert orientation.diagnostics.duplicate_faces == len(sphere.faces)
+    np.testing.assert_array_equal(orientation.flips, np.r_[np.zeros(320), np.ones(320)] > 0)
+    expected = compute_shdf_result(single, method="exact").values
+    values = compute_shdf_result(double, method="exact").values
+    np.testing.assert_allclose(values[:320], expected, atol=1e-9)
+    np.testing.assert_allclose(values[320:], expected, atol=1e-9)

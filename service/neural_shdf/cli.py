@@ -83,7 +83,11 @@ def _shdf(mesh, args: argparse.Namespace, graph) -> tuple[np.ndarray, str]:
     start = time.perf_counter()
     with progress_bar(f"{args.method} ShDF", enabled=not args.quiet) as progress:
         result = compute_shdf_result(
-            mesh, method=args.method, seed=args.seed, graph=graph, progress=progress,
+            mesh,
+            method=args.method,
+            seed=args.seed,
+            graph=graph,
+            progress=progress,
             model=args.model,
         )
     note = f"ShDF {result.method} ({args.method}) in {time.perf_counter() - start:.2f} s"
@@ -132,8 +136,10 @@ def cmd_segment(args: argparse.Namespace) -> int:
     if not args.quiet:
         parts = len(np.unique(labels))
         elapsed = time.perf_counter() - start
-        print(f"{parts} parts, {mesh.input_face_count} faces, {note}, segmented in "
-              f"{elapsed:.2f} s", file=sys.stderr)
+        print(
+            f"{parts} parts, {mesh.input_face_count} faces, {note}, segmented in {elapsed:.2f} s",
+            file=sys.stderr,
+        )
         print(mesh.orientation.diagnostics.summary(), file=sys.stderr)
     return 0
 
@@ -183,9 +189,11 @@ def cmd_unwrap(args: argparse.Namespace) -> int:
         elapsed = time.perf_counter() - start
         parts = len(np.unique(labels))
         note = f"; {split} polygons split by a chart boundary written as triangles" if split else ""
-        print(f"{parts} parts, {atlas.chart_count} charts, atlas {atlas.width}x{atlas.height} "
-              f"({atlas.utilization:.0%} used), unwrapped in {elapsed:.2f} s{note}",
-              file=sys.stderr)
+        print(
+            f"{parts} parts, {atlas.chart_count} charts, atlas {atlas.width}x{atlas.height} "
+            f"({atlas.utilization:.0%} used), unwrapped in {elapsed:.2f} s{note}",
+            file=sys.stderr,
+        )
     return 0
 
 
@@ -198,9 +206,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
             f"{bench_dir} is not a benchmark folder: it needs off/ and seg/ subfolders"
         )
     with progress_bar("models", enabled=not args.quiet) as progress:
-        table = run_eval(bench_dir, methods=args.methods, limit=args.limit,
-                         cache_dir=args.cache_dir, jobs=args.jobs,
-                         progress=lambda done, total: progress(done / max(total, 1)))
+        table = run_eval(
+            bench_dir,
+            methods=args.methods,
+            limit=args.limit,
+            cache_dir=args.cache_dir,
+            jobs=args.jobs,
+            progress=lambda done, total: progress(done / max(total, 1)),
+        )
     print(format_table(table))
     return 0
 
@@ -226,11 +239,14 @@ def _clusters(text: str) -> int:
 def _add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("mesh", help="input mesh: OBJ, GLB/glTF, OFF, PLY, STL or USD")
     parser.add_argument("--format", help="file type when the extension does not say it")
-    parser.add_argument("--method", choices=["auto", "exact", "sampled", "neural"],
-                        default="auto",
-                        help="ShDF producer: auto (default: the fastest that meets the fidelity "
-                             "target, per mesh), exact (every face's rays, CGAL's), sampled "
-                             "(rays at surface samples) or neural (the network)")
+    parser.add_argument(
+        "--method",
+        choices=["auto", "exact", "sampled", "neural"],
+        default="auto",
+        help="ShDF producer: auto (default: the fastest that meets the fidelity "
+        "target, per mesh), exact (every face's rays, CGAL's), sampled "
+        "(rays at surface samples) or neural (the network)",
+    )
     parser.add_argument("--model", help="ONNX model for --method neural (default: installed)")
     parser.add_argument("--seed", type=int, default=0, help="seed of every random step")
     parser.add_argument(
@@ -254,20 +270,32 @@ def _add_segment_options(parser: argparse.ArgumentParser) -> None:
     from neural_shdf.segment.params import DEFAULT_CREASE_BOUNDARIES
 
     parser.add_argument("--partitioner", choices=["graphcut", "metis"], default="graphcut")
-    parser.add_argument("--clusters", type=_clusters,
-                        help="mixture components k, a level of detail (default 9), "
-                             "or 'auto' to choose k per mesh by BIC")
+    parser.add_argument(
+        "--clusters",
+        type=_clusters,
+        help="mixture components k, a level of detail (default 9), "
+        "or 'auto' to choose k per mesh by BIC",
+    )
     parser.add_argument("--smoothing", type=float, help="graph-cut smoothness lambda")
-    parser.add_argument("--parts", type=int,
-                        help="number of parts: a cut of the graph cut's part tree (at most its "
-                             "leaves), or exactly this many with metis (default: automatic)")
+    parser.add_argument(
+        "--parts",
+        type=int,
+        help="number of parts: a cut of the graph cut's part tree (at most its "
+        "leaves), or exactly this many with metis (default: automatic)",
+    )
     parser.add_argument("--refine", action="store_true", help="recursively refine parts")
-    parser.add_argument("--boundary-smoothing", action="store_true",
-                        help="alpha-expansion pass that smooths part boundaries")
-    parser.add_argument("--crease-boundaries", action=argparse.BooleanOptionalAction,
-                        default=DEFAULT_CREASE_BOUNDARIES,
-                        help="move the graph cut's part boundaries onto nearby concave creases "
-                             "(a min cut in a band around each boundary; default: on)")
+    parser.add_argument(
+        "--boundary-smoothing",
+        action="store_true",
+        help="alpha-expansion pass that smooths part boundaries",
+    )
+    parser.add_argument(
+        "--crease-boundaries",
+        action=argparse.BooleanOptionalAction,
+        default=DEFAULT_CREASE_BOUNDARIES,
+        help="move the graph cut's part boundaries onto nearby concave creases "
+        "(a min cut in a band around each boundary; default: on)",
+    )
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
@@ -294,8 +322,11 @@ def cmd_batch(args: argparse.Namespace) -> int:
     )
     counts = summary(rows)
     if not args.quiet:
-        print(f"{counts['ok']} done, {counts['skipped']} already done, {counts['failed']} failed; "
-              f"manifest: {Path(args.output) / MANIFEST_NAME}", file=sys.stderr)
+        print(
+            f"{counts['ok']} done, {counts['skipped']} already done, {counts['failed']} failed; "
+            f"manifest: {Path(args.output) / MANIFEST_NAME}",
+            file=sys.stderr,
+        )
     return EXIT_BAD_INPUT if counts["failed"] else 0
 
 
@@ -313,49 +344,83 @@ def build_parser() -> argparse.ArgumentParser:
     segment.add_argument("-o", "--output", required=True, help="output .seg file")
     _add_segment_options(segment)
     segment.add_argument("--colored", metavar="OUT.glb", help="write a GLB coloured by part")
-    segment.add_argument("--tree", metavar="OUT.json",
-                         help="write the part tree (graphcut): leaf per input face, parent of "
-                              "each node, merge costs; any part count is a cut of it")
-    segment.add_argument("--parts-glb", metavar="OUT.glb",
-                         help="write a GLB with one mesh node per part")
-    segment.add_argument("--usd", metavar="OUT.usda",
-                         help="write the parts as USD (.usda/.usdc/.usdz): a USD input's own "
-                              "stage with one GeomSubset per part (family 'part') and a display "
-                              "colour per face on every mesh prim; other inputs: a new stage "
-                              "whose faces are the input faces")
+    segment.add_argument(
+        "--tree",
+        metavar="OUT.json",
+        help="write the part tree (graphcut): leaf per input face, parent of "
+        "each node, merge costs; any part count is a cut of it",
+    )
+    segment.add_argument(
+        "--parts-glb", metavar="OUT.glb", help="write a GLB with one mesh node per part"
+    )
+    segment.add_argument(
+        "--usd",
+        metavar="OUT.usda",
+        help="write the parts as USD (.usda/.usdc/.usdz): a USD input's own "
+        "stage with one GeomSubset per part (family 'part') and a display "
+        "colour per face on every mesh prim; other inputs: a new stage "
+        "whose faces are the input faces",
+    )
     segment.set_defaults(run=cmd_segment)
 
     batch = commands.add_parser(
-        "batch", help="segment many meshes (files, folders, manifests); resumable, parallel",
+        "batch",
+        help="segment many meshes (files, folders, manifests); resumable, parallel",
         description="Per asset: OUT_DIR/<name>.seg (and/or .shdf, .colored.glb, .parts.glb) "
-                    "and a row of OUT_DIR/manifest.csv. A re-run skips finished assets. "
-                    "Exit code 2 when any asset failed (its row says why).")
-    batch.add_argument("inputs", nargs="+", metavar="INPUT",
-                       help="mesh file, folder (searched recursively) or manifest "
-                            "(.txt/.lst: one path per line; .csv: a 'path' column)")
-    batch.add_argument("-o", "--output", required=True, metavar="OUT_DIR",
-                       help="output folder")
+        "and a row of OUT_DIR/manifest.csv. A re-run skips finished assets. "
+        "Exit code 2 when any asset failed (its row says why).",
+    )
+    batch.add_argument(
+        "inputs",
+        nargs="+",
+        metavar="INPUT",
+        help="mesh file, folder (searched recursively) or manifest "
+        "(.txt/.lst: one path per line; .csv: a 'path' column)",
+    )
+    batch.add_argument("-o", "--output", required=True, metavar="OUT_DIR", help="output folder")
     batch.add_argument("--format", help="file type when the extensions do not say it")
-    batch.add_argument("--method", choices=["auto", "exact", "sampled", "neural"],
-                       default="auto", help="ShDF producer (see `neural-shdf shdf --help`)")
+    batch.add_argument(
+        "--method",
+        choices=["auto", "exact", "sampled", "neural"],
+        default="auto",
+        help="ShDF producer (see `neural-shdf shdf --help`)",
+    )
     batch.add_argument("--seed", type=int, default=0, help="seed of every random step")
     _add_segment_options(batch)
-    batch.add_argument("--shdf-only", action="store_true",
-                       help="write only the per-face ShDF (no segmentation)")
-    batch.add_argument("--formats", nargs="+", choices=["seg", "shdf", "colored", "parts"],
-                       help="outputs per asset (default: seg): labels, ShDF values, "
-                            "GLB coloured by part, GLB with one node per part")
-    batch.add_argument("--workers", type=int,
-                       help="local worker processes (default: one per core)")
-    batch.add_argument("--scheduler", metavar="ADDRESS",
-                       help="run on a Dask distributed cluster (tcp://host:port); needs the "
-                            "'distributed' extra and the same paths on every worker")
-    batch.add_argument("--cache", metavar="URL_OR_DIR",
-                       help="ShDF cache shared with the service: redis://host:port/db or a folder")
-    batch.add_argument("--max-faces", type=int, default=DEFAULT_MAX_FACES,
-                       help="assets with more triangles fail without being computed")
-    batch.add_argument("--max-vertices", type=int, default=DEFAULT_MAX_VERTICES,
-                       help="assets with more vertices (glTF instances counted) fail")
+    batch.add_argument(
+        "--shdf-only", action="store_true", help="write only the per-face ShDF (no segmentation)"
+    )
+    batch.add_argument(
+        "--formats",
+        nargs="+",
+        choices=["seg", "shdf", "colored", "parts"],
+        help="outputs per asset (default: seg): labels, ShDF values, "
+        "GLB coloured by part, GLB with one node per part",
+    )
+    batch.add_argument("--workers", type=int, help="local worker processes (default: one per core)")
+    batch.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on a Dask distributed cluster (tcp://host:port); needs the "
+        "'distributed' extra and the same paths on every worker",
+    )
+    batch.add_argument(
+        "--cache",
+        metavar="URL_OR_DIR",
+        help="ShDF cache shared with the service: redis://host:port/db or a folder",
+    )
+    batch.add_argument(
+        "--max-faces",
+        type=int,
+        default=DEFAULT_MAX_FACES,
+        help="assets with more triangles fail without being computed",
+    )
+    batch.add_argument(
+        "--max-vertices",
+        type=int,
+        default=DEFAULT_MAX_VERTICES,
+        help="assets with more vertices (glTF instances counted) fail",
+    )
     batch.add_argument("-q", "--quiet", action="store_true", help="no progress bar or summary")
     batch.set_defaults(run=cmd_batch)
 
@@ -363,22 +428,37 @@ def build_parser() -> argparse.ArgumentParser:
         "unwrap", help="UVs charted part by part, packed into one atlas (GLB or OBJ with vt)"
     )
     _add_mesh_arguments(unwrap)
-    unwrap.add_argument("-o", "--output", required=True,
-                        help="OUT.glb (UVs + atlas preview texture) or OUT.obj (v/vt per corner)")
+    unwrap.add_argument(
+        "-o",
+        "--output",
+        required=True,
+        help="OUT.glb (UVs + atlas preview texture) or OUT.obj (v/vt per corner)",
+    )
     _add_segment_options(unwrap)
     unwrap.add_argument("--atlas-size", type=int, default=1024, help="atlas side in texels")
     unwrap.add_argument("--padding", type=int, default=2, help="texels between charts")
-    unwrap.add_argument("--max-stretch", type=float, default=1.1,
-                        help="largest L2 stretch of a part kept as one chart (1 = no stretch)")
-    unwrap.add_argument("--atlas-png", metavar="OUT.png",
-                        help="write the atlas layout (charts coloured by part, outlined)")
+    unwrap.add_argument(
+        "--max-stretch",
+        type=float,
+        default=1.1,
+        help="largest L2 stretch of a part kept as one chart (1 = no stretch)",
+    )
+    unwrap.add_argument(
+        "--atlas-png",
+        metavar="OUT.png",
+        help="write the atlas layout (charts coloured by part, outlined)",
+    )
     unwrap.add_argument("--labels", metavar="OUT.seg", help="also write the part labels")
     unwrap.set_defaults(run=cmd_unwrap)
 
     evaluate = commands.add_parser("eval", help="Princeton Segmentation Benchmark metrics")
     evaluate.add_argument("bench_dir", help="folder with off/, seg/ (and cgal/) subfolders")
-    evaluate.add_argument("--methods", nargs="+", default=["exact-graphcut"],
-                          help="methods to evaluate (e.g. cgal exact-graphcut exact-metis)")
+    evaluate.add_argument(
+        "--methods",
+        nargs="+",
+        default=["exact-graphcut"],
+        help="methods to evaluate (e.g. cgal exact-graphcut exact-metis)",
+    )
     evaluate.add_argument("--limit", type=int, help="evaluate only the first N models")
     evaluate.add_argument("--cache-dir", help="where computed ShDF values are cached")
     evaluate.add_argument("--jobs", type=int, default=1, help="worker processes (at most 2)")

@@ -39,14 +39,13 @@ for the ShDF's rays only (``shdf.stage.ray_targets``).
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
-from neural_shdf.constants import AREA_EPS
-from neural_shdf.geometry import _sorted_edges, face_normals, weld_faces
+from neural_shdf.geometry import _sorted_edges, face_normals, weld_faces, zero_area_limit
 
 #: ``hole_caps`` closes nothing where boundary edges outnumber this share of the triangles:
 #: such a surface is mostly open (a soup of separate sheets), and caps would not stand for
@@ -93,10 +92,12 @@ class MeshDiagnostics:
 
 @dataclass(frozen=True)
 class Orientation:
-    """``flips[i]``: triangle ``i`` is reversed to face out of its solid; and the diagnostics."""
+    """``flips[i]``: triangle ``i`` is reversed to face out of its solid; the diagnostics;
+    ``first_copy[i]``: the earlier triangle on the same three vertices, or -1."""
 
     flips: NDArray[np.bool_]
     diagnostics: MeshDiagnostics
+    first_copy: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 def orient_faces(
@@ -147,10 +148,10 @@ def orient_faces(
         boundary_loops=int(loops),
         non_manifold_edges=int(non_manifold),
         reoriented_faces=int(flips.sum()),
-        degenerate_faces=int(np.count_nonzero(2.0 * areas <= AREA_EPS)),
+        degenerate_faces=int(np.count_nonzero(2.0 * areas <= zero_area_limit(vertices, faces))),
         duplicate_faces=len(copies),
     )
-    return Orientation(flips, diagnostics)
+    return Orientation(flips, diagnostics, np.asarray(first_copy, dtype=np.int64))
 
 
 def welded_edges(welded: NDArray) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -287,22 +288,38 @@ def _orient_patches(faces, edge_table, slot, n_vertices, vertices, centre):  # p
         j = i + 1
         while j < edge_count and edge_table[j, 0] == edge_table[i, 0]:
             j += 1
-        if j - i > 2:
+        if j - i >= 2:
+            # Duplicates: the same third vertex on one edge. Every copy of a triangle is on
+            # each of its edges, so the lowest face of the copies is their original on
+            # whichever edge finds them first. Collapsed faces (``skip`` and no original)
+            # take no part.
             lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
-            # Duplicates: the same third vertex on one edge (the earlier is the first copy;
-            # every edge of a copy holds its original, so the first edge met finds it).
-            # Within very crowded edges only against the few faces before.
-            for k in range(i + 1, j):
-                later = edge_table[k, 1]
-                if skip[later]:
-                    continue
-                third = _third_vertex(faces, later, lo, hi)
-                for m in range(max(i, k - 8), k):
-                    earlier = edge_table[m, 1]
-                    if not skip[earlier] and _third_vertex(faces, earlier, lo, hi) == third:
-                        first_copy[later] = earlier
-                        skip[later] = True
-                        break
+            if j - i == 2:
+                f, g = edge_table[i, 1], edge_table[i + 1, 1]
+                usable = (not skip[f] or first_copy[f] >= 0) and (not skip[g] or first_copy[g] >= 0)
+                if usable and _third_vertex(faces, f, lo, hi) == _third_vertex(faces, g, lo, hi):
+                    first, second = min(f, g), max(f, g)
+                    first_copy[second] = first if first_copy[first] < 0 else first_copy[first]
+                    skip[second] = True
+            else:
+                keys = np.empty(j - i, dtype=np.int64)
+                count = 0
+                for k in range(i, j):
+                    face = edge_table[k, 1]
+                    if skip[face] and first_copy[face] < 0:
+                        continue
+                    keys[count] = _third_vertex(faces, face, lo, hi) * face_count + face
+                    count += 1
+                keys = np.sort(keys[:count])
+                start = 0
+                for t in range(1, count + 1):
+                    if t == count or keys[t] // face_count != keys[start] // face_count:
+                        original = keys[start] % face_count
+                        for u in range(start + 1, t):
+                            copy = keys[u] % face_count
+                            first_copy[copy] = original
+                            skip[copy] = True
+                        start = t
         members, f, g, f_at, g_at = 0, -1, -1, -1, -1
         for k in range(i, j):
             face = edge_table[k, 1]

@@ -178,3 +178,19 @@ def test_sampled_casts_more_samples_on_thin_parts() -> None:
     )
     assert np.abs(adaptive - exact).mean() < 0.6 * np.abs(fixed - exact).mean()
     np.testing.assert_array_equal(again, adaptive)
+
+
+def test_rays_are_cast_from_one_copy_of_each_triangle() -> None:
+    """A triangle repeated in place is one triangle to the rays: the ray mesh keeps one copy
+    and maps every copy to it (among k coincident triangles each ray would test all k)."""
+    vertices = np.eye(3)
+    mesh = TriangleMesh(vertices, np.tile([[0, 1, 2]], (500, 1)))
+    oriented = mesh.oriented
+    graph = mesh_face_graph(mesh)
+    ray_mesh, ray_graph, copy_of = stage.without_copies(
+        oriented, graph, mesh.orientation.first_copy
+    )
+    assert ray_mesh.face_count == 1 and ray_graph.face_count == 1
+    np.testing.assert_array_equal(copy_of, np.zeros(500))
+    result = compute_shdf_result(mesh, method="exact")
+    assert result.values.shape == (500,) and len(np.unique(result.values)) == 1

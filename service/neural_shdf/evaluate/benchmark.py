@@ -425,8 +425,11 @@ def table_as_dict(table: EvalTable) -> dict[str, Any]:
                 CATEGORY_NAMES.get(c, str(c)): s.as_dict() for c, s in t.by_category().items()
             },
             "models": {
-                str(r.model_id): {**r.scores.as_dict(), "parts": r.parts,
-                                  "human_parts": r.human_parts}
+                str(r.model_id): {
+                    **r.scores.as_dict(),
+                    "parts": r.parts,
+                    "human_parts": r.human_parts,
+                }
                 for r in t.models
             },
         }

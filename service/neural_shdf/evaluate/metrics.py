@@ -236,9 +236,7 @@ def cut_graph(vertices: ArrayLike, faces: ArrayLike) -> CutGraph:
     rows = np.concatenate([unique[:, 0], unique[:, 1]])
     cols = np.concatenate([unique[:, 1], unique[:, 0]])
     graph = sp.coo_matrix((np.concatenate([length, length]), (rows, cols)), shape=(n, n)).tocsr()
-    return CutGraph(
-        unique[two], edge_faces, graph, average_radius(vertices, faces), len(welded)
-    )
+    return CutGraph(unique[two], edge_faces, graph, average_radius(vertices, faces), len(welded))
 
 
 def cut_vertices(mesh: CutGraph, labels: ArrayLike) -> NDArray[np.int64]:

@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from neural_shdf import constants
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph, face_centroids
+from neural_shdf.geometry import FaceGraph, build_face_graph, face_centroids
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.orientation import MeshDiagnostics
 from neural_shdf.shdf.postprocess import (
@@ -317,6 +317,29 @@ def sampled_raw_shdf(
     return samples_to_faces(smoothed, samples, mesh.faces)
 
 
+def without_copies(
+    mesh: TriangleMesh, graph: FaceGraph, first_copy: NDArray
+) -> tuple[TriangleMesh, FaceGraph, NDArray[np.int64]]:
+    """The mesh the ShDF is computed on: one copy of each triangle (``first_copy``: the earlier
+    triangle on the same vertices, or -1), its face graph, and per triangle of ``mesh`` the
+    index of its copy there. Coincident copies (double-sided cards, a triangle repeated in
+    place) would otherwise stop each other's rays at distance zero, a ray cast among k
+    coincident triangles tests all k of them, and the filters would weigh them k times."""
+    first_copy = np.asarray(first_copy, dtype=np.int64)
+    if not len(first_copy) or first_copy.max() < 0:
+        return mesh, graph, np.arange(mesh.face_count)
+    kept = np.flatnonzero(first_copy < 0)
+    copy_of = np.searchsorted(
+        kept, np.where(first_copy < 0, np.arange(len(first_copy)), first_copy)
+    )
+    unique = TriangleMesh(
+        mesh.vertices, mesh.faces[kept], mesh.face_origin[kept], mesh.input_face_count
+    )
+    normals, _ = unique.normals_and_areas
+    unique_graph = build_face_graph(unique.vertices, unique.welded_faces, normals)
+    return unique, unique_graph, copy_of
+
+
 def raw_diameters(
     mesh: TriangleMesh,
     graph: FaceGraph,
@@ -392,8 +415,10 @@ def run_shdf(
     Every producer works on ``mesh.oriented``: the rays go into the solid whatever the
     file's winding; ``graph``: the face graph of that mesh (``pipeline.mesh_face_graph``).
     """
-    diagnostics = mesh.orientation.diagnostics
-    mesh = mesh.oriented
+    orientation = mesh.orientation
+    diagnostics = orientation.diagnostics
+    # One copy of each triangle (coincident copies share its value); no copies: as given.
+    mesh, graph, copy_of = without_copies(mesh.oriented, graph, orientation.first_copy)
     params = params or ShdfParams()
     resolved = resolve_method(method, mesh.face_count)
     if resolved == "neural":
@@ -424,7 +449,7 @@ def run_shdf(
         progress=None
         if progress is None
         else (lambda done: progress(ray_share + (1 - ray_share) * done)),
-    )
+    )[copy_of]
     return ShdfResult(values, resolved, diagnostics)
 
 

@@ -212,28 +212,18 @@ def _faces_of_each_part(labels: np.ndarray) -> dict[str, list[int]]:
     return {part_name(p): np.flatnonzero(labels == p).tolist() for p in np.unique(labels)}
 
 
+def _segment_to_usd(source: Path, labels: Path, parts: Path) -> None:
+    command = ["segment", str(source), "-o", str(labels), "--method", "exact", "--usd", str(parts)]
+    assert main([*command, "-q"]) == 0
+
+
 def test_segment_writes_a_usd_input_back_as_usd_with_a_subset_per_part(tmp_path: Path):
     from tests.exchange.test_usd import _dumbbell_stage
 
     source = tmp_path / "dumbbell.usda"
     counts = _dumbbell_stage(source)
     labels, parts = tmp_path / "parts.seg", tmp_path / "parts.usdc"
-    assert (
-        main(
-            [
-                "segment",
-                str(source),
-                "-o",
-                str(labels),
-                "--method",
-                "exact",
-                "--usd",
-                str(parts),
-                "-q",
-            ]
-        )
-        == 0
-    )
+    _segment_to_usd(source, labels, parts)
     seg = np.array(_read_lines(labels), dtype=int)
     assert len(seg) == sum(counts)
     assert _part_subsets(parts, "/World/Bar/Shape") == _faces_of_each_part(seg[: counts[0]])
@@ -246,22 +236,7 @@ def test_segment_writes_other_inputs_as_a_new_usd_stage_of_their_faces(tmp_path:
     mesh_path = tmp_path / "quads.obj"
     faces = _quad_box_obj(mesh_path)
     labels, parts = tmp_path / "l.seg", tmp_path / "parts.usda"
-    assert (
-        main(
-            [
-                "segment",
-                str(mesh_path),
-                "-o",
-                str(labels),
-                "--method",
-                "exact",
-                "--usd",
-                str(parts),
-                "-q",
-            ]
-        )
-        == 0
-    )
+    _segment_to_usd(mesh_path, labels, parts)
     seg = np.array(_read_lines(labels), dtype=int)
     assert _part_subsets(parts, "/World/Mesh") == _faces_of_each_part(seg)
     written, original = load_mesh(parts), load_mesh(mesh_path)

@@ -10,8 +10,9 @@ default limits, a fresh disk cache):
 * every status (0 when no answer came within the request timeout + 30 s), how long each
   answer took, and whether the answer is the correct one (a status, or a checked property
   such as "the re-upload after DELETE is not cached");
-* the server's peak resident memory during the case (sampled every 20 ms; the server is
-  killed and restarted past ``--kill-mb``, which counts as a server death);
+* the server's peak resident memory during the case, its worker processes included
+  (sampled every 20 ms; the server is killed and restarted past ``--kill-mb``, which
+  counts as a server death);
 * the longest ``/healthz`` latency during the case (an event-loop stall).
 
 Then the legitimate inputs for scale: ``dense-dev`` zenobia (462k faces, where
@@ -577,6 +578,19 @@ def rss_mb(pid: int, key: str = "VmRSS:") -> float:
     return float("nan")
 
 
+def tree_rss_mb(pid: int) -> float:
+    """Resident memory of a process and all its descendants (worker processes) in MB."""
+    total, todo = 0.0, [pid]
+    while todo:
+        current = todo.pop()
+        rss = rss_mb(current)
+        total += rss if rss == rss else 0.0
+        for task in Path(f"/proc/{current}/task").glob("*"):
+            with contextlib.suppress(OSError):
+                todo += [int(child) for child in (task / "children").read_text().split()]
+    return total
+
+
 class Server:
     """``neural-shdf serve`` in a child process on a free loopback port, fresh cache, with a
     monitor thread that samples its memory and ``/healthz`` latency, and kills it past
@@ -627,7 +641,7 @@ class Server:
 
     def _watch_memory(self) -> None:
         while not self._stop.is_set() and self.process.poll() is None:
-            rss = rss_mb(self.process.pid)
+            rss = tree_rss_mb(self.process.pid)
             if rss == rss:
                 self.window_rss = max(self.window_rss, rss)
             if rss > self.kill_mb:
@@ -645,7 +659,7 @@ class Server:
                 time.sleep(0.05)
 
     def open_window(self) -> None:
-        self.window_rss = rss_mb(self.process.pid)
+        self.window_rss = tree_rss_mb(self.process.pid)
         self.window_health = 0.0
 
     @property

@@ -108,3 +108,29 @@ def test_atlas_sizes_outside_the_documented_range_get_422(client, capsule_obj):
                                   params={"method": TEST_METHOD, "atlas_size": size})  # fmt: skip
             assert response.status_code == 422, response.text
             assert "atlas_size" in response.json()["error"]["message"]
+
+
+def test_the_atlas_is_computed_in_a_worker_process_with_the_library_s_result(client, capsule_obj):
+    """xatlas packs holding the GIL, so the service unwraps in a worker process (the event
+    loop keeps answering): the same UVs as the library's ``unwrap`` of the same labels."""
+    import os
+
+    from neural_shdf.unwrap import UnwrapParams, unwrap
+
+    mesh_id = _upload(client, capsule_obj)
+    query = {"method": TEST_METHOD, "clusters": 3, "atlas_size": 256}
+    response = client.get(f"/v1/meshes/{mesh_id}/segmentation/unwrapped.glb", params=query)
+    assert response.status_code == 200, response.text
+    pool = client.app.state.engine.tasks._isolated
+    assert pool is not None
+    workers = [process.pid for process in pool._processes.values()]
+    assert workers and os.getpid() not in workers
+    loaded = trimesh.load(io.BytesIO(response.content), file_type="glb", force="mesh",
+                          process=False)  # fmt: skip
+    segment = {k: v for k, v in query.items() if k != "atlas_size"}
+    labels = np.array(
+        client.post("/v1/segment", json={"mesh_id": mesh_id, **segment}).json()["labels"]
+    )
+    mesh = load_mesh(capsule_obj, "obj")
+    atlas = unwrap(mesh, labels[mesh.face_origin], UnwrapParams(atlas_size=256))
+    np.testing.assert_allclose(loaded.visual.uv[loaded.faces], atlas.corner_uvs, atol=1e-6)

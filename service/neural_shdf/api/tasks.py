@@ -24,9 +24,10 @@ import asyncio
 import contextlib
 import contextvars
 import functools
+import multiprocessing
 import threading
 from collections.abc import Awaitable, Callable, Coroutine
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
@@ -86,6 +87,8 @@ class TaskRunner:
         self.cache = cache
         self.executor = ThreadPoolExecutor(settings.compute_threads, thread_name_prefix="compute")
         self.io_executor = ThreadPoolExecutor(settings.io_threads, thread_name_prefix="io")
+        self._isolated: ProcessPoolExecutor | None = None
+        self._isolated_lock = threading.Lock()
         self.share = settings.compute_share or max(1, settings.compute_threads - 1)
         self._inflight: dict[str, Flight] = {}
         self._shares: dict[str, asyncio.Semaphore] = {}
@@ -235,8 +238,23 @@ class TaskRunner:
         task.add_done_callback(self._background.discard)
         return task
 
+    def isolated(self, function: Callable[..., T], *args: Any) -> T:
+        """``function(*args)`` in a worker process (started on first use, then kept), for
+        library code that holds the GIL for seconds (xatlas's packing): in a thread it
+        would stall the event loop, and with it every other request. Arguments and result
+        are pickled; so are the project's exceptions. Blocking: call it on the compute pool."""
+        with self._isolated_lock:
+            if self._isolated is None:
+                # spawn: forking a process whose threads hold locks can deadlock the child
+                context = multiprocessing.get_context("spawn")
+                self._isolated = ProcessPoolExecutor(max_workers=1, mp_context=context)
+            pool = self._isolated
+        return pool.submit(function, *args).result()
+
     async def close(self) -> None:
         for task in list(self._background):
             task.cancel()
         self.executor.shutdown(wait=False, cancel_futures=True)
         self.io_executor.shutdown(wait=False, cancel_futures=True)
+        if self._isolated is not None:
+            self._isolated.shutdown(wait=False, cancel_futures=True)

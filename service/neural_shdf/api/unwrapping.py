@@ -20,6 +20,7 @@ from neural_shdf.api.tasks import TaskRunner
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
 from neural_shdf.unwrap import UnwrapParams, UvAtlas
+from neural_shdf.unwrap import unwrap as unwrap_mesh
 
 #: The file each kind of atlas job serves once it succeeded.
 RESULT_FILES = {"unwrap": "unwrapped.glb", "atlas": "atlas.png"}
@@ -81,12 +82,6 @@ class UnwrapService:
         self.meshes.store_result(key, mesh_id, _atlas_arrays(atlas), guard)
         self.cache.remember(key, atlas)
 
-    @staticmethod
-    def _compute(mesh: TriangleMesh, triangle_labels: NDArray, unwrap: UnwrapParams) -> UvAtlas:
-        from neural_shdf.unwrap import unwrap as unwrap_mesh
-
-        return unwrap_mesh(mesh, np.asarray(triangle_labels, dtype=np.int64), unwrap)
-
     async def get(
         self,
         mesh_id: str,
@@ -111,7 +106,14 @@ class UnwrapService:
             self.tasks.compute_once,
             key,
             functools.partial(self.cached, key),
-            functools.partial(self._compute, mesh, result.triangle_labels, unwrap),
+            # In a worker process: xatlas packs holding the GIL (seconds at 8192 texels).
+            functools.partial(
+                self.tasks.isolated,
+                unwrap_mesh,
+                bare_mesh(mesh),
+                np.asarray(result.triangle_labels, dtype=np.int64),
+                unwrap,
+            ),
             functools.partial(self._store, key, mesh_id),
             functools.partial(self.meshes.guard, mesh_id),
         )
@@ -191,6 +193,11 @@ class UnwrapService:
         from neural_shdf.unwrap import atlas_layout_png
 
         return atlas_layout_png(atlas, size=unwrap.atlas_size)
+
+
+def bare_mesh(mesh: TriangleMesh) -> TriangleMesh:
+    """The mesh without its cached derived arrays (what is sent to a worker process)."""
+    return TriangleMesh(mesh.vertices, mesh.faces, mesh.face_origin, mesh.input_face_count)
 
 
 def _png_from_arrays(arrays: dict[str, NDArray]) -> bytes:

@@ -56,6 +56,10 @@ class TriangleMesh:
     def face_count(self) -> int:
         return int(len(self.faces))
 
+    def bare(self) -> TriangleMesh:
+        """The same mesh without its cached derived arrays (cheap to send to a process)."""
+        return TriangleMesh(self.vertices, self.faces, self.face_origin, self.input_face_count)
+
     @cached_property
     def normals_and_areas(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Unit normal (F, 3) and area (F,) of each triangle, computed once per mesh.

@@ -173,3 +173,26 @@ def test_an_abandoned_shdf_request_is_cancelled_in_the_service(tmp_path):
             assert time.monotonic() < deadline, "the abandoned computation was not cancelled"
             time.sleep(0.2)
         assert metric('neural_shdf_shdf_computations_total{method="exact"}') == 0
+
+
+def _refuse(found: int) -> None:
+    from neural_shdf.errors import MeshTooLargeError
+
+    raise MeshTooLargeError("too many charts", limit="max_charts", maximum=10, found=found)
+
+
+def test_isolated_work_runs_in_another_process_and_keeps_the_errors_details(tmp_path):
+    """GIL-holding library calls (xatlas, pymetis) run in a worker process; its answers
+    and the project's errors, with their structured detail, come back as raised there."""
+    import os
+
+    from neural_shdf.errors import MeshTooLargeError
+
+    tasks = runner(tmp_path)
+    try:
+        assert tasks.isolated(os.getpid) != os.getpid()
+        with pytest.raises(MeshTooLargeError) as raised:
+            tasks.isolated(_refuse, 11)
+        assert raised.value.detail() == {"limit": "max_charts", "maximum": 10, "found": 11}
+    finally:
+        asyncio.run(tasks.close())

@@ -191,16 +191,24 @@ class SegmentationService:
         # What does not depend on smoothing, parts or refinement is kept per mesh, ShDF,
         # clusters and seed (in memory, within MEMORY_WORKING_SET_BYTES), so a new slider value
         # only re-cuts.
-        shdf_version = self.shdf.version(method, params.seed)
-        basis_key = f"{mesh_id}:basis:{shdf_version}:{params.clusters}:{params.seed}"
-        basis = self.cache.working_set(basis_key)
-        if basis is None or not basis.matches(params, shdf):
-            creases = self.meshes.creases(mesh_id, mesh) if params.crease_boundaries else None
+        if params.partitioner == "metis":
+            # In the worker process: pymetis partitions holding the GIL, which in a thread
+            # stalls the event loop (every other request) for as long.
+            segment = functools.partial(segment_mesh_with_details, graph=graph)
+            segmentation = self.tasks.isolated(segment, mesh.bare(), shdf, params)
+        else:
+            shdf_version = self.shdf.version(method, params.seed)
+            basis_key = f"{mesh_id}:basis:{shdf_version}:{params.clusters}:{params.seed}"
+            basis = self.cache.working_set(basis_key)
+            if basis is None or not basis.matches(params, shdf):
+                crease_graph = (
+                    self.meshes.creases(mesh_id, mesh) if params.crease_boundaries else None
+                )
+                checkpoint()
+                basis = prepare_segment_mesh(mesh, shdf, params, graph=graph, creases=crease_graph)
             checkpoint()
-            basis = prepare_segment_mesh(mesh, shdf, params, graph=graph, creases=creases)
-        checkpoint()
-        segmentation = segment_mesh_with_details(mesh, shdf, params, graph=graph, basis=basis)
-        self.cache.keep_working_set(basis_key, basis, basis.nbytes)  # sized with its cut
+            segmentation = segment_mesh_with_details(mesh, shdf, params, graph=graph, basis=basis)
+            self.cache.keep_working_set(basis_key, basis, basis.nbytes)  # sized with its cut
         seconds = time.perf_counter() - start
         self.metrics.segmentations.inc()
         self.metrics.segment_seconds.observe(seconds)

@@ -110,7 +110,7 @@ class UnwrapService:
             functools.partial(
                 self.tasks.isolated,
                 unwrap_mesh,
-                bare_mesh(mesh),
+                mesh.bare(),
                 np.asarray(result.triangle_labels, dtype=np.int64),
                 unwrap,
             ),
@@ -193,11 +193,6 @@ class UnwrapService:
         from neural_shdf.unwrap import atlas_layout_png
 
         return atlas_layout_png(atlas, size=unwrap.atlas_size)
-
-
-def bare_mesh(mesh: TriangleMesh) -> TriangleMesh:
-    """The mesh without its cached derived arrays (what is sent to a worker process)."""
-    return TriangleMesh(mesh.vertices, mesh.faces, mesh.face_origin, mesh.input_face_count)
 
 
 def _png_from_arrays(arrays: dict[str, NDArray]) -> bytes:

@@ -21,9 +21,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
-import socket
-import subprocess
 import sys
 import tempfile
 import threading
@@ -32,38 +29,9 @@ from pathlib import Path
 
 import httpx
 import trimesh
+from bench_service import start_server
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def start_server(source: Path, cache: Path) -> tuple[subprocess.Popen, str]:
-    port = free_port()
-    env = dict(os.environ)
-    env.update(
-        PYTHONPATH=str(source),
-        NEURAL_SHDF_PORT=str(port),
-        NEURAL_SHDF_CACHE_DIR=str(cache),
-        NEURAL_SHDF_DEFAULT_METHOD="exact",
-        NEURAL_SHDF_LOG_LEVEL="warning",
-    )
-    env.pop("NEURAL_SHDF_REDIS_URL", None)
-    process = subprocess.Popen([sys.executable, "-m", "neural_shdf.api.serve"], env=env)
-    base = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 300
-    while time.monotonic() < deadline:
-        try:
-            if httpx.get(f"{base}/healthz", timeout=1).status_code == 200:
-                return process, base
-        except httpx.HTTPError:
-            time.sleep(0.2)
-    process.kill()
-    raise RuntimeError("server did not start")
 
 
 class HealthProbe:
@@ -167,7 +135,7 @@ def main() -> None:
     sources = [Path(p).resolve() for p in sys.argv[1:]] or [REPO / "service"]
     for source in sources:
         with tempfile.TemporaryDirectory() as cache:
-            process, base = start_server(source, Path(cache))
+            process, base = start_server(cache, "exact", 1, source=source, request_timeout_s=None)
             try:
                 print(f"== {source}")
                 print("  " + json_keys_case(base))

@@ -53,7 +53,18 @@ def capsule_ply(target_faces: int) -> tuple[bytes, int]:
     return mesh.export(file_type="ply"), len(mesh.faces)
 
 
-def start_server(cache_dir: str, method: str, workers: int) -> tuple[subprocess.Popen, str]:
+def start_server(
+    cache_dir: str,
+    method: str,
+    workers: int,
+    *,
+    source: Path | None = None,
+    request_timeout_s: float | None = 600,
+) -> tuple[subprocess.Popen, str]:
+    """``neural-shdf serve`` on a free loopback port, once it answers ``/healthz``.
+
+    ``source``: the package tree to run (another checkout, for side-by-side runs);
+    ``request_timeout_s``: None keeps the service's default."""
     port = free_port()
     env = {
         **os.environ,
@@ -63,12 +74,15 @@ def start_server(cache_dir: str, method: str, workers: int) -> tuple[subprocess.
         "NEURAL_SHDF_DEFAULT_METHOD": method,
         "NEURAL_SHDF_WORKERS": str(workers),
         "NEURAL_SHDF_LOG_LEVEL": "warning",
-        "NEURAL_SHDF_REQUEST_TIMEOUT_S": "600",
     }
+    if request_timeout_s is not None:
+        env["NEURAL_SHDF_REQUEST_TIMEOUT_S"] = str(request_timeout_s)
+    if source is not None:
+        env["PYTHONPATH"] = str(source)
     env.pop("NEURAL_SHDF_REDIS_URL", None)
     process = subprocess.Popen([sys.executable, "-m", "neural_shdf.api.serve"], env=env)
     base = f"http://127.0.0.1:{port}"
-    deadline = time.monotonic() + 120
+    deadline = time.monotonic() + 300
     while time.monotonic() < deadline:
         try:
             if httpx.get(f"{base}/healthz", timeout=1).status_code == 200:

@@ -44,6 +44,7 @@ from pathlib import Path
 
 import httpx
 import numpy as np
+from bench_service import free_port
 
 REPO = Path(__file__).resolve().parents[1]
 LEGIT = (
@@ -561,12 +562,6 @@ def corpus() -> list[Case]:
 
 
 # -- running -----------------------------------------------------------------------------------
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
 def rss_mb(pid: int, key: str = "VmRSS:") -> float:
     """A process's resident set (``VmRSS``) or its peak (``VmHWM:``) in MB."""
     try:

@@ -196,3 +196,18 @@ def test_isolated_work_runs_in_another_process_and_keeps_the_errors_details(tmp_
         assert raised.value.detail() == {"limit": "max_charts", "maximum": 10, "found": 11}
     finally:
         asyncio.run(tasks.close())
+
+
+def test_a_dead_worker_process_is_a_503_and_the_next_call_starts_a_new_one(tmp_path):
+    import os
+    import signal
+
+    tasks = runner(tmp_path)
+    try:
+        first = tasks.isolated(os.getpid)
+        with pytest.raises(ApiError) as raised:
+            tasks.isolated(os.kill, first, signal.SIGKILL)
+        assert raised.value.status_code == 503 and raised.value.code == "worker_lost"
+        assert tasks.isolated(os.getpid) not in (first, os.getpid())
+    finally:
+        asyncio.run(tasks.close())

@@ -28,6 +28,7 @@ import multiprocessing
 import threading
 from collections.abc import Awaitable, Callable, Coroutine
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
@@ -249,7 +250,16 @@ class TaskRunner:
                 context = multiprocessing.get_context("spawn")
                 self._isolated = ProcessPoolExecutor(max_workers=1, mp_context=context)
             pool = self._isolated
-        return pool.submit(function, *args).result()
+        try:
+            return pool.submit(function, *args).result()
+        except BrokenProcessPool:
+            # The worker died (killed for memory, say): the next call starts a new one.
+            with self._isolated_lock:
+                if self._isolated is pool:
+                    self._isolated = None
+            raise ApiError(
+                503, "worker_lost", "the worker process died during this request; retry it"
+            ) from None
 
     async def close(self) -> None:
         for task in list(self._background):

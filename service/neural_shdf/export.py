@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf.arrays import unique_rows
 from neural_shdf.errors import ParameterError
 from neural_shdf.mesh import TriangleMesh
 
@@ -325,7 +326,7 @@ def uv_split_vertices(
     corners = mesh.faces.reshape(-1)
     uv = np.asarray(atlas.corner_uvs, dtype=np.float64).reshape(-1, 2)
     keys = np.column_stack([corners.astype(np.float64), uv])
-    unique, inverse = np.unique(keys, axis=0, return_inverse=True)
+    unique, inverse = unique_rows(keys, return_inverse=True)
     vertex = unique[:, 0].astype(np.int64)
     return mesh.vertices[vertex], inverse.reshape(-1, 3).astype(np.int64), unique[:, 1:]
 

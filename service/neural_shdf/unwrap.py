@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf.arrays import unique_rows
 from neural_shdf.compiled import kernel
 from neural_shdf.errors import MeshTooLargeError, ParameterError
 from neural_shdf.geometry import weld_faces
@@ -199,7 +200,7 @@ def _coincident_representative(
     """Per face, the first face of the same part on the same (welded) vertices, in any
     order: copies of one triangle are charted once and share its UVs."""
     keys = np.column_stack([labels, np.sort(welded, axis=1)])
-    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    _, first, inverse = unique_rows(keys, return_index=True, return_inverse=True)
     return first[inverse.reshape(-1)].astype(np.int64)
 
 
@@ -247,7 +248,7 @@ def _connected_pieces(welded: NDArray[np.int64], faces: NDArray[np.int64]) -> li
     if len(faces) == 0:
         return []
     edges = np.sort(welded[faces][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, edge_id = np.unique(edges, axis=0, return_inverse=True)
+    _, edge_id = unique_rows(edges, return_inverse=True)
     n_faces, n_edges = len(faces), int(edge_id.max()) + 1
     owner = np.repeat(np.arange(n_faces), 3)
     # Faces are nodes [0, F), edges [F, F + E): face labels come first, in face order.
@@ -286,7 +287,7 @@ def _bisect(
 
 def _is_edge_manifold(faces: NDArray[np.int64]) -> bool:
     edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
+    _, counts = unique_rows(edges, return_counts=True)
     return bool(counts.max(initial=0) <= 2)
 
 
@@ -362,7 +363,7 @@ class _Piece:
         """Vertex graph weighted by edge length; polygon diagonals cost DIAGONAL_PENALTY more."""
         import scipy.sparse as sp
 
-        edges = np.unique(np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+        edges = unique_rows(np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1))
         a, b = edges[:, 0], edges[:, 1]
         length = np.linalg.norm(self.vertices[a] - self.vertices[b], axis=1) + 1e-300
         length[self._is_diagonal(a, b)] *= DIAGONAL_PENALTY
@@ -375,7 +376,7 @@ class _Piece:
         return [np.asarray(loop, dtype=np.int64) for loop in igl.boundary_loop_all(self.faces)]
 
     def euler_characteristic(self) -> int:
-        edges = np.unique(np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+        edges = unique_rows(np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1))
         return len(np.unique(self.faces)) - len(edges) + len(self.faces)
 
     def cut(self, path: list[int] | NDArray) -> None:
@@ -532,7 +533,7 @@ def _overlaps_itself(uv: NDArray, faces: NDArray) -> bool:
     The two sides of a cut are different border edges: where they cross (the chart wraps
     past a full turn at the cut's end) that is an overlap too."""
     edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    unique, counts = unique_rows(edges, return_counts=True)
     border = unique[counts == 1]
     if len(border) > MAX_CHECKED_BORDER:
         return True  # too long a border to test pair by pair: not kept as one chart
@@ -613,7 +614,7 @@ def _pack(
     keys = np.column_stack(
         [np.repeat(owner, 3), np.round(laid_out.reshape(-1, 2) / quantum)]
     ).astype(np.int64)
-    unique, inverse = np.unique(keys, axis=0, return_inverse=True)
+    unique, inverse = unique_rows(keys, return_inverse=True)
     uv_vertices = np.ascontiguousarray(unique[:, 1:] * quantum, dtype=np.float32)
     uv_faces = np.ascontiguousarray(inverse.reshape(-1, 3), dtype=np.uint32)
     texels_per_unit = 0.0  # first pass: xatlas's estimate for the resolution
@@ -824,7 +825,7 @@ def chart_outline_edges(corner_uvs: NDArray, chart: NDArray) -> NDArray[np.float
     high = np.where(swap[:, None], a, b)
     owner = np.repeat(np.asarray(chart)[faces], 3)
     keys = np.column_stack([owner, low, high])
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    _, inverse, counts = unique_rows(keys, return_inverse=True, return_counts=True)
     outline = counts[inverse.reshape(-1)] == 1
     return np.stack([starts[outline], ends[outline]], axis=1)
 
@@ -860,7 +861,7 @@ def _layout_strips(atlas: UvAtlas, size: int | None, checker: int) -> Iterator[N
     chart = np.array(atlas.chart, dtype=np.int64)
     # A triangle on the same UVs as an earlier one claims no texel: drawn once, copies of
     # a triangle cost one triangle's texels, not one each.
-    _, first = np.unique(corner_uvs.reshape(-1, 6), axis=0, return_index=True)
+    _, first = unique_rows(corner_uvs.reshape(-1, 6), return_index=True)
     repeated = np.ones(len(chart), dtype=bool)
     repeated[first] = False
     chart[repeated] = -1

@@ -28,6 +28,7 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 from scipy.sparse.csgraph import dijkstra
 
+from neural_shdf.arrays import unique_rows
 from neural_shdf.geometry import face_normals, weld_faces
 
 #: Metric names in table order.
@@ -224,7 +225,7 @@ def cut_graph(vertices: ArrayLike, faces: ArrayLike) -> CutGraph:
     face_of = np.repeat(np.arange(len(welded)), 3)
     keep = half[:, 0] != half[:, 1]
     half, face_of = half[keep], face_of[keep]
-    unique, inverse, counts = np.unique(half, axis=0, return_inverse=True, return_counts=True)
+    unique, inverse, counts = unique_rows(half, return_inverse=True, return_counts=True)
     inverse = inverse.reshape(-1)
     # Interior edges: exactly two faces; collect them in edge order.
     order = np.argsort(inverse, kind="stable")

@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf.arrays import unique_rows
 from neural_shdf.geometry import build_face_graph, weld_faces
 from neural_shdf.unwrap import rasterize_charts
 
@@ -74,7 +75,7 @@ def seam_ratio(vertices: NDArray, faces: NDArray, corner_uvs: NDArray) -> float:
         uv_right = corner_uvs[right, np.argmax(welded[right] == vertex, axis=1)]
         seam |= np.any(np.abs(uv_left - uv_right) > 1e-7, axis=1)
     edges = np.sort(welded[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    unique = np.unique(edges, axis=0)
+    unique = unique_rows(edges)
     total = float(np.linalg.norm(vertices[unique[:, 0]] - vertices[unique[:, 1]], axis=1).sum())
     return float(graph.edge_length[seam].sum() / total) if total > 0 else 0.0
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import heapq
 import math
+from array import array
 from dataclasses import dataclass
 
 import numpy as np
@@ -239,12 +240,14 @@ def merge_tree(
     heapq.heapify(heap)
     alive = np.zeros(node_count, dtype=bool)
     alive[:leaf_count] = True
-    merges: list[tuple[int, int]] = []
-    costs: list[float] = []
+    # Flat typed arrays, not lists of tuples: turning ~10^5 tuples into an ndarray is one
+    # C call that holds the GIL (and the event loop of the service beside it) too long.
+    merges = array("q")  # (low, high) child pair of each merge, flat
+    costs = array("d")
 
     def merge(i: int, j: int, merge_cost: float) -> int:
-        node = leaf_count + len(merges)
-        merges.append((min(i, j), max(i, j)))
+        node = leaf_count + len(merges) // 2
+        merges.extend((min(i, j), max(i, j)))
         costs.append(merge_cost)
         alive[i] = alive[j] = False
         alive[node] = True
@@ -273,17 +276,19 @@ def merge_tree(
 
     # Separate shells: smallest first into the part of nearest mean ShDF.
     roots = np.flatnonzero(alive)
-    pairs = _shell_merge_order(roots, node_area, node_moment, leaf_count + len(merges))
+    pairs = _shell_merge_order(roots, node_area, node_moment, leaf_count + len(merges) // 2)
     shell_area, shell_moment = node_area.tolist(), node_moment.tolist()  # Python floats: fast
     for smallest, target in pairs.tolist():
-        merges.append((min(smallest, target), max(smallest, target)))
+        merges.extend((min(smallest, target), max(smallest, target)))
         area_s, area_t = shell_area[smallest], shell_area[target]
         mean_s = shell_moment[smallest] / area_s if area_s > 0 else 0.0
         mean_t = shell_moment[target] / area_t if area_t > 0 else 0.0
         costs.append(cost(area_s, area_t, mean_s, mean_t, 0.0, 0.0, total_area))
 
     return PartTree(
-        leaves, np.array(merges, dtype=np.int64).reshape(-1, 2), np.array(costs, dtype=np.float64)
+        leaves,
+        np.frombuffer(merges, dtype=np.int64).reshape(-1, 2).copy(),
+        np.frombuffer(costs, dtype=np.float64).copy(),
     )
 
 

@@ -29,7 +29,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from hostile_corpus import dumbbell_obj, repeated_triangle, separate_shells  # noqa: E402
+from hostile_corpus import LEGIT, dumbbell_obj, repeated_triangle, separate_shells  # noqa: E402
 
 from neural_shdf.mesh_io import load_mesh  # noqa: E402
 
@@ -105,6 +105,12 @@ def stages() -> dict[str, Callable[[], object]]:
 
         return unwrapped_glb(dumbbell_mesh, atlas_parts["atlas"], texture_png=atlas_parts["png"])
 
+    def segment_scan() -> object:
+        from neural_shdf.pipeline import compute_shdf, segment_mesh
+
+        scan = load_mesh(LEGIT)
+        return segment_mesh(scan, compute_shdf(scan))
+
     return {
         "read OBJ: one triangle x50,000": lambda: load_mesh(triangles, "obj"),
         "read OBJ: 100,000 shells": lambda: load_mesh(shells, "obj"),
@@ -112,6 +118,7 @@ def stages() -> dict[str, Callable[[], object]]:
         "ShDF and segment: 60k dumbbell": segment_dumbbell,
         "unwrap (serve: worker process)": atlas_of_dumbbell,
         "atlas PNG: 60k dumbbell": atlas_png,
+        **({"read, ShDF, segment: 462k scan": segment_scan} if LEGIT.exists() else {}),
         "unwrapped GLB: 60k dumbbell": unwrapped_glb,
     }
 

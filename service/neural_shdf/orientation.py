@@ -166,8 +166,10 @@ def reversed_slots(slot: NDArray, flips: NDArray) -> NDArray[np.int64]:
     """``slot`` of ``welded_edges`` for the same triangles with those in ``flips`` listed
     backwards, (a, b, c) -> (c, b, a): their edges (c, b), (b, a), (a, c) were corners 1, 0, 2.
     The edge table itself does not depend on the winding."""
-    slots = np.asarray(slot).reshape(-1, 3)
-    return np.where(np.asarray(flips)[:, None], slots[:, [1, 0, 2]], slots).reshape(-1)
+    slots = np.array(slot, dtype=np.int64).reshape(-1, 3)
+    flipped = np.flatnonzero(flips)
+    slots[flipped, 0], slots[flipped, 1] = slots[flipped, 1], slots[flipped, 0]
+    return slots.reshape(-1)
 
 
 def _same_cyclic_order(faces: NDArray, others: NDArray) -> NDArray[np.bool_]:

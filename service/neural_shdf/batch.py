@@ -289,11 +289,13 @@ def shared_shdf(
     def keep(values: NDArray[np.float64], _: None) -> None:
         store.put_arrays(key, shdf_arrays(values), group=mesh_id)
 
-    values = lookup()
-    if values is not None:
-        return values, method, True
-    values, cached = store.compute_once(key, lookup, compute, keep, wait_s=config.lock_timeout_s)
-    return values, method, cached
+    found = lookup()
+    if found is not None:
+        return found, method, True
+    outcome: tuple[NDArray[np.float64], bool] = store.compute_once(
+        key, lookup, compute, keep, wait_s=config.lock_timeout_s
+    )
+    return outcome[0], method, outcome[1]
 
 
 def _row(asset: Asset, **values: Any) -> dict[str, Any]:

@@ -15,7 +15,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import Any, Protocol, TypeVar, cast
 
 import diskcache
 import redis
@@ -272,7 +272,8 @@ class RedisBackend:
             raise BackendUnavailable(str(exc)) from exc
 
     def get(self, key: str) -> bytes | None:
-        return self._call(self._redis.get, self._key(key))
+        # bytes: the client is made without decode_responses
+        return cast("bytes | None", self._call(self._redis.get, self._key(key)))
 
     def exists(self, key: str) -> bool | None:
         return bool(self._call(self._redis.exists, self._key(key)))
@@ -331,7 +332,7 @@ class RedisBackend:
         self._call(self._release, keys=[self._key(lease_key(key))], args=[token])
 
     def lease_holder(self, key: str) -> str | None:
-        holder = self._call(self._redis.get, self._key(lease_key(key)))
+        holder = cast("bytes | None", self._call(self._redis.get, self._key(lease_key(key))))
         return holder.decode() if holder is not None else None
 
     def health(self) -> tuple[bool, str]:

@@ -13,7 +13,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 from numpy.typing import NDArray
 
@@ -150,7 +150,7 @@ class ResultCache:
             self.backend.delete(key)
             return None
 
-    def get_arrays(self, key: str) -> dict[str, NDArray] | None:
+    def get_arrays(self, key: str) -> dict[str, NDArray[Any]] | None:
         payload = self._payload(key)
         if payload is None:
             return None
@@ -161,12 +161,12 @@ class ResultCache:
             self.backend.delete(key)
             return None
 
-    def recall_arrays(self, key: str, decode: Callable[[dict[str, NDArray]], T]) -> T | None:
+    def recall_arrays(self, key: str, decode: Callable[[dict[str, NDArray[Any]]], T]) -> T | None:
         """This process's memory of ``key``, else its stored arrays through ``decode`` (then
         remembered); None when absent or when ``decode`` rejects them (KeyError, ValueError)."""
-        value = self.recall(key)
-        if value is not None:
-            return value
+        remembered = self.recall(key)
+        if remembered is not None:
+            return cast(T, remembered)  # what is remembered under a key is its decoded result
         arrays = self.get_arrays(key)
         if arrays is None:
             return None
@@ -180,7 +180,7 @@ class ResultCache:
     def put_arrays(
         self,
         key: str,
-        arrays: dict[str, NDArray],
+        arrays: dict[str, NDArray[Any]],
         *,
         group: str,
         keep_local: bool = False,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import io
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,14 +43,15 @@ def unseal(blob: bytes) -> bytes:
     return payload
 
 
-def encode_arrays(arrays: dict[str, NDArray]) -> bytes:
+def encode_arrays(arrays: dict[str, NDArray[Any]]) -> bytes:
     """Arrays as an uncompressed .npz (no pickles)."""
     buffer = io.BytesIO()
-    np.savez(buffer, **{name: np.asarray(value) for name, value in arrays.items()})
+    named: dict[str, Any] = {name: np.asarray(value) for name, value in arrays.items()}
+    np.savez(buffer, **named)
     return buffer.getvalue()
 
 
-def decode_arrays(payload: bytes) -> dict[str, NDArray]:
+def decode_arrays(payload: bytes) -> dict[str, NDArray[Any]]:
     try:
         with np.load(io.BytesIO(payload), allow_pickle=False) as npz:
             return {name: npz[name] for name in npz.files}
@@ -57,7 +59,7 @@ def decode_arrays(payload: bytes) -> dict[str, NDArray]:
         raise CorruptEntryError(f"undecodable arrays: {exc}") from exc
 
 
-def mesh_arrays(mesh: TriangleMesh) -> dict[str, NDArray]:
+def mesh_arrays(mesh: TriangleMesh) -> dict[str, NDArray[Any]]:
     """A mesh as the arrays it is stored as (its input face order kept)."""
     return {
         "vertices": mesh.vertices,
@@ -67,7 +69,7 @@ def mesh_arrays(mesh: TriangleMesh) -> dict[str, NDArray]:
     }
 
 
-def mesh_from_arrays(arrays: dict[str, NDArray]) -> TriangleMesh:
+def mesh_from_arrays(arrays: dict[str, NDArray[Any]]) -> TriangleMesh:
     """The mesh ``mesh_arrays`` stored."""
     return TriangleMesh(
         arrays["vertices"],
@@ -77,11 +79,11 @@ def mesh_from_arrays(arrays: dict[str, NDArray]) -> TriangleMesh:
     )
 
 
-def shdf_arrays(values: NDArray) -> dict[str, NDArray]:
+def shdf_arrays(values: NDArray[Any]) -> dict[str, NDArray[Any]]:
     """A per-triangle ShDF as the arrays it is stored as."""
     return {"shdf": values}
 
 
-def shdf_from_arrays(arrays: dict[str, NDArray]) -> NDArray:
+def shdf_from_arrays(arrays: dict[str, NDArray[Any]]) -> NDArray[Any]:
     """The ShDF ``shdf_arrays`` stored (KeyError when the entry holds none)."""
     return arrays["shdf"]

@@ -613,7 +613,8 @@ def run_batch(
         out_dir: where outputs, records and ``manifest.csv`` go.
         seed: seed of the ShDF and the segmentation (default: ``params.seed``).
         outputs: any of ``seg``, ``shdf``, ``colored``, ``parts``.
-        cache: ShDF cache shared with the service (``redis://...`` or a folder).
+        cache: ShDF cache shared with the service (``redis://...`` or a folder); the other
+            store settings from the service's variables (``store.cache.CacheConfig``).
         workers: local worker processes (default: one per core; 0: in this process).
         scheduler: a Dask scheduler address (``tcp://host:port``) or ``distributed.Client``;
             the workers must see the same paths.

@@ -14,11 +14,9 @@ from neural_shdf.shdf import stage
 from neural_shdf.shdf.exact import raw_shdf, raw_shdf_at_points
 from neural_shdf.shdf.neural.inference import DEFAULT_MODEL_PATH
 from neural_shdf.shdf.stage import (
-    DEFAULT_SAMPLES,
     THIN_PART_RADII,
     ShdfParams,
     resolve_method,
-    shdf_key,
     smooth_samples,
     thin_part_samples,
 )
@@ -96,29 +94,6 @@ def test_sample_smoothing_keeps_steps_and_constants() -> None:
     flipped[::2] *= -1  # the other side of a wall never mixes in
     lone = smooth_samples(step, positions, flipped, radius=1.0, spatial_sigma=0.5)
     assert np.abs(lone - smoothed).max() > 0
-
-
-def test_cache_key_covers_method_model_and_every_parameter() -> None:
-    base = ShdfParams()
-    keys = {
-        shdf_key("exact", base, None),
-        shdf_key("sampled", base, None),
-        shdf_key("neural", base, "a" * 64),
-        shdf_key("neural", base, "b" * 64),
-        shdf_key("exact", ShdfParams(ray_count=16), None),
-        shdf_key("exact", ShdfParams(window_size=3), None),
-        shdf_key("sampled", ShdfParams(samples=1024), None),
-        shdf_key("sampled", ShdfParams(seed=1), None),
-        shdf_key("neural", ShdfParams(sample_sets=3), "a" * 64),
-        shdf_key("sampled", ShdfParams(max_samples=8192), None),
-    }
-    assert len(keys) == 10
-    # Parameters a producer never reads do not split its cache.
-    assert shdf_key("exact", ShdfParams(seed=5, samples=64), None) == shdf_key("exact", base, None)
-    fixed = ShdfParams(max_samples=DEFAULT_SAMPLES)
-    assert shdf_key("neural", fixed, "a" * 64) == shdf_key("neural", base, "a" * 64)
-    with pytest.raises(ParameterError, match="checksum"):
-        shdf_key("neural", base, None)
 
 
 def test_parameters_are_checked() -> None:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import base64
 import functools
-import hashlib
 import json
 import time
 from dataclasses import asdict, dataclass
@@ -14,8 +13,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf import __version__
-from neural_shdf.api.cache import ResultCache
 from neural_shdf.api.mesh_store import MeshStore, mesh_missing
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.shdf_service import ShdfService
@@ -24,6 +21,8 @@ from neural_shdf.export import part_tree_document
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
 from neural_shdf.segment.hierarchy import PartTree
+from neural_shdf.store.cache import ResultCache
+from neural_shdf.store.keys import segmentation_basis_key, segmentation_key
 
 if TYPE_CHECKING:
     from neural_shdf.segment.pipeline import SegmentResult as LibrarySegmentResult
@@ -142,11 +141,6 @@ def summarize(
     return result
 
 
-def params_digest(params: SegmentParams) -> str:
-    """Stable hash of the segmentation parameters (the cache key's parameter part)."""
-    return hashlib.sha256(json.dumps(asdict(params), sort_keys=True).encode()).hexdigest()[:20]
-
-
 class SegmentationService:
     """Segmentations of stored meshes from their cached ShDF, deduplicated."""
 
@@ -166,8 +160,7 @@ class SegmentationService:
 
     def key(self, mesh_id: str, method: str, params: SegmentParams) -> str:
         """The cache key: mesh, code version, the ShDF it starts from, the parameters."""
-        shdf = self.shdf.version(method, params.seed)
-        return f"{mesh_id}:seg:{__version__}:{shdf}:{params_digest(params)}"
+        return segmentation_key(mesh_id, self.shdf.version(method, params.seed), params)
 
     def cached(self, key: str) -> SegmentResult | None:
         """The cached segmentation (memory, then the shared cache), or None."""
@@ -198,7 +191,7 @@ class SegmentationService:
             segmentation = self.tasks.isolated(segment, mesh.bare(), shdf, params)
         else:
             shdf_version = self.shdf.version(method, params.seed)
-            basis_key = f"{mesh_id}:basis:{shdf_version}:{params.clusters}:{params.seed}"
+            basis_key = segmentation_basis_key(mesh_id, shdf_version, params.clusters, params.seed)
             basis = self.cache.working_set(basis_key)
             if basis is None or not basis.matches(params, shdf):
                 crease_graph = (

@@ -19,13 +19,11 @@ sample scale.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
@@ -131,25 +129,6 @@ def resolve_method(method: str, face_count: int) -> RawMethod:
 def uses_model(method: str) -> bool:
     """Whether ``method`` can run the neural network on some mesh."""
     return method == "neural" or (method == "auto" and AUTO_SAMPLED_METHOD == "neural")
-
-
-def shdf_key(method: RawMethod, params: ShdfParams, model_sha256: str | None) -> str:
-    """Stable digest of what a ShDF depends on besides the mesh: the resolved method,
-    the model's checksum (neural only) and every parameter the method reads."""
-    used = asdict(params)
-    if method == "exact":
-        for name in ("seed", "samples", "sample_sets"):
-            used.pop(name)
-    if method != "neural":
-        used.pop("sample_sets", None)
-    if method != "sampled":
-        used.pop("max_samples")
-    if method == "neural":
-        if not model_sha256:
-            raise ParameterError("a neural ShDF key needs the model's checksum")
-        used["model"] = model_sha256
-    used["method"] = method
-    return hashlib.sha256(json.dumps(used, sort_keys=True).encode()).hexdigest()[:24]
 
 
 def smooth_samples(

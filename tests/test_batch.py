@@ -335,3 +335,17 @@ def test_a_cached_batch_needs_no_part_of_the_service(tmp_path: Path):
     assert run.returncode == 0, run.stderr
     assert json.loads(run.stdout) == [[False, False], [True, True]]
     assert _outputs(tmp_path / "out" / "again") == _outputs(tmp_path / "out" / "first")
+
+
+def test_the_docs_example_runs_as_written(tmp_path: Path, monkeypatch):
+    """docs/batch.md's example on a folder of three meshes: the manifest rows it returns."""
+    from tests.doc_examples import python_blocks
+
+    (block,) = python_blocks("docs/batch.md", "From Python")
+    _library(tmp_path / "assets", 3)
+    monkeypatch.chdir(tmp_path)
+    namespace: dict[str, Any] = {}
+    exec(block, namespace)  # noqa: S102
+    assert [row["status"] for row in namespace["rows"]] == ["ok"] * 3
+    assert len(list((tmp_path / "out").rglob("*.seg"))) == 3
+    assert len(list((tmp_path / "out").rglob("*.glb"))) == 3

@@ -58,16 +58,15 @@ def test_a_tetrahedron_repeated_in_place_segments_like_one(params):
     np.testing.assert_array_equal(labels, again)
 
 
-def test_readme_library_examples_run_as_written(tmp_path, monkeypatch, capsys):
-    """The README's library examples, in order, on a capsule saved as model.obj."""
-    import re
-    from pathlib import Path
-
+def test_library_examples_run_as_written(tmp_path, monkeypatch, capsys):
+    """The README's library example, then docs/library.md's, on a capsule saved as model.obj."""
     import trimesh
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = readme.split("## Library", 1)[1].split("\n## ", 1)[0]
-    blocks = re.findall(r"```python\n(.*?)```", section, re.S)
+    from tests.doc_examples import python_blocks
+
+    blocks = python_blocks("README.md", "Library") + python_blocks(
+        "docs/library.md", "Several segmentations of one mesh"
+    )
     assert len(blocks) == 2
     capsule = trimesh.creation.capsule(height=2.0, radius=0.4, count=[16, 16])
     (tmp_path / "model.obj").write_text(capsule.export(file_type="obj"))

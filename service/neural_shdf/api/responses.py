@@ -63,8 +63,12 @@ def segmentation_response(
     labels_format: str,
     result: SegmentResult,
     timings: dict[str, Any],
+    tree_of: SegmentResult | None = None,
 ) -> Response:
-    """The `Segmentation` JSON, serialised directly (no per-label model validation)."""
+    """The `Segmentation` JSON, serialised directly (no per-label model validation).
+
+    ``tree_of``: the result whose ``hierarchy`` to send (an edited result's unedited one).
+    """
     compact = labels_format == "base64"
     colors = part_color_hex(len(result.part_faces))
     parts = [
@@ -90,7 +94,7 @@ def segmentation_response(
         "timings": timings,
     }
     labels = "null" if compact else result.labels_json
-    hierarchy = result.hierarchy_json(compact)
+    hierarchy = (result if tree_of is None else tree_of).hierarchy_json(compact)
     rest = json.dumps(body, separators=(",", ":"))
     return Response(
         f'{{"labels":{labels},"hierarchy":{hierarchy},{rest[1:]}'.encode(),

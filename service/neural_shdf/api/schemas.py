@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from fastapi import UploadFile
 from pydantic import BaseModel, ConfigDict, Field
 
 from neural_shdf.segment import SegmentParams
+from neural_shdf.segment.editing import MAX_EDIT_FACES, MAX_EDIT_OPERATIONS
 from neural_shdf.segment.params import (
     DEFAULT_CREASE_BOUNDARIES,
     MAX_CLUSTERS,
@@ -391,8 +392,50 @@ class UnwrapOptions(SegmentOptions):
         )
 
 
+FACE_INDEX = {"minimum": 0, "description": "Input face index (0-based, the file's order)."}
+FACE_LIST = {"minItems": 1, "maxItems": MAX_EDIT_FACES}
+
+
+class GrowEdit(BaseModel):
+    """The part-tree node of the cut that holds `face` becomes its parent; parts wholly
+    inside the parent join it. No-op at the root."""
+
+    model_config = ConfigDict(extra="forbid")
+    op: Literal["grow"]
+    face: int = Field(json_schema_extra=FACE_INDEX, examples=[120])
+
+
+class ShrinkEdit(BaseModel):
+    """The part-tree node of the cut that holds `face` is replaced by its two children
+    (the one holding `face` stays in its part). No-op at a leaf."""
+
+    model_config = ConfigDict(extra="forbid")
+    op: Literal["shrink"]
+    face: int = Field(json_schema_extra=FACE_INDEX, examples=[120])
+
+
+class MergeEdit(BaseModel):
+    """The parts holding `faces` become one part."""
+
+    model_config = ConfigDict(extra="forbid")
+    op: Literal["merge"]
+    faces: list[int] = Field(json_schema_extra=FACE_LIST, examples=[[120, 4031]])
+
+
+class PaintEdit(BaseModel):
+    """`faces` join the part holding `to_face`."""
+
+    model_config = ConfigDict(extra="forbid")
+    op: Literal["paint"]
+    faces: list[int] = Field(json_schema_extra=FACE_LIST, examples=[[7, 8, 9]])
+    to_face: int = Field(json_schema_extra=FACE_INDEX, examples=[4031])
+
+
+EditOperation = Annotated[GrowEdit | ShrinkEdit | MergeEdit | PaintEdit, Field(discriminator="op")]
+
+
 class SegmentRequest(SegmentOptions):
-    """Segment a stored mesh from its cached ShDF."""
+    """Segment a stored mesh from its cached ShDF (optionally edited by hand: `edits`)."""
 
     model_config = ConfigDict(
         extra="forbid",
@@ -405,6 +448,25 @@ class SegmentRequest(SegmentOptions):
         pattern=MESH_ID_PATTERN,
         description="Id returned by the upload (64 hex digits).",
         examples=[MESH_ID_EXAMPLE],
+    )
+    edits: list[EditOperation] | None = Field(
+        None,
+        json_schema_extra={"maxItems": MAX_EDIT_OPERATIONS},
+        description="Part edits, applied in order to the part tree's cut at `parts` "
+        "(see docs/part-editing.md). They name input faces, not tree nodes, so the same "
+        "document applies after a re-segmentation with other options. `grow` and "
+        f"`shrink` need the part tree (`graphcut`); `metis` takes `merge` and `paint`. "
+        f"At most {MAX_EDIT_OPERATIONS} operations and {MAX_EDIT_FACES} faces in all. "
+        "The response's labels and parts are the edited ones (numbered by each part's "
+        "smallest face); its `hierarchy` is the unedited tree, with `parts` the cut the "
+        "edits started from.",
+        examples=[
+            [
+                {"op": "grow", "face": 120},
+                {"op": "merge", "faces": [120, 4031]},
+                {"op": "paint", "faces": [7, 8, 9], "to_face": 4031},
+            ]
+        ],
     )
 
 

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+import time
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Form, Query, Response
 
+from neural_shdf.api.editing import edited_result
 from neural_shdf.api.engine import Engine
 from neural_shdf.api.responses import GLB_MEDIA_TYPE, glb_response, segmentation_response
 from neural_shdf.api.routes.deps import EngineDep, SingleFormFields, error_responses
@@ -32,14 +34,30 @@ SEGMENT_ERRORS = {
 
 
 async def segment_response(
-    engine: Engine, mesh_id: str, options: SegmentOptions, params: SegmentParams
+    engine: Engine,
+    mesh_id: str,
+    options: SegmentOptions,
+    params: SegmentParams,
+    edits: list[dict[str, Any]] | None = None,
 ) -> Response:
     method = await engine.resolved_method(mesh_id, options.method)
     result, timings = await engine.segmentations.get(mesh_id, method, params)
+    tree_of = None
+    if edits:
+        start = time.perf_counter()
+        mesh = await engine.io(engine.meshes.load, mesh_id)
+        shdf = await engine.shdf.get(mesh_id, mesh, method, params.seed)
+        tree_of = result
+        result = await engine.run(edited_result, result, mesh, shdf.values, edits)
+        timings = {**timings, "total_ms": timings["total_ms"] + _ms_since(start)}
     # Serialising a million labels takes a while: never on the event loop.
     return await engine.io(
-        segmentation_response, mesh_id, method, options.labels_format, result, timings
+        segmentation_response, mesh_id, method, options.labels_format, result, timings, tree_of
     )
+
+
+def _ms_since(start: float) -> float:
+    return round((time.perf_counter() - start) * 1000, 3)
 
 
 @router.post(
@@ -50,9 +68,11 @@ async def segment_response(
     responses=SEGMENT_ERRORS,
 )
 async def segment_mesh(engine: EngineDep, request: SegmentRequest) -> Response:
-    """Part label per input face from the cached ShDF; only the partitioning runs."""
+    """Part label per input face from the cached ShDF; only the partitioning runs.
+    With ``edits``, the labels and parts are those of the edited segmentation."""
     params = request.segment_params()
-    return await segment_response(engine, request.mesh_id, request, params)
+    edits = None if request.edits is None else [e.model_dump() for e in request.edits]
+    return await segment_response(engine, request.mesh_id, request, params, edits)
 
 
 @router.post(

@@ -1,0 +1,51 @@
+"""Hand edits of a cached segmentation: ``segment.editing`` applied to its part tree, with
+part summaries of the edited labels. Nothing here is cached: an edit is a pass over the
+faces, cheaper than fetching a stored result."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.api.segmentation import SegmentResult
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.segment.editing import apply_edits, apply_label_edits
+
+
+def edited_labels(result: SegmentResult, edits: Sequence[dict[str, Any]]) -> NDArray[np.int64]:
+    """Labels per input face of ``result`` edited by ``edits`` (EditError: a 422)."""
+    tree = result.tree
+    if tree is None:  # METIS: no tree, merge and paint only
+        return apply_label_edits(result.labels, edits)
+    return apply_edits(tree, result.leaf_labels, len(result.part_faces), edits)
+
+
+def edited_result(
+    result: SegmentResult,
+    mesh: TriangleMesh,
+    shdf: NDArray[np.float64],
+    edits: Sequence[dict[str, Any]],
+) -> SegmentResult:
+    """``result`` with edited labels and per-part faces, area and area-weighted mean ShDF
+    (over each input face's triangles; ``shdf`` per triangle)."""
+    labels = edited_labels(result, edits)
+    triangle_labels = labels[mesh.face_origin]
+    _, area = mesh.normals_and_areas
+    count = int(labels.max()) + 1 if len(labels) else 0
+    covered = triangle_labels >= 0
+    tri = triangle_labels[covered]
+    part_area = np.bincount(tri, weights=area[covered], minlength=count)
+    moment = np.bincount(tri, weights=(area * shdf)[covered], minlength=count)
+    mean = np.divide(moment, part_area, out=np.zeros(count), where=part_area > 0)
+    return dataclasses.replace(
+        result,
+        labels=labels.astype(np.int32),
+        triangle_labels=triangle_labels.astype(np.int32),
+        part_faces=np.bincount(labels[labels >= 0], minlength=count).astype(np.int64),
+        part_area=part_area,
+        part_mean_shdf=mean,
+    )

@@ -219,3 +219,24 @@ def test_client_examples_run_as_written(service, tmp_path, monkeypatch, capsys):
     assert [len(r.labels) for r in results] == [
         load_mesh(tmp_path / "model.obj").input_face_count
     ] * 3
+
+
+def test_segment_with_edits_matches_the_local_edit_of_the_tree(service):
+    from neural_shdf.client import edits
+
+    with Client(service) as client:
+        mesh_id = client.upload(capsule().export(file_type="obj").encode(), file_type="obj").mesh_id
+        plain = client.segment(mesh_id, smoothing=0.02, parts=3)
+        faces = len(plain.labels)
+        document = [
+            edits.shrink(0),
+            edits.merge(0, faces - 1),
+            edits.paint([1, 2], to_face=faces // 2),
+        ]
+        edited = client.segment(mesh_id, smoothing=0.02, parts=3, edits=document)
+        with pytest.raises(InvalidRequestError, match="out of range"):
+            client.segment(mesh_id, edits=[edits.grow(faces)])
+    assert plain.hierarchy is not None
+    local = plain.hierarchy.edited(document)
+    assert edited.labels.tolist() == local.tolist() != plain.labels.tolist()
+    assert edited.part_count == int(local.max()) + 1

@@ -392,7 +392,7 @@ class UnwrapOptions(SegmentOptions):
         )
 
 
-FACE_INDEX = {"minimum": 0, "description": "Input face index (0-based, the file's order)."}
+FACE_INDEX = {"minimum": 0}
 FACE_LIST = {"minItems": 1, "maxItems": MAX_EDIT_FACES}
 
 
@@ -401,8 +401,10 @@ class GrowEdit(BaseModel):
     inside the parent join it. No-op at the root."""
 
     model_config = ConfigDict(extra="forbid")
-    op: Literal["grow"]
-    face: int = Field(json_schema_extra=FACE_INDEX, examples=[120])
+    op: Literal["grow"] = Field(description="Operation.", examples=["grow"])
+    face: int = Field(
+        json_schema_extra=FACE_INDEX, description="A face of the part.", examples=[120]
+    )
 
 
 class ShrinkEdit(BaseModel):
@@ -410,25 +412,33 @@ class ShrinkEdit(BaseModel):
     (the one holding `face` stays in its part). No-op at a leaf."""
 
     model_config = ConfigDict(extra="forbid")
-    op: Literal["shrink"]
-    face: int = Field(json_schema_extra=FACE_INDEX, examples=[120])
+    op: Literal["shrink"] = Field(description="Operation.", examples=["shrink"])
+    face: int = Field(
+        json_schema_extra=FACE_INDEX, description="A face of the part.", examples=[120]
+    )
 
 
 class MergeEdit(BaseModel):
     """The parts holding `faces` become one part."""
 
     model_config = ConfigDict(extra="forbid")
-    op: Literal["merge"]
-    faces: list[int] = Field(json_schema_extra=FACE_LIST, examples=[[120, 4031]])
+    op: Literal["merge"] = Field(description="Operation.", examples=["merge"])
+    faces: list[int] = Field(
+        json_schema_extra=FACE_LIST, description="Input faces.", examples=[[120, 4031]]
+    )
 
 
 class PaintEdit(BaseModel):
     """`faces` join the part holding `to_face`."""
 
     model_config = ConfigDict(extra="forbid")
-    op: Literal["paint"]
-    faces: list[int] = Field(json_schema_extra=FACE_LIST, examples=[[7, 8, 9]])
-    to_face: int = Field(json_schema_extra=FACE_INDEX, examples=[4031])
+    op: Literal["paint"] = Field(description="Operation.", examples=["paint"])
+    faces: list[int] = Field(
+        json_schema_extra=FACE_LIST, description="Input faces to move.", examples=[[7, 8, 9]]
+    )
+    to_face: int = Field(
+        json_schema_extra=FACE_INDEX, description="A face of the part to join.", examples=[4031]
+    )
 
 
 EditOperation = Annotated[GrowEdit | ShrinkEdit | MergeEdit | PaintEdit, Field(discriminator="op")]

@@ -9,6 +9,7 @@ with Client("http://127.0.0.1:8000") as client:
     shdf = client.shdf(mesh_id)                     # numpy float32, one per input face
 """
 
+from neural_shdf.client import edits
 from neural_shdf.client.clients import AsyncClient, Client
 from neural_shdf.client.errors import (
     InvalidRequestError,
@@ -48,4 +49,5 @@ __all__ = [
     "ServiceUnavailableError",
     "UnsupportedMediaError",
     "Upload",
+    "edits",
 ]

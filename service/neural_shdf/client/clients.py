@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Self, Unpack
@@ -168,9 +169,18 @@ class Client(_Settings):
         """Per-input-face ShDF in [0, 1] (NaN: a face without triangles)."""
         return self.run(ops.shdf(mesh_id, self.poll, method=method, seed=seed))
 
-    def segment(self, mesh_id: str, **options: Unpack[ops.SegmentArgs]) -> Segmentation:
-        """Part labels per input face of a stored mesh; only the partition runs."""
-        return self.run(ops.segment(mesh_id, ops.given(options), self.poll))
+    def segment(
+        self,
+        mesh_id: str,
+        *,
+        edits: Sequence[Mapping[str, Any]] | None = None,
+        **options: Unpack[ops.SegmentArgs],
+    ) -> Segmentation:
+        """Part labels per input face of a stored mesh; only the partition runs.
+
+        ``edits``: a part-edit document (``neural_shdf.client.edits``: grow, shrink,
+        merge, paint by input face), applied by the service to the part tree's cut."""
+        return self.run(ops.segment(mesh_id, ops.given(options), self.poll, edits=edits))
 
     def segment_file(
         self,
@@ -298,8 +308,15 @@ class AsyncClient(_Settings):
     ) -> NDArray[np.float32]:
         return await self.run(ops.shdf(mesh_id, self.poll, method=method, seed=seed))
 
-    async def segment(self, mesh_id: str, **options: Unpack[ops.SegmentArgs]) -> Segmentation:
-        return await self.run(ops.segment(mesh_id, ops.given(options), self.poll))
+    async def segment(
+        self,
+        mesh_id: str,
+        *,
+        edits: Sequence[Mapping[str, Any]] | None = None,
+        **options: Unpack[ops.SegmentArgs],
+    ) -> Segmentation:
+        operation = ops.segment(mesh_id, ops.given(options), self.poll, edits=edits)
+        return await self.run(operation)
 
     async def segment_file(
         self,

@@ -12,7 +12,7 @@ import contextlib
 import dataclasses
 import sys
 import time
-from collections.abc import Generator, Mapping
+from collections.abc import Generator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypedDict
@@ -225,9 +225,17 @@ def upload(
     return Upload(mesh, status)
 
 
-def segment(mesh_id: str, options: Mapping[str, Any], poll: PollPolicy) -> Operation:
-    """Segment a stored mesh (from its cached ShDF)."""
+def segment(
+    mesh_id: str,
+    options: Mapping[str, Any],
+    poll: PollPolicy,
+    *,
+    edits: Sequence[Mapping[str, Any]] | None = None,
+) -> Operation:
+    """Segment a stored mesh (from its cached ShDF), edited by ``edits`` if given."""
     body = {"mesh_id": mesh_id, **options, "labels_format": "base64"}
+    if edits is not None:
+        body["edits"] = [dict(edit) for edit in edits]
     response = yield from until_done(Call("POST", "/v1/segment", json=body), poll)
     return Segmentation.from_json(response.json())
 

@@ -12,7 +12,7 @@ keeps them). Per-face data are numpy arrays decoded from the compact binary form
 from __future__ import annotations
 
 import base64
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -246,6 +246,17 @@ class PartHierarchy:
         Needs the whole package, as ``tree`` does."""
         count = self.automatic_parts if parts is None else parts
         return self.tree.relabel(self.leaf_labels, count).astype(np.int32)
+
+    def edited(
+        self, edits: Sequence[Mapping[str, Any]], parts: int | None = None
+    ) -> NDArray[np.int32]:
+        """Part per input face of the cut at ``parts`` (None: the cut this response was
+        made at) edited by ``edits``: what ``segment(..., edits=edits)`` would answer.
+        Needs the whole package, as ``tree`` does."""
+        from neural_shdf.segment.editing import apply_edits
+
+        count = self.parts if parts is None else parts
+        return apply_edits(self.tree, self.leaf_labels, count, edits).astype(np.int32)
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,6 @@
 // The viewer page: upload, live segmentation controls, parts panel, downloads.
 import * as api from './api.js';
+import { setUpEditing } from './edit-panel.js';
 import { faceParts, leafParts, leafSums, partSums } from './hierarchy.js';
 import { MeshView, heatGradient, parseHex } from './scene.js';
 
@@ -328,7 +329,8 @@ function keepTree(body, request) {
   showValues();
 }
 
-function applySegmentation(body, request, labels = null) {
+/** Show a segmentation; `edited`: a hand edit of the one on screen (editing keeps its base). */
+function applySegmentation(body, request, labels = null, edited = false) {
   if (labels === null) {
     labels = api.decodeLabels(body);
     keepTree(body, request);
@@ -344,6 +346,7 @@ function applySegmentation(body, request, labels = null) {
   paint();
   renderPartsPanel();
   for (const id of ['download-seg', 'download-json', 'download-colored', 'download-parts']) $(id).disabled = false;
+  if (!edited) editing.segmented(body, request, labels);
 }
 
 function paint() {
@@ -381,6 +384,7 @@ function select(label) {
     box.hidden = false;
   }
   for (const row of $('parts-table').tBodies[0].rows) row.classList.toggle('selected', Number(row.dataset.label) === label);
+  editing.selected();
   paint();
 }
 
@@ -596,11 +600,17 @@ function setUpPicking() {
     if (!down || Math.hypot(event.clientX - down[0], event.clientY - down[1]) > 4) return;  // a drag
     if (!state.labels) return;
     const face = view.pick(event.clientX, event.clientY);
+    if (editing.pick(face)) return;  // merge or paint mode
     const label = face >= 0 ? state.labels[face] : -1;
     select(label === state.selected ? -1 : label);
   });
 }
 
+const editing = setUpEditing({
+  state, view, select, showError, partColor,
+  show: (body, request, labels) => applySegmentation(body, request, labels, true),
+});
+window.shdfViewer.editing = editing;
 setUpControls();
 setUpFileInput();
 setUpPicking();

@@ -240,3 +240,15 @@ def test_segment_with_edits_matches_the_local_edit_of_the_tree(service):
     local = plain.hierarchy.edited(document)
     assert edited.labels.tolist() == local.tolist() != plain.labels.tolist()
     assert edited.part_count == int(local.max()) + 1
+
+
+def test_part_editing_example_runs_as_written(service, tmp_path, monkeypatch):
+    """docs/part-editing.md's example, against the live service and a capsule as model.obj."""
+    from tests.doc_examples import python_blocks
+
+    (block,) = python_blocks("docs/part-editing.md", "Python")
+    (tmp_path / "model.obj").write_bytes(capsule().export(file_type="obj").encode())
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    exec(block.replace("http://127.0.0.1:8000", service), namespace)  # noqa: S102
+    assert namespace["edited"].labels.tolist() != namespace["plain"].labels.tolist()

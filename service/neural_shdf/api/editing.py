@@ -38,7 +38,7 @@ def edited_result(
     count = int(labels.max()) + 1 if len(labels) else 0
     covered = triangle_labels >= 0
     tri = triangle_labels[covered]
-    part_area = np.bincount(tri, weights=area[covered], minlength=count)
+    part_area = np.bincount(tri, weights=area[covered], minlength=count).astype(np.float64)
     moment = np.bincount(tri, weights=(area * shdf)[covered], minlength=count)
     mean = np.divide(moment, part_area, out=np.zeros(count), where=part_area > 0)
     return dataclasses.replace(

@@ -190,6 +190,33 @@ def test_click_grow_merge_in_the_page_equals_the_api(page, server, meshes):
     undone = page.js("return window.shdfViewer.editing.document()")
     assert [edit["op"] for edit in undone] == ["grow"]
     assert page.segmentation()["labels"] == api_segmentation(server, request, undone)["labels"]
+
+    # Paint: a drag over another part moves the faces under it into the selected part.
+    from selenium.webdriver.common.action_chains import ActionChains
+
+    labels = np.asarray(page.js("return Array.from(window.shdfViewer.state.labels)"))
+    selected = page.js("return window.shdfViewer.state.selected")
+    assert selected >= 0
+    other = next(label for label in range(labels.max() + 1) if label != selected)
+    x, y, _ = page.js(FACE_ON_SCREEN, other)
+    page.driver.find_element(By.ID, "edit-paint").click()
+    canvas = page.driver.find_element(By.ID, "canvas")
+    size = canvas.size
+    (
+        ActionChains(page.driver)
+        .move_to_element_with_offset(
+            canvas, int(x - size["width"] / 2), int(y - size["height"] / 2)
+        )
+        .click_and_hold()
+        .move_by_offset(3, 0)
+        .move_by_offset(3, 0)
+        .release()
+        .perform()
+    )
+    wait_edits(page, 5)
+    painted = page.js("return window.shdfViewer.editing.document()")
+    assert [edit["op"] for edit in painted] == ["grow", "paint"]
+    assert page.segmentation()["labels"] == api_segmentation(server, request, painted)["labels"]
     assert severe(page) == []
 
 

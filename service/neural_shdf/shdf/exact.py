@@ -5,8 +5,11 @@ Follows CGAL's ``sdf_values`` (Surface_mesh_segmentation) step by step:
 * per non-degenerate triangle, ``ray_count`` rays leave the centroid inside a
   cone of opening ``cone_angle`` around the inward normal; the cone is sampled
   with Vogel's golden-angle spiral on the unit disk (radius ``i / n``, angle
-  ``i * (3 - sqrt 5) * pi``, the first ray along the normal), oriented by the
-  plane basis CGAL's ``Plane_3::base1/base2`` picks, all rays weighted equally;
+  ``i * (3 - sqrt 5) * pi``, the first ray along the normal), all rays weighted
+  equally; unlike CGAL (whose ``Plane_3::base1`` follows the world axes, so the
+  rays and the ShDF change when the mesh is rotated), the spiral is oriented by
+  a tangent of the triangle's own shape (``face_tangents``), so the ShDF does not
+  depend on the mesh's position, orientation or scale in space;
 * each ray keeps its first hit (the triangle itself excluded); the hit counts
   only when the ray leaves through the back of the hit triangle, i.e. the
   ray direction and the hit triangle's outward normal make an acute angle;
@@ -68,6 +71,9 @@ BATCHES_PER_THREAD = 8
 ORIGIN_OFFSET = 1e-6
 #: Offset used again for the few rays that still hit their own triangle.
 RETRY_ORIGIN_OFFSET = 1e-4
+#: ``face_tangents``: a triangle counts as equilateral when its shape's tangent is
+#: shorter than this fraction of its size (there rounding would pick the direction).
+EQUILATERAL_TOLERANCE = 1e-7
 
 
 def disk_samples(ray_count: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -81,6 +87,38 @@ def disk_samples(ray_count: int) -> tuple[NDArray[np.float64], NDArray[np.float6
     radius = index / ray_count
     points = np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1)
     return points, np.ones(ray_count)
+
+
+def face_tangents(vertices: NDArray, faces: NDArray) -> NDArray[np.float64]:
+    """(F, 3) unit vector in each triangle's plane that orients its ray cone's spiral.
+
+    ``t = sum_i (l_i^2 - mean l^2) (v_i - c)``: the vertices' offsets from the centroid
+    ``c`` weighted by the squared length of the opposite edge, so it leans towards the
+    vertex of the largest angle. It turns with the triangle, ignores translation and
+    scale and does not depend on which vertex the face lists first or on its winding;
+    it varies continuously with the vertices (no arg-max whose ties rounding would break
+    differently in another pose). Only equilateral triangles have no such direction: for
+    them (relative asymmetry below ``EQUILATERAL_TOLERANCE``) it is the direction to the
+    face's vertex of smallest index. Zero for degenerate faces.
+    """
+    corners = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
+    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
+    ab, bc, ca = b - a, c - b, a - c
+    squared = np.stack(
+        [np.einsum("ij,ij->i", e, e) for e in (bc, ca, ab)], axis=1
+    )  # opposite a, b, c
+    weights = squared - squared.mean(axis=1, keepdims=True)
+    # Offsets from the centroid from the edges (no cancellation far from the origin).
+    offsets = np.stack([ab - ca, bc - ab, ca - bc], axis=1) / -3.0
+    tangent = np.einsum("fi,fij->fj", weights, offsets)
+    scale = squared.sum(axis=1) * np.sqrt(np.einsum("fij,fij->fi", offsets, offsets).max(axis=1))
+    length = np.linalg.norm(tangent, axis=1)
+    equilateral = ~(length > EQUILATERAL_TOLERANCE * scale)
+    if equilateral.any():
+        first = np.argmin(np.asarray(faces)[equilateral], axis=1)
+        tangent[equilateral] = offsets[equilateral][np.arange(len(first)), first]
+        length[equilateral] = np.linalg.norm(tangent[equilateral], axis=1)
+    return tangent / np.where(length > 0, length, 1.0)[:, None]
 
 
 def plane_basis(normals: NDArray) -> tuple[NDArray, NDArray]:
@@ -128,12 +166,26 @@ def cone_coefficients(ray_count: int, cone_angle: float) -> NDArray[np.float64]:
     return coefficients / np.linalg.norm(coefficients, axis=1, keepdims=True)
 
 
-def cone_frames(inward_normals: NDArray, rotation: NDArray | None = None) -> NDArray:
+def cone_frames(
+    inward_normals: NDArray, tangents: NDArray, rotation: NDArray | None = None
+) -> NDArray:
     """(F, 3, 3) rows (inward normal, base1, base2) of each face's ray cone.
 
+    ``base1`` is ``tangents`` (``face_tangents`` of the face the cone leaves from) made
+    perpendicular to the axis, ``base2 = normal x base1``; an axis the tangent cannot
+    span a plane with (a caller's normal lying in the face) falls back to ``plane_basis``.
     ``rotation`` (F,) optionally turns each face's sample pattern about its axis.
     """
-    base1, base2 = plane_basis(inward_normals)
+    inward_normals = np.asarray(inward_normals, dtype=np.float64)
+    tangents = np.asarray(tangents, dtype=np.float64)
+    base1 = tangents - np.einsum("ij,ij->i", tangents, inward_normals)[:, None] * inward_normals
+    length = np.linalg.norm(base1, axis=1)
+    fallback = ~(length > 1e-6)
+    if fallback.any():
+        base1[fallback] = plane_basis(inward_normals[fallback])[0]
+        length[fallback] = 1.0
+    base1 /= length[:, None]
+    base2 = np.cross(inward_normals, base1)
     if rotation is not None:
         cos_r, sin_r = np.cos(rotation)[:, None], np.sin(rotation)[:, None]
         base1, base2 = cos_r * base1 + sin_r * base2, cos_r * base2 - sin_r * base1
@@ -142,16 +194,18 @@ def cone_frames(inward_normals: NDArray, rotation: NDArray | None = None) -> NDA
 
 def cone_directions(
     inward_normals: NDArray,
+    tangents: NDArray,
     *,
     cone_angle: float,
     ray_count: int,
     rotation: NDArray | None = None,
     dtype: type = np.float64,
 ) -> NDArray:
-    """Unit ray directions (F, ray_count, 3) inside the cone around each inward normal
-    (``cone_coefficients`` on ``cone_frames``)."""
+    """Unit ray directions (F, ray_count, 3) inside the cone around each inward normal,
+    oriented by ``tangents`` (``cone_coefficients`` on ``cone_frames``)."""
     coefficients = cone_coefficients(ray_count, cone_angle).astype(dtype)
-    return np.matmul(coefficients, cone_frames(inward_normals, rotation).astype(dtype))
+    frames = cone_frames(inward_normals, tangents, rotation)
+    return np.matmul(coefficients, frames.astype(dtype))
 
 
 def spatial_order(points: NDArray, bits: int = 10) -> NDArray[np.int64]:
@@ -388,6 +442,7 @@ def _cast_rays(
         def run_batch(batch: NDArray) -> None:
             frames = cone_frames(
                 np.negative(np.take(normals, batch, axis=0)),
+                face_tangents(vertices, np.take(faces, np.take(own_faces, batch), axis=0)),
                 None if rotation is None else np.take(rotation, batch),
             ).astype(np.float32)
             scene = building.result()  # the frames above were made while the scene was built

@@ -93,6 +93,34 @@ def face_centroids(vertices: NDArray, faces: NDArray) -> NDArray:
     )
 
 
+def principal_coordinates(points: NDArray, weights: NDArray | None = None) -> NDArray[np.float64]:
+    """(N, 3) coordinates of the points along their own principal axes (largest spread
+    first), from their weighted mean: the same in any pose of the points, up to each
+    axis's sign (a shape does not define it), so grids over them are laid with
+    ``grid_cells``, which ignores the signs. Axes a shape does not define (equal spreads,
+    e.g. about a body of revolution's axis) are whatever the eigensolver returns.
+    Unit weights where ``weights`` is omitted or sums to zero.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if not len(points):
+        return points.copy()
+    if weights is None or not float(np.sum(weights)) > 0:
+        weights = np.ones(len(points))
+    weights = np.asarray(weights, dtype=np.float64) / float(np.sum(weights))
+    offsets = points - weights @ points
+    _, axes = np.linalg.eigh((offsets * weights[:, None]).T @ offsets)
+    return offsets @ axes[:, ::-1]
+
+
+def grid_cells(coordinates: NDArray, size: float) -> NDArray[np.int64]:
+    """(N, 3) non-negative integer cell of each point in a grid of cubes of side ``size``
+    centred on the origin (cell walls at ``(k + 1/2) size``): negating an axis of the
+    coordinates gives the same partition of the points."""
+    coordinates = np.asarray(coordinates, dtype=np.float64).reshape(-1, 3)
+    cells = np.floor(coordinates / size + 0.5).astype(np.int64)
+    return cells - cells.min(axis=0) if len(cells) else cells
+
+
 @kernel
 def _face_centroids(vertices, faces):  # pragma: no cover - compiled
     centroids = np.empty((len(faces), 3))

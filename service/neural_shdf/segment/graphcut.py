@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
-from neural_shdf.geometry import FaceGraph, adjacency_lists
+from neural_shdf.geometry import FaceGraph, adjacency_lists, grid_cells, principal_coordinates
 from neural_shdf.segment.parts import connected_components
 
 #: CGAL: probabilities below this are clamped before ``-log``.
@@ -477,7 +477,9 @@ def cut_hierarchy(
 ) -> CutHierarchy:
     """Coarsen the graph until at most ``coarse_nodes`` nodes remain (or it stops shrinking).
 
-    Nodes are grouped into connected pieces of a 3-D grid (cells doubling per level;
+    Nodes are grouped into connected pieces of a 3-D grid laid along the mesh's own
+    axes (``principal_coordinates``, ``grid_cells``: the same groups in any pose; cells
+    doubling per level, a coarse node placed at its first face;
     crease edges and nodes preferring different labels never grouped), with data and
     edge weights summed, so a labelling that is constant on groups has the same energy
     at every level. Scaling ``unit_weights`` scales every level's weights alike, so the
@@ -495,13 +497,14 @@ def cut_hierarchy(
         extent = float(np.ptp(centroids, axis=0).max()) or 1.0
         mean_area = extent**2 / node_count
     cell_size = np.sqrt(FACES_PER_CELL * mean_area)
-    cells = np.floor((centroids - centroids.min(axis=0)) / cell_size).astype(np.int64)
+    positions = principal_coordinates(centroids, areas)  # the grid turns with the mesh
     crease_weight = CREASE_FRACTION * float(np.median(weights)) if len(weights) else 0.0
 
     levels: list[CutLevel] = []
     level_pairs, level_weights, level_data = pairs, weights, data
     while len(level_data) > coarse_nodes:
         count = len(level_data)
+        cells = grid_cells(positions, cell_size)
         coarse_of = coarsen(
             level_pairs, level_weights, count, cells, crease_weight, level_data.argmin(axis=1)
         )
@@ -514,7 +517,7 @@ def cut_hierarchy(
         )
         first = np.full(coarse_count, -1, dtype=np.int64)
         first[coarse_of[::-1]] = np.arange(count)[::-1]
-        cells = cells[first] // 2
+        positions, cell_size = positions[first], 2.0 * cell_size  # a node at its first face
         levels.append(
             CutLevel(
                 level_pairs,

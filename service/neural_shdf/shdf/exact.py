@@ -99,7 +99,7 @@ def face_tangents(vertices: NDArray, faces: NDArray) -> NDArray[np.float64]:
     it varies continuously with the vertices (no arg-max whose ties rounding would break
     differently in another pose). Only equilateral triangles have no such direction: for
     them (relative asymmetry below ``EQUILATERAL_TOLERANCE``) it is the direction to the
-    face's vertex of smallest index. Zero for degenerate faces.
+    face's vertex of smallest index; zero for a triangle shrunk to a point.
     """
     corners = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
     a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]

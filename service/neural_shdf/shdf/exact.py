@@ -89,8 +89,11 @@ def disk_samples(ray_count: int) -> tuple[NDArray[np.float64], NDArray[np.float6
     return points, np.ones(ray_count)
 
 
-def face_tangents(vertices: NDArray, faces: NDArray) -> NDArray[np.float64]:
-    """(F, 3) unit vector in each triangle's plane that orients its ray cone's spiral.
+def face_tangents(
+    vertices: NDArray, faces: NDArray, which: NDArray | None = None
+) -> NDArray[np.float64]:
+    """(F, 3) unit vector in each triangle's plane that orients its ray cone's spiral
+    (of the faces ``which`` only, in that order, when given).
 
     ``t = sum_i (l_i^2 - mean l^2) (v_i - c)``: the vertices' offsets from the centroid
     ``c`` weighted by the squared length of the opposite edge, so it leans towards the
@@ -101,24 +104,65 @@ def face_tangents(vertices: NDArray, faces: NDArray) -> NDArray[np.float64]:
     them (relative asymmetry below ``EQUILATERAL_TOLERANCE``) it is the direction to the
     face's vertex of smallest index; zero for a triangle shrunk to a point.
     """
-    corners = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
-    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
-    ab, bc, ca = b - a, c - b, a - c
-    squared = np.stack(
-        [np.einsum("ij,ij->i", e, e) for e in (bc, ca, ab)], axis=1
-    )  # opposite a, b, c
-    weights = squared - squared.mean(axis=1, keepdims=True)
-    # Offsets from the centroid from the edges (no cancellation far from the origin).
-    offsets = np.stack([ab - ca, bc - ab, ca - bc], axis=1) / -3.0
-    tangent = np.einsum("fi,fij->fj", weights, offsets)
-    scale = squared.sum(axis=1) * np.sqrt(np.einsum("fij,fij->fi", offsets, offsets).max(axis=1))
-    length = np.linalg.norm(tangent, axis=1)
-    equilateral = ~(length > EQUILATERAL_TOLERANCE * scale)
-    if equilateral.any():
-        first = np.argmin(np.asarray(faces)[equilateral], axis=1)
-        tangent[equilateral] = offsets[equilateral][np.arange(len(first)), first]
-        length[equilateral] = np.linalg.norm(tangent[equilateral], axis=1)
-    return tangent / np.where(length > 0, length, 1.0)[:, None]
+    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    which = np.arange(len(faces)) if which is None else np.asarray(which, dtype=np.int64)
+    tangents = np.empty((len(which), 3))
+    _face_tangents(
+        np.ascontiguousarray(vertices, dtype=np.float64),
+        faces,
+        which,
+        EQUILATERAL_TOLERANCE,
+        tangents,
+    )
+    return tangents
+
+
+@kernel
+def _face_tangents(vertices, faces, which, tolerance, out) -> None:  # noqa: ANN001
+    """``face_tangents`` into ``out``, one face at a time."""
+    offsets = np.empty((3, 3))
+    squared = np.empty(3)
+    for k in range(len(which)):
+        face = faces[which[k]]
+        for i in range(3):
+            # Offset of corner i from the centroid, from the two edges leaving it (no
+            # cancellation far from the origin); squared length of the opposite edge.
+            j, m = (i + 1) % 3, (i + 2) % 3
+            length = 0.0
+            for axis in range(3):
+                here = vertices[face[i], axis]
+                offsets[i, axis] = (
+                    (here - vertices[face[j], axis]) + (here - vertices[face[m], axis])
+                ) / 3.0
+                edge = vertices[face[m], axis] - vertices[face[j], axis]
+                length += edge * edge
+            squared[i] = length
+        mean = (squared[0] + squared[1] + squared[2]) / 3.0
+        longest = 0.0
+        for i in range(3):
+            longest = max(longest, offsets[i, 0] ** 2 + offsets[i, 1] ** 2 + offsets[i, 2] ** 2)
+        scale = 3.0 * mean * math.sqrt(longest)
+        norm = 0.0
+        for axis in range(3):
+            value = 0.0
+            for i in range(3):
+                value += (squared[i] - mean) * offsets[i, axis]
+            out[k, axis] = value
+            norm += value * value
+        norm = math.sqrt(norm)
+        if not norm > tolerance * scale:  # equilateral: the corner of smallest index
+            first = 0
+            for i in range(1, 3):
+                if face[i] < face[first]:
+                    first = i
+            norm = 0.0
+            for axis in range(3):
+                out[k, axis] = offsets[first, axis]
+                norm += offsets[first, axis] ** 2
+            norm = math.sqrt(norm)
+        if norm > 0:
+            for axis in range(3):
+                out[k, axis] /= norm
 
 
 def plane_basis(normals: NDArray) -> tuple[NDArray, NDArray]:
@@ -442,7 +486,7 @@ def _cast_rays(
         def run_batch(batch: NDArray) -> None:
             frames = cone_frames(
                 np.negative(np.take(normals, batch, axis=0)),
-                face_tangents(vertices, np.take(faces, np.take(own_faces, batch), axis=0)),
+                face_tangents(vertices, faces, np.take(own_faces, batch)),
                 None if rotation is None else np.take(rotation, batch),
             ).astype(np.float32)
             scene = building.result()  # the frames above were made while the scene was built

@@ -113,12 +113,16 @@ def principal_coordinates(points: NDArray, weights: NDArray | None = None) -> ND
 
 
 def grid_cells(coordinates: NDArray, size: float) -> NDArray[np.int64]:
-    """(N, 3) non-negative integer cell of each point in a grid of cubes of side ``size``
-    centred on the origin (cell walls at ``(k + 1/2) size``): negating an axis of the
-    coordinates gives the same partition of the points."""
+    """(N,) key of each point's cell in a grid of cubes of side ``size`` centred on the
+    origin (cell walls at ``(k + 1/2) size``): points share a key when they share a cell,
+    and negating an axis of the coordinates gives the same partition of the points."""
     coordinates = np.asarray(coordinates, dtype=np.float64).reshape(-1, 3)
+    if not len(coordinates):
+        return np.zeros(0, dtype=np.int64)
     cells = np.floor(coordinates / size + 0.5).astype(np.int64)
-    return cells - cells.min(axis=0) if len(cells) else cells
+    cells -= cells.min(axis=0)
+    span = cells.max(axis=0) + 1
+    return (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
 
 
 @kernel

@@ -275,15 +275,13 @@ def _coarse_graph(
     positions = principal_coordinates(centroids, areas)
     extent = float(np.ptp(positions, axis=0).max()) if len(positions) else 0.0
     cell = math.sqrt(total / target_nodes) if total > 0 else (extent or 1.0) / 200.0
-    cells = grid_cells(positions, cell)
-    span = cells.max(axis=0) + 1 if len(cells) else np.ones(3, dtype=np.int64)
     coarse = _coarsen(
         np.ascontiguousarray(graph.pairs, dtype=np.int64),
         np.ascontiguousarray(graph.edge_length, dtype=np.float64),
         np.ascontiguousarray(capacity, dtype=np.float64),
         centroids,
         areas if total > 0 else np.ones(len(areas)),
-        (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2],
+        grid_cells(positions, cell),
         CREASE_RATIO,
     )
     node_of, node_areas, node_centroids, node_pairs, lengths, node_capacity = coarse

@@ -343,17 +343,14 @@ def coarsen(
     crease_weight: float,
     preferred: NDArray,
 ) -> NDArray[np.int64]:
-    """Coarse node of each node: connected pieces of one grid cell.
+    """Coarse node of each node: connected pieces of one grid cell (``cells``: a key per
+    node, ``grid_cells``).
 
     Never groups across a crease (an edge lighter than ``crease_weight``) nor
     nodes whose cheapest label (``preferred``) differs.
     """
     a, b = pairs[:, 0], pairs[:, 1]
-    span = cells.max(axis=0) + 1 if len(cells) else np.ones(3, dtype=np.int64)
-    cell_key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
-    keep = (
-        (cell_key[a] == cell_key[b]) & (weights >= crease_weight) & (preferred[a] == preferred[b])
-    )
+    keep = (cells[a] == cells[b]) & (weights >= crease_weight) & (preferred[a] == preferred[b])
     return connected_components(pairs, keep, node_count)
 
 
@@ -492,12 +489,12 @@ def cut_hierarchy(
     if node_count <= coarse_nodes or data.shape[1] <= 1:
         return CutHierarchy((CutLevel(pairs, weights, data, None),), rings)
 
+    positions = principal_coordinates(centroids, areas)  # the grid turns with the mesh
     mean_area = float(np.mean(areas))
     if not mean_area > 0:
-        extent = float(np.ptp(centroids, axis=0).max()) or 1.0
+        extent = float(np.ptp(positions, axis=0).max()) or 1.0
         mean_area = extent**2 / node_count
     cell_size = np.sqrt(FACES_PER_CELL * mean_area)
-    positions = principal_coordinates(centroids, areas)  # the grid turns with the mesh
     crease_weight = CREASE_FRACTION * float(np.median(weights)) if len(weights) else 0.0
 
     levels: list[CutLevel] = []

@@ -13,6 +13,7 @@ the same faces. Variants:
 * ``nobase``: the lowest 6% of the faces (by centroid height, y) removed;
 * ``shuffled``: faces and vertices in random order;
 * ``transform``: a random rotation, scale x1000 and a shift far from the origin;
+* ``rotated``: a random rotation only (about the bounding-box centre);
 * ``soup``: every triangle with its own three vertices (an STL), order shuffled.
 
 Default models: the held-out fourth of each category (ids 4, 24, ..., 384), never used
@@ -107,13 +108,24 @@ def shuffled(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
     return Variant(v[vertex_order], new_index[f[face_order]], face_order)
 
 
-def transformed(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+def random_rotation(rng: np.random.Generator) -> NDArray:
+    """A uniformly random proper rotation (3, 3)."""
     q, r = np.linalg.qr(rng.normal(size=(3, 3)))
     rotation = q * np.sign(np.diag(r))
     if np.linalg.det(rotation) < 0:
         rotation[:, 0] *= -1
+    return rotation
+
+
+def transformed(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+    rotation = random_rotation(rng)
     shift = rng.uniform(-1, 1, size=3) * 1e4
     return Variant(1000.0 * v @ rotation.T + shift, f, np.arange(len(f)))
+
+
+def rotated(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+    centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    return Variant((v - centre) @ random_rotation(rng).T + centre, f, np.arange(len(f)))
 
 
 def soup(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
@@ -128,6 +140,7 @@ VARIANTS: dict[str, Callable[[NDArray, NDArray, np.random.Generator], Variant]] 
     "nobase": no_base,
     "shuffled": shuffled,
     "transform": transformed,
+    "rotated": rotated,
     "soup": soup,
 }
 

@@ -29,7 +29,7 @@ from neural_shdf.geometry import face_centroids, face_normals
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import mesh_face_graph
 from neural_shdf.shdf.embree import Scene
-from neural_shdf.shdf.exact import ORIGIN_OFFSET, cone_directions, raw_shdf
+from neural_shdf.shdf.exact import ORIGIN_OFFSET, cone_directions, face_tangents, raw_shdf
 from neural_shdf.shdf.postprocess import postprocess_shdf
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
@@ -90,6 +90,7 @@ def embree_only(mesh: TriangleMesh) -> tuple[float, float]:
     )
     directions = cone_directions(
         -normals,
+        face_tangents(mesh.vertices, mesh.faces),
         cone_angle=constants.SHDF_CONE_ANGLE,
         ray_count=constants.SHDF_RAY_COUNT,
         dtype=np.float32,

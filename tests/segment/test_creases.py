@@ -14,7 +14,7 @@ from neural_shdf.segment.creases import (
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import canonical_labels
 from neural_shdf.segment.pipeline import prepare_segment, segment_with_details
-from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
+from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell, dumbbell_radius
 
 
 def case(faces: int, ripple: float = 0.0):
@@ -108,7 +108,10 @@ def test_refinement_is_deterministic_and_keeps_labels_in_face_order():
 
 
 def test_every_cut_of_the_tree_has_the_refined_boundaries(dumbbell_case):
-    vertices, faces, shdf, graph, areas, _ = dumbbell_case
+    vertices, faces, _, graph, areas, centroids = dumbbell_case
+    # The ShDF's steps 0.2 off the concave creases: the refinement has boundaries to move.
+    shdf = dumbbell_radius(centroids[:, 2] + 0.2)
+    shdf = (shdf - shdf.min()) / (shdf.max() - shdf.min())
     params = SegmentParams(crease_boundaries=True, smoothing=0.02)
     whole = segment_with_details(vertices, faces, shdf, params, graph, areas=areas)
     plain = segment_with_details(
@@ -139,3 +142,22 @@ def test_a_kept_crease_graph_serves_every_mixture_of_the_mesh(dumbbell_case):
         )
         assert basis.creases(graph) is creases
         np.testing.assert_array_equal(kept.tree.leaf_labels, expected)
+
+
+def test_coarse_crease_nodes_are_the_same_in_any_pose():
+    from scipy.spatial.transform import Rotation
+
+    mesh, _ = dumbbell(6000)
+    # Wider along x: the mesh's axes are defined (a body of revolution's are not).
+    vertices, triangles = np.asarray(mesh.vertices) * (1.4, 1.0, 1.0), np.asarray(mesh.faces)
+    normals, areas = face_normals(vertices, triangles)
+    graph = build_face_graph(vertices, weld_faces(vertices, triangles), normals)
+    centroids = face_centroids(vertices, triangles)
+    rotation = Rotation.random(random_state=6).as_matrix()
+    moved = face_centroids(2.0 * vertices @ rotation.T - 50.0, triangles)
+    kept = crease_graph(graph, areas, centroids, coarse_above=2_000, coarse_nodes=500)
+    turned = crease_graph(graph, 4.0 * areas, moved, coarse_above=2_000, coarse_nodes=500)
+    assert kept.node_of is not None and kept.graph.face_count < 1_500
+    np.testing.assert_array_equal(turned.node_of, kept.node_of)
+    expected = 2.0 * kept.centroids @ rotation.T - 50.0
+    np.testing.assert_allclose(turned.centroids, expected, atol=1e-9)

@@ -151,7 +151,9 @@ def test_sampled_casts_more_samples_on_thin_parts() -> None:
             ShdfParams(samples=200),
         )
     )
-    assert np.abs(adaptive - exact).mean() < 0.6 * np.abs(fixed - exact).mean()
+    # The ratio is 0.64 with cones that turn with the triangles (0.45 to 0.60 over poses
+    # of this mesh when the cones followed the world axes).
+    assert np.abs(adaptive - exact).mean() < 0.75 * np.abs(fixed - exact).mean()
     np.testing.assert_array_equal(again, adaptive)
 
 

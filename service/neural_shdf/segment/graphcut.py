@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
-from neural_shdf.geometry import FaceGraph, adjacency_lists
+from neural_shdf.geometry import FaceGraph, adjacency_lists, grid_cells, principal_coordinates
 from neural_shdf.segment.parts import connected_components
 
 #: CGAL: probabilities below this are clamped before ``-log``.
@@ -343,17 +343,14 @@ def coarsen(
     crease_weight: float,
     preferred: NDArray,
 ) -> NDArray[np.int64]:
-    """Coarse node of each node: connected pieces of one grid cell.
+    """Coarse node of each node: connected pieces of one grid cell (``cells``: a key per
+    node, ``grid_cells``).
 
     Never groups across a crease (an edge lighter than ``crease_weight``) nor
     nodes whose cheapest label (``preferred``) differs.
     """
     a, b = pairs[:, 0], pairs[:, 1]
-    span = cells.max(axis=0) + 1 if len(cells) else np.ones(3, dtype=np.int64)
-    cell_key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
-    keep = (
-        (cell_key[a] == cell_key[b]) & (weights >= crease_weight) & (preferred[a] == preferred[b])
-    )
+    keep = (cells[a] == cells[b]) & (weights >= crease_weight) & (preferred[a] == preferred[b])
     return connected_components(pairs, keep, node_count)
 
 
@@ -477,7 +474,9 @@ def cut_hierarchy(
 ) -> CutHierarchy:
     """Coarsen the graph until at most ``coarse_nodes`` nodes remain (or it stops shrinking).
 
-    Nodes are grouped into connected pieces of a 3-D grid (cells doubling per level;
+    Nodes are grouped into connected pieces of a 3-D grid laid along the mesh's own
+    axes (``principal_coordinates``, ``grid_cells``: the same groups in any pose; cells
+    doubling per level, a coarse node placed at its first face;
     crease edges and nodes preferring different labels never grouped), with data and
     edge weights summed, so a labelling that is constant on groups has the same energy
     at every level. Scaling ``unit_weights`` scales every level's weights alike, so the
@@ -490,18 +489,19 @@ def cut_hierarchy(
     if node_count <= coarse_nodes or data.shape[1] <= 1:
         return CutHierarchy((CutLevel(pairs, weights, data, None),), rings)
 
+    positions = principal_coordinates(centroids, areas)  # the grid turns with the mesh
     mean_area = float(np.mean(areas))
     if not mean_area > 0:
-        extent = float(np.ptp(centroids, axis=0).max()) or 1.0
+        extent = float(np.ptp(positions, axis=0).max()) or 1.0
         mean_area = extent**2 / node_count
     cell_size = np.sqrt(FACES_PER_CELL * mean_area)
-    cells = np.floor((centroids - centroids.min(axis=0)) / cell_size).astype(np.int64)
     crease_weight = CREASE_FRACTION * float(np.median(weights)) if len(weights) else 0.0
 
     levels: list[CutLevel] = []
     level_pairs, level_weights, level_data = pairs, weights, data
     while len(level_data) > coarse_nodes:
         count = len(level_data)
+        cells = grid_cells(positions, cell_size)
         coarse_of = coarsen(
             level_pairs, level_weights, count, cells, crease_weight, level_data.argmin(axis=1)
         )
@@ -514,7 +514,7 @@ def cut_hierarchy(
         )
         first = np.full(coarse_count, -1, dtype=np.int64)
         first[coarse_of[::-1]] = np.arange(count)[::-1]
-        cells = cells[first] // 2
+        positions, cell_size = positions[first], 2.0 * cell_size  # a node at its first face
         levels.append(
             CutLevel(
                 level_pairs,

@@ -108,7 +108,9 @@ def face_centroids(vertices: NDArray[Any], faces: NDArray[Any]) -> NDArray[Any]:
     )
 
 
-def principal_coordinates(points: NDArray, weights: NDArray | None = None) -> NDArray[np.float64]:
+def principal_coordinates(
+    points: NDArray[Any], weights: NDArray[Any] | None = None
+) -> NDArray[np.float64]:
     """(N, 3) coordinates of the points along their own principal axes (largest spread
     first), from their weighted mean: the same in any pose of the points, up to each
     axis's sign (a shape does not define it), so grids over them are laid with
@@ -124,10 +126,11 @@ def principal_coordinates(points: NDArray, weights: NDArray | None = None) -> ND
     weights = np.asarray(weights, dtype=np.float64) / float(np.sum(weights))
     offsets = points - weights @ points
     _, axes = np.linalg.eigh((offsets * weights[:, None]).T @ offsets)
-    return offsets @ axes[:, ::-1]
+    coordinates: NDArray[np.float64] = offsets @ axes[:, ::-1]
+    return coordinates
 
 
-def grid_cells(coordinates: NDArray, size: float) -> NDArray[np.int64]:
+def grid_cells(coordinates: NDArray[Any], size: float) -> NDArray[np.int64]:
     """(N,) key of each point's cell in a grid of cubes of side ``size`` centred on the
     origin (cell walls at ``(k + 1/2) size``): points share a key when they share a cell,
     and negating an axis of the coordinates gives the same partition of the points."""
@@ -137,7 +140,8 @@ def grid_cells(coordinates: NDArray, size: float) -> NDArray[np.int64]:
     cells = np.floor(coordinates / size + 0.5).astype(np.int64)
     cells -= cells.min(axis=0)
     span = cells.max(axis=0) + 1
-    return (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+    keys: NDArray[np.int64] = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+    return keys
 
 
 @kernel

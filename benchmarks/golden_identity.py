@@ -26,15 +26,7 @@ import numpy as np
 
 from neural_shdf.errors import ModelUnavailableError
 from neural_shdf.mesh_io import load_mesh
-from neural_shdf.pipeline import (
-    compute_shdf_result,
-    input_face_parts,
-    input_face_shdf,
-    mesh_face_graph,
-    prepare_segment_mesh,
-    segment_mesh_with_details,
-)
-from neural_shdf.segment import SegmentParams
+from neural_shdf.pipeline import SegmentParams, compute_shdf, prepare_segment, segment
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 if not DATA.is_dir():
@@ -70,29 +62,27 @@ def meshes() -> list[tuple[str, Path]]:
 
 
 def record(path: Path, methods: tuple[str, ...]) -> dict[str, np.ndarray]:
-    """Every array of one mesh; the calls of the library's public API."""
+    """Every array of one mesh, through the library's front door (``neural_shdf.pipeline``)."""
     mesh = load_mesh(path)
-    graph = mesh_face_graph(mesh)
     arrays: dict[str, np.ndarray] = {}
-    shdf = compute_shdf_result(mesh, method="auto", graph=graph).values
+    shdf = compute_shdf(mesh, method="auto").values
     arrays["shdf_auto"] = shdf
-    arrays["input_shdf_auto"] = input_face_shdf(mesh, shdf)
+    arrays["input_shdf_auto"] = mesh.to_input_faces(shdf)
     for name, params in GRID:
-        result = segment_mesh_with_details(mesh, shdf, params, graph=graph)
+        result = segment(mesh, shdf, params)
         arrays[f"labels_{name}"] = result.labels
         if name == "default":
-            face_labels, face_leaves = input_face_parts(mesh, result)
+            face_labels, face_leaves = result.input_face_parts(mesh)
             arrays["input_labels_default"] = face_labels
             if face_leaves is not None:
                 arrays["input_leaves_default"] = face_leaves
     # The service's path: a kept basis, re-segmented with other smoothing or parts.
-    basis = prepare_segment_mesh(mesh, shdf, SegmentParams(), graph=graph)
+    basis = prepare_segment(mesh, shdf, SegmentParams())
     for name, params in GRID[1:6]:
-        result = segment_mesh_with_details(mesh, shdf, params, graph=graph, basis=basis)
-        arrays[f"labels_basis_{name}"] = result.labels
+        arrays[f"labels_basis_{name}"] = segment(mesh, shdf, params, basis=basis).labels
     for method in methods:
         try:
-            arrays[f"shdf_{method}"] = compute_shdf_result(mesh, method=method, graph=graph).values
+            arrays[f"shdf_{method}"] = compute_shdf(mesh, method=method).values
         except ModelUnavailableError:
             continue
     return arrays

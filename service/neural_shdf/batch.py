@@ -321,13 +321,7 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
     from neural_shdf.errors import InvalidGeometryError
     from neural_shdf.export import colored_glb, parts_glb, write_labels, write_values
     from neural_shdf.mesh_io import load_mesh
-    from neural_shdf.pipeline import (
-        compute_shdf_result,
-        input_face_labels,
-        input_face_shdf,
-        mesh_face_graph,
-        segment_mesh,
-    )
+    from neural_shdf.pipeline import compute_shdf, segment
 
     path = Path(asset.path)
     if not path.is_file():
@@ -342,28 +336,21 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
     cached = False
     if config.cache:
         engine = _shdf_engine(config.cache)
-        graph = engine.meshes.graph(mesh_id, mesh)
         outcome = engine.shdf.get_blocking(mesh_id, mesh, config.method, config.seed)
         shdf, cached, method = outcome.values, outcome.cached, outcome.method
     else:
-        graph = mesh_face_graph(mesh)
-        result = compute_shdf_result(
-            mesh,
-            method=config.method,  # type: ignore[arg-type]
-            seed=config.seed,
-            graph=graph,
-        )
+        result = compute_shdf(mesh, method=config.method, seed=config.seed)
         shdf, method = result.values, result.method
     paths = output_paths(out_dir, asset, config.outputs)
     if "shdf" in paths:
-        values = input_face_shdf(mesh, shdf)
+        values = mesh.to_input_faces(shdf)
         _write_atomic(paths["shdf"], lambda temporary: write_values(temporary, values))
     parts: int | str = ""
     if config.segments:
-        labels = segment_mesh(mesh, shdf, config.params, graph=graph)
+        labels = segment(mesh, shdf, config.params).labels
         parts = int(labels.max()) + 1 if len(labels) else 0
         if "seg" in paths:
-            per_face = input_face_labels(mesh, labels)
+            per_face = mesh.labels_to_input_faces(labels)
             _write_atomic(paths["seg"], lambda temporary: write_labels(temporary, per_face))
         if "colored" in paths:
             _write_bytes_atomic(paths["colored"], colored_glb(mesh, labels))

@@ -10,7 +10,7 @@ from neural_shdf import constants
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import face_normals
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.pipeline import compute_shdf, mesh_face_graph
+from neural_shdf.pipeline import compute_shdf
 from neural_shdf.shdf.exact import (
     cone_directions,
     plane_basis,
@@ -122,7 +122,7 @@ def test_open_and_degenerate_faces_do_not_crash():
     raw = raw_shdf(vertices, faces)
     assert np.isnan(raw[-2:]).all()
     assert np.isfinite(raw[:-2]).mean() > 0.9
-    values = compute_shdf(mesh, method="exact", graph=mesh_face_graph(mesh))
+    values = compute_shdf(mesh, method="exact").values
     assert values.shape == (len(faces),)
     assert np.isfinite(values).all()
     assert values.min() == 0.0 and values.max() == 1.0
@@ -133,14 +133,12 @@ def test_flat_sheet_has_no_diameter_and_gives_zeros():
     faces = sheet.faces[sheet.face_normals[:, 2] > 0.5]
     mesh = TriangleMesh(sheet.vertices, faces)
     assert np.isnan(raw_shdf(mesh.vertices, mesh.faces)).all()
-    np.testing.assert_array_equal(
-        compute_shdf(mesh, method="exact", graph=mesh_face_graph(mesh)), 0.0
-    )
+    np.testing.assert_array_equal(compute_shdf(mesh, method="exact").values, 0.0)
 
 
 def test_empty_mesh():
     mesh = TriangleMesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
-    assert compute_shdf(mesh, method="exact", graph=mesh_face_graph(mesh)).shape == (0,)
+    assert compute_shdf(mesh, method="exact").values.shape == (0,)
 
 
 def test_same_seed_same_values_and_thread_count_does_not_matter():
@@ -151,10 +149,9 @@ def test_same_seed_same_values_and_thread_count_does_not_matter():
     np.testing.assert_array_equal(first, second)
     assert not np.array_equal(first, other, equal_nan=True)
     plain = TriangleMesh(mesh.vertices, mesh.faces)
-    graph = mesh_face_graph(plain)
     np.testing.assert_array_equal(
-        compute_shdf(plain, method="exact", graph=graph),
-        compute_shdf(plain, method="exact", graph=graph),
+        compute_shdf(plain, method="exact").values,
+        compute_shdf(plain, method="exact").values,
     )
 
 
@@ -180,7 +177,7 @@ def test_agrees_with_cgal_on_a_benchmark_mesh(psb_off, shared_data):
     loaded = trimesh.load(psb_off(1), process=False)
     mesh = TriangleMesh(np.asarray(loaded.vertices), np.asarray(loaded.faces))
     reference = np.loadtxt(shared_data / "psb-dev" / "cgal" / "1.sdf")
-    ours = compute_shdf(mesh, method="exact", graph=mesh_face_graph(mesh))
+    ours = compute_shdf(mesh, method="exact").values
     assert np.corrcoef(ours, reference)[0, 1] >= 0.99
 
 
@@ -203,5 +200,5 @@ def test_exact_shdf_progress_rises_to_one():
     sphere = trimesh.creation.icosphere(subdivisions=3)
     mesh = TriangleMesh(sphere.vertices, sphere.faces)
     seen = []
-    compute_shdf(mesh, method="exact", graph=mesh_face_graph(mesh), progress=seen.append)
+    compute_shdf(mesh, method="exact", progress=seen.append)
     assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) >= 2

@@ -10,7 +10,6 @@ import trimesh
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import build_face_graph, face_centroids, face_normals
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.pipeline import mesh_face_graph
 from neural_shdf.shdf.postprocess import (
     EXACT_WINDOW_MAX,
     bilateral_smooth,
@@ -247,7 +246,7 @@ def test_ring_length_measures_the_spacing_of_rings():
 def test_post_processing_reports_progress_in_steps():
     """The bilateral filter is up to a third of an exact run: it reports as blocks finish."""
     sphere = trimesh.creation.icosphere(subdivisions=4)
-    graph = mesh_face_graph(TriangleMesh(sphere.vertices, sphere.faces))
+    graph = TriangleMesh(sphere.vertices, sphere.faces).face_graph
     raw = np.random.default_rng(0).uniform(0.5, 1.5, len(sphere.faces))
     seen: list[float] = []
     values = postprocess_shdf(raw, graph, window_size=3, progress=seen.append)

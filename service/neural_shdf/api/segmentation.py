@@ -9,7 +9,7 @@ import json
 import time
 from dataclasses import asdict, dataclass
 from dataclasses import field as dataclass_field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,11 +22,9 @@ from neural_shdf.api.shdf_service import ShdfService
 from neural_shdf.api.tasks import TaskRunner, checkpoint
 from neural_shdf.export import part_tree_document
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.segment import SegmentParams
+from neural_shdf.pipeline import SegmentParams, prepare_segment, segment
 from neural_shdf.segment.hierarchy import PartTree
-
-if TYPE_CHECKING:
-    from neural_shdf.segment.pipeline import SegmentResult as LibrarySegmentResult
+from neural_shdf.segment.segmentation import SegmentResult as LibrarySegmentResult
 
 
 @dataclass
@@ -115,10 +113,8 @@ def summarize(
 ) -> SegmentResult:
     """Input-face labels and leaves (the library's mapping), the part tree, and per-part
     faces, area and area-weighted mean ShDF."""
-    from neural_shdf.pipeline import input_face_parts
-
     triangle_labels = segmentation.labels
-    labels, leaves = input_face_parts(mesh, segmentation)
+    labels, leaves = segmentation.input_face_parts(mesh)
     _, area = mesh.normals_and_areas
     part_count = int(triangle_labels.max()) + 1 if len(triangle_labels) else 0
     tri = np.asarray(triangle_labels, dtype=np.int64)
@@ -184,9 +180,7 @@ class SegmentationService:
     def _compute(
         self, mesh_id: str, method: str, mesh: TriangleMesh, shdf: NDArray, params: SegmentParams
     ) -> SegmentResult:
-        from neural_shdf.pipeline import prepare_segment_mesh, segment_mesh_with_details
-
-        graph = self.meshes.graph(mesh_id, mesh)
+        self.meshes.graph(mesh_id, mesh)  # built once per mesh, under the mesh's lock
         start = time.perf_counter()
         # What does not depend on smoothing, parts or refinement is kept per mesh, ShDF,
         # clusters and seed (in memory, within MEMORY_WORKING_SET_BYTES), so a new slider value
@@ -194,20 +188,19 @@ class SegmentationService:
         if params.partitioner == "metis":
             # In the worker process: pymetis partitions holding the GIL, which in a thread
             # stalls the event loop (every other request) for as long.
-            segment = functools.partial(segment_mesh_with_details, graph=graph)
-            segmentation = self.tasks.isolated(segment, mesh.bare(), shdf, params)
+            segmentation = self.tasks.isolated(segment, mesh.portable(), shdf, params)
         else:
             shdf_version = self.shdf.version(method, params.seed)
             basis_key = f"{mesh_id}:basis:{shdf_version}:{params.clusters}:{params.seed}"
             basis = self.cache.working_set(basis_key)
             if basis is None or not basis.matches(params, shdf):
-                crease_graph = (
-                    self.meshes.creases(mesh_id, mesh) if params.crease_boundaries else None
-                )
+                if params.crease_boundaries:
+                    self.meshes.creases(mesh_id, mesh)
                 checkpoint()
-                basis = prepare_segment_mesh(mesh, shdf, params, graph=graph, creases=crease_graph)
+                basis = prepare_segment(mesh, shdf, params)
             checkpoint()
-            segmentation = segment_mesh_with_details(mesh, shdf, params, graph=graph, basis=basis)
+            # The basis's own ShDF: the one it was checked against just above (no second pass).
+            segmentation = segment(mesh, basis.shdf, params, basis=basis)
             self.cache.keep_working_set(basis_key, basis, basis.nbytes)  # sized with its cut
         seconds = time.perf_counter() - start
         self.metrics.segmentations.inc()

@@ -138,6 +138,20 @@ class SegmentParams:
                 f"reference_faces must be an integer >= 1 (or None), got {self.reference_faces!r}"
             )
 
+    @property
+    def effective_smoothing(self) -> float:
+        """``smoothing``, or ``DEFAULT_SMOOTHING`` where it is None."""
+        return DEFAULT_SMOOTHING if self.smoothing is None else float(self.smoothing)
+
+    def smoothing_for(self, face_count: int) -> float:
+        """The smoothing lambda the graph cut uses on a mesh of ``face_count`` faces:
+        ``effective_smoothing``, times ``sqrt(face_count / reference_faces)`` when
+        ``reference_faces`` is set (resolution normalisation)."""
+        smoothing = self.effective_smoothing
+        if self.reference_faces is None:
+            return smoothing * 1.0
+        return smoothing * np.sqrt(face_count / self.reference_faces)
+
     @classmethod
     def from_attributes(cls, source: object) -> SegmentParams:
         """Parameters from same-named attributes of ``source`` (CLI arguments, API requests).

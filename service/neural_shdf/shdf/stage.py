@@ -37,7 +37,8 @@ from neural_shdf import constants
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, build_face_graph, face_centroids
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.orientation import MeshDiagnostics
+from neural_shdf.orientation import MeshDiagnostics, hole_caps
+from neural_shdf.segment.params import check_seed
 from neural_shdf.shdf.postprocess import (
     EXACT_WINDOW_MAX,
     FILTER_COST_PER_PAIR,
@@ -235,8 +236,6 @@ def ray_targets(mesh: TriangleMesh, close_holes: bool) -> tuple[NDArray, NDArray
     missing surface was instead of reading whatever lies beyond as material."""
     if not close_holes:
         return mesh.vertices, mesh.faces
-    from neural_shdf.orientation import hole_caps
-
     vertices, caps = hole_caps(mesh.vertices, mesh.welded_faces, mesh.welded_edges)
     return vertices, np.vstack([mesh.faces, caps])
 
@@ -399,29 +398,35 @@ class ShdfResult:
     diagnostics: MeshDiagnostics | None = None
 
 
-def run_shdf(
+def compute_shdf(
     mesh: TriangleMesh,
-    graph: FaceGraph,
     *,
     method: str = "auto",
+    seed: int | None = None,
     params: ShdfParams | None = None,
     model: object | str | Path | None = None,
     progress: Progress | None = None,
 ) -> ShdfResult:
-    """Raw diameters from the producer ``method`` resolves to, then one post-processing.
+    """Post-processed ShDF in [0, 1] per triangle of ``mesh``: raw diameters from the
+    producer ``method`` resolves to (``auto``, the default: ``resolve_method`` picks per
+    mesh; ``exact``, ``sampled`` or ``neural``), then one post-processing.
 
-    ``model``: a loaded ``NeuralModel`` or the path of an ONNX model, used by
-    ``neural`` (default: the installed model); ignored by the other producers.
-    Every producer works on ``mesh.oriented``: the rays go into the solid whatever the
-    file's winding; ``graph``: the face graph of that mesh (``pipeline.mesh_face_graph``).
+    ``seed`` (0..``MAX_SEED``), when given, replaces ``params.seed``; by convention the
+    segmentation's ``SegmentParams.seed``. ``model``: a loaded ``NeuralModel`` or the path
+    of an ONNX model, used by ``neural`` (default: the installed model); ignored by the
+    other producers. Every producer works on ``mesh.oriented`` and its face graph
+    (``TriangleMesh.face_graph``): the rays go into the solid whatever the file's winding.
     """
+    params = params or ShdfParams()
+    if seed is not None:
+        params = replace(params, seed=check_seed(seed))
     orientation = mesh.orientation
     diagnostics = orientation.diagnostics
     # One copy of each triangle (coincident copies share its value); no copies: as given.
-    mesh, graph, copy_of = without_copies(mesh.oriented, graph, orientation.first_copy)
-    params = params or ShdfParams()
+    mesh, graph, copy_of = without_copies(mesh.oriented, mesh.face_graph, orientation.first_copy)
     resolved = resolve_method(method, mesh.face_count)
     if resolved == "neural":
+        # onnxruntime loads only where the network runs (the other producers never need it).
         from neural_shdf.shdf.neural.inference import NeuralModel, load_model
 
         model = model if isinstance(model, NeuralModel) else load_model(model)  # type: ignore[arg-type]
@@ -451,9 +456,3 @@ def run_shdf(
         else (lambda done: progress(ray_share + (1 - ray_share) * done)),
     )[copy_of]
     return ShdfResult(values, resolved, diagnostics)
-
-
-def with_seed(params: ShdfParams | None, seed: int | None) -> ShdfParams:
-    """``params`` (default ones when None), with ``seed`` as sampling seed when given."""
-    params = params or ShdfParams()
-    return params if seed is None else replace(params, seed=seed)

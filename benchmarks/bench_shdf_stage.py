@@ -38,7 +38,7 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
 from neural_shdf.mesh import TriangleMesh  # noqa: E402
-from neural_shdf.pipeline import compute_shdf_result, mesh_face_graph  # noqa: E402
+from neural_shdf.pipeline import compute_shdf  # noqa: E402
 from neural_shdf.shdf.neural.inference import MODEL_DIR  # noqa: E402
 from neural_shdf.shdf.stage import ShdfParams  # noqa: E402
 
@@ -57,9 +57,7 @@ class Producer:
 
     def run(self, mesh: TriangleMesh, graph) -> tuple[np.ndarray, str, float]:  # noqa: ANN001
         start = time.perf_counter()
-        result = compute_shdf_result(
-            mesh, method=self.method, graph=graph, params=self.params, model=self.model
-        )
+        result = compute_shdf(mesh, method=self.method, params=self.params, model=self.model)
         return result.values, result.method, time.perf_counter() - start
 
 
@@ -100,9 +98,9 @@ def measure(
         except Exception as error:  # noqa: BLE001 - report and continue
             print(f"  skipped {name}: {error}")
             continue
-        graph = mesh_face_graph(mesh)
+        graph = mesh.face_graph
         start = time.perf_counter()
-        exact = compute_shdf_result(mesh, method="exact", graph=graph).values
+        exact = compute_shdf(mesh, method="exact").values
         exact_seconds = time.perf_counter() - start
         results["exact"].append((name, source, mesh.face_count, 1.0, 0.0, exact_seconds, "exact"))
         if source == "psb-dev":
@@ -203,11 +201,11 @@ import json, resource, sys, time
 import numpy as np
 sys.path.insert(0, {repo!r})
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.pipeline import compute_shdf_result, mesh_face_graph, warm_up
+from neural_shdf.pipeline import compute_shdf, warm_up
 warm_up()  # compiled kernels loaded and the model session made before timing
 data = np.load({path!r})
 mesh = TriangleMesh(data["vertices"], data["faces"])
-graph = mesh_face_graph(mesh)
+graph = mesh.face_graph
 out = {{}}
 if {method!r} == "exact":
     from neural_shdf.geometry import face_centroids
@@ -230,7 +228,7 @@ else:
     runs = []
     for _ in range({repeats}):  # the median run: one run is at the mercy of the machine
         start, cpu = time.perf_counter(), time.process_time()
-        result = compute_shdf_result(mesh, method={method!r}, graph=graph)
+        result = compute_shdf(mesh, method={method!r})
         runs.append((time.perf_counter() - start, time.process_time() - cpu))
     out["seconds"], out["cpu_s"] = (float(x) for x in np.median(np.array(runs), axis=0))
     out["runs"] = runs
@@ -313,7 +311,7 @@ def sampled_stage_profile(path: Path) -> None:
     warm_up(("sampled",))
     data = np.load(path)
     mesh = TriangleMesh(data["vertices"], data["faces"])
-    graph = mesh_face_graph(mesh)
+    graph = mesh.face_graph
     params = ShdfParams()
     normals, areas = mesh.normals_and_areas
     spec = sample_graph.GraphSpec(target_samples=params.samples)
@@ -459,11 +457,11 @@ def resolution(args: argparse.Namespace) -> None:
     met, total = 0, 0
     for model_id in (1, 181, 281):
         base = load_mesh(DATA / "psb-dev" / "off" / f"{model_id}.off")
-        reference = compute_shdf_result(base).values
+        reference = compute_shdf(base).values
         robust_reference = percentile_normalised(reference, base.normals_and_areas[1], share)
         print(f"  psb {model_id} ({base.face_count} faces):")
         for label, variant in resolution_variants(base).items():
-            result = compute_shdf_result(variant)
+            result = compute_shdf(variant)
             mapped = result.values[nearest_face_map(variant, base)]
             mae = float(np.abs(mapped - reference).mean())
             robust = percentile_normalised(result.values, variant.normals_and_areas[1], share)
@@ -479,7 +477,7 @@ def resolution(args: argparse.Namespace) -> None:
     maes = []
     for _, _, make in psb_meshes(quick=True):
         mesh = make()
-        exact = compute_shdf_result(mesh, method="exact").values
+        exact = compute_shdf(mesh, method="exact").values
         robust = percentile_normalised(exact, mesh.normals_and_areas[1], share)
         maes.append(np.abs(robust - exact).mean())
     print(
@@ -511,11 +509,11 @@ def threshold(args: argparse.Namespace) -> None:
     for path in sorted((DATA / "dense-dev").glob("*.ply")):
         meshes.append((path.stem.split("__")[-1], load_mesh(path)))
     for name, mesh in sorted(meshes, key=lambda item: item[1].face_count):
-        graph = mesh_face_graph(mesh)
+        _ = mesh.face_graph  # counted apart
         timings = {}
         for method in ("exact", "sampled"):
             start, cpu = time.perf_counter(), time.process_time()
-            values = compute_shdf_result(mesh, method=method, graph=graph).values
+            values = compute_shdf(mesh, method=method).values
             timings[method] = (time.perf_counter() - start, time.process_time() - cpu, values)
         (exact_s, exact_cpu, exact), (sampled_s, sampled_cpu, sampled) = timings.values()
         r, mae = pearson(sampled, exact), float(np.abs(sampled - exact).mean())
@@ -538,11 +536,11 @@ def robustness(args: argparse.Namespace) -> None:
     rows = [p for p in producers() if p.label in ("auto", "sampled 4096")]
     for model_id in (1, 21, 101, 161, 381):
         mesh = load_mesh(DATA / "psb-dev" / "off" / f"{model_id}.off")
-        clean = compute_shdf_result(mesh, method="exact").values
+        clean = compute_shdf(mesh, method="exact").values
         for label, damaged, origin in damaged_versions(mesh, rng):
-            graph = mesh_face_graph(damaged)
+            graph = damaged.face_graph
             reference = clean[origin]
-            exact = compute_shdf_result(damaged, method="exact", graph=graph).values
+            exact = compute_shdf(damaged, method="exact").values
             cells = [f"exact {np.abs(exact - reference).mean():.3f}"]
             for row in rows:
                 values, ran, _ = row.run(damaged, graph)

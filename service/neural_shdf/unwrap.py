@@ -1,8 +1,11 @@
 """Piece-wise UV unwrapping by parts (the paper's application).
 
-Each part is charted and parameterised on its own with xatlas, so every chart lies
-within one part and seams run where parts meet, plus whatever cuts a part still
-needs to flatten; all charts are packed into one atlas. UVs are per triangle
+Each connected piece of a part is flattened on its own (cut to a disk with libigl, a
+least-squares conformal map, cut further while it is too stretched, halved with METIS
+when it still fails), so every chart lies within one part and seams run where parts
+meet, plus whatever cuts a part still needs to flatten; only the pieces that never
+flatten are charted by xatlas, inside the piece. xatlas packs all charts into one
+atlas. UVs are per triangle
 corner, in ``[0, 1]``, with ``v`` pointing up (OBJ's and trimesh's convention; the
 GLB writer flips it for glTF).
 """

@@ -252,9 +252,10 @@ def run_child(mesh_file: Path, method: str, out: Path) -> dict:
 
 
 def profile_neural(mesh: TriangleMesh) -> None:
-    from neural_shdf.shdf.neural.graph import build_sample_graph, samples_to_faces
+    from neural_shdf.shdf.neural.graph import build_sample_graph
     from neural_shdf.shdf.neural.inference import load_model
     from neural_shdf.shdf.postprocess import postprocess_shdf
+    from neural_shdf.shdf.sampling import samples_to_faces
 
     model = load_model()
     times = {}

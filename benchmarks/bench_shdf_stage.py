@@ -262,9 +262,10 @@ def sample_graph_profile() -> None:
     """Stages of the sample graph at 1,024 to 8,192 samples on a PSB mesh; the cone edges
     also by the O(N^2) dense scan they replaced (same edges, checked)."""
     from neural_shdf.mesh_io import load_mesh
+    from neural_shdf.shdf import sampling
     from neural_shdf.shdf.neural import graph as sample_graph
-    from neural_shdf.shdf.neural.search import cone_neighbours
-    from tests.shdf.neural.test_search import dense_cone_edges
+    from neural_shdf.shdf.search import cone_neighbours
+    from tests.shdf.test_search import dense_cone_edges
 
     mesh = load_mesh(DATA / "psb-dev" / "off" / "281.off")
     normals, areas = mesh.normals_and_areas
@@ -273,8 +274,8 @@ def sample_graph_profile() -> None:
         spec = sample_graph.GraphSpec(target_samples=samples, cone_neighbours=4, knn=8)
         times = {}
         start = time.perf_counter()
-        points = sample_graph.sample_surface_points(
-            mesh.vertices, mesh.faces, spec, normals=normals, areas=areas, density=True
+        points = sampling.sample_surface_points(
+            mesh.vertices, mesh.faces, samples, normals=normals, areas=areas, density=True
         )
         times["samples+vertex map+density"] = time.perf_counter() - start
         arguments = (points.positions, points.normals, spec.cone_neighbours, spec.cone_cos)
@@ -302,10 +303,9 @@ def sampled_stage_profile(path: Path) -> None:
     (wall / CPU seconds; the stage itself overlaps the scene build with the sampling
     and the vertex search with the rays)."""
     from neural_shdf.pipeline import warm_up
-    from neural_shdf.shdf import stage
+    from neural_shdf.shdf import sampling, stage
     from neural_shdf.shdf.embree import Scene
     from neural_shdf.shdf.exact import raw_shdf_at_points
-    from neural_shdf.shdf.neural import graph as sample_graph
     from neural_shdf.shdf.postprocess import postprocess_shdf
 
     warm_up(("sampled",))
@@ -314,7 +314,6 @@ def sampled_stage_profile(path: Path) -> None:
     graph = mesh.face_graph
     params = ShdfParams()
     normals, areas = mesh.normals_and_areas
-    spec = sample_graph.GraphSpec(target_samples=params.samples)
     times: dict[str, list[tuple[float, float]]] = {}
 
     def timed(name: str, function, *args, **kwargs):  # noqa: ANN001, ANN202
@@ -327,7 +326,7 @@ def sampled_stage_profile(path: Path) -> None:
         scene = timed("Embree scene (low quality)", Scene, mesh.vertices, mesh.faces, "low")
         sums = timed(
             "vertex normals",
-            sample_graph.vertex_normal_sums,
+            sampling.vertex_normal_sums,
             len(mesh.vertices),
             mesh.faces,
             normals,
@@ -335,10 +334,10 @@ def sampled_stage_profile(path: Path) -> None:
         )
         samples = timed(
             "Poisson samples",
-            sample_graph.sample_surface_points,
+            sampling.sample_surface_points,
             mesh.vertices,
             mesh.faces,
-            spec,
+            params.samples,
             normals=normals,
             areas=areas,
             map_vertices=False,
@@ -356,27 +355,25 @@ def sampled_stage_profile(path: Path) -> None:
         )
         mapped = timed(
             "nearest samples of each vertex",
-            sample_graph.with_vertex_map,
+            sampling.with_vertex_map,
             samples,
             mesh.vertices,
             sums,
-            spec,
+            sampling.DEFAULT_INTERPOLATION_NEIGHBOURS,
             1,
         )
-        radius, sigma = timed("ring length", stage.sample_smoothing, mesh, graph, params)
-        filled = timed("fill samples", stage.fill_samples, diameters, samples.positions)
+        radius, sigma = timed("ring length", stage.sample_filter_window, mesh, graph, params)
+        filled = timed("fill samples", sampling.fill_samples, diameters, samples.positions)
         smoothed = timed(
             "sample-space smoothing",
-            stage.smooth_samples,
+            sampling.smooth_samples,
             filled,
             samples.positions,
             samples.normals,
             radius=radius,
             spatial_sigma=sigma,
         )
-        values = timed(
-            "samples_to_faces", sample_graph.samples_to_faces, smoothed, mapped, mesh.faces
-        )
+        values = timed("samples_to_faces", sampling.samples_to_faces, smoothed, mapped, mesh.faces)
         timed("post-processing", postprocess_shdf, values, graph, smooth=False)
     print("  sampled stages at ~1M faces, one thread each, median of 3 (wall / CPU s):")
     for name, runs in times.items():

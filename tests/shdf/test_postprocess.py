@@ -13,6 +13,7 @@ from neural_shdf.mesh import TriangleMesh
 from neural_shdf.shdf.postprocess import (
     EXACT_WINDOW_MAX,
     bilateral_smooth,
+    bilateral_window,
     fill_missing,
     linear_normalize,
     log_normalize,
@@ -20,7 +21,6 @@ from neural_shdf.shdf.postprocess import (
     patch_bilateral,
     postprocess_shdf,
     ring_length,
-    smoothing_window,
     sorted_adjacency,
 )
 
@@ -163,8 +163,8 @@ def test_fill_missing_uses_earlier_fills_then_the_minimum():
     np.testing.assert_array_equal(fill_missing(np.full(6, np.nan), graph), 0.0)
 
 
-def test_smoothing_window_follows_the_face_count():
-    assert [smoothing_window(n) for n in (0, 1999, 2000, 7999, 8000, 18000)] == [1, 1, 2, 2, 3, 4]
+def test_bilateral_window_follows_the_face_count():
+    assert [bilateral_window(n) for n in (0, 1999, 2000, 7999, 8000, 18000)] == [1, 1, 2, 2, 3, 4]
 
 
 def test_normalisations():

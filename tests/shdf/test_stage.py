@@ -19,7 +19,6 @@ from neural_shdf.shdf.stage import (
     ShdfParams,
     resolve_method,
     shdf_key,
-    smooth_samples,
     thin_part_samples,
 )
 
@@ -75,25 +74,6 @@ def test_sampled_follows_exact_on_two_shells() -> None:
     assert np.corrcoef(exact, sampled)[0, 1] > 0.98
     other_seed = compute_shdf(mesh, method="sampled", seed=3).values
     assert not np.array_equal(other_seed, compute_shdf(mesh, method="sampled").values)
-
-
-def test_sample_smoothing_keeps_steps_and_constants() -> None:
-    rng = np.random.default_rng(0)
-    positions = rng.random((400, 3)) * [10.0, 1.0, 0.0]
-    normals = np.tile([0.0, 0.0, 1.0], (400, 1))
-    constant = np.full(400, 2.0)
-    np.testing.assert_array_equal(
-        smooth_samples(constant, positions, normals, radius=1.0, spatial_sigma=0.5), constant
-    )
-    step = np.where(positions[:, 0] < 5.0, 1.0, 3.0) + rng.normal(0, 0.05, 400)
-    smoothed = smooth_samples(step, positions, normals, radius=1.0, spatial_sigma=0.5)
-    far = np.abs(positions[:, 0] - 5.0) > 1.0
-    assert np.std(smoothed[far & (positions[:, 0] < 5)]) < np.std(step[far & (positions[:, 0] < 5)])
-    assert np.all(np.abs(smoothed[far] - np.round(step[far])) < 0.2)  # no bleeding across
-    flipped = normals.copy()
-    flipped[::2] *= -1  # the other side of a wall never mixes in
-    lone = smooth_samples(step, positions, flipped, radius=1.0, spatial_sigma=0.5)
-    assert np.abs(lone - smoothed).max() > 0
 
 
 def test_cache_key_covers_method_model_and_every_parameter() -> None:

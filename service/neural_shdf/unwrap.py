@@ -22,8 +22,10 @@ from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
 from neural_shdf.errors import MeshTooLargeError, ParameterError
-from neural_shdf.geometry import weld_faces
+from neural_shdf.geometry import build_face_graph, weld_faces
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.palette import part_colors
+from neural_shdf.segment.metis import split_faces
 
 #: Atlas sides a user may ask for, in texels.
 MIN_ATLAS_SIZE, MAX_ATLAS_SIZE = 64, 8192
@@ -275,9 +277,6 @@ def _bisect(
 ) -> NDArray[np.int64]:
     """0/1 per face: two halves of similar size with the shortest boundary (METIS), never
     split across a polygon diagonal."""
-    from neural_shdf.geometry import build_face_graph
-    from neural_shdf.segment.metis import split_faces
-
     graph = build_face_graph(vertices, faces)
     a, b = graph.edge_vertices[:, 0], graph.edge_vertices[:, 1]
     keys = np.minimum(a, b) * len(vertices) + np.maximum(a, b)
@@ -520,10 +519,31 @@ def _flatten_disk(
     return None
 
 
+def stretch_terms(
+    vertices: NDArray, faces: NDArray, corner_uvs: NDArray
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """Per triangle: 3D area, signed UV area, and the Gram terms a = |S_s|^2, c = |S_t|^2,
+    b = S_s . S_t of the Jacobian of the map from UV to the surface."""
+    p0, p1, p2 = (vertices[faces[:, k]] for k in range(3))
+    area_3d = 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
+    s, t = corner_uvs[:, :, 0], corner_uvs[:, :, 1]
+    area_uv = 0.5 * (
+        (s[:, 1] - s[:, 0]) * (t[:, 2] - t[:, 0]) - (s[:, 2] - s[:, 0]) * (t[:, 1] - t[:, 0])
+    )
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / (2.0 * area_uv)
+        ss = (p0 * (t[:, 1] - t[:, 2])[:, None] + p1 * (t[:, 2] - t[:, 0])[:, None]
+              + p2 * (t[:, 0] - t[:, 1])[:, None]) * inv[:, None]  # fmt: skip
+        st = (p0 * (s[:, 2] - s[:, 1])[:, None] + p1 * (s[:, 0] - s[:, 2])[:, None]
+              + p2 * (s[:, 1] - s[:, 0])[:, None]) * inv[:, None]  # fmt: skip
+    a = np.einsum("ij,ij->i", ss, ss)
+    b = np.einsum("ij,ij->i", ss, st)
+    c = np.einsum("ij,ij->i", st, st)
+    return area_3d, area_uv, a, c, b
+
+
 def _l2_stretch(vertices: NDArray, faces: NDArray, uv: NDArray) -> float:
     """Sander's L2 stretch of a chart whose UV area equals its surface area."""
-    from neural_shdf.evaluate.uv import stretch_terms
-
     area_3d, area_uv, gram_a, gram_c, _ = stretch_terms(vertices, faces, uv[faces])
     scale = np.abs(area_uv).sum() / area_3d.sum()
     return float(np.sqrt(np.sum(area_3d * (gram_a + gram_c) * scale / 2) / area_3d.sum()))
@@ -838,8 +858,6 @@ LAYOUT_STRIP_ROWS = 256
 
 def _layout_strips(atlas: UvAtlas, size: int | None, checker: int) -> Iterator[NDArray[np.uint8]]:
     """The atlas picture (see ``atlas_layout_image``) as strips of rows, top first."""
-    from neural_shdf.export import part_colors
-
     size = (
         min(max(atlas.width, atlas.height, MIN_ATLAS_SIZE), MAX_ATLAS_SIZE)
         if size is None
@@ -948,5 +966,6 @@ __all__ = [
     "part_labels_per_triangle",
     "png_bytes",
     "rasterize_charts",
+    "stretch_terms",
     "unwrap",
 ]

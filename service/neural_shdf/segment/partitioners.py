@@ -17,21 +17,19 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.geometry import FaceGraph
+from neural_shdf.segment.basis import SegmentBasis
 from neural_shdf.segment.creases import CreaseGraph, snap_boundaries_to_creases
 from neural_shdf.segment.hierarchy import PartTree, automatic_part_count, merge_tree
 from neural_shdf.segment.metis import metis_edge_weights, metis_partition
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
 from neural_shdf.segment.refine import refine_parts, smooth_boundaries
-
-if TYPE_CHECKING:
-    from neural_shdf.segment.segmentation import SegmentBasis
 
 
 @dataclass

@@ -27,7 +27,7 @@ from neural_shdf.evaluate.benchmark import (
     list_models,
     load_benchmark_mesh,
 )
-from neural_shdf.evaluate.metrics import rand_index_error
+from neural_shdf.evaluate.scores import rand_index_error
 from neural_shdf.geometry import build_face_graph, face_centroids, face_normals, weld_faces
 from neural_shdf.pipeline import segment
 from neural_shdf.segment import SegmentParams

@@ -39,9 +39,9 @@ from timing import best_time
 from neural_shdf.geometry import face_centroids
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.creases import crease_graph, snap_boundaries_to_creases
+from neural_shdf.segment.from_shdf import prepare_segment, segment
 from neural_shdf.segment.hierarchy import automatic_part_count, merge_tree
 from neural_shdf.segment.params import SegmentParams
-from neural_shdf.segment.segmentation import prepare_segment, segment
 from neural_shdf.segment.synthetic import dumbbell
 from neural_shdf.shdf.postprocess import log_normalize
 

@@ -3,7 +3,7 @@
 ``../shared/data/human-seg``: 381 meshes of 1,500 faces, 8 labelled body parts (head,
 hands, forearms, upper arms, torso, thighs, lower legs, feet). Each segmentation's
 parts are matched one-to-one to the labels (maximum total overlap); faces of an
-unmatched part count as wrong (``evaluate.metrics.matched_accuracy``). Exact ShDF.
+unmatched part count as wrong (``evaluate.scores.matched_accuracy``). Exact ShDF.
 
 Rows: ``before-tree`` (graph cut, lambda 0.12, every part it finds, no crease
 refinement: the segmentation before the part tree), ``tree-auto`` (the default:
@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from neural_shdf.evaluate.metrics import matched_accuracy
+from neural_shdf.evaluate.scores import matched_accuracy
 from neural_shdf.mesh_io import load_mesh
 from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams

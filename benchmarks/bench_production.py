@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.evaluate.benchmark import list_models, load_benchmark_mesh
-from neural_shdf.evaluate.metrics import cut_distance_field, cut_graph, score_against_humans
+from neural_shdf.evaluate.scores import cut_distance_field, cut_graph, score_against_humans
 from neural_shdf.geometry import adjacency_lists, build_face_graph, weld_faces
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import compute_shdf, segment

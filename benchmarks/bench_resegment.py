@@ -28,8 +28,8 @@ import numpy as np
 from timing import best_time
 
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.segment.from_shdf import prepare_segment, segment
 from neural_shdf.segment.params import DEFAULT_CREASE_BOUNDARIES, SegmentParams
-from neural_shdf.segment.segmentation import prepare_segment, segment
 from neural_shdf.segment.synthetic import dumbbell
 
 TARGET_SECONDS = {100_000: 0.3, 1_000_000: 3.0}

@@ -30,9 +30,9 @@ import trimesh
 from neural_shdf.errors import ModelUnavailableError
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.basis import SegmentBasis
+from neural_shdf.segment.from_shdf import SegmentResult, prepare_segment, segment
 from neural_shdf.segment.graphcut import cut_hierarchy
 from neural_shdf.segment.params import SegmentParams
-from neural_shdf.segment.segmentation import SegmentResult, prepare_segment, segment
 from neural_shdf.shdf.postprocess import EXACT_WINDOW_MAX
 from neural_shdf.shdf.stage import ShdfMethod, ShdfParams, ShdfResult, compute_shdf
 

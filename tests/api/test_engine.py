@@ -210,9 +210,9 @@ def test_long_computation_never_blocks_polling_or_cached_reads(
 def test_compact_labels_use_the_narrowest_integer(labels, dtype):
     import base64
 
-    from neural_shdf.api.segmentation import SegmentResult
+    from neural_shdf.api.segmentation import StoredSegmentation
 
-    result = SegmentResult(
+    result = StoredSegmentation(
         labels=np.array(labels, dtype=np.int32),
         triangle_labels=np.array(labels, dtype=np.int32),
         part_faces=np.zeros(0, np.int64),

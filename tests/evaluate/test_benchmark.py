@@ -20,7 +20,7 @@ from neural_shdf.evaluate.benchmark import (
     run_eval,
     table_as_dict,
 )
-from neural_shdf.evaluate.metrics import cut_graph, score_against_humans
+from neural_shdf.evaluate.scores import cut_graph, score_against_humans
 from neural_shdf.shdf.stage import ShdfResult
 
 

@@ -12,9 +12,9 @@ from neural_shdf.segment.creases import (
     crease_graph,
     snap_boundaries_to_creases,
 )
+from neural_shdf.segment.from_shdf import prepare_segment, segment
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import canonical_labels
-from neural_shdf.segment.segmentation import prepare_segment, segment
 from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
 
 

@@ -23,13 +23,15 @@ from neural_shdf.api.tasks import TaskRunner, checkpoint
 from neural_shdf.export import part_tree_document
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import SegmentParams, prepare_segment, segment
+from neural_shdf.segment.from_shdf import SegmentResult
 from neural_shdf.segment.hierarchy import PartTree
-from neural_shdf.segment.segmentation import SegmentResult as LibrarySegmentResult
 
 
 @dataclass
-class SegmentResult:
-    """A segmentation, stored in the cache as arrays."""
+class StoredSegmentation:
+    """A segmentation as the service stores and serves it (per input face, with per-part
+    statistics and the part tree), kept in the cache as arrays; ``summarize`` makes one
+    from the library's ``SegmentResult``."""
 
     labels: NDArray[np.int32]  # per input face
     triangle_labels: NDArray[np.int32]  # per triangle
@@ -86,7 +88,7 @@ class SegmentResult:
         return data
 
     @classmethod
-    def from_arrays(cls, arrays: dict[str, NDArray]) -> SegmentResult:
+    def from_arrays(cls, arrays: dict[str, NDArray]) -> StoredSegmentation:
         return cls(
             labels=arrays["labels"],
             triangle_labels=arrays["triangle_labels"],
@@ -109,8 +111,8 @@ def pack_integers(values: NDArray) -> tuple[str, str]:
 
 
 def summarize(
-    mesh: TriangleMesh, segmentation: LibrarySegmentResult, shdf: NDArray, seconds: float
-) -> SegmentResult:
+    mesh: TriangleMesh, segmentation: SegmentResult, shdf: NDArray, seconds: float
+) -> StoredSegmentation:
     """Input-face labels and leaves (the library's mapping), the part tree, and per-part
     faces, area and area-weighted mean ShDF."""
     triangle_labels = segmentation.labels
@@ -123,7 +125,7 @@ def summarize(
     mean = np.divide(weighted, part_area, out=np.zeros(part_count), where=part_area > 0)
     assigned = labels[labels >= 0]
     part_faces = np.bincount(assigned, minlength=part_count)
-    result = SegmentResult(
+    result = StoredSegmentation(
         labels=labels.astype(np.int32),
         triangle_labels=tri.astype(np.int32),
         part_faces=part_faces.astype(np.int64),
@@ -165,21 +167,21 @@ class SegmentationService:
         shdf = self.shdf.version(method, params.seed)
         return f"{mesh_id}:seg:{__version__}:{shdf}:{params_digest(params)}"
 
-    def cached(self, key: str) -> SegmentResult | None:
+    def cached(self, key: str) -> StoredSegmentation | None:
         """The cached segmentation (memory, then the shared cache), or None."""
-        result = self.cache.recall_arrays(key, SegmentResult.from_arrays)
+        result = self.cache.recall_arrays(key, StoredSegmentation.from_arrays)
         self.metrics.count_cache("segmentation", hit=result is not None)
         return result
 
     def _store(
-        self, key: str, mesh_id: str, result: SegmentResult, guard: tuple[str, bytes] | None
+        self, key: str, mesh_id: str, result: StoredSegmentation, guard: tuple[str, bytes] | None
     ) -> None:
         self.meshes.store_result(key, mesh_id, result.arrays(), guard)
         self.cache.remember(key, result)
 
     def _compute(
         self, mesh_id: str, method: str, mesh: TriangleMesh, shdf: NDArray, params: SegmentParams
-    ) -> SegmentResult:
+    ) -> StoredSegmentation:
         self.meshes.graph(mesh_id, mesh)  # built once per mesh, under the mesh's lock
         start = time.perf_counter()
         # What does not depend on smoothing, parts or refinement is kept per mesh, ShDF,
@@ -207,7 +209,7 @@ class SegmentationService:
         self.metrics.segment_seconds.observe(seconds)
         return summarize(mesh, segmentation, shdf, seconds)
 
-    async def _recall_fresh(self, mesh_id: str, key: str) -> SegmentResult | None:
+    async def _recall_fresh(self, mesh_id: str, key: str) -> StoredSegmentation | None:
         """This process's memory of the result, unless the mesh was deleted meanwhile."""
         result = self.cache.recall(key)
         if result is None:
@@ -224,7 +226,7 @@ class SegmentationService:
 
     async def get(
         self, mesh_id: str, method: str, params: SegmentParams
-    ) -> tuple[SegmentResult, dict[str, Any]]:
+    ) -> tuple[StoredSegmentation, dict[str, Any]]:
         """Segment a stored mesh (cached result, else from the cached ShDF, whose seed is
         ``params.seed``); returns the result and where the time went."""
         start = time.perf_counter()

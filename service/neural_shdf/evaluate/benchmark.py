@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 
 from neural_shdf import pipeline
 from neural_shdf.errors import ParameterError
-from neural_shdf.evaluate.metrics import (
+from neural_shdf.evaluate.scores import (
     METRIC_NAMES,
     CutGraph,
     SegmentationScores,

@@ -11,8 +11,8 @@ from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import compute_shdf
 from neural_shdf.segment.basis import SegmentBasis
+from neural_shdf.segment.from_shdf import SegmentResult, prepare_segment, segment
 from neural_shdf.segment.params import AUTO_CLUSTERS, SegmentParams
-from neural_shdf.segment.segmentation import SegmentResult, prepare_segment, segment
 from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
 
 

@@ -12,13 +12,20 @@ GLB writer flips it for glTF).
 
 from __future__ import annotations
 
+import io
 import math
+import struct
+import zlib
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
+import xatlas
 from numpy.typing import NDArray
+from PIL import Image
+from scipy.sparse.csgraph import connected_components, dijkstra
 
 from neural_shdf.compiled import kernel
 from neural_shdf.errors import MeshTooLargeError, ParameterError
@@ -246,8 +253,6 @@ def _connected_pieces(welded: NDArray[np.int64], faces: NDArray[np.int64]) -> li
     Components of the bipartite face-edge graph (3 links per face), not of the face-face
     product: an edge shared by k faces costs k links, not k^2 (a triangle repeated in place).
     """
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
 
     if len(faces) == 0:
         return []
@@ -303,7 +308,7 @@ def _triangle_areas(points: NDArray, faces: NDArray) -> NDArray[np.float64]:
 
 def _lscm(vertices: NDArray, faces: NDArray) -> NDArray[np.float64] | None:
     """Free-boundary least-squares conformal map of a disk, scaled to the surface's area."""
-    import igl
+    import igl  # libigl is slow to import: loaded on first use
 
     boundary = igl.boundary_loop(faces)
     if len(boundary) < 3:
@@ -362,7 +367,6 @@ class _Piece:
 
     def edge_graph(self):
         """Vertex graph weighted by edge length; polygon diagonals cost DIAGONAL_PENALTY more."""
-        import scipy.sparse as sp
 
         edges = np.unique(np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
         a, b = edges[:, 0], edges[:, 1]
@@ -372,7 +376,7 @@ class _Piece:
         return sp.csr_matrix((length, (a, b)), shape=(n, n))
 
     def loops(self) -> list[NDArray[np.int64]]:
-        import igl
+        import igl  # libigl is slow to import: loaded on first use
 
         return [np.asarray(loop, dtype=np.int64) for loop in igl.boundary_loop_all(self.faces)]
 
@@ -382,7 +386,7 @@ class _Piece:
 
     def cut(self, path: list[int] | NDArray) -> None:
         """Cut open along a vertex path (libigl; faces keep their order)."""
-        import igl
+        import igl  # libigl is slow to import: loaded on first use
 
         path = np.asarray(path, dtype=np.int64)
         low = np.minimum(path[:-1], path[1:])
@@ -413,7 +417,6 @@ class _Piece:
 
 def _shortest_path(graph, sources: NDArray[np.int64], targets: NDArray[np.int64]) -> list[int]:
     """Shortest edge path from any of ``sources`` to the nearest of ``targets`` ([] if none)."""
-    from scipy.sparse.csgraph import dijkstra
 
     distance, previous, _ = dijkstra(
         graph, directed=False, indices=sources, return_predecessors=True, min_only=True
@@ -433,7 +436,7 @@ def _open_to_disk(piece: _Piece) -> bool:
     """Cut the piece into a topological disk, off polygon diagonals where possible: join
     boundary loops by shortest paths, open a closed piece between far-apart points, and
     leave handles to libigl's ``cut_to_disk``. False if no disk came out."""
-    import igl
+    import igl  # libigl is slow to import: loaded on first use
 
     loops = piece.loops()
     if not loops:
@@ -585,7 +588,6 @@ def _xatlas_charts(
     vertices: NDArray, welded: NDArray, piece: NDArray[np.int64], params: UnwrapParams
 ) -> list[tuple[NDArray[np.int64], NDArray[np.float64]]]:
     """xatlas's own charts of one piece: (faces, (n, 3, 2) UVs at the surface's scale)."""
-    import xatlas
 
     used, local = np.unique(welded[piece], return_inverse=True)
     local = local.reshape(-1, 3)
@@ -617,7 +619,6 @@ def _pack(
     params: UnwrapParams,
 ) -> UvAtlas:
     """Pack charts (UVs at the surface's scale) into one atlas with xatlas."""
-    import xatlas
 
     charted = np.flatnonzero(chart >= 0)
     # xatlas finds UV charts by shared UV positions: lay the charts out side by side first.
@@ -910,8 +911,6 @@ PNG_COMPRESSION = 6
 def atlas_layout_png(atlas: UvAtlas, *, size: int | None = None, checker: int = 16) -> bytes:
     """``atlas_layout_image`` as PNG bytes, drawn and compressed a strip at a time so that
     memory is a strip plus the compressed output, whatever the size."""
-    import struct
-    import zlib
 
     def chunk(kind: bytes, data: bytes) -> bytes:
         body = kind + data
@@ -947,9 +946,6 @@ def atlas_layout_png(atlas: UvAtlas, *, size: int | None = None, checker: int = 
 
 def png_bytes(image: NDArray[np.uint8]) -> bytes:
     """Encode an (H, W, 3) uint8 image as PNG."""
-    import io
-
-    from PIL import Image
 
     buffer = io.BytesIO()
     Image.fromarray(np.asarray(image, dtype=np.uint8)).save(buffer, format="PNG", optimize=False)

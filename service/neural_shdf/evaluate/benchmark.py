@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import trimesh
 from numpy.typing import NDArray
 
 from neural_shdf import pipeline
@@ -51,6 +52,7 @@ from neural_shdf.evaluate.scores import (
 )
 from neural_shdf.export import read_labels
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.mesh_io import load_mesh
 from neural_shdf.pipeline import SegmentParams, segment
 from neural_shdf.shdf.stage import resolve_method
 
@@ -158,14 +160,7 @@ def list_models(bench_dir: Path, limit: int | None = None) -> list[BenchModel]:
 
 
 def load_benchmark_mesh(path: Path) -> TriangleMesh:
-    """The mesh through the project's loader (trimesh without processing as a fallback)."""
-    try:
-        from neural_shdf.mesh_io import load_mesh
-    except ImportError:
-        import trimesh
-
-        loaded = trimesh.load(path, process=False, force="mesh")
-        return TriangleMesh(np.asarray(loaded.vertices), np.asarray(loaded.faces))
+    """The mesh through the project's loader."""
     return load_mesh(Path(path))
 
 
@@ -175,8 +170,6 @@ def _metric_mesh(mesh: TriangleMesh, path: Path) -> tuple[CutGraph, int]:
         mesh.face_origin, np.arange(mesh.face_count)
     ):
         return cut_graph(mesh.vertices, mesh.faces), mesh.face_count
-    import trimesh
-
     loaded = trimesh.load(path, process=False, force="mesh")
     return cut_graph(np.asarray(loaded.vertices), np.asarray(loaded.faces)), len(loaded.faces)
 

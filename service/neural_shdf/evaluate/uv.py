@@ -11,7 +11,9 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
+from scipy.sparse.csgraph import connected_components
 
 from neural_shdf.geometry import build_face_graph, weld_faces
 from neural_shdf.unwrap import rasterize_charts, stretch_terms
@@ -59,8 +61,6 @@ def seam_ratio(vertices: NDArray, faces: NDArray, corner_uvs: NDArray) -> float:
 def uv_islands(vertices: NDArray, faces: NDArray, corner_uvs: NDArray) -> NDArray[np.int64]:
     """Chart per triangle as the UV layout itself says: triangles joined across every edge
     whose two end points have the same UVs on both sides (any unwrapper's charts)."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
 
     welded = weld_faces(vertices, faces)
     graph = build_face_graph(vertices, welded)

@@ -171,7 +171,7 @@ def expansion_move(
     labels: NDArray, alpha: int, data: NDArray, pairs: NDArray, weights: NDArray
 ) -> NDArray[np.int64]:
     """The best labelling reachable by letting any face switch to ``alpha`` (one max-flow)."""
-    import maxflow
+    import maxflow  # slow to import: loaded on first use
 
     labels = np.asarray(labels, dtype=np.int64)
     nodes, source_cap, sink_cap, edge_a, edge_b, forward, backward = _expansion_graph(

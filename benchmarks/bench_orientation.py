@@ -4,7 +4,7 @@ Meshes: a generated icosphere of 1.3M faces and, where ../shared/data is present
 dense-dev scan Loop-subdivided past 900k faces; each as given and with every face
 reversed (then the oriented copy of the mesh is built too). Per mesh: seconds (wall and
 CPU) of ``TriangleMesh.orientation`` plus ``oriented`` (the edge sort it shares with the
-face graph is counted apart), of the default ShDF (``compute_shdf_result``, ``auto``),
+face graph is counted apart), of the default ShDF (``compute_shdf``, ``auto``),
 and their ratio. Best of ``--repeat`` runs.
 
     python benchmarks/bench_orientation.py [--scan lucy] [--repeat 2]

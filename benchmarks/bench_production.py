@@ -2,7 +2,7 @@
 
 Each variant keeps the published faces' identity (a map back to the file's faces), so
 the humans' segmentations still score it. Per variant and model: the default
-``segment`` path (``compute_shdf`` with ``auto``, then ``segment_mesh_with_details``
+``segment`` path (``compute_shdf`` with ``auto``, then ``segment``
 with default ``SegmentParams``), scored with the benchmark's metrics (1-RI and CD,
 averaged over the humans) next to the published mesh's own segmentation scored on
 the same faces. Variants:
@@ -37,10 +37,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.evaluate.benchmark import list_models, load_benchmark_mesh
-from neural_shdf.evaluate.metrics import cut_distance_field, cut_graph, score_against_humans
+from neural_shdf.evaluate.scores import cut_distance_field, cut_graph, score_against_humans
 from neural_shdf.geometry import adjacency_lists, build_face_graph, weld_faces
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.pipeline import compute_shdf, mesh_face_graph, segment_mesh_with_details
+from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -147,9 +147,8 @@ VARIANTS: dict[str, Callable[[NDArray, NDArray, np.random.Generator], Variant]] 
 
 def default_segmentation(mesh: TriangleMesh) -> tuple[NDArray[np.int64], str]:
     """Labels per input face from the default path, and the mesh diagnostics if reported."""
-    graph = mesh_face_graph(mesh)
-    shdf = compute_shdf(mesh, graph=graph)
-    result = segment_mesh_with_details(mesh, shdf, SegmentParams(), graph=graph)
+    shdf = compute_shdf(mesh).values
+    result = segment(mesh, shdf, SegmentParams())
     diagnostics = getattr(result, "diagnostics", None)
     note = diagnostics.summary() if diagnostics is not None else ""
     return mesh.labels_to_input_faces(result.labels), note

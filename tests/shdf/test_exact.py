@@ -11,7 +11,7 @@ from neural_shdf import constants
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import face_normals
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.pipeline import compute_shdf, mesh_face_graph, segment_mesh
+from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
 from neural_shdf.shdf.exact import (
     cone_directions,
@@ -130,12 +130,12 @@ def test_raw_shdf_does_not_depend_on_the_pose():
 def test_shdf_and_parts_do_not_depend_on_the_pose(method):
     mesh = lumpy_dumbbell()
     moved = posed(mesh)
-    shdf = compute_shdf(mesh, method=method, graph=mesh_face_graph(mesh))
-    moved_shdf = compute_shdf(moved, method=method, graph=mesh_face_graph(moved))
+    shdf = compute_shdf(mesh, method=method).values
+    moved_shdf = compute_shdf(moved, method=method).values
     np.testing.assert_allclose(moved_shdf, shdf, atol=1e-5)  # in [0, 1]; as the raw values
-    labels = segment_mesh(mesh, shdf, SegmentParams())
+    labels = segment(mesh, shdf, SegmentParams()).labels
     assert labels.max() >= 2
-    np.testing.assert_array_equal(segment_mesh(moved, moved_shdf, SegmentParams()), labels)
+    np.testing.assert_array_equal(segment(moved, moved_shdf, SegmentParams()).labels, labels)
 
 
 @pytest.mark.needs_data
@@ -144,11 +144,12 @@ def test_a_benchmark_mesh_gives_the_same_parts_in_another_pose(psb_off):
     loaded = trimesh.load(psb_off(24), process=False)
     mesh = TriangleMesh(np.asarray(loaded.vertices), np.asarray(loaded.faces))
     moved = posed(mesh)
-    shdf = compute_shdf(mesh, graph=mesh_face_graph(mesh))
-    moved_shdf = compute_shdf(moved, graph=mesh_face_graph(moved))
+    shdf = compute_shdf(mesh).values
+    moved_shdf = compute_shdf(moved).values
     assert np.corrcoef(shdf, moved_shdf)[0, 1] > 0.99999
     np.testing.assert_array_equal(
-        segment_mesh(moved, moved_shdf, SegmentParams()), segment_mesh(mesh, shdf, SegmentParams())
+        segment(moved, moved_shdf, SegmentParams()).labels,
+        segment(mesh, shdf, SegmentParams()).labels,
     )
 
 
@@ -232,7 +233,7 @@ def test_open_and_degenerate_faces_do_not_crash():
     raw = raw_shdf(vertices, faces)
     assert np.isnan(raw[-2:]).all()
     assert np.isfinite(raw[:-2]).mean() > 0.9
-    values = compute_shdf(mesh, method="exact", graph=mesh_face_graph(mesh))
+    values = compute_shdf(mesh, method="exact").values
     assert values.shape == (len(faces),)
     assert np.isfinite(values).all()
     assert values.min() == 0.0 and values.max() == 1.0
@@ -243,14 +244,12 @@ def test_flat_sheet_has_no_diameter_and_gives_zeros():
     faces = sheet.faces[sheet.face_normals[:, 2] > 0.5]
     mesh = TriangleMesh(sheet.vertices, faces)
     assert np.isnan(raw_shdf(mesh.vertices, mesh.faces)).all()
-    np.testing.assert_array_equal(
-        compute_shdf(mesh, method="exact", graph=mesh_face_graph(mesh)), 0.0
-    )
+    np.testing.assert_array_equal(compute_shdf(mesh, method="exact").values, 0.0)
 
 
 def test_empty_mesh():
     mesh = TriangleMesh(np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
-    assert compute_shdf(mesh, method="exact", graph=mesh_face_graph(mesh)).shape == (0,)
+    assert compute_shdf(mesh, method="exact").values.shape == (0,)
 
 
 def test_same_seed_same_values_and_thread_count_does_not_matter():
@@ -261,10 +260,9 @@ def test_same_seed_same_values_and_thread_count_does_not_matter():
     np.testing.assert_array_equal(first, second)
     assert not np.array_equal(first, other, equal_nan=True)
     plain = TriangleMesh(mesh.vertices, mesh.faces)
-    graph = mesh_face_graph(plain)
     np.testing.assert_array_equal(
-        compute_shdf(plain, method="exact", graph=graph),
-        compute_shdf(plain, method="exact", graph=graph),
+        compute_shdf(plain, method="exact").values,
+        compute_shdf(plain, method="exact").values,
     )
 
 
@@ -290,7 +288,7 @@ def test_agrees_with_cgal_on_a_benchmark_mesh(psb_off, shared_data):
     loaded = trimesh.load(psb_off(1), process=False)
     mesh = TriangleMesh(np.asarray(loaded.vertices), np.asarray(loaded.faces))
     reference = np.loadtxt(shared_data / "psb-dev" / "cgal" / "1.sdf")
-    ours = compute_shdf(mesh, method="exact", graph=mesh_face_graph(mesh))
+    ours = compute_shdf(mesh, method="exact").values
     assert np.corrcoef(ours, reference)[0, 1] >= 0.99
 
 
@@ -313,5 +311,5 @@ def test_exact_shdf_progress_rises_to_one():
     sphere = trimesh.creation.icosphere(subdivisions=3)
     mesh = TriangleMesh(sphere.vertices, sphere.faces)
     seen = []
-    compute_shdf(mesh, method="exact", graph=mesh_face_graph(mesh), progress=seen.append)
+    compute_shdf(mesh, method="exact", progress=seen.append)
     assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) >= 2

@@ -310,7 +310,7 @@ def _min_cut_in_bands(
 ) -> NDArray[np.int64]:
     """One max-flow: each band face picks its boundary's low (0) or high (1) part;
     ``change``: what a face pays for leaving its part."""
-    import maxflow
+    import maxflow  # slow to import: loaded on first use
 
     nodes = np.flatnonzero(in_band)
     local = np.full(len(parts), -1, dtype=np.int64)

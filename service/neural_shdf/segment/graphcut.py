@@ -34,7 +34,7 @@ PROBABILITY_EPS = 5e-6
 ANGLE_EPS = 5e-6
 #: CGAL: convex folds count as this fraction of their angle (cheap to keep, costly to cut).
 CONVEX_FACTOR = 0.08
-#: CGAL scales the user's lambda in [0, 1] by this.
+#: CGAL multiplies the smoothing (its lambda, in [0, 1]) by this in the edge weights.
 LAMBDA_SCALE = 100.0
 #: Hard limit on alpha-expansion cycles (it usually converges in 2-3).
 MAX_CYCLES = 8
@@ -64,7 +64,8 @@ def data_costs(posteriors: NDArray, face_weight: NDArray | None = None) -> NDArr
 
 
 def dihedral_weights(graph: FaceGraph, smoothing: float) -> NDArray[np.float64]:
-    """Cost of cutting each edge: ``-log(max(eps, angle/pi)) * lambda * 100 * length/mean``.
+    """Cost of cutting each edge: ``-log(max(eps, angle/pi)) * smoothing * LAMBDA_SCALE *
+    length/mean`` (``smoothing``: ``SegmentParams.smoothing``, CGAL's lambda).
 
     As CGAL, convex folds' normalised angle is scaled by ``CONVEX_FACTOR``, so
     concave creases are cheap to cut and flat or convex regions expensive. The
@@ -170,7 +171,7 @@ def expansion_move(
     labels: NDArray, alpha: int, data: NDArray, pairs: NDArray, weights: NDArray
 ) -> NDArray[np.int64]:
     """The best labelling reachable by letting any face switch to ``alpha`` (one max-flow)."""
-    import maxflow
+    import maxflow  # slow to import: loaded on first use
 
     labels = np.asarray(labels, dtype=np.int64)
     nodes, source_cap, sink_cap, edge_a, edge_b, forward, backward = _expansion_graph(
@@ -410,8 +411,8 @@ def _coarse_data(coarse_of, data, coarse_count):  # pragma: no cover - compiled
 
 @dataclass(frozen=True)
 class CutLevel:
-    """One level of the multilevel graph cut: its graph, data costs and edge weights at a
-    smoothing scale of 1, and the map of its nodes to the next coarser level."""
+    """One level of the multilevel graph cut: its graph, data costs and edge weights at
+    smoothing 1, and the map of its nodes to the next coarser level."""
 
     pairs: NDArray[np.int64]
     unit_weights: NDArray[np.float64]
@@ -435,8 +436,8 @@ class CutHierarchy:
     """The coarse graphs of a multilevel graph cut, finest first.
 
     They depend on the data costs, the graph and the edge weights only up to a common
-    scale (the smoothing), so one hierarchy serves every smoothing value: ``solve(scale)``
-    minimises the energy with edge weights ``scale * unit_weights``.
+    factor (the smoothing), so one hierarchy serves every smoothing value:
+    ``solve(smoothing)`` minimises the energy with edge weights ``smoothing * unit_weights``.
     """
 
     levels: tuple[CutLevel, ...]
@@ -446,19 +447,24 @@ class CutHierarchy:
     def nbytes(self) -> int:
         return sum(level.nbytes for level in self.levels)
 
-    def solve(self, scale: float) -> NDArray[np.int64]:
-        """Labels minimising E with edge weights ``scale * unit_weights``; deterministic."""
+    def solve(self, smoothing: float) -> NDArray[np.int64]:
+        """Labels minimising E with edge weights ``unit_weights * smoothing``; deterministic."""
         finest = self.levels[0]
-        if not scale > 0 or finest.data.shape[1] <= 1:
+        if not smoothing > 0 or finest.data.shape[1] <= 1:
             # No smoothness term (or one label): each node's cheapest label is optimal.
             return np.argmin(finest.data, axis=1).astype(np.int64)
         top = self.levels[-1]
-        labels = alpha_expansion(top.data, top.pairs, top.unit_weights * scale)
+        labels = alpha_expansion(top.data, top.pairs, top.unit_weights * smoothing)
         for level in reversed(self.levels[:-1]):
             labels = labels[level.coarse_of]
             band = near_boundary(labels, level.pairs, len(level.data), self.rings, level.adjacency)
             labels = banded_alpha_expansion(
-                level.data[band], level.pairs, level.unit_weights * scale, labels, band, BAND_CYCLES
+                level.data[band],
+                level.pairs,
+                level.unit_weights * smoothing,
+                labels,
+                band,
+                BAND_CYCLES,
             )
         return labels
 

@@ -74,18 +74,18 @@ def stages() -> dict[str, Callable[[], object]]:
     shells_mesh = load_mesh(shells, "obj")
 
     def part_tree() -> object:
-        from neural_shdf.pipeline import compute_shdf, segment_mesh
+        from neural_shdf.pipeline import compute_shdf, segment
 
-        shdf = compute_shdf(shells_mesh, method="sampled")
-        return segment_mesh(shells_mesh, shdf)
+        shdf = compute_shdf(shells_mesh, method="sampled").values
+        return segment(shells_mesh, shdf)
 
     dumbbell_mesh = load_mesh(dumbbell_obj(60_000), "obj")
     atlas_parts: dict[str, object] = {}
 
     def segment_dumbbell() -> object:
-        from neural_shdf.pipeline import compute_shdf, segment_mesh
+        from neural_shdf.pipeline import compute_shdf, segment
 
-        atlas_parts["labels"] = segment_mesh(dumbbell_mesh, compute_shdf(dumbbell_mesh))
+        atlas_parts["labels"] = segment(dumbbell_mesh, compute_shdf(dumbbell_mesh).values).labels
         return atlas_parts["labels"]
 
     def atlas_of_dumbbell() -> object:
@@ -106,10 +106,10 @@ def stages() -> dict[str, Callable[[], object]]:
         return unwrapped_glb(dumbbell_mesh, atlas_parts["atlas"], texture_png=atlas_parts["png"])
 
     def segment_scan() -> object:
-        from neural_shdf.pipeline import compute_shdf, segment_mesh
+        from neural_shdf.pipeline import compute_shdf, segment
 
         scan = load_mesh(LEGIT)
-        return segment_mesh(scan, compute_shdf(scan))
+        return segment(scan, compute_shdf(scan).values)
 
     return {
         "read OBJ: one triangle x50,000": lambda: load_mesh(triangles, "obj"),

@@ -46,15 +46,14 @@ def test_a_tetrahedron_repeated_in_place_segments_like_one(params):
     vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
     tetrahedron = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
     stack = TriangleMesh(vertices, np.tile(tetrahedron, (6000, 1)))
-    graph = pipeline.mesh_face_graph(stack)
-    assert len(graph.pairs) <= 3 * stack.face_count
-    shdf = pipeline.compute_shdf(stack, method="neural", graph=graph)
+    assert len(stack.face_graph.pairs) <= 3 * stack.face_count
+    shdf = pipeline.compute_shdf(stack, method="neural").values
     assert shdf.shape == (stack.face_count,) and np.isfinite(shdf).all()
-    labels = pipeline.segment_mesh(stack, shdf, params, graph=graph)
+    labels = pipeline.segment(stack, shdf, params).labels
     assert labels.shape == (stack.face_count,) and labels.min() >= 0
     if params.partitioner == "metis":
         assert len(np.unique(labels)) == 4
-    again = pipeline.segment_mesh(stack, shdf, params, graph=graph)
+    again = pipeline.segment(stack, shdf, params).labels
     np.testing.assert_array_equal(labels, again)
 
 

@@ -41,9 +41,9 @@ from numpy.typing import NDArray
 from neural_shdf import __version__
 from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
 from neural_shdf.errors import ModelUnavailableError, NeuralShdfError, ParameterError
-from neural_shdf.geometry import FaceGraph
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import SUPPORTED_FORMATS
+from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
 from neural_shdf.segment.params import check_seed
 from neural_shdf.shdf.neural.inference import model_path
@@ -266,13 +266,11 @@ def _shared_cache(cache: str) -> tuple[ResultCache, CacheConfig]:
 
 
 def shared_shdf(
-    cache: str, mesh_id: str, mesh: TriangleMesh, method: str, seed: int, graph: FaceGraph
+    cache: str, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
 ) -> tuple[NDArray[np.float64], str, bool]:
     """(ShDF, the producer that ran, whether it was cached): read from the cache shared
     with the service under the service's key (``store.keys.shdf_key``), else computed
     once across workers and replicas and stored there for them."""
-    from neural_shdf.pipeline import compute_shdf
-
     store, config = _shared_cache(cache)
     seed = check_seed(seed)
     method = resolve_method(method, mesh.face_count)
@@ -283,7 +281,7 @@ def shared_shdf(
         return store.recall_arrays(key, shdf_from_arrays)
 
     def compute() -> NDArray[np.float64]:
-        values = compute_shdf(mesh, method=method, seed=seed, graph=graph)  # type: ignore[arg-type]
+        values = compute_shdf(mesh, method=method, seed=seed).values  # type: ignore[arg-type]
         return np.ascontiguousarray(values, dtype=np.float64)
 
     def keep(values: NDArray[np.float64], _: None) -> None:
@@ -353,13 +351,6 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
     from neural_shdf.errors import InvalidGeometryError
     from neural_shdf.export import colored_glb, parts_glb, write_labels, write_values
     from neural_shdf.mesh_io import load_mesh
-    from neural_shdf.pipeline import (
-        compute_shdf_result,
-        input_face_labels,
-        input_face_shdf,
-        mesh_face_graph,
-        segment_mesh,
-    )
 
     path = Path(asset.path)
     if not path.is_file():
@@ -372,29 +363,21 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
         raise InvalidGeometryError(f"{path}: the mesh has no triangles")
     mesh_id = mesh.content_hash()
     cached = False
-    graph = mesh_face_graph(mesh)
     if config.cache:
-        shdf, method, cached = shared_shdf(
-            config.cache, mesh_id, mesh, config.method, config.seed, graph
-        )
+        shdf, method, cached = shared_shdf(config.cache, mesh_id, mesh, config.method, config.seed)
     else:
-        result = compute_shdf_result(
-            mesh,
-            method=config.method,  # type: ignore[arg-type]
-            seed=config.seed,
-            graph=graph,
-        )
+        result = compute_shdf(mesh, method=config.method, seed=config.seed)  # type: ignore[arg-type]
         shdf, method = result.values, result.method
     paths = output_paths(out_dir, asset, config.outputs)
     if "shdf" in paths:
-        values = input_face_shdf(mesh, shdf)
+        values = mesh.to_input_faces(shdf)
         _write_atomic(paths["shdf"], lambda temporary: write_values(temporary, values))
     parts: int | str = ""
     if config.segments:
-        labels = segment_mesh(mesh, shdf, config.params, graph=graph)
+        labels = segment(mesh, shdf, config.params).labels
         parts = int(labels.max()) + 1 if len(labels) else 0
         if "seg" in paths:
-            per_face = input_face_labels(mesh, labels)
+            per_face = mesh.labels_to_input_faces(labels)
             _write_atomic(paths["seg"], lambda temporary: write_labels(temporary, per_face))
         if "colored" in paths:
             _write_bytes_atomic(paths["colored"], colored_glb(mesh, labels))

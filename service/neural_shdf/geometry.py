@@ -108,6 +108,42 @@ def face_centroids(vertices: NDArray[Any], faces: NDArray[Any]) -> NDArray[Any]:
     )
 
 
+def principal_coordinates(
+    points: NDArray[Any], weights: NDArray[Any] | None = None
+) -> NDArray[np.float64]:
+    """(N, 3) coordinates of the points along their own principal axes (largest spread
+    first), from their weighted mean: the same in any pose of the points, up to each
+    axis's sign (a shape does not define it), so grids over them are laid with
+    ``grid_cells``, which ignores the signs. Axes a shape does not define (equal spreads,
+    e.g. about a body of revolution's axis) are whatever the eigensolver returns.
+    Unit weights where ``weights`` is omitted or sums to zero.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if not len(points):
+        return points.copy()
+    if weights is None or not float(np.sum(weights)) > 0:
+        weights = np.ones(len(points))
+    weights = np.asarray(weights, dtype=np.float64) / float(np.sum(weights))
+    offsets = points - weights @ points
+    _, axes = np.linalg.eigh((offsets * weights[:, None]).T @ offsets)
+    coordinates: NDArray[np.float64] = offsets @ axes[:, ::-1]
+    return coordinates
+
+
+def grid_cells(coordinates: NDArray[Any], size: float) -> NDArray[np.int64]:
+    """(N,) key of each point's cell in a grid of cubes of side ``size`` centred on the
+    origin (cell walls at ``(k + 1/2) size``): points share a key when they share a cell,
+    and negating an axis of the coordinates gives the same partition of the points."""
+    coordinates = np.asarray(coordinates, dtype=np.float64).reshape(-1, 3)
+    if not len(coordinates):
+        return np.zeros(0, dtype=np.int64)
+    cells = np.floor(coordinates / size + 0.5).astype(np.int64)
+    cells -= cells.min(axis=0)
+    span = cells.max(axis=0) + 1
+    keys: NDArray[np.int64] = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+    return keys
+
+
 @kernel
 def _face_centroids(  # pragma: no cover - compiled
     vertices: NDArray[np.float64], faces: NDArray[np.int64]

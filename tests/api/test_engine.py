@@ -211,9 +211,9 @@ def test_long_computation_never_blocks_polling_or_cached_reads(
 def test_compact_labels_use_the_narrowest_integer(labels, dtype):
     import base64
 
-    from neural_shdf.api.segmentation import SegmentResult
+    from neural_shdf.api.segmentation import StoredSegmentation
 
-    result = SegmentResult(
+    result = StoredSegmentation(
         labels=np.array(labels, dtype=np.int32),
         triangle_labels=np.array(labels, dtype=np.int32),
         part_faces=np.zeros(0, np.int64),
@@ -245,7 +245,7 @@ def test_the_model_setting_decides_which_network_computes(app_factory, capsule_o
             mesh_id = upload["mesh"]["mesh_id"]
             raw = client.get(f"/v1/meshes/{mesh_id}/shdf?format=f32").content
             served[name] = np.frombuffer(raw, dtype="<f4")
-    expected = mesh.to_input_faces(compute_shdf(mesh, method="neural", seed=0, model=other))
+    expected = mesh.to_input_faces(compute_shdf(mesh, method="neural", seed=0, model=other).values)
     np.testing.assert_allclose(served["other"], expected, atol=1e-6)
     assert np.abs(served["other"] - served["default"]).max() > 1e-3
 
@@ -265,8 +265,7 @@ def test_auto_reports_the_producer_that_ran(app_factory, capsule_obj):
 def test_new_smoothing_values_reuse_the_mesh_basis(app_factory, capsule_obj):
     """What does not depend on smoothing is prepared once per mesh, ShDF, clusters and
     seed; later values only re-cut, with the labels the library gives without it."""
-    from neural_shdf.pipeline import compute_shdf, segment_mesh
-    from neural_shdf.segment import SegmentParams
+    from neural_shdf.pipeline import SegmentParams, compute_shdf, segment
 
     app = app_factory()
     engine = app.state.engine
@@ -278,14 +277,13 @@ def test_new_smoothing_values_reuse_the_mesh_basis(app_factory, capsule_obj):
         answers = [client.post("/v1/segment", json=body).json() for body in bodies]
     prepared = [key for key in engine.cache._working if ":basis:" in key]
     assert len(prepared) == 2, prepared  # default clusters, and clusters=3
-    # The crease refinement's graph depends on the mesh only: both bases share one.
-    first, second = (engine.cache.working_set(key) for key in prepared)
-    assert first.creases(None) is second.creases(None)
+    # The crease refinement's graph depends on the mesh only: the stored mesh keeps one.
+    assert "crease_graph" in engine.cache.recall(f"{mesh_id}:mesh").oriented.__dict__
     mesh = load_mesh(capsule_obj, file_type="obj")
-    shdf = compute_shdf(mesh, method=TEST_METHOD, model=MODEL_FILE)
+    shdf = compute_shdf(mesh, method=TEST_METHOD, model=MODEL_FILE).values
     for body, answer in zip(bodies, answers, strict=True):
         params = SegmentParams(smoothing=body["smoothing"], clusters=body.get("clusters"))
-        np.testing.assert_array_equal(answer["labels"], segment_mesh(mesh, shdf, params))
+        np.testing.assert_array_equal(answer["labels"], segment(mesh, shdf, params).labels)
 
 
 def test_every_result_key_carries_the_algorithm_version(client):

@@ -19,7 +19,7 @@ from pydantic import BaseModel
 from neural_shdf.api import schemas
 from neural_shdf.client import results
 from neural_shdf.mesh_io import load_mesh
-from neural_shdf.pipeline import compute_shdf, segment_mesh
+from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
 from tests.api.api_helpers import MODEL_FILE, TEST_METHOD, capsule
 
@@ -171,8 +171,8 @@ def test_the_client_works_without_fastapi_pydantic_or_the_compiled_library(servi
     answer = json.loads(run.stdout)
     assert answer["loaded"] == []
     mesh = load_mesh(path)
-    shdf = compute_shdf(mesh, method=TEST_METHOD, model=MODEL_FILE)
-    expected = segment_mesh(mesh, shdf, SegmentParams(clusters=3))
+    shdf = compute_shdf(mesh, method=TEST_METHOD, model=MODEL_FILE).values
+    expected = segment(mesh, shdf, SegmentParams(clusters=3)).labels
     assert answer["labels"] == np.asarray(expected).tolist()
     assert answer["method"] == TEST_METHOD and answer["faces"] == mesh.input_face_count
     assert answer["parts"] == np.bincount(expected).tolist()

@@ -19,7 +19,7 @@ from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.creases import CreaseGraph
 from neural_shdf.store.cache import ResultCache
 from neural_shdf.store.codec import mesh_arrays, mesh_from_arrays
-from neural_shdf.store.keys import crease_graph_key, face_graph_key, mesh_key, meta_key
+from neural_shdf.store.keys import mesh_key, meta_key
 
 logger = logging.getLogger(__name__)
 
@@ -186,27 +186,14 @@ class MeshStore:
             raise mesh_missing(mesh_id)
 
     def graph(self, mesh_id: str, mesh: TriangleMesh) -> FaceGraph:
-        """Face graph of a mesh, built once per process (memory LRU)."""
-        from neural_shdf.pipeline import mesh_face_graph
-
-        key = face_graph_key(mesh_id)
-        with self._graph_locks[hash(key) % len(self._graph_locks)]:
-            graph = self.cache.recall(key)
-            if graph is None:
-                graph = mesh_face_graph(mesh)
-                self.cache.remember(key, graph)
-        return graph
+        """Face graph of a mesh (``TriangleMesh.face_graph``, cached on the mesh this
+        store keeps in memory), built once: concurrent requests wait for one build."""
+        with self._graph_locks[hash(f"{mesh_id}:graph") % len(self._graph_locks)]:
+            return mesh.face_graph
 
     def creases(self, mesh_id: str, mesh: TriangleMesh) -> CreaseGraph:
-        """The crease refinement's graph of a mesh, built once per process (memory LRU); it
-        serves every ShDF and mixture of the mesh."""
-        from neural_shdf.pipeline import mesh_crease_graph
-
-        key = crease_graph_key(mesh_id)
-        graph = self.graph(mesh_id, mesh)  # outside the lock: locks are striped, not reentrant
-        with self._graph_locks[hash(key) % len(self._graph_locks)]:
-            creases = self.cache.recall(key)
-            if creases is None:
-                creases = mesh_crease_graph(mesh, graph)
-                self.cache.remember(key, creases)
-        return creases
+        """The crease refinement's graph of a mesh (``TriangleMesh.crease_graph``), built
+        once as ``graph``; it serves every ShDF and mixture of the mesh."""
+        self.graph(mesh_id, mesh)  # outside the lock: locks are striped, not reentrant
+        with self._graph_locks[hash(f"{mesh_id}:creases") % len(self._graph_locks)]:
+            return mesh.crease_graph

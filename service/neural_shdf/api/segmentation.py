@@ -8,7 +8,7 @@ import json
 import time
 from dataclasses import asdict, dataclass
 from dataclasses import field as dataclass_field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -19,18 +19,18 @@ from neural_shdf.api.shdf_service import ShdfService
 from neural_shdf.api.tasks import TaskRunner, checkpoint
 from neural_shdf.export import part_tree_document
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.segment import SegmentParams
+from neural_shdf.pipeline import SegmentParams, prepare_segment, segment
+from neural_shdf.segment.from_shdf import SegmentResult
 from neural_shdf.segment.hierarchy import PartTree
 from neural_shdf.store.cache import ResultCache
 from neural_shdf.store.keys import segmentation_basis_key, segmentation_key
 
-if TYPE_CHECKING:
-    from neural_shdf.segment.pipeline import SegmentResult as LibrarySegmentResult
-
 
 @dataclass
-class SegmentResult:
-    """A segmentation, stored in the cache as arrays."""
+class StoredSegmentation:
+    """A segmentation as the service stores and serves it (per input face, with per-part
+    statistics and the part tree), kept in the cache as arrays; ``summarize`` makes one
+    from the library's ``SegmentResult``."""
 
     labels: NDArray[np.int32]  # per input face
     triangle_labels: NDArray[np.int32]  # per triangle
@@ -87,7 +87,7 @@ class SegmentResult:
         return data
 
     @classmethod
-    def from_arrays(cls, arrays: dict[str, NDArray]) -> SegmentResult:
+    def from_arrays(cls, arrays: dict[str, NDArray]) -> StoredSegmentation:
         return cls(
             labels=arrays["labels"],
             triangle_labels=arrays["triangle_labels"],
@@ -110,14 +110,12 @@ def pack_integers(values: NDArray) -> tuple[str, str]:
 
 
 def summarize(
-    mesh: TriangleMesh, segmentation: LibrarySegmentResult, shdf: NDArray, seconds: float
-) -> SegmentResult:
+    mesh: TriangleMesh, segmentation: SegmentResult, shdf: NDArray, seconds: float
+) -> StoredSegmentation:
     """Input-face labels and leaves (the library's mapping), the part tree, and per-part
     faces, area and area-weighted mean ShDF."""
-    from neural_shdf.pipeline import input_face_parts
-
     triangle_labels = segmentation.labels
-    labels, leaves = input_face_parts(mesh, segmentation)
+    labels, leaves = segmentation.input_face_parts(mesh)
     _, area = mesh.normals_and_areas
     part_count = int(triangle_labels.max()) + 1 if len(triangle_labels) else 0
     tri = np.asarray(triangle_labels, dtype=np.int64)
@@ -126,7 +124,7 @@ def summarize(
     mean = np.divide(weighted, part_area, out=np.zeros(part_count), where=part_area > 0)
     assigned = labels[labels >= 0]
     part_faces = np.bincount(assigned, minlength=part_count)
-    result = SegmentResult(
+    result = StoredSegmentation(
         labels=labels.astype(np.int32),
         triangle_labels=tri.astype(np.int32),
         part_faces=part_faces.astype(np.int64),
@@ -162,24 +160,22 @@ class SegmentationService:
         """The cache key: mesh, code version, the ShDF it starts from, the parameters."""
         return segmentation_key(mesh_id, self.shdf.version(method, params.seed), params)
 
-    def cached(self, key: str) -> SegmentResult | None:
+    def cached(self, key: str) -> StoredSegmentation | None:
         """The cached segmentation (memory, then the shared cache), or None."""
-        result = self.cache.recall_arrays(key, SegmentResult.from_arrays)
+        result = self.cache.recall_arrays(key, StoredSegmentation.from_arrays)
         self.metrics.count_cache("segmentation", hit=result is not None)
         return result
 
     def _store(
-        self, key: str, mesh_id: str, result: SegmentResult, guard: tuple[str, bytes] | None
+        self, key: str, mesh_id: str, result: StoredSegmentation, guard: tuple[str, bytes] | None
     ) -> None:
         self.meshes.store_result(key, mesh_id, result.arrays(), guard)
         self.cache.remember(key, result)
 
     def _compute(
         self, mesh_id: str, method: str, mesh: TriangleMesh, shdf: NDArray, params: SegmentParams
-    ) -> SegmentResult:
-        from neural_shdf.pipeline import prepare_segment_mesh, segment_mesh_with_details
-
-        graph = self.meshes.graph(mesh_id, mesh)
+    ) -> StoredSegmentation:
+        self.meshes.graph(mesh_id, mesh)  # built once per mesh, under the mesh's lock
         start = time.perf_counter()
         # What does not depend on smoothing, parts or refinement is kept per mesh, ShDF,
         # clusters and seed (in memory, within MEMORY_WORKING_SET_BYTES), so a new slider value
@@ -187,27 +183,26 @@ class SegmentationService:
         if params.partitioner == "metis":
             # In the worker process: pymetis partitions holding the GIL, which in a thread
             # stalls the event loop (every other request) for as long.
-            segment = functools.partial(segment_mesh_with_details, graph=graph)
-            segmentation = self.tasks.isolated(segment, mesh.bare(), shdf, params)
+            segmentation = self.tasks.isolated(segment, mesh.portable(), shdf, params)
         else:
             shdf_version = self.shdf.version(method, params.seed)
             basis_key = segmentation_basis_key(mesh_id, shdf_version, params.clusters, params.seed)
             basis = self.cache.working_set(basis_key)
             if basis is None or not basis.matches(params, shdf):
-                crease_graph = (
-                    self.meshes.creases(mesh_id, mesh) if params.crease_boundaries else None
-                )
+                if params.crease_boundaries:
+                    self.meshes.creases(mesh_id, mesh)
                 checkpoint()
-                basis = prepare_segment_mesh(mesh, shdf, params, graph=graph, creases=crease_graph)
+                basis = prepare_segment(mesh, shdf, params)
             checkpoint()
-            segmentation = segment_mesh_with_details(mesh, shdf, params, graph=graph, basis=basis)
+            # The basis's own ShDF: the one it was checked against just above (no second pass).
+            segmentation = segment(mesh, basis.shdf, params, basis=basis)
             self.cache.keep_working_set(basis_key, basis, basis.nbytes)  # sized with its cut
         seconds = time.perf_counter() - start
         self.metrics.segmentations.inc()
         self.metrics.segment_seconds.observe(seconds)
         return summarize(mesh, segmentation, shdf, seconds)
 
-    async def _recall_fresh(self, mesh_id: str, key: str) -> SegmentResult | None:
+    async def _recall_fresh(self, mesh_id: str, key: str) -> StoredSegmentation | None:
         """This process's memory of the result, unless the mesh was deleted meanwhile."""
         result = self.cache.recall(key)
         if result is None:
@@ -224,7 +219,7 @@ class SegmentationService:
 
     async def get(
         self, mesh_id: str, method: str, params: SegmentParams
-    ) -> tuple[SegmentResult, dict[str, Any]]:
+    ) -> tuple[StoredSegmentation, dict[str, Any]]:
         """Segment a stored mesh (cached result, else from the cached ShDF, whose seed is
         ``params.seed``); returns the result and where the time went."""
         start = time.perf_counter()

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf import pipeline
 from neural_shdf.api.errors import ApiError, error_dict, not_found
 from neural_shdf.api.jobs import JobAccepted, JobStore, public_job, worker_name
 from neural_shdf.api.mesh_store import MeshStore
@@ -113,9 +114,7 @@ class ShdfService:
         self, key: str, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
     ) -> ShdfOutcome:
         """Compute the ShDF now (a compute thread), reporting progress under ``key``."""
-        from neural_shdf.pipeline import compute_shdf
-
-        graph = self.meshes.graph(mesh_id, mesh)
+        self.meshes.graph(mesh_id, mesh)  # built once per mesh, under the mesh's lock
         self._progress[key] = 0.0
         cancelled = cancellation()  # progress may be reported from the library's threads
 
@@ -125,14 +124,13 @@ class ShdfService:
 
         start = time.perf_counter()
         try:
-            values = compute_shdf(
+            values = pipeline.compute_shdf(
                 mesh,
                 method=method,  # type: ignore[arg-type]
                 seed=seed,
-                graph=graph,
                 progress=progress,
                 model=self.model_path,
-            )
+            ).values
         finally:
             self._progress.pop(key, None)
         seconds = time.perf_counter() - start

@@ -474,7 +474,7 @@ def write_usd_parts(
     ``primvars:displayColor`` (uniform; the part colours, converted to linear).
 
     ``face_labels``: one label per input face, in the reader's order (e.g.
-    ``pipeline.input_face_parts``). Everything else in the stage is kept. A stage of
+    ``SegmentResult.input_face_parts``). Everything else in the stage is kept. A stage of
     one layer is written as that layer; one composed of several layers (a USDZ with
     sublayers or references) is flattened. Instances holding meshes are made ordinary
     prims, so each copy gets its own subsets. ``output`` ends in .usda, .usdc, .usd or

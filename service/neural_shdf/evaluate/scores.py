@@ -26,6 +26,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import linear_sum_assignment
 from scipy.sparse.csgraph import dijkstra
 
 from neural_shdf.arrays import unique_rows
@@ -170,7 +171,6 @@ def matched_accuracy(
     unmatched segment count as wrong. The accuracy that labelled benchmarks
     (e.g. the human body set) report for methods that output unnamed parts.
     """
-    from scipy.optimize import linear_sum_assignment
 
     table = overlap_matrix(labels, reference, weights)
     total = table.sum()

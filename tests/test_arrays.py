@@ -1,10 +1,12 @@
+import json
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from neural_shdf.arrays import unique_rows
+from neural_shdf.arrays import json_array, unique_rows
 
 
 @settings(max_examples=200, deadline=None)
@@ -30,3 +32,23 @@ def test_unique_rows_alone_and_in_lexicographic_order():
 def test_unique_rows_refuses_other_shapes():
     with pytest.raises(ValueError, match="2-D"):
         unique_rows(np.arange(4))
+
+
+@pytest.mark.parametrize(
+    "values",
+    [
+        np.arange(0),
+        np.arange(-5, 70_000, dtype=np.int64),
+        np.array([0.1, 1e-300, 2.5e30, -0.0, 3.0]),
+        np.random.default_rng(0).random(40_000),
+    ],
+)
+def test_json_array_is_the_text_json_dumps_writes(values):
+    expected = json.dumps(values.tolist(), separators=(",", ":"))
+    assert json_array(values) == expected
+
+
+def test_json_array_writes_nan_as_null_when_asked():
+    values = np.array([1.5, np.nan, 2.0] * 20_000)
+    assert json.loads(json_array(values, nan_as_null=True))[:3] == [1.5, None, 2.0]
+    assert json_array(values).startswith("[1.5,NaN,2.0")

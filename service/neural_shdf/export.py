@@ -370,7 +370,9 @@ def read_values(path: str | Path) -> NDArray[np.float64]:
     return np.array(_read_column(path, float, "a number"), dtype=np.float64)
 
 
-def part_tree_document(tree: PartTree, leaf_labels: NDArray, parts: int) -> dict[str, Any]:
+def part_tree_document(
+    tree: PartTree, leaf_labels: NDArray, parts: int, *, as_arrays: bool = False
+) -> dict[str, Any]:
     """The part tree as JSON-ready data (the API's ``hierarchy`` and the CLI's ``--tree``).
 
     ``leaf_labels``: leaf per face of the output (e.g. per input face; -1 for none).
@@ -380,18 +382,23 @@ def part_tree_document(tree: PartTree, leaf_labels: NDArray, parts: int) -> dict
     ``merge_height`` (L - 1; height: running maximum of the cost). To cut at N
     parts, give each leaf its highest ancestor with id < 2L - N (itself when its
     parent's id is >= 2L - N) and number the parts by their smallest leaf.
+    ``as_arrays``: the four arrays as numpy arrays (for ``arrays.json_array``), not lists.
     """
     from neural_shdf.segment.hierarchy import automatic_part_count
 
-    return {
+    document: dict[str, Any] = {
         "leaf_count": tree.leaf_count,
         "parts": int(parts),
         "automatic_parts": automatic_part_count(tree),
-        "leaf_labels": np.asarray(leaf_labels, dtype=np.int64).tolist(),
-        "parent": tree.parent.tolist(),
-        "merge_cost": [float(c) for c in tree.costs],
-        "merge_height": [float(h) for h in tree.heights],
+        "leaf_labels": np.asarray(leaf_labels, dtype=np.int64),
+        "parent": np.asarray(tree.parent, dtype=np.int64),
+        "merge_cost": np.asarray(tree.costs, dtype=np.float64),
+        "merge_height": np.asarray(tree.heights, dtype=np.float64),
     }
+    if not as_arrays:
+        for key in ("leaf_labels", "parent", "merge_cost", "merge_height"):
+            document[key] = document[key].tolist()
+    return document
 
 
 def write_part_tree(path: str | Path, tree: PartTree, leaf_labels: NDArray, parts: int) -> None:

@@ -7,12 +7,12 @@ from typing import Any
 
 import numpy as np
 from fastapi import Response
-from fastapi.responses import JSONResponse
 from numpy.typing import NDArray
 
 from neural_shdf.api.schemas import MeshInfo, ShdfStatus, ShdfValues, UploadResult
 from neural_shdf.api.segmentation import StoredSegmentation
 from neural_shdf.api.shdf_service import ShdfOutcome
+from neural_shdf.arrays import json_array
 from neural_shdf.export import part_color_hex
 
 F32_MEDIA_TYPE = "application/octet-stream"
@@ -46,15 +46,19 @@ def shdf_response(
     headers = {"X-Mesh-Id": mesh_id, "X-Faces": str(len(values))}
     if binary:
         return Response(values.astype("<f4").tobytes(), media_type=F32_MEDIA_TYPE, headers=headers)
-    body = ShdfValues(
+    summary = ShdfValues(
         mesh_id=mesh_id,
         method=method,  # type: ignore[arg-type]
         seed=seed,
         model_version=model_version if method == "neural" else None,
         faces=len(values),
-        values=[None if np.isnan(v) else float(v) for v in values.tolist()],
-    )
-    return JSONResponse(body.model_dump(), headers=headers)
+        values=[],
+    ).model_dump(mode="json", exclude={"values"})
+    # The values a chunk at a time (one list of a million floats holds the GIL too long).
+    text = json.dumps(summary, separators=(",", ":"))
+    array = json_array(np.asarray(values, dtype=np.float64), nan_as_null=True)
+    body = f'{{"values":{array},{text[1:]}' if len(text) > 2 else f'{{"values":{array}}}'
+    return Response(body.encode(), media_type="application/json", headers=headers)
 
 
 def segmentation_response(

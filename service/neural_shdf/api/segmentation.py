@@ -17,6 +17,7 @@ from neural_shdf.api.mesh_store import MeshStore, mesh_missing
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.shdf_service import ShdfService
 from neural_shdf.api.tasks import TaskRunner, checkpoint
+from neural_shdf.arrays import json_array
 from neural_shdf.export import part_tree_document
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import SegmentParams, prepare_segment, segment
@@ -57,7 +58,7 @@ class StoredSegmentation:
     @functools.cached_property
     def labels_json(self) -> str:
         """The labels as a JSON array, encoded once per result (the hot path's main cost)."""
-        return json.dumps(self.labels.tolist(), separators=(",", ":"))
+        return json_array(self.labels)
 
     @functools.cached_property
     def labels_base64(self) -> tuple[str, str]:
@@ -70,14 +71,22 @@ class StoredSegmentation:
         cached = self.__dict__.get(name)
         if cached is None:
             tree = self.tree
-            document = None
+            cached = "null"
             if tree is not None:
-                document = part_tree_document(tree, self.leaf_labels, len(self.part_faces))
+                document = part_tree_document(
+                    tree, self.leaf_labels, len(self.part_faces), as_arrays=True
+                )
                 packed = pack_integers(self.leaf_labels) if compact else (None, None)
-                if compact:
-                    document["leaf_labels"] = None
                 document["leaf_labels_base64"], document["leaf_labels_dtype"] = packed
-            cached = json.dumps(document, separators=(",", ":"))
+                # The arrays (one per input face, two per leaf) a chunk at a time, the rest whole.
+                arrays = {
+                    key: "null" if compact and key == "leaf_labels" else json_array(values)
+                    for key in ("leaf_labels", "parent", "merge_cost", "merge_height")
+                    for values in (document.pop(key),)
+                }
+                rest = json.dumps(document, separators=(",", ":"))
+                members = "".join(f'"{key}":{text},' for key, text in arrays.items())
+                cached = "{" + members + rest[1:]
             self.__dict__[name] = cached
         return cached
 

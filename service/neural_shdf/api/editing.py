@@ -11,12 +11,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf.api.segmentation import SegmentResult
+from neural_shdf.api.segmentation import StoredSegmentation
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.editing import apply_edits, apply_label_edits
 
 
-def edited_labels(result: SegmentResult, edits: Sequence[dict[str, Any]]) -> NDArray[np.int64]:
+def edited_labels(result: StoredSegmentation, edits: Sequence[dict[str, Any]]) -> NDArray[np.int64]:
     """Labels per input face of ``result`` edited by ``edits`` (EditError: a 422)."""
     tree = result.tree
     if tree is None:  # METIS: no tree, merge and paint only
@@ -25,11 +25,11 @@ def edited_labels(result: SegmentResult, edits: Sequence[dict[str, Any]]) -> NDA
 
 
 def edited_result(
-    result: SegmentResult,
+    result: StoredSegmentation,
     mesh: TriangleMesh,
     shdf: NDArray[np.float64],
     edits: Sequence[dict[str, Any]],
-) -> SegmentResult:
+) -> StoredSegmentation:
     """``result`` with edited labels and per-part faces, area and area-weighted mean ShDF
     (over each input face's triangles; ``shdf`` per triangle)."""
     labels = edited_labels(result, edits)

@@ -67,7 +67,7 @@ def segmentation_response(
     labels_format: str,
     result: StoredSegmentation,
     timings: dict[str, Any],
-    tree_of: SegmentResult | None = None,
+    tree_of: StoredSegmentation | None = None,
 ) -> Response:
     """The `Segmentation` JSON, serialised directly (no per-label model validation).
 

@@ -6,7 +6,7 @@ import numpy as np
 
 from neural_shdf.export import part_color_hex
 from neural_shdf.mesh_io import load_mesh
-from neural_shdf.pipeline import compute_shdf, input_face_parts, segment_mesh_with_details
+from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
 from neural_shdf.segment.editing import apply_edits, apply_label_edits
 from tests.api.api_helpers import TEST_METHOD
@@ -35,10 +35,10 @@ def test_edited_labels_are_the_librarys_edit(client, capsule_obj, tmp_path):
     path = tmp_path / "capsule.obj"
     path.write_bytes(capsule_obj)
     mesh = load_mesh(path)
-    shdf = compute_shdf(mesh, method=TEST_METHOD)
+    shdf = compute_shdf(mesh, method=TEST_METHOD).values
     params = SegmentParams(smoothing=0.02, parts=3)
-    result = segment_mesh_with_details(mesh, shdf, params)
-    _, leaves = input_face_parts(mesh, result)
+    result = segment(mesh, shdf, params)
+    _, leaves = result.input_face_parts(mesh)
     expected = apply_edits(result.tree, leaves, 3, document)
     assert body["labels"] == expected.tolist()
     assert body["labels"] != plain["labels"]

@@ -30,8 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from neural_shdf.labeling import load_labeler, save_labeler
-from neural_shdf.labeling._library import TriangleMesh, compute_shdf, load_mesh, mesh_face_graph
-from neural_shdf.labeling.features import FEATURE_VERSION, FeatureSpec
+from neural_shdf.labeling._library import TriangleMesh, compute_shdf, load_mesh
+from neural_shdf.labeling.features import FEATURE_VERSION
 from neural_shdf.labeling.labeler import (
     MeshDescription,
     TrainingRows,
@@ -63,23 +63,31 @@ def cached_shdf(mesh: TriangleMesh, name: str, cache_dir: Path) -> np.ndarray:
     return values
 
 
-def cached_rows(path: Path, name: str, labels: np.ndarray, cache_dir: Path) -> tuple[TrainingRows, float]:
+def cached_rows(
+    path: Path, name: str, labels: np.ndarray, cache_dir: Path
+) -> tuple[TrainingRows, float]:
     """Training rows of one mesh and the seconds its ShDF and features took (cached)."""
     file = cache_dir / f"rows-v{FEATURE_VERSION}" / f"{name}.npz"
     if file.is_file():
         with np.load(file) as data:
-            return TrainingRows(data["features"], data["labels"], data["weights"]), float(data["seconds"])
+            return TrainingRows(data["features"], data["labels"], data["weights"]), float(
+                data["seconds"]
+            )
     start = time.perf_counter()
     mesh = load_mesh(path)
     description = describe_mesh(mesh, compute_shdf(mesh, method="exact"))
     rows = training_rows(description, labels)
     seconds = time.perf_counter() - start
     file.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(file, features=rows.features, labels=rows.labels, weights=rows.weights, seconds=seconds)
+    np.savez(
+        file, features=rows.features, labels=rows.labels, weights=rows.weights, seconds=seconds
+    )
     return rows, seconds
 
 
-def subdivided(mesh: TriangleMesh, labels: np.ndarray, times: int) -> tuple[TriangleMesh, np.ndarray]:
+def subdivided(
+    mesh: TriangleMesh, labels: np.ndarray, times: int
+) -> tuple[TriangleMesh, np.ndarray]:
     """The mesh with every triangle split into 4, ``times`` times; children keep the label."""
     import trimesh.remesh
 
@@ -103,7 +111,9 @@ def posed(mesh: TriangleMesh, seed: int) -> TriangleMesh:
     return TriangleMesh(mesh.vertices @ rotation.T + shift, mesh.faces)
 
 
-def accuracy(description: MeshDescription, truth: np.ndarray, classes: np.ndarray, values) -> tuple[float, float]:
+def accuracy(
+    description: MeshDescription, truth: np.ndarray, classes: np.ndarray, values
+) -> tuple[float, float]:
     predicted = np.asarray(values)[classes]
     right = predicted == truth
     areas = description.areas
@@ -146,16 +156,24 @@ def main() -> int:
     paths = sorted((args.data_dir / "train").glob("*.obj"))[: args.limit]
     validation = paths[:: args.every]
     training = [p for i, p in enumerate(paths) if i % args.every]
-    truth = {p.stem: np.loadtxt(args.data_dir / "face_labels" / f"{p.stem}.txt", dtype=np.int64) for p in paths}
-    print(f"{len(paths)} meshes: {len(training)} training, {len(validation)} validation (every {args.every}th)")
+    truth = {
+        p.stem: np.loadtxt(args.data_dir / "face_labels" / f"{p.stem}.txt", dtype=np.int64)
+        for p in paths
+    }
+    print(
+        f"{len(paths)} meshes: {len(training)} training, "
+        f"{len(validation)} validation (every {args.every}th)"
+    )
 
     start = time.perf_counter()
     rows, feature_seconds = {}, []
     for path in training:
         rows[path.stem], seconds = cached_rows(path, path.stem, truth[path.stem], args.cache_dir)
         feature_seconds.append(seconds)
-    print(f"training rows ready in {time.perf_counter() - start:.0f} s "
-          f"(uncached: {np.mean(feature_seconds):.2f} s per mesh for exact ShDF + features)")
+    print(
+        f"training rows ready in {time.perf_counter() - start:.0f} s "
+        f"(uncached: {np.mean(feature_seconds):.2f} s per mesh for exact ShDF + features)"
+    )
 
     names = [p.stem for p in training]
     if args.smoothing is None:
@@ -165,7 +183,9 @@ def main() -> int:
         tune_described = {"tune": []}
         for path in training[::5]:
             mesh = load_mesh(path)
-            tune_described["tune"].append((describe_cached(mesh, path.stem, args.cache_dir), truth[path.stem]))
+            tune_described["tune"].append(
+                (describe_cached(mesh, path.stem, args.cache_dir), truth[path.stem])
+            )
         print(f"\ntuning: fit on {len(fit)}, tuned on {len(tune)} training meshes")
         print(f"{'smoothing':>9} {'count':>7} {'area':>7}")
         best = (-1.0, 0.0)
@@ -177,7 +197,12 @@ def main() -> int:
         print(f"chosen smoothing {args.smoothing}")
         del tune_described
 
-    described: dict[str, list] = {"original": [], "subdivided x16": [], "rigid pose": [], "x16 + pose": []}
+    described: dict[str, list] = {
+        "original": [],
+        "subdivided x16": [],
+        "rigid pose": [],
+        "x16 + pose": [],
+    }
     start = time.perf_counter()
     for index, path in enumerate(validation):
         mesh = load_mesh(path)
@@ -186,11 +211,17 @@ def main() -> int:
         if "variants" in skip:
             continue
         fine, fine_labels = subdivided(mesh, labels, 2)
-        described["subdivided x16"].append((describe_cached(fine, path.stem + "-x16", args.cache_dir), fine_labels))
+        described["subdivided x16"].append(
+            (describe_cached(fine, path.stem + "-x16", args.cache_dir), fine_labels)
+        )
         moved = posed(mesh, index)
-        described["rigid pose"].append((describe_cached(moved, path.stem + "-pose", args.cache_dir), labels))
+        described["rigid pose"].append(
+            (describe_cached(moved, path.stem + "-pose", args.cache_dir), labels)
+        )
         both = posed(fine, index)
-        described["x16 + pose"].append((describe_cached(both, path.stem + "-x16-pose", args.cache_dir), fine_labels))
+        described["x16 + pose"].append(
+            (describe_cached(both, path.stem + "-x16-pose", args.cache_dir), fine_labels)
+        )
     described = {k: v for k, v in described.items() if v}
     print(f"validation meshes described in {time.perf_counter() - start:.0f} s")
 
@@ -204,7 +235,10 @@ def main() -> int:
     if args.output:
         save_labeler(labeler, args.output)
     result = evaluate(labeler, described)
-    print(f"\nvalidation ({len(validation)} meshes), all {len(names)} training meshes, smoothing {args.smoothing}")
+    print(
+        f"\nvalidation ({len(validation)} meshes), all {len(names)} training meshes, "
+        f"smoothing {args.smoothing}"
+    )
     print(f"{'variant':<16} {'count':>7} {'area':>7}  {'no-cut':>7} {'no-cut area':>11}")
     for variant, (cut, raw) in result.items():
         print(f"{variant:<16} {cut[0]:7.4f} {cut[1]:7.4f}  {raw[0]:7.4f} {raw[1]:11.4f}")
@@ -217,18 +251,29 @@ def main() -> int:
             if count > len(names):
                 continue
             if count == len(names):
-                print(f"{count:6d} {result['original'][0][0]:7.4f} {result['original'][0][1]:7.4f} {'':>7} {fit_seconds:6.1f}")
+                print(
+                    f"{count:6d} {result['original'][0][0]:7.4f} "
+                    f"{result['original'][0][1]:7.4f} {'':>7} {fit_seconds:6.1f}"
+                )
                 continue
             draws = 1 if count >= 30 else args.draws
             scores, seconds = [], []
             for draw in range(draws):
                 chosen = np.random.default_rng(draw).choice(len(names), size=count, replace=False)
                 begin = time.perf_counter()
-                small = fit_labeler([rows[names[i]] for i in sorted(chosen)], NAMES, smoothing=args.smoothing, labels=np.arange(1, 9))
+                small = fit_labeler(
+                    [rows[names[i]] for i in sorted(chosen)],
+                    NAMES,
+                    smoothing=args.smoothing,
+                    labels=np.arange(1, 9),
+                )
                 seconds.append(time.perf_counter() - begin)
                 scores.append(evaluate(small, only_original)["original"][0])
             scores = np.asarray(scores)
-            print(f"{count:6d} {scores[:, 0].mean():7.4f} {scores[:, 1].mean():7.4f} {scores[:, 0].min():7.4f} {np.mean(seconds):6.1f}")
+            print(
+                f"{count:6d} {scores[:, 0].mean():7.4f} {scores[:, 1].mean():7.4f} "
+                f"{scores[:, 0].min():7.4f} {np.mean(seconds):6.1f}"
+            )
 
     if "timing" not in skip:
         mesh = load_mesh(validation[0])
@@ -241,11 +286,15 @@ def main() -> int:
             begin = time.perf_counter()
             label_mesh(fresh, labeler, shdf=shdf)
             times.append(time.perf_counter() - begin)
-        print(f"\nlabelling {big.face_count} faces, ShDF given: median {np.median(times):.2f} s of 3 "
-              f"(face graph, orientation, features, trees, graph cut)")
-    print(f"\ntraining on {len(names)} meshes: fit {fit_seconds:.0f} s + features "
-          f"{np.sum(feature_seconds):.0f} s uncached ({np.mean(feature_seconds):.2f} s per mesh); "
-          f"model file {size / 1e6:.1f} MB; {labeler.trees.tree_start.size - 1} trees")
+        print(
+            f"\nlabelling {big.face_count} faces, ShDF given: median {np.median(times):.2f} s of 3 "
+            f"(face graph, orientation, features, trees, graph cut)"
+        )
+    print(
+        f"\ntraining on {len(names)} meshes: fit {fit_seconds:.0f} s + features "
+        f"{np.sum(feature_seconds):.0f} s uncached ({np.mean(feature_seconds):.2f} s per mesh); "
+        f"model file {size / 1e6:.1f} MB; {labeler.trees.tree_start.size - 1} trees"
+    )
     return 0
 
 

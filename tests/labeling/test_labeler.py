@@ -13,7 +13,10 @@ from tests.labeling.helpers import BALL, NECK, labelled_dumbbell
 
 @pytest.fixture(scope="module")
 def trained():
-    examples = [labelled_dumbbell(1500, stretch, seed) for stretch, seed in ((1.0, None), (1.3, 1), (0.8, 2))]
+    examples = [
+        labelled_dumbbell(1500, stretch, seed)
+        for stretch, seed in ((1.0, None), (1.3, 1), (0.8, 2))
+    ]
     meshes, labels = zip(*examples, strict=True)
     return train_labeler(meshes, labels, ["neck", "ball"])
 

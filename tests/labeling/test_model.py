@@ -26,7 +26,9 @@ def fitted(classes: int, nan: bool = False) -> tuple[HistGradientBoostingClassif
     if nan:
         x[::7, 2] = np.nan
     model = HistGradientBoostingClassifier(max_iter=20, random_state=0).fit(x, y)
-    return model, rng.normal(size=(200, 4)) if not nan else np.where(rng.random((200, 4)) < 0.1, np.nan, rng.normal(size=(200, 4)))
+    return model, rng.normal(size=(200, 4)) if not nan else np.where(
+        rng.random((200, 4)) < 0.1, np.nan, rng.normal(size=(200, 4))
+    )
 
 
 @pytest.mark.parametrize(("classes", "nan"), [(2, False), (4, False), (3, True)])
@@ -105,7 +107,10 @@ def test_trees_whose_children_leave_the_tree_are_refused(tmp_path) -> None:
     left = trees.left.copy()
     left[np.flatnonzero(trees.feature >= 0)[0]] = 10**6
     broken = Labeler(
-        TreeEnsemble(**(trees.arrays() | {"left": left})), labeler.label_values, labeler.label_names, labeler.metadata
+        TreeEnsemble(**(trees.arrays() | {"left": left})),
+        labeler.label_values,
+        labeler.label_names,
+        labeler.metadata,
     )
     path = save_labeler(broken, tmp_path / "l.npz")
     with pytest.raises(LabelerFileError, match="inconsistent"):

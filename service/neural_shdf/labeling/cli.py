@@ -98,7 +98,8 @@ def cmd_labeler_train(args: argparse.Namespace) -> int:
     save_labeler(labeler, args.output)
     if not args.quiet:
         skipped = len([p for p in Path(args.mesh_dir).iterdir() if p.is_file()]) - len(meshes)
-        names = ", ".join(f"{v}={n}" for v, n in zip(labeler.label_values, labeler.label_names))
+        pairs = zip(labeler.label_values, labeler.label_names, strict=True)
+        names = ", ".join(f"{value}={name}" for value, name in pairs)
         print(
             f"labeller of {len(meshes)} meshes ({skipped} other files skipped), labels {names}, "
             f"trained in {time.perf_counter() - start:.1f} s -> {args.output}",
@@ -110,13 +111,16 @@ def cmd_labeler_train(args: argparse.Namespace) -> int:
 def segment_with_labeler(args: argparse.Namespace, mesh, shdf: np.ndarray, graph) -> int:
     """``segment --labeler FILE``: one label per input face (the training labels' own
     integers) to ``args.output``; ``args.confidence``: the confidence per face too."""
+    from neural_shdf.errors import ParameterError
     from neural_shdf.labeling._library import write_labels, write_values
     from neural_shdf.labeling.labeler import label_mesh
     from neural_shdf.labeling.model import load_labeler
 
-    from neural_shdf.errors import ParameterError
-
-    others = [f"--{name.replace('_', '-')}" for name in ("tree", "colored", "parts_glb", "usd") if getattr(args, name, None)]
+    others = [
+        f"--{name.replace('_', '-')}"
+        for name in ("tree", "colored", "parts_glb", "usd")
+        if getattr(args, name, None)
+    ]
     if not args.labeler:
         raise ParameterError("--confidence needs --labeler")
     if others:

@@ -7,8 +7,8 @@ the tessellation:
   whatever the face count). Every face belongs to the node nearest to it along the
   surface (a geodesic Voronoi cell, grown over the face graph from the node faces), so
   touching but unconnected parts never share a cell.
-* Node graph: cells that share a face edge; edge length = the shortest surface path
-  between the two nodes through that boundary; the boundary's length weighs the
+* Node graph: cells that share a face edge; edge length = the straight distance between
+  the two nodes (about one Poisson radius); the boundary's length weighs the
   Laplacian (a finite-volume Laplacian with cell areas as masses).
 * Lengths are in units of sqrt(surface area) and areas in units of the surface area, so
   scale, vertex count, pose in space and axis convention do not change the features.
@@ -42,15 +42,17 @@ from neural_shdf.labeling._library import (
 )
 
 #: Bump when the meaning or order of the features changes (stored in every labeller).
-FEATURE_VERSION = 1
+FEATURE_VERSION = 2
 #: Geodesic Gaussian scales (units of sqrt(area)) of the smoothed ShDF.
 SHDF_SCALES = (0.02, 0.05, 0.1, 0.2)
 #: Scales of the normal-variation proxies.
 NORMAL_SCALES = (0.02, 0.05, 0.1)
-#: Radii of the geodesic balls whose area is measured.
-BALL_RADII = (0.05, 0.1, 0.2, 0.4)
+#: Radii of the geodesic balls whose area is measured (smaller ones, and shorter or longer
+#: heat kernel times, are below a 1,500-face mesh's resolution or noise: they changed
+#: when such a mesh was subdivided).
+BALL_RADII = (0.1, 0.2, 0.4)
 #: Heat kernel signature times (surface of unit area).
-HKS_TIMES = (0.001, 0.003, 0.01, 0.03, 0.1, 0.3)
+HKS_TIMES = (0.01, 0.03, 0.1)
 #: Eigenpairs of the node Laplacian the heat kernel signature sums.
 HKS_EIGENPAIRS = 60
 #: Quantiles of each node's geodesic distances to the rest of the surface (area-weighted).
@@ -163,16 +165,30 @@ def node_graph(mesh: TriangleMesh, graph: FaceGraph, spec: FeatureSpec) -> NodeG
     cross = np.flatnonzero(na != nb)
     low, high = np.minimum(na[cross], nb[cross]), np.maximum(na[cross], nb[cross])
     key = low * node_count + high
-    through = reach[a[cross]] + step[cross] + reach[b[cross]]
-    order = np.lexsort((through, key))
-    key, through = key[order], through[order]
-    first = np.r_[True, key[1:] != key[:-1]]
-    starts = np.flatnonzero(first)
+    order = np.argsort(key, kind="stable")
+    key = key[order]
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     pairs = np.stack([key[starts] // node_count, key[starts] % node_count], axis=1)
-    lengths = through[starts]
+    # Neighbouring nodes are about one Poisson radius apart: the straight segment between
+    # them is the surface distance up to a tessellation-independent error, where paths
+    # over face centroids zig-zag more on coarse meshes than on fine ones.
+    node_points = centroids[node_faces]
+    lengths = np.linalg.norm(node_points[pairs[:, 0]] - node_points[pairs[:, 1]], axis=1)
+    lengths = np.maximum(lengths, 1e-9 * unit)
     boundary = np.add.reduceat(graph.edge_length[cross][order], starts) if len(starts) else lengths
+    # Distances run over neighbours and neighbours' neighbours (straight segments): more
+    # directions per node, so shortest paths zig-zag less whatever the cells' shapes.
+    ring = sp.csr_matrix(
+        (
+            np.ones(2 * len(pairs)),
+            (np.r_[pairs[:, 0], pairs[:, 1]], np.r_[pairs[:, 1], pairs[:, 0]]),
+        ),
+        shape=(node_count, node_count),
+    )
+    reach_two = sp.triu(ring + ring @ ring, k=1).tocoo()
+    chord = np.linalg.norm(node_points[reach_two.row] - node_points[reach_two.col], axis=1)
     node_adjacency = sp.csr_matrix(
-        (np.r_[lengths, lengths] / unit, (np.r_[pairs[:, 0], pairs[:, 1]], np.r_[pairs[:, 1], pairs[:, 0]])),
+        (np.maximum(chord, 1e-9 * unit) / unit, (reach_two.row, reach_two.col)),
         shape=(node_count, node_count),
     )
     distances = dijkstra(node_adjacency, directed=False)
@@ -180,9 +196,13 @@ def node_graph(mesh: TriangleMesh, graph: FaceGraph, spec: FeatureSpec) -> NodeG
     weighted = normals * areas[:, None]
     node_normals = np.zeros((node_count, 3))
     for axis in range(3):
-        node_normals[:, axis] = np.bincount(face_node, weights=weighted[:, axis], minlength=node_count)
+        node_normals[:, axis] = np.bincount(
+            face_node, weights=weighted[:, axis], minlength=node_count
+        )
     length = np.linalg.norm(node_normals, axis=1, keepdims=True)
-    node_normals = np.divide(node_normals, length, out=np.zeros_like(node_normals), where=length > 0)
+    node_normals = np.divide(
+        node_normals, length, out=np.zeros_like(node_normals), where=length > 0
+    )
     positions = centroids[node_faces]
     positions = (positions - positions.mean(axis=0)) / unit
     return NodeGraph(

@@ -37,7 +37,7 @@ from neural_shdf.labeling.features import (
 from neural_shdf.labeling.model import Labeler, TreeEnsemble
 
 #: Graph-cut smoothing (lambda) of the labels; chosen on training meshes.
-DEFAULT_SMOOTHING = 0.05
+DEFAULT_SMOOTHING = 0.001
 #: Boosting: iterations, learning rate, leaves per tree (chosen on training meshes).
 BOOST_ITERATIONS = 150
 LEARNING_RATE = 0.1
@@ -93,9 +93,10 @@ def triangle_labels(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.int64]:
             f"{labels.size} labels for a mesh of {mesh.input_face_count} faces: "
             "give one integer label per face, in the file's face order"
         )
-    if not np.issubdtype(labels.dtype, np.integer):
-        if not np.all(np.isfinite(labels)) or not np.all(labels == np.round(labels)):
-            raise ParameterError("labels must be integers")
+    if not np.issubdtype(labels.dtype, np.integer) and not (
+        np.all(np.isfinite(labels)) and np.all(labels == np.round(labels))
+    ):
+        raise ParameterError("labels must be integers")
     return labels.astype(np.int64)[mesh.face_origin]
 
 
@@ -201,7 +202,9 @@ def _expand_classes(trees: TreeEnsemble, present: NDArray, count: int) -> TreeEn
     if len(trees.baseline) == 1:
         baseline[present[0]] = 0.0
         baseline[present[1]] = trees.baseline[0]
-        return replace(trees, tree_class=np.full_like(trees.tree_class, present[1]), baseline=baseline)
+        return replace(
+            trees, tree_class=np.full_like(trees.tree_class, present[1]), baseline=baseline
+        )
     baseline[present] = trees.baseline
     return replace(trees, tree_class=present[trees.tree_class], baseline=baseline)
 
@@ -269,7 +272,9 @@ def label_description(
     from neural_shdf.labeling.coherence import coherent_labels
 
     mesh = description.mesh.oriented
-    smoothing = labeler.metadata.get("smoothing", DEFAULT_SMOOTHING) if smoothing is None else smoothing
+    smoothing = (
+        labeler.metadata.get("smoothing", DEFAULT_SMOOTHING) if smoothing is None else smoothing
+    )
     classes = coherent_labels(
         probabilities,
         description.graph,
@@ -282,9 +287,10 @@ def label_description(
 
 def check_compatible(labeler: Labeler) -> FeatureSpec:
     """The labeller's sampling spec; ``ParameterError`` when its features are another version's."""
-    if labeler.metadata.get("feature_version") != FEATURE_VERSION or tuple(
-        labeler.metadata.get("feature_names", ())
-    ) != FEATURE_NAMES:
+    if (
+        labeler.metadata.get("feature_version") != FEATURE_VERSION
+        or tuple(labeler.metadata.get("feature_names", ())) != FEATURE_NAMES
+    ):
         raise ParameterError(
             "the labeller was trained with other features "
             f"(version {labeler.metadata.get('feature_version')}, this one computes "

@@ -31,7 +31,17 @@ FORMAT_VERSION = 1
 #: A labeller file larger than this is refused before it is read.
 MAX_FILE_BYTES = 256 * 1024 * 1024
 #: Tree arrays of a labeller file, in the order their checksum covers them.
-TREE_ARRAYS = ("feature", "threshold", "missing_left", "left", "right", "value", "tree_start", "tree_class", "baseline")
+TREE_ARRAYS = (
+    "feature",
+    "threshold",
+    "missing_left",
+    "left",
+    "right",
+    "value",
+    "tree_start",
+    "tree_class",
+    "baseline",
+)
 
 
 class LabelerFileError(ParameterError):
@@ -117,7 +127,9 @@ class TreeEnsemble:
 
 
 @kernel
-def _tree_scores(x, feature, threshold, missing_left, left, right, value, tree_start, tree_class, baseline, out):  # noqa: ANN001, E501  # pragma: no cover - compiled
+def _tree_scores(
+    x, feature, threshold, missing_left, left, right, value, tree_start, tree_class, baseline, out
+):  # noqa: ANN001, E501  # pragma: no cover - compiled
     for row in range(x.shape[0]):
         for k in range(len(baseline)):
             out[row, k] = baseline[k]
@@ -126,10 +138,7 @@ def _tree_scores(x, feature, threshold, missing_left, left, right, value, tree_s
             node = base
             while feature[node] >= 0:
                 v = x[row, feature[node]]
-                if np.isnan(v):
-                    go_left = missing_left[node] != 0
-                else:
-                    go_left = v <= threshold[node]
+                go_left = missing_left[node] != 0 if np.isnan(v) else v <= threshold[node]
                 node = base + (left[node] if go_left else right[node])
             out[row, tree_class[tree]] += value[node]
 
@@ -242,7 +251,9 @@ _DTYPES = {
 def _check_trees(trees: TreeEnsemble, feature_count: int) -> None:
     """Refuse trees whose indices would leave their arrays (the kernel does not check)."""
     node_count = len(trees.feature)
-    sizes = {len(getattr(trees, n)) for n in ("threshold", "missing_left", "left", "right", "value")}
+    sizes = {
+        len(getattr(trees, n)) for n in ("threshold", "missing_left", "left", "right", "value")
+    }
     start = trees.tree_start
     ok = (
         sizes == {node_count}

@@ -42,17 +42,15 @@ from neural_shdf.labeling._library import (
 )
 
 #: Bump when the meaning or order of the features changes (stored in every labeller).
-FEATURE_VERSION = 2
+FEATURE_VERSION = 3
 #: Geodesic Gaussian scales (units of sqrt(area)) of the smoothed ShDF.
 SHDF_SCALES = (0.02, 0.05, 0.1, 0.2)
 #: Scales of the normal-variation proxies.
 NORMAL_SCALES = (0.02, 0.05, 0.1)
-#: Radii of the geodesic balls whose area is measured (smaller ones, and shorter or longer
-#: heat kernel times, are below a 1,500-face mesh's resolution or noise: they changed
-#: when such a mesh was subdivided).
-BALL_RADII = (0.1, 0.2, 0.4)
+#: Radii of the geodesic balls whose area is measured.
+BALL_RADII = (0.05, 0.1, 0.2, 0.4)
 #: Heat kernel signature times (surface of unit area).
-HKS_TIMES = (0.01, 0.03, 0.1)
+HKS_TIMES = (0.001, 0.003, 0.01, 0.03, 0.1, 0.3)
 #: Eigenpairs of the node Laplacian the heat kernel signature sums.
 HKS_EIGENPAIRS = 60
 #: Quantiles of each node's geodesic distances to the rest of the surface (area-weighted).

@@ -37,7 +37,7 @@ from neural_shdf.labeling.features import (
 from neural_shdf.labeling.model import Labeler, TreeEnsemble
 
 #: Graph-cut smoothing (lambda) of the labels; chosen on training meshes.
-DEFAULT_SMOOTHING = 0.001
+DEFAULT_SMOOTHING = 0.003
 #: Boosting: iterations, learning rate, leaves per tree (chosen on training meshes).
 BOOST_ITERATIONS = 150
 LEARNING_RATE = 0.1

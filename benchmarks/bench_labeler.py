@@ -33,12 +33,14 @@ from neural_shdf.labeling import load_labeler, save_labeler
 from neural_shdf.labeling._library import TriangleMesh, compute_shdf, load_mesh
 from neural_shdf.labeling.features import FEATURE_VERSION
 from neural_shdf.labeling.labeler import (
+    AUGMENT_EVERY,
     MeshDescription,
     TrainingRows,
     describe_mesh,
     fit_labeler,
     label_description,
     label_mesh,
+    subdivided_copy,
     training_rows,
 )
 
@@ -89,16 +91,22 @@ def subdivided(
     mesh: TriangleMesh, labels: np.ndarray, times: int
 ) -> tuple[TriangleMesh, np.ndarray]:
     """The mesh with every triangle split into 4, ``times`` times; children keep the label."""
-    import trimesh.remesh
+    return subdivided_copy(mesh, labels, times)
 
-    vertices, faces = mesh.vertices, mesh.faces
-    for _ in range(times):
-        vertices, faces, index = trimesh.remesh.subdivide(vertices, faces, return_index=True)
-        parent = np.empty(len(faces), dtype=np.int64)
-        for face, children in index.items():
-            parent[children] = face
-        labels = labels[parent]
-    return TriangleMesh(vertices, faces), labels
+
+def cached_subdivided_rows(
+    path: Path, name: str, labels: np.ndarray, cache_dir: Path
+) -> TrainingRows:
+    """Training rows of the mesh subdivided x16 (the labeller's augmentation; cached)."""
+    file = cache_dir / f"rows-v{FEATURE_VERSION}" / f"{name}-x16.npz"
+    if file.is_file():
+        with np.load(file) as data:
+            return TrainingRows(data["features"], data["labels"], data["weights"], True)
+    fine, fine_labels = subdivided_copy(load_mesh(path), labels)
+    rows = training_rows(describe_cached(fine, name + "-x16", cache_dir), fine_labels, True)
+    file.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(file, features=rows.features, labels=rows.labels, weights=rows.weights)
+    return rows
 
 
 def posed(mesh: TriangleMesh, seed: int) -> TriangleMesh:
@@ -147,6 +155,9 @@ def main() -> int:
     parser.add_argument("--draws", type=int, default=3, help="random draws per few-shot size")
     parser.add_argument("--smoothing", type=float, help="skip tuning, use this smoothing")
     parser.add_argument("--output", type=Path, help="also write the trained labeller here")
+    parser.add_argument(
+        "--no-augment", action="store_true", help="no subdivided copies of training meshes"
+    )
     parser.add_argument("--skip", default="", help="comma list of: few-shot,variants,timing")
     args = parser.parse_args()
     skip = set(filter(None, args.skip.split(",")))
@@ -176,10 +187,23 @@ def main() -> int:
     )
 
     names = [p.stem for p in training]
+    path_of = {p.stem: p for p in training}
+
+    def training_set(selected: list[str]) -> list[TrainingRows]:
+        """Rows of the selected meshes, and of every AUGMENT_EVERY-th one subdivided x16,
+        as ``train_labeler`` learns them."""
+        chosen = [rows[n] for n in selected]
+        if not args.no_augment:
+            chosen += [
+                cached_subdivided_rows(path_of[n], n, truth[n], args.cache_dir)
+                for n in selected[::AUGMENT_EVERY]
+            ]
+        return chosen
+
     if args.smoothing is None:
         tune = names[::5]
         fit = [n for n in names if n not in set(tune)][:: max(1, len(names) // TUNE_FIT_MESHES)]
-        labeler = fit_labeler([rows[n] for n in fit], NAMES)
+        labeler = fit_labeler(training_set(fit), NAMES)
         tune_described = {"tune": []}
         for path in training[::5]:
             mesh = load_mesh(path)
@@ -226,7 +250,7 @@ def main() -> int:
     print(f"validation meshes described in {time.perf_counter() - start:.0f} s")
 
     start = time.perf_counter()
-    labeler = fit_labeler([rows[n] for n in names], NAMES, smoothing=args.smoothing)
+    labeler = fit_labeler(training_set(names), NAMES, smoothing=args.smoothing)
     fit_seconds = time.perf_counter() - start
     with tempfile.TemporaryDirectory() as folder:
         file = save_labeler(labeler, Path(folder) / "human.npz")
@@ -262,7 +286,7 @@ def main() -> int:
                 chosen = np.random.default_rng(draw).choice(len(names), size=count, replace=False)
                 begin = time.perf_counter()
                 small = fit_labeler(
-                    [rows[names[i]] for i in sorted(chosen)],
+                    training_set([names[i] for i in sorted(chosen)]),
                     NAMES,
                     smoothing=args.smoothing,
                     labels=np.arange(1, 9),

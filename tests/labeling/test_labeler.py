@@ -28,6 +28,9 @@ def accuracy(predicted: np.ndarray, truth: np.ndarray) -> float:
 def test_a_new_dumbbell_is_labelled_with_the_training_integers(trained) -> None:
     assert trained.label_values.tolist() == [NECK, BALL]
     assert trained.label_names == ("neck", "ball")
+    # The first of every AUGMENT_EVERY meshes is also learned subdivided x16.
+    assert trained.metadata["training"]["meshes"] == 3
+    assert trained.metadata["training"]["subdivided_copies"] == 1
     mesh, truth = labelled_dumbbell(1500, 1.15, seed=7)
     labels, confidence = label_mesh(mesh, trained)
     assert labels.shape == truth.shape and set(np.unique(labels)) <= {NECK, BALL}

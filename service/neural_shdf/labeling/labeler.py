@@ -42,6 +42,12 @@ DEFAULT_SMOOTHING = 0.003
 BOOST_ITERATIONS = 150
 LEARNING_RATE = 0.1
 MAX_LEAF_NODES = 31
+#: Every this-many-th training mesh (from the first) is also learned subdivided x16, its
+#: labels carried to the children: the trees then see how a finer tessellation of the
+#: same surface moves the features, and label fine meshes as well as coarse ones.
+AUGMENT_EVERY = 3
+#: Meshes above this many triangles are not subdivided for training (already fine).
+AUGMENT_MAX_FACES = 20_000
 #: A label may have at most this many classes (one tree per class per iteration).
 MAX_CLASSES = 64
 
@@ -108,16 +114,39 @@ class TrainingRows:
     features: NDArray[np.float32]
     labels: NDArray[np.int64]
     weights: NDArray[np.float64]
+    #: Rows of a training mesh's subdivided copy (``AUGMENT_EVERY``).
+    subdivided: bool = False
 
 
-def training_rows(description: MeshDescription, labels: NDArray) -> TrainingRows:
+def training_rows(
+    description: MeshDescription, labels: NDArray, subdivided: bool = False
+) -> TrainingRows:
     """``TrainingRows`` of a described mesh from its labels per triangle."""
     nodes = description.nodes
     return TrainingRows(
         description.features,
         node_labels(nodes, labels, description.areas),
         nodes.cell_area * nodes.node_count,
+        subdivided,
     )
+
+
+def subdivided_copy(
+    mesh: TriangleMesh, labels: NDArray, times: int = 2
+) -> tuple[TriangleMesh, NDArray[np.int64]]:
+    """``mesh``'s triangles each split into 4, ``times`` times, and the labels per triangle
+    carried to the children."""
+    import trimesh.remesh
+
+    vertices, faces = mesh.vertices, mesh.faces
+    labels = np.asarray(labels, dtype=np.int64)
+    for _ in range(times):
+        vertices, faces, index = trimesh.remesh.subdivide(vertices, faces, return_index=True)
+        parent = np.empty(len(faces), dtype=np.int64)
+        for face, children in index.items():
+            parent[children] = face
+        labels = labels[parent]
+    return TriangleMesh(vertices, faces), labels
 
 
 def fit_labeler(
@@ -186,9 +215,10 @@ def fit_labeler(
             "max_leaf_nodes": MAX_LEAF_NODES,
         },
         "training": {
-            "meshes": len(rows),
+            "meshes": sum(1 for r in rows if not r.subdivided),
             "nodes": int(len(target)),
             "fit_seconds": round(time.perf_counter() - start, 2),
+            "subdivided_copies": sum(1 for r in rows if r.subdivided),
         },
     }
     return Labeler(trees, values, names, metadata)
@@ -217,12 +247,15 @@ def train_labeler(
     shdf: Sequence[NDArray | None] | None = None,
     smoothing: float = DEFAULT_SMOOTHING,
     spec: FeatureSpec | None = None,
+    augment: bool = True,
     progress: Progress | None = None,
 ) -> Labeler:
     """Train a labeller from meshes and one integer label per input face of each.
 
     ``names``: one per distinct label, in increasing label order (default: the labels
     as text). ``shdf``: each mesh's ShDF per triangle where known (else computed).
+    ``augment``: also learn every ``AUGMENT_EVERY``-th mesh subdivided x16 (its ShDF
+    computed with the default method), so that fine meshes are labelled as well.
     """
     if len(meshes) != len(labels):
         raise ParameterError(f"{len(meshes)} meshes but {len(labels)} label arrays")
@@ -232,6 +265,9 @@ def train_labeler(
         given = None if shdf is None else shdf[index]
         rows.append(training_rows(describe_mesh(mesh, given, spec=spec), per_triangle))
         values.append(np.unique(per_triangle))
+        if augment and index % AUGMENT_EVERY == 0 and mesh.face_count <= AUGMENT_MAX_FACES:
+            fine, fine_labels = subdivided_copy(mesh, per_triangle)
+            rows.append(training_rows(describe_mesh(fine, spec=spec), fine_labels, True))
         if progress is not None:
             progress(0.8 * (index + 1) / len(meshes))
     labeler = fit_labeler(

@@ -27,9 +27,9 @@ from neural_shdf.evaluate.benchmark import (
     list_models,
     load_benchmark_mesh,
 )
-from neural_shdf.evaluate.metrics import rand_index_error
+from neural_shdf.evaluate.scores import rand_index_error
 from neural_shdf.geometry import build_face_graph, face_centroids, face_normals, weld_faces
-from neural_shdf.pipeline import mesh_face_graph, segment_mesh_with_details
+from neural_shdf.pipeline import segment
 from neural_shdf.segment import SegmentParams
 from neural_shdf.segment.creases import COARSE_ABOVE_FACES, snap_boundaries_to_creases
 
@@ -50,9 +50,9 @@ def main() -> None:
             continue
         mesh = load_benchmark_mesh(model.mesh_path)
         shdf = cached_shdf(mesh, "exact", DEFAULT_CACHE_DIR, model)
-        graph = mesh_face_graph(mesh)
+        graph = mesh.face_graph
         plain = SegmentParams(crease_boundaries=False)
-        leaves = segment_mesh_with_details(mesh, shdf, plain, graph=graph).tree.leaf_labels
+        leaves = segment(mesh, shdf, plain).tree.leaf_labels
         vertices, faces = mesh.vertices, mesh.faces
         areas, centroids = face_normals(vertices, faces)[1], face_centroids(vertices, faces)
         base = snap_boundaries_to_creases(leaves, graph, areas, centroids, 0.002)

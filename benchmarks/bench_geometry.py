@@ -1,6 +1,6 @@
 """Per-face geometry every path shares: time per stage at about 100k and 1M faces.
 
-Stages of ``pipeline.mesh_face_graph``: face normals and areas
+Stages of ``TriangleMesh.face_graph``: face normals and areas
 (``geometry.face_normals``, cached per mesh as ``TriangleMesh.normals_and_areas``),
 vertex welding (``weld_faces``) and the face adjacency graph
 (``build_face_graph``: edge matching, dihedral angles, concavity). Meshes: a

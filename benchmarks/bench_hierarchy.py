@@ -36,11 +36,12 @@ import numpy as np
 import trimesh
 from timing import best_time
 
-from neural_shdf.geometry import build_face_graph, face_centroids, face_normals, weld_faces
+from neural_shdf.geometry import face_centroids
+from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.creases import crease_graph, snap_boundaries_to_creases
+from neural_shdf.segment.from_shdf import prepare_segment, segment
 from neural_shdf.segment.hierarchy import automatic_part_count, merge_tree
 from neural_shdf.segment.params import SegmentParams
-from neural_shdf.segment.pipeline import prepare_segment, segment_with_details
 from neural_shdf.segment.synthetic import dumbbell
 from neural_shdf.shdf.postprocess import log_normalize
 
@@ -62,7 +63,7 @@ def test_mesh(subdivisions: int) -> tuple[str, np.ndarray, np.ndarray, np.ndarra
     from neural_shdf.pipeline import compute_shdf
 
     base = load_mesh(BASE_MESH)
-    base_shdf = compute_shdf(base, method="exact")
+    base_shdf = compute_shdf(base, method="exact").values
     vertices, faces = base.vertices, base.faces
     for _ in range(subdivisions):
         vertices, faces = trimesh.remesh.subdivide(vertices, faces)
@@ -80,18 +81,18 @@ def main() -> None:
 
     name, vertices, faces, shdf = test_mesh(args.subdivisions)
     start = time.perf_counter()
-    normals, areas = face_normals(vertices, faces)
-    graph = build_face_graph(vertices, weld_faces(vertices, faces), normals)
+    mesh = TriangleMesh(vertices, faces)
+    graph = mesh.face_graph
+    areas = mesh.normals_and_areas[1]
     print(
         f"mesh {name}: {len(faces)} faces; face graph {time.perf_counter() - start:.2f} s "
         "(not counted: cached with the mesh)"
     )
 
     params = SegmentParams()
-    wall, cpu, result = best_time(
-        lambda: segment_with_details(vertices, faces, shdf, params, graph, areas=areas),
-        args.repeat,
-    )
+    # A mesh with its face graph but not its crease graph, per run (the crease graph is
+    # part of a first segmentation's time).
+    wall, cpu, result = best_time(lambda: segment(mesh.portable(), shdf, params), args.repeat)
     steps = " ".join(f"{k}={v:.3f}" for k, v in result.timings.items())
     tree = result.tree
     print(f"{'what':<10} {'wall_s':>8} {'cpu_s':>7} {'target_s':>8} {'ratio':>6} {'cpu_ratio':>9}")
@@ -101,9 +102,7 @@ def main() -> None:
         f"{result.part_count} parts of {tree.leaf_count} leaves; {steps}"
     )
 
-    plain = segment_with_details(
-        vertices, faces, shdf, replace(params, crease_boundaries=False), graph, areas=areas
-    )
+    plain = segment(mesh, shdf, replace(params, crease_boundaries=False))
     centroids = face_centroids(vertices, faces)
     wall, cpu, creases = best_time(lambda: crease_graph(graph, areas, centroids), args.repeat)
     print(
@@ -129,13 +128,11 @@ def main() -> None:
         f"relabelled (leaf ids may shift)"
     )
 
-    basis = prepare_segment(vertices, faces, shdf, params, graph, areas=areas)
+    basis = prepare_segment(mesh, shdf, params)
     basis.cut(graph)
+    _ = mesh.crease_graph  # kept per mesh, as the service keeps it
     other = SegmentParams(smoothing=0.08)
-    wall, cpu, again = best_time(
-        lambda: segment_with_details(vertices, faces, shdf, other, graph, basis=basis),
-        args.repeat,
-    )
+    wall, cpu, again = best_time(lambda: segment(mesh, shdf, other, basis=basis), args.repeat)
     steps = " ".join(f"{k}={v:.3f}" for k, v in again.timings.items())
     print(
         f"{'resegment':<10} {wall:8.3f} {cpu:7.3f} {TARGET_SEGMENT_S:8.3f} "

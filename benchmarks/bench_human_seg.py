@@ -3,7 +3,7 @@
 ``../shared/data/human-seg``: 381 meshes of 1,500 faces, 8 labelled body parts (head,
 hands, forearms, upper arms, torso, thighs, lower legs, feet). Each segmentation's
 parts are matched one-to-one to the labels (maximum total overlap); faces of an
-unmatched part count as wrong (``evaluate.metrics.matched_accuracy``). Exact ShDF.
+unmatched part count as wrong (``evaluate.scores.matched_accuracy``). Exact ShDF.
 
 Rows: ``before-tree`` (graph cut, lambda 0.12, every part it finds, no crease
 refinement: the segmentation before the part tree), ``tree-auto`` (the default:
@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from neural_shdf.evaluate.metrics import matched_accuracy
+from neural_shdf.evaluate.scores import matched_accuracy
 from neural_shdf.mesh_io import load_mesh
-from neural_shdf.pipeline import compute_shdf, mesh_face_graph, segment_mesh_with_details
+from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
 from neural_shdf.segment.parts import connected_parts
 
@@ -46,11 +46,11 @@ ROWS = {
 }
 
 
-def exact_shdf(mesh, graph, name: str, cache_dir: Path) -> np.ndarray:
+def exact_shdf(mesh, name: str, cache_dir: Path) -> np.ndarray:
     path = cache_dir / f"{name}-{mesh.content_hash()[:16]}.npy"
     if path.is_file():
         return np.load(path)
-    values = compute_shdf(mesh, method="exact", graph=graph)
+    values = compute_shdf(mesh, method="exact").values
     path.parent.mkdir(parents=True, exist_ok=True)
     np.save(path, values)
     return values
@@ -82,10 +82,10 @@ def main() -> int:
     for path in paths:
         mesh = load_mesh(path)
         truth = np.loadtxt(args.data_dir / "face_labels" / f"{path.stem}.txt", dtype=np.int64)
-        graph = mesh_face_graph(mesh)
-        shdf = exact_shdf(mesh, graph, path.stem, args.cache_dir)
+        graph = mesh.face_graph
+        shdf = exact_shdf(mesh, path.stem, args.cache_dir)
         for name, (params, which) in ROWS.items():
-            result = segment_mesh_with_details(mesh, shdf, params, graph=graph)
+            result = segment(mesh, shdf, params)
             labels = result.tree.leaf_labels if which == "leaves" else result.labels
             accuracy[name].append(matched_accuracy(labels[: len(truth)], truth))
             parts[name].append(int(labels.max()) + 1)

@@ -59,7 +59,7 @@ def cached_shdf(mesh: TriangleMesh, name: str, cache_dir: Path) -> np.ndarray:
     path = cache_dir / "shdf" / f"{name}-{mesh.content_hash()[:16]}.npy"
     if path.is_file():
         return np.load(path)
-    values = compute_shdf(mesh, method="exact")
+    values = compute_shdf(mesh, method="exact").values
     path.parent.mkdir(parents=True, exist_ok=True)
     np.save(path, values)
     return values
@@ -77,7 +77,7 @@ def cached_rows(
             )
     start = time.perf_counter()
     mesh = load_mesh(path)
-    description = describe_mesh(mesh, compute_shdf(mesh, method="exact"))
+    description = describe_mesh(mesh, compute_shdf(mesh, method="exact").values)
     rows = training_rows(description, labels)
     seconds = time.perf_counter() - start
     file.parent.mkdir(parents=True, exist_ok=True)

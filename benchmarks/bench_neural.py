@@ -38,15 +38,15 @@ sys.path.insert(0, str(REPO))
 
 from neural_shdf.geometry import face_centroids  # noqa: E402
 from neural_shdf.mesh import TriangleMesh  # noqa: E402
-from neural_shdf.pipeline import compute_shdf, mesh_face_graph  # noqa: E402
+from neural_shdf.pipeline import compute_shdf  # noqa: E402
 
 
-def exact_shdf(mesh: TriangleMesh, *, graph) -> np.ndarray:  # noqa: ANN001
-    return compute_shdf(mesh, method="exact", graph=graph)
+def exact_shdf(mesh: TriangleMesh) -> np.ndarray:
+    return compute_shdf(mesh, method="exact").values
 
 
-def neural_shdf(mesh: TriangleMesh, *, graph, seed: int = 0) -> np.ndarray:  # noqa: ANN001
-    return compute_shdf(mesh, method="neural", graph=graph, seed=seed)
+def neural_shdf(mesh: TriangleMesh, *, seed: int = 0) -> np.ndarray:
+    return compute_shdf(mesh, method="neural", seed=seed).values
 
 
 def load(path: Path) -> TriangleMesh:
@@ -66,9 +66,9 @@ def compare(mesh: TriangleMesh) -> tuple[float, float, float, float]:
     from neural_shdf.shdf.neural.inference import neural_raw_shdf
     from neural_shdf.shdf.postprocess import postprocess_shdf
 
-    graph = mesh_face_graph(mesh)
-    exact = exact_shdf(mesh, graph=graph)
-    neural = neural_shdf(mesh, graph=graph)
+    graph = mesh.face_graph
+    exact = exact_shdf(mesh)
+    neural = neural_shdf(mesh)
     smoothed = postprocess_shdf(neural_raw_shdf(mesh.vertices, mesh.faces), graph)
     return (
         pearson(neural, exact),
@@ -111,8 +111,10 @@ def fidelity(quick: bool) -> None:
         mesh = load(path)
         scores = compare(mesh)
         rows.append((path.stem, mesh.face_count, *scores))
-        print(f"  psb {path.stem}: {mesh.face_count} faces, Pearson {scores[0]:.3f}, "
-              f"MAE {scores[1]:.3f}")
+        print(
+            f"  psb {path.stem}: {mesh.face_count} faces, Pearson {scores[0]:.3f}, "
+            f"MAE {scores[1]:.3f}"
+        )
     summary("psb-dev", rows)
 
 
@@ -145,20 +147,26 @@ def resolution() -> None:
     for model_id in (1, 181, 281):
         path = DATA / "psb-dev" / "off" / f"{model_id}.off"
         base = load(path)
-        reference = neural_shdf(base, graph=mesh_face_graph(base))
-        exact = exact_shdf(base, graph=mesh_face_graph(base))
-        print(f"  psb {model_id} x1: {base.face_count} faces, Pearson vs exact "
-              f"{pearson(reference, exact):.3f}")
+        reference = neural_shdf(base)
+        exact = exact_shdf(base)
+        print(
+            f"  psb {model_id} x1: {base.face_count} faces, Pearson vs exact "
+            f"{pearson(reference, exact):.3f}"
+        )
         for label, variant in resolution_variants(base).items():
-            values = neural_shdf(variant, graph=mesh_face_graph(variant))
+            values = neural_shdf(variant)
             mapped = values[nearest_face_map(variant, base)]
             mae = np.abs(mapped - reference).mean()
-            print(f"    {label}: {variant.face_count} faces, MAE vs x1 {mae:.4f}, "
-                  f"Pearson {pearson(mapped, reference):.3f}")
+            print(
+                f"    {label}: {variant.face_count} faces, MAE vs x1 {mae:.4f}, "
+                f"Pearson {pearson(mapped, reference):.3f}"
+            )
         for seed in (1, 2):
-            values = neural_shdf(base, graph=mesh_face_graph(base), seed=seed)
-            print(f"    x1 other sampling seed {seed}: MAE vs seed 0 "
-                  f"{np.abs(values - reference).mean():.4f}")
+            values = neural_shdf(base, seed=seed)
+            print(
+                f"    x1 other sampling seed {seed}: MAE vs seed 0 "
+                f"{np.abs(values - reference).mean():.4f}"
+            )
 
 
 def damaged_versions(mesh: TriangleMesh, rng: np.random.Generator):
@@ -188,17 +196,18 @@ def robustness() -> None:
     rng = np.random.default_rng(0)
     for model_id in (1, 21, 101, 161, 381):
         mesh = load(DATA / "psb-dev" / "off" / f"{model_id}.off")
-        clean_exact = exact_shdf(mesh, graph=mesh_face_graph(mesh))
-        clean_neural = neural_shdf(mesh, graph=mesh_face_graph(mesh))
+        clean_exact = exact_shdf(mesh)
+        clean_neural = neural_shdf(mesh)
         print(f"  psb {model_id}: clean neural MAE {np.abs(clean_neural - clean_exact).mean():.3f}")
         for label, damaged, origin in damaged_versions(mesh, rng):
-            graph = mesh_face_graph(damaged)
-            exact = exact_shdf(damaged, graph=graph)
-            neural = neural_shdf(damaged, graph=graph)
+            exact = exact_shdf(damaged)
+            neural = neural_shdf(damaged)
             reference = clean_exact[origin]
             e, nn = np.abs(exact - reference).mean(), np.abs(neural - reference).mean()
-            print(f"    {label}: exact(damaged) MAE {e:.3f}, neural(damaged) MAE {nn:.3f} "
-                  f"-> {'neural closer' if nn < e else 'exact closer'}")
+            print(
+                f"    {label}: exact(damaged) MAE {e:.3f}, neural(damaged) MAE {nn:.3f} "
+                f"-> {'neural closer' if nn < e else 'exact closer'}"
+            )
 
 
 CHILD = """
@@ -206,26 +215,25 @@ import json, resource, sys, time
 import numpy as np
 sys.path.insert(0, {repo!r})
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.pipeline import mesh_face_graph
 data = np.load({path!r})
 mesh = TriangleMesh(data["vertices"], data["faces"])
 start = time.perf_counter()
-graph = mesh_face_graph(mesh)
+graph = mesh.face_graph
 graph_s = time.perf_counter() - start
 if {method!r} == "neural":
     from neural_shdf.shdf.neural.inference import load_model
     from neural_shdf.pipeline import compute_shdf
-    run = lambda mesh, graph: compute_shdf(mesh, method="neural", graph=graph)
+    run = lambda mesh: compute_shdf(mesh, method="neural").values
     load_model()
 else:
     from neural_shdf.pipeline import compute_shdf
-    run = lambda mesh, graph: compute_shdf(mesh, method="exact", graph=graph)
+    run = lambda mesh: compute_shdf(mesh, method="exact").values
 import trimesh  # warm-up: compiled kernels loaded, model session made, before timing
 small = trimesh.creation.icosphere(3)
 small = TriangleMesh(small.vertices, small.faces)
-run(small, graph=mesh_face_graph(small))
+run(small)
 start = time.perf_counter()
-values = run(mesh, graph=graph)
+values = run(mesh)
 seconds = time.perf_counter() - start
 peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 print(json.dumps(dict(graph_s=graph_s, seconds=seconds, peak_mb=peak)))
@@ -234,29 +242,31 @@ np.save({out!r}, values)
 
 
 def run_child(mesh_file: Path, method: str, out: Path) -> dict:
-    code = CHILD.format(repo=str(REPO / "service"), path=str(mesh_file), method=method,
-                        out=str(out))
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                            check=True)
+    code = CHILD.format(
+        repo=str(REPO / "service"), path=str(mesh_file), method=method, out=str(out)
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    )
     return json.loads(result.stdout.strip().splitlines()[-1])
 
 
 def profile_neural(mesh: TriangleMesh) -> None:
-    from neural_shdf.shdf.neural.graph import build_sample_graph, samples_to_faces
+    from neural_shdf.shdf.neural.graph import build_sample_graph
     from neural_shdf.shdf.neural.inference import load_model
     from neural_shdf.shdf.postprocess import postprocess_shdf
+    from neural_shdf.shdf.sampling import samples_to_faces
 
     model = load_model()
     times = {}
     t = time.perf_counter()
-    graph_faces = mesh_face_graph(mesh)
+    graph_faces = mesh.face_graph
     times["face graph (shared with segmentation)"] = time.perf_counter() - t
     t = time.perf_counter()
     normals, areas = mesh.normals_and_areas
     times["face normals, areas (cached by the face graph)"] = time.perf_counter() - t
     t = time.perf_counter()
-    graph = build_sample_graph(mesh.vertices, mesh.faces, model.spec, normals=normals,
-                               areas=areas)
+    graph = build_sample_graph(mesh.vertices, mesh.faces, model.spec, normals=normals, areas=areas)
     times["sampling + density + edges + vertex kNN"] = time.perf_counter() - t
     t = time.perf_counter()
     log_d = model.predict_log_diameter(graph)
@@ -287,11 +297,13 @@ def speed(tmp: Path) -> None:
         neural = run_child(mesh_file, "neural", tmp / "neural.npy")
         exact = run_child(mesh_file, "exact", tmp / "exact.npy")
         a, b = np.load(tmp / "neural.npy"), np.load(tmp / "exact.npy")
-        print(f"  {label}: {mesh.face_count} faces; face graph {neural['graph_s']:.2f}s; "
-              f"neural {neural['seconds']:.2f}s (peak {neural['peak_mb']:.0f} MB), exact "
-              f"{exact['seconds']:.2f}s (peak {exact['peak_mb']:.0f} MB): "
-              f"x{exact['seconds'] / neural['seconds']:.1f}; Pearson {pearson(a, b):.3f}, "
-              f"MAE {np.abs(a - b).mean():.3f}")
+        print(
+            f"  {label}: {mesh.face_count} faces; face graph {neural['graph_s']:.2f}s; "
+            f"neural {neural['seconds']:.2f}s (peak {neural['peak_mb']:.0f} MB), exact "
+            f"{exact['seconds']:.2f}s (peak {exact['peak_mb']:.0f} MB): "
+            f"x{exact['seconds'] / neural['seconds']:.1f}; Pearson {pearson(a, b):.3f}, "
+            f"MAE {np.abs(a - b).mean():.3f}"
+        )
         print("  neural stages:")
         profile_neural(mesh)
 

@@ -2,7 +2,7 @@
 
 Each variant keeps the published faces' identity (a map back to the file's faces), so
 the humans' segmentations still score it. Per variant and model: the default
-``segment`` path (``compute_shdf`` with ``auto``, then ``segment_mesh_with_details``
+``segment`` path (``compute_shdf`` with ``auto``, then ``segment``
 with default ``SegmentParams``), scored with the benchmark's metrics (1-RI and CD,
 averaged over the humans) next to the published mesh's own segmentation scored on
 the same faces. Variants:
@@ -13,6 +13,7 @@ the same faces. Variants:
 * ``nobase``: the lowest 6% of the faces (by centroid height, y) removed;
 * ``shuffled``: faces and vertices in random order;
 * ``transform``: a random rotation, scale x1000 and a shift far from the origin;
+* ``rotated``: a random rotation only (about the bounding-box centre);
 * ``soup``: every triangle with its own three vertices (an STL), order shuffled.
 
 Default models: the held-out fourth of each category (ids 4, 24, ..., 384), never used
@@ -36,10 +37,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.evaluate.benchmark import list_models, load_benchmark_mesh
-from neural_shdf.evaluate.metrics import cut_distance_field, cut_graph, score_against_humans
+from neural_shdf.evaluate.scores import cut_distance_field, cut_graph, score_against_humans
 from neural_shdf.geometry import adjacency_lists, build_face_graph, weld_faces
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.pipeline import compute_shdf, mesh_face_graph, segment_mesh_with_details
+from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -107,13 +108,24 @@ def shuffled(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
     return Variant(v[vertex_order], new_index[f[face_order]], face_order)
 
 
-def transformed(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+def random_rotation(rng: np.random.Generator) -> NDArray:
+    """A uniformly random proper rotation (3, 3)."""
     q, r = np.linalg.qr(rng.normal(size=(3, 3)))
     rotation = q * np.sign(np.diag(r))
     if np.linalg.det(rotation) < 0:
         rotation[:, 0] *= -1
+    return rotation
+
+
+def transformed(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+    rotation = random_rotation(rng)
     shift = rng.uniform(-1, 1, size=3) * 1e4
     return Variant(1000.0 * v @ rotation.T + shift, f, np.arange(len(f)))
+
+
+def rotated(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+    centre = 0.5 * (v.min(axis=0) + v.max(axis=0))
+    return Variant((v - centre) @ random_rotation(rng).T + centre, f, np.arange(len(f)))
 
 
 def soup(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
@@ -128,15 +140,15 @@ VARIANTS: dict[str, Callable[[NDArray, NDArray, np.random.Generator], Variant]] 
     "nobase": no_base,
     "shuffled": shuffled,
     "transform": transformed,
+    "rotated": rotated,
     "soup": soup,
 }
 
 
 def default_segmentation(mesh: TriangleMesh) -> tuple[NDArray[np.int64], str]:
     """Labels per input face from the default path, and the mesh diagnostics if reported."""
-    graph = mesh_face_graph(mesh)
-    shdf = compute_shdf(mesh, graph=graph)
-    result = segment_mesh_with_details(mesh, shdf, SegmentParams(), graph=graph)
+    shdf = compute_shdf(mesh).values
+    result = segment(mesh, shdf, SegmentParams())
     diagnostics = getattr(result, "diagnostics", None)
     note = diagnostics.summary() if diagnostics is not None else ""
     return mesh.labels_to_input_faces(result.labels), note

@@ -27,12 +27,17 @@ from functools import partial
 import numpy as np
 from timing import best_time
 
-from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.segment.from_shdf import prepare_segment, segment
 from neural_shdf.segment.params import DEFAULT_CREASE_BOUNDARIES, SegmentParams
-from neural_shdf.segment.pipeline import prepare_segment, segment_with_details
 from neural_shdf.segment.synthetic import dumbbell
 
 TARGET_SECONDS = {100_000: 0.3, 1_000_000: 3.0}
+
+
+def fresh_segment(mesh: TriangleMesh, shdf: np.ndarray, params: SegmentParams):
+    """``segment`` on a mesh with its face graph but without its crease graph or basis."""
+    return segment(mesh.portable(), shdf, params)
 
 
 def main() -> None:
@@ -53,14 +58,14 @@ def main() -> None:
     )
     for size in sizes:
         mesh, shdf = dumbbell(size, ripple=0.05)
-        vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
         start = time.perf_counter()
-        normals, _ = face_normals(vertices, faces)
-        graph = build_face_graph(vertices, weld_faces(vertices, faces), normals)
+        mesh = TriangleMesh(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+        _ = mesh.face_graph
         graph_seconds = time.perf_counter() - start
-        basis = prepare_segment(vertices, faces, shdf, SegmentParams(), graph)
+        faces = mesh.faces
+        basis = prepare_segment(mesh, shdf, SegmentParams())
         if args.crease:
-            basis.creases(graph)  # kept per mesh, as the service keeps it
+            _ = mesh.crease_graph  # kept per mesh, as the service keeps it
         cases = [
             ("graphcut", SegmentParams(crease_boundaries=args.crease), None),
             ("metis", SegmentParams(partitioner="metis", crease_boundaries=args.crease), None),
@@ -74,7 +79,12 @@ def main() -> None:
         ]
         fresh_cpu = None
         for partitioner, params, kept in cases:
-            run = partial(segment_with_details, vertices, faces, shdf, params, graph, basis=kept)
+            # Without a kept basis: a mesh with its face graph but not its crease graph.
+            run = (
+                partial(segment, mesh, shdf, params, basis=kept)
+                if kept is not None
+                else partial(fresh_segment, mesh, shdf, params)
+            )
             best, best_cpu, result = best_time(run, args.repeat)
             fresh_cpu = best_cpu if partitioner == "graphcut" else fresh_cpu
             if kept is not None:

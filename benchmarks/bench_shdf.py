@@ -27,9 +27,8 @@ import trimesh
 from neural_shdf import constants
 from neural_shdf.geometry import face_centroids, face_normals
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.pipeline import mesh_face_graph
 from neural_shdf.shdf.embree import Scene
-from neural_shdf.shdf.exact import ORIGIN_OFFSET, cone_directions, raw_shdf
+from neural_shdf.shdf.exact import ORIGIN_OFFSET, cone_directions, face_tangents, raw_shdf
 from neural_shdf.shdf.postprocess import postprocess_shdf
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
@@ -90,6 +89,7 @@ def embree_only(mesh: TriangleMesh) -> tuple[float, float]:
     )
     directions = cone_directions(
         -normals,
+        face_tangents(mesh.vertices, mesh.faces),
         cone_angle=constants.SHDF_CONE_ANGLE,
         ray_count=constants.SHDF_RAY_COUNT,
         dtype=np.float32,
@@ -158,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     total_rays = total_seconds = 0.0
     for name, mesh, cgal_known in meshes:
         rays = mesh.face_count * constants.SHDF_RAY_COUNT
-        graph = mesh_face_graph(mesh)
+        graph = mesh.face_graph
         runs = [embree_only(mesh) for _ in range(args.repeat)]
         single_s, packet_s = min(r[0] for r in runs), min(r[1] for r in runs)
         raw, raw_s, raw_cpu = best_of(

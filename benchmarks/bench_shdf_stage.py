@@ -38,7 +38,7 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
 from neural_shdf.mesh import TriangleMesh  # noqa: E402
-from neural_shdf.pipeline import compute_shdf_result, mesh_face_graph  # noqa: E402
+from neural_shdf.pipeline import compute_shdf  # noqa: E402
 from neural_shdf.shdf.neural.inference import MODEL_DIR  # noqa: E402
 from neural_shdf.shdf.stage import ShdfParams  # noqa: E402
 
@@ -57,9 +57,7 @@ class Producer:
 
     def run(self, mesh: TriangleMesh, graph) -> tuple[np.ndarray, str, float]:  # noqa: ANN001
         start = time.perf_counter()
-        result = compute_shdf_result(
-            mesh, method=self.method, graph=graph, params=self.params, model=self.model
-        )
+        result = compute_shdf(mesh, method=self.method, params=self.params, model=self.model)
         return result.values, result.method, time.perf_counter() - start
 
 
@@ -100,9 +98,9 @@ def measure(
         except Exception as error:  # noqa: BLE001 - report and continue
             print(f"  skipped {name}: {error}")
             continue
-        graph = mesh_face_graph(mesh)
+        graph = mesh.face_graph
         start = time.perf_counter()
-        exact = compute_shdf_result(mesh, method="exact", graph=graph).values
+        exact = compute_shdf(mesh, method="exact").values
         exact_seconds = time.perf_counter() - start
         results["exact"].append((name, source, mesh.face_count, 1.0, 0.0, exact_seconds, "exact"))
         if source == "psb-dev":
@@ -203,11 +201,11 @@ import json, resource, sys, time
 import numpy as np
 sys.path.insert(0, {repo!r})
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.pipeline import compute_shdf_result, mesh_face_graph, warm_up
+from neural_shdf.pipeline import compute_shdf, warm_up
 warm_up()  # compiled kernels loaded and the model session made before timing
 data = np.load({path!r})
 mesh = TriangleMesh(data["vertices"], data["faces"])
-graph = mesh_face_graph(mesh)
+graph = mesh.face_graph
 out = {{}}
 if {method!r} == "exact":
     from neural_shdf.geometry import face_centroids
@@ -230,7 +228,7 @@ else:
     runs = []
     for _ in range({repeats}):  # the median run: one run is at the mercy of the machine
         start, cpu = time.perf_counter(), time.process_time()
-        result = compute_shdf_result(mesh, method={method!r}, graph=graph)
+        result = compute_shdf(mesh, method={method!r})
         runs.append((time.perf_counter() - start, time.process_time() - cpu))
     out["seconds"], out["cpu_s"] = (float(x) for x in np.median(np.array(runs), axis=0))
     out["runs"] = runs
@@ -264,9 +262,10 @@ def sample_graph_profile() -> None:
     """Stages of the sample graph at 1,024 to 8,192 samples on a PSB mesh; the cone edges
     also by the O(N^2) dense scan they replaced (same edges, checked)."""
     from neural_shdf.mesh_io import load_mesh
+    from neural_shdf.shdf import sampling
     from neural_shdf.shdf.neural import graph as sample_graph
-    from neural_shdf.shdf.neural.search import cone_neighbours
-    from tests.shdf.neural.test_search import dense_cone_edges
+    from neural_shdf.shdf.search import cone_neighbours
+    from tests.shdf.test_search import dense_cone_edges
 
     mesh = load_mesh(DATA / "psb-dev" / "off" / "281.off")
     normals, areas = mesh.normals_and_areas
@@ -275,8 +274,8 @@ def sample_graph_profile() -> None:
         spec = sample_graph.GraphSpec(target_samples=samples, cone_neighbours=4, knn=8)
         times = {}
         start = time.perf_counter()
-        points = sample_graph.sample_surface_points(
-            mesh.vertices, mesh.faces, spec, normals=normals, areas=areas, density=True
+        points = sampling.sample_surface_points(
+            mesh.vertices, mesh.faces, samples, normals=normals, areas=areas, density=True
         )
         times["samples+vertex map+density"] = time.perf_counter() - start
         arguments = (points.positions, points.normals, spec.cone_neighbours, spec.cone_cos)
@@ -304,19 +303,17 @@ def sampled_stage_profile(path: Path) -> None:
     (wall / CPU seconds; the stage itself overlaps the scene build with the sampling
     and the vertex search with the rays)."""
     from neural_shdf.pipeline import warm_up
-    from neural_shdf.shdf import stage
+    from neural_shdf.shdf import sampling, stage
     from neural_shdf.shdf.embree import Scene
     from neural_shdf.shdf.exact import raw_shdf_at_points
-    from neural_shdf.shdf.neural import graph as sample_graph
     from neural_shdf.shdf.postprocess import postprocess_shdf
 
     warm_up(("sampled",))
     data = np.load(path)
     mesh = TriangleMesh(data["vertices"], data["faces"])
-    graph = mesh_face_graph(mesh)
+    graph = mesh.face_graph
     params = ShdfParams()
     normals, areas = mesh.normals_and_areas
-    spec = sample_graph.GraphSpec(target_samples=params.samples)
     times: dict[str, list[tuple[float, float]]] = {}
 
     def timed(name: str, function, *args, **kwargs):  # noqa: ANN001, ANN202
@@ -329,7 +326,7 @@ def sampled_stage_profile(path: Path) -> None:
         scene = timed("Embree scene (low quality)", Scene, mesh.vertices, mesh.faces, "low")
         sums = timed(
             "vertex normals",
-            sample_graph.vertex_normal_sums,
+            sampling.vertex_normal_sums,
             len(mesh.vertices),
             mesh.faces,
             normals,
@@ -337,10 +334,10 @@ def sampled_stage_profile(path: Path) -> None:
         )
         samples = timed(
             "Poisson samples",
-            sample_graph.sample_surface_points,
+            sampling.sample_surface_points,
             mesh.vertices,
             mesh.faces,
-            spec,
+            params.samples,
             normals=normals,
             areas=areas,
             map_vertices=False,
@@ -358,27 +355,25 @@ def sampled_stage_profile(path: Path) -> None:
         )
         mapped = timed(
             "nearest samples of each vertex",
-            sample_graph.with_vertex_map,
+            sampling.with_vertex_map,
             samples,
             mesh.vertices,
             sums,
-            spec,
+            sampling.DEFAULT_INTERPOLATION_NEIGHBOURS,
             1,
         )
-        radius, sigma = timed("ring length", stage.sample_smoothing, mesh, graph, params)
-        filled = timed("fill samples", stage.fill_samples, diameters, samples.positions)
+        radius, sigma = timed("ring length", stage.sample_filter_window, mesh, graph, params)
+        filled = timed("fill samples", sampling.fill_samples, diameters, samples.positions)
         smoothed = timed(
             "sample-space smoothing",
-            stage.smooth_samples,
+            sampling.smooth_samples,
             filled,
             samples.positions,
             samples.normals,
             radius=radius,
             spatial_sigma=sigma,
         )
-        values = timed(
-            "samples_to_faces", sample_graph.samples_to_faces, smoothed, mapped, mesh.faces
-        )
+        values = timed("samples_to_faces", sampling.samples_to_faces, smoothed, mapped, mesh.faces)
         timed("post-processing", postprocess_shdf, values, graph, smooth=False)
     print("  sampled stages at ~1M faces, one thread each, median of 3 (wall / CPU s):")
     for name, runs in times.items():
@@ -459,11 +454,11 @@ def resolution(args: argparse.Namespace) -> None:
     met, total = 0, 0
     for model_id in (1, 181, 281):
         base = load_mesh(DATA / "psb-dev" / "off" / f"{model_id}.off")
-        reference = compute_shdf_result(base).values
+        reference = compute_shdf(base).values
         robust_reference = percentile_normalised(reference, base.normals_and_areas[1], share)
         print(f"  psb {model_id} ({base.face_count} faces):")
         for label, variant in resolution_variants(base).items():
-            result = compute_shdf_result(variant)
+            result = compute_shdf(variant)
             mapped = result.values[nearest_face_map(variant, base)]
             mae = float(np.abs(mapped - reference).mean())
             robust = percentile_normalised(result.values, variant.normals_and_areas[1], share)
@@ -479,7 +474,7 @@ def resolution(args: argparse.Namespace) -> None:
     maes = []
     for _, _, make in psb_meshes(quick=True):
         mesh = make()
-        exact = compute_shdf_result(mesh, method="exact").values
+        exact = compute_shdf(mesh, method="exact").values
         robust = percentile_normalised(exact, mesh.normals_and_areas[1], share)
         maes.append(np.abs(robust - exact).mean())
     print(
@@ -511,11 +506,11 @@ def threshold(args: argparse.Namespace) -> None:
     for path in sorted((DATA / "dense-dev").glob("*.ply")):
         meshes.append((path.stem.split("__")[-1], load_mesh(path)))
     for name, mesh in sorted(meshes, key=lambda item: item[1].face_count):
-        graph = mesh_face_graph(mesh)
+        _ = mesh.face_graph  # counted apart
         timings = {}
         for method in ("exact", "sampled"):
             start, cpu = time.perf_counter(), time.process_time()
-            values = compute_shdf_result(mesh, method=method, graph=graph).values
+            values = compute_shdf(mesh, method=method).values
             timings[method] = (time.perf_counter() - start, time.process_time() - cpu, values)
         (exact_s, exact_cpu, exact), (sampled_s, sampled_cpu, sampled) = timings.values()
         r, mae = pearson(sampled, exact), float(np.abs(sampled - exact).mean())
@@ -538,11 +533,11 @@ def robustness(args: argparse.Namespace) -> None:
     rows = [p for p in producers() if p.label in ("auto", "sampled 4096")]
     for model_id in (1, 21, 101, 161, 381):
         mesh = load_mesh(DATA / "psb-dev" / "off" / f"{model_id}.off")
-        clean = compute_shdf_result(mesh, method="exact").values
+        clean = compute_shdf(mesh, method="exact").values
         for label, damaged, origin in damaged_versions(mesh, rng):
-            graph = mesh_face_graph(damaged)
+            graph = damaged.face_graph
             reference = clean[origin]
-            exact = compute_shdf_result(damaged, method="exact", graph=graph).values
+            exact = compute_shdf(damaged, method="exact").values
             cells = [f"exact {np.abs(exact - reference).mean():.3f}"]
             for row in rows:
                 values, ran, _ = row.run(damaged, graph)

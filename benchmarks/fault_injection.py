@@ -51,8 +51,10 @@ import trimesh
 REPO_ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO_ROOT / "service"))
 
-from neural_shdf.api.cache import CorruptEntryError, DiskBackend, ResultCache, unseal  # noqa: E402
-from neural_shdf.api.jobs import job_key  # noqa: E402
+from neural_shdf.store.backends import DiskBackend  # noqa: E402
+from neural_shdf.store.cache import ResultCache  # noqa: E402
+from neural_shdf.store.codec import CorruptEntryError, unseal  # noqa: E402
+from neural_shdf.store.keys import job_key  # noqa: E402
 
 FINAL = ("succeeded", "failed")
 

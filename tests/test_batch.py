@@ -298,3 +298,54 @@ def test_a_worker_killed_mid_run_has_its_assets_retried_elsewhere(
     assert held, "the killed worker held no asset"
     assert [r["status"] for r in rows].count("ok") == 8
     assert _outputs(tmp_path) == local_outputs
+
+
+# A batch sharing a disk cache, run where the service (FastAPI, pydantic, neural_shdf.api)
+# cannot be imported: the batch reaches the cache through neural_shdf.store alone.
+_BATCH_WITHOUT_THE_SERVICE = """
+import importlib.abc, json, sys
+
+
+class Refuse(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name.partition(".")[0] in ("fastapi", "pydantic", "pydantic_settings", "starlette") \\
+                or name.startswith("neural_shdf.api"):
+            raise ImportError(f"{name} is not installed here")
+        return None
+
+
+sys.meta_path.insert(0, Refuse())
+from neural_shdf.batch import run_batch
+
+inputs, out, cache, method = sys.argv[1:]
+rows = [run_batch([inputs], f"{out}/{run}", method=method, cache=cache, workers=0)
+        for run in ("first", "again")]
+print(json.dumps([[row["shdf_cached"] for row in run] for run in rows]))
+"""
+
+
+def test_a_cached_batch_needs_no_part_of_the_service(tmp_path: Path):
+    _library(tmp_path / "in", 2)
+    run = subprocess.run(
+        [sys.executable, "-c", _BATCH_WITHOUT_THE_SERVICE, str(tmp_path / "in"),
+         str(tmp_path / "out"), str(tmp_path / "cache"), TEST_METHOD],
+        capture_output=True, text=True, timeout=600,
+        env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+    )  # fmt: skip
+    assert run.returncode == 0, run.stderr
+    assert json.loads(run.stdout) == [[False, False], [True, True]]
+    assert _outputs(tmp_path / "out" / "again") == _outputs(tmp_path / "out" / "first")
+
+
+def test_the_docs_example_runs_as_written(tmp_path: Path, monkeypatch):
+    """docs/batch.md's example on a folder of three meshes: the manifest rows it returns."""
+    from tests.doc_examples import python_blocks
+
+    (block,) = python_blocks("docs/batch.md", "From Python")
+    _library(tmp_path / "assets", 3)
+    monkeypatch.chdir(tmp_path)
+    namespace: dict[str, Any] = {}
+    exec(block, namespace)  # noqa: S102
+    assert [row["status"] for row in namespace["rows"]] == ["ok"] * 3
+    assert len(list((tmp_path / "out").rglob("*.seg"))) == 3
+    assert len(list((tmp_path / "out").rglob("*.glb"))) == 3

@@ -5,6 +5,8 @@ import colorsys
 import io
 import json
 import struct
+import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -231,3 +233,63 @@ def test_display_geometry_layout_round_trips_the_triangles_and_face_map():
     np.testing.assert_array_equal(positions, vertices.astype(np.float32))
     np.testing.assert_array_equal(triangles, [[0, 1, 2], [0, 2, 3], [0, 1, 4]])
     np.testing.assert_array_equal(origin, [0, 0, 2])  # the 2-vertex face has no triangle
+
+
+NODE_TOOLS = Path(__file__).resolve().parent / "node"
+
+
+def _khronos_issues(tmp_path, documents: dict[str, bytes]) -> dict[str, dict]:
+    """The Khronos glTF validator's issues of each document (``bash scripts/test`` installs
+    it under tests/node)."""
+    assert (NODE_TOOLS / "node_modules" / "gltf-validator").is_dir(), (
+        "the glTF validator is not installed: run `bash scripts/test` (npm ci in tests/node)"
+    )
+    paths = []
+    for name, data in documents.items():
+        paths.append(tmp_path / name)
+        paths[-1].write_bytes(data)
+    run = subprocess.run(
+        ["node", str(NODE_TOOLS / "validate_gltf.js"), *map(str, paths)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=True,
+    )
+    return {Path(report["file"]).name: report["issues"] for report in json.loads(run.stdout)}
+
+
+def test_every_glb_we_write_passes_the_khronos_validator(tmp_path, sphere_mesh):
+    from neural_shdf.export import unwrapped_glb
+    from neural_shdf.unwrap import atlas_layout_png, unwrap
+
+    labels = _labels_by_height(sphere_mesh, 4)
+    atlas = unwrap(sphere_mesh, labels)
+    documents = {
+        "segmented.glb": colored_glb(sphere_mesh, labels),
+        "parts.glb": parts_glb(sphere_mesh, labels),
+        "parts-with-unlabeled.glb": parts_glb(sphere_mesh, np.where(labels == 2, -1, labels)),
+        "unwrapped.glb": unwrapped_glb(
+            sphere_mesh, atlas, texture_png=atlas_layout_png(atlas, size=64)
+        ),
+    }
+    issues = _khronos_issues(tmp_path, documents)
+    assert set(issues) == set(documents)
+    for name, found in issues.items():
+        errors = [m for m in found["messages"] if m["severity"] == 0]
+        warnings = [m for m in found["messages"] if m["severity"] == 1]
+        assert found["numErrors"] == 0 and not errors, (name, errors)
+        assert found["numWarnings"] == 0, (name, warnings)
+
+
+def test_glbs_we_write_read_back_with_every_face_in_place(sphere_mesh):
+    """Our own reader takes our GLBs back: segmented.glb in the mesh's order, parts.glb
+    part by part in label order, each part in the mesh's order."""
+    labels = _labels_by_height(sphere_mesh, 3)
+    expected = sphere_mesh.vertices[sphere_mesh.faces]
+    in_part_order = expected[np.argsort(labels, kind="stable")]
+    for data, triangles in (
+        (colored_glb(sphere_mesh, labels), expected),
+        (parts_glb(sphere_mesh, labels), in_part_order),
+    ):
+        loaded = load_mesh(data, "glb")
+        np.testing.assert_allclose(loaded.vertices[loaded.faces], triangles, atol=1e-6)

@@ -11,6 +11,8 @@ from neural_shdf.geometry import (
     EDGE_CLIQUE,
     build_face_graph,
     face_normals,
+    grid_cells,
+    principal_coordinates,
     weld_faces,
     zero_area_limit,
 )
@@ -278,3 +280,40 @@ def test_an_edge_shared_by_thousands_of_faces_keeps_the_graph_linear_and_connect
     pairs, edges, _ = _reference_graph(small_vertices, small_faces, normals)
     np.testing.assert_array_equal(small.pairs, pairs)
     np.testing.assert_array_equal(small.edge_vertices, edges)
+
+
+def test_principal_coordinates_are_the_same_in_any_pose_up_to_axis_signs():
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(4)
+    points = rng.normal(size=(500, 3)) * (3.0, 1.5, 0.5)
+    weights = rng.uniform(0.5, 2.0, 500)
+    local = principal_coordinates(points, weights)
+    spread = (weights[:, None] * local**2).sum(axis=0)
+    assert spread[0] > spread[1] > spread[2]
+    np.testing.assert_allclose(weights @ local, 0.0, atol=1e-12)
+    rotation = Rotation.random(random_state=2).as_matrix()
+    moved = principal_coordinates(40.0 * points @ rotation.T + (1e3, -7.0, 3.0), weights)
+    signs = np.sign(np.sum(moved * local, axis=0))
+    np.testing.assert_allclose(moved * signs, 40.0 * local, atol=1e-8)
+    # No weight: every point counts alike.
+    unweighted = principal_coordinates(points, np.zeros(500))
+    np.testing.assert_allclose(unweighted.mean(axis=0), 0.0, atol=1e-12)
+
+
+def test_grid_cells_partition_the_points_alike_whatever_the_axis_signs():
+    rng = np.random.default_rng(5)
+    coordinates = rng.uniform(-3.0, 3.0, (2000, 3))
+
+    def groups(keys: np.ndarray) -> np.ndarray:
+        """Each point's group, numbered by first appearance."""
+        _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+        return np.argsort(np.argsort(first))[inverse]
+
+    keys = grid_cells(coordinates, 0.7)
+    cells = np.floor(coordinates / 0.7 + 0.5)
+    assert len(np.unique(keys)) == len(np.unique(cells, axis=0))
+    for signs in ((-1, 1, 1), (1, -1, -1), (-1, -1, -1)):
+        np.testing.assert_array_equal(groups(grid_cells(coordinates * signs, 0.7)), groups(keys))
+    # Walls half a cell from the origin: the origin's cell is centred on it.
+    assert len(set(grid_cells(np.array([[0.3, -0.3, 0.0], [0, 0, 0], [0.6, 0, 0]]), 1.0))) == 2

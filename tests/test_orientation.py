@@ -11,7 +11,7 @@ from neural_shdf.geometry import build_face_graph, face_centroids, weld_faces
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import load_mesh
 from neural_shdf.orientation import hole_caps, orient_faces
-from neural_shdf.pipeline import compute_shdf_result, mesh_face_graph, segment_mesh_with_details
+from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.shdf.stage import ShdfParams, raw_diameters
 
 
@@ -170,12 +170,12 @@ def test_the_oriented_mesh_keeps_the_input_and_is_its_own_orientation():
 @pytest.mark.parametrize("method", ["exact", "sampled", "neural"])
 def test_the_shdf_of_a_reversed_or_mixed_mesh_is_the_published_one(method: str):
     published = _dumbbell()
-    reference = compute_shdf_result(published, method=method)
+    reference = compute_shdf(published, method=method)
     assert reference.diagnostics is not None and reference.diagnostics.reoriented_faces == 0
     mixed = np.random.default_rng(3).random(published.face_count) < 0.3
     for which in (np.ones(published.face_count, dtype=bool), mixed):
         variant = TriangleMesh(published.vertices, _reverse(published.faces, which))
-        result = compute_shdf_result(variant, method=method)
+        result = compute_shdf(variant, method=method)
         np.testing.assert_allclose(result.values, reference.values, atol=1e-6)
         assert result.diagnostics.reoriented_faces == which.sum()
 
@@ -183,17 +183,11 @@ def test_the_shdf_of_a_reversed_or_mixed_mesh_is_the_published_one(method: str):
 def test_the_face_graph_sees_the_oriented_creases():
     published = _dumbbell()
     reversed_ = TriangleMesh(published.vertices, published.faces[:, ::-1])
-    np.testing.assert_array_equal(
-        mesh_face_graph(reversed_).concave, mesh_face_graph(published).concave
-    )
+    np.testing.assert_array_equal(reversed_.face_graph.concave, published.face_graph.concave)
 
 
 def _labels(mesh: TriangleMesh):
-    graph = mesh_face_graph(mesh)
-    result = segment_mesh_with_details(
-        mesh, compute_shdf_result(mesh, graph=graph).values, graph=graph
-    )
-    return result
+    return segment(mesh, compute_shdf(mesh).values)
 
 
 def test_labels_of_a_reversed_mesh_are_the_published_ones():
@@ -215,7 +209,7 @@ def test_the_face_graph_from_the_shared_edges_is_the_one_built_afresh():
     mixed = np.random.default_rng(4).random(published.face_count) < 0.3
     variant = TriangleMesh(published.vertices, _reverse(published.faces, mixed))
     oriented = variant.oriented
-    shared = mesh_face_graph(variant)
+    shared = variant.face_graph
     afresh = build_face_graph(
         oriented.vertices,
         weld_faces(oriented.vertices, oriented.faces),
@@ -241,7 +235,7 @@ def test_rays_through_a_hole_stop_where_the_surface_was():
     """A ball of the dumbbell with a hole: the faces across the ball from the hole keep
     the diameters of the closed mesh."""
     published = _dumbbell()
-    graph = mesh_face_graph(published)
+    graph = published.face_graph
     params = ShdfParams()
     closed = raw_diameters(published, graph, "exact", params)
     centres = face_centroids(published.vertices, published.faces)
@@ -250,10 +244,10 @@ def test_rays_through_a_hole_stop_where_the_surface_was():
     holed = TriangleMesh(published.vertices, published.faces[kept])
     assert holed.orientation.diagnostics.boundary_loops == 1
     across = np.linalg.norm(centres[kept] - [-2.5, 0.0, -1.0], axis=1) < 0.4
-    capped = raw_diameters(holed, mesh_face_graph(holed), "exact", params, close_holes=True)
+    capped = raw_diameters(holed, holed.face_graph, "exact", params, close_holes=True)
     np.testing.assert_allclose(capped[across], closed[kept][across], rtol=0.05)
     # Without the caps, rays leave through the hole: those faces read other diameters.
-    open_ = raw_diameters(holed, mesh_face_graph(holed), "exact", params)
+    open_ = raw_diameters(holed, holed.face_graph, "exact", params)
     assert np.nanmax(np.abs(open_[across] / closed[kept][across] - 1)) > 0.05
 
 
@@ -284,7 +278,7 @@ def test_a_double_sided_shell_is_read_as_its_single_sided_self():
     orientation = double.orientation
     assert orientation.diagnostics.duplicate_faces == len(sphere.faces)
     np.testing.assert_array_equal(orientation.flips, np.r_[np.zeros(320), np.ones(320)] > 0)
-    expected = compute_shdf_result(single, method="exact").values
-    values = compute_shdf_result(double, method="exact").values
+    expected = compute_shdf(single, method="exact").values
+    values = compute_shdf(double, method="exact").values
     np.testing.assert_allclose(values[:320], expected, atol=1e-9)
     np.testing.assert_allclose(values[320:], expected, atol=1e-9)

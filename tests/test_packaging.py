@@ -61,3 +61,31 @@ def test_the_viewer_files_are_package_data_and_node_modules_is_not():
     for name in viewer:
         assert any(fnmatch(name, pattern) for pattern in patterns), f"{name} is not package data"
     assert not any(fnmatch("viewer/node_modules/three/build/three.module.js", p) for p in patterns)
+
+
+def test_test_command_and_pre_commit_run_the_linters_with_local_tools():
+    import yaml
+
+    script = (REPO_ROOT / "scripts" / "test").read_text()
+    linters = [script.index(f'"$venv/bin/{tool}"') for tool in ("ruff", "mypy")]
+    assert '"$venv/bin/ruff" format --check .' in script
+    assert max(linters) < script.index("-m pytest"), "the linters run before the tests"
+    hooks = yaml.safe_load((REPO_ROOT / ".pre-commit-config.yaml").read_text())["repos"]
+    assert [repo["repo"] for repo in hooks] == ["local"], "no hook is downloaded"
+    entries = [hook["entry"].split()[0] for repo in hooks for hook in repo["hooks"]]
+    assert entries == [".venv/bin/ruff", ".venv/bin/ruff", ".venv/bin/mypy"]
+
+
+def test_mypy_strict_core_is_not_in_the_baseline():
+    mypy = tomllib.loads((REPO_ROOT / "pyproject.toml").read_text())["tool"]["mypy"]
+    strict = {
+        module
+        for override in mypy["overrides"]
+        if override.get("disallow_untyped_defs")
+        for module in override["module"]
+    }
+    assert {"neural_shdf.geometry", "neural_shdf.orientation", "neural_shdf.errors"} <= strict
+    baselined = {
+        override["module"] for override in mypy["overrides"] if "disable_error_code" in override
+    }
+    assert not strict & baselined

@@ -46,28 +46,26 @@ def test_a_tetrahedron_repeated_in_place_segments_like_one(params):
     vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
     tetrahedron = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
     stack = TriangleMesh(vertices, np.tile(tetrahedron, (6000, 1)))
-    graph = pipeline.mesh_face_graph(stack)
-    assert len(graph.pairs) <= 3 * stack.face_count
-    shdf = pipeline.compute_shdf(stack, method="neural", graph=graph)
+    assert len(stack.face_graph.pairs) <= 3 * stack.face_count
+    shdf = pipeline.compute_shdf(stack, method="neural").values
     assert shdf.shape == (stack.face_count,) and np.isfinite(shdf).all()
-    labels = pipeline.segment_mesh(stack, shdf, params, graph=graph)
+    labels = pipeline.segment(stack, shdf, params).labels
     assert labels.shape == (stack.face_count,) and labels.min() >= 0
     if params.partitioner == "metis":
         assert len(np.unique(labels)) == 4
-    again = pipeline.segment_mesh(stack, shdf, params, graph=graph)
+    again = pipeline.segment(stack, shdf, params).labels
     np.testing.assert_array_equal(labels, again)
 
 
-def test_readme_library_examples_run_as_written(tmp_path, monkeypatch, capsys):
-    """The README's library examples, in order, on a capsule saved as model.obj."""
-    import re
-    from pathlib import Path
-
+def test_library_examples_run_as_written(tmp_path, monkeypatch, capsys):
+    """The README's library example, then docs/library.md's, on a capsule saved as model.obj."""
     import trimesh
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    section = readme.split("## Library", 1)[1].split("\n## ", 1)[0]
-    blocks = re.findall(r"```python\n(.*?)```", section, re.S)
+    from tests.doc_examples import python_blocks
+
+    blocks = python_blocks("README.md", "Library") + python_blocks(
+        "docs/library.md", "Several segmentations of one mesh"
+    )
     assert len(blocks) == 2
     capsule = trimesh.creation.capsule(height=2.0, radius=0.4, count=[16, 16])
     (tmp_path / "model.obj").write_text(capsule.export(file_type="obj"))

@@ -35,11 +35,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from neural_shdf import __version__
 from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
 from neural_shdf.errors import ModelUnavailableError, NeuralShdfError, ParameterError
+from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import SUPPORTED_FORMATS
+from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
+from neural_shdf.segment.params import check_seed
+from neural_shdf.shdf.neural.inference import model_path
+from neural_shdf.shdf.stage import resolve_method, uses_model
+from neural_shdf.store.cache import CacheConfig, ResultCache, open_cache
+from neural_shdf.store.codec import shdf_arrays, shdf_from_arrays
+from neural_shdf.store.keys import model_version, shdf_key, shdf_version
 
 #: Outputs a batch can write per asset, and their file suffixes.
 OUTPUT_SUFFIXES = {
@@ -117,10 +128,6 @@ class BatchConfig:
 
     def key(self) -> str:
         """Hash of everything the outputs depend on besides the input file."""
-        from neural_shdf.api.shdf_service import model_version, shdf_version
-        from neural_shdf.shdf.neural.inference import model_path
-        from neural_shdf.shdf.stage import uses_model
-
         version = model_version(model_path()) if uses_model(self.method) else None
         spec = {
             "version": __version__,
@@ -240,30 +247,53 @@ def _write_bytes_atomic(path: Path, data: bytes) -> None:
     _write_atomic(path, lambda temporary: temporary.write_bytes(data))
 
 
-_ENGINES: dict[str, Any] = {}
+_CACHES: dict[str, tuple[ResultCache, CacheConfig]] = {}
 
 
-def _shdf_engine(cache: str) -> Any:
-    """The service's Engine over the shared cache, one per worker process and cache."""
-    engine = _ENGINES.get(cache)
-    if engine is None:
-        from neural_shdf.api.app import build_cache
-        from neural_shdf.api.engine import Engine
-        from neural_shdf.api.metrics import Metrics
-        from neural_shdf.api.settings import Settings
-
+def _shared_cache(cache: str) -> tuple[ResultCache, CacheConfig]:
+    """The cache shared with the service (``cache``: a Redis URL or a disk-cache folder;
+    the other store settings from the service's environment variables), one per worker
+    process and cache."""
+    opened = _CACHES.get(cache)
+    if opened is None:
         where = {"redis_url": cache} if "://" in cache else {"cache_dir": Path(cache)}
-        settings = Settings(
-            **where,
-            memory_cache_items=0,
-            memory_working_set_bytes=0,
-            compute_threads=1,
-            io_threads=1,
-            warm_up=False,
+        # No in-process memory: a worker sees each mesh once.
+        config = CacheConfig.from_environment(
+            **where, memory_cache_items=0, memory_working_set_bytes=0
         )
-        metrics = Metrics()
-        engine = _ENGINES[cache] = Engine(settings, build_cache(settings, metrics), metrics)
-    return engine
+        opened = _CACHES[cache] = (open_cache(config), config)
+    return opened
+
+
+def shared_shdf(
+    cache: str, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
+) -> tuple[NDArray[np.float64], str, bool]:
+    """(ShDF, the producer that ran, whether it was cached): read from the cache shared
+    with the service under the service's key (``store.keys.shdf_key``), else computed
+    once across workers and replicas and stored there for them."""
+    store, config = _shared_cache(cache)
+    seed = check_seed(seed)
+    method = resolve_method(method, mesh.face_count)
+    version = model_version(model_path()) if uses_model(method) else None
+    key = shdf_key(mesh_id, method, seed, version)
+
+    def lookup() -> NDArray[np.float64] | None:
+        return store.recall_arrays(key, shdf_from_arrays)
+
+    def compute() -> NDArray[np.float64]:
+        values = compute_shdf(mesh, method=method, seed=seed).values  # type: ignore[arg-type]
+        return np.ascontiguousarray(values, dtype=np.float64)
+
+    def keep(values: NDArray[np.float64], _: None) -> None:
+        store.put_arrays(key, shdf_arrays(values), group=mesh_id)
+
+    found = lookup()
+    if found is not None:
+        return found, method, True
+    outcome: tuple[NDArray[np.float64], bool] = store.compute_once(
+        key, lookup, compute, keep, wait_s=config.lock_timeout_s
+    )
+    return outcome[0], method, outcome[1]
 
 
 def _row(asset: Asset, **values: Any) -> dict[str, Any]:
@@ -321,13 +351,6 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
     from neural_shdf.errors import InvalidGeometryError
     from neural_shdf.export import colored_glb, parts_glb, write_labels, write_values
     from neural_shdf.mesh_io import load_mesh
-    from neural_shdf.pipeline import (
-        compute_shdf_result,
-        input_face_labels,
-        input_face_shdf,
-        mesh_face_graph,
-        segment_mesh,
-    )
 
     path = Path(asset.path)
     if not path.is_file():
@@ -341,29 +364,20 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
     mesh_id = mesh.content_hash()
     cached = False
     if config.cache:
-        engine = _shdf_engine(config.cache)
-        graph = engine.meshes.graph(mesh_id, mesh)
-        outcome = engine.shdf.get_blocking(mesh_id, mesh, config.method, config.seed)
-        shdf, cached, method = outcome.values, outcome.cached, outcome.method
+        shdf, method, cached = shared_shdf(config.cache, mesh_id, mesh, config.method, config.seed)
     else:
-        graph = mesh_face_graph(mesh)
-        result = compute_shdf_result(
-            mesh,
-            method=config.method,  # type: ignore[arg-type]
-            seed=config.seed,
-            graph=graph,
-        )
+        result = compute_shdf(mesh, method=config.method, seed=config.seed)  # type: ignore[arg-type]
         shdf, method = result.values, result.method
     paths = output_paths(out_dir, asset, config.outputs)
     if "shdf" in paths:
-        values = input_face_shdf(mesh, shdf)
+        values = mesh.to_input_faces(shdf)
         _write_atomic(paths["shdf"], lambda temporary: write_values(temporary, values))
     parts: int | str = ""
     if config.segments:
-        labels = segment_mesh(mesh, shdf, config.params, graph=graph)
+        labels = segment(mesh, shdf, config.params).labels
         parts = int(labels.max()) + 1 if len(labels) else 0
         if "seg" in paths:
-            per_face = input_face_labels(mesh, labels)
+            per_face = mesh.labels_to_input_faces(labels)
             _write_atomic(paths["seg"], lambda temporary: write_labels(temporary, per_face))
         if "colored" in paths:
             _write_bytes_atomic(paths["colored"], colored_glb(mesh, labels))
@@ -538,8 +552,6 @@ def write_manifest(path: Path, rows: Sequence[dict[str, Any]]) -> None:
 
 def _check_model(config: BatchConfig) -> None:
     """Fail the whole batch up front when the neural model cannot load (every asset would)."""
-    from neural_shdf.shdf.stage import uses_model
-
     if uses_model(config.method):
         from neural_shdf.shdf.neural.inference import load_model
 
@@ -584,7 +596,8 @@ def run_batch(
         out_dir: where outputs, records and ``manifest.csv`` go.
         seed: seed of the ShDF and the segmentation (default: ``params.seed``).
         outputs: any of ``seg``, ``shdf``, ``colored``, ``parts``.
-        cache: ShDF cache shared with the service (``redis://...`` or a folder).
+        cache: ShDF cache shared with the service (``redis://...`` or a folder); the other
+            store settings from the service's variables (``store.cache.CacheConfig``).
         workers: local worker processes (default: one per core; 0: in this process).
         scheduler: a Dask scheduler address (``tcp://host:port``) or ``distributed.Client``;
             the workers must see the same paths.

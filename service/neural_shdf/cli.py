@@ -75,18 +75,17 @@ def _load(args: argparse.Namespace):
     )
 
 
-def _shdf(mesh, args: argparse.Namespace, graph) -> tuple[np.ndarray, str]:
+def _shdf(mesh, args: argparse.Namespace) -> tuple[np.ndarray, str]:
     """The ShDF per triangle and a note naming the producer that ran (``auto`` resolved),
     for the command's summary line."""
-    from neural_shdf.pipeline import compute_shdf_result
+    from neural_shdf.pipeline import compute_shdf
 
     start = time.perf_counter()
     with progress_bar(f"{args.method} ShDF", enabled=not args.quiet) as progress:
-        result = compute_shdf_result(
+        result = compute_shdf(
             mesh,
             method=args.method,
             seed=args.seed,
-            graph=graph,
             progress=progress,
             model=args.model,
         )
@@ -96,11 +95,10 @@ def _shdf(mesh, args: argparse.Namespace, graph) -> tuple[np.ndarray, str]:
 
 def cmd_shdf(args: argparse.Namespace) -> int:
     from neural_shdf.export import write_values
-    from neural_shdf.pipeline import input_face_shdf, mesh_face_graph
 
     mesh = _load(args)
-    values, note = _shdf(mesh, args, mesh_face_graph(mesh))
-    write_values(args.output, input_face_shdf(mesh, values))
+    values, note = _shdf(mesh, args)
+    write_values(args.output, mesh.to_input_faces(values))
     if not args.quiet:
         print(f"{mesh.input_face_count} faces, {note}", file=sys.stderr)
         print(mesh.orientation.diagnostics.summary(), file=sys.stderr)
@@ -109,8 +107,7 @@ def cmd_shdf(args: argparse.Namespace) -> int:
 
 def cmd_segment(args: argparse.Namespace) -> int:
     from neural_shdf.export import colored_glb, parts_glb, write_labels, write_part_tree
-    from neural_shdf.pipeline import input_face_parts, mesh_face_graph, segment_mesh_with_details
-    from neural_shdf.segment import SegmentParams
+    from neural_shdf.pipeline import SegmentParams, segment
 
     params = SegmentParams.from_attributes(args)
     if args.tree and params.partitioner != "graphcut":
@@ -118,16 +115,15 @@ def cmd_segment(args: argparse.Namespace) -> int:
     if args.usd and Path(args.usd).suffix.lower() not in (".usda", ".usdc", ".usd", ".usdz"):
         raise ParameterError(f"--usd must end in .usda, .usdc, .usd or .usdz, got {args.usd!r}")
     mesh = _load(args)
-    graph = mesh_face_graph(mesh)
-    shdf, note = _shdf(mesh, args, graph)
+    shdf, note = _shdf(mesh, args)
     if args.labeler or args.confidence:
         from neural_shdf.labeling.cli import segment_with_labeler
 
-        return segment_with_labeler(args, mesh, shdf, graph)
+        return segment_with_labeler(args, mesh, shdf, mesh.face_graph)
     start = time.perf_counter()
-    result = segment_mesh_with_details(mesh, shdf, params, graph=graph)
+    result = segment(mesh, shdf, params)
     labels = result.labels
-    face_labels, face_leaves = input_face_parts(mesh, result)
+    face_labels, face_leaves = result.input_face_parts(mesh)
     write_labels(args.output, face_labels)
     if args.tree:
         write_part_tree(args.tree, result.tree, face_leaves, result.part_count)
@@ -162,8 +158,7 @@ def _write_usd(args: argparse.Namespace, mesh, face_labels: np.ndarray) -> None:
 
 def cmd_unwrap(args: argparse.Namespace) -> int:
     from neural_shdf.export import unwrapped_glb, write_labels, write_obj_with_uvs
-    from neural_shdf.pipeline import input_face_labels, mesh_face_graph, segment_mesh
-    from neural_shdf.segment import SegmentParams
+    from neural_shdf.pipeline import SegmentParams, segment
     from neural_shdf.unwrap import UnwrapParams, atlas_layout_png, unwrap
 
     output = Path(args.output)
@@ -174,10 +169,9 @@ def cmd_unwrap(args: argparse.Namespace) -> int:
         atlas_size=args.atlas_size, padding=args.padding, max_stretch=args.max_stretch
     )
     mesh = _load(args)
-    graph = mesh_face_graph(mesh)
-    shdf, _ = _shdf(mesh, args, graph)
+    shdf, _ = _shdf(mesh, args)
     start = time.perf_counter()
-    labels = segment_mesh(mesh, shdf, params, graph=graph)
+    labels = segment(mesh, shdf, params).labels
     atlas = unwrap(mesh, labels, unwrap_params)
     layout = atlas_layout_png(atlas, size=args.atlas_size)
     split = 0
@@ -188,7 +182,7 @@ def cmd_unwrap(args: argparse.Namespace) -> int:
     if args.atlas_png:
         Path(args.atlas_png).write_bytes(layout)
     if args.labels:
-        write_labels(args.labels, input_face_labels(mesh, labels))
+        write_labels(args.labels, mesh.labels_to_input_faces(labels))
     if not args.quiet:
         elapsed = time.perf_counter() - start
         parts = len(np.unique(labels))

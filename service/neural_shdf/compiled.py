@@ -8,14 +8,24 @@ neither folder is writable (a read-only install) they compile once per process.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TypeVar
+from typing import TypeVar, overload
 
 import numba
 
 Function = TypeVar("Function", bound=Callable)
 
 
-def kernel(function: Function | None = None, *, inline: bool = False) -> Function:
+@overload
+def kernel(function: Function, *, inline: bool = False) -> Function: ...
+
+
+@overload
+def kernel(function: None = None, *, inline: bool = False) -> Callable[[Function], Function]: ...
+
+
+def kernel(
+    function: Function | None = None, *, inline: bool = False
+) -> Function | Callable[[Function], Function]:
     """``numba.njit(nogil=True, cache=True)``, without the cache where none can be written.
 
     ``inline=True`` inlines the kernel into the kernels that call it.
@@ -28,4 +38,4 @@ def kernel(function: Function | None = None, *, inline: bool = False) -> Functio
         except RuntimeError:  # no writable cache folder: compile per process
             return numba.njit(**options)(target)
 
-    return compile_ if function is None else compile_(function)  # type: ignore[return-value]
+    return compile_ if function is None else compile_(function)

@@ -11,40 +11,17 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf.arrays import unique_rows
 from neural_shdf.errors import ParameterError
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.palette import part_colors
+from neural_shdf.unwrap import UvAtlas, input_face_corner_uvs
 
 if TYPE_CHECKING:
     from neural_shdf.segment.hierarchy import PartTree
-    from neural_shdf.unwrap import UvAtlas
 
-#: First colours of the palette: distinct, colour-blind-friendly-ish, light enough to shade.
-_BASE_PALETTE = np.array(
-    [
-        [230, 159, 0], [86, 180, 233], [0, 158, 115], [240, 228, 66], [0, 114, 178],
-        [213, 94, 0], [204, 121, 167], [153, 153, 153], [117, 112, 179], [102, 166, 30],
-        [166, 118, 29], [231, 41, 138],
-    ],
-    dtype=np.uint8,
-)  # fmt: skip
 #: Colour of triangles without a part (negative label).
 UNLABELED_COLOR = np.array([64, 64, 64, 255], dtype=np.uint8)
-
-
-def part_colors(n_parts: int) -> NDArray[np.uint8]:
-    """(n_parts, 4) RGBA colours, identical on every call: fixed palette, then golden-angle hues."""
-    if n_parts < 0:
-        raise ParameterError(f"n_parts must be >= 0, got {n_parts}")
-    colors = np.full((n_parts, 4), 255, dtype=np.uint8)
-    base = min(n_parts, len(_BASE_PALETTE))
-    colors[:base, :3] = _BASE_PALETTE[:base]
-    golden = (np.sqrt(5.0) - 1.0) / 2.0
-    k = np.arange(n_parts - base)
-    hue = (0.13 + k * golden) % 1.0
-    saturation = np.array([0.55, 0.8, 0.4])[k % 3]
-    value = np.array([0.9, 0.7, 0.8])[(k // 3) % 3]
-    colors[base:, :3] = np.round(_hsv_to_rgb(hue, saturation, value) * 255)
-    return colors
 
 
 def srgb_to_linear(srgb: NDArray) -> NDArray[np.float64]:
@@ -59,27 +36,6 @@ def linear_color_bytes(rgba: NDArray) -> NDArray[np.uint8]:
     out = np.array(rgba, dtype=np.uint8, copy=True)
     out[..., :3] = np.round(srgb_to_linear(out[..., :3] / 255.0) * 255.0)
     return out
-
-
-def _hsv_to_rgb(hue: NDArray, saturation: NDArray, value: NDArray) -> NDArray[np.float64]:
-    """(N, 3) ``colorsys.hsv_to_rgb`` of each row, with the same arithmetic (so the same
-    colours), in one pass instead of a Python call per part."""
-    sector = (hue * 6.0).astype(np.int64)
-    fraction = hue * 6.0 - sector
-    p = value * (1.0 - saturation)
-    q = value * (1.0 - saturation * fraction)
-    t = value * (1.0 - saturation * (1.0 - fraction))
-    table = np.stack(
-        [
-            np.stack([value, t, p], axis=1),
-            np.stack([q, value, p], axis=1),
-            np.stack([p, value, t], axis=1),
-            np.stack([p, q, value], axis=1),
-            np.stack([t, p, value], axis=1),
-            np.stack([value, p, q], axis=1),
-        ]
-    )
-    return table[sector % 6, np.arange(len(hue))]
 
 
 def part_color_hex(n_parts: int) -> list[str]:
@@ -325,7 +281,7 @@ def uv_split_vertices(
     corners = mesh.faces.reshape(-1)
     uv = np.asarray(atlas.corner_uvs, dtype=np.float64).reshape(-1, 2)
     keys = np.column_stack([corners.astype(np.float64), uv])
-    unique, inverse = np.unique(keys, axis=0, return_inverse=True)
+    unique, inverse = unique_rows(keys, return_inverse=True)
     vertex = unique[:, 0].astype(np.int64)
     return mesh.vertices[vertex], inverse.reshape(-1, 3).astype(np.int64), unique[:, 1:]
 
@@ -338,8 +294,6 @@ def write_obj_with_uvs(path: str | Path, mesh: TriangleMesh, atlas: UvAtlas) -> 
     UV) is written as its triangles, in place. Returns how many polygons were split so.
     Input faces that produced no triangle are left out.
     """
-    from neural_shdf.unwrap import input_face_corner_uvs
-
     polygons, polygon_uvs, consistent = input_face_corner_uvs(mesh, atlas.corner_uvs)
     lines = ["# neural-shdf unwrap: one f line per input face (split polygons: their triangles)"]
     lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in mesh.vertices)

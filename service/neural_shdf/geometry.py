@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,7 +18,9 @@ from neural_shdf.constants import AREA_EPS
 EDGE_CLIQUE = 4
 
 
-def face_normals(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
+def face_normals(
+    vertices: NDArray[Any], faces: NDArray[Any]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Unit normals (F, 3) and areas (F,) of triangles; degenerate faces get a zero normal.
 
     ``TriangleMesh.normals_and_areas`` caches this per mesh; call that where a mesh exists.
@@ -30,7 +33,7 @@ def face_normals(vertices: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
     return normals, areas
 
 
-def zero_area_limit(vertices: NDArray, faces: NDArray) -> float:
+def zero_area_limit(vertices: NDArray[Any], faces: NDArray[Any]) -> float:
     """Twice-area at or below which a triangle is degenerate (has no normal):
     ``AREA_EPS`` times the squared diagonal of the triangles' bounding box, so the same
     faces are degenerate at every scale (0 when every corner is one point)."""
@@ -40,7 +43,9 @@ def zero_area_limit(vertices: NDArray, faces: NDArray) -> float:
 
 
 @kernel
-def _squared_diagonal(vertices, faces):  # pragma: no cover - numba
+def _squared_diagonal(  # pragma: no cover - numba
+    vertices: NDArray[np.float64], faces: NDArray[np.int64]
+) -> float:
     """Squared diagonal of the bounding box of the faces' corners (0 for no faces)."""
     if faces.shape[0] == 0:
         return 0.0
@@ -53,11 +58,18 @@ def _squared_diagonal(vertices, faces):  # pragma: no cover - numba
                 value = vertices[vertex, axis]
                 low[axis] = min(low[axis], value)
                 high[axis] = max(high[axis], value)
-    return (high[0] - low[0]) ** 2 + (high[1] - low[1]) ** 2 + (high[2] - low[2]) ** 2
+    squared: float = (high[0] - low[0]) ** 2 + (high[1] - low[1]) ** 2 + (high[2] - low[2]) ** 2
+    return squared
 
 
 @kernel
-def _normals_and_areas(vertices, faces, area_eps, normals, areas):  # pragma: no cover - numba
+def _normals_and_areas(  # pragma: no cover - numba
+    vertices: NDArray[np.float64],
+    faces: NDArray[np.int64],
+    area_eps: float,
+    normals: NDArray[np.float64],
+    areas: NDArray[np.float64],
+) -> None:
     """Cross product of two edges per face: its direction the normal, half its length the area."""
     for face in range(faces.shape[0]):
         a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
@@ -82,19 +94,60 @@ def _normals_and_areas(vertices, faces, area_eps, normals, areas):  # pragma: no
         areas[face] = 0.5 * norm
 
 
-def face_centroids(vertices: NDArray, faces: NDArray) -> NDArray:
+def face_centroids(vertices: NDArray[Any], faces: NDArray[Any]) -> NDArray[Any]:
     """Centroids (F, 3) of triangles: ``(a + b + c) / 3``, in that order (one pass)."""
     vertices = np.asarray(vertices)
     faces = np.asarray(faces).reshape(-1, 3)
     if vertices.dtype != np.float64 or len(faces) == 0:
-        return (vertices[faces[:, 0]] + vertices[faces[:, 1]] + vertices[faces[:, 2]]) / 3.0
+        mean: NDArray[Any] = (
+            vertices[faces[:, 0]] + vertices[faces[:, 1]] + vertices[faces[:, 2]]
+        ) / 3.0
+        return mean
     return _face_centroids(
         np.ascontiguousarray(vertices).reshape(-1, 3), np.ascontiguousarray(faces, dtype=np.int64)
     )
 
 
+def principal_coordinates(
+    points: NDArray[Any], weights: NDArray[Any] | None = None
+) -> NDArray[np.float64]:
+    """(N, 3) coordinates of the points along their own principal axes (largest spread
+    first), from their weighted mean: the same in any pose of the points, up to each
+    axis's sign (a shape does not define it), so grids over them are laid with
+    ``grid_cells``, which ignores the signs. Axes a shape does not define (equal spreads,
+    e.g. about a body of revolution's axis) are whatever the eigensolver returns.
+    Unit weights where ``weights`` is omitted or sums to zero.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if not len(points):
+        return points.copy()
+    if weights is None or not float(np.sum(weights)) > 0:
+        weights = np.ones(len(points))
+    weights = np.asarray(weights, dtype=np.float64) / float(np.sum(weights))
+    offsets = points - weights @ points
+    _, axes = np.linalg.eigh((offsets * weights[:, None]).T @ offsets)
+    coordinates: NDArray[np.float64] = offsets @ axes[:, ::-1]
+    return coordinates
+
+
+def grid_cells(coordinates: NDArray[Any], size: float) -> NDArray[np.int64]:
+    """(N,) key of each point's cell in a grid of cubes of side ``size`` centred on the
+    origin (cell walls at ``(k + 1/2) size``): points share a key when they share a cell,
+    and negating an axis of the coordinates gives the same partition of the points."""
+    coordinates = np.asarray(coordinates, dtype=np.float64).reshape(-1, 3)
+    if not len(coordinates):
+        return np.zeros(0, dtype=np.int64)
+    cells = np.floor(coordinates / size + 0.5).astype(np.int64)
+    cells -= cells.min(axis=0)
+    span = cells.max(axis=0) + 1
+    keys: NDArray[np.int64] = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+    return keys
+
+
 @kernel
-def _face_centroids(vertices, faces):  # pragma: no cover - compiled
+def _face_centroids(  # pragma: no cover - compiled
+    vertices: NDArray[np.float64], faces: NDArray[np.int64]
+) -> NDArray[np.float64]:
     centroids = np.empty((len(faces), 3))
     for face in range(len(faces)):
         a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
@@ -124,7 +177,7 @@ class FaceGraph:
     concave: NDArray[np.bool_]
     face_count: int
 
-    def csr(self, weights: NDArray | None = None):
+    def csr(self, weights: NDArray[Any] | None = None) -> Any:
         """Symmetric scipy CSR adjacency matrix with the given edge weights (default 1)."""
         import scipy.sparse as sp
 
@@ -136,11 +189,11 @@ class FaceGraph:
 
 
 def build_face_graph(
-    vertices: NDArray,
-    faces: NDArray,
-    normals: NDArray | None = None,
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
+    normals: NDArray[Any] | None = None,
     *,
-    edges: tuple[NDArray, NDArray] | None = None,
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None,
 ) -> FaceGraph:
     """Face adjacency over shared edges.
 
@@ -178,7 +231,9 @@ def _check_indices(faces: NDArray[np.int64], vertex_count: int) -> None:
 
 
 @kernel
-def _sorted_edges(faces, n_vertices):  # pragma: no cover - numba
+def _sorted_edges(  # pragma: no cover - numba
+    faces: NDArray[np.int64], n_vertices: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Face edges sorted by undirected key ``lo * n_vertices + hi``, stable (faces ascend).
 
     Returns ``edge_table`` (E, 2), the key and face of each edge in sorted order,
@@ -217,7 +272,9 @@ def _sorted_edges(faces, n_vertices):  # pragma: no cover - numba
 
 
 @kernel(inline=True)
-def _sort_buckets(bucket_start, key, payload):  # pragma: no cover - numba
+def _sort_buckets(  # pragma: no cover - numba
+    bucket_start: NDArray[np.int64], key: NDArray[np.int64], payload: NDArray[np.int64]
+) -> None:
     """Stable in-place sort of ``key`` (and ``payload`` alongside) within each bucket."""
     for bucket in range(bucket_start.shape[0] - 1):
         first, stop = bucket_start[bucket], bucket_start[bucket + 1]
@@ -236,7 +293,13 @@ def _sort_buckets(bucket_start, key, payload):  # pragma: no cover - numba
 
 
 @kernel
-def _adjacent_pairs(faces, edge_table, slot, n_vertices, clique):  # pragma: no cover - numba
+def _adjacent_pairs(  # pragma: no cover - numba
+    faces: NDArray[np.int64],
+    edge_table: NDArray[np.int64],
+    slot: NDArray[np.int64],
+    n_vertices: int,
+    clique: int,
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Face pairs ``a < b`` sharing an edge, sorted, each once, with the edge it shares.
 
     Along an edge (its group in ``edge_table``, faces ascending) a group of
@@ -303,7 +366,13 @@ def _adjacent_pairs(faces, edge_table, slot, n_vertices, clique):  # pragma: no 
 
 
 @kernel
-def _pair_geometry(vertices, faces, normals, pairs, edge_vertices):  # pragma: no cover - numba
+def _pair_geometry(  # pragma: no cover - numba
+    vertices: NDArray[np.float64],
+    faces: NDArray[np.int64],
+    normals: NDArray[np.float64],
+    pairs: NDArray[np.int64],
+    edge_vertices: NDArray[np.int64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]:
     """Shared edge length, dihedral angle and concavity of each face pair."""
     count = pairs.shape[0]
     edge_length = np.empty(count, dtype=np.float64)
@@ -334,7 +403,7 @@ def _pair_geometry(vertices, faces, normals, pairs, edge_vertices):  # pragma: n
     return edge_length, dihedral, concave
 
 
-def weld_faces(vertices: NDArray, faces: NDArray) -> NDArray[np.int64]:
+def weld_faces(vertices: NDArray[Any], faces: NDArray[Any]) -> NDArray[np.int64]:
     """Face indices rewritten so that vertices at identical positions share one index.
 
     Faces keep their order and count; only the adjacency they imply changes
@@ -347,11 +416,12 @@ def weld_faces(vertices: NDArray, faces: NDArray) -> NDArray[np.int64]:
         return faces
     _check_indices(faces.reshape(-1, 3), len(vertices))
     bits = (np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3) + 0.0).view(np.uint64)
-    return _first_of_equal_rows(bits)[faces]
+    welded: NDArray[np.int64] = _first_of_equal_rows(bits)[faces]
+    return welded
 
 
 @kernel
-def _first_of_equal_rows(bits):  # pragma: no cover - numba
+def _first_of_equal_rows(bits: NDArray[np.uint64]) -> NDArray[np.int64]:  # pragma: no cover - numba
     """For each row of ``bits`` (V, 3), the lowest index of an equal row (a hash table)."""
     count = bits.shape[0]
     capacity = 16
@@ -385,7 +455,9 @@ def _first_of_equal_rows(bits):  # pragma: no cover - numba
     return representative
 
 
-def adjacency_lists(pairs: NDArray, node_count: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+def adjacency_lists(
+    pairs: NDArray[Any], node_count: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """(indptr, neighbours) of an undirected graph given as edge ``pairs``, CSR-style, in
     one counting pass. With sorted unique pairs (``a < b``, as ``FaceGraph.pairs``) each
     node's neighbours come ascending, the arrays of the symmetric CSR matrix."""
@@ -394,7 +466,9 @@ def adjacency_lists(pairs: NDArray, node_count: int) -> tuple[NDArray[np.int64],
 
 
 @kernel
-def _adjacency_lists(pairs, node_count):  # pragma: no cover - numba
+def _adjacency_lists(  # pragma: no cover - numba
+    pairs: NDArray[np.int64], node_count: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """A node's smaller neighbours arrive as second members (ascending when the pairs are
     sorted), then its larger ones as first members."""
     indptr = np.zeros(node_count + 1, dtype=np.int64)

@@ -1,19 +1,25 @@
-"""The triangle mesh every algorithm works on, and its link back to the input file's faces."""
+"""The triangle mesh every algorithm works on, its derived structures (cached per mesh, as
+trimesh caches its properties) and its link back to the input file's faces."""
 
 from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf.geometry import face_normals, weld_faces
-
-if TYPE_CHECKING:
-    from neural_shdf.orientation import Orientation
+from neural_shdf.geometry import (
+    FaceGraph,
+    build_face_graph,
+    face_centroids,
+    face_normals,
+    weld_faces,
+)
+from neural_shdf.orientation import Orientation, orient_faces, reversed_slots
+from neural_shdf.orientation import welded_edges as sorted_welded_edges
+from neural_shdf.segment.creases import CreaseGraph, crease_graph
 
 
 @dataclass(frozen=True, eq=False)
@@ -29,7 +35,11 @@ class TriangleMesh:
         input_face_count: number of faces in the input file. Input faces that
             produced no triangle (dropped as unusable) map to no triangle.
 
-    Treat the arrays as read-only: per-face geometry is computed once and cached.
+    Treat the arrays as read-only: what is derived from them (normals and areas, the
+    welding, the orientation, the face graph, centroids, the crease graph) is computed
+    once, on first use, and cached on the mesh, so every step that needs it shares it.
+    ``face_graph``, ``centroids`` and ``crease_graph`` are those of ``oriented`` (the
+    winding every algorithm works on), cached there and shared by both meshes.
     """
 
     vertices: NDArray[np.float64]
@@ -60,6 +70,23 @@ class TriangleMesh:
         """The same mesh without its cached derived arrays (cheap to send to a process)."""
         return TriangleMesh(self.vertices, self.faces, self.face_origin, self.input_face_count)
 
+    def portable(self) -> TriangleMesh:
+        """The mesh with, of its caches, only what a segmentation needs and cannot recompute
+        cheaply (the orientation, the oriented triangles' normals, areas and face graph):
+        what is sent to another process to segment there, with the same result."""
+        oriented = self.oriented
+        light_oriented = oriented.bare()
+        light_oriented.__dict__.update(
+            normals_and_areas=oriented.normals_and_areas, face_graph=oriented.face_graph
+        )
+        light_oriented.__dict__["oriented"] = light_oriented
+        if oriented is self:
+            light_oriented.__dict__["orientation"] = self.orientation
+            return light_oriented
+        light = self.bare()
+        light.__dict__.update(orientation=self.orientation, oriented=light_oriented)
+        return light
+
     @cached_property
     def normals_and_areas(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Unit normal (F, 3) and area (F,) of each triangle, computed once per mesh.
@@ -84,16 +111,12 @@ class TriangleMesh:
     def welded_edges(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """The edges of ``welded_faces`` sorted by vertex pair (``orientation.welded_edges``),
         computed once per mesh for the orientation pass and the face graph."""
-        from neural_shdf.orientation import welded_edges
-
-        return welded_edges(self.welded_faces)
+        return sorted_welded_edges(self.welded_faces)
 
     @cached_property
     def orientation(self) -> Orientation:
         """Which triangles to reverse so that every shell faces out of its solid, and what
         the pass found in the mesh (``orientation.orient_faces``); computed once per mesh."""
-        from neural_shdf.orientation import orient_faces
-
         return orient_faces(
             self.vertices,
             self.faces,
@@ -109,8 +132,6 @@ class TriangleMesh:
         winding. A reversed triangle lists its vertices backwards, (a, b, c) -> (c, b, a),
         so a file reversed that way gives back the original triangles exactly. ``self``
         where no triangle is reversed; its own ``oriented`` is itself."""
-        from neural_shdf.orientation import reversed_slots
-
         flips = self.orientation.flips
         if not flips.any():
             return self
@@ -131,6 +152,36 @@ class TriangleMesh:
         )
         oriented.__dict__["oriented"] = oriented
         return oriented
+
+    @cached_property
+    def face_graph(self) -> FaceGraph:
+        """Face adjacency with coincident vertices welded (``welded_faces``), its dihedral
+        angles and concave flags following the oriented normals: the graph the ShDF's
+        filters and the segmentation run on. Computed once, on ``oriented``."""
+        oriented = self.oriented
+        if oriented is not self:
+            return oriented.face_graph
+        normals, _ = self.normals_and_areas
+        return build_face_graph(self.vertices, self.welded_faces, normals, edges=self.welded_edges)
+
+    @cached_property
+    def centroids(self) -> NDArray[np.float64]:
+        """Centroid (F, 3) of each triangle of ``oriented`` (``geometry.face_centroids``)."""
+        oriented = self.oriented
+        if oriented is not self:
+            return oriented.centroids
+        centroids = face_centroids(self.vertices, self.faces)
+        centroids.flags.writeable = False
+        return centroids
+
+    @cached_property
+    def crease_graph(self) -> CreaseGraph:
+        """The graph the segmentation's crease refinement runs on (``segment.creases``): it
+        depends on the mesh only, so every ShDF and mixture of the mesh shares it."""
+        oriented = self.oriented
+        if oriented is not self:
+            return oriented.crease_graph
+        return crease_graph(self.face_graph, self.normals_and_areas[1], self.centroids)
 
     def content_hash(self) -> str:
         """SHA-256 of the canonical geometry: vertices, triangles and face origins."""

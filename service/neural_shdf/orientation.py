@@ -40,6 +40,7 @@ for the ShDF's rays only (``shdf.stage.ray_targets``).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -101,12 +102,12 @@ class Orientation:
 
 
 def orient_faces(
-    vertices: NDArray,
-    faces: NDArray,
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
     *,
-    welded: NDArray | None = None,
-    areas: NDArray | None = None,
-    edges: tuple[NDArray, NDArray] | None = None,
+    welded: NDArray[Any] | None = None,
+    areas: NDArray[Any] | None = None,
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None,
 ) -> Orientation:
     """Per-triangle flips that make every shell consistently wound and facing outward.
 
@@ -154,7 +155,7 @@ def orient_faces(
     return Orientation(flips, diagnostics, np.asarray(first_copy, dtype=np.int64))
 
 
-def welded_edges(welded: NDArray) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+def welded_edges(welded: NDArray[Any]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """The edges of (welded) triangles sorted by vertex pair, as ``geometry.build_face_graph``
     takes them (``edges``): (edge table (E, 2) of key and face, slot (3F,) of each corner's
     edge). One sort shared by the orientation pass and the face graph."""
@@ -162,15 +163,17 @@ def welded_edges(welded: NDArray) -> tuple[NDArray[np.int64], NDArray[np.int64]]
     return _sorted_edges(welded, int(welded.max(initial=-1)) + 1)
 
 
-def reversed_slots(slot: NDArray, flips: NDArray) -> NDArray[np.int64]:
+def reversed_slots(slot: NDArray[Any], flips: NDArray[Any]) -> NDArray[np.int64]:
     """``slot`` of ``welded_edges`` for the same triangles with those in ``flips`` listed
     backwards, (a, b, c) -> (c, b, a): their edges (c, b), (b, a), (a, c) were corners 1, 0, 2.
     The edge table itself does not depend on the winding."""
-    slots = np.asarray(slot).reshape(-1, 3)
-    return np.where(np.asarray(flips)[:, None], slots[:, [1, 0, 2]], slots).reshape(-1)
+    slots = np.array(slot, dtype=np.int64).reshape(-1, 3)
+    flipped = np.flatnonzero(flips)
+    slots[flipped, 0], slots[flipped, 1] = slots[flipped, 1], slots[flipped, 0]
+    return slots.reshape(-1)
 
 
-def _same_cyclic_order(faces: NDArray, others: NDArray) -> NDArray[np.bool_]:
+def _same_cyclic_order(faces: NDArray[Any], others: NDArray[Any]) -> NDArray[np.bool_]:
     """Whether each triangle lists the same three vertices as its partner in the same turn."""
     same = np.zeros(len(faces), dtype=bool)
     for shift in range(3):
@@ -179,7 +182,7 @@ def _same_cyclic_order(faces: NDArray, others: NDArray) -> NDArray[np.bool_]:
 
 
 @kernel(inline=True)
-def _find(parent, node):  # pragma: no cover - numba
+def _find(parent: NDArray[np.int64], node: int) -> int:  # pragma: no cover - numba
     """Union-find root with path halving."""
     while parent[node] != node:
         parent[node] = parent[parent[node]]
@@ -188,7 +191,9 @@ def _find(parent, node):  # pragma: no cover - numba
 
 
 @kernel(inline=True)
-def _find_parity(parent, parity, node):  # pragma: no cover - numba
+def _find_parity(  # pragma: no cover - numba
+    parent: NDArray[np.int64], parity: NDArray[np.int8], node: int
+) -> tuple[int, np.int8]:
     """(root, parity of ``node`` against it); the path is pointed at the root."""
     root, total = node, np.int8(0)
     while parent[root] != root:
@@ -204,7 +209,9 @@ def _find_parity(parent, parity, node):  # pragma: no cover - numba
 
 
 @kernel(inline=True)
-def _join(parent, parity, a, b, differ):  # pragma: no cover - numba
+def _join(  # pragma: no cover - numba
+    parent: NDArray[np.int64], parity: NDArray[np.int8], a: int, b: int, differ: np.int8
+) -> None:
     """Put ``a`` and ``b`` in one set with parity(a) ^ parity(b) == ``differ`` (kept as
     found where they already share one: a non-orientable surface)."""
     root_a, parity_a = _find_parity(parent, parity, a)
@@ -216,7 +223,7 @@ def _join(parent, parity, a, b, differ):  # pragma: no cover - numba
 
 
 @kernel(inline=True)
-def _union(parent, a, b):  # pragma: no cover - numba
+def _union(parent: NDArray[np.int64], a: int, b: int) -> int:  # pragma: no cover - numba
     """Join the sets of ``a`` and ``b`` under the smaller root; that root."""
     a, b = _find(parent, a), _find(parent, b)
     if a != b:
@@ -225,16 +232,21 @@ def _union(parent, a, b):  # pragma: no cover - numba
 
 
 @kernel(inline=True)
-def _third_vertex(faces, face, lo, hi):  # pragma: no cover - numba
+def _third_vertex(  # pragma: no cover - numba
+    faces: NDArray[np.int64], face: int, lo: int, hi: int
+) -> int:
     """The vertex of triangle ``face`` off its edge (lo, hi)."""
     for corner in range(3):
         if faces[face, corner] != lo and faces[face, corner] != hi:
-            return faces[face, corner]
+            vertex: int = faces[face, corner]
+            return vertex
     return -1
 
 
 @kernel(inline=True)
-def _signed_volume(vertices, a, b, c, origin):  # pragma: no cover - numba
+def _signed_volume(  # pragma: no cover - numba
+    vertices: NDArray[np.float64], a: int, b: int, c: int, origin: NDArray[np.float64]
+) -> float:
     """Six times the signed volume of the tetrahedron (origin, a, b, c); a, b, c vertex
     indices, or -1 for ``origin[3:]`` (a cap's centre)."""
     ax, ay, az = vertices[a, 0] - origin[0], vertices[a, 1] - origin[1], vertices[a, 2] - origin[2]
@@ -244,11 +256,30 @@ def _signed_volume(vertices, a, b, c, origin):  # pragma: no cover - numba
     else:
         cx, cy = vertices[c, 0] - origin[0], vertices[c, 1] - origin[1]
         cz = vertices[c, 2] - origin[2]
-    return ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
+    six_volume: float = (
+        ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
+    )
+    return six_volume
 
 
 @kernel
-def _orient_patches(faces, edge_table, slot, n_vertices, vertices, centre):  # pragma: no cover
+def _orient_patches(  # pragma: no cover
+    faces: NDArray[np.int64],
+    edge_table: NDArray[np.int64],
+    slot: NDArray[np.int64],
+    n_vertices: int,
+    vertices: NDArray[np.float64],
+    centre: NDArray[np.float64],
+) -> tuple[
+    NDArray[np.int64],
+    NDArray[np.int64],
+    NDArray[np.int8],
+    NDArray[np.float64],
+    NDArray[np.bool_],
+    int,
+    int,
+    int,
+]:
     """Duplicates, patches over manifold edges with a consistent relative winding, per
     patch its capped signed volume and openness; shell, loop and non-manifold counts.
 
@@ -419,7 +450,7 @@ def _orient_patches(faces, edge_table, slot, n_vertices, vertices, centre):  # p
 
 
 def hole_caps(
-    vertices: NDArray, faces: NDArray, edges: tuple[NDArray, NDArray]
+    vertices: NDArray[Any], faces: NDArray[Any], edges: tuple[NDArray[np.int64], NDArray[np.int64]]
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Triangles that close every open boundary loop of ``faces`` for ray casting only.
 

@@ -1,26 +1,39 @@
 """Piece-wise UV unwrapping by parts (the paper's application).
 
-Each part is charted and parameterised on its own with xatlas, so every chart lies
-within one part and seams run where parts meet, plus whatever cuts a part still
-needs to flatten; all charts are packed into one atlas. UVs are per triangle
+Each connected piece of a part is flattened on its own (cut to a disk with libigl, a
+least-squares conformal map, cut further while it is too stretched, halved with METIS
+when it still fails), so every chart lies within one part and seams run where parts
+meet, plus whatever cuts a part still needs to flatten; only the pieces that never
+flatten are charted by xatlas, inside the piece. xatlas packs all charts into one
+atlas. UVs are per triangle
 corner, in ``[0, 1]``, with ``v`` pointing up (OBJ's and trimesh's convention; the
 GLB writer flips it for glTF).
 """
 
 from __future__ import annotations
 
+import io
 import math
+import struct
+import zlib
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
+import xatlas
 from numpy.typing import NDArray
+from PIL import Image
+from scipy.sparse.csgraph import connected_components, dijkstra
 
+from neural_shdf.arrays import unique_rows
 from neural_shdf.compiled import kernel
 from neural_shdf.errors import MeshTooLargeError, ParameterError
-from neural_shdf.geometry import weld_faces
+from neural_shdf.geometry import build_face_graph, weld_faces
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.palette import part_colors
+from neural_shdf.segment.metis import split_faces
 
 #: Atlas sides a user may ask for, in texels.
 MIN_ATLAS_SIZE, MAX_ATLAS_SIZE = 64, 8192
@@ -199,7 +212,7 @@ def _coincident_representative(
     """Per face, the first face of the same part on the same (welded) vertices, in any
     order: copies of one triangle are charted once and share its UVs."""
     keys = np.column_stack([labels, np.sort(welded, axis=1)])
-    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    _, first, inverse = unique_rows(keys, return_index=True, return_inverse=True)
     return first[inverse.reshape(-1)].astype(np.int64)
 
 
@@ -241,13 +254,11 @@ def _connected_pieces(welded: NDArray[np.int64], faces: NDArray[np.int64]) -> li
     Components of the bipartite face-edge graph (3 links per face), not of the face-face
     product: an edge shared by k faces costs k links, not k^2 (a triangle repeated in place).
     """
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
 
     if len(faces) == 0:
         return []
     edges = np.sort(welded[faces][:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, edge_id = np.unique(edges, axis=0, return_inverse=True)
+    _, edge_id = unique_rows(edges, return_inverse=True)
     n_faces, n_edges = len(faces), int(edge_id.max()) + 1
     owner = np.repeat(np.arange(n_faces), 3)
     # Faces are nodes [0, F), edges [F, F + E): face labels come first, in face order.
@@ -272,9 +283,6 @@ def _bisect(
 ) -> NDArray[np.int64]:
     """0/1 per face: two halves of similar size with the shortest boundary (METIS), never
     split across a polygon diagonal."""
-    from neural_shdf.geometry import build_face_graph
-    from neural_shdf.segment.metis import split_faces
-
     graph = build_face_graph(vertices, faces)
     a, b = graph.edge_vertices[:, 0], graph.edge_vertices[:, 1]
     keys = np.minimum(a, b) * len(vertices) + np.maximum(a, b)
@@ -286,7 +294,7 @@ def _bisect(
 
 def _is_edge_manifold(faces: NDArray[np.int64]) -> bool:
     edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
+    _, counts = unique_rows(edges, return_counts=True)
     return bool(counts.max(initial=0) <= 2)
 
 
@@ -301,7 +309,7 @@ def _triangle_areas(points: NDArray, faces: NDArray) -> NDArray[np.float64]:
 
 def _lscm(vertices: NDArray, faces: NDArray) -> NDArray[np.float64] | None:
     """Free-boundary least-squares conformal map of a disk, scaled to the surface's area."""
-    import igl
+    import igl  # libigl is slow to import: loaded on first use
 
     boundary = igl.boundary_loop(faces)
     if len(boundary) < 3:
@@ -360,9 +368,8 @@ class _Piece:
 
     def edge_graph(self):
         """Vertex graph weighted by edge length; polygon diagonals cost DIAGONAL_PENALTY more."""
-        import scipy.sparse as sp
 
-        edges = np.unique(np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+        edges = unique_rows(np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1))
         a, b = edges[:, 0], edges[:, 1]
         length = np.linalg.norm(self.vertices[a] - self.vertices[b], axis=1) + 1e-300
         length[self._is_diagonal(a, b)] *= DIAGONAL_PENALTY
@@ -370,17 +377,17 @@ class _Piece:
         return sp.csr_matrix((length, (a, b)), shape=(n, n))
 
     def loops(self) -> list[NDArray[np.int64]]:
-        import igl
+        import igl  # libigl is slow to import: loaded on first use
 
         return [np.asarray(loop, dtype=np.int64) for loop in igl.boundary_loop_all(self.faces)]
 
     def euler_characteristic(self) -> int:
-        edges = np.unique(np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+        edges = unique_rows(np.sort(self.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1))
         return len(np.unique(self.faces)) - len(edges) + len(self.faces)
 
     def cut(self, path: list[int] | NDArray) -> None:
         """Cut open along a vertex path (libigl; faces keep their order)."""
-        import igl
+        import igl  # libigl is slow to import: loaded on first use
 
         path = np.asarray(path, dtype=np.int64)
         low = np.minimum(path[:-1], path[1:])
@@ -411,7 +418,6 @@ class _Piece:
 
 def _shortest_path(graph, sources: NDArray[np.int64], targets: NDArray[np.int64]) -> list[int]:
     """Shortest edge path from any of ``sources`` to the nearest of ``targets`` ([] if none)."""
-    from scipy.sparse.csgraph import dijkstra
 
     distance, previous, _ = dijkstra(
         graph, directed=False, indices=sources, return_predecessors=True, min_only=True
@@ -431,7 +437,7 @@ def _open_to_disk(piece: _Piece) -> bool:
     """Cut the piece into a topological disk, off polygon diagonals where possible: join
     boundary loops by shortest paths, open a closed piece between far-apart points, and
     leave handles to libigl's ``cut_to_disk``. False if no disk came out."""
-    import igl
+    import igl  # libigl is slow to import: loaded on first use
 
     loops = piece.loops()
     if not loops:
@@ -517,10 +523,31 @@ def _flatten_disk(
     return None
 
 
+def stretch_terms(
+    vertices: NDArray, faces: NDArray, corner_uvs: NDArray
+) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
+    """Per triangle: 3D area, signed UV area, and the Gram terms a = |S_s|^2, c = |S_t|^2,
+    b = S_s . S_t of the Jacobian of the map from UV to the surface."""
+    p0, p1, p2 = (vertices[faces[:, k]] for k in range(3))
+    area_3d = 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
+    s, t = corner_uvs[:, :, 0], corner_uvs[:, :, 1]
+    area_uv = 0.5 * (
+        (s[:, 1] - s[:, 0]) * (t[:, 2] - t[:, 0]) - (s[:, 2] - s[:, 0]) * (t[:, 1] - t[:, 0])
+    )
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / (2.0 * area_uv)
+        ss = (p0 * (t[:, 1] - t[:, 2])[:, None] + p1 * (t[:, 2] - t[:, 0])[:, None]
+              + p2 * (t[:, 0] - t[:, 1])[:, None]) * inv[:, None]  # fmt: skip
+        st = (p0 * (s[:, 2] - s[:, 1])[:, None] + p1 * (s[:, 0] - s[:, 2])[:, None]
+              + p2 * (s[:, 1] - s[:, 0])[:, None]) * inv[:, None]  # fmt: skip
+    a = np.einsum("ij,ij->i", ss, ss)
+    b = np.einsum("ij,ij->i", ss, st)
+    c = np.einsum("ij,ij->i", st, st)
+    return area_3d, area_uv, a, c, b
+
+
 def _l2_stretch(vertices: NDArray, faces: NDArray, uv: NDArray) -> float:
     """Sander's L2 stretch of a chart whose UV area equals its surface area."""
-    from neural_shdf.evaluate.uv import stretch_terms
-
     area_3d, area_uv, gram_a, gram_c, _ = stretch_terms(vertices, faces, uv[faces])
     scale = np.abs(area_uv).sum() / area_3d.sum()
     return float(np.sqrt(np.sum(area_3d * (gram_a + gram_c) * scale / 2) / area_3d.sum()))
@@ -532,7 +559,7 @@ def _overlaps_itself(uv: NDArray, faces: NDArray) -> bool:
     The two sides of a cut are different border edges: where they cross (the chart wraps
     past a full turn at the cut's end) that is an overlap too."""
     edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    unique, counts = unique_rows(edges, return_counts=True)
     border = unique[counts == 1]
     if len(border) > MAX_CHECKED_BORDER:
         return True  # too long a border to test pair by pair: not kept as one chart
@@ -562,7 +589,6 @@ def _xatlas_charts(
     vertices: NDArray, welded: NDArray, piece: NDArray[np.int64], params: UnwrapParams
 ) -> list[tuple[NDArray[np.int64], NDArray[np.float64]]]:
     """xatlas's own charts of one piece: (faces, (n, 3, 2) UVs at the surface's scale)."""
-    import xatlas
 
     used, local = np.unique(welded[piece], return_inverse=True)
     local = local.reshape(-1, 3)
@@ -594,7 +620,6 @@ def _pack(
     params: UnwrapParams,
 ) -> UvAtlas:
     """Pack charts (UVs at the surface's scale) into one atlas with xatlas."""
-    import xatlas
 
     charted = np.flatnonzero(chart >= 0)
     # xatlas finds UV charts by shared UV positions: lay the charts out side by side first.
@@ -613,7 +638,7 @@ def _pack(
     keys = np.column_stack(
         [np.repeat(owner, 3), np.round(laid_out.reshape(-1, 2) / quantum)]
     ).astype(np.int64)
-    unique, inverse = np.unique(keys, axis=0, return_inverse=True)
+    unique, inverse = unique_rows(keys, return_inverse=True)
     uv_vertices = np.ascontiguousarray(unique[:, 1:] * quantum, dtype=np.float32)
     uv_faces = np.ascontiguousarray(inverse.reshape(-1, 3), dtype=np.uint32)
     texels_per_unit = 0.0  # first pass: xatlas's estimate for the resolution
@@ -824,7 +849,7 @@ def chart_outline_edges(corner_uvs: NDArray, chart: NDArray) -> NDArray[np.float
     high = np.where(swap[:, None], a, b)
     owner = np.repeat(np.asarray(chart)[faces], 3)
     keys = np.column_stack([owner, low, high])
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    _, inverse, counts = unique_rows(keys, return_inverse=True, return_counts=True)
     outline = counts[inverse.reshape(-1)] == 1
     return np.stack([starts[outline], ends[outline]], axis=1)
 
@@ -835,8 +860,6 @@ LAYOUT_STRIP_ROWS = 256
 
 def _layout_strips(atlas: UvAtlas, size: int | None, checker: int) -> Iterator[NDArray[np.uint8]]:
     """The atlas picture (see ``atlas_layout_image``) as strips of rows, top first."""
-    from neural_shdf.export import part_colors
-
     size = (
         min(max(atlas.width, atlas.height, MIN_ATLAS_SIZE), MAX_ATLAS_SIZE)
         if size is None
@@ -860,7 +883,7 @@ def _layout_strips(atlas: UvAtlas, size: int | None, checker: int) -> Iterator[N
     chart = np.array(atlas.chart, dtype=np.int64)
     # A triangle on the same UVs as an earlier one claims no texel: drawn once, copies of
     # a triangle cost one triangle's texels, not one each.
-    _, first = np.unique(corner_uvs.reshape(-1, 6), axis=0, return_index=True)
+    _, first = unique_rows(corner_uvs.reshape(-1, 6), return_index=True)
     repeated = np.ones(len(chart), dtype=bool)
     repeated[first] = False
     chart[repeated] = -1
@@ -889,8 +912,6 @@ PNG_COMPRESSION = 6
 def atlas_layout_png(atlas: UvAtlas, *, size: int | None = None, checker: int = 16) -> bytes:
     """``atlas_layout_image`` as PNG bytes, drawn and compressed a strip at a time so that
     memory is a strip plus the compressed output, whatever the size."""
-    import struct
-    import zlib
 
     def chunk(kind: bytes, data: bytes) -> bytes:
         body = kind + data
@@ -926,9 +947,6 @@ def atlas_layout_png(atlas: UvAtlas, *, size: int | None = None, checker: int = 
 
 def png_bytes(image: NDArray[np.uint8]) -> bytes:
     """Encode an (H, W, 3) uint8 image as PNG."""
-    import io
-
-    from PIL import Image
 
     buffer = io.BytesIO()
     Image.fromarray(np.asarray(image, dtype=np.uint8)).save(buffer, format="PNG", optimize=False)
@@ -945,5 +963,6 @@ __all__ = [
     "part_labels_per_triangle",
     "png_bytes",
     "rasterize_charts",
+    "stretch_terms",
     "unwrap",
 ]

@@ -111,15 +111,13 @@ def test_cli_api_and_library_give_identical_labels_for_quads(client, tmp_path, o
     OBJ gets the same per-polygon labels from the library, the CLI and the API."""
     from neural_shdf.cli import main
     from neural_shdf.mesh_io import load_mesh
-    from neural_shdf.pipeline import compute_shdf, mesh_face_graph, segment_mesh
-    from neural_shdf.segment import SegmentParams
+    from neural_shdf.pipeline import SegmentParams, compute_shdf, segment
 
     data, seed = quad_dumbbell_obj(), 3
     mesh = load_mesh(data, "obj")
-    graph = mesh_face_graph(mesh)
     params = SegmentParams(seed=seed, **options)
-    shdf = compute_shdf(mesh, method="exact", seed=seed, graph=graph)
-    triangle_labels = segment_mesh(mesh, shdf, params, graph=graph)
+    shdf = compute_shdf(mesh, method="exact", seed=seed).values
+    triangle_labels = segment(mesh, shdf, params).labels
     library = mesh.labels_to_input_faces(triangle_labels)
     # The mesh exercises the mapping: counting triangles instead of area would differ.
     by_count = mesh.labels_to_input_faces(triangle_labels, weights=np.ones(mesh.face_count))

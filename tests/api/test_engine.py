@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from neural_shdf.api.cache import MAGIC, seal
 from neural_shdf.mesh_io import load_mesh
-from neural_shdf.shdf.stage import ShdfParams, shdf_key
+from neural_shdf.shdf.stage import ShdfParams
+from neural_shdf.store.codec import MAGIC, seal
+from neural_shdf.store.keys import shdf_params_digest
 from tests.api.api_helpers import MODEL_FILE, TEST_METHOD, free_port, metric
 
 
@@ -141,8 +142,8 @@ def test_neural_is_the_default_and_keyed_by_model_version(client, capsule_obj):
     body = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)}).json()
     assert body["shdf"]["method"] == "neural"
     key = engine.shdf.key(body["mesh"]["mesh_id"], "neural", 0)
-    assert key.endswith(shdf_key("neural", ShdfParams(seed=0), engine.shdf.model_version))
-    other_model = shdf_key("neural", ShdfParams(seed=0), "0" * 16)
+    assert key.endswith(shdf_params_digest("neural", ShdfParams(seed=0), engine.shdf.model_version))
+    other_model = shdf_params_digest("neural", ShdfParams(seed=0), "0" * 16)
     assert not key.endswith(other_model)
     values = client.get(f"/v1/meshes/{body['mesh']['mesh_id']}/shdf").json()
     assert values["model_version"] == engine.shdf.model_version
@@ -210,9 +211,9 @@ def test_long_computation_never_blocks_polling_or_cached_reads(
 def test_compact_labels_use_the_narrowest_integer(labels, dtype):
     import base64
 
-    from neural_shdf.api.segmentation import SegmentResult
+    from neural_shdf.api.segmentation import StoredSegmentation
 
-    result = SegmentResult(
+    result = StoredSegmentation(
         labels=np.array(labels, dtype=np.int32),
         triangle_labels=np.array(labels, dtype=np.int32),
         part_faces=np.zeros(0, np.int64),
@@ -244,7 +245,7 @@ def test_the_model_setting_decides_which_network_computes(app_factory, capsule_o
             mesh_id = upload["mesh"]["mesh_id"]
             raw = client.get(f"/v1/meshes/{mesh_id}/shdf?format=f32").content
             served[name] = np.frombuffer(raw, dtype="<f4")
-    expected = mesh.to_input_faces(compute_shdf(mesh, method="neural", seed=0, model=other))
+    expected = mesh.to_input_faces(compute_shdf(mesh, method="neural", seed=0, model=other).values)
     np.testing.assert_allclose(served["other"], expected, atol=1e-6)
     assert np.abs(served["other"] - served["default"]).max() > 1e-3
 
@@ -264,8 +265,7 @@ def test_auto_reports_the_producer_that_ran(app_factory, capsule_obj):
 def test_new_smoothing_values_reuse_the_mesh_basis(app_factory, capsule_obj):
     """What does not depend on smoothing is prepared once per mesh, ShDF, clusters and
     seed; later values only re-cut, with the labels the library gives without it."""
-    from neural_shdf.pipeline import compute_shdf, segment_mesh
-    from neural_shdf.segment import SegmentParams
+    from neural_shdf.pipeline import SegmentParams, compute_shdf, segment
 
     app = app_factory()
     engine = app.state.engine
@@ -277,14 +277,13 @@ def test_new_smoothing_values_reuse_the_mesh_basis(app_factory, capsule_obj):
         answers = [client.post("/v1/segment", json=body).json() for body in bodies]
     prepared = [key for key in engine.cache._working if ":basis:" in key]
     assert len(prepared) == 2, prepared  # default clusters, and clusters=3
-    # The crease refinement's graph depends on the mesh only: both bases share one.
-    first, second = (engine.cache.working_set(key) for key in prepared)
-    assert first.creases(None) is second.creases(None)
+    # The crease refinement's graph depends on the mesh only: the stored mesh keeps one.
+    assert "crease_graph" in engine.cache.recall(f"{mesh_id}:mesh").oriented.__dict__
     mesh = load_mesh(capsule_obj, file_type="obj")
-    shdf = compute_shdf(mesh, method=TEST_METHOD, model=MODEL_FILE)
+    shdf = compute_shdf(mesh, method=TEST_METHOD, model=MODEL_FILE).values
     for body, answer in zip(bodies, answers, strict=True):
         params = SegmentParams(smoothing=body["smoothing"], clusters=body.get("clusters"))
-        np.testing.assert_array_equal(answer["labels"], segment_mesh(mesh, shdf, params))
+        np.testing.assert_array_equal(answer["labels"], segment(mesh, shdf, params).labels)
 
 
 def test_every_result_key_carries_the_algorithm_version(client):
@@ -301,3 +300,32 @@ def test_every_result_key_carries_the_algorithm_version(client):
         engine.unwraps.key(mesh_id, "exact", params, UnwrapParams()),
     ]
     assert all(f":a{ALGORITHM_VERSION}:" in key for key in keys), keys
+
+
+def test_replica_b_segments_what_replica_a_uploaded(app_factory, redis_url, capsule_obj, tmp_path):
+    """Two app instances (replicas) share only the Redis URL; B never recomputes the ShDF."""
+    replica_a = app_factory(redis_url=redis_url, cache_dir=tmp_path / "a")
+    replica_b = app_factory(redis_url=redis_url, cache_dir=tmp_path / "b")
+    with TestClient(replica_a) as a, TestClient(replica_b) as b:
+        assert b.get("/readyz").json()["checks"]["cache"] == {"ok": True, "detail": "redis"}
+        mesh_id = a.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)}).json()["mesh"][
+            "mesh_id"
+        ]
+        assert b.get(f"/v1/meshes/{mesh_id}").status_code == 200
+        from_b = b.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 3})
+        assert from_b.status_code == 200, from_b.text
+        assert from_b.json()["timings"]["shdf_cached"] is True
+        name = "neural_shdf_shdf_computations_total"
+        assert metric(replica_a, name, method=TEST_METHOD) == 1
+        assert metric(replica_b, name, method=TEST_METHOD) == 0
+        # B's segmentation is cached for A as well; a deletion through A reaches B.
+        from_a = a.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 3}).json()
+        assert from_a["labels"] == from_b.json()["labels"]
+        assert from_a["timings"]["segmentation_cached"] is True
+        assert a.delete(f"/v1/meshes/{mesh_id}").status_code == 204
+        # B's memory still holds the mesh and the segmentation: it must not serve them.
+        assert b.get(f"/v1/meshes/{mesh_id}").status_code == 404
+        gone = b.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 3})
+        assert gone.status_code == 404
+        other = b.post("/v1/segment", json={"mesh_id": mesh_id, "clusters": 2})
+        assert other.status_code == 404

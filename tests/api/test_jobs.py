@@ -7,7 +7,7 @@ import time
 
 from fastapi.testclient import TestClient
 
-from neural_shdf.api.jobs import job_key
+from neural_shdf.store.keys import job_key
 from tests.api.api_helpers import TEST_METHOD, metric, wait_job
 
 
@@ -51,7 +51,7 @@ def test_a_job_whose_runner_process_is_gone_is_rerun_at_once(app_factory, capsul
     import subprocess
     import sys
 
-    from neural_shdf.api.cache import MACHINE
+    from neural_shdf.store.leases import MACHINE
 
     app = app_factory(lock_lease_s=600, warm_up=False)
     engine = app.state.engine

@@ -43,7 +43,7 @@ def test_upload_read_shdf_and_delete(client, capsule_obj):
     assert info["bounds"] == [mesh.vertices.min(0).tolist(), mesh.vertices.max(0).tolist()]
 
     as_json = client.get(f"/v1/meshes/{mesh_id}/shdf").json()
-    expected = mesh.to_input_faces(compute_shdf(mesh, method=TEST_METHOD, seed=0))
+    expected = mesh.to_input_faces(compute_shdf(mesh, method=TEST_METHOD, seed=0).values)
     np.testing.assert_allclose(as_json["values"], expected, rtol=1e-12)
     binary = client.get(
         f"/v1/meshes/{mesh_id}/shdf", headers={"Accept": "application/octet-stream"}
@@ -107,7 +107,7 @@ def test_segment_reruns_only_the_partitioning(client, capsule_obj):
     assert repeat["timings"]["segmentation_cached"] is True
 
     # One seed seeds every random step: another seed means the ShDF of that seed (as the
-    # CLI's --seed and the library's compute_shdf(seed=...) with SegmentParams(seed=...)).
+    # CLI's --seed and the library's compute_shdf(seed=...).values with SegmentParams(seed=...)).
     reseeded = client.post("/v1/segment", json={"mesh_id": mesh_id, "seed": 3}).json()
     assert reseeded["timings"]["shdf_cached"] is False
     assert metric(app, "neural_shdf_shdf_computations_total", method=TEST_METHOD) == 2

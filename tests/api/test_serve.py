@@ -11,9 +11,11 @@ import httpx
 import numpy as np
 import pytest
 
-from neural_shdf.api.cache import DiskBackend, ResultCache, unseal
-from neural_shdf.api.jobs import job_key
 from neural_shdf.mesh_io import load_mesh
+from neural_shdf.store.backends import DiskBackend
+from neural_shdf.store.cache import ResultCache
+from neural_shdf.store.codec import unseal
+from neural_shdf.store.keys import job_key
 from tests.api.api_helpers import TEST_METHOD, capsule, free_port, wait_job
 from tests.api.conftest import running_server
 

@@ -12,10 +12,11 @@ import httpx
 import pytest
 import trimesh
 
-from neural_shdf.api.cache import DiskBackend, ResultCache
 from neural_shdf.api.clients import Client, current_client
 from neural_shdf.api.errors import ApiError
 from neural_shdf.api.tasks import TaskRunner, checkpoint
+from neural_shdf.store.backends import DiskBackend
+from neural_shdf.store.cache import ResultCache
 from tests.api.api_helpers import make_settings
 from tests.api.conftest import running_server
 

@@ -37,8 +37,8 @@ def test_build_is_reproducible_and_runs_as_a_command(tmp_path):
         text=True,
         check=True,
     )
-    assert (tmp_path / "b" / "neural_shdf-0.1.0.zip").read_bytes() == first
-    assert done.stdout.strip().endswith("neural_shdf-0.1.0.zip")
+    assert (tmp_path / "b" / "neural_shdf-0.2.0.zip").read_bytes() == first
+    assert done.stdout.strip().endswith("neural_shdf-0.2.0.zip")
 
 
 def test_addon_imports_only_what_blender_ships():

@@ -202,15 +202,11 @@ def test_timeouts_and_refused_connections_raise_after_retries(failing_service):
     assert refused.value.code == "unreachable" and refused.value.status == 0
 
 
-def test_readme_examples_run_as_written(service, tmp_path, monkeypatch, capsys):
-    """The README's client examples, against the live service and a capsule as model.obj."""
-    import re
+def test_client_examples_run_as_written(service, tmp_path, monkeypatch, capsys):
+    """docs/client.md's examples, against the live service and a capsule as model.obj."""
+    from tests.doc_examples import python_blocks
 
-    from tests.api.api_helpers import REPO_ROOT
-
-    readme = (REPO_ROOT / "README.md").read_text()
-    section = readme.split("## Python client", 1)[1].split("\n## ", 1)[0]
-    blocks = re.findall(r"```python\n(.*?)```", section, re.S)
+    blocks = python_blocks("docs/client.md", "Python client")
     assert len(blocks) == 2
     (tmp_path / "model.obj").write_bytes(capsule().export(file_type="obj").encode())
     monkeypatch.chdir(tmp_path)

@@ -20,7 +20,8 @@ from neural_shdf.evaluate.benchmark import (
     run_eval,
     table_as_dict,
 )
-from neural_shdf.evaluate.metrics import cut_graph, score_against_humans
+from neural_shdf.evaluate.scores import cut_graph, score_against_humans
+from neural_shdf.shdf.stage import ShdfResult
 
 
 def write_off(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
@@ -136,7 +137,7 @@ def test_exact_shdf_is_cached(bench: Path, monkeypatch: pytest.MonkeyPatch):
 
     def fake_shdf(mesh, method, seed):
         calls.append(method)
-        return np.full(mesh.face_count, 0.5)
+        return ShdfResult(np.full(mesh.face_count, 0.5), "exact")
 
     monkeypatch.setattr("neural_shdf.pipeline.compute_shdf", fake_shdf)
     first = cached_shdf(mesh, "exact", bench / "cache", model)

@@ -303,21 +303,14 @@ def test_the_validators_catch_a_broken_part_family(tmp_path: Path):
 
 @pytest.mark.parametrize("suffix", ["usda", "usdc", "usdz"])
 def test_parts_written_as_subsets_round_trip(tmp_path: Path, suffix):
-    from neural_shdf.pipeline import (
-        compute_shdf_result,
-        input_face_parts,
-        mesh_face_graph,
-        segment_mesh_with_details,
-    )
-    from neural_shdf.segment import SegmentParams
+    from neural_shdf.pipeline import SegmentParams, compute_shdf, segment
 
     source = tmp_path / "dumbbell.usda"
     counts = _dumbbell_stage(source)
     mesh = load_mesh(source)
-    graph = mesh_face_graph(mesh)
-    shdf = compute_shdf_result(mesh, method="exact", graph=graph).values
-    result = segment_mesh_with_details(mesh, shdf, SegmentParams(), graph=graph)
-    labels, _ = input_face_parts(mesh, result)
+    shdf = compute_shdf(mesh, method="exact").values
+    result = segment(mesh, shdf, SegmentParams())
+    labels, _ = result.input_face_parts(mesh)
     output = tmp_path / f"parts.{suffix}"
     usd.write_usd_parts(source, labels, output)
     _check_compliance(output)

@@ -6,21 +6,21 @@ import numpy as np
 
 from neural_shdf.labeling.features import FEATURE_NAMES, FeatureSpec, node_features, node_graph
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.pipeline import compute_shdf, mesh_face_graph
+from neural_shdf.pipeline import compute_shdf
 from tests.labeling.helpers import labelled_dumbbell
 
 
 def face_features(mesh: TriangleMesh) -> np.ndarray:
     """Each face's node features (exact ShDF)."""
-    graph = mesh_face_graph(mesh)
+    graph = mesh.face_graph
     nodes = node_graph(mesh, graph, FeatureSpec(samples=400))
-    shdf = compute_shdf(mesh, method="exact", graph=graph)
+    shdf = compute_shdf(mesh, method="exact").values
     return node_features(nodes, shdf, mesh.normals_and_areas[1])[nodes.face_node]
 
 
 def test_every_face_has_a_node_and_the_cells_cover_the_surface() -> None:
     mesh, _ = labelled_dumbbell(1500)
-    nodes = node_graph(mesh, mesh_face_graph(mesh), FeatureSpec(samples=300))
+    nodes = node_graph(mesh, mesh.face_graph, FeatureSpec(samples=300))
     assert nodes.face_node.min() >= 0 and nodes.face_node.max() == nodes.node_count - 1
     assert 150 < nodes.node_count <= 300
     np.testing.assert_allclose(nodes.cell_area.sum(), 1.0)

@@ -6,15 +6,16 @@ import numpy as np
 import pytest
 
 from neural_shdf.geometry import build_face_graph, face_centroids, face_normals, weld_faces
+from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.creases import (
     crease_capacities,
     crease_graph,
     snap_boundaries_to_creases,
 )
+from neural_shdf.segment.from_shdf import prepare_segment, segment
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import canonical_labels
-from neural_shdf.segment.pipeline import prepare_segment, segment_with_details
-from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
+from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell, dumbbell_radius
 
 
 def case(faces: int, ripple: float = 0.0):
@@ -28,6 +29,11 @@ def case(faces: int, ripple: float = 0.0):
 @pytest.fixture(scope="module")
 def dumbbell_case():
     return case(6000)
+
+
+def details(vertices, faces, shdf, params):
+    """The segmentation of the triangles ``faces`` over ``vertices``."""
+    return segment(TriangleMesh(vertices, faces), shdf, params)
 
 
 def junction_errors(labels, z):
@@ -91,51 +97,64 @@ def test_a_small_part_inside_the_band_survives(dumbbell_case):
 def test_refinement_is_deterministic_and_keeps_labels_in_face_order():
     vertices, faces, shdf, graph, areas, _ = case(5000, ripple=0.05)
     params = SegmentParams(crease_boundaries=True, smoothing=0.02)
-    first = segment_with_details(vertices, faces, shdf, params, graph, areas=areas)
-    again = segment_with_details(vertices, faces, shdf, params, graph, areas=areas)
+    first = details(vertices, faces, shdf, params)
+    again = details(vertices, faces, shdf, params)
     np.testing.assert_array_equal(first.tree.leaf_labels, again.tree.leaf_labels)
     # The same mesh with its faces in another order: the same parts, per face.
     order = np.random.default_rng(0).permutation(len(faces))
     shuffled_faces = faces[order]
-    normals, shuffled_areas = face_normals(vertices, shuffled_faces)
-    shuffled_graph = build_face_graph(vertices, weld_faces(vertices, shuffled_faces), normals)
-    shuffled = segment_with_details(
-        vertices, shuffled_faces, shdf[order], params, shuffled_graph, areas=shuffled_areas
-    )
+    shuffled = details(vertices, shuffled_faces, shdf[order], params)
     np.testing.assert_array_equal(
         shuffled.tree.leaf_labels, canonical_labels(first.tree.leaf_labels[order])
     )
 
 
 def test_every_cut_of_the_tree_has_the_refined_boundaries(dumbbell_case):
-    vertices, faces, shdf, graph, areas, _ = dumbbell_case
+    vertices, faces, _, graph, areas, centroids = dumbbell_case
+    # The ShDF's steps 0.2 off the concave creases: the refinement has boundaries to move.
+    shdf = dumbbell_radius(centroids[:, 2] + 0.2)
+    shdf = (shdf - shdf.min()) / (shdf.max() - shdf.min())
     params = SegmentParams(crease_boundaries=True, smoothing=0.02)
-    whole = segment_with_details(vertices, faces, shdf, params, graph, areas=areas)
-    plain = segment_with_details(
-        vertices, faces, shdf, replace(params, crease_boundaries=False), graph, areas=areas
-    )
+    whole = details(vertices, faces, shdf, params)
+    plain = details(vertices, faces, shdf, replace(params, crease_boundaries=False))
     assert "crease_boundaries" in whole.timings
     assert not np.array_equal(whole.tree.leaf_labels, plain.tree.leaf_labels)
     for parts in range(1, whole.tree.leaf_count + 1):
-        asked = segment_with_details(
-            vertices, faces, shdf, replace(params, parts=parts), graph, areas=areas
-        )
+        asked = details(vertices, faces, shdf, replace(params, parts=parts))
         np.testing.assert_array_equal(asked.tree.leaf_labels, whole.tree.leaf_labels)
         np.testing.assert_array_equal(asked.labels, whole.tree.labels(parts))
 
 
-def test_a_kept_crease_graph_serves_every_mixture_of_the_mesh(dumbbell_case):
+def test_the_mesh_s_crease_graph_serves_every_mixture_of_the_mesh(dumbbell_case):
     vertices, faces, shdf, graph, areas, centroids = dumbbell_case
-    creases = crease_graph(graph, areas, centroids, coarse_above=1_000, coarse_nodes=800)
+    mesh = TriangleMesh(vertices, faces)
+    creases = mesh.crease_graph  # built once per mesh
     for clusters in (3, 5):
         params = SegmentParams(clusters=clusters, smoothing=0.02, crease_boundaries=True)
-        basis = prepare_segment(vertices, faces, shdf, params, graph, areas=areas, creases=creases)
-        kept = segment_with_details(vertices, faces, shdf, params, graph, basis=basis)
-        plain = segment_with_details(
-            vertices, faces, shdf, replace(params, crease_boundaries=False), graph, areas=areas
-        )
+        basis = prepare_segment(mesh, shdf, params)
+        kept = segment(mesh, shdf, params, basis=basis)
+        plain = segment(mesh, shdf, replace(params, crease_boundaries=False))
         expected = snap_boundaries_to_creases(
             plain.tree.leaf_labels, graph, areas, centroids, 0.002, creases=creases
         )
-        assert basis.creases(graph) is creases
+        assert mesh.crease_graph is creases
         np.testing.assert_array_equal(kept.tree.leaf_labels, expected)
+
+
+def test_coarse_crease_nodes_are_the_same_in_any_pose():
+    from scipy.spatial.transform import Rotation
+
+    mesh, _ = dumbbell(6000)
+    # Wider along x: the mesh's axes are defined (a body of revolution's are not).
+    vertices, triangles = np.asarray(mesh.vertices) * (1.4, 1.0, 1.0), np.asarray(mesh.faces)
+    normals, areas = face_normals(vertices, triangles)
+    graph = build_face_graph(vertices, weld_faces(vertices, triangles), normals)
+    centroids = face_centroids(vertices, triangles)
+    rotation = Rotation.random(random_state=6).as_matrix()
+    moved = face_centroids(2.0 * vertices @ rotation.T - 50.0, triangles)
+    kept = crease_graph(graph, areas, centroids, coarse_above=2_000, coarse_nodes=500)
+    turned = crease_graph(graph, 4.0 * areas, moved, coarse_above=2_000, coarse_nodes=500)
+    assert kept.node_of is not None and kept.graph.face_count < 1_500
+    np.testing.assert_array_equal(turned.node_of, kept.node_of)
+    expected = 2.0 * kept.centroids @ rotation.T - 50.0
+    np.testing.assert_allclose(turned.centroids, expected, atol=1e-9)

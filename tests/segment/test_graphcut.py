@@ -161,3 +161,28 @@ def test_coarse_graph_sums_the_weights_between_coarse_nodes():
     data = rng.uniform(0, 1, (300, 3))
     expected = np.stack([np.bincount(coarse_of, data[:, j], 40) for j in range(3)], axis=1)
     np.testing.assert_array_equal(coarse_data(coarse_of, data, 40), expected)
+
+
+def test_the_cut_hierarchy_groups_the_same_faces_in_any_pose():
+    from scipy.spatial.transform import Rotation
+
+    mesh = trimesh.creation.icosphere(4)
+    vertices = np.asarray(mesh.vertices) * (2.0, 1.0, 0.5)
+    vertices[:, 0] += 0.3 * vertices[:, 0] ** 2  # no symmetry: the mesh's axes are defined
+    normals, areas = face_normals(vertices, mesh.faces)
+    graph = build_face_graph(vertices, mesh.faces, normals)
+    left = (face_centroids(vertices, mesh.faces)[:, 0] < 0.2).astype(np.float64)
+    data = np.column_stack([left, 1.0 - left, np.full_like(left, 0.6)])  # per face, any pose
+    unit = dihedral_weights(graph, 1.0)
+    rotation = Rotation.random(random_state=5).as_matrix()
+    levels = [
+        cut_hierarchy(
+            data, graph.pairs, unit, face_centroids(v, mesh.faces), scale**2 * areas, 500
+        ).levels
+        for v, scale in ((vertices, 1.0), (3.0 * vertices @ rotation.T + 100.0, 3.0))
+    ]
+    assert len(levels[0]) > 2
+    assert len(levels[0]) == len(levels[1])
+    for level, moved in zip(*levels, strict=True):
+        if level.coarse_of is not None:
+            np.testing.assert_array_equal(moved.coarse_of, level.coarse_of)

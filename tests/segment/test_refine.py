@@ -6,7 +6,7 @@ import trimesh
 from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
 from neural_shdf.segment.graphcut import dihedral_weights, near_boundary
 from neural_shdf.segment.params import SegmentParams
-from neural_shdf.segment.pipeline import FaceData
+from neural_shdf.segment.parts import FaceData
 from neural_shdf.segment.refine import refine_parts, smooth_boundaries
 from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
 

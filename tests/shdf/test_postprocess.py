@@ -10,10 +10,10 @@ import trimesh
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import build_face_graph, face_centroids, face_normals
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.pipeline import mesh_face_graph
 from neural_shdf.shdf.postprocess import (
     EXACT_WINDOW_MAX,
     bilateral_smooth,
+    bilateral_window,
     fill_missing,
     linear_normalize,
     log_normalize,
@@ -21,7 +21,6 @@ from neural_shdf.shdf.postprocess import (
     patch_bilateral,
     postprocess_shdf,
     ring_length,
-    smoothing_window,
     sorted_adjacency,
 )
 
@@ -164,8 +163,8 @@ def test_fill_missing_uses_earlier_fills_then_the_minimum():
     np.testing.assert_array_equal(fill_missing(np.full(6, np.nan), graph), 0.0)
 
 
-def test_smoothing_window_follows_the_face_count():
-    assert [smoothing_window(n) for n in (0, 1999, 2000, 7999, 8000, 18000)] == [1, 1, 2, 2, 3, 4]
+def test_bilateral_window_follows_the_face_count():
+    assert [bilateral_window(n) for n in (0, 1999, 2000, 7999, 8000, 18000)] == [1, 1, 2, 2, 3, 4]
 
 
 def test_normalisations():
@@ -247,7 +246,7 @@ def test_ring_length_measures_the_spacing_of_rings():
 def test_post_processing_reports_progress_in_steps():
     """The bilateral filter is up to a third of an exact run: it reports as blocks finish."""
     sphere = trimesh.creation.icosphere(subdivisions=4)
-    graph = mesh_face_graph(TriangleMesh(sphere.vertices, sphere.faces))
+    graph = TriangleMesh(sphere.vertices, sphere.faces).face_graph
     raw = np.random.default_rng(0).uniform(0.5, 1.5, len(sphere.faces))
     seen: list[float] = []
     values = postprocess_shdf(raw, graph, window_size=3, progress=seen.append)

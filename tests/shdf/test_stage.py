@@ -9,17 +9,14 @@ import trimesh
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import face_centroids
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.pipeline import compute_shdf, compute_shdf_result, mesh_face_graph
+from neural_shdf.pipeline import compute_shdf
 from neural_shdf.shdf import stage
 from neural_shdf.shdf.exact import raw_shdf, raw_shdf_at_points
 from neural_shdf.shdf.neural.inference import DEFAULT_MODEL_PATH
 from neural_shdf.shdf.stage import (
-    DEFAULT_SAMPLES,
     THIN_PART_RADII,
     ShdfParams,
     resolve_method,
-    shdf_key,
-    smooth_samples,
     thin_part_samples,
 )
 
@@ -45,14 +42,13 @@ def test_auto_is_exact_on_small_meshes_and_sampled_above(monkeypatch) -> None:
 
 def test_auto_reports_the_producer_that_ran(monkeypatch) -> None:
     mesh = two_shells()
-    graph = mesh_face_graph(mesh)
-    result = compute_shdf_result(mesh, graph=graph)
+    result = compute_shdf(mesh)
     assert result.method == "exact"
-    np.testing.assert_array_equal(result.values, compute_shdf(mesh, method="exact", graph=graph))
+    np.testing.assert_array_equal(result.values, compute_shdf(mesh, method="exact").values)
     monkeypatch.setattr(stage, "AUTO_EXACT_MAX_FACES", 100)
-    result = compute_shdf_result(mesh, graph=graph)
+    result = compute_shdf(mesh)
     assert result.method == "sampled"
-    again = compute_shdf_result(mesh, graph=graph)
+    again = compute_shdf(mesh)
     np.testing.assert_array_equal(result.values, again.values)
 
 
@@ -70,55 +66,12 @@ def test_cone_at_face_centroids_is_the_exact_raw_shdf() -> None:
 
 def test_sampled_follows_exact_on_two_shells() -> None:
     mesh = two_shells()
-    graph = mesh_face_graph(mesh)
-    exact = compute_shdf(mesh, method="exact", graph=graph)
-    sampled = compute_shdf(mesh, method="sampled", graph=graph, params=ShdfParams(samples=1024))
+    exact = compute_shdf(mesh, method="exact").values
+    sampled = compute_shdf(mesh, method="sampled", params=ShdfParams(samples=1024)).values
     assert sampled.shape == exact.shape and np.all((sampled >= 0) & (sampled <= 1))
     assert np.corrcoef(exact, sampled)[0, 1] > 0.98
-    other_seed = compute_shdf(mesh, method="sampled", graph=graph, seed=3)
-    assert not np.array_equal(other_seed, compute_shdf(mesh, method="sampled", graph=graph))
-
-
-def test_sample_smoothing_keeps_steps_and_constants() -> None:
-    rng = np.random.default_rng(0)
-    positions = rng.random((400, 3)) * [10.0, 1.0, 0.0]
-    normals = np.tile([0.0, 0.0, 1.0], (400, 1))
-    constant = np.full(400, 2.0)
-    np.testing.assert_array_equal(
-        smooth_samples(constant, positions, normals, radius=1.0, spatial_sigma=0.5), constant
-    )
-    step = np.where(positions[:, 0] < 5.0, 1.0, 3.0) + rng.normal(0, 0.05, 400)
-    smoothed = smooth_samples(step, positions, normals, radius=1.0, spatial_sigma=0.5)
-    far = np.abs(positions[:, 0] - 5.0) > 1.0
-    assert np.std(smoothed[far & (positions[:, 0] < 5)]) < np.std(step[far & (positions[:, 0] < 5)])
-    assert np.all(np.abs(smoothed[far] - np.round(step[far])) < 0.2)  # no bleeding across
-    flipped = normals.copy()
-    flipped[::2] *= -1  # the other side of a wall never mixes in
-    lone = smooth_samples(step, positions, flipped, radius=1.0, spatial_sigma=0.5)
-    assert np.abs(lone - smoothed).max() > 0
-
-
-def test_cache_key_covers_method_model_and_every_parameter() -> None:
-    base = ShdfParams()
-    keys = {
-        shdf_key("exact", base, None),
-        shdf_key("sampled", base, None),
-        shdf_key("neural", base, "a" * 64),
-        shdf_key("neural", base, "b" * 64),
-        shdf_key("exact", ShdfParams(ray_count=16), None),
-        shdf_key("exact", ShdfParams(window_size=3), None),
-        shdf_key("sampled", ShdfParams(samples=1024), None),
-        shdf_key("sampled", ShdfParams(seed=1), None),
-        shdf_key("neural", ShdfParams(sample_sets=3), "a" * 64),
-        shdf_key("sampled", ShdfParams(max_samples=8192), None),
-    }
-    assert len(keys) == 10
-    # Parameters a producer never reads do not split its cache.
-    assert shdf_key("exact", ShdfParams(seed=5, samples=64), None) == shdf_key("exact", base, None)
-    fixed = ShdfParams(max_samples=DEFAULT_SAMPLES)
-    assert shdf_key("neural", fixed, "a" * 64) == shdf_key("neural", base, "a" * 64)
-    with pytest.raises(ParameterError, match="checksum"):
-        shdf_key("neural", base, None)
+    other_seed = compute_shdf(mesh, method="sampled", seed=3).values
+    assert not np.array_equal(other_seed, compute_shdf(mesh, method="sampled").values)
 
 
 def test_parameters_are_checked() -> None:
@@ -133,14 +86,13 @@ def test_the_model_argument_decides_which_network_computes(tmp_path) -> None:
     from tests.model_helpers import perturbed_model
 
     mesh = two_shells()
-    graph = mesh_face_graph(mesh)
     params = ShdfParams(sample_sets=1)
-    default = compute_shdf(mesh, method="neural", graph=graph, params=params)
+    default = compute_shdf(mesh, method="neural", params=params).values
     other_path = perturbed_model(tmp_path)
-    other = compute_shdf(mesh, method="neural", graph=graph, params=params, model=other_path)
+    other = compute_shdf(mesh, method="neural", params=params, model=other_path).values
     assert np.abs(other - default).max() > 1e-3
     np.testing.assert_array_equal(
-        default, compute_shdf(mesh, method="neural", graph=graph, params=params, model=None)
+        default, compute_shdf(mesh, method="neural", params=params, model=None).values
     )
 
 
@@ -166,17 +118,18 @@ def test_sampled_casts_more_samples_on_thin_parts() -> None:
     ball.apply_translation([3.0, 0.0, 0.0])
     both = trimesh.util.concatenate([ring, ball])
     mesh = TriangleMesh(np.asarray(both.vertices), np.asarray(both.faces))
-    graph = mesh_face_graph(mesh)
-    exact = compute_shdf(mesh, method="exact", graph=graph)
+    exact = compute_shdf(mesh, method="exact").values
     fixed, adaptive, again = (
-        compute_shdf(mesh, method="sampled", graph=graph, params=params)
+        compute_shdf(mesh, method="sampled", params=params).values
         for params in (
             ShdfParams(samples=200, max_samples=200),
             ShdfParams(samples=200),
             ShdfParams(samples=200),
         )
     )
-    assert np.abs(adaptive - exact).mean() < 0.6 * np.abs(fixed - exact).mean()
+    # The ratio is 0.64 with cones that turn with the triangles (0.45 to 0.60 over poses
+    # of this mesh when the cones followed the world axes).
+    assert np.abs(adaptive - exact).mean() < 0.75 * np.abs(fixed - exact).mean()
     np.testing.assert_array_equal(again, adaptive)
 
 
@@ -186,11 +139,10 @@ def test_rays_are_cast_from_one_copy_of_each_triangle() -> None:
     vertices = np.eye(3)
     mesh = TriangleMesh(vertices, np.tile([[0, 1, 2]], (500, 1)))
     oriented = mesh.oriented
-    graph = mesh_face_graph(mesh)
     ray_mesh, ray_graph, copy_of = stage.without_copies(
-        oriented, graph, mesh.orientation.first_copy
+        oriented, mesh.face_graph, mesh.orientation.first_copy
     )
     assert ray_mesh.face_count == 1 and ray_graph.face_count == 1
     np.testing.assert_array_equal(copy_of, np.zeros(500))
-    result = compute_shdf_result(mesh, method="exact")
+    result = compute_shdf(mesh, method="exact")
     assert result.values.shape == (500,) and len(np.unique(result.values)) == 1

@@ -14,7 +14,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, TypeVar
 
-from neural_shdf.api.cache import ResultCache
 from neural_shdf.api.jobs import JobStore
 from neural_shdf.api.mesh_store import MeshStore
 from neural_shdf.api.metrics import Metrics
@@ -23,12 +22,15 @@ from neural_shdf.api.settings import Settings
 from neural_shdf.api.shdf_service import ShdfService
 from neural_shdf.api.tasks import TaskRunner
 from neural_shdf.api.unwrapping import UnwrapService
+from neural_shdf.store.cache import ResultCache
+from neural_shdf.store.keys import mesh_key
 
 T = TypeVar("T")
 
 
 class Engine:
-    """Meshes, ShDF and segmentations over the shared cache, each computed once."""
+    """Meshes, ShDF and segmentations over the shared cache (``neural_shdf.store``),
+    each computed once."""
 
     def __init__(self, settings: Settings, cache: ResultCache, metrics: Metrics) -> None:
         self.settings = settings
@@ -56,7 +58,7 @@ class Engine:
 
     async def resolved_method(self, mesh_id: str, method: str | None) -> str:
         """The ShDF producer a request runs on a stored mesh (``auto`` resolved per mesh)."""
-        mesh = self.cache.recall(f"{mesh_id}:mesh")
+        mesh = self.cache.recall(mesh_key(mesh_id))
         if mesh is not None:
             triangles = mesh.face_count
         else:

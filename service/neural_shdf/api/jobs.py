@@ -15,7 +15,9 @@ import time
 import uuid
 from typing import Any
 
-from neural_shdf.api.cache import Lease, ResultCache
+from neural_shdf.store.cache import ResultCache
+from neural_shdf.store.keys import job_key
+from neural_shdf.store.leases import Lease
 
 #: Fields of a job record that the API shows (the rest is bookkeeping between workers).
 PUBLIC_FIELDS = (
@@ -41,10 +43,6 @@ class JobAccepted(Exception):  # noqa: N818 - a signal, not a failure
     def __init__(self, job: dict[str, Any]) -> None:
         super().__init__(job["job_id"])
         self.job = job
-
-
-def job_key(job_id: str) -> str:
-    return f"job:{job_id}"
 
 
 def public_job(job: dict[str, Any]) -> dict[str, Any]:

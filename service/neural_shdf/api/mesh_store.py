@@ -8,10 +8,8 @@ import time
 import uuid
 from typing import Any
 
-import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf.api.cache import ResultCache
 from neural_shdf.api.errors import ApiError, not_found
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.settings import Settings
@@ -19,26 +17,11 @@ from neural_shdf.errors import InvalidGeometryError
 from neural_shdf.geometry import FaceGraph
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.creases import CreaseGraph
+from neural_shdf.store.cache import ResultCache
+from neural_shdf.store.codec import mesh_arrays, mesh_from_arrays
+from neural_shdf.store.keys import mesh_key, meta_key
 
 logger = logging.getLogger(__name__)
-
-
-def mesh_arrays(mesh: TriangleMesh) -> dict[str, NDArray]:
-    return {
-        "vertices": mesh.vertices,
-        "faces": mesh.faces,
-        "face_origin": mesh.face_origin,
-        "input_face_count": np.array(mesh.input_face_count),
-    }
-
-
-def mesh_from_arrays(arrays: dict[str, NDArray]) -> TriangleMesh:
-    return TriangleMesh(
-        arrays["vertices"],
-        arrays["faces"],
-        arrays["face_origin"],
-        int(arrays["input_face_count"]),
-    )
 
 
 #: Metadata of one upload, answered to that uploader only. A mesh is stored under the hash
@@ -96,10 +79,10 @@ class MeshStore:
         shared facts of the geometry plus this upload's own file name, format and time,
         which are not stored (``UPLOAD_FIELDS``)."""
         mesh_id = mesh.content_hash()
-        meta_key = f"{mesh_id}:meta"
-        meta = self.cache.get_json(meta_key)
-        stored = self.cache.recall(f"{mesh_id}:mesh") is not None
-        if meta is None or not (stored or self.cache.get_arrays(f"{mesh_id}:mesh") is not None):
+        meta_entry = meta_key(mesh_id)
+        meta = self.cache.get_json(meta_entry)
+        stored = self.cache.recall(mesh_key(mesh_id)) is not None
+        if meta is None or not (stored or self.cache.get_arrays(mesh_key(mesh_id)) is not None):
             _, area = mesh.normals_and_areas
             meta = {
                 "mesh_id": mesh_id,
@@ -116,19 +99,19 @@ class MeshStore:
             }
             # keep_local: readable through a Redis outage (only the client could restore it)
             self.cache.put_arrays(
-                f"{mesh_id}:mesh", mesh_arrays(mesh), group=mesh_id, keep_local=True
+                mesh_key(mesh_id), mesh_arrays(mesh), group=mesh_id, keep_local=True
             )
             # Concurrent first uploads: one meta (one generation) wins, the others read it.
-            if not self.cache.add_json(meta_key, meta, group=mesh_id, keep_local=True):
-                meta = self.cache.get_json(meta_key) or meta
-        self.cache.remember(f"{mesh_id}:mesh", mesh)
+            if not self.cache.add_json(meta_entry, meta, group=mesh_id, keep_local=True):
+                meta = self.cache.get_json(meta_entry) or meta
+        self.cache.remember(mesh_key(mesh_id), mesh)
         upload = {"format": file_type, "filename": filename, "uploaded_at": time.time()}
         return {**shared_meta(meta), **upload}
 
     def meta(self, mesh_id: str) -> dict[str, Any]:
         """Metadata of a mesh that can be used (one whose geometry is gone is gone): what
         every uploader of the geometry shares, never one uploader's file name."""
-        meta = self.cache.get_json(f"{mesh_id}:meta")
+        meta = self.cache.get_json(meta_key(mesh_id))
         if meta is None or self._geometry_lost(mesh_id):
             raise mesh_missing(mesh_id)
         return shared_meta(meta)
@@ -137,7 +120,7 @@ class MeshStore:
         """Whether the mesh's geometry entry is known to be gone (evicted, or dropped as
         corrupt); then its metadata and results are deleted too, so that every route
         answers 404 alike. An unreachable cache cannot tell: not lost."""
-        key = f"{mesh_id}:mesh"
+        key = mesh_key(mesh_id)
         if self.cache.recall(key) is not None or self.cache.backend.exists(key) is not False:
             return False
         logger.warning(
@@ -150,14 +133,14 @@ class MeshStore:
         """Whether the shared cache still holds the mesh: a deletion through another
         worker or replica must not be hidden by this process's memory. An unreachable
         cache cannot tell: then memory is trusted (degraded mode)."""
-        if self.cache.backend.exists(f"{mesh_id}:meta") is not False:
+        if self.cache.backend.exists(meta_key(mesh_id)) is not False:
             return True
         self.cache.forget_group(mesh_id)
         return False
 
     def load(self, mesh_id: str) -> TriangleMesh:
         """The stored mesh (memory first, then the shared cache); 404 when absent."""
-        key = f"{mesh_id}:mesh"
+        key = mesh_key(mesh_id)
         mesh = self.cache.recall(key)
         if mesh is not None and self.still_stored(mesh_id):
             self.metrics.count_cache("mesh", hit=True)
@@ -174,7 +157,7 @@ class MeshStore:
     def guard(self, mesh_id: str) -> tuple[str, bytes]:
         """What a result of the mesh is stored under (``ResultCache.put_arrays``): its meta
         entry as it is now; 404 when the mesh is not stored (deleted)."""
-        key = f"{mesh_id}:meta"
+        key = meta_key(mesh_id)
         stored = self.cache.get_raw(key)
         if stored is None:
             raise mesh_missing(mesh_id)
@@ -198,32 +181,19 @@ class MeshStore:
 
     def delete(self, mesh_id: str) -> None:
         """Delete the mesh and everything derived from it; 404 when there was nothing."""
-        existed = self.cache.get_json(f"{mesh_id}:meta") is not None
+        existed = self.cache.get_json(meta_key(mesh_id)) is not None
         if not (self.cache.delete_group(mesh_id) > 0 or existed):
             raise mesh_missing(mesh_id)
 
     def graph(self, mesh_id: str, mesh: TriangleMesh) -> FaceGraph:
-        """Face graph of a mesh, built once per process (memory LRU)."""
-        from neural_shdf.pipeline import mesh_face_graph
-
-        key = f"{mesh_id}:graph"
-        with self._graph_locks[hash(key) % len(self._graph_locks)]:
-            graph = self.cache.recall(key)
-            if graph is None:
-                graph = mesh_face_graph(mesh)
-                self.cache.remember(key, graph)
-        return graph
+        """Face graph of a mesh (``TriangleMesh.face_graph``, cached on the mesh this
+        store keeps in memory), built once: concurrent requests wait for one build."""
+        with self._graph_locks[hash(f"{mesh_id}:graph") % len(self._graph_locks)]:
+            return mesh.face_graph
 
     def creases(self, mesh_id: str, mesh: TriangleMesh) -> CreaseGraph:
-        """The crease refinement's graph of a mesh, built once per process (memory LRU); it
-        serves every ShDF and mixture of the mesh."""
-        from neural_shdf.pipeline import mesh_crease_graph
-
-        key = f"{mesh_id}:creases"
-        graph = self.graph(mesh_id, mesh)  # outside the lock: locks are striped, not reentrant
-        with self._graph_locks[hash(key) % len(self._graph_locks)]:
-            creases = self.cache.recall(key)
-            if creases is None:
-                creases = mesh_crease_graph(mesh, graph)
-                self.cache.remember(key, creases)
-        return creases
+        """The crease refinement's graph of a mesh (``TriangleMesh.crease_graph``), built
+        once as ``graph``; it serves every ShDF and mixture of the mesh."""
+        self.graph(mesh_id, mesh)  # outside the lock: locks are striped, not reentrant
+        with self._graph_locks[hash(f"{mesh_id}:creases") % len(self._graph_locks)]:
+            return mesh.crease_graph

@@ -11,7 +11,7 @@ from fastapi.responses import JSONResponse
 from numpy.typing import NDArray
 
 from neural_shdf.api.schemas import MeshInfo, ShdfStatus, ShdfValues, UploadResult
-from neural_shdf.api.segmentation import SegmentResult
+from neural_shdf.api.segmentation import StoredSegmentation
 from neural_shdf.api.shdf_service import ShdfOutcome
 from neural_shdf.export import part_color_hex
 
@@ -61,7 +61,7 @@ def segmentation_response(
     mesh_id: str,
     method: str,
     labels_format: str,
-    result: SegmentResult,
+    result: StoredSegmentation,
     timings: dict[str, Any],
 ) -> Response:
     """The `Segmentation` JSON, serialised directly (no per-label model validation)."""

@@ -4,34 +4,33 @@ from __future__ import annotations
 
 import base64
 import functools
-import hashlib
 import json
 import time
 from dataclasses import asdict, dataclass
 from dataclasses import field as dataclass_field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf import __version__
-from neural_shdf.api.cache import ResultCache
 from neural_shdf.api.mesh_store import MeshStore, mesh_missing
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.shdf_service import ShdfService
 from neural_shdf.api.tasks import TaskRunner, checkpoint
 from neural_shdf.export import part_tree_document
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.segment import SegmentParams
+from neural_shdf.pipeline import SegmentParams, prepare_segment, segment
+from neural_shdf.segment.from_shdf import SegmentResult
 from neural_shdf.segment.hierarchy import PartTree
-
-if TYPE_CHECKING:
-    from neural_shdf.segment.pipeline import SegmentResult as LibrarySegmentResult
+from neural_shdf.store.cache import ResultCache
+from neural_shdf.store.keys import segmentation_basis_key, segmentation_key
 
 
 @dataclass
-class SegmentResult:
-    """A segmentation, stored in the cache as arrays."""
+class StoredSegmentation:
+    """A segmentation as the service stores and serves it (per input face, with per-part
+    statistics and the part tree), kept in the cache as arrays; ``summarize`` makes one
+    from the library's ``SegmentResult``."""
 
     labels: NDArray[np.int32]  # per input face
     triangle_labels: NDArray[np.int32]  # per triangle
@@ -88,7 +87,7 @@ class SegmentResult:
         return data
 
     @classmethod
-    def from_arrays(cls, arrays: dict[str, NDArray]) -> SegmentResult:
+    def from_arrays(cls, arrays: dict[str, NDArray]) -> StoredSegmentation:
         return cls(
             labels=arrays["labels"],
             triangle_labels=arrays["triangle_labels"],
@@ -111,14 +110,12 @@ def pack_integers(values: NDArray) -> tuple[str, str]:
 
 
 def summarize(
-    mesh: TriangleMesh, segmentation: LibrarySegmentResult, shdf: NDArray, seconds: float
-) -> SegmentResult:
+    mesh: TriangleMesh, segmentation: SegmentResult, shdf: NDArray, seconds: float
+) -> StoredSegmentation:
     """Input-face labels and leaves (the library's mapping), the part tree, and per-part
     faces, area and area-weighted mean ShDF."""
-    from neural_shdf.pipeline import input_face_parts
-
     triangle_labels = segmentation.labels
-    labels, leaves = input_face_parts(mesh, segmentation)
+    labels, leaves = segmentation.input_face_parts(mesh)
     _, area = mesh.normals_and_areas
     part_count = int(triangle_labels.max()) + 1 if len(triangle_labels) else 0
     tri = np.asarray(triangle_labels, dtype=np.int64)
@@ -127,7 +124,7 @@ def summarize(
     mean = np.divide(weighted, part_area, out=np.zeros(part_count), where=part_area > 0)
     assigned = labels[labels >= 0]
     part_faces = np.bincount(assigned, minlength=part_count)
-    result = SegmentResult(
+    result = StoredSegmentation(
         labels=labels.astype(np.int32),
         triangle_labels=tri.astype(np.int32),
         part_faces=part_faces.astype(np.int64),
@@ -140,11 +137,6 @@ def summarize(
         result.tree_merges = segmentation.tree.merges
         result.tree_costs = segmentation.tree.costs
     return result
-
-
-def params_digest(params: SegmentParams) -> str:
-    """Stable hash of the segmentation parameters (the cache key's parameter part)."""
-    return hashlib.sha256(json.dumps(asdict(params), sort_keys=True).encode()).hexdigest()[:20]
 
 
 class SegmentationService:
@@ -166,27 +158,24 @@ class SegmentationService:
 
     def key(self, mesh_id: str, method: str, params: SegmentParams) -> str:
         """The cache key: mesh, code version, the ShDF it starts from, the parameters."""
-        shdf = self.shdf.version(method, params.seed)
-        return f"{mesh_id}:seg:{__version__}:{shdf}:{params_digest(params)}"
+        return segmentation_key(mesh_id, self.shdf.version(method, params.seed), params)
 
-    def cached(self, key: str) -> SegmentResult | None:
+    def cached(self, key: str) -> StoredSegmentation | None:
         """The cached segmentation (memory, then the shared cache), or None."""
-        result = self.cache.recall_arrays(key, SegmentResult.from_arrays)
+        result = self.cache.recall_arrays(key, StoredSegmentation.from_arrays)
         self.metrics.count_cache("segmentation", hit=result is not None)
         return result
 
     def _store(
-        self, key: str, mesh_id: str, result: SegmentResult, guard: tuple[str, bytes] | None
+        self, key: str, mesh_id: str, result: StoredSegmentation, guard: tuple[str, bytes] | None
     ) -> None:
         self.meshes.store_result(key, mesh_id, result.arrays(), guard)
         self.cache.remember(key, result)
 
     def _compute(
         self, mesh_id: str, method: str, mesh: TriangleMesh, shdf: NDArray, params: SegmentParams
-    ) -> SegmentResult:
-        from neural_shdf.pipeline import prepare_segment_mesh, segment_mesh_with_details
-
-        graph = self.meshes.graph(mesh_id, mesh)
+    ) -> StoredSegmentation:
+        self.meshes.graph(mesh_id, mesh)  # built once per mesh, under the mesh's lock
         start = time.perf_counter()
         # What does not depend on smoothing, parts or refinement is kept per mesh, ShDF,
         # clusters and seed (in memory, within MEMORY_WORKING_SET_BYTES), so a new slider value
@@ -194,27 +183,26 @@ class SegmentationService:
         if params.partitioner == "metis":
             # In the worker process: pymetis partitions holding the GIL, which in a thread
             # stalls the event loop (every other request) for as long.
-            segment = functools.partial(segment_mesh_with_details, graph=graph)
-            segmentation = self.tasks.isolated(segment, mesh.bare(), shdf, params)
+            segmentation = self.tasks.isolated(segment, mesh.portable(), shdf, params)
         else:
             shdf_version = self.shdf.version(method, params.seed)
-            basis_key = f"{mesh_id}:basis:{shdf_version}:{params.clusters}:{params.seed}"
+            basis_key = segmentation_basis_key(mesh_id, shdf_version, params.clusters, params.seed)
             basis = self.cache.working_set(basis_key)
             if basis is None or not basis.matches(params, shdf):
-                crease_graph = (
-                    self.meshes.creases(mesh_id, mesh) if params.crease_boundaries else None
-                )
+                if params.crease_boundaries:
+                    self.meshes.creases(mesh_id, mesh)
                 checkpoint()
-                basis = prepare_segment_mesh(mesh, shdf, params, graph=graph, creases=crease_graph)
+                basis = prepare_segment(mesh, shdf, params)
             checkpoint()
-            segmentation = segment_mesh_with_details(mesh, shdf, params, graph=graph, basis=basis)
+            # The basis's own ShDF: the one it was checked against just above (no second pass).
+            segmentation = segment(mesh, basis.shdf, params, basis=basis)
             self.cache.keep_working_set(basis_key, basis, basis.nbytes)  # sized with its cut
         seconds = time.perf_counter() - start
         self.metrics.segmentations.inc()
         self.metrics.segment_seconds.observe(seconds)
         return summarize(mesh, segmentation, shdf, seconds)
 
-    async def _recall_fresh(self, mesh_id: str, key: str) -> SegmentResult | None:
+    async def _recall_fresh(self, mesh_id: str, key: str) -> StoredSegmentation | None:
         """This process's memory of the result, unless the mesh was deleted meanwhile."""
         result = self.cache.recall(key)
         if result is None:
@@ -231,7 +219,7 @@ class SegmentationService:
 
     async def get(
         self, mesh_id: str, method: str, params: SegmentParams
-    ) -> tuple[SegmentResult, dict[str, Any]]:
+    ) -> tuple[StoredSegmentation, dict[str, Any]]:
         """Segment a stored mesh (cached result, else from the cached ShDF, whose seed is
         ``params.seed``); returns the result and where the time went."""
         start = time.perf_counter()

@@ -9,8 +9,10 @@ from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
+from neural_shdf.store.cache import CacheConfig
 
-DEFAULT_CACHE_DIR = Path.home() / ".cache" / "neural-shdf" / "service"
+#: The store's defaults (batch workers share them): one source for both.
+STORE = CacheConfig()
 
 
 class Settings(BaseSettings):
@@ -23,35 +25,40 @@ class Settings(BaseSettings):
     workers: int = Field(1, ge=1, description="uvicorn worker processes.")
     log_level: str = Field("info", description="uvicorn log level.")
 
-    cache_dir: Path = Field(DEFAULT_CACHE_DIR, description="Local disk cache directory.")
+    cache_dir: Path = Field(STORE.cache_dir, description="Local disk cache directory.")
     cache_size_bytes: int = Field(
-        2 * 1024**3, ge=1024**2, description="Disk cache size cap; least-recently-used eviction."
+        STORE.cache_size_bytes,
+        ge=1024**2,
+        description="Disk cache size cap; least-recently-used eviction.",
     )
     redis_url: str | None = Field(
-        None, description="redis://host:port/db; when set, Redis replaces the disk cache."
+        STORE.redis_url,
+        description="redis://host:port/db; when set, Redis replaces the disk cache.",
     )
     redis_timeout_s: float = Field(
-        2.0,
+        STORE.redis_timeout_s,
         gt=0,
         description="Redis socket timeout in seconds; one timeout opens the circuit breaker.",
     )
     redis_retry_s: float = Field(
-        5.0,
+        STORE.redis_retry_s,
         gt=0,
         description="While Redis is unreachable, how often it is probed again; meanwhile "
         "requests use the local disk cache (`CACHE_DIR`) without waiting on Redis.",
     )
     redis_ttl_s: float | None = Field(
-        30 * 24 * 3600,
+        STORE.redis_ttl_s,
         gt=0,
         description="Expiry of Redis entries (refreshed on write); size Redis with "
         "maxmemory-policy allkeys-lru as well.",
     )
     memory_cache_items: int = Field(
-        16, ge=0, description="Meshes, graphs and results kept in process memory (LRU)."
+        STORE.memory_cache_items,
+        ge=0,
+        description="Meshes, graphs and results kept in process memory (LRU).",
     )
     memory_working_set_bytes: int = Field(
-        1024**3,
+        STORE.memory_working_set_bytes,
         ge=0,
         description="Bytes of segmentation working sets (per mesh, ShDF, clusters and seed: "
         "mixture, data costs, the graph cut's coarse graphs; about 45 MB per 100k faces) kept "
@@ -124,13 +131,13 @@ class Settings(BaseSettings):
     )
     job_ttl_s: int = Field(7 * 24 * 3600, ge=1, description="How long job records are kept.")
     lock_lease_s: float = Field(
-        5.0,
+        STORE.lock_lease_s,
         gt=0,
         description="Compute locks and running jobs are leases their worker renews every "
         "third of this; a crashed worker's lock lapses, and its job is re-run, after this long.",
     )
     lock_timeout_s: float = Field(
-        600.0,
+        STORE.lock_timeout_s,
         gt=0,
         description="Longest a computation waits for another live worker computing the same "
         "result before computing it too (seconds).",

@@ -6,7 +6,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
-import hashlib
 import logging
 import time
 from collections.abc import Callable
@@ -17,19 +16,21 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf import __version__
-from neural_shdf.api.cache import Lease, ResultCache
+from neural_shdf import pipeline
 from neural_shdf.api.errors import ApiError, error_dict, not_found
 from neural_shdf.api.jobs import JobAccepted, JobStore, public_job, worker_name
 from neural_shdf.api.mesh_store import MeshStore
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.settings import Settings
 from neural_shdf.api.tasks import TaskRunner, cancellation, checkpoint
-from neural_shdf.constants import ALGORITHM_VERSION
 from neural_shdf.errors import ModelUnavailableError
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.params import check_seed
 from neural_shdf.shdf.stage import resolve_method, uses_model
+from neural_shdf.store.cache import ResultCache
+from neural_shdf.store.codec import shdf_arrays, shdf_from_arrays
+from neural_shdf.store.keys import model_version, shdf_key, shdf_version
+from neural_shdf.store.leases import Lease
 
 logger = logging.getLogger(__name__)
 
@@ -39,40 +40,6 @@ def model_path(settings: Settings) -> Path:
     from neural_shdf.shdf.neural.inference import model_path as library_model_path
 
     return settings.model.expanduser().resolve() if settings.model else library_model_path()
-
-
-def model_version(path: Path) -> str | None:
-    """Short hash of the model card (which holds the weights' checksum and feature version);
-    of the weights when there is no card; None when the model is absent."""
-    card = path.with_suffix(".json")
-    if card.is_file():
-        return hashlib.sha256(card.read_bytes()).hexdigest()[:16]
-    if path.is_file():
-        from neural_shdf.shdf.neural.inference import file_sha256
-
-        return file_sha256(path)[:16]
-    return None
-
-
-def shdf_version(method: str, model_version: str | None, seed: int = 0) -> str:
-    """What a cached ShDF depends on besides the mesh: the code and algorithm versions
-    (``constants.ALGORITHM_VERSION``; every other result's key starts from this one, so
-    it carries that version too), the method (resolved by callers that know the mesh),
-    the model's version where the method can run the network (refused when there is
-    none) and every ShDF parameter (``stage.shdf_key``)."""
-    from neural_shdf.shdf.stage import ShdfParams
-    from neural_shdf.shdf.stage import shdf_key as stage_key
-
-    if uses_model(method) and not model_version:
-        raise ModelUnavailableError(f"the ShDF method {method!r} needs a neural model; none found")
-    model = model_version if uses_model(method) else None
-    return f"{__version__}:a{ALGORITHM_VERSION}:{stage_key(method, ShdfParams(seed=seed), model)}"
-
-
-def shdf_key(mesh_id: str, method: str, seed: int, model_version: str | None) -> str:
-    """Cache key of a mesh's ShDF (shared by every service replica and batch worker);
-    ``method`` is a resolved producer (not ``auto``)."""
-    return f"{mesh_id}:shdf:{shdf_version(method, model_version, seed)}"
 
 
 @dataclass(frozen=True)
@@ -133,28 +100,21 @@ class ShdfService:
 
     def cached(self, key: str) -> NDArray[np.float64] | None:
         """The cached ShDF (memory, then the shared cache), or None."""
-        values = self.cache.recall(key)
-        if values is None:
-            arrays = self.cache.get_arrays(key)
-            if arrays is not None and "shdf" in arrays:
-                values = arrays["shdf"]
-                self.cache.remember(key, values)
+        values = self.cache.recall_arrays(key, shdf_from_arrays)
         self.metrics.count_cache("shdf", hit=values is not None)
         return values
 
     def _store(
         self, key: str, mesh_id: str, outcome: ShdfOutcome, guard: tuple[str, bytes] | None
     ) -> None:
-        self.meshes.store_result(key, mesh_id, {"shdf": outcome.values}, guard)
+        self.meshes.store_result(key, mesh_id, shdf_arrays(outcome.values), guard)
         self.cache.remember(key, outcome.values)
 
     def _compute(
         self, key: str, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
     ) -> ShdfOutcome:
         """Compute the ShDF now (a compute thread), reporting progress under ``key``."""
-        from neural_shdf.pipeline import compute_shdf
-
-        graph = self.meshes.graph(mesh_id, mesh)
+        self.meshes.graph(mesh_id, mesh)  # built once per mesh, under the mesh's lock
         self._progress[key] = 0.0
         cancelled = cancellation()  # progress may be reported from the library's threads
 
@@ -164,14 +124,13 @@ class ShdfService:
 
         start = time.perf_counter()
         try:
-            values = compute_shdf(
+            values = pipeline.compute_shdf(
                 mesh,
                 method=method,  # type: ignore[arg-type]
                 seed=seed,
-                graph=graph,
                 progress=progress,
                 model=self.model_path,
-            )
+            ).values
         finally:
             self._progress.pop(key, None)
         seconds = time.perf_counter() - start
@@ -186,11 +145,9 @@ class ShdfService:
         mesh: TriangleMesh,
         method: str,
         seed: int,
-        *,
-        stored_mesh: bool = True,
     ) -> ShdfOutcome:
-        """Blocking: the cached ShDF, else computed and stored under the cache lock (for a
-        ``stored_mesh``, only while it is not deleted: ``MeshStore.store_result``)."""
+        """Blocking: the cached ShDF, else computed and stored under the cache lock, only
+        while the mesh is not deleted (``MeshStore.store_result``)."""
 
         def lookup() -> ShdfOutcome | None:
             values = self.cached(key)
@@ -201,21 +158,9 @@ class ShdfService:
             lookup,
             functools.partial(self._compute, key, mesh_id, mesh, method, seed),
             functools.partial(self._store, key, mesh_id),
-            functools.partial(self.meshes.guard, mesh_id) if stored_mesh else None,
+            functools.partial(self.meshes.guard, mesh_id),
         )
         return outcome
-
-    def get_blocking(self, mesh_id: str, mesh: TriangleMesh, method: str, seed: int) -> ShdfOutcome:
-        """The cached ShDF, else computed once under the cache lock and stored (blocking:
-        for batch workers outside an event loop, whose meshes are not uploaded: stored
-        without a guard). ``method`` may be ``auto``."""
-        seed = check_seed(seed)
-        method = self.resolve(method, mesh.face_count)
-        key = self.key(mesh_id, method, seed)
-        values = self.cached(key)
-        if values is not None:
-            return ShdfOutcome(values, True, 0.0, method)
-        return self._compute_once(key, mesh_id, mesh, method, seed, stored_mesh=False)
 
     async def get(
         self,

@@ -32,10 +32,10 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-from neural_shdf.api.cache import ResultCache
 from neural_shdf.api.clients import BACKGROUND, current_client
 from neural_shdf.api.errors import ApiError
 from neural_shdf.api.settings import Settings
+from neural_shdf.store.cache import ResultCache
 
 T = TypeVar("T")
 G = TypeVar("G")
@@ -213,20 +213,18 @@ class TaskRunner:
         store: Callable[[T, G | None], None],
         guard: Callable[[], G] | None = None,
     ) -> tuple[T, bool]:
-        """Under the cache's lock for ``key``: ``lookup`` again (another worker may have
-        finished meanwhile), else ``compute`` and ``store``. Returns (result, was cached).
-        ``guard``: taken before computing (it raises when the mesh is gone) and handed to
-        ``store``, which stores only while it still holds (deletion is final).
-        Blocking: call it on the compute pool (``single_flight``)."""
-        with self.cache.lock(key, self.settings.lock_timeout_s):
-            found = lookup()
-            if found is not None:
-                return found, True
-            checkpoint()  # it waited for the lock: still wanted?
-            held = guard() if guard is not None else None
-            result = compute()
-            store(result, held)
-            return result, False
+        """``ResultCache.compute_once`` within the lock timeout, stopping before it computes
+        if no request waits any more (it may have waited long for the lock). Blocking: call
+        it on the compute pool (``single_flight``)."""
+        return self.cache.compute_once(
+            key,
+            lookup,
+            compute,
+            store,
+            wait_s=self.settings.lock_timeout_s,
+            guard=guard,
+            before_compute=checkpoint,
+        )
 
     def spawn(self, coroutine: Coroutine[Any, Any, Any]) -> asyncio.Task[Any]:
         """Run ``coroutine`` in the background, kept alive until it ends or ``close``; it

@@ -4,14 +4,10 @@ parameters) from the cached segmentation, cached."""
 from __future__ import annotations
 
 import functools
-import hashlib
-import json
-from dataclasses import asdict
 
 import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf.api.cache import ResultCache
 from neural_shdf.api.jobs import JobAccepted
 from neural_shdf.api.mesh_store import MeshStore
 from neural_shdf.api.metrics import Metrics
@@ -19,6 +15,8 @@ from neural_shdf.api.segmentation import SegmentationService
 from neural_shdf.api.tasks import TaskRunner
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
+from neural_shdf.store.cache import ResultCache
+from neural_shdf.store.keys import atlas_key, atlas_png_key
 from neural_shdf.unwrap import UnwrapParams, UvAtlas
 from neural_shdf.unwrap import unwrap as unwrap_mesh
 
@@ -67,8 +65,7 @@ class UnwrapService:
 
     def key(self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams) -> str:
         """The segmentation's key plus the unwrap parameters."""
-        digest = hashlib.sha256(json.dumps(asdict(unwrap), sort_keys=True).encode())
-        return f"{self.segmentations.key(mesh_id, method, params)}:uv:{digest.hexdigest()[:20]}"
+        return atlas_key(self.segmentations.key(mesh_id, method, params), unwrap)
 
     def cached(self, key: str) -> UvAtlas | None:
         """The cached atlas (memory, then the shared cache), or None."""
@@ -162,7 +159,7 @@ class UnwrapService:
     ) -> bytes:
         """The atlas picture's PNG, drawn once per atlas and cached as bytes (the GLB's
         texture and ``atlas.png`` share it)."""
-        key = f"{self.key(mesh_id, method, params, unwrap)}:png"
+        key = atlas_png_key(self.key(mesh_id, method, params, unwrap))
         png = self.cache.recall(key) or await self.tasks.io(self._cached_png, key)
         if png is not None:
             return png

@@ -156,7 +156,7 @@ class Client(_Settings):
 
     def mesh(self, mesh_id: str) -> MeshInfo:
         """Metadata of a stored mesh."""
-        return MeshInfo.model_validate(self.run(ops.get_json(f"/v1/meshes/{mesh_id}")))
+        return MeshInfo.from_json(self.run(ops.get_json(f"/v1/meshes/{mesh_id}")))
 
     def delete(self, mesh_id: str) -> None:
         """Delete a mesh and everything computed from it."""
@@ -196,7 +196,7 @@ class Client(_Settings):
 
     def job(self, job_id: str) -> Job:
         """A job's state and progress."""
-        return Job.model_validate(self.run(ops.get_json(f"/v1/jobs/{job_id}")))
+        return Job.from_json(self.run(ops.get_json(f"/v1/jobs/{job_id}")))
 
     def wait(self, job: Job | str) -> Job:
         """Poll a job until it succeeded (raises JobFailedError if it failed)."""
@@ -288,7 +288,7 @@ class AsyncClient(_Settings):
         )
 
     async def mesh(self, mesh_id: str) -> MeshInfo:
-        return MeshInfo.model_validate(await self.run(ops.get_json(f"/v1/meshes/{mesh_id}")))
+        return MeshInfo.from_json(await self.run(ops.get_json(f"/v1/meshes/{mesh_id}")))
 
     async def delete(self, mesh_id: str) -> None:
         await self.run(ops.delete_mesh(mesh_id))
@@ -321,7 +321,7 @@ class AsyncClient(_Settings):
         return await self.run(ops.glb(mesh_id, "parts", ops.given(options), self.poll))
 
     async def job(self, job_id: str) -> Job:
-        return Job.model_validate(await self.run(ops.get_json(f"/v1/jobs/{job_id}")))
+        return Job.from_json(await self.run(ops.get_json(f"/v1/jobs/{job_id}")))
 
     async def wait(self, job: Job | str) -> Job:
         current = await self.job(job) if isinstance(job, str) else job

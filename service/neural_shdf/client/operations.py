@@ -9,6 +9,7 @@ backoff (``RetryPolicy``) around each call.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import sys
 import time
 from collections.abc import Generator, Mapping
@@ -170,7 +171,7 @@ def wait_job(job: Job, poll: PollPolicy) -> Operation:
             yield Pause(interval)
             interval = min(interval * 1.5, poll.max_interval_s)
             response = yield Call("GET", f"/v1/jobs/{job.job_id}")
-            job = Job.model_validate(raise_for_error(response).json())
+            job = Job.from_json(raise_for_error(response).json())
             bar.n = round(100 * job.progress)
             bar.refresh()
     if job.state == "failed":
@@ -187,7 +188,7 @@ def until_done(call: Call, poll: PollPolicy) -> Operation:
         response = raise_for_error((yield call))
         if response.status_code != 202:
             return response
-        yield from wait_job(Job.model_validate(response.json()), poll)
+        yield from wait_job(Job.from_json(response.json()), poll)
     raise ServiceTimeoutError(
         0, "job_loop", f"{call.method} {call.path} kept answering 202 after its job finished"
     )
@@ -213,16 +214,14 @@ def upload(
     )
     body = response.json()
     if response.status_code != 202:
-        return Upload(
-            MeshInfo.model_validate(body["mesh"]), ShdfStatus.model_validate(body["shdf"])
-        )
-    job = yield from wait_job(Job.model_validate(body), poll)
+        return Upload(MeshInfo.from_json(body["mesh"]), ShdfStatus.from_json(body["shdf"]))
+    job = yield from wait_job(Job.from_json(body), poll)
     info = raise_for_error((yield Call("GET", f"/v1/meshes/{job.mesh_id}")))
     status = ShdfStatus(
         method=job.method, seed=job.seed, cached=False, seconds=time.monotonic() - started
     )
     # The service keeps no upload's file name with the shared mesh: this upload's is ours.
-    mesh = MeshInfo.model_validate(info.json()).model_copy(update={"filename": file_part[0]})
+    mesh = dataclasses.replace(MeshInfo.from_json(info.json()), filename=file_part[0])
     return Upload(mesh, status)
 
 
@@ -249,7 +248,7 @@ def segment_file(
     response = raise_for_error((yield call))
     if response.status_code != 202:
         return Segmentation.from_json(response.json())
-    job = yield from wait_job(Job.model_validate(response.json()), poll)
+    job = yield from wait_job(Job.from_json(response.json()), poll)
     return (yield from segment(job.mesh_id, options, poll))
 
 

@@ -1,24 +1,31 @@
-"""Typed results of the client: the service's own response models, plus numpy arrays.
+"""Typed results of the client: small wire models parsed from the service's JSON, plus
+numpy arrays.
 
-Metadata (``MeshInfo``, ``Job``, ``PartSummary``, ``Timings``) are the service's pydantic
-models themselves, so the client and the API cannot drift apart; per-face data are numpy
-arrays decoded from the compact binary forms (base64 labels, float32 ShDF).
+The client needs httpx and numpy only (no FastAPI, pydantic or the library's compiled
+kernels), so it has its own models of the answers it reads. Each mirrors a response model
+of the service (``api.schemas``) field by field; ``tests/client/test_results.py`` fails
+when the two drift apart. Fields a newer service adds are ignored (``Segmentation.extra``
+keeps them). Per-face data are numpy arrays decoded from the compact binary forms
+(base64 labels, float32 ShDF).
 """
 
 from __future__ import annotations
 
 import base64
-from dataclasses import dataclass, field
-from typing import Any
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf.api.schemas import Job, MeshInfo, PartSummary, ShdfStatus, Timings
-from neural_shdf.segment.hierarchy import PartTree
+if TYPE_CHECKING:
+    from neural_shdf.segment.hierarchy import PartTree
 
 __all__ = [
+    "ErrorDetail",
     "Job",
+    "MeshDiagnostics",
     "MeshInfo",
     "PartHierarchy",
     "PartSummary",
@@ -29,6 +36,154 @@ __all__ = [
     "decode_labels",
     "decode_shdf",
 ]
+
+W = TypeVar("W")
+
+#: The members of a segmentation answer this client reads (``Segmentation.extra``: others).
+SEGMENTATION_FIELDS = frozenset(
+    {"mesh_id", "method", "faces", "part_count", "parts", "timings"}
+    | {"labels", "labels_base64", "labels_dtype", "hierarchy"}
+)
+#: The members of its ``hierarchy`` this client reads.
+HIERARCHY_FIELDS = frozenset(
+    {"leaf_count", "parts", "automatic_parts", "parent", "merge_cost", "merge_height"}
+    | {"leaf_labels", "leaf_labels_base64", "leaf_labels_dtype"}
+)
+
+
+def parse(model: type[W], body: Mapping[str, Any]) -> W:
+    """``model`` from a JSON object: its own fields only (a newer service may send more);
+    a ValueError naming what is missing when the answer lacks a required one."""
+    if not isinstance(body, Mapping):
+        raise ValueError(f"the service sent {type(body).__name__} where {model.__name__} belongs")
+    names = {spec.name for spec in fields(model)}  # type: ignore[arg-type]
+    try:
+        return model(**{name: value for name, value in body.items() if name in names})
+    except TypeError as error:
+        raise ValueError(f"the service's {model.__name__} is incomplete: {error}") from None
+
+
+@dataclass(frozen=True)
+class ErrorDetail:
+    """Why a job failed: a stable ``code``, a ``message`` saying what to do, ``detail``."""
+
+    code: str
+    message: str
+    detail: Any = None
+
+    @classmethod
+    def from_json(cls, body: Mapping[str, Any]) -> ErrorDetail:
+        return parse(cls, body)
+
+
+@dataclass(frozen=True)
+class MeshDiagnostics:
+    """What the mesh had and what was done about it before the ShDF and segmentation."""
+
+    shells: int
+    boundary_loops: int
+    non_manifold_edges: int
+    reoriented_faces: int
+    degenerate_faces: int
+    duplicate_faces: int
+
+    @classmethod
+    def from_json(cls, body: Mapping[str, Any]) -> MeshDiagnostics:
+        return parse(cls, body)
+
+
+@dataclass(frozen=True)
+class MeshInfo:
+    """A stored mesh: its id (content hash of its geometry), size and diagnostics; the
+    ``format``, ``filename`` and ``uploaded_at`` of an upload (None when read back)."""
+
+    mesh_id: str
+    faces: int
+    triangles: int
+    vertices: int
+    bounds: list[list[float]]
+    surface_area: float
+    format: str | None = None
+    filename: str | None = None
+    uploaded_at: float | None = None
+    diagnostics: MeshDiagnostics | None = None
+
+    @classmethod
+    def from_json(cls, body: Mapping[str, Any]) -> MeshInfo:
+        diagnostics = body.get("diagnostics")
+        if diagnostics is not None:
+            body = {**body, "diagnostics": MeshDiagnostics.from_json(diagnostics)}
+        return parse(cls, body)
+
+
+@dataclass(frozen=True)
+class ShdfStatus:
+    """The ShDF an upload was given: the producer that ran, its seed, whether it came from
+    the cache and how long it took."""
+
+    method: str
+    seed: int
+    cached: bool
+    seconds: float
+
+    @classmethod
+    def from_json(cls, body: Mapping[str, Any]) -> ShdfStatus:
+        return parse(cls, body)
+
+
+@dataclass(frozen=True)
+class Job:
+    """A long computation: its state and progress, and where its result is once done."""
+
+    job_id: str
+    state: str  # queued, running, succeeded, failed
+    progress: float
+    mesh_id: str
+    method: str
+    seed: int
+    created_at: float
+    updated_at: float
+    result_url: str
+    kind: str = "shdf"
+    attempt: int = 1
+    error: ErrorDetail | None = None
+
+    @classmethod
+    def from_json(cls, body: Mapping[str, Any]) -> Job:
+        error = body.get("error")
+        if error is not None:
+            body = {**body, "error": ErrorDetail.from_json(error)}
+        return parse(cls, body)
+
+
+@dataclass(frozen=True)
+class PartSummary:
+    """One part of a segmentation: its label, faces, area, mean ShDF and display colour."""
+
+    label: int
+    faces: int
+    area: float
+    mean_shdf: float
+    color: str
+
+    @classmethod
+    def from_json(cls, body: Mapping[str, Any]) -> PartSummary:
+        return parse(cls, body)
+
+
+@dataclass(frozen=True)
+class Timings:
+    """Where a segmentation's time went, in milliseconds, and what came from the cache."""
+
+    shdf_ms: float
+    segment_ms: float
+    total_ms: float
+    shdf_cached: bool
+    segmentation_cached: bool
+
+    @classmethod
+    def from_json(cls, body: Mapping[str, Any]) -> Timings:
+        return parse(cls, body)
 
 
 @dataclass(frozen=True)
@@ -79,12 +234,16 @@ class PartHierarchy:
 
     @property
     def tree(self) -> PartTree:
-        """The library's ``PartTree`` (its ``leaf_labels`` are these, per input face)."""
+        """The library's ``PartTree`` (its ``leaf_labels`` are these, per input face).
+        Needs the whole package (its compiled kernels), unlike the rest of the client."""
+        from neural_shdf.segment.hierarchy import PartTree  # numba: only for this helper
+
         return PartTree.from_parent(self.leaf_labels, self.parent, self.merge_cost)
 
     def labels(self, parts: int | None = None) -> NDArray[np.int32]:
         """Part per input face when the tree is cut into ``parts`` (None: the automatic
-        count; clamped to 1..leaf_count): what ``segment(..., parts=parts)`` would answer."""
+        count; clamped to 1..leaf_count): what ``segment(..., parts=parts)`` would answer.
+        Needs the whole package, as ``tree`` does."""
         count = self.automatic_parts if parts is None else parts
         return self.tree.relabel(self.leaf_labels, count).astype(np.int32)
 
@@ -112,8 +271,6 @@ class Segmentation:
 
     @classmethod
     def from_json(cls, body: dict[str, Any]) -> Segmentation:
-        known = {"mesh_id", "method", "faces", "part_count", "parts", "timings"}
-        known |= {"labels", "labels_base64", "labels_dtype", "hierarchy"}
         labels = decode_labels(body)
         if len(labels) != body["faces"]:
             raise ValueError(f"the service sent {len(labels)} labels for {body['faces']} faces")
@@ -121,9 +278,9 @@ class Segmentation:
             mesh_id=body["mesh_id"],
             method=body["method"],
             labels=labels,
-            parts=[PartSummary.model_validate(part) for part in body["parts"]],
-            timings=Timings.model_validate(body["timings"]),
-            extra={k: v for k, v in body.items() if k not in known},
+            parts=[PartSummary.from_json(part) for part in body["parts"]],
+            timings=Timings.from_json(body["timings"]),
+            extra={k: v for k, v in body.items() if k not in SEGMENTATION_FIELDS},
             hierarchy=(
                 PartHierarchy.from_json(body["hierarchy"]) if body.get("hierarchy") else None
             ),

@@ -37,10 +37,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import trimesh
 from numpy.typing import NDArray
 
+from neural_shdf import pipeline
 from neural_shdf.errors import ParameterError
-from neural_shdf.evaluate.metrics import (
+from neural_shdf.evaluate.scores import (
     METRIC_NAMES,
     CutGraph,
     SegmentationScores,
@@ -50,7 +52,9 @@ from neural_shdf.evaluate.metrics import (
 )
 from neural_shdf.export import read_labels
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.segment import SegmentParams
+from neural_shdf.mesh_io import load_mesh
+from neural_shdf.pipeline import SegmentParams, segment
+from neural_shdf.shdf.stage import resolve_method
 
 #: Category names of the benchmark by ``(id - 1) // 20`` (13, Spring, is not in it).
 CATEGORY_NAMES: dict[int, str] = {
@@ -156,14 +160,7 @@ def list_models(bench_dir: Path, limit: int | None = None) -> list[BenchModel]:
 
 
 def load_benchmark_mesh(path: Path) -> TriangleMesh:
-    """The mesh through the project's loader (trimesh without processing as a fallback)."""
-    try:
-        from neural_shdf.mesh_io import load_mesh
-    except ImportError:
-        import trimesh
-
-        loaded = trimesh.load(path, process=False, force="mesh")
-        return TriangleMesh(np.asarray(loaded.vertices), np.asarray(loaded.faces))
+    """The mesh through the project's loader."""
     return load_mesh(Path(path))
 
 
@@ -173,8 +170,6 @@ def _metric_mesh(mesh: TriangleMesh, path: Path) -> tuple[CutGraph, int]:
         mesh.face_origin, np.arange(mesh.face_count)
     ):
         return cut_graph(mesh.vertices, mesh.faces), mesh.face_count
-    import trimesh
-
     loaded = trimesh.load(path, process=False, force="mesh")
     return cut_graph(np.asarray(loaded.vertices), np.asarray(loaded.faces)), len(loaded.faces)
 
@@ -201,19 +196,16 @@ def cached_shdf(
     if source == "cgalsdf":
         values = np.loadtxt(model.bench_dir / "cgal" / f"{model.model_id}.sdf", ndmin=1)
         return values[mesh.face_origin]
-    from neural_shdf.pipeline import compute_shdf
-    from neural_shdf.shdf.stage import resolve_method
-
     if source == "auto":
         source = resolve_method(source, mesh.face_count)
     if source != "exact" or cache_dir is None:
-        return compute_shdf(mesh, method=source, seed=seed)  # type: ignore[arg-type]
+        return pipeline.compute_shdf(mesh, method=source, seed=seed).values
     path = Path(cache_dir) / source / f"{model.model_id}-{mesh.content_hash()[:16]}-s{seed}.npy"
     if path.is_file():
         values = np.load(path)
         if len(values) == mesh.face_count:
             return values
-    values = compute_shdf(mesh, method="exact", seed=seed)
+    values = pipeline.compute_shdf(mesh, method="exact", seed=seed).values
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_suffix(f".{os.getpid()}.tmp.npy")
     np.save(temporary, values)
@@ -232,7 +224,7 @@ class CgalPredictor:
 
 @dataclass(frozen=True)
 class ShdfPredictor:
-    """ShDF from ``source``, then ``segment_mesh`` with ``params``.
+    """ShDF from ``source``, then ``segment`` with ``params``.
 
     ``human_parts``: the partitioner gets the humans' most frequent part count of the
     model; ``leaves``: every leaf of the graph cut's part tree.
@@ -245,16 +237,14 @@ class ShdfPredictor:
     leaves: bool = False
 
     def __call__(self, mesh: TriangleMesh, model: BenchModel) -> NDArray:
-        from neural_shdf.pipeline import mesh_face_graph, segment_mesh, segment_mesh_with_details
-
         shdf = cached_shdf(mesh, self.source, self.cache_dir, model, seed=self.params.seed)
         params = self.params
         if self.human_parts:
             params = dataclasses.replace(params, parts=model.human_part_count())
+        result = segment(mesh, shdf, params)
         if self.leaves:
-            result = segment_mesh_with_details(mesh, shdf, params, graph=mesh_face_graph(mesh))
             return result.tree.leaf_labels
-        return segment_mesh(mesh, shdf, params, graph=mesh_face_graph(mesh))
+        return result.labels
 
 
 def make_predictor(

@@ -11,10 +11,13 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
+from scipy.sparse.csgraph import connected_components
 
+from neural_shdf.arrays import unique_rows
 from neural_shdf.geometry import build_face_graph, weld_faces
-from neural_shdf.unwrap import rasterize_charts
+from neural_shdf.unwrap import rasterize_charts, stretch_terms
 
 
 @dataclass(frozen=True)
@@ -31,29 +34,6 @@ class UvQuality:
 
     def as_dict(self) -> dict[str, float | int]:
         return asdict(self)
-
-
-def stretch_terms(
-    vertices: NDArray, faces: NDArray, corner_uvs: NDArray
-) -> tuple[NDArray, NDArray, NDArray, NDArray, NDArray]:
-    """Per triangle: 3D area, signed UV area, and the Gram terms a = |S_s|^2, c = |S_t|^2,
-    b = S_s . S_t of the Jacobian of the map from UV to the surface."""
-    p0, p1, p2 = (vertices[faces[:, k]] for k in range(3))
-    area_3d = 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
-    s, t = corner_uvs[:, :, 0], corner_uvs[:, :, 1]
-    area_uv = 0.5 * (
-        (s[:, 1] - s[:, 0]) * (t[:, 2] - t[:, 0]) - (s[:, 2] - s[:, 0]) * (t[:, 1] - t[:, 0])
-    )
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / (2.0 * area_uv)
-        ss = (p0 * (t[:, 1] - t[:, 2])[:, None] + p1 * (t[:, 2] - t[:, 0])[:, None]
-              + p2 * (t[:, 0] - t[:, 1])[:, None]) * inv[:, None]  # fmt: skip
-        st = (p0 * (s[:, 2] - s[:, 1])[:, None] + p1 * (s[:, 0] - s[:, 2])[:, None]
-              + p2 * (s[:, 1] - s[:, 0])[:, None]) * inv[:, None]  # fmt: skip
-    a = np.einsum("ij,ij->i", ss, ss)
-    b = np.einsum("ij,ij->i", ss, st)
-    c = np.einsum("ij,ij->i", st, st)
-    return area_3d, area_uv, a, c, b
 
 
 def seam_ratio(vertices: NDArray, faces: NDArray, corner_uvs: NDArray) -> float:
@@ -74,7 +54,7 @@ def seam_ratio(vertices: NDArray, faces: NDArray, corner_uvs: NDArray) -> float:
         uv_right = corner_uvs[right, np.argmax(welded[right] == vertex, axis=1)]
         seam |= np.any(np.abs(uv_left - uv_right) > 1e-7, axis=1)
     edges = np.sort(welded[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    unique = np.unique(edges, axis=0)
+    unique = unique_rows(edges)
     total = float(np.linalg.norm(vertices[unique[:, 0]] - vertices[unique[:, 1]], axis=1).sum())
     return float(graph.edge_length[seam].sum() / total) if total > 0 else 0.0
 
@@ -82,8 +62,6 @@ def seam_ratio(vertices: NDArray, faces: NDArray, corner_uvs: NDArray) -> float:
 def uv_islands(vertices: NDArray, faces: NDArray, corner_uvs: NDArray) -> NDArray[np.int64]:
     """Chart per triangle as the UV layout itself says: triangles joined across every edge
     whose two end points have the same UVs on both sides (any unwrapper's charts)."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components
 
     welded = weld_faces(vertices, faces)
     graph = build_face_graph(vertices, welded)
@@ -162,4 +140,4 @@ def uv_quality(
     )
 
 
-__all__ = ["UvQuality", "seam_ratio", "stretch_terms", "uv_islands", "uv_quality"]
+__all__ = ["UvQuality", "seam_ratio", "uv_islands", "uv_quality"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -140,7 +141,7 @@ def fan_triangulate(
     return faces, origin
 
 
-def _has_area(vertices: NDArray, faces: NDArray, limit: float) -> bool:
+def _has_area(vertices: NDArray[Any], faces: NDArray[Any], limit: float) -> bool:
     """Whether any of the triangles has twice its area above ``limit``."""
     tri = vertices[faces]
     doubled_area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
@@ -148,9 +149,9 @@ def _has_area(vertices: NDArray, faces: NDArray, limit: float) -> bool:
 
 
 def build_mesh(
-    vertices: NDArray,
-    faces: NDArray,
-    face_origin: NDArray | None,
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
+    face_origin: NDArray[Any] | None,
     input_face_count: int,
     *,
     format_name: str,
@@ -212,15 +213,16 @@ def build_mesh(
     return TriangleMesh(
         vertices=vertices,
         faces=faces,
-        face_origin=face_origin,
+        # TriangleMesh takes None (one triangle per input face); its field is typed as set.
+        face_origin=face_origin,  # type: ignore[arg-type]
         input_face_count=input_face_count,
     )
 
 
 def polygon_mesh(
-    vertices: NDArray,
-    counts: NDArray,
-    flat_indices: NDArray,
+    vertices: NDArray[Any],
+    counts: NDArray[Any],
+    flat_indices: NDArray[Any],
     *,
     format_name: str,
     limits: MeshLimits,

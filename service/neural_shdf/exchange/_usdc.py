@@ -33,7 +33,8 @@ def _bad(what: str) -> MeshParseError:
 def _u64(data: bytes, offset: int) -> int:
     if offset < 0 or offset + 8 > len(data):
         raise _bad(f"a table at byte {offset} lies beyond the end of the file")
-    return struct.unpack_from("<Q", data, offset)[0]
+    value: int = struct.unpack_from("<Q", data, offset)[0]
+    return value
 
 
 def lz4_block(source: bytes, size: int) -> bytes:
@@ -85,7 +86,8 @@ def _fast_decompress(source: bytes, size: int) -> bytes:
     chunks = source[0]
     if chunks == 0:
         return lz4_block(source[1:], size)
-    parts, at = [], 1
+    parts: list[bytes] = []
+    at = 1
     for _ in range(chunks):
         length = struct.unpack_from("<i", source, at)[0]
         parts.append(lz4_block(source[at + 4 : at + 4 + length], size - sum(map(len, parts))))
@@ -93,7 +95,7 @@ def _fast_decompress(source: bytes, size: int) -> bytes:
     return b"".join(parts)
 
 
-def _value_reps(data: bytes) -> tuple[tuple[int, int, int], list[int]]:
+def _value_reps(data: bytes) -> tuple[tuple[int, ...], list[int]]:
     """(version, every value representation in the FIELDS table)."""
     if len(data) < 24 or not data.startswith(_IDENT):
         raise _bad("no crate header")
@@ -125,7 +127,7 @@ def _value_reps(data: bytes) -> tuple[tuple[int, int, int], list[int]]:
     return version, list(struct.unpack(f"<{count}Q", raw))
 
 
-def _array_size(data: bytes, rep: int, version: tuple[int, int, int]) -> int:
+def _array_size(data: bytes, rep: int, version: tuple[int, ...]) -> int:
     offset = rep & _PAYLOAD
     if offset == 0:
         return 0
@@ -134,7 +136,8 @@ def _array_size(data: bytes, rep: int, version: tuple[int, int, int]) -> int:
     if version < (0, 7, 0):
         if offset + 4 > len(data):
             raise _bad(f"an array at byte {offset} lies beyond the end of the file")
-        return struct.unpack_from("<I", data, offset)[0]
+        size: int = struct.unpack_from("<I", data, offset)[0]
+        return size
     return _u64(data, offset)
 
 

@@ -8,6 +8,7 @@ in file order. Other elements and properties are skipped.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,7 +47,7 @@ class _Element:
 
 
 #: What the reader keeps of an element: scalar columns, and lists as (counts, flat values).
-_Columns = dict[str, NDArray | tuple[NDArray, NDArray]]
+_Columns = dict[str, NDArray[Any] | tuple[NDArray[Any], NDArray[Any]]]
 
 
 def _parse_header(data: bytes) -> tuple[str, list[_Element], int]:
@@ -96,7 +97,7 @@ def _truncated(element: _Element) -> MeshParseError:
     )
 
 
-def _split_fixed(element: _Element, table: NDArray, widths: list[int]) -> _Columns | None:
+def _split_fixed(element: _Element, table: NDArray[Any], widths: list[int]) -> _Columns | None:
     """Columns of a (rows, values) table whose lists all have the assumed widths, else None."""
     columns: _Columns = {}
     col = 0
@@ -114,7 +115,7 @@ def _split_fixed(element: _Element, table: NDArray, widths: list[int]) -> _Colum
 
 
 def _list_length(element: _Element, value: object) -> int:
-    length = int(value)  # type: ignore[call-overload]
+    length: int = int(value)  # type: ignore[call-overload]
     if length < 0:
         raise MeshParseError(f"PLY element {element.name!r} has a list of negative length")
     return length
@@ -187,7 +188,8 @@ def _read_binary_element(
     if element.count == 0:
         return _empty_columns(element), offset
     # Fast path: every list has the length of the first row's list -> one structured array.
-    fields, widths, probe = [], [], offset
+    fields: list[tuple[Any, ...]] = []
+    widths, probe = [], offset
     for i, (prop, dtype) in enumerate(fixed):
         fields.append((f"f{i}", dtype))
         if prop.is_list:
@@ -220,8 +222,8 @@ def _read_binary_element(
         if uniform:
             return columns, offset + row.itemsize * element.count
     # General path: row by row (mixed polygon sizes).
-    scalars: dict[str, list] = {p.name: [] for p in element.properties if not p.is_list}
-    lists: dict[str, tuple[list[int], list[NDArray]]] = {
+    scalars: dict[str, list[Any]] = {p.name: [] for p in element.properties if not p.is_list}
+    lists: dict[str, tuple[list[int], list[NDArray[Any]]]] = {
         p.name: ([], []) for p in element.properties if p.is_list
     }
     for _ in range(element.count):
@@ -241,9 +243,9 @@ def _read_binary_element(
             lists[prop.name][1].append(np.frombuffer(data, value_dtype, n, offset))
             offset += n * value_dtype.itemsize
     columns = {name: np.array(values) for name, values in scalars.items()}
-    for name, (counts, chunks) in lists.items():
+    for name, (lengths, chunks) in lists.items():
         flat = np.concatenate(chunks) if chunks else np.zeros(0)
-        columns[name] = (np.array(counts, dtype=np.int64), flat)
+        columns[name] = (np.array(lengths, dtype=np.int64), flat)
     return columns, offset
 
 

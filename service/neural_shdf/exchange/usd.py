@@ -192,7 +192,7 @@ class _PrimFaces:
     holes: NDArray[np.int64]
 
 
-def _array(attribute: Any, time: Any, dtype: Any) -> NDArray:
+def _array(attribute: Any, time: Any, dtype: Any) -> NDArray[Any]:
     value = attribute.Get(time)
     if value is None:
         return np.zeros(0, dtype=dtype)
@@ -207,7 +207,8 @@ def _reverse_windings(counts: NDArray[np.int64], flat: NDArray[np.int64]) -> NDA
     starts = np.repeat(np.cumsum(counts) - counts, counts)
     sizes = np.repeat(counts, counts)
     k = np.arange(len(flat), dtype=np.int64) - starts
-    return flat[starts + (sizes - k) % sizes]
+    reversed_flat: NDArray[np.int64] = flat[starts + (sizes - k) % sizes]
+    return reversed_flat
 
 
 def _prim_label(prim: Any) -> str:
@@ -236,9 +237,9 @@ def read_usd_stage(stage: Any, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
         raise MeshParseError("the USD stage has no Mesh prim (UsdGeom.Mesh) to read")
 
     xforms = UsdGeom.XformCache(time)
-    vertex_parts: list[NDArray] = []
-    face_parts: list[NDArray] = []
-    origin_parts: list[NDArray] = []
+    vertex_parts: list[NDArray[Any]] = []
+    face_parts: list[NDArray[Any]] = []
+    origin_parts: list[NDArray[Any]] = []
     vertex_offset = face_offset = 0
     for entry in polygons:
         prim, counts = entry.prim, entry.counts
@@ -416,7 +417,7 @@ def _set_display_colors(mesh: Any, labels: NDArray[np.int64]) -> None:
     primvar.Set(Vt.Vec3fArray.FromNumpy(linear_face_colors(labels).astype(np.float32)))
 
 
-def _add_parts(stage: Any, paths: list[Any], counts: list[int], labels: NDArray) -> None:
+def _add_parts(stage: Any, paths: list[Any], counts: list[int], labels: NDArray[Any]) -> None:
     """Subsets and display colours on the mesh prims at ``paths`` (``counts`` faces each,
     ``labels`` one per face of all of them, prim after prim)."""
     from pxr import UsdGeom
@@ -433,7 +434,7 @@ def _add_parts(stage: Any, paths: list[Any], counts: list[int], labels: NDArray)
         _set_display_colors(mesh, labels[start:end])
 
 
-def _check_output(output: str | Path, face_labels: NDArray) -> tuple[Path, NDArray[np.int64]]:
+def _check_output(output: str | Path, face_labels: NDArray[Any]) -> tuple[Path, NDArray[np.int64]]:
     output = Path(output)
     if output.suffix.lower().lstrip(".") not in USD_EXTENSIONS:
         raise ParameterError(
@@ -460,7 +461,11 @@ def _export(layer: Any, output: Path, scratch: Path) -> None:
 
 
 def write_usd_parts(
-    source: str | Path, face_labels: NDArray, output: str | Path, *, input_format: str | None = None
+    source: str | Path,
+    face_labels: NDArray[Any],
+    output: str | Path,
+    *,
+    input_format: str | None = None,
 ) -> None:
     """Write the USD stage of ``source`` with its parts: on every mesh prim that
     ``read_usd_path`` reads, one ``UsdGeom.Subset`` per part (family ``part``,
@@ -469,7 +474,7 @@ def write_usd_parts(
     ``primvars:displayColor`` (uniform; the part colours, converted to linear).
 
     ``face_labels``: one label per input face, in the reader's order (e.g.
-    ``pipeline.input_face_parts``). Everything else in the stage is kept. A stage of
+    ``SegmentResult.input_face_parts``). Everything else in the stage is kept. A stage of
     one layer is written as that layer; one composed of several layers (a USDZ with
     sublayers or references) is flattened. Instances holding meshes are made ordinary
     prims, so each copy gets its own subsets. ``output`` ends in .usda, .usdc, .usd or
@@ -498,7 +503,7 @@ def write_usd_parts(
         _export(layer, output, path.parent)
 
 
-def input_polygons(mesh: TriangleMesh) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray]:
+def input_polygons(mesh: TriangleMesh) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[Any]]:
     """The input faces as polygons, read back from their triangle fans.
 
     Returns ``(counts, flat_indices, input_face)``: one polygon per input face that has
@@ -523,7 +528,7 @@ def input_polygons(mesh: TriangleMesh) -> tuple[NDArray[np.int64], NDArray[np.in
     return counts.astype(np.int64), faces[corners], origin[start]
 
 
-def write_mesh_parts_usd(mesh: TriangleMesh, face_labels: NDArray, output: str | Path) -> None:
+def write_mesh_parts_usd(mesh: TriangleMesh, face_labels: NDArray[Any], output: str | Path) -> None:
     """A new USD stage of ``mesh`` with its parts, for inputs that are not USD (or whose
     file is gone, as in the service): one Mesh prim ``/World/Mesh`` whose faces are the
     input faces (``input_polygons``), with the subsets and display colours of
@@ -554,7 +559,7 @@ def write_mesh_parts_usd(mesh: TriangleMesh, face_labels: NDArray, output: str |
         _export(stage.GetRootLayer(), output, Path(scratch))
 
 
-def mesh_parts_usda(mesh: TriangleMesh, face_labels: NDArray) -> bytes:
+def mesh_parts_usda(mesh: TriangleMesh, face_labels: NDArray[Any]) -> bytes:
     """``write_mesh_parts_usd`` as the bytes of a .usda file."""
     with tempfile.TemporaryDirectory(prefix="neural-shdf-usd-") as scratch:
         path = Path(scratch) / "parts.usda"

@@ -9,14 +9,13 @@ from neural_shdf.export import read_labels, write_labels, write_values
 from neural_shdf.geometry import FaceGraph, face_centroids
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import SUPPORTED_FORMATS, load_mesh
-from neural_shdf.pipeline import compute_shdf, mesh_face_graph
+from neural_shdf.pipeline import compute_shdf
 from neural_shdf.segment.graphcut import data_costs, dihedral_weights, multilevel_alpha_expansion
-from neural_shdf.shdf.neural.graph import GraphSpec, interpolate_samples, sample_surface_points
+from neural_shdf.shdf.sampling import interpolate_samples, sample_surface_points
 
 __all__ = [
     "SUPPORTED_FORMATS",
     "FaceGraph",
-    "GraphSpec",
     "TriangleMesh",
     "compute_shdf",
     "data_costs",
@@ -24,7 +23,6 @@ __all__ = [
     "face_centroids",
     "interpolate_samples",
     "load_mesh",
-    "mesh_face_graph",
     "multilevel_alpha_expansion",
     "read_labels",
     "sample_surface_points",

@@ -92,7 +92,7 @@ def cmd_labeler_train(args: argparse.Namespace) -> int:
             )
         meshes.append(mesh)
         labels.append(face_labels)
-        shdf.append(compute_shdf(mesh, method=args.method))
+        shdf.append(compute_shdf(mesh, method=args.method).values)
     smoothing = DEFAULT_SMOOTHING if args.smoothing is None else args.smoothing
     labeler = train_labeler(meshes, labels, _names(args.names), shdf=shdf, smoothing=smoothing)
     save_labeler(labeler, args.output)

@@ -35,7 +35,6 @@ from scipy.spatial import cKDTree
 from neural_shdf.errors import InvalidGeometryError
 from neural_shdf.labeling._library import (
     FaceGraph,
-    GraphSpec,
     TriangleMesh,
     face_centroids,
     sample_surface_points,
@@ -128,7 +127,7 @@ def node_graph(mesh: TriangleMesh, graph: FaceGraph, spec: FeatureSpec) -> NodeG
     samples = sample_surface_points(
         mesh.vertices,
         mesh.faces,
-        GraphSpec(target_samples=spec.samples),
+        spec.samples,
         seed=spec.seed,
         normals=normals,
         areas=areas,

@@ -23,7 +23,6 @@ from neural_shdf.labeling._library import (
     compute_shdf,
     face_centroids,
     interpolate_samples,
-    mesh_face_graph,
 )
 from neural_shdf.labeling.features import (
     FEATURE_NAMES,
@@ -78,9 +77,9 @@ def describe_mesh(
 ) -> MeshDescription:
     """Node graph and features of ``mesh``; ``shdf``: its ShDF per triangle (computed with
     the default method when None)."""
-    graph = mesh_face_graph(mesh) if graph is None else graph
+    graph = mesh.face_graph if graph is None else graph
     if shdf is None:
-        shdf = compute_shdf(mesh, graph=graph)
+        shdf = compute_shdf(mesh).values
     shdf = np.asarray(shdf, dtype=np.float64)
     if shdf.shape != (mesh.face_count,):
         raise ParameterError(

@@ -40,7 +40,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
-from neural_shdf.geometry import FaceGraph, adjacency_lists
+from neural_shdf.geometry import (
+    FaceGraph,
+    adjacency_lists,
+    grid_cells,
+    principal_coordinates,
+)
 from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
 
 # Tuned on the 57 psb-dev tuning models (ids 1-3 of each category), exact ShDF, for the
@@ -260,19 +265,23 @@ def _coarse_graph(
     target_nodes: int,
 ) -> tuple[FaceGraph, NDArray, NDArray, NDArray, NDArray]:
     """Coarse nodes: connected pieces of one grid cell, never grouped across a concave
-    crease; cells sized for about ``target_nodes`` nodes.
+    crease; cells sized for about ``target_nodes`` nodes, laid along the mesh's own axes
+    (``principal_coordinates``, ``grid_cells``: the same nodes in any pose).
 
     Returns (node graph, node areas, node centroids, edge capacities, node of each face);
     nodes are numbered by their lowest face.
     """
     total = float(areas.sum())
+    positions = principal_coordinates(centroids, areas)
+    extent = float(np.ptp(positions, axis=0).max()) if len(positions) else 0.0
+    cell = math.sqrt(total / target_nodes) if total > 0 else (extent or 1.0) / 200.0
     coarse = _coarsen(
         np.ascontiguousarray(graph.pairs, dtype=np.int64),
         np.ascontiguousarray(graph.edge_length, dtype=np.float64),
         np.ascontiguousarray(capacity, dtype=np.float64),
         centroids,
         areas if total > 0 else np.ones(len(areas)),
-        total / target_nodes,
+        grid_cells(positions, cell),
         CREASE_RATIO,
     )
     node_of, node_areas, node_centroids, node_pairs, lengths, node_capacity = coarse
@@ -301,7 +310,7 @@ def _min_cut_in_bands(
 ) -> NDArray[np.int64]:
     """One max-flow: each band face picks its boundary's low (0) or high (1) part;
     ``change``: what a face pays for leaving its part."""
-    import maxflow
+    import maxflow  # slow to import: loaded on first use
 
     nodes = np.flatnonzero(in_band)
     local = np.full(len(parts), -1, dtype=np.int64)
@@ -341,29 +350,13 @@ def _min_cut_in_bands(
 
 @kernel
 def _coarsen(
-    pairs, edge_length, capacity, centroids, weight, cell_area, crease_ratio
+    pairs, edge_length, capacity, centroids, weight, cell_of, crease_ratio
 ):  # pragma: no cover - numba
-    """Union-find of faces sharing a grid cell across non-crease edges, then the coarse
-    nodes (numbered by lowest face: weights, weighted centroids) and
-    their edges (lengths and capacities summed; duplicates merged without sorting).
-    Cells are cubes of side sqrt(``cell_area``) (without area: the extent over 200)."""
+    """Union-find of faces sharing a grid cell (``cell_of``: a key per face) across
+    non-crease edges, then the coarse nodes (numbered by lowest face: weights, weighted
+    centroids) and their edges (lengths and capacities summed; duplicates merged
+    without sorting)."""
     node_count = len(weight)
-    low_corner = np.empty(3)
-    high_corner = np.empty(3)
-    for axis in range(3):
-        low_corner[axis] = centroids[:, axis].min()
-        high_corner[axis] = centroids[:, axis].max()
-    extent = (high_corner - low_corner).max()
-    cell = math.sqrt(cell_area) if cell_area > 0 else (extent if extent > 0 else 1.0) / 200.0
-    span = np.empty(3, dtype=np.int64)
-    for axis in range(3):
-        span[axis] = np.int64((high_corner[axis] - low_corner[axis]) / cell) + 1
-    cell_of = np.empty(node_count, dtype=np.int64)
-    for f in range(node_count):
-        key = 0
-        for axis in range(3):
-            key = key * span[axis] + np.int64((centroids[f, axis] - low_corner[axis]) / cell)
-        cell_of[f] = key
     root = np.arange(node_count)
     for e in range(pairs.shape[0]):
         f, g = pairs[e, 0], pairs[e, 1]

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
-from neural_shdf.geometry import FaceGraph, adjacency_lists
+from neural_shdf.geometry import FaceGraph, adjacency_lists, grid_cells, principal_coordinates
 from neural_shdf.segment.parts import connected_components
 
 #: CGAL: probabilities below this are clamped before ``-log``.
@@ -34,7 +34,7 @@ PROBABILITY_EPS = 5e-6
 ANGLE_EPS = 5e-6
 #: CGAL: convex folds count as this fraction of their angle (cheap to keep, costly to cut).
 CONVEX_FACTOR = 0.08
-#: CGAL scales the user's lambda in [0, 1] by this.
+#: CGAL multiplies the smoothing (its lambda, in [0, 1]) by this in the edge weights.
 LAMBDA_SCALE = 100.0
 #: Hard limit on alpha-expansion cycles (it usually converges in 2-3).
 MAX_CYCLES = 8
@@ -64,7 +64,8 @@ def data_costs(posteriors: NDArray, face_weight: NDArray | None = None) -> NDArr
 
 
 def dihedral_weights(graph: FaceGraph, smoothing: float) -> NDArray[np.float64]:
-    """Cost of cutting each edge: ``-log(max(eps, angle/pi)) * lambda * 100 * length/mean``.
+    """Cost of cutting each edge: ``-log(max(eps, angle/pi)) * smoothing * LAMBDA_SCALE *
+    length/mean`` (``smoothing``: ``SegmentParams.smoothing``, CGAL's lambda).
 
     As CGAL, convex folds' normalised angle is scaled by ``CONVEX_FACTOR``, so
     concave creases are cheap to cut and flat or convex regions expensive. The
@@ -170,7 +171,7 @@ def expansion_move(
     labels: NDArray, alpha: int, data: NDArray, pairs: NDArray, weights: NDArray
 ) -> NDArray[np.int64]:
     """The best labelling reachable by letting any face switch to ``alpha`` (one max-flow)."""
-    import maxflow
+    import maxflow  # slow to import: loaded on first use
 
     labels = np.asarray(labels, dtype=np.int64)
     nodes, source_cap, sink_cap, edge_a, edge_b, forward, backward = _expansion_graph(
@@ -343,17 +344,14 @@ def coarsen(
     crease_weight: float,
     preferred: NDArray,
 ) -> NDArray[np.int64]:
-    """Coarse node of each node: connected pieces of one grid cell.
+    """Coarse node of each node: connected pieces of one grid cell (``cells``: a key per
+    node, ``grid_cells``).
 
     Never groups across a crease (an edge lighter than ``crease_weight``) nor
     nodes whose cheapest label (``preferred``) differs.
     """
     a, b = pairs[:, 0], pairs[:, 1]
-    span = cells.max(axis=0) + 1 if len(cells) else np.ones(3, dtype=np.int64)
-    cell_key = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
-    keep = (
-        (cell_key[a] == cell_key[b]) & (weights >= crease_weight) & (preferred[a] == preferred[b])
-    )
+    keep = (cells[a] == cells[b]) & (weights >= crease_weight) & (preferred[a] == preferred[b])
     return connected_components(pairs, keep, node_count)
 
 
@@ -413,8 +411,8 @@ def _coarse_data(coarse_of, data, coarse_count):  # pragma: no cover - compiled
 
 @dataclass(frozen=True)
 class CutLevel:
-    """One level of the multilevel graph cut: its graph, data costs and edge weights at a
-    smoothing scale of 1, and the map of its nodes to the next coarser level."""
+    """One level of the multilevel graph cut: its graph, data costs and edge weights at
+    smoothing 1, and the map of its nodes to the next coarser level."""
 
     pairs: NDArray[np.int64]
     unit_weights: NDArray[np.float64]
@@ -438,8 +436,8 @@ class CutHierarchy:
     """The coarse graphs of a multilevel graph cut, finest first.
 
     They depend on the data costs, the graph and the edge weights only up to a common
-    scale (the smoothing), so one hierarchy serves every smoothing value: ``solve(scale)``
-    minimises the energy with edge weights ``scale * unit_weights``.
+    factor (the smoothing), so one hierarchy serves every smoothing value:
+    ``solve(smoothing)`` minimises the energy with edge weights ``smoothing * unit_weights``.
     """
 
     levels: tuple[CutLevel, ...]
@@ -449,19 +447,24 @@ class CutHierarchy:
     def nbytes(self) -> int:
         return sum(level.nbytes for level in self.levels)
 
-    def solve(self, scale: float) -> NDArray[np.int64]:
-        """Labels minimising E with edge weights ``scale * unit_weights``; deterministic."""
+    def solve(self, smoothing: float) -> NDArray[np.int64]:
+        """Labels minimising E with edge weights ``unit_weights * smoothing``; deterministic."""
         finest = self.levels[0]
-        if not scale > 0 or finest.data.shape[1] <= 1:
+        if not smoothing > 0 or finest.data.shape[1] <= 1:
             # No smoothness term (or one label): each node's cheapest label is optimal.
             return np.argmin(finest.data, axis=1).astype(np.int64)
         top = self.levels[-1]
-        labels = alpha_expansion(top.data, top.pairs, top.unit_weights * scale)
+        labels = alpha_expansion(top.data, top.pairs, top.unit_weights * smoothing)
         for level in reversed(self.levels[:-1]):
             labels = labels[level.coarse_of]
             band = near_boundary(labels, level.pairs, len(level.data), self.rings, level.adjacency)
             labels = banded_alpha_expansion(
-                level.data[band], level.pairs, level.unit_weights * scale, labels, band, BAND_CYCLES
+                level.data[band],
+                level.pairs,
+                level.unit_weights * smoothing,
+                labels,
+                band,
+                BAND_CYCLES,
             )
         return labels
 
@@ -477,7 +480,9 @@ def cut_hierarchy(
 ) -> CutHierarchy:
     """Coarsen the graph until at most ``coarse_nodes`` nodes remain (or it stops shrinking).
 
-    Nodes are grouped into connected pieces of a 3-D grid (cells doubling per level;
+    Nodes are grouped into connected pieces of a 3-D grid laid along the mesh's own
+    axes (``principal_coordinates``, ``grid_cells``: the same groups in any pose; cells
+    doubling per level, a coarse node placed at its first face;
     crease edges and nodes preferring different labels never grouped), with data and
     edge weights summed, so a labelling that is constant on groups has the same energy
     at every level. Scaling ``unit_weights`` scales every level's weights alike, so the
@@ -490,18 +495,19 @@ def cut_hierarchy(
     if node_count <= coarse_nodes or data.shape[1] <= 1:
         return CutHierarchy((CutLevel(pairs, weights, data, None),), rings)
 
+    positions = principal_coordinates(centroids, areas)  # the grid turns with the mesh
     mean_area = float(np.mean(areas))
     if not mean_area > 0:
-        extent = float(np.ptp(centroids, axis=0).max()) or 1.0
+        extent = float(np.ptp(positions, axis=0).max()) or 1.0
         mean_area = extent**2 / node_count
     cell_size = np.sqrt(FACES_PER_CELL * mean_area)
-    cells = np.floor((centroids - centroids.min(axis=0)) / cell_size).astype(np.int64)
     crease_weight = CREASE_FRACTION * float(np.median(weights)) if len(weights) else 0.0
 
     levels: list[CutLevel] = []
     level_pairs, level_weights, level_data = pairs, weights, data
     while len(level_data) > coarse_nodes:
         count = len(level_data)
+        cells = grid_cells(positions, cell_size)
         coarse_of = coarsen(
             level_pairs, level_weights, count, cells, crease_weight, level_data.argmin(axis=1)
         )
@@ -514,7 +520,7 @@ def cut_hierarchy(
         )
         first = np.full(coarse_count, -1, dtype=np.int64)
         first[coarse_of[::-1]] = np.arange(count)[::-1]
-        cells = cells[first] // 2
+        positions, cell_size = positions[first], 2.0 * cell_size  # a node at its first face
         levels.append(
             CutLevel(
                 level_pairs,

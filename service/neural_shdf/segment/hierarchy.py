@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import heapq
 import math
+from array import array
 from dataclasses import dataclass
 
 import numpy as np
@@ -38,14 +39,11 @@ from neural_shdf.compiled import kernel
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph
 
-# The weights were tuned on 57 psb-dev models (the 4th model of each category held out):
-# first for the Rand index at the humans' most frequent part count (1-RI 0.1357, held out
-# 0.1126), then the size exponent (1 -> 0.5) with the automatic threshold for the cut
-# discrepancy at the automatic count, on leaves with boundaries on creases (the
-# default): CD 0.216 / 1-RI 0.139 (held out 0.192 / 0.122) against 0.232 / 0.149 (0.250 /
-# 0.142) with exponent 1. Size exponents 0.25 and 0.5 with neck exponents 1.5-2.5 and
-# concavity weights 6-12 scored 0.208-0.224 at their best thresholds (0.75: 0.218-0.32);
-# of those within 0.01 of the best, 0.5 alone changes only one weight.
+# The weights were tuned on 57 psb-dev models (the 4th model of each category held out),
+# first for the Rand index at the humans' most frequent part count, then the size
+# exponent with the automatic threshold for the cut discrepancy at the automatic count,
+# on leaves with boundaries on creases (the default); the scores are in the benchmark
+# outputs (``benchmarks/bench_psb.py``), not here.
 
 #: Exponent of the smaller part's area share: small parts merge first.
 SIZE_EXPONENT = 0.5
@@ -54,7 +52,7 @@ NECK_EXPONENT = 2.0
 #: Cost of merging two parts with the same ShDF across a flat boundary, relative to
 #: a difference of 1 in mean log-normalised ShDF.
 COST_CONSTANT = 0.005
-#: Weight of the boundary's mean concave angle (over pi); 8-64 scored alike.
+#: Weight of the boundary's mean concave angle (over pi); the result is flat around it.
 CONCAVITY_WEIGHT = 8.0
 #: Smallest neck ratio (a shell with no shared boundary counts as this narrow).
 NECK_FLOOR = 0.05
@@ -239,12 +237,14 @@ def merge_tree(
     heapq.heapify(heap)
     alive = np.zeros(node_count, dtype=bool)
     alive[:leaf_count] = True
-    merges: list[tuple[int, int]] = []
-    costs: list[float] = []
+    # Flat typed arrays, not lists of tuples: turning ~10^5 tuples into an ndarray is one
+    # C call that holds the GIL (and the event loop of the service beside it) too long.
+    merges = array("q")  # (low, high) child pair of each merge, flat
+    costs = array("d")
 
     def merge(i: int, j: int, merge_cost: float) -> int:
-        node = leaf_count + len(merges)
-        merges.append((min(i, j), max(i, j)))
+        node = leaf_count + len(merges) // 2
+        merges.extend((min(i, j), max(i, j)))
         costs.append(merge_cost)
         alive[i] = alive[j] = False
         alive[node] = True
@@ -273,17 +273,19 @@ def merge_tree(
 
     # Separate shells: smallest first into the part of nearest mean ShDF.
     roots = np.flatnonzero(alive)
-    pairs = _shell_merge_order(roots, node_area, node_moment, leaf_count + len(merges))
+    pairs = _shell_merge_order(roots, node_area, node_moment, leaf_count + len(merges) // 2)
     shell_area, shell_moment = node_area.tolist(), node_moment.tolist()  # Python floats: fast
     for smallest, target in pairs.tolist():
-        merges.append((min(smallest, target), max(smallest, target)))
+        merges.extend((min(smallest, target), max(smallest, target)))
         area_s, area_t = shell_area[smallest], shell_area[target]
         mean_s = shell_moment[smallest] / area_s if area_s > 0 else 0.0
         mean_t = shell_moment[target] / area_t if area_t > 0 else 0.0
         costs.append(cost(area_s, area_t, mean_s, mean_t, 0.0, 0.0, total_area))
 
     return PartTree(
-        leaves, np.array(merges, dtype=np.int64).reshape(-1, 2), np.array(costs, dtype=np.float64)
+        leaves,
+        np.frombuffer(merges, dtype=np.int64).reshape(-1, 2).copy(),
+        np.frombuffer(costs, dtype=np.float64).copy(),
     )
 
 
@@ -496,11 +498,9 @@ def _shell_merge_order(
 
 
 #: Automatic part count: merges costing more than this are not made. Tuned on the same 57
-#: models for CD at 1-RI <= 0.15, the same for leaves with and without boundaries on
-#: creases: with them CD 0.216 / 1-RI 0.139 (0.0175: 0.226, 0.025: 0.223, 0.015: 0.235,
-#: 0.03: 0.243), without 0.227 / 0.143 (0.0175: 0.228, 0.025: 0.243). Missing a cut the
-#: humans make costs CD more than one cut too many, so it errs towards more parts (8.5
-#: on average against the humans' 7.1).
+#: models for the cut discrepancy with the Rand index bounded, the same with and without
+#: boundaries on creases. Missing a cut the humans make costs more than one cut too many,
+#: so it errs towards more parts than the humans cut.
 AUTO_COST_THRESHOLD = 0.02
 
 

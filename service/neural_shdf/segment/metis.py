@@ -12,6 +12,8 @@ import heapq
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph
@@ -94,7 +96,6 @@ def metis_partition(
     for how the parts are shared out (``min_fraction``: smallest shell, as a
     fraction of the area, sure to get a part of its own).
     """
-    from scipy.sparse.csgraph import connected_components
 
     face_count = graph.face_count
     if parts < 1:
@@ -128,8 +129,6 @@ def metis_partition(
 
     unassigned = np.flatnonzero(labels < 0)
     if len(unassigned):
-        from scipy.spatial import cKDTree
-
         # Whole components join one part: the part nearest to their first face.
         assigned = np.flatnonzero(labels >= 0)
         joining, first = np.unique(component[unassigned], return_index=True)
@@ -187,7 +186,7 @@ def _metis(
     node_count: int, pairs: NDArray, weights: NDArray, parts: int, seed: int
 ) -> NDArray[np.int64]:
     """pymetis k-way partition of a graph given as edge pairs (CSR built here)."""
-    import pymetis
+    import pymetis  # slow to import: loaded on first use
 
     if node_count <= parts:
         return np.arange(node_count, dtype=np.int64) % parts

@@ -12,12 +12,12 @@ from neural_shdf.errors import ParameterError
 
 Partitioner = Literal["graphcut", "metis"]
 
-#: Default smoothing lambda of the graph cut, whose parts are the leaves of the part tree:
-#: finer than the 0.12 that scored best without a tree (1-RI 0.1745), so that the tree
-#: has the parts people cut (tuned on psb-dev: 0.06 beat 0.03 and 0.12 at the humans' part
-#: count). CGAL's own 0.26 under-segments with our area/length-normalised energy.
+#: Default smoothing (the graph cut's lambda, ``SegmentParams.smoothing``), whose parts are
+#: the leaves of the part tree: finer than what scores best without a tree, so that the
+#: tree has the parts people cut (tuned on psb-dev at the humans' part count). CGAL's own
+#: 0.26 under-segments with our area/length-normalised energy.
 DEFAULT_SMOOTHING = 0.06
-#: Default mixture size, tuned on psb-dev (k = 8..9 is a plateau; BIC per mesh scored 0.204).
+#: Default mixture size, tuned on psb-dev (a plateau there; BIC per mesh scored worse).
 DEFAULT_CLUSTERS = 9
 #: ``clusters=AUTO_CLUSTERS`` picks k per mesh by BIC among ``CLUSTER_CANDIDATES``.
 AUTO_CLUSTERS = 0
@@ -36,10 +36,9 @@ MAX_REFINE_DEPTH = 8
 #: Parts smaller than this fraction of the surface area are merged into a neighbour.
 DEFAULT_MIN_PART_FRACTION = 0.002
 #: Boundary refinement onto concave creases (``segment.creases``) is on by default: with
-#: the automatic count's threshold tuned for it (``hierarchy.AUTO_COST_THRESHOLD``), CD on
-#: all 76 psb-dev models is 0.237 against 0.271 without (1-RI 0.147 / 0.144); on the 19
-#: held-out models 0.250 / 0.142 against 0.254 / 0.119; at the humans' count 0.190 / 0.127
-#: against 0.198 / 0.130. The human body set is unchanged (0.628 / 0.631).
+#: the automatic count's threshold tuned for it (``hierarchy.AUTO_COST_THRESHOLD``) it
+#: lowers the cut discrepancy on psb-dev, held-out models included, and leaves the human
+#: body set unchanged (``benchmarks/bench_psb.py``, ``bench_human_seg.py``).
 DEFAULT_CREASE_BOUNDARIES = True
 #: How many times refinement may re-segment a part of a part.
 DEFAULT_REFINE_DEPTH = 2
@@ -55,12 +54,18 @@ class SegmentParams:
         clusters: Gaussian mixture components k (a level of detail, not a part
             count); None: ``DEFAULT_CLUSTERS``; ``AUTO_CLUSTERS`` (0): k in
             ``CLUSTER_CANDIDATES`` chosen per mesh by BIC.
-        smoothing: smoothness weight lambda of the graph cut (None: ``DEFAULT_SMOOTHING``).
+        smoothing: the graph cut's smoothness weight (CGAL's lambda; None:
+            ``DEFAULT_SMOOTHING``): its edge weights are ``smoothing`` times the dihedral
+            weights at smoothing 1 (``graphcut.dihedral_weights``), after the resolution
+            normalisation of ``reference_faces`` (``smoothing_for``). The one name from the
+            route and the CLI to ``CutHierarchy.solve``.
         parts: number of parts. ``graphcut``: a cut of the merge tree over its parts
             (``segment.hierarchy``; more than its leaves gives every leaf); ``metis``:
             exactly this many. None: automatic (``metis``: as many as the graph cut finds).
         refine: recursively re-segment parts that are themselves heterogeneous.
-        boundary_smoothing: alpha-expansion pass that straightens part boundaries.
+        boundary_smoothing: an alpha-expansion pass that straightens part boundaries
+            (``refine.smooth_boundaries``; it reads the graph cut's edge weights, so
+            ``smoothing`` scales it too).
         crease_boundaries: move the graph cut's part boundaries onto nearby concave
             creases (a min cut in a band around each boundary, ``segment.creases``),
             before the part tree is built, so every cut of the tree has them.
@@ -137,6 +142,20 @@ class SegmentParams:
             raise ParameterError(
                 f"reference_faces must be an integer >= 1 (or None), got {self.reference_faces!r}"
             )
+
+    @property
+    def effective_smoothing(self) -> float:
+        """``smoothing``, or ``DEFAULT_SMOOTHING`` where it is None."""
+        return DEFAULT_SMOOTHING if self.smoothing is None else float(self.smoothing)
+
+    def smoothing_for(self, face_count: int) -> float:
+        """The smoothing lambda the graph cut uses on a mesh of ``face_count`` faces:
+        ``effective_smoothing``, times ``sqrt(face_count / reference_faces)`` when
+        ``reference_faces`` is set (resolution normalisation)."""
+        smoothing = self.effective_smoothing
+        if self.reference_faces is None:
+            return smoothing * 1.0
+        return smoothing * np.sqrt(face_count / self.reference_faces)
 
     @classmethod
     def from_attributes(cls, source: object) -> SegmentParams:

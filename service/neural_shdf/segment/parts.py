@@ -3,12 +3,43 @@
 from __future__ import annotations
 
 import heapq
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from neural_shdf.compiled import kernel
-from neural_shdf.geometry import FaceGraph
+from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
+
+
+@dataclass(frozen=True)
+class FaceData:
+    """Per-face geometry the partitioners need: area, centroid and area over mean area."""
+
+    areas: NDArray[np.float64]
+    centroids: NDArray[np.float64]
+    face_weight: NDArray[np.float64]
+
+    @classmethod
+    def of(
+        cls,
+        vertices: NDArray,
+        faces: NDArray,
+        areas: NDArray | None = None,
+        centroids: NDArray | None = None,
+    ) -> FaceData:
+        """The data of ``faces``; ``areas`` and ``centroids`` where the caller has them
+        (a ``TriangleMesh`` caches both)."""
+        areas = face_normals(vertices, faces)[1] if areas is None else np.asarray(areas, float)
+        mean = float(areas.mean()) if len(areas) else 0.0
+        weight = areas / mean if mean > 0 else np.ones(len(areas))
+        centroids = face_centroids(vertices, faces) if centroids is None else centroids
+        return cls(areas, centroids, weight)
+
+    def subset(self, faces: NDArray) -> FaceData:
+        """The same data for some faces (weights stay relative to the whole mesh)."""
+        return FaceData(self.areas[faces], self.centroids[faces], self.face_weight[faces])
 
 
 def canonical_labels(labels: NDArray) -> NDArray[np.int64]:
@@ -183,8 +214,6 @@ def _merge_isolated(
     merged: NDArray, isolated: NDArray, size: NDArray, threshold: float, centroids: NDArray
 ) -> NDArray[np.int64]:
     """Give each isolated tiny part the label of the nearest face of a part that is not tiny."""
-    from scipy.spatial import cKDTree
-
     kept = np.flatnonzero(size >= threshold)
     kept = kept[np.isin(kept, merged)]
     if len(kept) == 0:

@@ -2,24 +2,26 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.geometry import FaceGraph
-from neural_shdf.segment.graphcut import banded_alpha_expansion, near_boundary
+from neural_shdf.segment.graphcut import (
+    banded_alpha_expansion,
+    data_costs,
+    multilevel_alpha_expansion,
+    near_boundary,
+)
 from neural_shdf.segment.mixture import fit_best_mixture, prefers_split
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import (
+    FaceData,
     canonical_labels,
+    connected_parts,
     induced_subgraph,
     merge_small_parts,
 )
 from neural_shdf.shdf.postprocess import linear_normalize, log_normalize
-
-if TYPE_CHECKING:
-    from neural_shdf.segment.pipeline import FaceData
 
 #: Parts with fewer faces are never refined.
 MIN_REFINE_FACES = 100
@@ -89,8 +91,6 @@ def _refine_faces(
     mixture = fit_best_mixture(local_values, params.seed, REFINE_CLUSTER_CANDIDATES)
     posteriors = mixture.posteriors(local_values)
     sub_graph, edges = induced_subgraph(graph, faces)
-    from neural_shdf.segment.pipeline import cut_into_parts
-
     sub = cut_into_parts(posteriors, sub_graph, edge_weights[edges], geometry.subset(faces))
     fraction = params.min_part_fraction * total_area / area if area > 0 else 0.0
     sub = merge_small_parts(
@@ -111,6 +111,17 @@ def _refine_faces(
         result[members[new]] = next_label + deeper[new] - 1
         next_label += int(deeper.max())
     return canonical_labels(result)
+
+
+def cut_into_parts(
+    posteriors: NDArray, graph: FaceGraph, edge_weights: NDArray, geometry: FaceData
+) -> NDArray[np.int64]:
+    """Alpha-expansion over clusters, then connected runs of one cluster as parts."""
+    data = data_costs(posteriors, geometry.face_weight)
+    clusters = multilevel_alpha_expansion(
+        data, graph.pairs, edge_weights, geometry.centroids, geometry.areas
+    )
+    return connected_parts(clusters, graph.pairs, graph.face_count)
 
 
 def smooth_boundaries(

@@ -5,8 +5,11 @@ Follows CGAL's ``sdf_values`` (Surface_mesh_segmentation) step by step:
 * per non-degenerate triangle, ``ray_count`` rays leave the centroid inside a
   cone of opening ``cone_angle`` around the inward normal; the cone is sampled
   with Vogel's golden-angle spiral on the unit disk (radius ``i / n``, angle
-  ``i * (3 - sqrt 5) * pi``, the first ray along the normal), oriented by the
-  plane basis CGAL's ``Plane_3::base1/base2`` picks, all rays weighted equally;
+  ``i * (3 - sqrt 5) * pi``, the first ray along the normal), all rays weighted
+  equally; unlike CGAL (whose ``Plane_3::base1`` follows the world axes, so the
+  rays and the ShDF change when the mesh is rotated), the spiral is oriented by
+  a tangent of the triangle's own shape (``face_tangents``), so the ShDF does not
+  depend on the mesh's position, orientation or scale in space;
 * each ray keeps its first hit (the triangle itself excluded); the hit counts
   only when the ray leaves through the back of the hit triangle, i.e. the
   ray direction and the hit triangle's outward normal make an acute angle;
@@ -68,6 +71,9 @@ BATCHES_PER_THREAD = 8
 ORIGIN_OFFSET = 1e-6
 #: Offset used again for the few rays that still hit their own triangle.
 RETRY_ORIGIN_OFFSET = 1e-4
+#: ``face_tangents``: a triangle counts as equilateral when its shape's tangent is
+#: shorter than this fraction of its size (there rounding would pick the direction).
+EQUILATERAL_TOLERANCE = 1e-7
 
 
 def disk_samples(ray_count: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -81,6 +87,82 @@ def disk_samples(ray_count: int) -> tuple[NDArray[np.float64], NDArray[np.float6
     radius = index / ray_count
     points = np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1)
     return points, np.ones(ray_count)
+
+
+def face_tangents(
+    vertices: NDArray, faces: NDArray, which: NDArray | None = None
+) -> NDArray[np.float64]:
+    """(F, 3) unit vector in each triangle's plane that orients its ray cone's spiral
+    (of the faces ``which`` only, in that order, when given).
+
+    ``t = sum_i (l_i^2 - mean l^2) (v_i - c)``: the vertices' offsets from the centroid
+    ``c`` weighted by the squared length of the opposite edge, so it leans towards the
+    vertex of the largest angle. It turns with the triangle, ignores translation and
+    scale and does not depend on which vertex the face lists first or on its winding;
+    it varies continuously with the vertices (no arg-max whose ties rounding would break
+    differently in another pose). Only equilateral triangles have no such direction: for
+    them (relative asymmetry below ``EQUILATERAL_TOLERANCE``) it is the direction to the
+    face's vertex of smallest index; zero for a triangle shrunk to a point.
+    """
+    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    which = np.arange(len(faces)) if which is None else np.asarray(which, dtype=np.int64)
+    tangents = np.empty((len(which), 3))
+    _face_tangents(
+        np.ascontiguousarray(vertices, dtype=np.float64),
+        faces,
+        which,
+        EQUILATERAL_TOLERANCE,
+        tangents,
+    )
+    return tangents
+
+
+@kernel
+def _face_tangents(vertices, faces, which, tolerance, out) -> None:  # noqa: ANN001
+    """``face_tangents`` into ``out``, one face at a time."""
+    offsets = np.empty((3, 3))
+    squared = np.empty(3)
+    for k in range(len(which)):
+        face = faces[which[k]]
+        for i in range(3):
+            # Offset of corner i from the centroid, from the two edges leaving it (no
+            # cancellation far from the origin); squared length of the opposite edge.
+            j, m = (i + 1) % 3, (i + 2) % 3
+            length = 0.0
+            for axis in range(3):
+                here = vertices[face[i], axis]
+                offsets[i, axis] = (
+                    (here - vertices[face[j], axis]) + (here - vertices[face[m], axis])
+                ) / 3.0
+                edge = vertices[face[m], axis] - vertices[face[j], axis]
+                length += edge * edge
+            squared[i] = length
+        mean = (squared[0] + squared[1] + squared[2]) / 3.0
+        longest = 0.0
+        for i in range(3):
+            longest = max(longest, offsets[i, 0] ** 2 + offsets[i, 1] ** 2 + offsets[i, 2] ** 2)
+        scale = 3.0 * mean * math.sqrt(longest)
+        norm = 0.0
+        for axis in range(3):
+            value = 0.0
+            for i in range(3):
+                value += (squared[i] - mean) * offsets[i, axis]
+            out[k, axis] = value
+            norm += value * value
+        norm = math.sqrt(norm)
+        if not norm > tolerance * scale:  # equilateral: the corner of smallest index
+            first = 0
+            for i in range(1, 3):
+                if face[i] < face[first]:
+                    first = i
+            norm = 0.0
+            for axis in range(3):
+                out[k, axis] = offsets[first, axis]
+                norm += offsets[first, axis] ** 2
+            norm = math.sqrt(norm)
+        if norm > 0:
+            for axis in range(3):
+                out[k, axis] /= norm
 
 
 def plane_basis(normals: NDArray) -> tuple[NDArray, NDArray]:
@@ -128,12 +210,26 @@ def cone_coefficients(ray_count: int, cone_angle: float) -> NDArray[np.float64]:
     return coefficients / np.linalg.norm(coefficients, axis=1, keepdims=True)
 
 
-def cone_frames(inward_normals: NDArray, rotation: NDArray | None = None) -> NDArray:
+def cone_frames(
+    inward_normals: NDArray, tangents: NDArray, rotation: NDArray | None = None
+) -> NDArray:
     """(F, 3, 3) rows (inward normal, base1, base2) of each face's ray cone.
 
+    ``base1`` is ``tangents`` (``face_tangents`` of the face the cone leaves from) made
+    perpendicular to the axis, ``base2 = normal x base1``; an axis the tangent cannot
+    span a plane with (a caller's normal lying in the face) falls back to ``plane_basis``.
     ``rotation`` (F,) optionally turns each face's sample pattern about its axis.
     """
-    base1, base2 = plane_basis(inward_normals)
+    inward_normals = np.asarray(inward_normals, dtype=np.float64)
+    tangents = np.asarray(tangents, dtype=np.float64)
+    base1 = tangents - np.einsum("ij,ij->i", tangents, inward_normals)[:, None] * inward_normals
+    length = np.linalg.norm(base1, axis=1)
+    fallback = ~(length > 1e-6)
+    if fallback.any():
+        base1[fallback] = plane_basis(inward_normals[fallback])[0]
+        length[fallback] = 1.0
+    base1 /= length[:, None]
+    base2 = np.cross(inward_normals, base1)
     if rotation is not None:
         cos_r, sin_r = np.cos(rotation)[:, None], np.sin(rotation)[:, None]
         base1, base2 = cos_r * base1 + sin_r * base2, cos_r * base2 - sin_r * base1
@@ -142,16 +238,18 @@ def cone_frames(inward_normals: NDArray, rotation: NDArray | None = None) -> NDA
 
 def cone_directions(
     inward_normals: NDArray,
+    tangents: NDArray,
     *,
     cone_angle: float,
     ray_count: int,
     rotation: NDArray | None = None,
     dtype: type = np.float64,
 ) -> NDArray:
-    """Unit ray directions (F, ray_count, 3) inside the cone around each inward normal
-    (``cone_coefficients`` on ``cone_frames``)."""
+    """Unit ray directions (F, ray_count, 3) inside the cone around each inward normal,
+    oriented by ``tangents`` (``cone_coefficients`` on ``cone_frames``)."""
     coefficients = cone_coefficients(ray_count, cone_angle).astype(dtype)
-    return np.matmul(coefficients, cone_frames(inward_normals, rotation).astype(dtype))
+    frames = cone_frames(inward_normals, tangents, rotation)
+    return np.matmul(coefficients, frames.astype(dtype))
 
 
 def spatial_order(points: NDArray, bits: int = 10) -> NDArray[np.int64]:
@@ -388,6 +486,7 @@ def _cast_rays(
         def run_batch(batch: NDArray) -> None:
             frames = cone_frames(
                 np.negative(np.take(normals, batch, axis=0)),
+                face_tangents(vertices, faces, np.take(own_faces, batch)),
                 None if rotation is None else np.take(rotation, batch),
             ).astype(np.float32)
             scene = building.result()  # the frames above were made while the scene was built

@@ -51,7 +51,7 @@ FILTER_COST_PER_PAIR = 0.0015
 Progress = Callable[[float], None]
 
 
-def smoothing_window(face_count: int) -> int:
+def bilateral_window(face_count: int) -> int:
     """CGAL's window (in edge rings) for ``face_count`` faces: ``floor(sqrt(F / 2000)) + 1``."""
     return int(math.sqrt(face_count / 2000.0)) + 1
 
@@ -573,7 +573,7 @@ def postprocess_shdf(
     Args:
         raw: (F,) raw values, NaN where unknown.
         graph: face adjacency (the graph the filter walks).
-        window_size: smoothing window in edge rings; default ``smoothing_window(F)``.
+        window_size: smoothing window in edge rings; default ``bilateral_window(F)``.
         spatial_sigma, range_sigma_factor: bilateral filter widths (see ``bilateral_smooth``).
         smooth: False skips the bilateral filter (filling and normalisation only).
         centroids: (F, 3) face centroids; with them, windows wider than
@@ -585,7 +585,7 @@ def postprocess_shdf(
         raise ParameterError(f"{len(raw)} ShDF values for a face graph of {graph.face_count} faces")
     values = fill_missing(raw, graph)
     if smooth:
-        window = smoothing_window(len(values)) if window_size is None else window_size
+        window = bilateral_window(len(values)) if window_size is None else window_size
         filter_ = bilateral_smooth
         if centroids is not None and window > EXACT_WINDOW_MAX:
             filter_ = functools.partial(patch_bilateral, centroids=centroids)

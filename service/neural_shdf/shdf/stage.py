@@ -19,33 +19,42 @@ sample scale.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import math
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from neural_shdf import constants
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, build_face_graph, face_centroids
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.orientation import MeshDiagnostics
+from neural_shdf.orientation import MeshDiagnostics, hole_caps
+from neural_shdf.segment.params import check_seed
+from neural_shdf.shdf.embree import Scene
+from neural_shdf.shdf.exact import raw_shdf, raw_shdf_at_points
+from neural_shdf.shdf.neural.inference import NeuralModel, load_model, neural_raw_shdf
 from neural_shdf.shdf.postprocess import (
     EXACT_WINDOW_MAX,
     FILTER_COST_PER_PAIR,
-    RANGE_SIGMA_FACTOR,
     SPATIAL_SIGMA_FACTOR,
+    bilateral_window,
     mesh_ring_length,
     postprocess_shdf,
-    smoothing_window,
+)
+from neural_shdf.shdf.sampling import (
+    DEFAULT_INTERPOLATION_NEIGHBOURS,
+    fill_samples,
+    sample_surface_points,
+    samples_to_faces,
+    smooth_samples,
+    vertex_normal_sums,
+    with_vertex_map,
 )
 
 ShdfMethod = Literal["auto", "exact", "sampled", "neural"]
@@ -69,8 +78,6 @@ DEFAULT_MAX_SAMPLES = 16384
 #: radii); where the first samples show thinner, it draws (this / p10)^2 as many, up to
 #: ``max_samples``. On dense-dev: lucy p10 1.2 radii, zenobia's chains 2.0, skull 1.8.
 THIN_PART_RADII = 3.0
-#: Samples without a valid hit take the mean of their valid ones among this many nearest.
-FILL_NEIGHBOURS = 8
 
 
 @dataclass(frozen=True)
@@ -111,7 +118,7 @@ class ShdfParams:
 
     def window_for(self, face_count: int) -> int:
         """The bilateral window in edge rings for a mesh of ``face_count`` faces."""
-        return self.window_size or smoothing_window(face_count)
+        return self.window_size or bilateral_window(face_count)
 
 
 def resolve_method(method: str, face_count: int) -> RawMethod:
@@ -133,77 +140,7 @@ def uses_model(method: str) -> bool:
     return method == "neural" or (method == "auto" and AUTO_SAMPLED_METHOD == "neural")
 
 
-def shdf_key(method: RawMethod, params: ShdfParams, model_sha256: str | None) -> str:
-    """Stable digest of what a ShDF depends on besides the mesh: the resolved method,
-    the model's checksum (neural only) and every parameter the method reads."""
-    used = asdict(params)
-    if method == "exact":
-        for name in ("seed", "samples", "sample_sets"):
-            used.pop(name)
-    if method != "neural":
-        used.pop("sample_sets", None)
-    if method != "sampled":
-        used.pop("max_samples")
-    if method == "neural":
-        if not model_sha256:
-            raise ParameterError("a neural ShDF key needs the model's checksum")
-        used["model"] = model_sha256
-    used["method"] = method
-    return hashlib.sha256(json.dumps(used, sort_keys=True).encode()).hexdigest()[:24]
-
-
-def smooth_samples(
-    values: NDArray,
-    positions: NDArray,
-    normals: NDArray,
-    *,
-    radius: float,
-    spatial_sigma: float,
-    range_sigma_factor: float = RANGE_SIGMA_FACTOR,
-) -> NDArray[np.float64]:
-    """The exact path's bilateral filter at the sample scale: for each sample, the
-    samples within ``radius`` (mesh units) whose normals do not oppose its own (the
-    other side of a thin wall is not its surface neighbourhood), weighted by a
-    Gaussian of their distance (``spatial_sigma``) times a Gaussian of their value
-    difference (``range_sigma_factor`` x the window's RMS difference)."""
-    values = np.asarray(values, dtype=np.float64)
-    if len(values) < 2 or not radius > 0:
-        return values.copy()
-    tree = cKDTree(positions)
-    pairs = tree.query_pairs(radius, output_type="ndarray")
-    if len(pairs) == 0:
-        return values.copy()
-    pairs = pairs[np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) > 0]
-    rows = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(len(values))])
-    cols = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(len(values))])
-    offset = positions[rows] - positions[cols]
-    squared_distance = np.einsum("ij,ij->i", offset, offset)
-    difference = values[cols] - values[rows]
-    count = np.bincount(rows, minlength=len(values))
-    variance = np.bincount(rows, difference**2, minlength=len(values)) / count
-    varies = variance > 0
-    scale = 0.5 / (range_sigma_factor**2 * np.where(varies, variance, 1.0))
-    weight = np.exp(-0.5 * squared_distance / spatial_sigma**2 - difference**2 * scale[rows])
-    total = np.bincount(rows, weight * values[cols], minlength=len(values))
-    norm = np.bincount(rows, weight, minlength=len(values))
-    return np.where(varies, total / norm, values)
-
-
-def fill_samples(values: NDArray, positions: NDArray) -> NDArray[np.float64]:
-    """Samples without a value (NaN) take the mean of their valid nearest samples;
-    those with none nearby the smallest value; all NaN stays all NaN."""
-    values = np.asarray(values, dtype=np.float64).copy()
-    missing = np.isnan(values)
-    if not missing.any() or missing.all():
-        return values
-    valid = np.flatnonzero(~missing)
-    k = min(FILL_NEIGHBOURS, len(valid))
-    _, nearest = cKDTree(positions[valid]).query(positions[missing], k=k)
-    values[missing] = values[valid][np.asarray(nearest).reshape(-1, k)].mean(axis=1)
-    return values
-
-
-def sample_smoothing(
+def sample_filter_window(
     mesh: TriangleMesh, graph: FaceGraph, params: ShdfParams
 ) -> tuple[float, float]:
     """(radius, spatial sigma) in mesh units of the surface window the exact path's
@@ -235,8 +172,6 @@ def ray_targets(mesh: TriangleMesh, close_holes: bool) -> tuple[NDArray, NDArray
     missing surface was instead of reading whatever lies beyond as material."""
     if not close_holes:
         return mesh.vertices, mesh.faces
-    from neural_shdf.orientation import hole_caps
-
     vertices, caps = hole_caps(mesh.vertices, mesh.welded_faces, mesh.welded_edges)
     return vertices, np.vstack([mesh.faces, caps])
 
@@ -257,16 +192,6 @@ def sampled_raw_shdf(
     are cast (``workers`` threads, default one per CPU; the result does not depend
     on it).
     """
-    from neural_shdf.shdf.embree import Scene
-    from neural_shdf.shdf.exact import raw_shdf_at_points
-    from neural_shdf.shdf.neural.graph import (
-        GraphSpec,
-        sample_surface_points,
-        samples_to_faces,
-        vertex_normal_sums,
-        with_vertex_map,
-    )
-
     workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
     normals, areas = mesh.normals_and_areas
     with ThreadPoolExecutor(max_workers=2) as pool:
@@ -275,11 +200,10 @@ def sampled_raw_shdf(
 
         def cast(count: int) -> tuple:
             """Samples (their vertex map under way) and their raw diameters."""
-            spec = GraphSpec(target_samples=count)
             samples = sample_surface_points(
                 mesh.vertices,
                 mesh.faces,
-                spec,
+                count,
                 seed=params.seed,
                 normals=normals,
                 areas=areas,
@@ -287,7 +211,12 @@ def sampled_raw_shdf(
                 normal_sums=normal_sums,
             )
             mapped = pool.submit(
-                with_vertex_map, samples, mesh.vertices, normal_sums, spec, workers
+                with_vertex_map,
+                samples,
+                mesh.vertices,
+                normal_sums,
+                DEFAULT_INTERPOLATION_NEIGHBOURS,
+                workers,
             )
             diameters, _, _ = raw_shdf_at_points(
                 mesh.vertices,
@@ -309,7 +238,7 @@ def sampled_raw_shdf(
         if np.isnan(diameters).all():
             return np.full(mesh.face_count, np.nan)
         diameters = fill_samples(diameters, samples.positions)
-        radius, sigma = sample_smoothing(mesh, graph, params)
+        radius, sigma = sample_filter_window(mesh, graph, params)
         smoothed = smooth_samples(
             diameters, samples.positions, samples.normals, radius=radius, spatial_sigma=sigma
         )
@@ -355,9 +284,6 @@ def raw_diameters(
     loops are capped for the rays of ``exact`` and ``sampled`` (``ray_targets``).
     """
     if method == "exact":
-        from neural_shdf.shdf.embree import Scene
-        from neural_shdf.shdf.exact import raw_shdf
-
         normals, _ = mesh.normals_and_areas
         return raw_shdf(
             mesh.vertices,
@@ -371,10 +297,8 @@ def raw_diameters(
     if method == "sampled":
         return sampled_raw_shdf(mesh, graph, params, close_holes=close_holes)
     if method == "neural":
-        from neural_shdf.shdf.neural.inference import neural_raw_shdf
-
         normals, areas = mesh.normals_and_areas
-        radius, sigma = sample_smoothing(mesh, graph, params)
+        radius, sigma = sample_filter_window(mesh, graph, params)
         return neural_raw_shdf(
             mesh.vertices,
             mesh.faces,
@@ -383,7 +307,7 @@ def raw_diameters(
             model=model,  # type: ignore[arg-type]
             normals=normals,
             areas=areas,
-            smoothing=(radius, sigma),
+            sample_filter=(radius, sigma),
         )
     raise ParameterError(f"unknown ShDF producer {method!r}")
 
@@ -399,31 +323,34 @@ class ShdfResult:
     diagnostics: MeshDiagnostics | None = None
 
 
-def run_shdf(
+def compute_shdf(
     mesh: TriangleMesh,
-    graph: FaceGraph,
     *,
     method: str = "auto",
+    seed: int | None = None,
     params: ShdfParams | None = None,
     model: object | str | Path | None = None,
     progress: Progress | None = None,
 ) -> ShdfResult:
-    """Raw diameters from the producer ``method`` resolves to, then one post-processing.
+    """Post-processed ShDF in [0, 1] per triangle of ``mesh``: raw diameters from the
+    producer ``method`` resolves to (``auto``, the default: ``resolve_method`` picks per
+    mesh; ``exact``, ``sampled`` or ``neural``), then one post-processing.
 
-    ``model``: a loaded ``NeuralModel`` or the path of an ONNX model, used by
-    ``neural`` (default: the installed model); ignored by the other producers.
-    Every producer works on ``mesh.oriented``: the rays go into the solid whatever the
-    file's winding; ``graph``: the face graph of that mesh (``pipeline.mesh_face_graph``).
+    ``seed`` (0..``MAX_SEED``), when given, replaces ``params.seed``; by convention the
+    segmentation's ``SegmentParams.seed``. ``model``: a loaded ``NeuralModel`` or the path
+    of an ONNX model, used by ``neural`` (default: the installed model); ignored by the
+    other producers. Every producer works on ``mesh.oriented`` and its face graph
+    (``TriangleMesh.face_graph``): the rays go into the solid whatever the file's winding.
     """
+    params = params or ShdfParams()
+    if seed is not None:
+        params = replace(params, seed=check_seed(seed))
     orientation = mesh.orientation
     diagnostics = orientation.diagnostics
     # One copy of each triangle (coincident copies share its value); no copies: as given.
-    mesh, graph, copy_of = without_copies(mesh.oriented, graph, orientation.first_copy)
-    params = params or ShdfParams()
+    mesh, graph, copy_of = without_copies(mesh.oriented, mesh.face_graph, orientation.first_copy)
     resolved = resolve_method(method, mesh.face_count)
     if resolved == "neural":
-        from neural_shdf.shdf.neural.inference import NeuralModel, load_model
-
         model = model if isinstance(model, NeuralModel) else load_model(model)  # type: ignore[arg-type]
     window = params.window_for(mesh.face_count)
     ray_share = 0.5
@@ -451,9 +378,3 @@ def run_shdf(
         else (lambda done: progress(ray_share + (1 - ray_share) * done)),
     )[copy_of]
     return ShdfResult(values, resolved, diagnostics)
-
-
-def with_seed(params: ShdfParams | None, seed: int | None) -> ShdfParams:
-    """``params`` (default ones when None), with ``seed`` as sampling seed when given."""
-    params = params or ShdfParams()
-    return params if seed is None else replace(params, seed=seed)

@@ -11,7 +11,7 @@ import trimesh
 
 from neural_shdf.errors import ModelUnavailableError, ParameterError
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.pipeline import compute_shdf, mesh_face_graph
+from neural_shdf.pipeline import compute_shdf
 from neural_shdf.shdf.neural.inference import DEFAULT_MODEL_PATH, load_model, neural_raw_shdf
 
 
@@ -61,7 +61,7 @@ def committed_model():
 
 def test_committed_model_tells_thin_from_thick(committed_model) -> None:
     mesh, thin = two_shells()
-    values = compute_shdf(mesh, method="neural", seed=0)
+    values = compute_shdf(mesh, method="neural", seed=0).values
     assert values.shape == (mesh.face_count,)
     assert np.all((values >= 0) & (values <= 1))
     assert np.median(values[thin]) < 0.5 * np.median(values[~thin])
@@ -94,8 +94,8 @@ def test_committed_model_known_values(committed_model) -> None:
     raw = neural_raw_shdf(mesh.vertices, mesh.faces, seed=0, sample_sets=1, model=committed_model)
     faces = [0, 1000, 4000, 5119, 5120, 6000, 7000]
     np.testing.assert_allclose(raw[faces], EXPECTED_RAW, rtol=1e-4)
-    again = compute_shdf(mesh, method="neural", seed=0, graph=mesh_face_graph(mesh))
-    np.testing.assert_allclose(again, compute_shdf(mesh, method="neural", seed=0))
+    again = compute_shdf(mesh, method="neural", seed=0).values
+    np.testing.assert_allclose(again, compute_shdf(mesh, method="neural", seed=0).values)
 
 
 EXPECTED_RAW = [1.53103, 1.54412, 1.54088, 1.53564, 0.166036, 0.160966, 0.179628]
@@ -117,5 +117,5 @@ def test_ray_informed_model_reads_the_cone_of_every_sample() -> None:
     assert graph.node_features.shape[1] == len(model.spec.node_features)
     has_hit = graph.node_features[:, -len(RAY_NODE_FEATURES)]
     assert has_hit.mean() > 0.95
-    values = compute_shdf(mesh, method="neural", model=RAY_MODEL_PATH)
+    values = compute_shdf(mesh, method="neural", model=RAY_MODEL_PATH).values
     assert np.median(values[thin]) < 0.5 * np.median(values[~thin])

@@ -12,47 +12,11 @@ from neural_shdf.shdf.neural.graph import (
     EDGE_FEATURES,
     GraphSpec,
     build_sample_graph,
-    greedy_disk_selection,
-    resample,
     sample_targets,
-    samples_to_faces,
-    vertex_normal_sums,
 )
+from neural_shdf.shdf.sampling import resample, samples_to_faces
 
 SPEC = GraphSpec(target_samples=400, knn=8, cone_neighbours=3)
-
-
-def sequential_disk_selection(points: np.ndarray, radius: float) -> list[int]:
-    """Reference dart thrower: keep a point if no kept point is closer than radius."""
-    kept: list[int] = []
-    for i, p in enumerate(points):
-        if all(np.linalg.norm(points[j] - p) >= radius for j in kept):
-            kept.append(i)
-    return kept
-
-
-def test_greedy_selection_matches_sequential_dart_throwing() -> None:
-    points = np.random.default_rng(3).random((400, 3))
-    kept = greedy_disk_selection(points, 0.12)
-    assert kept.tolist() == sequential_disk_selection(points, 0.12)
-
-
-def test_greedy_selection_is_linear_when_candidates_pile_up() -> None:
-    # 200k candidates within one radius of each other (a surface repeated in place):
-    # 2e10 conflict pairs, which the selection must never list.
-    points = np.random.default_rng(4).random((200_000, 3)) * 0.01
-    assert greedy_disk_selection(points, 1.0).tolist() == [0]
-    spread = np.random.default_rng(5).random((3000, 3))
-    assert greedy_disk_selection(np.repeat(spread, 20, axis=0), 0.1).tolist() == [
-        20 * i for i in sequential_disk_selection(spread, 0.1)
-    ]
-
-
-def test_greedy_selection_on_a_grid_too_fine_for_cell_coordinates() -> None:
-    points = np.random.default_rng(6).random((300, 3))
-    points[0] = [1e15, 0, 0]  # span / radius beyond the grid's integer range
-    kept = greedy_disk_selection(points, 1e-3)
-    assert kept.tolist() == sequential_disk_selection(points, 1e-3)
 
 
 def test_samples_are_poisson_disk_and_deterministic() -> None:
@@ -181,14 +145,3 @@ def test_resample_carries_values_between_sample_sets_without_crossing_walls() ->
     sides = resample(np.where(source.normals[:, 2] < -0.99, 0.0, 1.0), source, target, 4)
     np.testing.assert_array_equal(sides[target.normals[:, 2] < -0.99], 0.0)
     np.testing.assert_array_equal(sides[target.normals[:, 2] > 0.99], 1.0)
-
-
-def test_vertex_normal_sums_are_area_weighted_sums_around_each_vertex() -> None:
-    mesh = trimesh.creation.icosphere(subdivisions=2)
-    normals, areas = face_normals(mesh.vertices, mesh.faces)
-    sums = vertex_normal_sums(len(mesh.vertices), mesh.faces, normals, areas)
-    for vertex in (0, 17, 100):
-        around = np.flatnonzero((mesh.faces == vertex).any(axis=1))
-        np.testing.assert_allclose(sums[vertex], (normals[around] * areas[around, None]).sum(0))
-    with pytest.raises(IndexError):
-        vertex_normal_sums(3, mesh.faces, normals, areas)

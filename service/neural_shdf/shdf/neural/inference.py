@@ -24,8 +24,11 @@ from neural_shdf.shdf.neural.graph import (
     GraphSpec,
     SampleGraph,
     build_sample_graph,
+)
+from neural_shdf.shdf.sampling import (
     resample,
     samples_to_faces,
+    smooth_samples,
     vertex_normal_sums,
 )
 
@@ -118,7 +121,7 @@ def load_model(path: str | Path | None = None) -> NeuralModel:
                 f"model {path.name} does not match the checksum in {card_path.name}"
             )
         try:
-            import onnxruntime
+            import onnxruntime  # heavy: loaded only where the network runs
 
             options = onnxruntime.SessionOptions()
             options.intra_op_num_threads = INTRA_OP_THREADS
@@ -148,15 +151,15 @@ def neural_raw_shdf(
     model: NeuralModel | None = None,
     normals: NDArray | None = None,
     areas: NDArray | None = None,
-    smoothing: tuple[float, float] | None = None,
+    sample_filter: tuple[float, float] | None = None,
 ) -> NDArray[np.float64]:
     """Predicted raw diameter per triangle (mesh units), before post-processing.
 
     The network runs on ``sample_sets`` independent Poisson-disk sample sets
     (seeds derived from ``seed``); the log diameters of the other sets are
     interpolated at the first set's samples and averaged there, smoothed at the
-    sample scale when ``smoothing`` = (radius, spatial sigma) is given
-    (``stage.smooth_samples``), then mapped to the faces once.
+    sample scale when ``sample_filter`` = (radius, spatial sigma) is given
+    (``sampling.smooth_samples``), then mapped to the faces once.
     """
     if sample_sets < 1:
         raise ParameterError(f"sample_sets must be at least 1, got {sample_sets}")
@@ -191,10 +194,8 @@ def neural_raw_shdf(
             model.predict_log_diameter(other), other, anchor, model.spec.interpolation_neighbours
         )
     per_sample = np.exp(log_diameter / sample_sets) * anchor.radius
-    if smoothing is not None:
-        from neural_shdf.shdf.stage import smooth_samples
-
-        radius, sigma = smoothing
+    if sample_filter is not None:
+        radius, sigma = sample_filter
         per_sample = smooth_samples(
             per_sample, anchor.positions, anchor.normals, radius=radius, spatial_sigma=sigma
         )

@@ -26,8 +26,10 @@ from dataclasses import dataclass, fields
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import linear_sum_assignment
 from scipy.sparse.csgraph import dijkstra
 
+from neural_shdf.arrays import unique_rows
 from neural_shdf.geometry import face_normals, weld_faces
 
 #: Metric names in table order.
@@ -169,7 +171,6 @@ def matched_accuracy(
     unmatched segment count as wrong. The accuracy that labelled benchmarks
     (e.g. the human body set) report for methods that output unnamed parts.
     """
-    from scipy.optimize import linear_sum_assignment
 
     table = overlap_matrix(labels, reference, weights)
     total = table.sum()
@@ -224,7 +225,7 @@ def cut_graph(vertices: ArrayLike, faces: ArrayLike) -> CutGraph:
     face_of = np.repeat(np.arange(len(welded)), 3)
     keep = half[:, 0] != half[:, 1]
     half, face_of = half[keep], face_of[keep]
-    unique, inverse, counts = np.unique(half, axis=0, return_inverse=True, return_counts=True)
+    unique, inverse, counts = unique_rows(half, return_inverse=True, return_counts=True)
     inverse = inverse.reshape(-1)
     # Interior edges: exactly two faces; collect them in edge order.
     order = np.argsort(inverse, kind="stable")

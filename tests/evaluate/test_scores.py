@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from neural_shdf.evaluate.metrics import (
+from neural_shdf.evaluate.scores import (
     SegmentationScores,
     average_radius,
     consistency_errors,

@@ -1,78 +1,32 @@
-"""Shared result cache: local disk (diskcache) by default, Redis for several replicas.
+"""Byte stores behind the result cache: local disk (diskcache), Redis for several replicas,
+and Redis with the disk as its fallback.
 
-Every entry is ``MAGIC + sha256(payload) + payload``; an entry whose checksum does
-not match (corrupt, truncated, written by something else) is deleted and reported
-as a miss, so it is recomputed and never served. Keys are grouped per mesh id so a
-mesh and everything derived from it can be deleted together.
-
-Locks are leases (``Lease``): their holder renews them while it works, so a crashed
-holder's lock lapses within seconds. Redis sits behind a circuit breaker with the disk
-cache as fallback (``FallbackBackend``): an outage degrades the service, never stalls it.
+Keys are grouped per mesh id so a mesh and everything derived from it can be deleted
+together. Locks are leases (``leases.Lease``) that the backends store. Redis sits behind
+a circuit breaker with the disk cache as fallback (``FallbackBackend``): an outage
+degrades the service, never stalls it.
 """
 
 from __future__ import annotations
 
 import contextlib
-import hashlib
-import io
-import json
 import logging
-import os
-import socket
 import threading
 import time
-import uuid
-from collections import OrderedDict
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import Any, Protocol, TypeVar, cast
 
-import numpy as np
-from numpy.typing import NDArray
+import diskcache
+import redis
+from redis.backoff import NoBackoff
+from redis.retry import Retry
+
+from neural_shdf.store.breaker import CircuitBreaker
+from neural_shdf.store.keys import lease_key
 
 logger = logging.getLogger(__name__)
 T = TypeVar("T")
-
-MAGIC = b"NSHDF1\n"
-_DIGEST_SIZE = 32
-
-
-class CorruptEntryError(ValueError):
-    """A cache entry failed its checksum or could not be decoded."""
-
-
-def seal(payload: bytes) -> bytes:
-    """Frame ``payload`` with its checksum."""
-    return MAGIC + hashlib.sha256(payload).digest() + payload
-
-
-def unseal(blob: bytes) -> bytes:
-    """The payload of a sealed blob; CorruptEntryError when it does not verify."""
-    head = len(MAGIC) + _DIGEST_SIZE
-    if not isinstance(blob, bytes | bytearray | memoryview) or len(blob) < head:
-        raise CorruptEntryError("entry too short")
-    blob = bytes(blob)
-    if blob[: len(MAGIC)] != MAGIC:
-        raise CorruptEntryError("bad magic")
-    payload = blob[head:]
-    if hashlib.sha256(payload).digest() != blob[len(MAGIC) : head]:
-        raise CorruptEntryError("checksum mismatch")
-    return payload
-
-
-def encode_arrays(arrays: dict[str, NDArray]) -> bytes:
-    """Arrays as an uncompressed .npz (no pickles)."""
-    buffer = io.BytesIO()
-    np.savez(buffer, **{name: np.asarray(value) for name, value in arrays.items()})
-    return buffer.getvalue()
-
-
-def decode_arrays(payload: bytes) -> dict[str, NDArray]:
-    try:
-        with np.load(io.BytesIO(payload), allow_pickle=False) as npz:
-            return {name: npz[name] for name in npz.files}
-    except Exception as exc:  # noqa: BLE001 - any decoding failure means a corrupt entry
-        raise CorruptEntryError(f"undecodable arrays: {exc}") from exc
 
 
 class BackendUnavailable(Exception):  # noqa: N818 - a state, reported by FallbackBackend
@@ -114,10 +68,6 @@ class Backend(Protocol):
     def close(self) -> None: ...
 
 
-def _lease_key(key: str) -> str:
-    return f"lease:{key}"
-
-
 class DiskBackend:
     """diskcache on local disk: SQLite-indexed, size-capped, LRU, safe across processes."""
 
@@ -125,8 +75,6 @@ class DiskBackend:
     local = True  # SQLite in WAL mode: reads do not wait for writers
 
     def __init__(self, directory: Path, size_limit: int) -> None:
-        import diskcache
-
         directory.mkdir(parents=True, exist_ok=True)
         self._cache = diskcache.Cache(
             str(directory),
@@ -198,10 +146,10 @@ class DiskBackend:
 
     def acquire_lease(self, key: str, token: str, ttl_s: float) -> bool:
         # add() is atomic across processes and treats an expired entry as absent.
-        return bool(self._cache.add(_lease_key(key), token, expire=ttl_s, retry=True))
+        return bool(self._cache.add(lease_key(key), token, expire=ttl_s, retry=True))
 
     def renew_lease(self, key: str, token: str, ttl_s: float) -> bool:
-        lease = _lease_key(key)
+        lease = lease_key(key)
         with self._cache.transact(retry=True):
             if self._cache.get(lease, default=None) != token:
                 return False
@@ -209,13 +157,13 @@ class DiskBackend:
         return True
 
     def release_lease(self, key: str, token: str) -> None:
-        lease = _lease_key(key)
+        lease = lease_key(key)
         with self._cache.transact(retry=True):
             if self._cache.get(lease, default=None) == token:
                 self._cache.delete(lease)
 
     def lease_holder(self, key: str) -> str | None:
-        holder = self._cache.get(_lease_key(key), default=None, retry=True)
+        holder = self._cache.get(lease_key(key), default=None, retry=True)
         return holder if isinstance(holder, str) else None
 
     def health(self) -> tuple[bool, str]:
@@ -227,75 +175,6 @@ class DiskBackend:
 
     def close(self) -> None:
         self._cache.close()
-
-
-class CircuitBreaker:
-    """Stops calls to a failing dependency at once; a background probe closes it again.
-
-    Closed: calls go through. The first failure opens it: calls fail fast (no waiting on
-    timeouts) and a daemon thread runs ``probe`` every ``retry_s`` until one succeeds.
-    """
-
-    def __init__(self, name: str, probe: Callable[[], object], retry_s: float) -> None:
-        self.name = name
-        self.retry_s = retry_s
-        self._probe = probe
-        self._guard = threading.Lock()
-        self._opened_at: float | None = None
-        self._last_error = ""
-        self._stopped = threading.Event()
-        self.on_change: Callable[[bool], None] = lambda is_open: None
-        #: Runs after a successful probe, before closing (raising keeps the breaker open).
-        self.before_close: Callable[[], None] = lambda: None
-
-    @property
-    def is_open(self) -> bool:
-        return self._opened_at is not None
-
-    def trip(self, exc: BaseException) -> None:
-        """Record a failure: open the breaker (once) and start probing."""
-        with self._guard:
-            self._last_error = str(exc) or type(exc).__name__
-            if self._opened_at is not None:
-                return
-            self._opened_at = time.monotonic()
-        logger.warning(
-            "%s unreachable (%s): circuit open, not waiting on it; probing every %g s",
-            self.name,
-            self._last_error,
-            self.retry_s,
-        )
-        self.on_change(True)
-        threading.Thread(
-            target=self._probe_until_closed, name=f"{self.name}-probe", daemon=True
-        ).start()
-
-    def _probe_until_closed(self) -> None:
-        while not self._stopped.wait(self.retry_s):
-            try:
-                self._probe()
-                self.before_close()
-            except Exception as exc:  # noqa: BLE001 - still down
-                self._last_error = str(exc) or type(exc).__name__
-                continue
-            with self._guard:
-                opened_at, self._opened_at = self._opened_at, None
-            seconds = time.monotonic() - opened_at if opened_at is not None else 0.0
-            logger.warning("%s reachable again after %.1f s: circuit closed", self.name, seconds)
-            self.on_change(False)
-            return
-
-    def describe(self) -> str:
-        opened_at = self._opened_at
-        if opened_at is None:
-            return f"{self.name} reachable"
-        return (
-            f"{self.name} unreachable for {time.monotonic() - opened_at:.0f} s "
-            f"({self._last_error}); probed every {self.retry_s:g} s"
-        )
-
-    def stop(self) -> None:
-        self._stopped.set()
 
 
 # Compare-and-renew / compare-and-delete: only the holder's token may touch its lease.
@@ -359,10 +238,6 @@ class RedisBackend:
         ttl_s: float | None = None,
         retry_s: float = 5.0,
     ) -> None:
-        import redis
-        from redis.backoff import NoBackoff
-        from redis.retry import Retry
-
         self._redis = redis.Redis.from_url(
             url,
             socket_timeout=timeout_s,
@@ -397,7 +272,8 @@ class RedisBackend:
             raise BackendUnavailable(str(exc)) from exc
 
     def get(self, key: str) -> bytes | None:
-        return self._call(self._redis.get, self._key(key))
+        # bytes: the client is made without decode_responses
+        return cast("bytes | None", self._call(self._redis.get, self._key(key)))
 
     def exists(self, key: str) -> bool | None:
         return bool(self._call(self._redis.exists, self._key(key)))
@@ -445,18 +321,18 @@ class RedisBackend:
         return int(self._call(self._delete_group, keys=keys, args=args))
 
     def acquire_lease(self, key: str, token: str, ttl_s: float) -> bool:
-        lease = self._key(_lease_key(key))
+        lease = self._key(lease_key(key))
         return bool(self._call(self._redis.set, lease, token, nx=True, px=int(ttl_s * 1000)))
 
     def renew_lease(self, key: str, token: str, ttl_s: float) -> bool:
-        lease = self._key(_lease_key(key))
+        lease = self._key(lease_key(key))
         return bool(self._call(self._renew, keys=[lease], args=[token, int(ttl_s * 1000)]))
 
     def release_lease(self, key: str, token: str) -> None:
-        self._call(self._release, keys=[self._key(_lease_key(key))], args=[token])
+        self._call(self._release, keys=[self._key(lease_key(key))], args=[token])
 
     def lease_holder(self, key: str) -> str | None:
-        holder = self._call(self._redis.get, self._key(_lease_key(key)))
+        holder = cast("bytes | None", self._call(self._redis.get, self._key(lease_key(key))))
         return holder.decode() if holder is not None else None
 
     def health(self) -> tuple[bool, str]:
@@ -630,309 +506,3 @@ class FallbackBackend:
     def close(self) -> None:
         self.primary.close()
         self.fallback.close()
-
-
-def _machine() -> str:
-    """This host and PID namespace: where process ids in lease tokens are comparable."""
-    try:
-        namespace = str(os.stat("/proc/self/ns/pid").st_ino)
-    except OSError:
-        namespace = "?"  # no /proc: holders' liveness is never checked, leases just lapse
-    return f"{socket.gethostname()}/{namespace}"
-
-
-MACHINE = _machine()
-
-
-def process_is_gone(pid: int) -> bool:
-    """Whether no live process has this id here (never started, exited or a zombie)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    except PermissionError:
-        return False
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return False
-    return stat.rpartition(")")[2].split()[:1] in (["Z"], ["X"])
-
-
-class Lease:
-    """A lock across threads, processes and replicas that lapses unless its holder renews it.
-
-    While held, a daemon thread renews it every ``ttl_s / 3``; a holder that dies (kill -9,
-    out of memory, lost host) stops renewing, so its lease lapses after ``ttl_s`` and the
-    next worker goes on. A waiter on the holder's own machine does not wait that long: the
-    token names the holder's process, and the lease of a process that is gone is broken at
-    once. A holder paused for longer than ``ttl_s`` loses it (``lost``); results are
-    deterministic and written atomically, so the cost is only duplicate work.
-    """
-
-    def __init__(self, store: Backend, key: str, ttl_s: float) -> None:
-        self.store = store
-        self.key = key
-        self.ttl_s = ttl_s
-        self.token = f"{MACHINE}:{os.getpid()}:{uuid.uuid4().hex}"
-        self.held = False
-        self.lost = False
-        self._stop = threading.Event()
-
-    def try_acquire(self) -> bool:
-        """Take the lease if it is free or has lapsed; start renewing it."""
-        if not self.held and self.store.acquire_lease(self.key, self.token, self.ttl_s):
-            self.held, self.lost = True, False
-            self._stop = threading.Event()
-            threading.Thread(
-                target=self._renew_until_released, args=(self._stop,), daemon=True
-            ).start()
-        return self.held
-
-    def acquire(self, wait_s: float) -> bool:
-        """Wait up to ``wait_s`` for the lease; False if a live holder keeps it that long."""
-        deadline = time.monotonic() + wait_s
-        pause = 0.01
-        while not self.try_acquire():
-            if self.break_if_holder_died():
-                continue
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                return False
-            time.sleep(min(pause, remaining))
-            pause = min(pause * 2, 0.25)
-        return True
-
-    def break_if_holder_died(self) -> bool:
-        """Free the lease if its holder was a process on this machine that is gone."""
-        holder = self.store.lease_holder(self.key)
-        if holder is None or holder.count(":") < 2:
-            return False
-        machine, pid, _ = holder.rsplit(":", 2)
-        if machine != MACHINE or machine.endswith("/?") or not pid.isdigit():
-            return False
-        if not process_is_gone(int(pid)):
-            return False
-        self.store.release_lease(self.key, holder)  # only if that dead holder still has it
-        logger.warning("lease on %s: its holder (process %s) is gone; taking over", self.key, pid)
-        return True
-
-    def stop_renewing(self) -> None:
-        """Stop the renewals at once (the lease then lapses by itself)."""
-        self._stop.set()
-
-    def release(self) -> None:
-        if not self.held:
-            return
-        self.stop_renewing()
-        self.held = False
-        try:
-            self.store.release_lease(self.key, self.token)
-        except Exception as exc:  # noqa: BLE001 - it lapses by itself
-            logger.warning("could not release the lease on %s: %s", self.key, exc)
-
-    def _renew_until_released(self, stop: threading.Event) -> None:
-        while not stop.wait(self.ttl_s / 3):
-            why = "taken by another worker after a pause"
-            try:
-                renewed = self.store.renew_lease(
-                    self.key, self.token, self.ttl_s
-                ) or self.store.acquire_lease(self.key, self.token, self.ttl_s)
-            except Exception as exc:  # noqa: BLE001 - retried at the next beat
-                renewed, why = False, f"store unreachable: {exc}"
-            if not renewed and not self.lost:
-                logger.warning(
-                    "lease on %s lost (%s); another worker may compute the same result",
-                    self.key,
-                    why,
-                )
-            self.lost = not renewed
-
-
-class ResultCache:
-    """Typed, checksummed entries over a Backend, with a small in-memory LRU in front."""
-
-    def __init__(
-        self,
-        backend: Backend,
-        memory_items: int = 16,
-        lease_s: float = 5.0,
-        working_set_bytes: int = 1024**3,
-    ) -> None:
-        self.backend = backend
-        self.lease_s = lease_s
-        self._memory: OrderedDict[str, Any] = OrderedDict()
-        self._memory_items = memory_items
-        # Large per-mesh working sets (e.g. segmentation bases), bounded by their bytes.
-        self._working: OrderedDict[str, tuple[Any, int]] = OrderedDict()
-        self._working_bytes = working_set_bytes
-        self._memory_guard = threading.Lock()
-        self.on_corrupt: Callable[[str], None] = lambda key: None
-
-    # -- in-process memory ----------------------------------------------------
-    def remember(self, key: str, value: Any) -> None:
-        if self._memory_items <= 0:
-            return
-        with self._memory_guard:
-            self._memory[key] = value
-            self._memory.move_to_end(key)
-            while len(self._memory) > self._memory_items:
-                self._memory.popitem(last=False)
-
-    def recall(self, key: str) -> Any | None:
-        with self._memory_guard:
-            value = self._memory.get(key)
-            if value is not None:
-                self._memory.move_to_end(key)
-            return value
-
-    def keep_working_set(self, key: str, value: Any, nbytes: int) -> None:
-        """Keep a large in-process value (never shared), least recently used dropped first
-        so that all kept ones stay within ``working_set_bytes``; one larger is not kept."""
-        with self._memory_guard:
-            self._working.pop(key, None)
-            if nbytes > self._working_bytes:
-                return
-            self._working[key] = (value, nbytes)
-            total = sum(size for _, size in self._working.values())
-            while total > self._working_bytes:
-                _, (_, size) = self._working.popitem(last=False)
-                total -= size
-
-    def working_set(self, key: str) -> Any | None:
-        """A value ``keep_working_set`` kept, or None."""
-        with self._memory_guard:
-            kept = self._working.get(key)
-            if kept is None:
-                return None
-            self._working.move_to_end(key)
-            return kept[0]
-
-    def forget_group(self, group: str) -> None:
-        with self._memory_guard:
-            for memory in (self._memory, self._working):
-                for key in [k for k in memory if k.startswith(f"{group}:")]:
-                    del memory[key]
-
-    # -- shared, checksummed entries -------------------------------------------
-    def _payload(self, key: str) -> bytes | None:
-        blob = self.backend.get(key)
-        if blob is None:
-            return None
-        try:
-            return unseal(blob)
-        except CorruptEntryError as exc:
-            logger.warning("dropping corrupt cache entry %s: %s", key, exc)
-            self.on_corrupt(key)
-            self.backend.delete(key)
-            return None
-
-    def get_arrays(self, key: str) -> dict[str, NDArray] | None:
-        payload = self._payload(key)
-        if payload is None:
-            return None
-        try:
-            return decode_arrays(payload)
-        except CorruptEntryError:
-            self.on_corrupt(key)
-            self.backend.delete(key)
-            return None
-
-    def recall_arrays(self, key: str, decode: Callable[[dict[str, NDArray]], T]) -> T | None:
-        """This process's memory of ``key``, else its stored arrays through ``decode`` (then
-        remembered); None when absent or when ``decode`` rejects them (KeyError, ValueError)."""
-        value = self.recall(key)
-        if value is not None:
-            return value
-        arrays = self.get_arrays(key)
-        if arrays is None:
-            return None
-        try:
-            value = decode(arrays)
-        except (KeyError, ValueError):
-            return None
-        self.remember(key, value)
-        return value
-
-    def put_arrays(
-        self,
-        key: str,
-        arrays: dict[str, NDArray],
-        *,
-        group: str,
-        keep_local: bool = False,
-        guard: tuple[str, bytes] | None = None,
-    ) -> bool:
-        """Store arrays; ``keep_local``: also readable from this host while Redis is down
-        (for what cannot be recomputed: uploaded meshes, job records). ``guard``: (key,
-        stored bytes) that must still be there, checked atomically with the write (a
-        result of a mesh deleted meanwhile is never stored); whether it was stored."""
-        blob = seal(encode_arrays(arrays))
-        if guard is None:
-            self.backend.set(key, blob, group=group, keep_local=keep_local)
-            return True
-        guard_key, expected = guard
-        return self.backend.set_if(key, blob, group=group, guard=guard_key, expected=expected)
-
-    def get_raw(self, key: str) -> bytes | None:
-        """The stored bytes of ``key`` as they are (a ``guard`` for ``put_arrays``)."""
-        return self.backend.get(key)
-
-    def add_json(self, key: str, value: Any, *, group: str, keep_local: bool = False) -> bool:
-        """Store ``value`` unless ``key`` exists (atomic); whether it was stored."""
-        blob = seal(json.dumps(value).encode())
-        return self.backend.add(key, blob, group=group, keep_local=keep_local)
-
-    def get_json(self, key: str) -> Any | None:
-        payload = self._payload(key)
-        if payload is None:
-            return None
-        try:
-            return json.loads(payload)
-        except ValueError:
-            self.on_corrupt(key)
-            self.backend.delete(key)
-            return None
-
-    def put_json(
-        self,
-        key: str,
-        value: Any,
-        *,
-        group: str,
-        expire: float | None = None,
-        keep_local: bool = False,
-    ) -> None:
-        blob = seal(json.dumps(value).encode())
-        self.backend.set(key, blob, group=group, expire=expire, keep_local=keep_local)
-
-    def delete_group(self, group: str) -> int:
-        self.forget_group(group)
-        return self.backend.delete_group(group)
-
-    def lease(self, key: str) -> Lease:
-        """A lease on ``key`` (not yet taken), lapsing ``lease_s`` after its last renewal."""
-        return Lease(self.backend, key, self.lease_s)
-
-    @contextlib.contextmanager
-    def lock(self, key: str, wait_s: float) -> Iterator[Lease]:
-        """Hold the lease on ``lock:<key>``, waiting up to ``wait_s`` for a live holder
-        (a dead one's lapses within ``lease_s``); after that, go on without it: duplicate
-        work rather than a stall."""
-        lease = self.lease(f"lock:{key}")
-        if not lease.acquire(wait_s):
-            logger.warning("%s still held by a live worker after %g s: going on", key, wait_s)
-        try:
-            yield lease
-        finally:
-            lease.release()
-
-    def health(self) -> tuple[bool, str]:
-        """(whether the shared store answers, what was checked or why it failed)."""
-        return self.backend.health()
-
-    def ping(self) -> bool:
-        return self.health()[0]
-
-    def close(self) -> None:
-        self.backend.close()

@@ -8,8 +8,8 @@ import numpy as np
 import trimesh
 
 from neural_shdf.geometry import face_normals
-from neural_shdf.shdf.neural.graph import GraphSpec, sample_surface_points
-from neural_shdf.shdf.neural.search import cone_neighbours, nearest_points
+from neural_shdf.shdf.sampling import sample_surface_points
+from neural_shdf.shdf.search import cone_neighbours, nearest_points
 
 
 def brute_nearest(positions: np.ndarray, queries: np.ndarray, k: int) -> tuple:
@@ -49,9 +49,14 @@ def dense_cone_edges(
 
 def surface_samples(mesh: trimesh.Trimesh, count: int, seed: int = 0):  # noqa: ANN201
     normals, areas = face_normals(mesh.vertices, mesh.faces)
-    spec = GraphSpec(target_samples=count)
     return sample_surface_points(
-        mesh.vertices, mesh.faces, spec, seed=seed, normals=normals, areas=areas, map_vertices=False
+        mesh.vertices,
+        mesh.faces,
+        count,
+        seed=seed,
+        normals=normals,
+        areas=areas,
+        map_vertices=False,
     )
 
 

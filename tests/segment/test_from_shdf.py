@@ -8,9 +8,25 @@ import trimesh
 
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.pipeline import compute_shdf
+from neural_shdf.segment.basis import SegmentBasis
+from neural_shdf.segment.from_shdf import SegmentResult, prepare_segment, segment
 from neural_shdf.segment.params import AUTO_CLUSTERS, SegmentParams
-from neural_shdf.segment.pipeline import prepare_segment, segment, segment_with_details
 from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
+
+
+def details(vertices, faces, shdf, params, *, basis: SegmentBasis | None = None) -> SegmentResult:
+    """The segmentation of the triangles ``faces`` over ``vertices``."""
+    return segment(TriangleMesh(vertices, faces), shdf, params, basis=basis)
+
+
+def labels_of(vertices, faces, shdf, params) -> np.ndarray:
+    return details(vertices, faces, shdf, params).labels
+
+
+def basis_of(vertices, faces, shdf, params) -> SegmentBasis:
+    return prepare_segment(TriangleMesh(vertices, faces), shdf, params)
 
 
 def graph_of(vertices, faces):
@@ -42,7 +58,7 @@ def assert_canonical(labels):
 )
 def test_graphcut_separates_the_neck_from_the_balls(dumbbell_case, params):
     vertices, faces, shdf, graph, z = dumbbell_case
-    labels = segment(vertices, faces, shdf, params, graph)
+    labels = labels_of(vertices, faces, shdf, params)
     assert_canonical(labels)
     neck = np.abs(z) < JUNCTION_Z - 0.1
     left, right = z < -JUNCTION_Z - 0.1, z > JUNCTION_Z + 0.1
@@ -60,15 +76,15 @@ def test_graphcut_separates_the_neck_from_the_balls(dumbbell_case, params):
 @pytest.mark.parametrize("parts", [2, 3, 6])
 def test_metis_returns_exactly_the_requested_parts(dumbbell_case, parts):
     vertices, faces, shdf, graph, _ = dumbbell_case
-    labels = segment(vertices, faces, shdf, SegmentParams(partitioner="metis", parts=parts), graph)
+    labels = labels_of(vertices, faces, shdf, SegmentParams(partitioner="metis", parts=parts))
     assert_canonical(labels)
     assert labels.max() + 1 == parts
 
 
 def test_metis_without_parts_uses_the_graph_cut_count(dumbbell_case):
     vertices, faces, shdf, graph, _ = dumbbell_case
-    cut = segment(vertices, faces, shdf, SegmentParams(), graph)
-    labels = segment(vertices, faces, shdf, SegmentParams(partitioner="metis"), graph)
+    cut = labels_of(vertices, faces, shdf, SegmentParams())
+    labels = labels_of(vertices, faces, shdf, SegmentParams(partitioner="metis"))
     assert labels.max() == cut.max()
 
 
@@ -82,8 +98,8 @@ def test_metis_without_parts_uses_the_graph_cut_count(dumbbell_case):
 )
 def test_labels_are_deterministic(dumbbell_case, params):
     vertices, faces, shdf, graph, _ = dumbbell_case
-    first = segment(vertices, faces, shdf, params, graph)
-    second = segment(vertices.copy(), faces.copy(), shdf.copy(), params, graph_of(vertices, faces))
+    first = labels_of(vertices, faces, shdf, params)
+    second = labels_of(vertices.copy(), faces.copy(), shdf.copy(), params)
     np.testing.assert_array_equal(first, second)
 
 
@@ -93,25 +109,25 @@ def test_reference_faces_make_part_counts_independent_of_tessellation():
         mesh, shdf = dumbbell(faces_wanted)
         vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
         params = SegmentParams(clusters=AUTO_CLUSTERS, smoothing=0.26, reference_faces=3000)
-        counts.append(segment(vertices, faces, shdf, params, graph_of(vertices, faces)).max() + 1)
+        counts.append(labels_of(vertices, faces, shdf, params).max() + 1)
     assert counts == [3, 3]
 
 
 def test_graphcut_parts_cut_its_merge_tree(dumbbell_case):
     vertices, faces, shdf, graph, _ = dumbbell_case
     fine = SegmentParams(smoothing=0.02)
-    whole = segment_with_details(vertices, faces, shdf, fine, graph)
+    whole = details(vertices, faces, shdf, fine)
     leaves = whole.tree.leaf_count
     assert leaves >= 3
     for parts in range(1, leaves + 1):
-        result = segment_with_details(vertices, faces, shdf, replace(fine, parts=parts), graph)
+        result = details(vertices, faces, shdf, replace(fine, parts=parts))
         assert_canonical(result.labels)
         assert result.part_count == parts
         # The same tree, cut: no new partition per count.
         np.testing.assert_array_equal(result.tree.merges, whole.tree.merges)
         np.testing.assert_array_equal(result.labels, whole.tree.labels(parts))
     # More parts than leaves: all the leaves.
-    many = segment(vertices, faces, shdf, replace(fine, parts=leaves + 5), graph)
+    many = labels_of(vertices, faces, shdf, replace(fine, parts=leaves + 5))
     np.testing.assert_array_equal(many, whole.tree.leaf_labels)
 
 
@@ -123,22 +139,22 @@ def test_without_parts_the_tree_is_cut_at_its_automatic_count(dumbbell_case, mon
 
     vertices, faces, shdf, graph, _ = dumbbell_case
     params = SegmentParams(smoothing=0.02, crease_boundaries=creases)
-    result = segment_with_details(vertices, faces, shdf, params, graph)
+    result = details(vertices, faces, shdf, params)
     assert result.part_count == hierarchy.automatic_part_count(result.tree) > 1
     # A threshold above every merge cost leaves one part.
     monkeypatch.setattr(hierarchy.automatic_part_count, "__defaults__", (1e9,))
-    assert segment_with_details(vertices, faces, shdf, params, graph).part_count == 1
+    assert details(vertices, faces, shdf, params).part_count == 1
 
 
 def test_metis_has_no_tree(dumbbell_case):
     vertices, faces, shdf, graph, _ = dumbbell_case
     params = SegmentParams(partitioner="metis", parts=3)
-    assert segment_with_details(vertices, faces, shdf, params, graph).tree is None
+    assert details(vertices, faces, shdf, params).tree is None
 
 
 def test_constant_shdf_gives_one_part(dumbbell_case):
     vertices, faces, _, graph, _ = dumbbell_case
-    result = segment_with_details(vertices, faces, np.full(len(faces), 0.5), SegmentParams(), graph)
+    result = details(vertices, faces, np.full(len(faces), 0.5), SegmentParams())
     assert result.clusters == 1
     np.testing.assert_array_equal(result.labels, 0)
 
@@ -155,27 +171,23 @@ def test_multi_shell_mesh_with_isolated_and_degenerate_faces():
     )  # lone + degenerate
     faces = np.concatenate([a.faces, b.faces + n, extra])
     shdf = np.concatenate([np.full(len(a.faces), 1.0), np.full(len(b.faces), 0.3), [0.0, 0.0]])
-    graph = graph_of(vertices, faces)
     for params in (
         SegmentParams(),
         SegmentParams(partitioner="metis", parts=3),
         SegmentParams(refine=True, boundary_smoothing=True),
     ):
-        labels = segment(vertices, faces, shdf, params, graph)
+        labels = labels_of(vertices, faces, shdf, params)
         assert_canonical(labels)
         assert len(labels) == len(faces)
         # The two spheres never share a part.
         assert not set(labels[: len(a.faces)]) & set(labels[len(a.faces) : -2])
     # Graph cut: the tiny lone faces join the nearest big part instead of standing alone.
-    labels = segment(vertices, faces, shdf, SegmentParams(), graph)
+    labels = labels_of(vertices, faces, shdf, SegmentParams())
     assert labels.max() + 1 == 2
 
 
 def test_empty_mesh():
-    graph = graph_of(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
-    labels = segment(
-        np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0), SegmentParams(), graph
-    )
+    labels = labels_of(np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0), SegmentParams())
     assert labels.shape == (0,)
 
 
@@ -203,7 +215,7 @@ def test_empty_mesh():
 def test_invalid_params_raise_parameter_error(dumbbell_case, changes, message):
     vertices, faces, shdf, graph, _ = dumbbell_case
     with pytest.raises(ParameterError, match=message):
-        segment(vertices, faces, shdf, replace(SegmentParams(), **changes), graph)
+        labels_of(vertices, faces, shdf, replace(SegmentParams(), **changes))
 
 
 @pytest.mark.parametrize(
@@ -217,7 +229,7 @@ def test_invalid_params_raise_parameter_error(dumbbell_case, changes, message):
 def test_invalid_shdf_raises_parameter_error(dumbbell_case, shdf_of, message):
     vertices, faces, _, graph, _ = dumbbell_case
     with pytest.raises(ParameterError, match=message):
-        segment(vertices, faces, shdf_of(len(faces)), SegmentParams(), graph)
+        labels_of(vertices, faces, shdf_of(len(faces)), SegmentParams())
 
 
 @pytest.mark.needs_data
@@ -231,7 +243,7 @@ def test_part_count_comparable_to_cgal_on_psb(shared_data, psb_off, model_id):
     shdf = np.loadtxt(shared_data / "psb-dev" / "cgal" / f"{model_id}.sdf")
     cgal = np.loadtxt(shared_data / "psb-dev" / "cgal" / f"{model_id}.seg").astype(np.int64)
     graph = graph_of(vertices, faces)
-    ours = segment(vertices, faces, shdf, SegmentParams(), graph)
+    ours = labels_of(vertices, faces, shdf, SegmentParams())
     _, areas = face_normals(vertices, faces)
     cgal_parts = merge_small_parts(
         connected_parts(cgal, graph.pairs, len(faces)),
@@ -247,7 +259,7 @@ def test_part_count_comparable_to_cgal_on_psb(shared_data, psb_off, model_id):
 @pytest.mark.parametrize("clusters", [None, AUTO_CLUSTERS])
 def test_a_kept_basis_gives_the_same_labels_for_every_later_parameter(dumbbell_case, clusters):
     vertices, faces, shdf, graph, _ = dumbbell_case
-    basis = prepare_segment(vertices, faces, shdf, SegmentParams(clusters=clusters), graph)
+    basis = basis_of(vertices, faces, shdf, SegmentParams(clusters=clusters))
     for changes in (
         {},
         {"smoothing": 0.3},
@@ -260,38 +272,34 @@ def test_a_kept_basis_gives_the_same_labels_for_every_later_parameter(dumbbell_c
         {"partitioner": "metis", "parts": 3},
     ):
         params = SegmentParams(clusters=clusters, **changes)
-        kept = segment_with_details(vertices, faces, shdf, params, graph, basis=basis)
-        fresh = segment_with_details(vertices, faces, shdf, params, graph)
+        kept = details(vertices, faces, shdf, params, basis=basis)
+        fresh = details(vertices, faces, shdf, params)
         np.testing.assert_array_equal(kept.labels, fresh.labels, err_msg=str(changes))
         assert "prepare" not in kept.timings and "prepare" in fresh.timings
 
 
 def test_a_basis_of_other_clusters_or_seed_is_refused(dumbbell_case):
     vertices, faces, shdf, graph, _ = dumbbell_case
-    basis = prepare_segment(vertices, faces, shdf, SegmentParams(clusters=3), graph)
+    basis = basis_of(vertices, faces, shdf, SegmentParams(clusters=3))
     for params in (SegmentParams(clusters=4), SegmentParams(clusters=3, seed=1)):
         with pytest.raises(ValueError, match="another ShDF, clusters or seed"):
-            segment_with_details(vertices, faces, shdf, params, graph, basis=basis)
+            details(vertices, faces, shdf, params, basis=basis)
     other = np.roll(shdf, 1)
     with pytest.raises(ValueError, match="another ShDF, clusters or seed"):
-        segment_with_details(vertices, faces, other, SegmentParams(clusters=3), graph, basis=basis)
+        details(vertices, faces, other, SegmentParams(clusters=3), basis=basis)
     assert basis.nbytes > shdf.nbytes
 
 
 def test_the_same_shape_at_any_scale_gets_the_same_parts():
     # Every threshold is relative to the mesh's size: the ShDF is equal up to the rounding
     # of the scaled coordinates (exactly so at powers of two), and so are the parts.
-    from neural_shdf.mesh import TriangleMesh
-    from neural_shdf.pipeline import compute_shdf_result, mesh_face_graph, segment_mesh
-
     mesh, _ = dumbbell(3000)
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     results = {}
     for scale in (1e-9, 2.0**-30, 1.0, 2.0**30, 1e9):
         scaled = TriangleMesh(vertices * scale, faces)
-        graph = mesh_face_graph(scaled)
-        shdf = compute_shdf_result(scaled, method="exact", seed=0, graph=graph).values
-        results[scale] = shdf, segment_mesh(scaled, shdf, SegmentParams(), graph=graph)
+        shdf = compute_shdf(scaled, method="exact", seed=0).values
+        results[scale] = shdf, segment(scaled, shdf, SegmentParams()).labels
     shdf, labels = results[1.0]
     assert labels.max() == 2  # two balls and the neck
     for scale, (scaled_shdf, scaled_labels) in results.items():

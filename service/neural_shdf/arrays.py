@@ -1,0 +1,63 @@
+"""Array operations the service runs beside its event loop, written so that numpy can
+release the GIL while they sort.
+
+``np.unique(rows, axis=0)`` sorts the rows as one structured value each, a comparison that
+holds the GIL for the whole sort (seconds on an unwrapped mesh's corners, during which the
+service answers nothing); ``np.lexsort`` sorts column by column with the GIL released.
+"""
+
+from __future__ import annotations
+
+from typing import overload
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+def _row_order(rows: NDArray) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """The stable lexicographic order of the rows, and in that order where a new distinct
+    row starts."""
+    order = np.lexsort(rows.T[::-1]) if rows.shape[1] else np.arange(len(rows))
+    ordered = rows[order]
+    starts = np.ones(len(rows), dtype=bool)
+    if len(rows) > 1:
+        starts[1:] = np.any(ordered[1:] != ordered[:-1], axis=1)
+    return order.astype(np.int64, copy=False), starts
+
+
+@overload
+def unique_rows(rows: NDArray) -> NDArray: ...
+@overload
+def unique_rows(
+    rows: NDArray,
+    *,
+    return_index: bool = ...,
+    return_inverse: bool = ...,
+    return_counts: bool = ...,
+) -> NDArray | tuple[NDArray, ...]: ...
+def unique_rows(
+    rows: NDArray,
+    *,
+    return_index: bool = False,
+    return_inverse: bool = False,
+    return_counts: bool = False,
+) -> NDArray | tuple[NDArray, ...]:
+    """``np.unique(rows, axis=0, ...)`` for a 2-D array: the distinct rows in lexicographic
+    order, then, as asked, the index of each one's first occurrence, the distinct row of
+    every input row, and how often each occurs."""
+    rows = np.asarray(rows)
+    if rows.ndim != 2:
+        raise ValueError(f"unique_rows takes a 2-D array, got {rows.ndim} dimensions")
+    order, starts = _row_order(rows)
+    first_in_order = np.flatnonzero(starts)
+    unique = rows[order[first_in_order]]
+    extra: list[NDArray] = []
+    if return_index:
+        extra.append(order[first_in_order])
+    if return_inverse:
+        inverse = np.empty(len(rows), dtype=np.int64)
+        inverse[order] = np.cumsum(starts) - 1
+        extra.append(inverse)
+    if return_counts:
+        extra.append(np.diff(np.append(first_in_order, len(rows))).astype(np.int64))
+    return (unique, *extra) if extra else unique

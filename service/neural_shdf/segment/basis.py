@@ -1,0 +1,75 @@
+"""What a segmentation computes before the smoothing, part count, refinement and boundary
+options enter, kept by a caller to re-segment one mesh cheaply."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.geometry import FaceGraph
+from neural_shdf.segment.graphcut import CutHierarchy, cut_hierarchy
+from neural_shdf.segment.mixture import Mixture
+from neural_shdf.segment.params import SegmentParams
+from neural_shdf.segment.parts import FaceData
+
+
+@dataclass
+class SegmentBasis:
+    """What a segmentation computes before the smoothing, part count, refinement and
+    boundary options enter: face data, the mixture and its posteriors, data costs, edge
+    weights at smoothing 1 and the graph cut's coarse graphs (built on first use).
+
+    It depends on the mesh, its ShDF, ``clusters`` and ``seed`` only, so a caller that
+    keeps it (the service, per mesh) re-segments with new values of the other parameters
+    without refitting the mixture or coarsening the graph again; the labels are the same
+    as without it.
+    """
+
+    clusters: int | None
+    seed: int
+    geometry: FaceData
+    shdf: NDArray[np.float64]
+    values: NDArray[np.float64]
+    mixture: Mixture
+    posteriors: NDArray[np.float64]
+    data: NDArray[np.float64]
+    unit_weights: NDArray[np.float64]
+    seconds: float = 0.0
+    _cut: CutHierarchy | None = field(default=None, repr=False)
+
+    def cut(self, graph: FaceGraph) -> CutHierarchy:
+        """The graph cut's coarse graphs over ``graph`` (built once)."""
+        if self._cut is None:
+            self._cut = cut_hierarchy(
+                self.data,
+                graph.pairs,
+                self.unit_weights,
+                self.geometry.centroids,
+                self.geometry.areas,
+            )
+        return self._cut
+
+    def matches(self, params: SegmentParams, shdf: NDArray) -> bool:
+        """Whether this basis is the one ``params`` on a mesh with this ShDF needs (one pass
+        over the ShDF, none when it is the basis's own: a basis never stands in for
+        another field)."""
+        if self.clusters != params.clusters or self.seed != params.seed:
+            return False
+        if shdf is self.shdf:
+            return True
+        shdf = np.asarray(shdf, dtype=np.float64).reshape(-1)
+        return shdf.shape == self.shdf.shape and np.array_equal(np.clip(shdf, 0.0, 1.0), self.shdf)
+
+    @property
+    def nbytes(self) -> int:
+        """Memory held (arrays only), for callers that bound a cache of bases."""
+        arrays = (self.shdf, self.values, self.posteriors, self.data, self.unit_weights)
+        geometry = (self.geometry.areas, self.geometry.centroids, self.geometry.face_weight)
+        size = sum(a.nbytes for a in arrays + geometry)
+        if self._cut is not None:
+            finest = self._cut.levels[0]  # shares the data, weights and the graph's pairs
+            size += self._cut.nbytes - finest.data.nbytes - finest.unit_weights.nbytes
+            size -= finest.pairs.nbytes
+        return size

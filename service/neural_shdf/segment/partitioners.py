@@ -1,0 +1,148 @@
+"""The partitioners: strategies that turn a prepared segmentation into parts.
+
+Both start from the same ``Partitioning`` (the face graph, the ``SegmentBasis`` with
+the mixture's data costs and the edge weights at smoothing 1, the parameters and the
+smoothing lambda at the mesh's resolution) and return (labels, part tree or None):
+
+* ``GraphCutPartitioner`` (``graphcut``): alpha-expansion over the clusters; the
+  connected runs of one cluster, optionally refined, with tiny parts merged and
+  boundaries moved onto concave creases, are the leaves of a merge tree
+  (``segment.hierarchy``) cut at ``parts`` parts or where the merge cost jumps;
+* ``MetisPartitioner`` (``metis``): a METIS k-way partition into exactly ``parts``
+  parts (by default as many as the graph cut's automatic count).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.geometry import FaceGraph
+from neural_shdf.segment.basis import SegmentBasis
+from neural_shdf.segment.creases import CreaseGraph, snap_boundaries_to_creases
+from neural_shdf.segment.hierarchy import PartTree, automatic_part_count, merge_tree
+from neural_shdf.segment.metis import metis_edge_weights, metis_partition
+from neural_shdf.segment.params import SegmentParams
+from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
+from neural_shdf.segment.refine import refine_parts, smooth_boundaries
+
+
+@dataclass
+class Partitioning:
+    """What a partitioner works from; ``lap(step)`` records the time since the last lap."""
+
+    graph: FaceGraph
+    basis: SegmentBasis
+    params: SegmentParams
+    #: The graph cut's smoothness lambda at this mesh's resolution
+    #: (``SegmentParams.smoothing_for``): edge weights are ``smoothing * unit_weights``.
+    smoothing: float
+    #: The mesh's crease graph where ``params.crease_boundaries`` (else None).
+    creases: CreaseGraph | None
+    lap: Callable[[str], None]
+
+    @cached_property
+    def edge_weights(self) -> NDArray[np.float64]:
+        """The graph cut's edge weights: ``smoothing`` times the weights at smoothing 1."""
+        return self.basis.unit_weights * self.smoothing
+
+
+class Partitioner(Protocol):
+    def partition(self, work: Partitioning) -> tuple[NDArray[np.int64], PartTree | None]:
+        """Part label per face (0..P-1 by lowest face) and the part tree, if any."""
+        ...
+
+
+def graph_cut_parts(work: Partitioning) -> NDArray[np.int64]:
+    """The graph cut's parts (the part tree's leaves): alpha-expansion at ``smoothing``,
+    connected runs of one cluster, optional refinement, tiny parts merged, boundaries
+    moved onto concave creases (``crease_boundaries``)."""
+    graph, params, basis, lap = work.graph, work.params, work.basis, work.lap
+    geometry = basis.geometry
+    clusters = basis.cut(graph).solve(work.smoothing)
+    parts = connected_parts(clusters, graph.pairs, graph.face_count)
+    lap("graphcut")
+    if params.refine:
+        parts = refine_parts(parts, basis.shdf, graph, work.edge_weights, geometry, params)
+        lap("refine")
+    parts = merge_small_parts(
+        parts, graph, geometry.areas, geometry.centroids, params.min_part_fraction
+    )
+    lap("merge_small")
+    if work.creases is not None:
+        parts = snap_boundaries_to_creases(
+            parts,
+            graph,
+            geometry.areas,
+            geometry.centroids,
+            params.min_part_fraction,
+            creases=work.creases,
+        )
+        lap("crease_boundaries")
+    return parts
+
+
+class GraphCutPartitioner:
+    """``graphcut``: the graph cut's parts as leaves of a merge tree, cut at the asked count."""
+
+    def partition(self, work: Partitioning) -> tuple[NDArray[np.int64], PartTree | None]:
+        graph, params, geometry = work.graph, work.params, work.basis.geometry
+        parts = graph_cut_parts(work)
+        if params.boundary_smoothing:
+            smoothed = smooth_boundaries(parts, graph, work.edge_weights, geometry.face_weight)
+            parts = merge_small_parts(
+                connected_parts(smoothed, graph.pairs, graph.face_count),
+                graph,
+                geometry.areas,
+                geometry.centroids,
+                params.min_part_fraction,
+            )
+            work.lap("boundary_smoothing")
+        tree = merge_tree(canonical_labels(parts), graph, geometry.areas, work.basis.values)
+        count = automatic_part_count(tree) if params.parts is None else params.parts
+        labels = tree.labels(count)
+        work.lap("hierarchy")
+        return labels, tree
+
+
+class MetisPartitioner:
+    """``metis``: exactly ``parts`` parts (None: the graph cut's automatic count)."""
+
+    def partition(self, work: Partitioning) -> tuple[NDArray[np.int64], PartTree | None]:
+        graph, params, basis = work.graph, work.params, work.basis
+        geometry = basis.geometry
+        if params.parts is not None:
+            count = params.parts
+        else:
+            leaves = canonical_labels(graph_cut_parts(work))
+            count = automatic_part_count(merge_tree(leaves, graph, geometry.areas, basis.values))
+        weights = metis_edge_weights(work.edge_weights, basis.posteriors, graph.pairs)
+        parts = metis_partition(
+            graph,
+            weights,
+            count,
+            geometry.areas,
+            geometry.centroids,
+            params.seed,
+            params.min_part_fraction,
+        )
+        work.lap("metis")
+        if params.boundary_smoothing:
+            smoothed = smooth_boundaries(parts, graph, work.edge_weights, geometry.face_weight)
+            # Keep METIS's exact count: drop the smoothing if it emptied a part.
+            if len(np.unique(smoothed)) == int(parts.max()) + 1:
+                parts = smoothed
+            work.lap("boundary_smoothing")
+        return canonical_labels(parts), None
+
+
+#: The partitioner of each ``SegmentParams.partitioner`` value.
+PARTITIONERS: dict[str, Partitioner] = {
+    "graphcut": GraphCutPartitioner(),
+    "metis": MetisPartitioner(),
+}

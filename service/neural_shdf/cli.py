@@ -1,4 +1,4 @@
-"""Command-line interface: ``neural-shdf shdf|segment|unwrap|batch|eval|serve``.
+"""Command-line interface: ``neural-shdf shdf|segment|unwrap|batch|eval|serve|labeler``.
 
 A stable contract for pipelines: per-face outputs have one line per face of the
 input file, in the input file's order; errors go to stderr with a non-zero exit.
@@ -116,6 +116,10 @@ def cmd_segment(args: argparse.Namespace) -> int:
         raise ParameterError(f"--usd must end in .usda, .usdc, .usd or .usdz, got {args.usd!r}")
     mesh = _load(args)
     shdf, note = _shdf(mesh, args)
+    if args.labeler or args.confidence:
+        from neural_shdf.labeling.cli import segment_with_labeler
+
+        return segment_with_labeler(args, mesh, shdf, mesh.face_graph)
     start = time.perf_counter()
     result = segment(mesh, shdf, params)
     labels = result.labels
@@ -355,7 +359,20 @@ def build_parser() -> argparse.ArgumentParser:
         "colour per face on every mesh prim; other inputs: a new stage "
         "whose faces are the input faces",
     )
+    segment.add_argument(
+        "--labeler",
+        metavar="FILE",
+        help="named parts: label every face with a trained labeller (neural-shdf labeler "
+        "train); the output holds the training labels' own integers",
+    )
+    segment.add_argument(
+        "--confidence", metavar="OUT.txt", help="with --labeler: confidence per face"
+    )
     segment.set_defaults(run=cmd_segment)
+
+    from neural_shdf.labeling.cli import add_labeler_parser
+
+    add_labeler_parser(commands)
 
     batch = commands.add_parser(
         "batch",

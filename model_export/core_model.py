@@ -47,7 +47,10 @@ class GraphNetBlock(nn.Module):
         self.receiver_in = nn.Linear(latent, latent, bias=False)
         self.sender_in = nn.Linear(latent, latent, bias=False)
         self.edge_rest = nn.Sequential(
-            nn.ReLU(), nn.Linear(latent, latent), nn.ReLU(), nn.Linear(latent, latent),
+            nn.ReLU(),
+            nn.Linear(latent, latent),
+            nn.ReLU(),
+            nn.Linear(latent, latent),
             nn.LayerNorm(latent),
         )
         self.node_mlp = mlp(2 * latent, latent, latent)

@@ -118,8 +118,10 @@ def _primitive(rng: np.random.Generator) -> trimesh.Trimesh:
     elif kind == 3:
         major = rng.uniform(0.5, 1.5)
         mesh = trimesh.creation.torus(
-            major_radius=major, minor_radius=rng.uniform(0.05, 0.45) * major,
-            major_sections=48, minor_sections=24,
+            major_radius=major,
+            minor_radius=rng.uniform(0.05, 0.45) * major,
+            major_sections=48,
+            minor_sections=24,
         )
     elif kind == 4:
         mesh = trimesh.creation.icosphere(subdivisions=3)
@@ -238,8 +240,13 @@ def ray_arrays(vertices, faces, graph, ray_count: int) -> dict[str, np.ndarray]:
     from neural_shdf.shdf.exact import raw_shdf_at_points
 
     mean, spread, hits = raw_shdf_at_points(
-        vertices, faces, graph.positions, graph.normals, graph.face_ids,
-        ray_count=ray_count, threads=1,
+        vertices,
+        faces,
+        graph.positions,
+        graph.normals,
+        graph.face_ids,
+        ray_count=ray_count,
+        threads=1,
     )
     return {
         "ray_diameter": (mean / graph.radius).astype(np.float32),

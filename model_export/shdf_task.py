@@ -90,7 +90,10 @@ class ShdfNetwork(nn.Module):
     ) -> torch.Tensor:
         density = node_features[:, DENSITY_COLUMN]
         out = self.core(
-            self.node_norm(node_features), self.edge_norm(edge_features), senders, receivers,
+            self.node_norm(node_features),
+            self.edge_norm(edge_features),
+            senders,
+            receivers,
             density,
         )
         return out[:, 0]

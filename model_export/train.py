@@ -104,9 +104,12 @@ def feature_stats(
     target = target - model.base(torch.from_numpy(nodes)).numpy()
     target = target[np.isfinite(target)]
     return {
-        "node_mean": nodes.mean(0).tolist(), "node_std": nodes.std(0).tolist(),
-        "edge_mean": edges.mean(0).tolist(), "edge_std": edges.std(0).tolist(),
-        "target_mean": [float(target.mean())], "target_std": [float(target.std())],
+        "node_mean": nodes.mean(0).tolist(),
+        "node_std": nodes.std(0).tolist(),
+        "edge_mean": edges.mean(0).tolist(),
+        "edge_std": edges.std(0).tolist(),
+        "target_mean": [float(target.mean())],
+        "target_std": [float(target.std())],
     }
 
 
@@ -127,13 +130,17 @@ def evaluate(model: ShdfNetwork, store: GraphStore, limit: int) -> dict[str, flo
     for path in paths:
         batch = batch_graphs([store.get(path)])
         losses.append(float(model.loss(batch)))
-        pred = model(batch["node_features"], batch["edge_features"], batch["senders"],
-                     batch["receivers"])
+        pred = model(
+            batch["node_features"], batch["edge_features"], batch["senders"], batch["receivers"]
+        )
         mask = torch.isfinite(batch["target"])
         errors.append(float((pred[mask] - batch["target"][mask]).abs().mean()))
     model.train()
-    return {"val_loss": float(np.mean(losses)), "val_log_mae": float(np.mean(errors)),
-            "val_graphs": len(paths)}
+    return {
+        "val_loss": float(np.mean(losses)),
+        "val_log_mae": float(np.mean(errors)),
+        "val_graphs": len(paths),
+    }
 
 
 def learning_rate(progress: float, hold: float, start: float, end: float) -> float:
@@ -162,12 +169,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--knn", type=int, default=8, help="nearest-sample edges kept")
     parser.add_argument("--cone", type=int, default=4, help="cone edges kept (0: none)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--rays", action="store_true",
-                        help="the ray-informed network (RAY_NODE_FEATURES, residual over the "
-                             "cone's diameter); default the paper's ray-free network")
-    parser.add_argument("--init", type=Path, default=None,
-                        help="warm start: weights and normalisers of this checkpoint, fresh "
-                             "optimizer and schedule (ignored when the run folder resumes)")
+    parser.add_argument(
+        "--rays",
+        action="store_true",
+        help="the ray-informed network (RAY_NODE_FEATURES, residual over the "
+        "cone's diameter); default the paper's ray-free network",
+    )
+    parser.add_argument(
+        "--init",
+        type=Path,
+        default=None,
+        help="warm start: weights and normalisers of this checkpoint, fresh "
+        "optimizer and schedule (ignored when the run folder resumes)",
+    )
     args = parser.parse_args(argv)
 
     torch.set_num_threads(args.threads)
@@ -198,8 +212,11 @@ def main(argv: list[str] | None = None) -> int:
         checkpoint = torch.load(args.init.expanduser(), weights_only=False)
         model.load_state_dict(checkpoint["model"])
         stats = checkpoint["stats"]
-        state["init"] = {"checkpoint": str(args.init), "steps": checkpoint["state"]["step"],
-                         "elapsed": checkpoint["state"]["elapsed"]}
+        state["init"] = {
+            "checkpoint": str(args.init),
+            "steps": checkpoint["state"]["step"],
+            "elapsed": checkpoint["state"]["elapsed"],
+        }
         log(f"warm start from {args.init} (step {checkpoint['state']['step']})")
     else:
         stats = feature_stats(train, model)
@@ -208,8 +225,13 @@ def main(argv: list[str] | None = None) -> int:
 
     def save(path: Path) -> None:
         torch.save(
-            {"model": model.state_dict(), "optimizer": optimizer.state_dict(), "state": state,
-             "stats": stats, "config": config},
+            {
+                "model": model.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "state": state,
+                "stats": stats,
+                "config": config,
+            },
             path.with_suffix(".tmp"),
         )
         path.with_suffix(".tmp").replace(path)
@@ -217,8 +239,10 @@ def main(argv: list[str] | None = None) -> int:
     rng = random.Random(args.seed + state["step"])
     torch.manual_seed(args.seed + state["step"])
     budget = args.minutes * 60.0
-    log(f"training: {len(train.paths)} train graphs, {len(val.paths)} val graphs, "
-        f"config {json.dumps(config)}")
+    log(
+        f"training: {len(train.paths)} train graphs, {len(val.paths)} val graphs, "
+        f"config {json.dumps(config)}"
+    )
     session_start = time.time() - state["elapsed"]
     last_save = time.time()
     running = []
@@ -240,9 +264,13 @@ def main(argv: list[str] | None = None) -> int:
         state["step"] += 1
         if state["step"] % args.val_every == 0:
             metrics = evaluate(model, val, args.val_graphs)
-            metrics.update(step=state["step"], elapsed=round(state["elapsed"], 1),
-                           train_loss=float(np.mean(running)), lr=optimizer.param_groups[0]["lr"],
-                           train_graphs=train.rescan())
+            metrics.update(
+                step=state["step"],
+                elapsed=round(state["elapsed"], 1),
+                train_loss=float(np.mean(running)),
+                lr=optimizer.param_groups[0]["lr"],
+                train_graphs=train.rescan(),
+            )
             val.rescan()
             running = []
             state["history"].append(metrics)

@@ -22,6 +22,9 @@ RUN_BY: dict[tuple[str, str], str] = {
         "tests/client/test_clients.py::test_client_examples_run_as_written"
     ),
     ("docs/batch.md", "From Python"): "tests/test_batch.py::test_the_docs_example_runs_as_written",
+    ("docs/labeling.md", "Use"): (
+        "tests/labeling/test_labeler.py::test_the_docs_example_runs_as_written"
+    ),
     ("docs/part-editing.md", "Python"): (
         "tests/client/test_clients.py::test_part_editing_example_runs_as_written"
     ),

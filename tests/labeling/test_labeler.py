@@ -71,3 +71,25 @@ def test_training_input_errors_say_what_is_wrong() -> None:
         train_labeler([mesh], [np.full_like(truth, 3)])
     with pytest.raises(ParameterError, match="3 label names for 2 distinct labels"):
         train_labeler([mesh], [truth], ["a", "b", "c"])
+
+
+def test_the_docs_example_runs_as_written(tmp_path, monkeypatch) -> None:
+    """docs/labeling.md's library example, on labelled dumbbells and a new one as new.obj."""
+    import trimesh
+
+    from tests.doc_examples import python_blocks
+
+    (block,) = python_blocks("docs/labeling.md", "Use")
+    pairs = [labelled_dumbbell(1500, stretch, seed) for stretch, seed in ((1.0, 1), (1.3, 2))]
+    new_mesh, new_labels = labelled_dumbbell(1500, 1.1, 3)
+    trimesh.Trimesh(new_mesh.vertices, new_mesh.faces, process=False).export(tmp_path / "new.obj")
+    monkeypatch.chdir(tmp_path)
+    namespace = {
+        "meshes": [mesh for mesh, _ in pairs],
+        "labels": [labels for _, labels in pairs],
+        "names": ["neck", "ball"],
+    }
+    exec(block, namespace)  # noqa: S102
+    assert (tmp_path / "human.npz").is_file()
+    assert np.mean(namespace["labels"] == new_labels) > 0.9
+    assert namespace["confidence"].shape == new_labels.shape

@@ -114,12 +114,15 @@ def cmd_segment(args: argparse.Namespace) -> int:
         raise ParameterError("--tree needs the graphcut partitioner (metis makes no part tree)")
     if args.usd and Path(args.usd).suffix.lower() not in (".usda", ".usdc", ".usd", ".usdz"):
         raise ParameterError(f"--usd must end in .usda, .usdc, .usd or .usdz, got {args.usd!r}")
+    labeler = None
+    if args.labeler or args.confidence:
+        from neural_shdf.labeling.cli import labeler_option, segment_with_labeler
+
+        labeler = labeler_option(args)  # its file and flags checked before any work
     mesh = _load(args)
     shdf, note = _shdf(mesh, args)
-    if args.labeler or args.confidence:
-        from neural_shdf.labeling.cli import segment_with_labeler
-
-        return segment_with_labeler(args, mesh, shdf, mesh.face_graph)
+    if labeler is not None:
+        return segment_with_labeler(args, mesh, shdf, labeler)
     start = time.perf_counter()
     result = segment(mesh, shdf, params)
     labels = result.labels

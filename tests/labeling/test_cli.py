@@ -102,6 +102,9 @@ def test_cli_errors_name_the_problem(dumbbell_labeler, tmp_path, capsys) -> None
         ]
     )
     assert code == 2 and "not a labeller file" in capsys.readouterr().err
+    # The labeller is checked before any work on the mesh (here: before it is even read).
+    code = main(["segment", str(tmp_path / "absent.obj"), "--labeler", str(broken), "-o", "o.seg"])
+    assert code == 2 and "not a labeller file" in capsys.readouterr().err
     code = main(
         [
             "segment",

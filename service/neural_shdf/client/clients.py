@@ -19,7 +19,7 @@ import httpx
 import numpy as np
 from numpy.typing import NDArray
 
-from neural_shdf.client import operations as ops
+import neural_shdf.client.operations as ops
 from neural_shdf.client.errors import error_from_transport
 from neural_shdf.client.operations import Call, Operation, Pause, PollPolicy, RetryPolicy
 from neural_shdf.client.results import Job, MeshInfo, Segmentation, Upload

@@ -10,8 +10,13 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from neural_shdf.labeling.model import Labeler
+    from neural_shdf.mesh import TriangleMesh
 
 
 def add_labeler_parser(commands: argparse._SubParsersAction) -> None:
@@ -108,12 +113,10 @@ def cmd_labeler_train(args: argparse.Namespace) -> int:
     return 0
 
 
-def segment_with_labeler(args: argparse.Namespace, mesh, shdf: np.ndarray, graph) -> int:
-    """``segment --labeler FILE``: one label per input face (the training labels' own
-    integers) to ``args.output``; ``args.confidence``: the confidence per face too."""
+def labeler_option(args: argparse.Namespace) -> Labeler:
+    """The labeller of ``segment --labeler FILE``, loaded and its flags checked before the
+    mesh is read or its ShDF computed (a bad file is reported at once)."""
     from neural_shdf.errors import ParameterError
-    from neural_shdf.labeling._library import write_labels, write_values
-    from neural_shdf.labeling.labeler import label_mesh
     from neural_shdf.labeling.model import load_labeler
 
     others = [
@@ -125,9 +128,19 @@ def segment_with_labeler(args: argparse.Namespace, mesh, shdf: np.ndarray, graph
         raise ParameterError("--confidence needs --labeler")
     if others:
         raise ParameterError(f"{', '.join(others)} cannot be combined with --labeler yet")
+    return load_labeler(args.labeler)
+
+
+def segment_with_labeler(
+    args: argparse.Namespace, mesh: TriangleMesh, shdf: np.ndarray, labeler: Labeler
+) -> int:
+    """``segment --labeler FILE``: one label per input face (the training labels' own
+    integers) to ``args.output``; ``args.confidence``: the confidence per face too."""
+    from neural_shdf.labeling._library import write_labels, write_values
+    from neural_shdf.labeling.labeler import label_mesh
+
     start = time.perf_counter()
-    labeler = load_labeler(args.labeler)
-    labels, confidence = label_mesh(mesh, labeler, shdf=shdf, graph=graph)
+    labels, confidence = label_mesh(mesh, labeler, shdf=shdf)
     write_labels(args.output, labels)
     if args.confidence:
         write_values(args.confidence, confidence)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import sys
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
@@ -52,6 +53,10 @@ def build_cache(settings: Settings, metrics: Metrics) -> ResultCache:
     )
 
 
+#: Seconds a thread may hold the GIL while another waits for it (Python's default: 0.005).
+SWITCH_INTERVAL_S = 0.001
+
+
 def create_app(settings: Settings | None = None) -> FastAPI:
     """The service with its cache, metrics and compute pool."""
     settings = settings or Settings()
@@ -85,6 +90,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         # request's work allocated enough to trigger one.
         gc.collect()
         gc.freeze()
+        # The event loop's thread waits for the GIL at every switch while compute threads
+        # run; a shorter interval than Python's 5 ms bounds each of those waits.
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
         yield
         await engine.close()
         engine.cache.close()

@@ -31,7 +31,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from hostile_corpus import LEGIT, dumbbell_obj, repeated_triangle, separate_shells  # noqa: E402
 
+from neural_shdf.export import unwrapped_glb as write_unwrapped_glb  # noqa: E402
 from neural_shdf.mesh_io import load_mesh  # noqa: E402
+from neural_shdf.pipeline import compute_shdf, segment  # noqa: E402
+from neural_shdf.unwrap import atlas_layout_png, unwrap  # noqa: E402
 
 TICK_S = 0.001
 
@@ -74,8 +77,6 @@ def stages() -> dict[str, Callable[[], object]]:
     shells_mesh = load_mesh(shells, "obj")
 
     def part_tree() -> object:
-        from neural_shdf.pipeline import compute_shdf, segment
-
         shdf = compute_shdf(shells_mesh, method="sampled").values
         return segment(shells_mesh, shdf)
 
@@ -83,31 +84,23 @@ def stages() -> dict[str, Callable[[], object]]:
     atlas_parts: dict[str, object] = {}
 
     def segment_dumbbell() -> object:
-        from neural_shdf.pipeline import compute_shdf, segment
-
         atlas_parts["labels"] = segment(dumbbell_mesh, compute_shdf(dumbbell_mesh).values).labels
         return atlas_parts["labels"]
 
     def atlas_of_dumbbell() -> object:
-        from neural_shdf.unwrap import unwrap
-
         atlas_parts["atlas"] = unwrap(dumbbell_mesh, atlas_parts["labels"])
         return atlas_parts["atlas"]
 
     def atlas_png() -> object:
-        from neural_shdf.unwrap import atlas_layout_png
-
         atlas_parts["png"] = atlas_layout_png(atlas_parts["atlas"])
         return atlas_parts["png"]
 
     def unwrapped_glb() -> object:
-        from neural_shdf.export import unwrapped_glb
-
-        return unwrapped_glb(dumbbell_mesh, atlas_parts["atlas"], texture_png=atlas_parts["png"])
+        return write_unwrapped_glb(
+            dumbbell_mesh, atlas_parts["atlas"], texture_png=atlas_parts["png"]
+        )
 
     def segment_scan() -> object:
-        from neural_shdf.pipeline import compute_shdf, segment
-
         scan = load_mesh(LEGIT)
         return segment(scan, compute_shdf(scan).values)
 

@@ -6,12 +6,12 @@ from __future__ import annotations
 import hashlib
 
 import numpy as np
-import trimesh
 
 from neural_shdf.constants import ALGORITHM_VERSION
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
+from tests.mesh_helpers import balls_and_bar
 
 #: ALGORITHM_VERSION -> sha256 of the golden mesh's (ShDF rounded to 6 decimals, labels).
 #: When results change on purpose: bump ALGORITHM_VERSION and add its pair here.
@@ -24,13 +24,7 @@ GOLDEN = {
 
 def golden_mesh() -> TriangleMesh:
     """Two balls of different sizes joined by a thin bar: parts a segmentation must find."""
-    left = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
-    right = trimesh.creation.icosphere(subdivisions=2, radius=0.6)
-    right.apply_translation([2.6, 0.0, 0.0])
-    bar = trimesh.creation.cylinder(radius=0.2, height=1.4, sections=12)
-    bar.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
-    bar.apply_translation([1.3, 0.0, 0.0])
-    joined = trimesh.util.concatenate([left, bar, right])
+    joined = balls_and_bar(2, 2)
     return TriangleMesh(np.asarray(joined.vertices, float), np.asarray(joined.faces, np.int64))
 
 

@@ -20,6 +20,7 @@ from neural_shdf.shdf.exact import (
     raw_shdf,
     robust_mean,
 )
+from tests.mesh_helpers import balls_and_bar
 
 
 def expected_robust_mean(lengths: np.ndarray) -> float:
@@ -89,13 +90,7 @@ def test_an_equilateral_triangle_points_to_its_vertex_of_smallest_index():
 
 def lumpy_dumbbell() -> TriangleMesh:
     """Two balls joined by a bar, vertices jittered: no symmetry that ties rays."""
-    left = trimesh.creation.icosphere(subdivisions=4, radius=1.0)
-    right = trimesh.creation.icosphere(subdivisions=3, radius=0.6)
-    right.apply_translation([2.6, 0.0, 0.0])
-    bar = trimesh.creation.cylinder(radius=0.2, height=1.4, sections=12)
-    bar.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0]))
-    bar.apply_translation([1.3, 0.0, 0.0])
-    joined = trimesh.util.concatenate([left, bar, right])
+    joined = balls_and_bar(4, 3)
     vertices = np.asarray(joined.vertices, dtype=np.float64)
     vertices += np.random.default_rng(7).normal(scale=0.01, size=vertices.shape)
     return TriangleMesh(vertices, np.asarray(joined.faces, dtype=np.int64))

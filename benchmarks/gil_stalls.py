@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from hostile_corpus import LEGIT, dumbbell_obj, repeated_triangle, separate_shells  # noqa: E402
 
-from neural_shdf.export import unwrapped_glb as write_unwrapped_glb  # noqa: E402
+from neural_shdf.exchange.gltf_writer import unwrapped_glb as write_unwrapped_glb  # noqa: E402
 from neural_shdf.mesh_io import load_mesh  # noqa: E402
 from neural_shdf.pipeline import compute_shdf, segment  # noqa: E402
 from neural_shdf.unwrap import atlas_layout_png, unwrap  # noqa: E402

@@ -1,6 +1,6 @@
 """Part colours as Blender wants them. No bpy here (tested outside Blender).
 
-The palette is the service's (``neural_shdf.export.part_colors``), defined there once, in sRGB:
+The palette is the service's (``neural_shdf.palette.part_colors``), defined there once, in sRGB:
 each part of an answer carries it as ``color`` ("#rrggbb"). Blender's material colours and
 FLOAT_COLOR attributes are linear, so the colours are converted with the sRGB transfer function.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-#: The service's colour of polygons without a part (``neural_shdf.export.UNLABELED_COLOR``).
+#: The service's colour of polygons without a part (``neural_shdf.palette.UNLABELED_COLOR``).
 UNLABELED_HEX = "#404040"
 
 

@@ -207,7 +207,7 @@ def _part_subsets(path: Path, prim_path: str) -> dict[str, list[int]]:
 
 
 def _faces_of_each_part(labels: np.ndarray) -> dict[str, list[int]]:
-    from neural_shdf.export import part_name
+    from neural_shdf.exchange.gltf_writer import part_name
 
     return {part_name(p): np.flatnonzero(labels == p).tolist() for p in np.unique(labels)}
 

@@ -349,7 +349,8 @@ def process_asset(asset: Asset, out_dir: str, config: BatchConfig, key: str) -> 
 
 def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict[str, Any]:
     from neural_shdf.errors import InvalidGeometryError
-    from neural_shdf.export import colored_glb, parts_glb, write_labels, write_values
+    from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb
+    from neural_shdf.exchange.seg import write_labels, write_values
     from neural_shdf.mesh_io import load_mesh
 
     path = Path(asset.path)

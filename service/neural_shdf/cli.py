@@ -94,7 +94,7 @@ def _shdf(mesh, args: argparse.Namespace) -> tuple[np.ndarray, str]:
 
 
 def cmd_shdf(args: argparse.Namespace) -> int:
-    from neural_shdf.export import write_values
+    from neural_shdf.exchange.seg import write_values
 
     mesh = _load(args)
     values, note = _shdf(mesh, args)
@@ -106,8 +106,10 @@ def cmd_shdf(args: argparse.Namespace) -> int:
 
 
 def cmd_segment(args: argparse.Namespace) -> int:
-    from neural_shdf.export import colored_glb, parts_glb, write_labels, write_part_tree
+    from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb
+    from neural_shdf.exchange.seg import write_labels
     from neural_shdf.pipeline import SegmentParams, segment
+    from neural_shdf.segment.tree_document import write_part_tree
 
     params = SegmentParams.from_attributes(args)
     if args.tree and params.partitioner != "graphcut":
@@ -160,7 +162,9 @@ def _write_usd(args: argparse.Namespace, mesh, face_labels: np.ndarray) -> None:
 
 
 def cmd_unwrap(args: argparse.Namespace) -> int:
-    from neural_shdf.export import unwrapped_glb, write_labels, write_obj_with_uvs
+    from neural_shdf.exchange.gltf_writer import unwrapped_glb
+    from neural_shdf.exchange.obj_writer import write_obj_with_uvs
+    from neural_shdf.exchange.seg import write_labels
     from neural_shdf.pipeline import SegmentParams, segment
     from neural_shdf.unwrap import UnwrapParams, atlas_layout_png, unwrap
 

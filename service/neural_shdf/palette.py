@@ -54,3 +54,26 @@ def _hsv_to_rgb(hue: NDArray, saturation: NDArray, value: NDArray) -> NDArray[np
         ]
     )
     return table[sector % 6, np.arange(len(hue))]
+
+
+#: Colour of triangles without a part (negative label).
+UNLABELED_COLOR = np.array([64, 64, 64, 255], dtype=np.uint8)
+
+
+def srgb_to_linear(srgb: NDArray) -> NDArray[np.float64]:
+    """sRGB components in [0, 1] to linear light (the inverse sRGB transfer function):
+    the palette is defined in sRGB, glTF's COLOR_0 and renderers' vertex colours are linear."""
+    srgb = np.asarray(srgb, dtype=np.float64)
+    return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+
+
+def linear_color_bytes(rgba: NDArray) -> NDArray[np.uint8]:
+    """RGB(A) sRGB bytes to linear bytes (alpha is linear already and kept)."""
+    out = np.array(rgba, dtype=np.uint8, copy=True)
+    out[..., :3] = np.round(srgb_to_linear(out[..., :3] / 255.0) * 255.0)
+    return out
+
+
+def part_color_hex(n_parts: int) -> list[str]:
+    """part_colors as ``#rrggbb`` strings (what the API returns with each part)."""
+    return [f"#{r:02x}{g:02x}{b:02x}" for r, g, b, _ in part_colors(n_parts).tolist()]

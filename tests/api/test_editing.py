@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from neural_shdf.export import part_color_hex
 from neural_shdf.mesh_io import load_mesh
+from neural_shdf.palette import part_color_hex
 from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
 from neural_shdf.segment.editing import apply_edits, apply_label_edits

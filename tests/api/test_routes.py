@@ -158,7 +158,7 @@ def test_glb_outputs(client, capsule_obj):
 def test_usd_uploads_and_parts_come_back_as_usd(client, tmp_path):
     from pxr import Usd, UsdGeom
 
-    from neural_shdf.export import part_name
+    from neural_shdf.exchange.gltf_writer import part_name
     from tests.exchange.test_usd import _dumbbell_stage
 
     source = tmp_path / "dumbbell.usda"
@@ -273,7 +273,7 @@ def test_geometry_is_the_stored_triangles_with_their_input_faces(client):
 
 
 def test_parts_carry_the_coloured_glb_palette(client, capsule_obj):
-    from neural_shdf.export import part_colors
+    from neural_shdf.palette import part_colors
 
     mesh_id = upload(client, capsule_obj).json()["mesh"]["mesh_id"]
     body = client.post(

@@ -5,9 +5,11 @@ from __future__ import annotations
 import json
 import re
 
+import numpy as np
 from fastapi.testclient import TestClient
 
-from neural_shdf.api.viewer import STATIC_DIR, VIEWER_DIR, three_version
+from neural_shdf.api.viewer import STATIC_DIR, VIEWER_DIR, display_geometry, three_version
+from neural_shdf.mesh_io import load_mesh
 
 
 def page_scripts(html: str) -> tuple[dict, dict]:
@@ -119,3 +121,19 @@ def test_page_names_the_fix_when_three_js_cannot_load(app_factory, tmp_path):
     with TestClient(app_factory(viewer_three_url="https://x.test/three")) as client:
         _, config = page_scripts(client.get("/viewer/").text)
     assert "NEURAL_SHDF_VIEWER_THREE_URL (https://x.test/three/)" in config["threeHelp"]
+
+
+def test_display_geometry_layout_round_trips_the_triangles_and_face_map():
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1]], float)
+    obj = "".join(f"v {x} {y} {z}\n" for x, y, z in vertices) + "f 1 2 3 4\nf 1 2\nf 1 2 5\n"
+    mesh = load_mesh(obj.encode(), "obj")
+    blob = display_geometry(mesh)
+    magic, version, v, t, f = np.frombuffer(blob[:4], "S4")[0], *np.frombuffer(blob[4:20], "<u4")
+    assert (magic, version, v, t, f) == (b"NSHG", 1, 5, 3, 3)
+    positions = np.frombuffer(blob, "<f4", 3 * v, 20).reshape(-1, 3)
+    triangles = np.frombuffer(blob, "<u4", 3 * t, 20 + 12 * v).reshape(-1, 3)
+    origin = np.frombuffer(blob, "<u4", t, 20 + 12 * v + 12 * t)
+    assert len(blob) == 20 + 12 * v + 12 * t + 4 * t
+    np.testing.assert_array_equal(positions, vertices.astype(np.float32))
+    np.testing.assert_array_equal(triangles, [[0, 1, 2], [0, 2, 3], [0, 1, 4]])
+    np.testing.assert_array_equal(origin, [0, 0, 2])  # the 2-vertex face has no triangle

@@ -17,8 +17,8 @@ import pytest
 import trimesh
 
 from neural_shdf.api.viewer import VIEWER_DIR
-from neural_shdf.export import linear_color_bytes, srgb_to_linear
 from neural_shdf.mesh_io import load_mesh
+from neural_shdf.palette import linear_color_bytes, srgb_to_linear
 from tests.api.api_helpers import TEST_METHOD, obj_bytes
 from tests.api.viewer_browser import ViewerPage, chromium_missing, neural_shdf_serve
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from blender_addon import colors
-from neural_shdf.export import UNLABELED_COLOR, part_color_hex, part_colors, srgb_to_linear
+from neural_shdf.palette import UNLABELED_COLOR, part_color_hex, part_colors, srgb_to_linear
 
 
 def test_hex_colours_become_the_services_palette_in_linear_light():

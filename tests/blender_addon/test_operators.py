@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from neural_shdf.client import Client
-from neural_shdf.export import srgb_to_linear
+from neural_shdf.palette import srgb_to_linear
 from tests.api.api_helpers import free_port, obj_bytes
 
 pytestmark = pytest.mark.slow

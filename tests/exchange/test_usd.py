@@ -17,8 +17,9 @@ from neural_shdf.errors import (  # noqa: E402
     UnsupportedFormatError,
 )
 from neural_shdf.exchange import usd  # noqa: E402
-from neural_shdf.export import part_colors, part_name, srgb_to_linear  # noqa: E402
+from neural_shdf.exchange.gltf_writer import part_name  # noqa: E402
 from neural_shdf.mesh_io import load_mesh, sniff_format  # noqa: E402
+from neural_shdf.palette import part_colors, srgb_to_linear  # noqa: E402
 
 
 def _tube(sections: int, length: float, radius: float) -> tuple[np.ndarray, list[int], list[int]]:

@@ -10,7 +10,7 @@ import pytest
 import trimesh
 
 from neural_shdf.cli import main
-from neural_shdf.export import read_labels, read_values
+from neural_shdf.exchange.seg import read_labels, read_values
 from neural_shdf.labeling import load_labeler
 from tests.labeling.helpers import BALL, NECK, labelled_dumbbell
 

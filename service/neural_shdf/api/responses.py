@@ -13,7 +13,7 @@ from neural_shdf.api.schemas import MeshInfo, ShdfStatus, ShdfValues, UploadResu
 from neural_shdf.api.segmentation import StoredSegmentation
 from neural_shdf.api.shdf_service import ShdfOutcome
 from neural_shdf.arrays import json_array
-from neural_shdf.export import part_color_hex
+from neural_shdf.palette import part_color_hex
 
 F32_MEDIA_TYPE = "application/octet-stream"
 GLB_MEDIA_TYPE = "model/gltf-binary"

@@ -18,11 +18,11 @@ from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.shdf_service import ShdfService
 from neural_shdf.api.tasks import TaskRunner, checkpoint
 from neural_shdf.arrays import json_array
-from neural_shdf.export import part_tree_document
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import SegmentParams, prepare_segment, segment
 from neural_shdf.segment.from_shdf import SegmentResult
 from neural_shdf.segment.hierarchy import PartTree
+from neural_shdf.segment.tree_document import part_tree_document
 from neural_shdf.store.cache import ResultCache
 from neural_shdf.store.keys import segmentation_basis_key, segmentation_key
 
@@ -267,7 +267,7 @@ class SegmentationService:
 
     async def glb(self, mesh_id: str, method: str, params: SegmentParams, style: str) -> bytes:
         """The segmentation as a GLB: ``colored`` (vertex colours) or ``parts`` (a node each)."""
-        from neural_shdf.export import colored_glb, parts_glb
+        from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb
 
         result, _ = await self.get(mesh_id, method, params)
         mesh = await self.tasks.io(self.meshes.load, mesh_id)

@@ -133,7 +133,7 @@ class UnwrapService:
         self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
     ) -> bytes:
         """The mesh with its atlas UVs and the atlas layout as its texture."""
-        from neural_shdf.export import unwrapped_glb
+        from neural_shdf.exchange.gltf_writer import unwrapped_glb
 
         mesh, atlas = await self.get(mesh_id, method, params, unwrap)
         texture = await self._layout_png(mesh_id, method, params, unwrap, atlas)

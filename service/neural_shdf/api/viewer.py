@@ -13,14 +13,16 @@ from __future__ import annotations
 import functools
 import html
 import json
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, get_args
 
 from neural_shdf.api.schemas import SegmentOptions, ShdfMethodName
 from neural_shdf.api.settings import Settings
-from neural_shdf.export import UNLABELED_COLOR, part_color_hex
+from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import SUPPORTED_FORMATS
+from neural_shdf.palette import UNLABELED_COLOR, part_color_hex
 from neural_shdf.segment.params import (
     DEFAULT_CLUSTERS,
     DEFAULT_CREASE_BOUNDARIES,
@@ -34,6 +36,37 @@ STATIC_DIR = VIEWER_DIR / "static"
 #: Where the service serves a local copy of three.js.
 LOCAL_THREE_PATH = "/viewer/three/"
 CDN_TEMPLATE = "https://cdn.jsdelivr.net/npm/three@{version}/"
+
+
+#: Magic and version of display_geometry's binary layout.
+DISPLAY_GEOMETRY_MAGIC = b"NSHG"
+DISPLAY_GEOMETRY_VERSION = 1
+
+
+def display_geometry(mesh: TriangleMesh) -> bytes:
+    """The triangles a viewer draws, and the input face each came from, as one binary blob.
+
+    Little-endian: a 20-byte header (``NSHG``, uint32 version, vertex count V, triangle
+    count T, input face count F), then float32 positions (V, 3), uint32 triangle corners
+    (T, 3) and uint32 input face per triangle (T): per-input-face labels or ShDF values
+    colour triangle ``t`` with ``values[face_origin[t]]``.
+    """
+    header = struct.pack(
+        "<4sIIII",
+        DISPLAY_GEOMETRY_MAGIC,
+        DISPLAY_GEOMETRY_VERSION,
+        len(mesh.vertices),
+        mesh.face_count,
+        mesh.input_face_count,
+    )
+    return b"".join(
+        (
+            header,
+            mesh.vertices.astype("<f4").tobytes(),
+            mesh.faces.astype("<u4").tobytes(),
+            mesh.face_origin.astype("<u4").tobytes(),
+        )
+    )
 
 
 @functools.cache

@@ -50,7 +50,7 @@ from neural_shdf.evaluate.scores import (
     cut_graph,
     score_against_humans,
 )
-from neural_shdf.export import read_labels
+from neural_shdf.exchange.seg import read_labels
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import load_mesh
 from neural_shdf.pipeline import SegmentParams, segment

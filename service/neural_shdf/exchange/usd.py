@@ -363,7 +363,7 @@ read_usdz = partial(_read_usd_bytes, "usdz")
 def linear_face_colors(face_labels: NDArray[np.int64]) -> NDArray[np.float64]:
     """(F, 3) linear RGB per face: ``export.part_colors`` by label (sRGB swatches, the API's
     ``color``), ``export.UNLABELED_COLOR`` for negative labels."""
-    from neural_shdf.export import UNLABELED_COLOR, part_colors, srgb_to_linear
+    from neural_shdf.palette import UNLABELED_COLOR, part_colors, srgb_to_linear
 
     top = int(face_labels.max()) + 1 if len(face_labels) else 0
     palette = srgb_to_linear(part_colors(max(top, 0))[:, :3] / 255.0)
@@ -390,7 +390,7 @@ def _replace_part_subsets(stage: Any, mesh: Any, labels: NDArray[np.int64]) -> N
     """One GeomSubset per label of ``labels`` (per face of the prim), family ``part``."""
     from pxr import UsdGeom, Vt
 
-    from neural_shdf.export import part_name
+    from neural_shdf.exchange.gltf_writer import part_name
 
     for old in UsdGeom.Subset.GetGeomSubsets(mesh, UsdGeom.Tokens.face, PART_FAMILY):
         path = old.GetPrim().GetPath()

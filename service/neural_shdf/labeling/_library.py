@@ -5,7 +5,7 @@ The core (``pipeline``, ``segment``, ``shdf``) may rename things; a merge fixes 
 
 from __future__ import annotations
 
-from neural_shdf.export import read_labels, write_labels, write_values
+from neural_shdf.exchange.seg import read_labels, write_labels, write_values
 from neural_shdf.geometry import FaceGraph, face_centroids
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import SUPPORTED_FORMATS, load_mesh

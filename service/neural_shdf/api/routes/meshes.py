@@ -184,7 +184,7 @@ async def get_shdf(
 async def get_geometry(engine: EngineDep, mesh_id: MeshId) -> Response:
     """The stored triangles in the service's order, each with the input face it came from,
     so a viewer can colour them by per-input-face labels or ShDF values."""
-    from neural_shdf.export import display_geometry
+    from neural_shdf.api.viewer import display_geometry
 
     mesh = await engine.io(engine.meshes.load, mesh_id)
     body = await engine.io(display_geometry, mesh)

@@ -1,12 +1,11 @@
-"""Write segmentation results: coloured GLB, one-node-per-part GLB, .seg labels, value files,
-the part tree as JSON."""
+"""Write segmentation results as binary glTF: one colour per part, one node per part, or the
+mesh with its atlas UVs."""
 
 from __future__ import annotations
 
 import json
 import struct
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -14,64 +13,8 @@ from numpy.typing import NDArray
 from neural_shdf.arrays import unique_rows
 from neural_shdf.errors import ParameterError
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.palette import part_colors
-from neural_shdf.unwrap import UvAtlas, input_face_corner_uvs
-
-if TYPE_CHECKING:
-    from neural_shdf.segment.hierarchy import PartTree
-
-#: Colour of triangles without a part (negative label).
-UNLABELED_COLOR = np.array([64, 64, 64, 255], dtype=np.uint8)
-
-
-def srgb_to_linear(srgb: NDArray) -> NDArray[np.float64]:
-    """sRGB components in [0, 1] to linear light (the inverse sRGB transfer function):
-    the palette is defined in sRGB, glTF's COLOR_0 and renderers' vertex colours are linear."""
-    srgb = np.asarray(srgb, dtype=np.float64)
-    return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
-
-
-def linear_color_bytes(rgba: NDArray) -> NDArray[np.uint8]:
-    """RGB(A) sRGB bytes to linear bytes (alpha is linear already and kept)."""
-    out = np.array(rgba, dtype=np.uint8, copy=True)
-    out[..., :3] = np.round(srgb_to_linear(out[..., :3] / 255.0) * 255.0)
-    return out
-
-
-def part_color_hex(n_parts: int) -> list[str]:
-    """part_colors as ``#rrggbb`` strings (what the API returns with each part)."""
-    return [f"#{r:02x}{g:02x}{b:02x}" for r, g, b, _ in part_colors(n_parts).tolist()]
-
-
-#: Magic and version of display_geometry's binary layout.
-DISPLAY_GEOMETRY_MAGIC = b"NSHG"
-DISPLAY_GEOMETRY_VERSION = 1
-
-
-def display_geometry(mesh: TriangleMesh) -> bytes:
-    """The triangles a viewer draws, and the input face each came from, as one binary blob.
-
-    Little-endian: a 20-byte header (``NSHG``, uint32 version, vertex count V, triangle
-    count T, input face count F), then float32 positions (V, 3), uint32 triangle corners
-    (T, 3) and uint32 input face per triangle (T): per-input-face labels or ShDF values
-    colour triangle ``t`` with ``values[face_origin[t]]``.
-    """
-    header = struct.pack(
-        "<4sIIII",
-        DISPLAY_GEOMETRY_MAGIC,
-        DISPLAY_GEOMETRY_VERSION,
-        len(mesh.vertices),
-        mesh.face_count,
-        mesh.input_face_count,
-    )
-    return b"".join(
-        (
-            header,
-            mesh.vertices.astype("<f4").tobytes(),
-            mesh.faces.astype("<u4").tobytes(),
-            mesh.face_origin.astype("<u4").tobytes(),
-        )
-    )
+from neural_shdf.palette import UNLABELED_COLOR, linear_color_bytes, part_colors
+from neural_shdf.unwrap import UvAtlas
 
 
 def _check_labels(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.int64]:
@@ -284,146 +227,3 @@ def uv_split_vertices(
     unique, inverse = unique_rows(keys, return_inverse=True)
     vertex = unique[:, 0].astype(np.int64)
     return mesh.vertices[vertex], inverse.reshape(-1, 3).astype(np.int64), unique[:, 1:]
-
-
-def write_obj_with_uvs(path: str | Path, mesh: TriangleMesh, atlas: UvAtlas) -> int:
-    """Write an OBJ with ``v``, ``vt`` and ``f v/vt`` lines, one ``f`` per input face in the
-    input order, each polygon with its UVs per corner.
-
-    A polygon a chart boundary runs through (its triangles disagree on a shared corner's
-    UV) is written as its triangles, in place. Returns how many polygons were split so.
-    Input faces that produced no triangle are left out.
-    """
-    polygons, polygon_uvs, consistent = input_face_corner_uvs(mesh, atlas.corner_uvs)
-    lines = ["# neural-shdf unwrap: one f line per input face (split polygons: their triangles)"]
-    lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in mesh.vertices)
-    uv_rows = []
-    faces_text = []
-    offset = 0
-    starts = np.searchsorted(mesh.face_origin, np.arange(mesh.input_face_count))
-    for face, ring in enumerate(polygons):
-        count = len(ring)
-        if count == 0:
-            continue
-        if consistent[face]:
-            base = len(uv_rows)
-            uv_rows.extend(polygon_uvs[offset : offset + count])
-            faces_text.append(
-                "f " + " ".join(f"{v + 1}/{base + k + 1}" for k, v in enumerate(ring))
-            )
-        else:
-            first = int(starts[face])
-            for triangle in range(first, first + count - 2):
-                base = len(uv_rows)
-                uv_rows.extend(atlas.corner_uvs[triangle])
-                faces_text.append(
-                    "f "
-                    + " ".join(
-                        f"{v + 1}/{base + k + 1}" for k, v in enumerate(mesh.faces[triangle])
-                    )
-                )
-        offset += count
-    lines.extend(f"vt {u:.9g} {v:.9g}" for u, v in uv_rows)
-    lines.extend(faces_text)
-    Path(path).write_text("\n".join(lines) + "\n")
-    return int((~consistent).sum())
-
-
-def write_labels(path: str | Path, labels: NDArray) -> None:
-    """Write a .seg file: one integer label per line."""
-    labels = np.asarray(labels)
-    if labels.ndim != 1 or labels.dtype.kind not in "iub":
-        raise ParameterError("labels must be a 1-D integer array")
-    Path(path).write_text("".join(f"{int(v)}\n" for v in labels))
-
-
-def _read_column(path: str | Path, parse: type, what: str) -> list:
-    """One value per line, blank lines ignored; a bad line raises ParameterError naming it."""
-    values = []
-    for number, line in enumerate(Path(path).read_text().splitlines(), start=1):
-        text = line.strip()
-        if not text:
-            continue
-        try:
-            values.append(parse(text))
-        except ValueError:
-            name = Path(path).name
-            raise ParameterError(f"{name} line {number}: {text!r} is not {what}") from None
-    return values
-
-
-def read_labels(path: str | Path) -> NDArray[np.int64]:
-    """Read a .seg file (one integer per line; blank lines ignored)."""
-    return np.array(_read_column(path, int, "an integer label"), dtype=np.int64)
-
-
-def write_values(path: str | Path, values: NDArray, *, fmt: str = "%.9g") -> None:
-    """Write one float per line (default 9 significant digits: float32-exact)."""
-    values = np.asarray(values, dtype=np.float64)
-    if values.ndim != 1:
-        raise ParameterError("values must be a 1-D array")
-    Path(path).write_text("".join(fmt % v + "\n" for v in values))
-
-
-def read_values(path: str | Path) -> NDArray[np.float64]:
-    """Read one float per line (e.g. a .sdf file; blank lines ignored)."""
-    return np.array(_read_column(path, float, "a number"), dtype=np.float64)
-
-
-def part_tree_document(
-    tree: PartTree, leaf_labels: NDArray, parts: int, *, as_arrays: bool = False
-) -> dict[str, Any]:
-    """The part tree as JSON-ready data (the API's ``hierarchy`` and the CLI's ``--tree``).
-
-    ``leaf_labels``: leaf per face of the output (e.g. per input face; -1 for none).
-    Keys: ``leaf_count`` L; ``parts`` (the count the labels were cut at);
-    ``automatic_parts``; ``leaf_labels``; ``parent`` (2L - 1 node ids, -1 for the
-    root; leaves are 0..L-1, merge i made node L + i); ``merge_cost`` and
-    ``merge_height`` (L - 1; height: running maximum of the cost). To cut at N
-    parts, give each leaf its highest ancestor with id < 2L - N (itself when its
-    parent's id is >= 2L - N) and number the parts by their smallest leaf.
-    ``as_arrays``: the four arrays as numpy arrays (for ``arrays.json_array``), not lists.
-    """
-    from neural_shdf.segment.hierarchy import automatic_part_count
-
-    document: dict[str, Any] = {
-        "leaf_count": tree.leaf_count,
-        "parts": int(parts),
-        "automatic_parts": automatic_part_count(tree),
-        "leaf_labels": np.asarray(leaf_labels, dtype=np.int64),
-        "parent": np.asarray(tree.parent, dtype=np.int64),
-        "merge_cost": np.asarray(tree.costs, dtype=np.float64),
-        "merge_height": np.asarray(tree.heights, dtype=np.float64),
-    }
-    if not as_arrays:
-        for key in ("leaf_labels", "parent", "merge_cost", "merge_height"):
-            document[key] = document[key].tolist()
-    return document
-
-
-def write_part_tree(path: str | Path, tree: PartTree, leaf_labels: NDArray, parts: int) -> None:
-    """Write ``part_tree_document`` as a JSON file."""
-    Path(path).write_text(json.dumps(part_tree_document(tree, leaf_labels, parts)))
-
-
-__all__ = [
-    "UNLABELED_COLOR",
-    "colored_glb",
-    "display_geometry",
-    "linear_color_bytes",
-    "part_color_hex",
-    "part_colors",
-    "part_name",
-    "part_tree_document",
-    "parts_glb",
-    "read_labels",
-    "read_values",
-    "split_by_part",
-    "srgb_to_linear",
-    "unwrapped_glb",
-    "uv_split_vertices",
-    "write_labels",
-    "write_part_tree",
-    "write_obj_with_uvs",
-    "write_values",
-]

@@ -1,0 +1,52 @@
+"""Per-face text files: ``.seg`` labels (one integer per line, the Princeton benchmark's
+format) and value files such as ``.sdf`` (one number per line)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.errors import ParameterError
+
+
+def write_labels(path: str | Path, labels: NDArray) -> None:
+    """Write a .seg file: one integer label per line."""
+    labels = np.asarray(labels)
+    if labels.ndim != 1 or labels.dtype.kind not in "iub":
+        raise ParameterError("labels must be a 1-D integer array")
+    Path(path).write_text("".join(f"{int(v)}\n" for v in labels))
+
+
+def _read_column(path: str | Path, parse: type, what: str) -> list:
+    """One value per line, blank lines ignored; a bad line raises ParameterError naming it."""
+    values = []
+    for number, line in enumerate(Path(path).read_text().splitlines(), start=1):
+        text = line.strip()
+        if not text:
+            continue
+        try:
+            values.append(parse(text))
+        except ValueError:
+            name = Path(path).name
+            raise ParameterError(f"{name} line {number}: {text!r} is not {what}") from None
+    return values
+
+
+def read_labels(path: str | Path) -> NDArray[np.int64]:
+    """Read a .seg file (one integer per line; blank lines ignored)."""
+    return np.array(_read_column(path, int, "an integer label"), dtype=np.int64)
+
+
+def write_values(path: str | Path, values: NDArray, *, fmt: str = "%.9g") -> None:
+    """Write one float per line (default 9 significant digits: float32-exact)."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.ndim != 1:
+        raise ParameterError("values must be a 1-D array")
+    Path(path).write_text("".join(fmt % v + "\n" for v in values))
+
+
+def read_values(path: str | Path) -> NDArray[np.float64]:
+    """Read one float per line (e.g. a .sdf file; blank lines ignored)."""
+    return np.array(_read_column(path, float, "a number"), dtype=np.float64)

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from neural_shdf.arrays import json_array, unique_rows
+from neural_shdf.arrays import json_array, json_list, unique_rows
 
 
 @settings(max_examples=200, deadline=None)
@@ -52,3 +52,9 @@ def test_json_array_writes_nan_as_null_when_asked():
     values = np.array([1.5, np.nan, 2.0] * 20_000)
     assert json.loads(json_array(values, nan_as_null=True))[:3] == [1.5, None, 2.0]
     assert json_array(values).startswith("[1.5,NaN,2.0")
+
+
+@pytest.mark.parametrize("count", [0, 1, 5, 4097])
+def test_json_list_is_the_text_json_dumps_writes(count):
+    items = [{"label": i, "color": f"#{i:06x}", "area": i / 7} for i in range(count)]
+    assert json_list(items, chunk=2048) == json.dumps(items, separators=(",", ":"))

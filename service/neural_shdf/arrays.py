@@ -65,7 +65,7 @@ def unique_rows(
 
 
 #: Values encoded per step by ``json_array``: each step is one short C call.
-JSON_CHUNK = 1 << 15
+JSON_CHUNK = 1 << 13
 
 
 def json_array(values: NDArray, *, nan_as_null: bool = False) -> str:
@@ -80,4 +80,15 @@ def json_array(values: NDArray, *, nan_as_null: bool = False) -> str:
         if nan_as_null:
             chunk = [None if value != value else value for value in chunk]
         pieces.append(json.dumps(chunk, separators=(",", ":"))[1:-1])
+    return "[" + ",".join(pieces) + "]"
+
+
+def json_list(items: list, *, chunk: int = 2048) -> str:
+    """A list of JSON-ready objects (e.g. one dict per part) as compact JSON, the same text as
+    ``json.dumps(items, separators=(",", ":"))``, encoded ``chunk`` items at a time: the C
+    encoder holds the GIL for the whole list (100,000 parts: over 0.1 s)."""
+    pieces = [
+        json.dumps(items[start : start + chunk], separators=(",", ":"))[1:-1]
+        for start in range(0, len(items), chunk)
+    ]
     return "[" + ",".join(pieces) + "]"

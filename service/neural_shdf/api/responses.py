@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 from neural_shdf.api.schemas import MeshInfo, ShdfStatus, ShdfValues, UploadResult
 from neural_shdf.api.segmentation import StoredSegmentation
 from neural_shdf.api.shdf_service import ShdfOutcome
-from neural_shdf.arrays import json_array
+from neural_shdf.arrays import json_array, json_list
 from neural_shdf.palette import part_color_hex
 
 F32_MEDIA_TYPE = "application/octet-stream"
@@ -94,14 +94,13 @@ def segmentation_response(
         "part_count": len(parts),
         "labels_base64": result.labels_base64[0] if compact else None,
         "labels_dtype": result.labels_base64[1] if compact else None,
-        "parts": parts,
         "timings": timings,
     }
     labels = "null" if compact else result.labels_json
     hierarchy = (result if tree_of is None else tree_of).hierarchy_json(compact)
     rest = json.dumps(body, separators=(",", ":"))
     return Response(
-        f'{{"labels":{labels},"hierarchy":{hierarchy},{rest[1:]}'.encode(),
+        f'{{"labels":{labels},"hierarchy":{hierarchy},"parts":{json_list(parts)},{rest[1:]}'.encode(),
         media_type="application/json",
     )
 

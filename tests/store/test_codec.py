@@ -15,6 +15,7 @@ from neural_shdf.store.codec import (
     mesh_arrays,
     mesh_from_arrays,
     seal,
+    seal_arrays,
     shdf_arrays,
     shdf_from_arrays,
     unseal,
@@ -60,3 +61,16 @@ def test_meshes_and_shdf_round_trip_through_a_sealed_entry():
     assert decoded.tobytes() == values.tobytes()
     with pytest.raises(KeyError):
         shdf_from_arrays(mesh_arrays(mesh))  # another kind's entry: not a ShDF
+
+
+def test_seal_arrays_verifies_and_decodes_like_seal_of_encode_arrays(box_mesh):
+    arrays = mesh_arrays(box_mesh)
+    sealed = seal_arrays(arrays)
+    for blob in (sealed, seal(encode_arrays(arrays))):
+        stored = mesh_from_arrays(decode_arrays(unseal(blob)))
+        np.testing.assert_array_equal(stored.faces, box_mesh.faces)
+        np.testing.assert_array_equal(stored.vertices, box_mesh.vertices)
+    damaged = bytearray(sealed)
+    damaged[-100] ^= 1
+    with pytest.raises(CorruptEntryError):
+        unseal(bytes(damaged))

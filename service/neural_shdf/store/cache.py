@@ -18,7 +18,7 @@ from typing import Any, TypeVar, cast
 from numpy.typing import NDArray
 
 from neural_shdf.store.backends import Backend, DiskBackend, FallbackBackend, RedisBackend
-from neural_shdf.store.codec import CorruptEntryError, decode_arrays, encode_arrays, seal, unseal
+from neural_shdf.store.codec import CorruptEntryError, decode_arrays, seal, seal_arrays, unseal
 from neural_shdf.store.keys import lock_key
 from neural_shdf.store.leases import Lease
 
@@ -190,7 +190,7 @@ class ResultCache:
         (for what cannot be recomputed: uploaded meshes, job records). ``guard``: (key,
         stored bytes) that must still be there, checked atomically with the write (a
         result of a mesh deleted meanwhile is never stored); whether it was stored."""
-        blob = seal(encode_arrays(arrays))
+        blob = seal_arrays(arrays)
         if guard is None:
             self.backend.set(key, blob, group=group, keep_local=keep_local)
             return True

@@ -154,6 +154,34 @@ class TriangleMesh:
         return oriented
 
     @cached_property
+    def distinct(self) -> DistinctTriangles:
+        """``oriented`` with one copy of each set of coincident triangles (double-sided
+        cards, a triangle repeated in place): what the ShDF and the segmentation work on.
+        Copies would stop each other's rays at distance zero, weigh k times in the filters,
+        and join every neighbour through a non-manifold edge in the segmentation's graph,
+        so copies take the value and the part of their first copy. ``oriented`` itself,
+        with the identity map, when the mesh has no copies."""
+        oriented = self.oriented
+        first_copy = np.asarray(self.orientation.first_copy, dtype=np.int64)
+        if not len(first_copy) or first_copy.max() < 0:
+            identity = np.arange(self.face_count)
+            return DistinctTriangles(oriented, identity, identity)
+        kept = np.flatnonzero(first_copy < 0)
+        copy_of = np.searchsorted(
+            kept, np.where(first_copy < 0, np.arange(len(first_copy)), first_copy)
+        )
+        unique = TriangleMesh(
+            oriented.vertices,
+            oriented.faces[kept],
+            oriented.face_origin[kept],
+            oriented.input_face_count,
+        )
+        normals, areas = oriented.normals_and_areas
+        # Already facing out: seed the caches rather than orient and measure again.
+        unique.__dict__.update(oriented=unique, normals_and_areas=(normals[kept], areas[kept]))
+        return DistinctTriangles(unique, kept, copy_of)
+
+    @cached_property
     def face_graph(self) -> FaceGraph:
         """Face adjacency with coincident vertices welded (``welded_faces``), its dihedral
         angles and concave flags following the oriented normals: the graph the ShDF's
@@ -247,3 +275,21 @@ class TriangleMesh:
         chosen = order[first]
         out[origin[chosen]] = label[chosen]
         return out
+
+
+@dataclass(frozen=True)
+class DistinctTriangles:
+    """A mesh's triangles without coincident copies (``TriangleMesh.distinct``).
+
+    ``mesh``: the distinct triangles, oriented, in the original order; ``kept``: the index
+    of each in the original mesh (its first copy); ``copy_of``: per original triangle, the
+    index of its copy in ``mesh`` (so ``values[copy_of]`` gives every copy its value).
+    """
+
+    mesh: TriangleMesh
+    kept: NDArray[np.int64]
+    copy_of: NDArray[np.int64]
+
+    @property
+    def has_copies(self) -> bool:
+        return len(self.kept) < len(self.copy_of)

@@ -306,3 +306,24 @@ def test_the_same_shape_at_any_scale_gets_the_same_parts():
         np.testing.assert_array_equal(scaled_labels, labels)
         tolerance = 1e-12 if scale in (2.0**-30, 2.0**30) else 0.1
         np.testing.assert_allclose(scaled_shdf, shdf, atol=tolerance)
+
+
+@pytest.mark.parametrize("partitioner", ["graphcut", "metis"])
+def test_a_double_sided_export_gets_the_parts_of_the_one_sided_mesh(dumbbell_case, partitioner):
+    """Every face twice, the copy reversed (a double-sided card export): the copies join
+    every neighbour through non-manifold edges, so the segmentation works on one copy of
+    each and gives each copy its first copy's part."""
+    vertices, faces, shdf, _, _ = dumbbell_case
+    params = SegmentParams(partitioner=partitioner, parts=4 if partitioner == "metis" else None)
+    one_sided = details(vertices, faces, shdf, params)
+    mesh = TriangleMesh(vertices, np.concatenate([faces, faces[:, ::-1]]))
+    assert mesh.distinct.has_copies and mesh.distinct.mesh.face_count == len(faces)
+    doubled = segment(mesh, np.tile(shdf, 2), params)
+    np.testing.assert_array_equal(doubled.labels, np.tile(one_sided.labels, 2))
+    if one_sided.tree is not None:
+        np.testing.assert_array_equal(
+            doubled.tree.leaf_labels, np.tile(one_sided.tree.leaf_labels, 2)
+        )
+    basis = prepare_segment(mesh, np.tile(shdf, 2), params)
+    again = segment(mesh, np.tile(shdf, 2), params, basis=basis)
+    np.testing.assert_array_equal(again.labels, doubled.labels)

@@ -138,11 +138,8 @@ def test_rays_are_cast_from_one_copy_of_each_triangle() -> None:
     and maps every copy to it (among k coincident triangles each ray would test all k)."""
     vertices = np.eye(3)
     mesh = TriangleMesh(vertices, np.tile([[0, 1, 2]], (500, 1)))
-    oriented = mesh.oriented
-    ray_mesh, ray_graph, copy_of = stage.without_copies(
-        oriented, mesh.face_graph, mesh.orientation.first_copy
-    )
-    assert ray_mesh.face_count == 1 and ray_graph.face_count == 1
-    np.testing.assert_array_equal(copy_of, np.zeros(500))
+    distinct = mesh.distinct
+    assert distinct.mesh.face_count == 1 and distinct.mesh.face_graph.face_count == 1
+    np.testing.assert_array_equal(distinct.copy_of, np.zeros(500))
     result = compute_shdf(mesh, method="exact")
     assert result.values.shape == (500,) and len(np.unique(result.values)) == 1

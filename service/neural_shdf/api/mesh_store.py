@@ -186,14 +186,15 @@ class MeshStore:
             raise mesh_missing(mesh_id)
 
     def graph(self, mesh_id: str, mesh: TriangleMesh) -> FaceGraph:
-        """Face graph of a mesh (``TriangleMesh.face_graph``, cached on the mesh this
-        store keeps in memory), built once: concurrent requests wait for one build."""
+        """Face graph the ShDF and the segmentation work on (``TriangleMesh.distinct``'s,
+        cached on the mesh this store keeps in memory), built once: concurrent requests
+        wait for one build."""
         with self._graph_locks[hash(f"{mesh_id}:graph") % len(self._graph_locks)]:
-            return mesh.face_graph
+            return mesh.distinct.mesh.face_graph
 
     def creases(self, mesh_id: str, mesh: TriangleMesh) -> CreaseGraph:
         """The crease refinement's graph of a mesh (``TriangleMesh.crease_graph``), built
         once as ``graph``; it serves every ShDF and mixture of the mesh."""
         self.graph(mesh_id, mesh)  # outside the lock: locks are striped, not reentrant
         with self._graph_locks[hash(f"{mesh_id}:creases") % len(self._graph_locks)]:
-            return mesh.crease_graph
+            return mesh.distinct.mesh.crease_graph

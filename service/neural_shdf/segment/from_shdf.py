@@ -11,13 +11,14 @@ Steps (Shapira et al. 2008 as implemented by CGAL's ``segmentation_from_sdf_valu
    (a k-way partition into exactly ``parts`` parts); labels renumbered by lowest face.
 
 Every array is per triangle of the mesh (``TriangleMesh.faces``); the steps work on
-``mesh.oriented`` and its cached structures (face graph, centroids, crease graph).
+``mesh.distinct`` (oriented, one copy of each set of coincident triangles) and its cached
+structures (face graph, centroids, crease graph); copies take their first copy's part.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -79,10 +80,12 @@ def prepare_segment(
     start = time.perf_counter()
     params = params or SegmentParams()
     shdf = validate(mesh.face_count, shdf, params)
-    oriented = mesh.oriented
-    geometry = FaceData.of(
-        oriented.vertices, oriented.faces, oriented.normals_and_areas[1], oriented.centroids
-    )
+    distinct = mesh.distinct
+    if distinct.has_copies:
+        shdf = shdf[distinct.kept]
+        check_part_count(params, distinct.mesh.face_count)
+    mesh = distinct.mesh
+    geometry = FaceData.of(mesh.vertices, mesh.faces, mesh.normals_and_areas[1], mesh.centroids)
     values = log_normalize(shdf)
     if params.clusters == AUTO_CLUSTERS:
         mixture = fit_best_mixture(values, params.seed)
@@ -129,10 +132,13 @@ def segment(
         clock = now
 
     diagnostics = mesh.orientation.diagnostics
+    distinct = mesh.distinct
     if basis is not None:
+        if distinct.has_copies and np.shape(shdf) == (mesh.face_count,):
+            shdf = np.asarray(shdf)[distinct.kept]
         if not basis.matches(params, shdf):
             raise ValueError("the segment basis was prepared for another ShDF, clusters or seed")
-        check_part_count(params, mesh.face_count)
+        check_part_count(params, distinct.mesh.face_count)
     elif mesh.face_count == 0:
         validate(0, shdf, params)
     else:
@@ -141,15 +147,20 @@ def segment(
     if basis is None or mesh.face_count == 0:
         empty = np.zeros(0, dtype=np.int64)
         return SegmentResult(empty, 0, params.effective_smoothing, timings, None, diagnostics)
+    work = distinct.mesh
     partitioning = Partitioning(
-        graph=mesh.face_graph,
+        graph=work.face_graph,
         basis=basis,
         params=params,
-        smoothing=params.smoothing_for(mesh.face_count),
-        creases=mesh.crease_graph if params.crease_boundaries else None,
+        smoothing=params.smoothing_for(work.face_count),
+        creases=work.crease_graph if params.crease_boundaries else None,
         lap=lap,
     )
     labels, tree = PARTITIONERS[params.partitioner].partition(partitioning)
+    if distinct.has_copies:  # each copy in its first copy's part (kept in order: same numbering)
+        labels = labels[distinct.copy_of]
+        if tree is not None:
+            tree = replace(tree, leaf_labels=tree.leaf_labels[distinct.copy_of])
     return SegmentResult(
         labels, basis.mixture.size, params.effective_smoothing, timings, tree, diagnostics
     )

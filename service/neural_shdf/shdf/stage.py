@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from neural_shdf import constants
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph, build_face_graph, face_centroids
+from neural_shdf.geometry import FaceGraph, face_centroids
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.orientation import MeshDiagnostics, hole_caps
 from neural_shdf.segment.params import check_seed
@@ -246,29 +246,6 @@ def sampled_raw_shdf(
     return samples_to_faces(smoothed, samples, mesh.faces)
 
 
-def without_copies(
-    mesh: TriangleMesh, graph: FaceGraph, first_copy: NDArray
-) -> tuple[TriangleMesh, FaceGraph, NDArray[np.int64]]:
-    """The mesh the ShDF is computed on: one copy of each triangle (``first_copy``: the earlier
-    triangle on the same vertices, or -1), its face graph, and per triangle of ``mesh`` the
-    index of its copy there. Coincident copies (double-sided cards, a triangle repeated in
-    place) would otherwise stop each other's rays at distance zero, a ray cast among k
-    coincident triangles tests all k of them, and the filters would weigh them k times."""
-    first_copy = np.asarray(first_copy, dtype=np.int64)
-    if not len(first_copy) or first_copy.max() < 0:
-        return mesh, graph, np.arange(mesh.face_count)
-    kept = np.flatnonzero(first_copy < 0)
-    copy_of = np.searchsorted(
-        kept, np.where(first_copy < 0, np.arange(len(first_copy)), first_copy)
-    )
-    unique = TriangleMesh(
-        mesh.vertices, mesh.faces[kept], mesh.face_origin[kept], mesh.input_face_count
-    )
-    normals, _ = unique.normals_and_areas
-    unique_graph = build_face_graph(unique.vertices, unique.welded_faces, normals)
-    return unique, unique_graph, copy_of
-
-
 def raw_diameters(
     mesh: TriangleMesh,
     graph: FaceGraph,
@@ -347,8 +324,9 @@ def compute_shdf(
         params = replace(params, seed=check_seed(seed))
     orientation = mesh.orientation
     diagnostics = orientation.diagnostics
-    # One copy of each triangle (coincident copies share its value); no copies: as given.
-    mesh, graph, copy_of = without_copies(mesh.oriented, mesh.face_graph, orientation.first_copy)
+    # One copy of each triangle (coincident copies share its value).
+    distinct = mesh.distinct
+    mesh, graph, copy_of = distinct.mesh, distinct.mesh.face_graph, distinct.copy_of
     resolved = resolve_method(method, mesh.face_count)
     if resolved == "neural":
         model = model if isinstance(model, NeuralModel) else load_model(model)  # type: ignore[arg-type]

@@ -20,7 +20,6 @@ RUN useradd --create-home --uid 10001 --shell /usr/sbin/nologin neural-shdf
 WORKDIR /src
 COPY pyproject.toml README.md constraints.txt ./
 COPY service ./service
-COPY model_export ./model_export
 # The committed ONNX model (service/neural_shdf/models/emd.onnx) is package data: installed here.
 RUN pip install -c constraints.txt . && rm -rf /src
 

@@ -9,13 +9,13 @@ service answers nothing); ``np.lexsort`` sorts column by column with the GIL rel
 from __future__ import annotations
 
 import json
-from typing import overload
+from typing import Any, overload
 
 import numpy as np
 from numpy.typing import NDArray
 
 
-def _row_order(rows: NDArray) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+def _row_order(rows: NDArray[Any]) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
     """The stable lexicographic order of the rows, and in that order where a new distinct
     row starts."""
     order = np.lexsort(rows.T[::-1]) if rows.shape[1] else np.arange(len(rows))
@@ -27,22 +27,22 @@ def _row_order(rows: NDArray) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
 
 
 @overload
-def unique_rows(rows: NDArray) -> NDArray: ...
+def unique_rows(rows: NDArray[Any]) -> NDArray[Any]: ...
 @overload
 def unique_rows(
-    rows: NDArray,
+    rows: NDArray[Any],
     *,
     return_index: bool = ...,
     return_inverse: bool = ...,
     return_counts: bool = ...,
-) -> NDArray | tuple[NDArray, ...]: ...
+) -> NDArray[Any] | tuple[NDArray[Any], ...]: ...
 def unique_rows(
-    rows: NDArray,
+    rows: NDArray[Any],
     *,
     return_index: bool = False,
     return_inverse: bool = False,
     return_counts: bool = False,
-) -> NDArray | tuple[NDArray, ...]:
+) -> NDArray[Any] | tuple[NDArray[Any], ...]:
     """``np.unique(rows, axis=0, ...)`` for a 2-D array: the distinct rows in lexicographic
     order, then, as asked, the index of each one's first occurrence, the distinct row of
     every input row, and how often each occurs."""
@@ -52,7 +52,7 @@ def unique_rows(
     order, starts = _row_order(rows)
     first_in_order = np.flatnonzero(starts)
     unique = rows[order[first_in_order]]
-    extra: list[NDArray] = []
+    extra: list[NDArray[Any]] = []
     if return_index:
         extra.append(order[first_in_order])
     if return_inverse:
@@ -68,7 +68,7 @@ def unique_rows(
 JSON_CHUNK = 1 << 13
 
 
-def json_array(values: NDArray, *, nan_as_null: bool = False) -> str:
+def json_array(values: NDArray[Any], *, nan_as_null: bool = False) -> str:
     """A 1-D array as a compact JSON array, the same text as ``json.dumps(values.tolist(),
     separators=(",", ":"))`` (with ``nan_as_null``, NaN as ``null``), encoded a chunk at a
     time: one ``json.dumps`` of a million-element list holds the GIL for a tenth of a
@@ -83,7 +83,7 @@ def json_array(values: NDArray, *, nan_as_null: bool = False) -> str:
     return "[" + ",".join(pieces) + "]"
 
 
-def json_list(items: list, *, chunk: int = 2048) -> str:
+def json_list(items: list[Any], *, chunk: int = 2048) -> str:
     """A list of JSON-ready objects (e.g. one dict per part) as compact JSON, the same text as
     ``json.dumps(items, separators=(",", ":"))``, encoded ``chunk`` items at a time: the C
     encoder holds the GIL for the whole list (100,000 parts: over 0.1 s)."""

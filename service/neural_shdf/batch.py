@@ -21,6 +21,7 @@ import dataclasses
 import hashlib
 import io
 import json
+import multiprocessing
 import os
 import resource
 import socket
@@ -37,16 +38,24 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from tqdm import tqdm
 
 from neural_shdf import __version__
 from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
-from neural_shdf.errors import ModelUnavailableError, NeuralShdfError, ParameterError
+from neural_shdf.errors import (
+    InvalidGeometryError,
+    ModelUnavailableError,
+    NeuralShdfError,
+    ParameterError,
+)
+from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb
+from neural_shdf.exchange.seg import write_labels, write_values
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.mesh_io import SUPPORTED_FORMATS
+from neural_shdf.mesh_io import SUPPORTED_FORMATS, load_mesh
 from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
 from neural_shdf.segment.params import check_seed
-from neural_shdf.shdf.neural.inference import model_path
+from neural_shdf.shdf.neural.inference import load_model, model_path, set_session_threads
 from neural_shdf.shdf.stage import resolve_method, uses_model
 from neural_shdf.store.cache import CacheConfig, ResultCache, open_cache
 from neural_shdf.store.codec import shdf_arrays, shdf_from_arrays
@@ -314,8 +323,6 @@ def _prepare_worker(config: BatchConfig) -> None:
     """Once per worker process, before its model loads: its session threads."""
     if not _PREPARED:
         if config.session_threads is not None:
-            from neural_shdf.shdf.neural.inference import set_session_threads
-
             set_session_threads(config.session_threads)
         _PREPARED.append(config.session_threads)
 
@@ -348,11 +355,6 @@ def process_asset(asset: Asset, out_dir: str, config: BatchConfig, key: str) -> 
 
 
 def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict[str, Any]:
-    from neural_shdf.errors import InvalidGeometryError
-    from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb
-    from neural_shdf.exchange.seg import write_labels, write_values
-    from neural_shdf.mesh_io import load_mesh
-
     path = Path(asset.path)
     if not path.is_file():
         raise FileNotFoundError(f"mesh file not found: {path}")
@@ -437,8 +439,6 @@ def _run_local_pool(tasks: list[Task], out_dir: str, config: BatchConfig, key: s
                     on_row: OnRow, workers: int) -> None:  # fmt: skip
     """A process pool; a worker that dies (a crash, out of memory) is replaced and the
     assets it may have held are retried, each at most ``MAX_ATTEMPTS`` times."""
-    import multiprocessing
-
     attempts = dict.fromkeys((index for index, _ in tasks), 0)
     pending = list(tasks)
     context = multiprocessing.get_context("spawn")
@@ -514,8 +514,6 @@ class BatchProgress:
     """A tqdm bar on stderr: assets done, failures, faces per second, ETA."""
 
     def __init__(self, total: int, enabled: bool) -> None:
-        from tqdm import tqdm
-
         self.failed = 0
         self.faces = 0
         self.start = time.perf_counter()
@@ -554,8 +552,6 @@ def write_manifest(path: Path, rows: Sequence[dict[str, Any]]) -> None:
 def _check_model(config: BatchConfig) -> None:
     """Fail the whole batch up front when the neural model cannot load (every asset would)."""
     if uses_model(config.method):
-        from neural_shdf.shdf.neural.inference import load_model
-
         try:
             load_model()
         except ModelUnavailableError:

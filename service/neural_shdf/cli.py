@@ -15,9 +15,21 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
-from neural_shdf.errors import NeuralShdfError, ParameterError
+from neural_shdf.errors import ModelUnavailableError, NeuralShdfError, ParameterError
+from neural_shdf.evaluate.benchmark import format_table, run_eval
+from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb, unwrapped_glb
+from neural_shdf.exchange.obj_writer import write_obj_with_uvs
+from neural_shdf.exchange.seg import write_labels, write_values
+from neural_shdf.exchange.usd import USD_EXTENSIONS, write_mesh_parts_usd, write_usd_parts
+from neural_shdf.labeling.cli import add_labeler_parser, labeler_option, segment_with_labeler
+from neural_shdf.mesh_io import detect_format, load_mesh, normalize_format
+from neural_shdf.pipeline import SegmentParams, compute_shdf, segment
+from neural_shdf.segment.params import AUTO_CLUSTERS, DEFAULT_CREASE_BOUNDARIES
+from neural_shdf.segment.tree_document import write_part_tree
+from neural_shdf.unwrap import UnwrapParams, atlas_layout_png, unwrap
 
 #: Exit codes: 0 ok, 1 unexpected failure, 2 bad input or usage, 3 model unavailable.
 EXIT_BAD_INPUT = 2
@@ -35,8 +47,6 @@ def progress_bar(
     Only on a terminal: redirected to a file or a pipe, stderr gets no ``\r`` frames.
     The returned function takes the fraction done (from any thread; it never goes back).
     """
-    from tqdm import tqdm
-
     bar = tqdm(
         total=PROGRESS_STEPS,
         desc=description,
@@ -66,8 +76,6 @@ def progress_bar(
 
 
 def _load(args: argparse.Namespace):
-    from neural_shdf.mesh_io import load_mesh
-
     if not Path(args.mesh).is_file():
         raise FileNotFoundError(f"mesh file not found: {args.mesh}")
     return load_mesh(
@@ -78,8 +86,6 @@ def _load(args: argparse.Namespace):
 def _shdf(mesh, args: argparse.Namespace) -> tuple[np.ndarray, str]:
     """The ShDF per triangle and a note naming the producer that ran (``auto`` resolved),
     for the command's summary line."""
-    from neural_shdf.pipeline import compute_shdf
-
     start = time.perf_counter()
     with progress_bar(f"{args.method} ShDF", enabled=not args.quiet) as progress:
         result = compute_shdf(
@@ -94,8 +100,6 @@ def _shdf(mesh, args: argparse.Namespace) -> tuple[np.ndarray, str]:
 
 
 def cmd_shdf(args: argparse.Namespace) -> int:
-    from neural_shdf.exchange.seg import write_values
-
     mesh = _load(args)
     values, note = _shdf(mesh, args)
     write_values(args.output, mesh.to_input_faces(values))
@@ -106,11 +110,6 @@ def cmd_shdf(args: argparse.Namespace) -> int:
 
 
 def cmd_segment(args: argparse.Namespace) -> int:
-    from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb
-    from neural_shdf.exchange.seg import write_labels
-    from neural_shdf.pipeline import SegmentParams, segment
-    from neural_shdf.segment.tree_document import write_part_tree
-
     params = SegmentParams.from_attributes(args)
     if args.tree and params.partitioner != "graphcut":
         raise ParameterError("--tree needs the graphcut partitioner (metis makes no part tree)")
@@ -118,8 +117,6 @@ def cmd_segment(args: argparse.Namespace) -> int:
         raise ParameterError(f"--usd must end in .usda, .usdc, .usd or .usdz, got {args.usd!r}")
     labeler = None
     if args.labeler or args.confidence:
-        from neural_shdf.labeling.cli import labeler_option, segment_with_labeler
-
         labeler = labeler_option(args)  # its file and flags checked before any work
     mesh = _load(args)
     shdf, note = _shdf(mesh, args)
@@ -151,9 +148,6 @@ def cmd_segment(args: argparse.Namespace) -> int:
 
 def _write_usd(args: argparse.Namespace, mesh, face_labels: np.ndarray) -> None:
     """The parts as USD: a USD input's own stage with subsets, else a new stage of its faces."""
-    from neural_shdf.exchange.usd import USD_EXTENSIONS, write_mesh_parts_usd, write_usd_parts
-    from neural_shdf.mesh_io import detect_format, normalize_format
-
     file_type = normalize_format(args.format) if args.format else detect_format(args.mesh)
     if file_type in USD_EXTENSIONS:
         write_usd_parts(args.mesh, face_labels, args.usd, input_format=file_type)
@@ -162,12 +156,6 @@ def _write_usd(args: argparse.Namespace, mesh, face_labels: np.ndarray) -> None:
 
 
 def cmd_unwrap(args: argparse.Namespace) -> int:
-    from neural_shdf.exchange.gltf_writer import unwrapped_glb
-    from neural_shdf.exchange.obj_writer import write_obj_with_uvs
-    from neural_shdf.exchange.seg import write_labels
-    from neural_shdf.pipeline import SegmentParams, segment
-    from neural_shdf.unwrap import UnwrapParams, atlas_layout_png, unwrap
-
     output = Path(args.output)
     if output.suffix.lower() not in (".glb", ".obj"):
         raise ParameterError(f"-o must end in .glb or .obj, got {output.name!r}")
@@ -203,8 +191,6 @@ def cmd_unwrap(args: argparse.Namespace) -> int:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    from neural_shdf.evaluate.benchmark import format_table, run_eval
-
     bench_dir = Path(args.bench_dir)
     if not (bench_dir / "off").is_dir() or not (bench_dir / "seg").is_dir():
         raise FileNotFoundError(
@@ -224,6 +210,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
+    # Lazy: FastAPI, uvicorn and the stores would slow every other command's start-up.
     from neural_shdf.api.serve import run
 
     run(host=args.host, port=args.port, workers=args.workers)
@@ -231,8 +218,6 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def _clusters(text: str) -> int:
-    from neural_shdf.segment.params import AUTO_CLUSTERS
-
     if text == "auto":
         return AUTO_CLUSTERS
     try:
@@ -272,8 +257,6 @@ def _add_mesh_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _add_segment_options(parser: argparse.ArgumentParser) -> None:
     """The segmentation parameters (``SegmentParams`` fields), shared by segment and batch."""
-    from neural_shdf.segment.params import DEFAULT_CREASE_BOUNDARIES
-
     parser.add_argument("--partitioner", choices=["graphcut", "metis"], default="graphcut")
     parser.add_argument(
         "--clusters",
@@ -304,8 +287,8 @@ def _add_segment_options(parser: argparse.ArgumentParser) -> None:
 
 
 def cmd_batch(args: argparse.Namespace) -> int:
+    # Lazy: the stores (diskcache, redis) would slow every other command's start-up.
     from neural_shdf.batch import MANIFEST_NAME, run_batch, summary
-    from neural_shdf.segment import SegmentParams
 
     if args.shdf_only and args.formats and set(args.formats) - {"shdf"}:
         raise ParameterError("--shdf-only writes only the ShDF; drop the other --formats")
@@ -376,8 +359,6 @@ def build_parser() -> argparse.ArgumentParser:
         "--confidence", metavar="OUT.txt", help="with --labeler: confidence per face"
     )
     segment.set_defaults(run=cmd_segment)
-
-    from neural_shdf.labeling.cli import add_labeler_parser
 
     add_labeler_parser(commands)
 
@@ -493,8 +474,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``neural-shdf`` console script."""
-    from neural_shdf.errors import ModelUnavailableError
-
     args = build_parser().parse_args(argv)
     try:
         return int(args.run(args) or 0)

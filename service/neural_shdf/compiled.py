@@ -8,11 +8,11 @@ neither folder is writable (a read-only install) they compile once per process.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TypeVar, overload
+from typing import Any, TypeVar, cast, overload
 
 import numba
 
-Function = TypeVar("Function", bound=Callable)
+Function = TypeVar("Function", bound=Callable[..., Any])
 
 
 @overload
@@ -32,10 +32,10 @@ def kernel(
     """
 
     def compile_(target: Function) -> Function:
-        options = {"nogil": True, **({"inline": "always"} if inline else {})}
+        options: dict[str, Any] = {"nogil": True, **({"inline": "always"} if inline else {})}
         try:
-            return numba.njit(cache=True, **options)(target)
+            return cast(Function, numba.njit(cache=True, **options)(target))
         except RuntimeError:  # no writable cache folder: compile per process
-            return numba.njit(**options)(target)
+            return cast(Function, numba.njit(**options)(target))
 
     return compile_ if function is None else compile_(function)

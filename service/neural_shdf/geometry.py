@@ -7,6 +7,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
@@ -179,8 +180,6 @@ class FaceGraph:
 
     def csr(self, weights: NDArray[Any] | None = None) -> Any:
         """Symmetric scipy CSR adjacency matrix with the given edge weights (default 1)."""
-        import scipy.sparse as sp
-
         w = np.ones(len(self.pairs)) if weights is None else np.asarray(weights, dtype=float)
         rows = np.concatenate([self.pairs[:, 0], self.pairs[:, 1]])
         cols = np.concatenate([self.pairs[:, 1], self.pairs[:, 0]])

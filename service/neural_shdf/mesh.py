@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,7 +45,7 @@ class TriangleMesh:
 
     vertices: NDArray[np.float64]
     faces: NDArray[np.int64]
-    face_origin: NDArray[np.int64] = field(default=None)  # type: ignore[assignment]
+    face_origin: NDArray[np.int64] = field(default=None)  # type: ignore[arg-type]
     input_face_count: int = -1
 
     def __post_init__(self) -> None:
@@ -229,7 +230,9 @@ class TriangleMesh:
         flat = polygon_area[self.face_origin] <= 0
         return np.where(flat, 1.0, areas) if flat.any() else np.asarray(areas, dtype=np.float64)
 
-    def to_input_faces(self, values: NDArray, *, weights: NDArray | None = None) -> NDArray:
+    def to_input_faces(
+        self, values: NDArray[Any], *, weights: NDArray[Any] | None = None
+    ) -> NDArray[Any]:
         """Map per-triangle float values to per-input-face values: the mean over the
         face's triangles weighted by area (``weights`` to weigh otherwise).
 
@@ -246,7 +249,7 @@ class TriangleMesh:
         return out
 
     def labels_to_input_faces(
-        self, labels: NDArray, *, weights: NDArray | None = None, missing: int = -1
+        self, labels: NDArray[Any], *, weights: NDArray[Any] | None = None, missing: int = -1
     ) -> NDArray[np.int64]:
         """Map per-triangle labels to one label per input face.
 

@@ -44,6 +44,8 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from neural_shdf.compiled import kernel
 from neural_shdf.geometry import _sorted_edges, face_normals, weld_faces, zero_area_limit
@@ -462,9 +464,6 @@ def hole_caps(
     centroid per loop appended, and the cap triangles (indices into those vertices); none
     where boundary edges outnumber ``MAX_BOUNDARY_SHARE`` of the triangles.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     edge_table, _ = edges

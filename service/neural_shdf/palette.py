@@ -3,6 +3,8 @@ layout image): identical on every call."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -35,7 +37,9 @@ def part_colors(n_parts: int) -> NDArray[np.uint8]:
     return colors
 
 
-def _hsv_to_rgb(hue: NDArray, saturation: NDArray, value: NDArray) -> NDArray[np.float64]:
+def _hsv_to_rgb(
+    hue: NDArray[Any], saturation: NDArray[Any], value: NDArray[Any]
+) -> NDArray[np.float64]:
     """(N, 3) ``colorsys.hsv_to_rgb`` of each row, with the same arithmetic (so the same
     colours), in one pass instead of a Python call per part."""
     sector = (hue * 6.0).astype(np.int64)
@@ -60,14 +64,14 @@ def _hsv_to_rgb(hue: NDArray, saturation: NDArray, value: NDArray) -> NDArray[np
 UNLABELED_COLOR = np.array([64, 64, 64, 255], dtype=np.uint8)
 
 
-def srgb_to_linear(srgb: NDArray) -> NDArray[np.float64]:
+def srgb_to_linear(srgb: NDArray[Any]) -> NDArray[np.float64]:
     """sRGB components in [0, 1] to linear light (the inverse sRGB transfer function):
     the palette is defined in sRGB, glTF's COLOR_0 and renderers' vertex colours are linear."""
     srgb = np.asarray(srgb, dtype=np.float64)
     return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
 
 
-def linear_color_bytes(rgba: NDArray) -> NDArray[np.uint8]:
+def linear_color_bytes(rgba: NDArray[Any]) -> NDArray[np.uint8]:
     """RGB(A) sRGB bytes to linear bytes (alpha is linear already and kept)."""
     out = np.array(rgba, dtype=np.uint8, copy=True)
     out[..., :3] = np.round(srgb_to_linear(out[..., :3] / 255.0) * 255.0)

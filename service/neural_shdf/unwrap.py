@@ -20,6 +20,7 @@ from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+import igl
 import numpy as np
 import scipy.sparse as sp
 import xatlas
@@ -309,8 +310,6 @@ def _triangle_areas(points: NDArray, faces: NDArray) -> NDArray[np.float64]:
 
 def _lscm(vertices: NDArray, faces: NDArray) -> NDArray[np.float64] | None:
     """Free-boundary least-squares conformal map of a disk, scaled to the surface's area."""
-    import igl  # libigl is slow to import: loaded on first use
-
     boundary = igl.boundary_loop(faces)
     if len(boundary) < 3:
         return None
@@ -377,8 +376,6 @@ class _Piece:
         return sp.csr_matrix((length, (a, b)), shape=(n, n))
 
     def loops(self) -> list[NDArray[np.int64]]:
-        import igl  # libigl is slow to import: loaded on first use
-
         return [np.asarray(loop, dtype=np.int64) for loop in igl.boundary_loop_all(self.faces)]
 
     def euler_characteristic(self) -> int:
@@ -387,8 +384,6 @@ class _Piece:
 
     def cut(self, path: list[int] | NDArray) -> None:
         """Cut open along a vertex path (libigl; faces keep their order)."""
-        import igl  # libigl is slow to import: loaded on first use
-
         path = np.asarray(path, dtype=np.int64)
         low = np.minimum(path[:-1], path[1:])
         high = np.maximum(path[:-1], path[1:])
@@ -437,8 +432,6 @@ def _open_to_disk(piece: _Piece) -> bool:
     """Cut the piece into a topological disk, off polygon diagonals where possible: join
     boundary loops by shortest paths, open a closed piece between far-apart points, and
     leave handles to libigl's ``cut_to_disk``. False if no disk came out."""
-    import igl  # libigl is slow to import: loaded on first use
-
     loops = piece.loops()
     if not loops:
         vertices = piece.vertices

@@ -85,9 +85,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             except Exception:  # a failing path fails again, visibly, on its first request
                 logger.exception("warm-up failed; serving anyway")
         # Everything loaded so far (modules, compiled kernels, the model) lives as long as the
-        # process: out of the collector's sight, a full collection no longer walks ~200k
-        # objects while holding the GIL, which stalled the event loop for ~0.1 s whenever a
-        # request's work allocated enough to trigger one.
+        # process: out of the collector's sight, a full collection no longer walks them all
+        # while holding the GIL, which stalled the event loop whenever a request's work
+        # allocated enough to trigger one (docs/benchmarks.md, "Event-loop stalls").
         gc.collect()
         gc.freeze()
         # The event loop's thread waits for the GIL at every switch while compute threads

@@ -16,6 +16,7 @@ from neural_shdf.api.settings import Settings
 from neural_shdf.errors import InvalidGeometryError
 from neural_shdf.geometry import FaceGraph
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.mesh_io import load_mesh
 from neural_shdf.segment.creases import CreaseGraph
 from neural_shdf.store.cache import ResultCache
 from neural_shdf.store.codec import mesh_arrays, mesh_from_arrays
@@ -60,8 +61,6 @@ class MeshStore:
 
     def parse(self, data: bytes, file_type: str | None) -> TriangleMesh:
         """The mesh in an uploaded file (bounded by ``max_faces``)."""
-        from neural_shdf.mesh_io import load_mesh
-
         mesh = load_mesh(
             data,
             file_type,

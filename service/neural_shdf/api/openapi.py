@@ -12,12 +12,12 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from neural_shdf.api.app import create_app
+from neural_shdf.api.settings import Settings
+
 
 def openapi_document() -> dict[str, Any]:
     """The OpenAPI schema of an app built with default settings (independent of the env)."""
-    from neural_shdf.api.app import create_app
-    from neural_shdf.api.settings import Settings
-
     with tempfile.TemporaryDirectory() as tmp:
         app = create_app(Settings(_env_file=None, cache_dir=Path(tmp), redis_url=None))
         return app.openapi()

@@ -18,6 +18,8 @@ from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.shdf_service import ShdfService
 from neural_shdf.api.tasks import TaskRunner, checkpoint
 from neural_shdf.arrays import json_array
+from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb
+from neural_shdf.exchange.usd import mesh_parts_usda
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import SegmentParams, prepare_segment, segment
 from neural_shdf.segment.from_shdf import SegmentResult
@@ -267,8 +269,6 @@ class SegmentationService:
 
     async def glb(self, mesh_id: str, method: str, params: SegmentParams, style: str) -> bytes:
         """The segmentation as a GLB: ``colored`` (vertex colours) or ``parts`` (a node each)."""
-        from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb
-
         result, _ = await self.get(mesh_id, method, params)
         mesh = await self.tasks.io(self.meshes.load, mesh_id)
         writer = colored_glb if style == "colored" else parts_glb
@@ -281,8 +281,6 @@ class SegmentationService:
     async def usda(self, mesh_id: str, method: str, params: SegmentParams) -> bytes:
         """The segmentation as a new USD stage of the stored mesh's input faces, one
         GeomSubset per part (the uploaded file is not kept, so its own stage cannot be)."""
-        from neural_shdf.exchange.usd import mesh_parts_usda
-
         result, _ = await self.get(mesh_id, method, params)
         mesh = await self.tasks.io(self.meshes.load, mesh_id)
         write = functools.partial(mesh_parts_usda, mesh, result.labels.astype(np.int64))

@@ -8,14 +8,15 @@ import shutil
 import tempfile
 from typing import Any
 
+import uvicorn
+from uvicorn.config import LOGGING_CONFIG
+
 from neural_shdf.api.settings import Settings
 
 
 def log_config(level: str) -> dict[str, Any]:
     """uvicorn's logging set-up plus the package's loggers (``neural_shdf.*``): start-up and
     warm-up, job failures and cache faults reach the console in uvicorn's format."""
-    from uvicorn.config import LOGGING_CONFIG
-
     config = copy.deepcopy(LOGGING_CONFIG)
     config["loggers"]["neural_shdf"] = {
         "handlers": ["default"],
@@ -27,8 +28,6 @@ def log_config(level: str) -> dict[str, Any]:
 
 def run(host: str | None = None, port: int | None = None, workers: int | None = None) -> None:
     """Serve on settings from the environment (``NEURAL_SHDF_*``), overridden by the arguments."""
-    import uvicorn
-
     settings = Settings()
     host = host or settings.host
     port = settings.port if port is None else port

@@ -26,6 +26,8 @@ from neural_shdf.api.tasks import TaskRunner, cancellation, checkpoint
 from neural_shdf.errors import ModelUnavailableError
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.params import check_seed
+from neural_shdf.shdf.neural.inference import load_model
+from neural_shdf.shdf.neural.inference import model_path as library_model_path
 from neural_shdf.shdf.stage import resolve_method, uses_model
 from neural_shdf.store.cache import ResultCache
 from neural_shdf.store.codec import shdf_arrays, shdf_from_arrays
@@ -37,8 +39,6 @@ logger = logging.getLogger(__name__)
 
 def model_path(settings: Settings) -> Path:
     """The neural model file: the setting, else the library's choice (env or packaged)."""
-    from neural_shdf.shdf.neural.inference import model_path as library_model_path
-
     return settings.model.expanduser().resolve() if settings.model else library_model_path()
 
 
@@ -313,8 +313,6 @@ class ShdfService:
 
     def check_model(self) -> tuple[bool, str]:
         """Whether the neural model loads (cached by the library after the first call)."""
-        from neural_shdf.shdf.neural.inference import load_model
-
         try:
             load_model(self.model_path)
         except Exception as exc:  # noqa: BLE001 - reported by /readyz

@@ -13,11 +13,12 @@ from neural_shdf.api.mesh_store import MeshStore
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.segmentation import SegmentationService
 from neural_shdf.api.tasks import TaskRunner
+from neural_shdf.exchange.gltf_writer import unwrapped_glb
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
 from neural_shdf.store.cache import ResultCache
 from neural_shdf.store.keys import atlas_key, atlas_png_key
-from neural_shdf.unwrap import UnwrapParams, UvAtlas
+from neural_shdf.unwrap import UnwrapParams, UvAtlas, atlas_layout_png
 from neural_shdf.unwrap import unwrap as unwrap_mesh
 
 #: The file each kind of atlas job serves once it succeeded.
@@ -133,8 +134,6 @@ class UnwrapService:
         self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
     ) -> bytes:
         """The mesh with its atlas UVs and the atlas layout as its texture."""
-        from neural_shdf.exchange.gltf_writer import unwrapped_glb
-
         mesh, atlas = await self.get(mesh_id, method, params, unwrap)
         texture = await self._layout_png(mesh_id, method, params, unwrap, atlas)
         key = self.key(mesh_id, method, params, unwrap)
@@ -187,8 +186,6 @@ class UnwrapService:
 
     @staticmethod
     def _draw_png(atlas: UvAtlas, unwrap: UnwrapParams) -> bytes:
-        from neural_shdf.unwrap import atlas_layout_png
-
         return atlas_layout_png(atlas, size=unwrap.atlas_size)
 
 

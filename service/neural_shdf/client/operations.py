@@ -146,6 +146,7 @@ def mesh_payload(
 def wait_job(job: Job, poll: PollPolicy) -> Operation:
     """Poll a job until it succeeded (returns it) or failed (raises JobFailedError), with a
     tqdm bar of its progress."""
+    # Lazy: the client needs httpx and numpy alone; tqdm only when a job is polled.
     from tqdm import tqdm
 
     deadline = time.monotonic() + poll.timeout_s

@@ -253,7 +253,7 @@ class PartHierarchy:
         """Part per input face of the cut at ``parts`` (None: the cut this response was
         made at) edited by ``edits``: what ``segment(..., edits=edits)`` would answer.
         Needs the whole package, as ``tree`` does."""
-        from neural_shdf.segment.editing import apply_edits
+        from neural_shdf.segment.editing import apply_edits  # numba: only for this helper
 
         count = self.parts if parts is None else parts
         return apply_edits(self.tree, self.leaf_labels, count, edits).astype(np.int32)

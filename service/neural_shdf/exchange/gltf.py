@@ -23,7 +23,7 @@ from __future__ import annotations
 import base64
 import json
 import struct
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 from numpy.typing import NDArray
@@ -50,8 +50,11 @@ _MESHOPT_MODES = ("ATTRIBUTES", "TRIANGLES", "INDICES")
 #: (vertices and triangles are budgeted by ``MeshLimits`` before anything is expanded).
 MAX_NODE_VISITS = 100_000
 
+#: A JSON object of the file (untrusted: every value is checked where it is read).
+JsonObject = dict[str, Any]
 
-def _item(document: dict, key: str, index: Any) -> dict:
+
+def _item(document: JsonObject, key: str, index: Any) -> JsonObject:
     """``document[key][index]`` with a clear error for bad or out-of-range references."""
     items = document.get(key)
     if (
@@ -62,7 +65,8 @@ def _item(document: dict, key: str, index: Any) -> dict:
         or not isinstance(items[index], dict)
     ):
         raise MeshParseError(f"glTF refers to {key}[{index!r}], which does not exist")
-    return items[index]
+    item: JsonObject = items[index]
+    return item
 
 
 class _Document:
@@ -77,9 +81,9 @@ class _Document:
         self.gltf = gltf
         self.glb_bin = glb_bin
         self._buffers: dict[int, bytes] = {}
-        self._accessors: dict[int, NDArray] = {}
+        self._accessors: dict[int, NDArray[Any]] = {}
         self._decoded_views: dict[int, bytes] = {}
-        self._draco: dict[int, tuple[NDArray, NDArray]] = {}
+        self._draco: dict[int, tuple[NDArray[Any], NDArray[Any]]] = {}
         #: Bytes each compressed bufferView may decode to: what the accessors read from it
         #: need (set by ``_check_budget`` from the declared, budgeted counts).
         self.view_allowance: dict[int, int] = {}
@@ -133,7 +137,7 @@ class _Document:
             )
         return buffer, view_offset, view_length, int(view.get("byteStride", 0))
 
-    def _meshopt_view(self, view_index: int, view: dict, meshopt: dict) -> bytes:
+    def _meshopt_view(self, view_index: int, view: JsonObject, meshopt: JsonObject) -> bytes:
         """A bufferView's bytes decoded from its EXT/KHR_meshopt_compression data, after
         checking that they are no more than the accessors read from it need."""
         if view_index in self._decoded_views:
@@ -176,7 +180,7 @@ class _Document:
     def _array(
         self, view_index: Any, byte_offset: int, count: int, width: int, dtype: np.dtype,
         *, what: str, strided: bool = True,
-    ) -> NDArray:  # fmt: skip
+    ) -> NDArray[Any]:  # fmt: skip
         """``count`` elements of ``width`` values read from a bufferView, bounds checked."""
         buffer, view_offset, view_length, stride = self._view(view_index)
         element_size = dtype.itemsize * width
@@ -195,14 +199,14 @@ class _Document:
             strides=(stride, dtype.itemsize),
         )
 
-    def accessor(self, index: int) -> NDArray:
+    def accessor(self, index: int) -> NDArray[Any]:
         """Accessor values as a (count, width) array (float64, or int64 for integer data),
         with sparse substitutions applied."""
         if index in self._accessors:
             return self._accessors[index]
         spec = _item(self.gltf, "accessors", index)
         component = spec.get("componentType")
-        width = _WIDTHS.get(spec.get("type"))
+        width = _WIDTHS.get(spec.get("type", ""))
         count = spec.get("count")
         if component not in _COMPONENTS or width is None or not isinstance(count, int):
             raise MeshParseError(f"glTF accessor {index} has an invalid type or count")
@@ -230,8 +234,8 @@ class _Document:
         return values
 
     def _apply_sparse(
-        self, index: int, base: NDArray, sparse: Any, dtype: np.dtype, width: int
-    ) -> NDArray:
+        self, index: int, base: NDArray[Any], sparse: Any, dtype: np.dtype, width: int
+    ) -> NDArray[Any]:
         """``base`` with a sparse accessor's substitutions (core glTF 2.0)."""
         what = f"the sparse part of accessor {index}"
         if not isinstance(sparse, dict):
@@ -261,12 +265,14 @@ class _Document:
         result[targets] = replacements
         return result
 
-    def draco(self, mesh_index: int, primitive: dict, extension: Any) -> tuple[NDArray, NDArray]:
+    def draco(
+        self, mesh_index: int, primitive: JsonObject, extension: Any
+    ) -> tuple[NDArray[Any], NDArray[Any]]:
         """(positions, triangles) of a KHR_draco_mesh_compression primitive, decoded once,
         and checked against the primitive's declared (and budgeted) accessor counts."""
         if not isinstance(extension, dict):
             raise MeshParseError(f"glTF mesh {mesh_index} has invalid Draco settings")
-        view_index = extension.get("bufferView")
+        view_index: Any = extension.get("bufferView")  # checked by ``_view``
         if view_index in self._draco:
             return self._draco[view_index]
         buffer, offset, length, _ = self._view(view_index)
@@ -305,25 +311,26 @@ class _Document:
         return positions, triangles
 
 
-def _is_count(value: Any) -> bool:
+def _is_count(value: Any) -> TypeGuard[int]:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
 
-def _meshopt_extension(view: dict) -> dict | None:
+def _meshopt_extension(view: JsonObject) -> JsonObject | None:
     extensions = view.get("extensions") or {}
     for name in _MESHOPT:
         if name in extensions:
             if not isinstance(extensions[name], dict):
                 raise MeshParseError(f"glTF {name} settings must be an object")
-            return extensions[name]
+            found: JsonObject = extensions[name]
+            return found
     return None
 
 
-def _draco_extension(primitive: dict) -> Any:
+def _draco_extension(primitive: JsonObject) -> Any:
     return (primitive.get("extensions") or {}).get(_DRACO)
 
 
-def _local_matrix(node: dict) -> NDArray:
+def _local_matrix(node: JsonObject) -> NDArray[np.float64]:
     if "matrix" in node:
         matrix = np.asarray(node["matrix"], dtype=np.float64)
         if matrix.shape != (16,):
@@ -345,7 +352,7 @@ def _local_matrix(node: dict) -> NDArray:
     return matrix
 
 
-def _triangles(indices: NDArray, mode: int) -> NDArray:
+def _triangles(indices: NDArray[Any], mode: int) -> NDArray[Any]:
     """Triangles (T, 3) of a primitive's index list in its drawing mode."""
     n = len(indices)
     if mode == _TRIANGLES:
@@ -361,7 +368,7 @@ def _triangles(indices: NDArray, mode: int) -> NDArray:
     return np.stack([indices[i + 1], indices[i + 2], np.full(len(i), indices[0])], axis=1)
 
 
-def _triangle_count(document: _Document, primitive: dict, vertex_count: int) -> int:
+def _triangle_count(document: _Document, primitive: JsonObject, vertex_count: int) -> int:
     mode = primitive.get("mode", _TRIANGLES)
     if "indices" in primitive:
         n = _declared_count(_item(document.gltf, "accessors", primitive["indices"]))
@@ -370,13 +377,13 @@ def _triangle_count(document: _Document, primitive: dict, vertex_count: int) -> 
     return n // 3 if mode == _TRIANGLES else max(n - 2, 0)
 
 
-def _declared_count(spec: dict) -> int:
+def _declared_count(spec: JsonObject) -> int:
     """An accessor's declared element count (0 when invalid: reading it reports that)."""
     count = spec.get("count", 0)
     return count if isinstance(count, int) and not isinstance(count, bool) and count > 0 else 0
 
 
-def _scene_roots(gltf: dict) -> list[int]:
+def _scene_roots(gltf: JsonObject) -> list[int]:
     scenes = gltf.get("scenes")
     if scenes:
         scene = _item(gltf, "scenes", gltf.get("scene", 0))
@@ -386,7 +393,7 @@ def _scene_roots(gltf: dict) -> list[int]:
     return [i for i in range(len(nodes)) if i not in children]
 
 
-def _mesh_instances(gltf: dict) -> list[tuple[int, NDArray]]:
+def _mesh_instances(gltf: JsonObject) -> list[tuple[int, NDArray[np.float64]]]:
     """(mesh index, world matrix) of every mesh instance, in the depth-first node order.
 
     Iterative (a chain of thousands of nodes is fine); a node met again on its own
@@ -395,11 +402,11 @@ def _mesh_instances(gltf: dict) -> list[tuple[int, NDArray]]:
     """
     if not (gltf.get("nodes") or gltf.get("scenes")):
         return [(mesh_index, np.eye(4)) for mesh_index in range(len(gltf.get("meshes", [])))]
-    instances: list[tuple[int, NDArray]] = []
+    instances: list[tuple[int, NDArray[np.float64]]] = []
     on_path: set[int] = set()
     visits = 0
     # Entries: (node, parent matrix) to enter, or (node, None) to leave.
-    stack: list[tuple[Any, NDArray | None]] = [
+    stack: list[tuple[Any, NDArray[np.float64] | None]] = [
         (root, np.eye(4)) for root in reversed(_scene_roots(gltf))
     ]
     while stack:
@@ -438,7 +445,7 @@ def _mesh_instances(gltf: dict) -> list[tuple[int, NDArray]]:
 
 
 def _check_budget(
-    document: _Document, instances: list[tuple[int, NDArray]], limits: MeshLimits
+    document: _Document, instances: list[tuple[int, NDArray[np.float64]]], limits: MeshLimits
 ) -> None:
     """Vertices and triangles the instances expand to, from the JSON alone, against
     ``limits``: a mesh of 1M vertices placed by 40 nodes is 40M vertices, rejected
@@ -470,9 +477,9 @@ def _check_budget(
     limits.check_vertices(vertices, context=context)
 
 
-def _allow_views(document: _Document, spec: dict) -> None:
+def _allow_views(document: _Document, spec: JsonObject) -> None:
     """Let the bufferViews an accessor reads decompress to what it declares it needs."""
-    component, width = spec.get("componentType"), _WIDTHS.get(spec.get("type"))
+    component, width = spec.get("componentType"), _WIDTHS.get(spec.get("type", ""))
     if component not in _COMPONENTS or width is None:
         return  # reported when the accessor is read
     element_size = np.dtype(_COMPONENTS[component]).itemsize * width
@@ -495,8 +502,8 @@ def _read_document(document: _Document, format_name: str, limits: MeshLimits) ->
     gltf = document.gltf
     instances = _mesh_instances(gltf)
     _check_budget(document, instances, limits)
-    vertex_blocks: list[NDArray] = []
-    face_blocks: list[NDArray] = []
+    vertex_blocks: list[NDArray[Any]] = []
+    face_blocks: list[NDArray[Any]] = []
     vertex_total = 0
     for mesh_index, matrix in instances:
         mesh = _item(gltf, "meshes", mesh_index)

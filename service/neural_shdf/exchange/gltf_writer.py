@@ -8,6 +8,7 @@ import struct
 from typing import Any
 
 import numpy as np
+import trimesh
 from numpy.typing import NDArray
 
 from neural_shdf.arrays import unique_rows
@@ -66,8 +67,6 @@ def colored_glb(
     ``colors`` overrides the palette: (n_labels, 3 or 4) sRGB uint8, indexed by label. COLOR_0
     holds them linear, as glTF defines it, so viewers show the sRGB colours of the API.
     """
-    import trimesh
-
     labels = _check_labels(mesh, labels_per_triangle)
     vertices, faces, vertex_label = split_by_part(mesh, labels)
     if colors is None:
@@ -191,8 +190,6 @@ def unwrapped_glb(mesh: TriangleMesh, atlas: UvAtlas, *, texture_png: bytes | No
     Vertices are split where a seam gives one position two UVs. ``texture_png`` becomes the
     material's base colour texture (e.g. ``unwrap.atlas_layout_png(atlas)``).
     """
-    import trimesh
-
     vertices, faces, uvs = uv_split_vertices(mesh, atlas)
     image = _EncodedImage(texture_png) if texture_png else None
     material = trimesh.visual.material.PBRMaterial(

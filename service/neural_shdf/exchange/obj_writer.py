@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.unwrap import UvAtlas, input_face_corner_uvs
@@ -21,7 +22,7 @@ def write_obj_with_uvs(path: str | Path, mesh: TriangleMesh, atlas: UvAtlas) -> 
     polygons, polygon_uvs, consistent = input_face_corner_uvs(mesh, atlas.corner_uvs)
     lines = ["# neural-shdf unwrap: one f line per input face (split polygons: their triangles)"]
     lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in mesh.vertices)
-    uv_rows: list = []
+    uv_rows: list[NDArray[np.float64]] = []  # (u, v) rows
     faces_text = []
     offset = 0
     starts = np.searchsorted(mesh.face_origin, np.arange(mesh.input_face_count))

@@ -4,6 +4,7 @@ format) and value files such as ``.sdf`` (one number per line)."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -11,7 +12,7 @@ from numpy.typing import NDArray
 from neural_shdf.errors import ParameterError
 
 
-def write_labels(path: str | Path, labels: NDArray) -> None:
+def write_labels(path: str | Path, labels: NDArray[Any]) -> None:
     """Write a .seg file: one integer label per line."""
     labels = np.asarray(labels)
     if labels.ndim != 1 or labels.dtype.kind not in "iub":
@@ -19,7 +20,7 @@ def write_labels(path: str | Path, labels: NDArray) -> None:
     Path(path).write_text("".join(f"{int(v)}\n" for v in labels))
 
 
-def _read_column(path: str | Path, parse: type, what: str) -> list:
+def _read_column(path: str | Path, parse: type, what: str) -> list[Any]:
     """One value per line, blank lines ignored; a bad line raises ParameterError naming it."""
     values = []
     for number, line in enumerate(Path(path).read_text().splitlines(), start=1):
@@ -39,7 +40,7 @@ def read_labels(path: str | Path) -> NDArray[np.int64]:
     return np.array(_read_column(path, int, "an integer label"), dtype=np.int64)
 
 
-def write_values(path: str | Path, values: NDArray, *, fmt: str = "%.9g") -> None:
+def write_values(path: str | Path, values: NDArray[Any], *, fmt: str = "%.9g") -> None:
     """Write one float per line (default 9 significant digits: float32-exact)."""
     values = np.asarray(values, dtype=np.float64)
     if values.ndim != 1:

@@ -27,6 +27,9 @@ layer declares (the file, or each layer of a USDZ) must fit a mesh within the
 limits (``check_crate_arrays``: compressed arrays could otherwise expand thousands
 of times); then every prim's ``faceVertexCounts`` are read and the face and
 triangle budgets checked before indices and points are read.
+
+``pxr`` (usd-core) is imported inside the functions that use it: it is slow to import and
+only USD files need it (docs/benchmarks.md, "Start-up and imports").
 """
 
 from __future__ import annotations
@@ -55,7 +58,9 @@ from neural_shdf.errors import (
 )
 from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, build_mesh, fan_triangulate
 from neural_shdf.exchange._usdc import crate_array_sizes
+from neural_shdf.exchange.gltf_writer import part_name
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.palette import UNLABELED_COLOR, part_colors, srgb_to_linear
 
 FORMAT_NAME = "USD"
 #: File extensions of USD (lower case, without the dot).
@@ -361,10 +366,8 @@ read_usdz = partial(_read_usd_bytes, "usdz")
 
 
 def linear_face_colors(face_labels: NDArray[np.int64]) -> NDArray[np.float64]:
-    """(F, 3) linear RGB per face: ``export.part_colors`` by label (sRGB swatches, the API's
-    ``color``), ``export.UNLABELED_COLOR`` for negative labels."""
-    from neural_shdf.palette import UNLABELED_COLOR, part_colors, srgb_to_linear
-
+    """(F, 3) linear RGB per face: ``palette.part_colors`` by label (sRGB swatches, the API's
+    ``color``), ``palette.UNLABELED_COLOR`` for negative labels."""
     top = int(face_labels.max()) + 1 if len(face_labels) else 0
     palette = srgb_to_linear(part_colors(max(top, 0))[:, :3] / 255.0)
     colors = np.tile(srgb_to_linear(UNLABELED_COLOR[:3] / 255.0), (len(face_labels), 1))
@@ -389,8 +392,6 @@ def _uninstance(stage: Any, paths: list[Any]) -> None:
 def _replace_part_subsets(stage: Any, mesh: Any, labels: NDArray[np.int64]) -> None:
     """One GeomSubset per label of ``labels`` (per face of the prim), family ``part``."""
     from pxr import UsdGeom, Vt
-
-    from neural_shdf.exchange.gltf_writer import part_name
 
     for old in UsdGeom.Subset.GetGeomSubsets(mesh, UsdGeom.Tokens.face, PART_FAMILY):
         path = old.GetPrim().GetPath()
@@ -469,7 +470,7 @@ def write_usd_parts(
 ) -> None:
     """Write the USD stage of ``source`` with its parts: on every mesh prim that
     ``read_usd_path`` reads, one ``UsdGeom.Subset`` per part (family ``part``,
-    partition of the faces, element type face, named by ``export.part_name``;
+    partition of the faces, element type face, named by ``gltf_writer.part_name``;
     faces without a part, such as holes, in ``unlabeled``) and a per-face
     ``primvars:displayColor`` (uniform; the part colours, converted to linear).
 

@@ -1,7 +1,7 @@
 """The labeller's commands: ``neural-shdf labeler train`` and ``neural-shdf segment --labeler``.
 
 ``cli.py`` registers them (``add_labeler_parser``) and hands ``segment --labeler`` over
-(``segment_with_labeler``); imports stay inside the functions so that ``--help`` is fast.
+(``segment_with_labeler``).
 """
 
 from __future__ import annotations
@@ -14,8 +14,19 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from neural_shdf.errors import ParameterError
+from neural_shdf.labeling._library import (
+    SUPPORTED_FORMATS,
+    compute_shdf,
+    load_mesh,
+    read_labels,
+    write_labels,
+    write_values,
+)
+from neural_shdf.labeling.labeler import DEFAULT_SMOOTHING, label_mesh, train_labeler
+from neural_shdf.labeling.model import Labeler, load_labeler, save_labeler
+
 if TYPE_CHECKING:
-    from neural_shdf.labeling.model import Labeler
     from neural_shdf.mesh import TriangleMesh
 
 
@@ -48,8 +59,6 @@ def add_labeler_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def _names(text: str | None) -> list[str] | None:
-    from neural_shdf.errors import ParameterError
-
     if text is None:
         return None
     names = [name.strip() for name in text.split(",")]
@@ -61,9 +70,6 @@ def _names(text: str | None) -> list[str] | None:
 def training_pairs(mesh_dir: Path, label_dir: Path) -> tuple[list[Path], list[Path]]:
     """(meshes, their label files) for every mesh in ``mesh_dir`` with ``{stem}.txt`` in
     ``label_dir``, by name; meshes without labels are skipped (reported by the caller)."""
-    from neural_shdf.errors import ParameterError
-    from neural_shdf.labeling._library import SUPPORTED_FORMATS
-
     for folder in (mesh_dir, label_dir):
         if not folder.is_dir():
             raise FileNotFoundError(f"folder not found: {folder}")
@@ -79,11 +85,6 @@ def training_pairs(mesh_dir: Path, label_dir: Path) -> tuple[list[Path], list[Pa
 
 
 def cmd_labeler_train(args: argparse.Namespace) -> int:
-    from neural_shdf.errors import ParameterError
-    from neural_shdf.labeling._library import compute_shdf, load_mesh, read_labels
-    from neural_shdf.labeling.labeler import DEFAULT_SMOOTHING, train_labeler
-    from neural_shdf.labeling.model import save_labeler
-
     start = time.perf_counter()
     meshes_paths, label_paths = training_pairs(Path(args.mesh_dir), Path(args.label_dir))
     meshes, labels, shdf = [], [], []
@@ -116,9 +117,6 @@ def cmd_labeler_train(args: argparse.Namespace) -> int:
 def labeler_option(args: argparse.Namespace) -> Labeler:
     """The labeller of ``segment --labeler FILE``, loaded and its flags checked before the
     mesh is read or its ShDF computed (a bad file is reported at once)."""
-    from neural_shdf.errors import ParameterError
-    from neural_shdf.labeling.model import load_labeler
-
     others = [
         f"--{name.replace('_', '-')}"
         for name in ("tree", "colored", "parts_glb", "usd")
@@ -136,9 +134,6 @@ def segment_with_labeler(
 ) -> int:
     """``segment --labeler FILE``: one label per input face (the training labels' own
     integers) to ``args.output``; ``args.confidence``: the confidence per face too."""
-    from neural_shdf.labeling._library import write_labels, write_values
-    from neural_shdf.labeling.labeler import label_mesh
-
     start = time.perf_counter()
     labels, confidence = label_mesh(mesh, labeler, shdf=shdf)
     write_labels(args.output, labels)

@@ -14,7 +14,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+import trimesh.remesh
 from numpy.typing import NDArray
+from threadpoolctl import threadpool_limits
 
 from neural_shdf.errors import ParameterError
 from neural_shdf.labeling._library import (
@@ -24,6 +26,7 @@ from neural_shdf.labeling._library import (
     face_centroids,
     interpolate_samples,
 )
+from neural_shdf.labeling.coherence import coherent_labels
 from neural_shdf.labeling.features import (
     FEATURE_NAMES,
     FEATURE_VERSION,
@@ -135,8 +138,6 @@ def subdivided_copy(
 ) -> tuple[TriangleMesh, NDArray[np.int64]]:
     """``mesh``'s triangles each split into 4, ``times`` times, and the labels per triangle
     carried to the children."""
-    import trimesh.remesh
-
     vertices, faces = mesh.vertices, mesh.faces
     labels = np.asarray(labels, dtype=np.int64)
     for _ in range(times):
@@ -159,8 +160,8 @@ def fit_labeler(
 ) -> Labeler:
     """A labeller from training rows of one or more meshes. ``labels``: every label value
     the meshes' faces hold (default: those of the rows); ``names``: one per label."""
+    # Lazy: scikit-learn is slow to import and only training needs it (labelling does not).
     from sklearn.ensemble import HistGradientBoostingClassifier
-    from threadpoolctl import threadpool_limits
 
     if len(rows) == 0:
         raise ParameterError("give at least one labelled mesh")
@@ -191,8 +192,8 @@ def fit_labeler(
             "after sampling, one label covers every region: give meshes where each label "
             "covers a region, not scattered faces"
         )
-    # One OpenMP thread: on a shared 2-core machine more threads made the fit ~10x slower
-    # (they spin while waiting for each other), and one thread is deterministic.
+    # One OpenMP thread: on a shared machine more threads made the fit much slower (they
+    # spin while waiting for each other; docs/benchmarks.md), and one thread is deterministic.
     with threadpool_limits(limits=1, user_api="openmp"):
         model.fit(
             np.concatenate([r.features for r in rows]),
@@ -304,7 +305,6 @@ def label_description(
 ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """(class per triangle, its probability) for a described mesh."""
     probabilities = face_probabilities(description, labeler.predict_proba(description.features))
-    from neural_shdf.labeling.coherence import coherent_labels
 
     mesh = description.mesh.oriented
     smoothing = (

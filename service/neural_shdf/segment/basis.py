@@ -4,6 +4,7 @@ options enter, kept by a caller to re-segment one mesh cheaply."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -51,7 +52,7 @@ class SegmentBasis:
             )
         return self._cut
 
-    def matches(self, params: SegmentParams, shdf: NDArray) -> bool:
+    def matches(self, params: SegmentParams, shdf: NDArray[Any]) -> bool:
         """Whether this basis is the one ``params`` on a mesh with this ShDF needs (one pass
         over the ShDF, none when it is the basis's own: a basis never stands in for
         another field)."""

@@ -23,7 +23,7 @@ whole region (a small part) is cut back to ``SIDE_SHARE`` of its depth, so no pa
 vanishes. Meshes over ``COARSE_ABOVE_FACES`` faces are solved on about
 ``COARSE_NODES`` coarse nodes (connected pieces of one grid cell, never across a concave
 crease; each takes the part of most of its area, and only nodes the cut moves change
-their faces), so the time stays flat from 100k to 1M faces. The graph and its edge costs
+their faces), so the max-flow's size does not grow with the face count. The graph and its edge costs
 depend on the mesh only (``crease_graph``; ``SegmentBasis`` keeps them).
 
 Runs on the graph cut's parts before the merge tree is built, so every cut of the tree
@@ -36,6 +36,7 @@ import heapq
 import math
 from dataclasses import dataclass
 
+import maxflow
 import numpy as np
 from numpy.typing import NDArray
 
@@ -49,9 +50,9 @@ from neural_shdf.geometry import (
 from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
 
 # Tuned on the 57 psb-dev tuning models (ids 1-3 of each category), exact ShDF, for the
-# sum of CD and 1-RI at the automatic and the humans' part counts: width 0.5-2, change
-# cost 0-2 and strength 0-4 tried; strength 0 (length only) was far worse (1-RI +0.02),
-# a change cost of 0 let cuts drift (auto CD 0.27), the rest scored within about 0.01.
+# sum of CD and 1-RI at the automatic and the humans' part counts: a crease strength of 0
+# (length only) scored far worse and a change cost of 0 let cuts drift; the ranges tried
+# and the scores are in docs/benchmarks.md ("Measurements behind constants").
 
 #: Band half-width, in neck radii (boundary length / 2 pi) of the pair's boundary.
 BAND_WIDTH = 1.0
@@ -310,8 +311,6 @@ def _min_cut_in_bands(
 ) -> NDArray[np.int64]:
     """One max-flow: each band face picks its boundary's low (0) or high (1) part;
     ``change``: what a face pays for leaving its part."""
-    import maxflow  # slow to import: loaded on first use
-
     nodes = np.flatnonzero(in_band)
     local = np.full(len(parts), -1, dtype=np.int64)
     local[nodes] = np.arange(len(nodes))

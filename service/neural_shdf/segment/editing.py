@@ -154,7 +154,13 @@ class _EditState:
     growing or shrinking a node is a slice assignment.
     """
 
-    def __init__(self, parent: NDArray, children: NDArray, leaf_of_face: NDArray, top: NDArray):
+    def __init__(
+        self,
+        parent: NDArray[Any],
+        children: NDArray[Any],
+        leaf_of_face: NDArray[Any],
+        top: NDArray[Any],
+    ):
         leaves = (len(parent) + 1) // 2
         self.parent = parent
         self.children = children  # (L-1, 2): the children of node L + i
@@ -250,7 +256,7 @@ class _EditState:
         return canonical_face_labels(group)
 
 
-def canonical_face_labels(groups: NDArray) -> NDArray[np.int64]:
+def canonical_face_labels(groups: NDArray[Any]) -> NDArray[np.int64]:
     """Renumber group ids 0, 1, ... in order of each group's smallest face; -1 stays -1."""
     groups = np.asarray(groups, dtype=np.int64)
     valid = groups >= 0
@@ -262,7 +268,9 @@ def canonical_face_labels(groups: NDArray) -> NDArray[np.int64]:
     return out
 
 
-def _depth_first_ranges(children: NDArray, leaves: int) -> tuple[NDArray, NDArray, NDArray]:
+def _depth_first_ranges(
+    children: NDArray[Any], leaves: int
+) -> tuple[NDArray[Any], NDArray[Any], NDArray[Any]]:
     """(position of each leaf, low, high per node): a depth-first layout of the leaves
     (lower child first) in which node n's leaves are positions ``low[n]..high[n]-1``."""
     nodes = 2 * leaves - 1
@@ -277,7 +285,7 @@ def _depth_first_ranges(children: NDArray, leaves: int) -> tuple[NDArray, NDArra
     return low[:leaves].copy(), low, low + size
 
 
-def _check_faces(edits: Sequence[Edit], leaf_of_face: NDArray, *, tree: bool) -> None:
+def _check_faces(edits: Sequence[Edit], leaf_of_face: NDArray[Any], *, tree: bool) -> None:
     count = len(leaf_of_face)
     for index, edit in enumerate(edits):
         if not tree and isinstance(edit, Grow | Shrink):
@@ -305,7 +313,7 @@ def _check_faces(edits: Sequence[Edit], leaf_of_face: NDArray, *, tree: bool) ->
 
 def apply_edits(
     tree: PartTree,
-    leaf_of_face: NDArray,
+    leaf_of_face: NDArray[Any],
     parts: int,
     edits: Iterable[Mapping[str, Any] | Edit],
 ) -> NDArray[np.int64]:
@@ -332,7 +340,9 @@ def apply_edits(
     return _run(state, operations)
 
 
-def apply_label_edits(labels: NDArray, edits: Iterable[Mapping[str, Any] | Edit]) -> NDArray:
+def apply_label_edits(
+    labels: NDArray[Any], edits: Iterable[Mapping[str, Any] | Edit]
+) -> NDArray[Any]:
     """Merge and paint on labels with no tree (METIS): each part is one leaf; grow and
     shrink raise EditError. -1 stays -1."""
     labels = np.asarray(labels, dtype=np.int64)

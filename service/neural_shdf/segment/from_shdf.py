@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -63,7 +64,7 @@ class SegmentResult:
         in its order (``TriangleMesh.labels_to_input_faces``); -1 for faces without triangles.
 
         With a tree, the input faces' labels are the tree's cut of their leaves, so a
-        client that re-cuts the tree (see ``export.part_tree_document``) gets the same.
+        client that re-cuts the tree (see ``tree_document.part_tree_document``) gets the same.
         """
         if self.tree is None:
             return mesh.labels_to_input_faces(self.labels), None
@@ -72,7 +73,7 @@ class SegmentResult:
 
 
 def prepare_segment(
-    mesh: TriangleMesh, shdf: NDArray, params: SegmentParams | None = None
+    mesh: TriangleMesh, shdf: NDArray[Any], params: SegmentParams | None = None
 ) -> SegmentBasis:
     """The ``SegmentBasis`` of a mesh, its ShDF and ``params.clusters``/``params.seed``:
     pass it to ``segment`` to try other smoothing or part counts quickly. Checks the ShDF
@@ -109,7 +110,7 @@ def prepare_segment(
 
 def segment(
     mesh: TriangleMesh,
-    shdf: NDArray,
+    shdf: NDArray[Any],
     params: SegmentParams | None = None,
     *,
     basis: SegmentBasis | None = None,
@@ -175,7 +176,7 @@ def check_part_count(params: SegmentParams, face_count: int) -> None:
         )
 
 
-def validate(face_count: int, shdf: NDArray, params: SegmentParams) -> NDArray[np.float64]:
+def validate(face_count: int, shdf: NDArray[Any], params: SegmentParams) -> NDArray[np.float64]:
     """Check what depends on the mesh (``SegmentParams`` checks itself when it is built);
     return the ShDF as float64 clipped to [0, 1]. Raises ParameterError."""
     check_part_count(params, face_count)

@@ -12,15 +12,16 @@ multilevel graph cut, after Lombaert et al. 2005): faces are grouped into
 connected pieces of a 3-D grid (never across creases or across faces that
 prefer different clusters), the coarsest graph is solved exactly by
 alpha-expansion, and each finer level only re-solves a band around the
-boundaries. On psb-dev meshes this reaches energies within ~0-9% of the
-direct solve at 5-20x less time; at 1M faces a direct solve would need tens
-of max-flows over the whole mesh.
+boundaries: energies close to the direct solve's in a fraction of its time
+(docs/benchmarks.md, "Measurements behind constants"); at 1M faces a direct solve
+would need tens of max-flows over the whole mesh.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import maxflow
 import numpy as np
 from numpy.typing import NDArray
 
@@ -171,8 +172,6 @@ def expansion_move(
     labels: NDArray, alpha: int, data: NDArray, pairs: NDArray, weights: NDArray
 ) -> NDArray[np.int64]:
     """The best labelling reachable by letting any face switch to ``alpha`` (one max-flow)."""
-    import maxflow  # slow to import: loaded on first use
-
     labels = np.asarray(labels, dtype=np.int64)
     nodes, source_cap, sink_cap, edge_a, edge_b, forward, backward = _expansion_graph(
         labels,

@@ -31,6 +31,7 @@ import heapq
 import math
 from array import array
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -84,7 +85,8 @@ class MergeCost:
         neck = boundary / math.sqrt(smaller) if smaller > 0 else 0.0
         neck = max(neck, NECK_FLOOR)
         similarity = self.constant + abs(mean_a - mean_b) + self.concavity_weight * concavity
-        return size**self.size_exponent * similarity * neck**-self.neck_exponent
+        cost: float = size**self.size_exponent * similarity * neck**-self.neck_exponent
+        return cost
 
 
 @dataclass(frozen=True)
@@ -122,7 +124,9 @@ class PartTree:
         return parent
 
     @classmethod
-    def from_parent(cls, leaf_labels: NDArray, parent: NDArray, costs: NDArray) -> PartTree:
+    def from_parent(
+        cls, leaf_labels: NDArray[Any], parent: NDArray[Any], costs: NDArray[Any]
+    ) -> PartTree:
         """The tree from its ``parent`` array (the API's form; the inverse of ``parent``).
 
         Raises ValueError when ``parent`` is not a merge tree over ``(len(parent) + 1) / 2``
@@ -168,7 +172,7 @@ class PartTree:
         """(F,) part per face for ``count`` parts (clamped to 1..L); canonical numbering."""
         return self.leaf_parts(count)[self.leaf_labels]
 
-    def relabel(self, leaf_labels: NDArray, count: int) -> NDArray[np.int64]:
+    def relabel(self, leaf_labels: NDArray[Any], count: int) -> NDArray[np.int64]:
         """Parts of any array of leaf ids (e.g. per input face) at ``count``; -1 stays -1."""
         leaf_labels = np.asarray(leaf_labels, dtype=np.int64)
         parts = self.leaf_parts(count)
@@ -176,10 +180,10 @@ class PartTree:
 
 
 def merge_tree(
-    leaf_labels: NDArray,
+    leaf_labels: NDArray[Any],
     graph: FaceGraph,
-    areas: NDArray,
-    values: NDArray,
+    areas: NDArray[Any],
+    values: NDArray[Any],
     cost: MergeCost | None = None,
 ) -> PartTree:
     """The merge tree of the parts ``leaf_labels`` (canonical: 0..L-1 by lowest face).
@@ -290,7 +294,7 @@ def merge_tree(
 
 
 @kernel
-def _resolve_owners(owner: NDArray) -> NDArray:
+def _resolve_owners(owner: NDArray[Any]) -> NDArray[Any]:
     """Each node's highest merged ancestor, in place: merge nodes come after their
     children, so one pass from the top resolves every chain."""
     for node in range(len(owner) - 1, -1, -1):
@@ -303,19 +307,20 @@ _NONE = -1
 
 
 @kernel(inline=True)
-def _node_mean(node_area: NDArray, node_moment: NDArray, node: int) -> float:
+def _node_mean(node_area: NDArray[Any], node_moment: NDArray[Any], node: int) -> float:
     """A node's mean ShDF, as ``merge_tree``'s ``mean`` (0 for a part of no area)."""
     return node_moment[node] / node_area[node] if node_area[node] > 0 else 0.0
 
 
 @kernel(inline=True)
-def _before(area: NDArray, ids: NDArray, i: int, j: int) -> bool:
+def _before(area: NDArray[Any], ids: NDArray[Any], i: int, j: int) -> bool:
     """Whether heap entry ``i`` comes before ``j``: less area, then lower id."""
-    return area[i] < area[j] or (area[i] == area[j] and ids[i] < ids[j])
+    before: bool = area[i] < area[j] or (area[i] == area[j] and ids[i] < ids[j])
+    return before
 
 
 @kernel(inline=True)
-def _heap_push(area: NDArray, ids: NDArray, size: int, value: float, node: int) -> int:
+def _heap_push(area: NDArray[Any], ids: NDArray[Any], size: int, value: float, node: int) -> int:
     """Push (value, node) onto the heap of ``size`` entries; return the new size."""
     area[size], ids[size] = value, node
     child = size
@@ -330,9 +335,9 @@ def _heap_push(area: NDArray, ids: NDArray, size: int, value: float, node: int) 
 
 
 @kernel(inline=True)
-def _heap_pop(area: NDArray, ids: NDArray, size: int) -> int:
+def _heap_pop(area: NDArray[Any], ids: NDArray[Any], size: int) -> int:
     """Remove the first entry of the heap of ``size`` entries; return its node."""
-    node = ids[0]
+    node: int = ids[0]
     size -= 1
     area[0], ids[0] = area[size], ids[size]
     parent = 0
@@ -351,7 +356,16 @@ def _heap_pop(area: NDArray, ids: NDArray, size: int) -> int:
 
 
 @kernel(inline=True)
-def _take_out(node, node_group, member_prev, member_next, head, tail, group_prev, group_next):
+def _take_out(
+    node: int,
+    node_group: NDArray[np.int64],
+    member_prev: NDArray[np.int64],
+    member_next: NDArray[np.int64],
+    head: NDArray[np.int64],
+    tail: NDArray[np.int64],
+    group_prev: NDArray[np.int64],
+    group_next: NDArray[np.int64],
+) -> tuple[int, int]:
     """Remove ``node`` from its group; a group left empty leaves the list of groups.
 
     Returns the (previous, next) groups of the node's group.
@@ -377,8 +391,8 @@ def _take_out(node, node_group, member_prev, member_next, head, tail, group_prev
 
 @kernel
 def _shell_merge_order(
-    roots: NDArray, node_area: NDArray, node_moment: NDArray, first_node: int
-) -> NDArray:
+    roots: NDArray[Any], node_area: NDArray[Any], node_moment: NDArray[Any], first_node: int
+) -> NDArray[Any]:
     """(len(roots) - 1, 2) the (smallest, target) pairs that merge the parts ``roots``
     (no shared edge left) into one, in order; fills ``node_area`` and ``node_moment`` of
     the new nodes ``first_node, first_node + 1, ...``.

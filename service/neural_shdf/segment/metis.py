@@ -9,8 +9,10 @@ parts are shared out between components in proportion to their area.
 from __future__ import annotations
 
 import heapq
+from typing import Any
 
 import numpy as np
+import pymetis
 from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
@@ -28,7 +30,7 @@ SIMILARITY_FLOOR = 0.05
 
 
 def metis_edge_weights(
-    dihedral_weight: NDArray, posteriors: NDArray, pairs: NDArray
+    dihedral_weight: NDArray[Any], posteriors: NDArray[Any], pairs: NDArray[Any]
 ) -> NDArray[np.int64]:
     """Integer weights in 1..WEIGHT_RANGE: dihedral weight times posterior similarity.
 
@@ -43,11 +45,12 @@ def metis_edge_weights(
     top = float(weight.max())
     if not top > 0:
         return np.ones(len(pairs), dtype=np.int64)
-    return np.clip(np.rint(weight / top * WEIGHT_RANGE), 1, WEIGHT_RANGE).astype(np.int64)
+    scaled: NDArray[np.float64] = np.clip(np.rint(weight / top * WEIGHT_RANGE), 1, WEIGHT_RANGE)
+    return scaled.astype(np.int64)
 
 
 def share_parts(
-    sizes: NDArray, counts: NDArray, parts: int, min_fraction: float = 0.0
+    sizes: NDArray[Any], counts: NDArray[Any], parts: int, min_fraction: float = 0.0
 ) -> NDArray[np.int64]:
     """Parts per component, summing to ``parts``.
 
@@ -83,10 +86,10 @@ def share_parts(
 
 def metis_partition(
     graph: FaceGraph,
-    edge_weights: NDArray,
+    edge_weights: NDArray[Any],
     parts: int,
-    areas: NDArray,
-    centroids: NDArray,
+    areas: NDArray[Any],
+    centroids: NDArray[Any],
     seed: int = 0,
     min_fraction: float = 0.0,
 ) -> NDArray[np.int64]:
@@ -140,7 +143,7 @@ def metis_partition(
 
 
 def split_faces(
-    graph: FaceGraph, parts: int, seed: int = 0, edge_length: NDArray | None = None
+    graph: FaceGraph, parts: int, seed: int = 0, edge_length: NDArray[Any] | None = None
 ) -> NDArray[np.int64]:
     """``parts`` pieces of one connected face graph with the shortest total boundary
     (METIS on edge lengths, or on ``edge_length`` given per pair), labels 0..parts-1."""
@@ -156,7 +159,7 @@ def split_faces(
 
 
 def _partition_component(
-    faces: NDArray, pairs: NDArray, weights: NDArray, parts: int, seed: int
+    faces: NDArray[Any], pairs: NDArray[Any], weights: NDArray[Any], parts: int, seed: int
 ) -> NDArray[np.int64]:
     """Labels 0..parts-1 (all used) for the faces of one connected component."""
     if parts == 1:
@@ -183,11 +186,9 @@ def _partition_component(
 
 
 def _metis(
-    node_count: int, pairs: NDArray, weights: NDArray, parts: int, seed: int
+    node_count: int, pairs: NDArray[Any], weights: NDArray[Any], parts: int, seed: int
 ) -> NDArray[np.int64]:
     """pymetis k-way partition of a graph given as edge pairs (CSR built here)."""
-    import pymetis  # slow to import: loaded on first use
-
     if node_count <= parts:
         return np.arange(node_count, dtype=np.int64) % parts
     rows = np.concatenate([pairs[:, 0], pairs[:, 1]])
@@ -197,6 +198,7 @@ def _metis(
     xadj = np.zeros(node_count + 1, dtype=np.int64)
     np.cumsum(np.bincount(rows, minlength=node_count), out=xadj[1:])
     options = pymetis.Options(seed=int(seed) & 0x7FFFFFFF, ufactor=UFACTOR)
+    graph: dict[str, Any]
     if hasattr(pymetis, "CSRAdjacency"):  # pymetis >= 2025.2
         graph = {"adjacency": pymetis.CSRAdjacency(xadj, cols[order])}
     else:

@@ -5,7 +5,7 @@ the (log-normalised, [0, 1]) values, so EM runs on the histogram: its cost no
 longer grows with the face count, there is no sampling, and the fit is
 deterministic. (scikit-learn's GaussianMixture on raw values gives the same
 fit - the tests check that - but its per-iteration overhead alone, times the
-7 candidate sizes of the BIC search, exceeded the 0.3 s budget at 100k faces.)
+7 candidate sizes of the BIC search, exceeded the time budget of large meshes.)
 Posteriors for every face are then evaluated in numpy.
 """
 
@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -43,13 +44,16 @@ class Mixture:
     def size(self) -> int:
         return int(len(self.means))
 
-    def log_joint(self, values: NDArray) -> NDArray[np.float64]:
+    def log_joint(self, values: NDArray[Any]) -> NDArray[np.float64]:
         """(N, k) log of weight * density of each component at each value."""
         x = np.asarray(values, dtype=np.float64)[:, None]
         z = (x - self.means[None, :]) / self.deviations[None, :]
-        return -0.5 * z * z + (np.log(self.weights) - np.log(self.deviations))[None, :]
+        joint: NDArray[np.float64] = (
+            -0.5 * z * z + (np.log(self.weights) - np.log(self.deviations))[None, :]
+        )
+        return joint
 
-    def posteriors(self, values: NDArray) -> NDArray[np.float64]:
+    def posteriors(self, values: NDArray[Any]) -> NDArray[np.float64]:
         """(N, k) probability of each component given each value; rows sum to 1."""
         return _posteriors(
             np.asarray(values, dtype=np.float64).reshape(-1),
@@ -60,7 +64,12 @@ class Mixture:
 
 
 @kernel
-def _posteriors(values, means, deviations, log_scale):  # pragma: no cover - compiled
+def _posteriors(
+    values: NDArray[np.float64],
+    means: NDArray[np.float64],
+    deviations: NDArray[np.float64],
+    log_scale: NDArray[np.float64],
+) -> NDArray[np.float64]:  # pragma: no cover - compiled
     """Softmax over components of ``log_joint``, row by row (one pass, no (N, k) temporaries)."""
     count, size = len(values), len(means)
     result = np.empty((count, size))
@@ -79,7 +88,9 @@ def _posteriors(values, means, deviations, log_scale):  # pragma: no cover - com
     return result
 
 
-def histogram(values: NDArray, bins: int = HISTOGRAM_BINS) -> tuple[NDArray, NDArray]:
+def histogram(
+    values: NDArray[Any], bins: int = HISTOGRAM_BINS
+) -> tuple[NDArray[Any], NDArray[Any]]:
     """Bin centres and counts of values in [0, 1] (the sufficient data of a 1-D fit)."""
     values = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0)
     index = np.minimum((values * bins).astype(np.int64), bins - 1)
@@ -89,7 +100,7 @@ def histogram(values: NDArray, bins: int = HISTOGRAM_BINS) -> tuple[NDArray, NDA
 
 
 def em_fit(
-    centres: NDArray, counts: NDArray, clusters: int, sample_size: float
+    centres: NDArray[Any], counts: NDArray[Any], clusters: int, sample_size: float
 ) -> tuple[Mixture, float]:
     """EM for a 1-D Gaussian mixture on binned data; returns the mixture and its BIC.
 
@@ -130,7 +141,7 @@ def em_fit(
     return Mixture(means[order], deviations[order], mixing[order]), float(bic)
 
 
-def fit_mixture(values: NDArray, clusters: int, seed: int = 0) -> Mixture:
+def fit_mixture(values: NDArray[Any], clusters: int, seed: int = 0) -> Mixture:
     """Fit ``clusters`` Gaussians to values in [0, 1] (fewer if there are fewer distinct bins).
 
     ``seed`` is accepted for a uniform interface; the fit is deterministic.
@@ -141,7 +152,7 @@ def fit_mixture(values: NDArray, clusters: int, seed: int = 0) -> Mixture:
 
 
 def fit_best_mixture(
-    values: NDArray, seed: int = 0, candidates: Sequence[int] = CLUSTER_CANDIDATES
+    values: NDArray[Any], seed: int = 0, candidates: Sequence[int] = CLUSTER_CANDIDATES
 ) -> Mixture:
     """The mixture with the lowest BIC among ``candidates`` sizes (1 bin: one component).
 
@@ -160,13 +171,13 @@ def fit_best_mixture(
 
 
 def choose_cluster_count(
-    values: NDArray, seed: int = 0, candidates: Sequence[int] = CLUSTER_CANDIDATES
+    values: NDArray[Any], seed: int = 0, candidates: Sequence[int] = CLUSTER_CANDIDATES
 ) -> int:
     """Mixture size with the lowest BIC (see ``fit_best_mixture``)."""
     return fit_best_mixture(values, seed, candidates).size
 
 
-def prefers_split(values: NDArray, seed: int = 0, separation: float = 2.0) -> bool:
+def prefers_split(values: NDArray[Any], seed: int = 0, separation: float = 2.0) -> bool:
     """Whether ``values`` look like two populations rather than one.
 
     True when BIC prefers two Gaussians over one, both carry at least 5% of the

@@ -155,7 +155,8 @@ class SegmentParams:
         smoothing = self.effective_smoothing
         if self.reference_faces is None:
             return smoothing * 1.0
-        return smoothing * np.sqrt(face_count / self.reference_faces)
+        scaled: float = smoothing * np.sqrt(face_count / self.reference_faces)
+        return scaled
 
     @classmethod
     def from_attributes(cls, source: object) -> SegmentParams:
@@ -171,7 +172,8 @@ def check_seed(seed: object) -> int:
     """The seed as an int; ParameterError unless it is an integer in 0..MAX_SEED."""
     if not _is_int(seed) or not 0 <= seed <= MAX_SEED:  # type: ignore[operator]
         raise ParameterError(f"seed must be an integer in 0..{MAX_SEED}, got {seed!r}")
-    return int(seed)  # type: ignore[call-overload]
+    checked: int = int(seed)  # type: ignore[call-overload]
+    return checked
 
 
 def _is_int(value: object) -> bool:

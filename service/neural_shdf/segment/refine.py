@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -34,10 +36,10 @@ BOUNDARY_CHANGE_COST = 20.0
 
 
 def refine_parts(
-    parts: NDArray,
-    shdf: NDArray,
+    parts: NDArray[Any],
+    shdf: NDArray[Any],
     graph: FaceGraph,
-    edge_weights: NDArray,
+    edge_weights: NDArray[Any],
     geometry: FaceData,
     params: SegmentParams,
 ) -> NDArray[np.int64]:
@@ -70,10 +72,10 @@ def refine_parts(
 
 
 def _refine_faces(
-    faces: NDArray,
-    shdf: NDArray,
+    faces: NDArray[Any],
+    shdf: NDArray[Any],
     graph: FaceGraph,
-    edge_weights: NDArray,
+    edge_weights: NDArray[Any],
     geometry: FaceData,
     params: SegmentParams,
     total_area: float,
@@ -114,7 +116,7 @@ def _refine_faces(
 
 
 def cut_into_parts(
-    posteriors: NDArray, graph: FaceGraph, edge_weights: NDArray, geometry: FaceData
+    posteriors: NDArray[Any], graph: FaceGraph, edge_weights: NDArray[Any], geometry: FaceData
 ) -> NDArray[np.int64]:
     """Alpha-expansion over clusters, then connected runs of one cluster as parts."""
     data = data_costs(posteriors, geometry.face_weight)
@@ -125,10 +127,10 @@ def cut_into_parts(
 
 
 def smooth_boundaries(
-    parts: NDArray,
+    parts: NDArray[Any],
     graph: FaceGraph,
-    edge_weights: NDArray,
-    face_weight: NDArray,
+    edge_weights: NDArray[Any],
+    face_weight: NDArray[Any],
     rings: int = BOUNDARY_BAND_RINGS,
     change_cost: float = BOUNDARY_CHANGE_COST,
 ) -> NDArray[np.int64]:

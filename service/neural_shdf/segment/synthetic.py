@@ -8,6 +8,8 @@ optional smooth ripple, normalised to [0, 1].
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import trimesh
 from numpy.typing import NDArray
@@ -17,15 +19,16 @@ NECK_RADIUS = 0.3
 JUNCTION_Z = 2.0 - float(np.sqrt(1.0 - NECK_RADIUS**2))
 
 
-def dumbbell_radius(z: NDArray) -> NDArray[np.float64]:
+def dumbbell_radius(z: NDArray[Any]) -> NDArray[np.float64]:
     """Radius of the dumbbell at height ``z``."""
     z = np.asarray(z, dtype=np.float64)
     ball = np.sqrt(np.clip(1.0 - (np.abs(z) - 2.0) ** 2, 0.0, None))
     neck = np.where(np.abs(z) < 1.9, NECK_RADIUS, 0.0)
-    return np.maximum(ball, neck)
+    radius: NDArray[np.float64] = np.maximum(ball, neck)
+    return radius
 
 
-def dumbbell(faces: int = 4000, ripple: float = 0.0) -> tuple[trimesh.Trimesh, NDArray]:
+def dumbbell(faces: int = 4000, ripple: float = 0.0) -> tuple[trimesh.Trimesh, NDArray[Any]]:
     """A dumbbell with about ``faces`` triangles and a synthetic ShDF in [0, 1]."""
     side = max(8, int(round(np.sqrt(faces / 2.0))))
     z = np.linspace(-3.0, 3.0, side + 1)

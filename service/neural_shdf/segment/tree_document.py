@@ -13,7 +13,7 @@ from neural_shdf.segment.hierarchy import PartTree, automatic_part_count
 
 
 def part_tree_document(
-    tree: PartTree, leaf_labels: NDArray, parts: int, *, as_arrays: bool = False
+    tree: PartTree, leaf_labels: NDArray[Any], parts: int, *, as_arrays: bool = False
 ) -> dict[str, Any]:
     """The part tree as JSON-ready data (the API's ``hierarchy`` and the CLI's ``--tree``).
 
@@ -41,6 +41,8 @@ def part_tree_document(
     return document
 
 
-def write_part_tree(path: str | Path, tree: PartTree, leaf_labels: NDArray, parts: int) -> None:
+def write_part_tree(
+    path: str | Path, tree: PartTree, leaf_labels: NDArray[Any], parts: int
+) -> None:
     """Write ``part_tree_document`` as a JSON file."""
     Path(path).write_text(json.dumps(part_tree_document(tree, leaf_labels, parts)))

@@ -38,9 +38,9 @@ INVALID_ID = 0xFFFFFFFF
 _GEOMETRY_TYPE_TRIANGLE = 0
 _BUFFER_TYPE_INDEX, _BUFFER_TYPE_VERTEX = 0, 1
 _FORMAT_UINT3, _FORMAT_FLOAT3 = 0x5003, 0x9003
-#: Embree's ``RTCBuildQuality`` by name: ``low`` builds a Morton-code BVH about three times
-#: faster than ``medium``'s binned SAH one, whose traversal is faster; ``medium`` pays off
-#: when every face casts its cone, ``low`` when a few thousand points do.
+#: Embree's ``RTCBuildQuality`` by name: ``low`` builds a Morton-code BVH faster than
+#: ``medium``'s binned SAH one (docs/benchmarks.md), whose traversal is faster; ``medium``
+#: pays off when every face casts its cone, ``low`` when a few thousand points do.
 BUILD_QUALITY = {"low": 0, "medium": 1}
 _FEATURE_FLAG_ALL = 0xFFFFFFFF
 _ERRORS = {
@@ -60,6 +60,7 @@ def _library_candidates() -> list[str]:
     """Paths of Embree 4 libraries: the one bundled with embreex first, then the system's."""
     paths: list[str] = []
     try:
+        # Optional here: without embreex, the system's Embree 4 serves.
         import embreex
 
         site = os.path.dirname(os.path.dirname(os.path.abspath(embreex.__file__)))

@@ -36,16 +36,16 @@ EXACT_WINDOW_MAX = 8
 #: Patch radius in edge rings, as a fraction of the window (wider windows, wider patches).
 PATCH_RADIUS_FACTOR = 0.2
 #: Straight distance from a face to the faces k edge rings away, per ring, in units of the
-#: mean distance between adjacent centroids: a least-squares fit over 12 psb-dev and
-#: dense-dev meshes' windows gave 0.80-0.84 (breadth-first rings zigzag).
+#: mean distance between adjacent centroids: a least-squares fit over psb-dev and dense-dev
+#: meshes' windows (breadth-first rings zigzag; docs/benchmarks.md).
 RING_PER_SPACING = 0.82
 #: Adjacent pairs (evenly spread over the graph's sorted pairs) whose mean spacing is used.
 RING_LENGTH_PAIRS = 100_000
 #: Blocks of faces the compiled filter is split into when progress is reported.
 PROGRESS_BLOCKS = 100
 #: Time of the face-by-face bilateral filter per face and window pair, relative to casting
-#: one face's rays (measured: 0.0012-0.0018 on 82k-328k-face spheres, 2 threads); it sets
-#: how much of the exact ShDF's progress the post-processing reports.
+#: one face's rays (measured on spheres, docs/benchmarks.md); it sets how much of the exact
+#: ShDF's progress the post-processing reports.
 FILTER_COST_PER_PAIR = 0.0015
 
 Progress = Callable[[float], None]

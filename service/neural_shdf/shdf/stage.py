@@ -22,10 +22,10 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -49,6 +49,7 @@ from neural_shdf.shdf.postprocess import (
 )
 from neural_shdf.shdf.sampling import (
     DEFAULT_INTERPOLATION_NEIGHBOURS,
+    SurfaceSamples,
     fill_samples,
     sample_surface_points,
     samples_to_faces,
@@ -76,7 +77,7 @@ DEFAULT_MAX_SAMPLES = 16384
 #: Thin parts: ``sampled`` wants the 10th percentile of its diameters to span at least this
 #: many Poisson radii (the sample-space smoothing and the mapping to faces reach over a few
 #: radii); where the first samples show thinner, it draws (this / p10)^2 as many, up to
-#: ``max_samples``. On dense-dev: lucy p10 1.2 radii, zenobia's chains 2.0, skull 1.8.
+#: ``max_samples``. Thin dense-dev meshes fall below it (docs/benchmarks.md).
 THIN_PART_RADII = 3.0
 
 
@@ -150,7 +151,7 @@ def sample_filter_window(
     return window * spacing, SPATIAL_SIGMA_FACTOR * window * spacing
 
 
-def thin_part_samples(diameters_in_radii: NDArray, params: ShdfParams) -> int:
+def thin_part_samples(diameters_in_radii: NDArray[Any], params: ShdfParams) -> int:
     """``sampled``'s sample count for a surface whose first ``params.samples`` samples
     measured these diameters (in Poisson radii, NaN = no hit): more where the 10th
     percentile spans fewer than ``THIN_PART_RADII`` radii (thin parts), at most
@@ -165,7 +166,7 @@ def thin_part_samples(diameters_in_radii: NDArray, params: ShdfParams) -> int:
     return int(min(params.max_samples, round(params.samples * factor)))
 
 
-def ray_targets(mesh: TriangleMesh, close_holes: bool) -> tuple[NDArray, NDArray]:
+def ray_targets(mesh: TriangleMesh, close_holes: bool) -> tuple[NDArray[Any], NDArray[Any]]:
     """(vertices, triangles) the ShDF's rays are cast into: the mesh's triangles in order,
     then with ``close_holes`` a cap over each open boundary loop (``orientation.hole_caps``;
     ``mesh`` already faces outward), so that a ray leaving through a hole stops where the
@@ -198,7 +199,9 @@ def sampled_raw_shdf(
         scene = pool.submit(Scene, *ray_targets(mesh, close_holes), "low")
         normal_sums = vertex_normal_sums(len(mesh.vertices), mesh.faces, normals, areas)
 
-        def cast(count: int) -> tuple:
+        def cast(
+            count: int,
+        ) -> tuple[SurfaceSamples, Future[SurfaceSamples], NDArray[np.float64]]:
             """Samples (their vertex map under way) and their raw diameters."""
             samples = sample_surface_points(
                 mesh.vertices,

@@ -25,6 +25,7 @@ from neural_shdf.api.schemas import (
     ShdfValues,
     UploadResult,
 )
+from neural_shdf.api.viewer import display_geometry
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import normalize_format, sniff_format
 from neural_shdf.segment.params import check_seed
@@ -184,8 +185,6 @@ async def get_shdf(
 async def get_geometry(engine: EngineDep, mesh_id: MeshId) -> Response:
     """The stored triangles in the service's order, each with the input face it came from,
     so a viewer can colour them by per-input-face labels or ShDF values."""
-    from neural_shdf.api.viewer import display_geometry
-
     mesh = await engine.io(engine.meshes.load, mesh_id)
     body = await engine.io(display_geometry, mesh)
     headers = {"X-Mesh-Id": mesh_id, "X-Faces": str(mesh.input_face_count)}

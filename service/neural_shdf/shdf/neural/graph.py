@@ -24,6 +24,7 @@ Numpy, scipy and numba only (the service never imports torch).
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -85,11 +86,11 @@ class GraphSpec:
         """Names of the node feature columns this spec's network reads."""
         return NODE_FEATURES + (RAY_NODE_FEATURES if self.ray_count else ())
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict) -> GraphSpec:
+    def from_dict(cls, data: dict[str, Any]) -> GraphSpec:
         return cls(**{k: data[k] for k in cls.__dataclass_fields__ if k in data})
 
 
@@ -112,11 +113,11 @@ class SampleGraph(SurfaceSamples):
 
 
 def edge_feature_array(
-    positions: NDArray,
-    normals: NDArray,
-    senders: NDArray,
-    receivers: NDArray,
-    is_cone: NDArray,
+    positions: NDArray[Any],
+    normals: NDArray[Any],
+    senders: NDArray[Any],
+    receivers: NDArray[Any],
+    is_cone: NDArray[Any],
     radius: float,
 ) -> NDArray[np.float32]:
     """Invariant edge features (see ``EDGE_FEATURES``)."""
@@ -138,7 +139,7 @@ def edge_feature_array(
 
 
 def node_feature_array(
-    density: NDArray, edge_features: NDArray, receivers: NDArray
+    density: NDArray[Any], edge_features: NDArray[Any], receivers: NDArray[Any]
 ) -> NDArray[np.float32]:
     """Node features (see ``NODE_FEATURES``) from the density and the edge features."""
     # Rounded to float32 first, as training reads it back from float32 graph files;
@@ -162,7 +163,7 @@ def node_feature_array(
     mean_distance = np.bincount(to, distance, minlength=n) / safe
     mean_depth = np.bincount(to, depth, minlength=n) / safe
 
-    def log_or_zero(values: NDArray) -> NDArray:
+    def log_or_zero(values: NDArray[Any]) -> NDArray[Any]:
         return np.where(has, np.log(np.where(has, values, 1.0) + 1e-3), 0.0)
 
     return np.stack(
@@ -180,7 +181,7 @@ def node_feature_array(
 
 
 def ray_feature_array(
-    diameter: NDArray, spread: NDArray, hit_fraction: NDArray
+    diameter: NDArray[Any], spread: NDArray[Any], hit_fraction: NDArray[Any]
 ) -> NDArray[np.float32]:
     """``RAY_NODE_FEATURES`` from each sample's ray cone: robust mean ``diameter`` in
     Poisson radii (NaN without a valid hit), relative spread and hit fraction."""
@@ -193,16 +194,16 @@ def ray_feature_array(
 
 
 def build_sample_graph(
-    vertices: NDArray,
-    faces: NDArray,
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
     spec: GraphSpec | None = None,
     *,
     seed: int = 0,
-    normals: NDArray | None = None,
-    areas: NDArray | None = None,
+    normals: NDArray[Any] | None = None,
+    areas: NDArray[Any] | None = None,
     workers: int = 2,
     map_vertices: bool = True,
-    normal_sums: NDArray | None = None,
+    normal_sums: NDArray[Any] | None = None,
 ) -> SampleGraph:
     """Samples (``sample_surface_points``), density, edges and features of a triangle
     mesh (full resolution); with ``spec.ray_count``, the ray cone of every sample
@@ -269,7 +270,7 @@ def build_sample_graph(
 
 
 def sample_targets(
-    face_values: NDArray, areas: NDArray, centroids: NDArray, graph: SampleGraph
+    face_values: NDArray[Any], areas: NDArray[Any], centroids: NDArray[Any], graph: SampleGraph
 ) -> NDArray[np.float64]:
     """Training target per sample: area-weighted mean of the face values (NaN ignored)
     over the faces whose centroid is nearest to it, else the value of the sample's

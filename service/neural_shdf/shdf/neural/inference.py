@@ -13,6 +13,7 @@ import os
 import threading
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -47,8 +48,8 @@ SAMPLE_SET_SEED_STRIDE = 7919
 class NeuralModel:
     """A loaded ONNX session, its model card and the graph spec it was trained with."""
 
-    session: object
-    card: dict
+    session: Any  # an onnxruntime.InferenceSession
+    card: dict[str, Any]
     spec: GraphSpec
     path: Path
 
@@ -121,7 +122,9 @@ def load_model(path: str | Path | None = None) -> NeuralModel:
                 f"model {path.name} does not match the checksum in {card_path.name}"
             )
         try:
-            import onnxruntime  # heavy: loaded only where the network runs
+            # Inside the try: an onnxruntime that fails to load is a ModelUnavailableError
+            # (the other ShDF methods still work), not a failure to import the package.
+            import onnxruntime
 
             options = onnxruntime.SessionOptions()
             options.intra_op_num_threads = INTRA_OP_THREADS
@@ -143,14 +146,14 @@ def load_model(path: str | Path | None = None) -> NeuralModel:
 
 
 def neural_raw_shdf(
-    vertices: NDArray,
-    faces: NDArray,
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
     *,
     seed: int = 0,
     sample_sets: int = DEFAULT_SAMPLE_SETS,
     model: NeuralModel | None = None,
-    normals: NDArray | None = None,
-    areas: NDArray | None = None,
+    normals: NDArray[Any] | None = None,
+    areas: NDArray[Any] | None = None,
     sample_filter: tuple[float, float] | None = None,
 ) -> NDArray[np.float64]:
     """Predicted raw diameter per triangle (mesh units), before post-processing.

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import struct
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -87,8 +88,11 @@ def part_name(label: int) -> str:
     return f"part_{label:03d}" if label >= 0 else "unlabeled"
 
 
-def parts_glb(mesh: TriangleMesh, labels: NDArray) -> bytes:
+def parts_glb(
+    mesh: TriangleMesh, labels: NDArray, *, names: Mapping[int, str] | None = None
+) -> bytes:
     """GLB scene with one node and mesh per part, named by part_name, in label order.
+    ``names``: a name per label value (a labeller's label names) used instead, where given.
 
     Each part keeps its triangles in the mesh's order and only the vertices they use
     (in vertex order), coloured by part. Written directly from numpy buffers (three
@@ -135,7 +139,9 @@ def parts_glb(mesh: TriangleMesh, labels: NDArray) -> bytes:
     document["buffers"] = [{"byteLength": offsets[-1]}]
     # Per-part entries as text from templates: json.dumps of a dict per accessor would
     # take most of the time with many parts.
-    names = [part_name(label) for label in values.tolist()]
+    given = names or {}
+    # JSON string bodies (the templates hold the quotes): a name may hold any character.
+    names = [json.dumps(given.get(label, part_name(label)))[1:-1] for label in values.tolist()]
     rows = zip(
         (12 * face_start).tolist(),
         (3 * face_count).tolist(),

@@ -260,7 +260,9 @@ def labeler_id(labeler: Labeler) -> str:
     labels, names, features, smoothing), not of its training statistics or file bytes, so
     the same labeller saved twice has one id."""
     arrays = labeler.trees.arrays() | {"label_values": labeler.label_values.astype(np.int64)}
-    described = {k: v for k, v in labeler.metadata.items() if k not in ("training", "sha256")}
+    # What save_labeler adds (format, names, values, checksum) is taken from the labeller.
+    added = ("training", "sha256", "format", "format_version", "label_names", "label_values")
+    described = {k: v for k, v in labeler.metadata.items() if k not in added}
     described |= {"label_names": list(labeler.label_names), "trees": _checksum(arrays)}
     text = json.dumps(described, sort_keys=True, separators=(",", ":"), default=str)
     return hashlib.sha256(text.encode()).hexdigest()

@@ -749,7 +749,7 @@ class LabelerInfo(BaseModel):
 class LabelerList(BaseModel):
     """The stored part labellers, oldest first."""
 
-    labelers: list[LabelerInfo] = Field(description="Stored labellers.")
+    labelers: list[LabelerInfo] = Field(description="Stored labellers.", examples=[[]])
 
 
 class LabelerTrainForm(BaseModel):

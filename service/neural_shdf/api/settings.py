@@ -99,7 +99,7 @@ class Settings(BaseSettings):
     max_train_meshes: int = Field(
         64,
         ge=1,
-        description="Most meshes one labeller training (`POST /v1/labelers/train`) takes.",
+        description="Most meshes one labeller training (`POST /v1/labeler-trainings`) takes.",
     )
     max_train_triangles: int = Field(
         1_000_000,

@@ -193,7 +193,7 @@ def test_train_from_stored_meshes_as_a_job_then_label_with_it(client, new_mesh):
     examples = [labelled_dumbbell(1500, stretch, seed) for stretch, seed in ((1.0, None), (1.2, 5))]
     mesh_ids = [upload_mesh(client, obj_of(mesh)) for mesh, _ in examples]
     response = client.post(
-        "/v1/labelers/train",
+        "/v1/labeler-trainings",
         data={"mesh_ids": ",".join(mesh_ids), "names": "neck,ball"},
         files={"labels": ("labels.bin", labels_file(*(labels for _, labels in examples)))},
     )
@@ -217,11 +217,10 @@ def test_training_requests_are_bounded_and_checked_before_any_work(app_factory, 
     mesh, labels = labelled_dumbbell(1500)
     with TestClient(app_factory(max_train_meshes=2, max_train_triangles=5000)) as client:
         mesh_id = upload_mesh(client, obj_of(mesh))
-        other = upload_mesh(client, new_mesh[0])
 
         def train(ids, data, **form):
             return client.post(
-                "/v1/labelers/train",
+                "/v1/labeler-trainings",
                 data={"mesh_ids": ",".join(ids), **form},
                 files={"labels": ("l.bin", data)},
             )

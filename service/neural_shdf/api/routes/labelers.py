@@ -149,7 +149,7 @@ def training_request(form: LabelerTrainForm, labels: bytes) -> TrainingRequest:
 
 
 @router.post(
-    "/labelers/train",
+    "/labeler-trainings",
     operation_id="train_labeler",
     summary="Train a part labeller from stored meshes (a job)",
     status_code=202,

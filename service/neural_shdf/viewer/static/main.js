@@ -624,6 +624,7 @@ function setUpFileInput() {
 function showLabelerNames() {
   const chosen = state.labelers.find((entry) => entry.labeler_id === state.labelerId);
   $('labeler-names').textContent = chosen ? chosen.label_names.join(', ') : '';
+  $('labeler-names').hidden = !chosen;
   $('controls').classList.toggle('disabled', Boolean(state.labelerId));
   for (const input of document.querySelectorAll('#controls input, #controls select')) input.disabled = Boolean(state.labelerId);
 }

@@ -19,7 +19,13 @@ from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.settings import Settings
 from neural_shdf.api.shdf_service import ShdfService
 from neural_shdf.api.tasks import TaskRunner, checkpoint
-from neural_shdf.labeling.labeler import MAX_CLASSES, check_compatible, label_mesh, train_labeler
+from neural_shdf.labeling.labeler import (
+    DEFAULT_SMOOTHING,
+    MAX_CLASSES,
+    check_compatible,
+    label_mesh,
+    train_labeler,
+)
 from neural_shdf.labeling.model import Labeler, labeler_bytes
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.params import check_seed
@@ -77,7 +83,7 @@ def label_summary(
     mean = np.divide(weighted, part_area, out=np.zeros(len(values)), where=part_area > 0)
     assigned = result.labels[result.labels >= 0]
     faces = np.array([np.count_nonzero(assigned == v) for v in values.tolist()], dtype=np.int64)
-    return values.tolist(), faces, part_area, mean
+    return values.tolist(), faces, part_area.astype(np.float64), mean.astype(np.float64)
 
 
 @dataclass(frozen=True)
@@ -147,9 +153,11 @@ class LabelingService:
         mesh = await self.tasks.io(self.meshes.load, mesh_id)
         outcome = await self.shdf.get(mesh_id, mesh, method, seed)
         key = self.key(mesh_id, outcome.method, seed, labeler_id)
-        result = await self.tasks.io(self.cached, key)
-        labels_cached = result is not None
-        if result is None:
+        found = await self.tasks.io(self.cached, key)
+        labels_cached = found is not None
+        if found is not None:
+            result = found
+        else:
             graph = functools.partial(self.meshes.graph, mesh_id, mesh)
 
             def compute() -> StoredLabels:
@@ -278,9 +286,9 @@ class LabelingService:
             checkpoint()
             report(0.3 + 0.7 * fraction)
 
-        options = {} if request.smoothing is None else {"smoothing": request.smoothing}
+        smoothing = DEFAULT_SMOOTHING if request.smoothing is None else request.smoothing
         labeler = train_labeler(
-            meshes, labels, request.names, shdf=shdf, progress=progress, **options
+            meshes, labels, request.names, shdf=shdf, progress=progress, smoothing=smoothing
         )
         check_compatible(labeler)
         return self.labelers.store(labeler_bytes(labeler), labeler)

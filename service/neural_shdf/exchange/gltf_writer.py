@@ -141,7 +141,7 @@ def parts_glb(
     # take most of the time with many parts.
     given = names or {}
     # JSON string bodies (the templates hold the quotes): a name may hold any character.
-    names = [json.dumps(given.get(label, part_name(label)))[1:-1] for label in values.tolist()]
+    node_names = [json.dumps(given.get(label, part_name(label)))[1:-1] for label in values.tolist()]
     rows = zip(
         (12 * face_start).tolist(),
         (3 * face_count).tolist(),
@@ -157,9 +157,10 @@ def parts_glb(
         for index_at, corners, position_at, vertices, lo, hi, color_at in rows
     )
     meshes = ",".join(
-        _PART_MESH % (name, 3 * part + 1, 3 * part + 2, 3 * part) for part, name in enumerate(names)
+        _PART_MESH % (name, 3 * part + 1, 3 * part + 2, 3 * part)
+        for part, name in enumerate(node_names)
     )
-    nodes = ",".join(_PART_NODE % (name, part) for part, name in enumerate(names))
+    nodes = ",".join(_PART_NODE % (name, part) for part, name in enumerate(node_names))
     text = json.dumps(document, separators=(",", ":"))[:-1]  # without its closing brace
     text += f',"nodes":[{nodes}],"meshes":[{meshes}],"accessors":[{accessors}]}}'
     return glb_bytes(text, b"".join(blocks))

@@ -305,3 +305,25 @@ def test_named_parts_upload_train_segment_and_delete_a_labeler(service):
             await client.delete_labeler(stored.labeler_id)
 
     asyncio.run(asynchronous())
+
+
+def test_named_parts_example_runs_as_written(service, tmp_path, monkeypatch, capsys):
+    """docs/client.md's named-parts example, with a dumbbell labeller and dumbbells."""
+    from neural_shdf.labeling import load_labeler
+    from tests.doc_examples import python_blocks
+    from tests.labeling.helpers import labelled_dumbbell, obj_of, small_labeler_file
+
+    (block,) = python_blocks("docs/client.md", "Named parts")
+    (tmp_path / "parts.npz").write_bytes(small_labeler_file())
+    (tmp_path / "model.obj").write_bytes(obj_of(labelled_dumbbell(1500, 0.9, 3)[0]))
+    for name, stretch, seed in (("a", 1.0, None), ("b", 1.2, 5)):
+        mesh, labels = labelled_dumbbell(1500, stretch, seed)
+        (tmp_path / f"{name}.obj").write_bytes(obj_of(mesh))
+        (tmp_path / f"{name}.txt").write_text("\n".join(map(str, labels)) + "\n")
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    exec(block.replace("http://127.0.0.1:8000", service), namespace)  # noqa: S102
+    assert "['neck', 'ball']" in capsys.readouterr().out
+    assert len(namespace["named"].labels) == len(namespace["named"].confidence)
+    assert b'"name":"ball"' in namespace["parts_glb"]
+    assert load_labeler(tmp_path / "learnt.npz").label_names == ("neck", "ball")

@@ -119,8 +119,16 @@ async def delete_labeler(engine: EngineDep, labeler_id: LabelerId) -> Response:
     return Response(status_code=204)
 
 
-def training_request(form: LabelerTrainForm, labels: bytes) -> TrainingRequest:
-    """The form as a training request; 422 for ids, names or labels that cannot be."""
+def training_request(form: LabelerTrainForm, labels: bytes, max_meshes: int) -> TrainingRequest:
+    """The form as a training request; 413 for more than ``max_meshes`` ids (counted before
+    any is read), 422 for ids, names or labels that cannot be."""
+    if form.mesh_ids.count(",") >= max_meshes:
+        raise ApiError(
+            413,
+            "too_many_meshes",
+            f"{form.mesh_ids.count(',') + 1} meshes, at most {max_meshes} per training",
+            {"max_train_meshes": max_meshes},
+        )
     mesh_ids = tuple(i.strip() for i in form.mesh_ids.split(",") if i.strip())
     pattern = MESH_ID_PATTERN.strip("^$")
     bad = [i for i in mesh_ids if not re.fullmatch(pattern, i)]
@@ -167,5 +175,6 @@ async def train_labeler(
     smoothing = form.smoothing
     if smoothing is not None and not (math.isfinite(smoothing) and 0 <= smoothing <= MAX_SMOOTHING):
         raise ApiError(422, "invalid_parameter", f"smoothing must lie in [0, {MAX_SMOOTHING:g}]")
-    request = training_request(form, await read_upload(form.labels))
+    labels = await read_upload(form.labels)
+    request = training_request(form, labels, engine.settings.max_train_meshes)
     raise JobAccepted(await engine.labelings.start_training(request))

@@ -16,6 +16,9 @@ COLOR_ATTRIBUTE = "neural_shdf_color"
 #: Integer face attribute keeping each polygon's own material slot while part materials show.
 OWN_MATERIAL_ATTRIBUTE = "neural_shdf_own_material"
 MATERIAL_PREFIX = "neural_shdf part"
+#: Integer face attribute of named parts: each polygon's label in the labeller's own
+#: integers (what "Learn from Selected" reads back by default).
+LABEL_ATTRIBUTE = "neural_shdf_label"
 
 
 def _fresh_attribute(mesh: bpy.types.Mesh, name: str, data_type: str) -> bpy.types.Attribute:
@@ -46,10 +49,41 @@ def write_labels(mesh: bpy.types.Mesh, labels: np.ndarray, colors: list[tuple[fl
     mesh.update()
 
 
-def part_material(index: int, color: tuple[float, ...]) -> bpy.types.Material:
-    """The shared material of part ``index`` (created once, its colour kept up to date);
-    ``color``: linear RGBA, as Blender's colours are."""
-    name = f"{MATERIAL_PREFIX} {index:03d}" if index >= 0 else f"{MATERIAL_PREFIX} none"
+def write_label_values(mesh: bpy.types.Mesh, values: np.ndarray, name: str) -> None:
+    """Named parts' integers (one per polygon) as the integer face attribute ``name``."""
+    if len(values) != len(mesh.polygons):
+        raise ValueError(
+            f"{len(values)} labels for the {len(mesh.polygons)} polygons of {mesh.name!r}"
+        )
+    values = np.ascontiguousarray(values, dtype=np.int32)
+    _fresh_attribute(mesh, name, "INT").data.foreach_set("value", values)
+    mesh.update()
+
+
+def read_label_values(mesh: bpy.types.Mesh, name: str) -> np.ndarray:
+    """The integer face attribute ``name`` (one label per polygon); ValueError when the
+    mesh has none of that name, domain and type."""
+    attribute = mesh.attributes.get(name)
+    if attribute is None or attribute.domain != "FACE" or attribute.data_type != "INT":
+        raise ValueError(
+            f"{mesh.name!r} has no integer face attribute {name!r}: give each polygon its "
+            "label there (e.g. from a segmentation with a labeller, or Geometry Nodes)"
+        )
+    values = np.empty(len(mesh.polygons), dtype=np.int32)
+    attribute.data.foreach_get("value", values)
+    return values
+
+
+def part_material(
+    index: int, color: tuple[float, ...], name: str | None = None
+) -> bpy.types.Material:
+    """The shared material of part ``index`` (created once, its colour kept up to date),
+    named by the part's label ``name`` where given; ``color``: linear RGBA, as Blender's
+    colours are."""
+    if name is not None:
+        name = f"{MATERIAL_PREFIX} {name}"
+    else:
+        name = f"{MATERIAL_PREFIX} {index:03d}" if index >= 0 else f"{MATERIAL_PREFIX} none"
     material = bpy.data.materials.get(name) or bpy.data.materials.new(name)
     material.diffuse_color = color
     material.use_nodes = True
@@ -71,11 +105,15 @@ def _drop_part_slots(mesh: bpy.types.Mesh) -> None:
 
 
 def assign_materials(
-    mesh: bpy.types.Mesh, labels: np.ndarray, colors: list[tuple[float, ...]]
+    mesh: bpy.types.Mesh,
+    labels: np.ndarray,
+    colors: list[tuple[float, ...]],
+    names: list[str] | None = None,
 ) -> None:
     """Show one material per part: the part materials go in slots after the object's own,
     which are never removed; each polygon's own slot is kept in OWN_MATERIAL_ATTRIBUTE
-    (restore_materials puts it back). Degenerate polygons get a grey slot at the end."""
+    (restore_materials puts it back). Degenerate polygons get a grey slot at the end.
+    ``names``: a name per part (named parts): the materials are named by it."""
     if mesh.attributes.get(OWN_MATERIAL_ATTRIBUTE) is None:
         own = np.empty(len(mesh.polygons), dtype=np.int32)
         mesh.polygons.foreach_get("material_index", own)
@@ -84,7 +122,7 @@ def assign_materials(
     first = len(mesh.materials)
     part_count = len(colors)
     for index, color in enumerate(colors):
-        mesh.materials.append(part_material(index, color))
+        mesh.materials.append(part_material(index, color, names[index] if names else None))
     unassigned = labels < 0
     if unassigned.any():
         mesh.materials.append(part_material(-1, UNLABELED_LINEAR))
@@ -106,10 +144,13 @@ def restore_materials(mesh: bpy.types.Mesh) -> None:
     mesh.update()
 
 
-def split_parts(obj: bpy.types.Object, part_count: int) -> list[bpy.types.Object]:
+def split_parts(
+    obj: bpy.types.Object, part_count: int, names: list[str] | None = None
+) -> list[bpy.types.Object]:
     """One object per part in the collection "<object> parts" (its previous content
     replaced), each the polygons of one part with every attribute kept; ``obj`` is hidden.
-    ``obj`` must carry the part materials (``assign_materials``)."""
+    ``obj`` must carry the part materials (``assign_materials``). ``names``: a name per
+    part: the objects are "<object> <name>"."""
     collection_name = f"{obj.name} parts"
     collection = bpy.data.collections.get(collection_name)
     if collection is None:
@@ -143,7 +184,10 @@ def split_parts(obj: bpy.types.Object, part_count: int) -> list[bpy.types.Object
     parts = sorted(collection.objects, key=lambda o: _part_index(o, part_count))
     for part in parts:
         index = _part_index(part, part_count)
-        part.name = f"{obj.name} part {index:03d}" if index < part_count else f"{obj.name} rest"
+        if index >= part_count:
+            part.name = f"{obj.name} rest"
+        else:
+            part.name = f"{obj.name} {names[index]}" if names else f"{obj.name} part {index:03d}"
         part.select_set(False)
     obj.hide_set(True)
     view_layer.objects.active = obj

@@ -4,15 +4,25 @@ background mode wait for the same task); labels come back as attributes and mate
 
 from __future__ import annotations
 
+import json
 import threading
 import time
+from array import array
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import bpy
 import numpy as np
 
 from . import apply_parts, colors, mesh_payload, service
-from .properties import DIGEST_KEY, MESH_ID_KEY, PARTS_KEY, SERVER_KEY
+from .properties import (
+    DIGEST_KEY,
+    LABEL_NAMES_KEY,
+    LABELER_KEY,
+    MESH_ID_KEY,
+    PARTS_KEY,
+    SERVER_KEY,
+)
 
 
 @dataclass
@@ -36,6 +46,9 @@ class SegmentTask:
     server_url: str
     options: dict[str, object]
     requests: list[ObjectRequest]
+    #: A labeller file's bytes and name: uploaded first (the service keeps it by its
+    #: content id), then every object is labelled by it instead of segmented.
+    labeler: tuple[bytes, str] | None = None
     cancel: threading.Event = field(default_factory=threading.Event)
     outcomes: dict[str, service.Outcome] = field(default_factory=dict)
     error: str | None = None
@@ -57,6 +70,10 @@ class SegmentTask:
         started = time.perf_counter()
         try:
             session = service.Session(self.server_url, cancel=self.cancel)
+            if self.labeler is not None:
+                self.status = "uploading the labeller"
+                stored = session.upload_labeler(*self.labeler)
+                self.options = {**self.options, "labeler_id": stored["labeler_id"]}
             for index, request in enumerate(self.requests):
 
                 def report(fraction: float, status: str, index: int = index) -> None:
@@ -118,7 +135,17 @@ def prepare(context: bpy.types.Context, settings) -> SegmentTask:  # noqa: ANN00
                 ),
             )
         )
-    return SegmentTask(server, settings.options(), requests)
+    return SegmentTask(server, settings.options(), requests, labeler=read_labeler(settings))
+
+
+def read_labeler(settings) -> tuple[bytes, str] | None:  # noqa: ANN001
+    """The panel's labeller file (bytes, name), or None when none is set."""
+    if not settings.labeler_file.strip():
+        return None
+    path = Path(bpy.path.abspath(settings.labeler_file))
+    if not path.is_file():
+        raise service.ServiceError(f"the labeller file {str(path)!r} does not exist")
+    return path.read_bytes(), path.name
 
 
 def target_object(context: bpy.types.Context, obj: bpy.types.Object, request: ObjectRequest):  # noqa: ANN201
@@ -155,17 +182,31 @@ def apply(context: bpy.types.Context, task: SegmentTask, settings) -> list[str]:
         obj[SERVER_KEY] = task.server_url
         obj[PARTS_KEY] = outcome.part_count
         target = target_object(context, obj, request)
-        labels = np.frombuffer(outcome.labels, dtype=np.int32)
-        part_colors = colors.part_colors(outcome.parts)  # the service's, linear
+        labels = np.frombuffer(outcome.part_indices(), dtype=np.int32)
+        part_colors = [colors.hex_to_linear(part["color"]) for part in outcome.parts]
+        names = [str(part["name"]) for part in outcome.parts] if outcome.named else None
         apply_parts.write_labels(target.data, labels, part_colors)
+        if outcome.named:
+            values = np.frombuffer(outcome.labels, dtype=np.int32)
+            apply_parts.write_label_values(target.data, values, settings.label_attribute)
+            pairs = zip(outcome.extra["label_values"], outcome.extra["label_names"], strict=True)
+            target[LABEL_NAMES_KEY] = json.dumps({str(v): n for v, n in pairs})
+            target[LABELER_KEY] = outcome.extra["labeler_id"]
+        else:
+            for key in (LABEL_NAMES_KEY, LABELER_KEY):
+                if key in target:
+                    del target[key]
         if settings.assign_materials or settings.split_parts:
-            apply_parts.assign_materials(target.data, labels, part_colors)
+            apply_parts.assign_materials(target.data, labels, part_colors, names)
         else:
             apply_parts.restore_materials(target.data)
         if settings.split_parts:
-            apply_parts.split_parts(target, outcome.part_count)
+            apply_parts.split_parts(target, outcome.part_count, names)
         sent = "uploaded" if outcome.uploaded else "by mesh id"
-        lines.append(f"{obj.name}: {outcome.part_count} parts ({sent})")
+        if names is not None:
+            lines.append(f"{obj.name}: {', '.join(names)} ({sent})")
+        else:
+            lines.append(f"{obj.name}: {outcome.part_count} parts ({sent})")
     return lines
 
 
@@ -180,15 +221,14 @@ def _show(context: bpy.types.Context, task: SegmentTask | None) -> None:
                 area.tag_redraw()
 
 
-class SegmentSelectedOperator(bpy.types.Operator):
-    """Split the selected meshes into parts with the neural-shdf service"""
+class WorkerOperator:
+    """An operator whose work runs on a worker thread: a modal timer polls it in the UI
+    (Esc cancels); scripts and background mode wait for it. Subclasses make the task
+    (``make_task``, main thread) and write its result back (``write_back``)."""
 
-    bl_idname = "neural_shdf.segment_selected"
-    bl_label = "Segment Selected"
-    bl_options = {"REGISTER", "UNDO"}
-
-    _task: SegmentTask | None = None
+    _task = None
     _timer = None
+    running_message = "A request to the service is running"
 
     @classmethod
     def poll(cls, context: bpy.types.Context) -> bool:
@@ -196,17 +236,23 @@ class SegmentSelectedOperator(bpy.types.Operator):
             cls.poll_message_set("Switch to Object Mode")
             return False
         if context.window_manager.neural_shdf_state.running:
-            cls.poll_message_set("A segmentation is running")
+            cls.poll_message_set(cls.running_message)
             return False
         if not selected_meshes(context):
             cls.poll_message_set("Select one or more mesh objects")
             return False
         return True
 
+    def make_task(self, context: bpy.types.Context):  # noqa: ANN201
+        raise NotImplementedError
+
+    def write_back(self, context: bpy.types.Context, task) -> list[str]:  # noqa: ANN001
+        raise NotImplementedError
+
     def _start(self, context: bpy.types.Context) -> bool:
         try:
-            self._task = prepare(context, context.scene.neural_shdf)
-        except (service.ServiceError, ValueError) as error:
+            self._task = self.make_task(context)
+        except (service.ServiceError, ValueError, OSError) as error:
             self.report({"ERROR"}, f"neural-shdf: {error}")
             return False
         self._task.start()
@@ -225,9 +271,9 @@ class SegmentSelectedOperator(bpy.types.Operator):
             self.report({"ERROR"}, f"neural-shdf: {task.error}")
             return {"CANCELLED"}
         try:
-            lines = apply(context, task, context.scene.neural_shdf)
+            lines = self.write_back(context, task)
         except Exception as error:  # noqa: BLE001 - shown to the user, never a traceback
-            self.report({"ERROR"}, f"neural-shdf: could not write the parts back: {error}")
+            self.report({"ERROR"}, f"neural-shdf: could not write the result back: {error}")
             return {"CANCELLED"}
         self.report({"INFO"}, f"neural-shdf: {'; '.join(lines)} in {task.seconds:.2f} s")
         return {"FINISHED"}
@@ -272,4 +318,121 @@ class SegmentSelectedOperator(bpy.types.Operator):
         return self._finish(context)
 
 
-CLASSES = (SegmentSelectedOperator,)
+class SegmentSelectedOperator(WorkerOperator, bpy.types.Operator):
+    """Split the selected meshes into parts with the neural-shdf service (named parts
+    when the panel names a labeller)"""
+
+    bl_idname = "neural_shdf.segment_selected"
+    bl_label = "Segment Selected"
+    bl_options = {"REGISTER", "UNDO"}
+    running_message = "A segmentation is running"
+
+    def make_task(self, context: bpy.types.Context) -> SegmentTask:
+        return prepare(context, context.scene.neural_shdf)
+
+    def write_back(self, context: bpy.types.Context, task: SegmentTask) -> list[str]:
+        return apply(context, task, context.scene.neural_shdf)
+
+
+@dataclass
+class LearnTask:
+    """Train a labeller on the service from objects and their label attribute: upload
+    each mesh, train (a job), download the labeller file (worker thread)."""
+
+    server_url: str
+    options: dict[str, object]
+    meshes: list[tuple[str, bytes]]  # (object name, PLY of its polygons in order)
+    labels: list[np.ndarray]  # per object, one label per polygon
+    names: list[str] | None
+    cancel: threading.Event = field(default_factory=threading.Event)
+    info: dict | None = None
+    file: bytes = b""
+    error: str | None = None
+    cancelled: bool = False
+    progress: float = 0.0
+    status: str = "starting"
+    seconds: float = 0.0
+    thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        self.thread = threading.Thread(target=self._work, name="neural-shdf-learn", daemon=True)
+        self.thread.start()
+
+    @property
+    def done(self) -> bool:
+        return self.thread is not None and not self.thread.is_alive()
+
+    def _work(self) -> None:
+        started = time.perf_counter()
+        try:
+            session = service.Session(self.server_url, cancel=self.cancel)
+            mesh_ids = []
+            count = len(self.meshes)
+            for index, (name, payload) in enumerate(self.meshes):
+
+                def report(fraction: float, status: str, index: int = index, name: str = name):
+                    self.progress = 0.3 * (index + min(max(fraction, 0.0), 1.0)) / count
+                    self.status = f"{name}: {status}"
+
+                mesh_ids.append(session.upload_mesh(payload, f"{name}.ply", report))
+
+            def training(fraction: float, status: str) -> None:
+                self.progress = 0.3 + 0.7 * min(max(fraction, 0.0), 1.0)
+                self.status = status
+
+            labels = array("i", np.concatenate(self.labels).astype(np.int32).tolist())
+            self.info = session.train_labeler(mesh_ids, labels, self.names, self.options, training)
+            self.file = session.labeler_file(self.info["labeler_id"])
+        except service.Cancelled:
+            self.cancelled = True
+        except service.ServiceError as error:
+            self.error = error.message
+        except Exception as error:  # noqa: BLE001 - shown to the user, never a traceback
+            self.error = f"unexpected {type(error).__name__}: {error}"
+        self.seconds = time.perf_counter() - started
+
+
+def prepare_learning(context: bpy.types.Context, settings) -> LearnTask:  # noqa: ANN001
+    """The selected objects' polygons (world scale, no modifiers: the attribute is on the
+    object's own mesh) and their label attribute."""
+    meshes, labels = [], []
+    for obj in selected_meshes(context):
+        values = apply_parts.read_label_values(obj.data, settings.label_attribute)
+        scale = tuple(obj.matrix_world.to_scale())
+        arrays = mesh_payload.mesh_arrays(obj.data, scale)
+        if arrays.polygon_count == 0:
+            raise service.ServiceError(f"{obj.name!r} has no polygons to learn from")
+        meshes.append((obj.name, mesh_payload.polygon_ply(arrays)))
+        labels.append(values)
+    names = [n.strip() for n in settings.label_names.split(",")] if settings.label_names else None
+    if names is not None and not all(names):
+        raise ValueError(f"Label Names has an empty name: {settings.label_names!r}")
+    options = {"method": settings.method} if settings.method != "default" else {}
+    server = settings.server_url.strip().rstrip("/")
+    return LearnTask(server, options, meshes, labels, names)
+
+
+class LearnFromSelectedOperator(WorkerOperator, bpy.types.Operator):
+    """Train a part labeller on the service from the selected objects' integer label
+    attribute; save it and make it the panel's labeller"""
+
+    bl_idname = "neural_shdf.learn_from_selected"
+    bl_label = "Learn from Selected"
+    bl_options = {"REGISTER"}
+    running_message = "A request to the service is running"
+
+    def make_task(self, context: bpy.types.Context) -> LearnTask:
+        return prepare_learning(context, context.scene.neural_shdf)
+
+    def write_back(self, context: bpy.types.Context, task: LearnTask) -> list[str]:
+        settings = context.scene.neural_shdf
+        path = Path(bpy.path.abspath(settings.learn_output or "//labeler.npz"))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(task.file)
+        settings.labeler_file = str(path)
+        assert task.info is not None
+        names = ", ".join(task.info["label_names"])
+        return [f"labeller of {len(task.meshes)} objects ({names}) saved to {path}"]
+
+
+CLASSES = (SegmentSelectedOperator, LearnFromSelectedOperator)

@@ -28,6 +28,7 @@ class SegmentPanel(bpy.types.Panel):
         parts = row.row(align=True)
         parts.enabled = settings.use_parts
         parts.prop(settings, "parts")
+        layout.prop(settings, "labeler_file")
         layout.prop(settings, "assign_materials")
         layout.prop(settings, "split_parts")
         state = context.window_manager.neural_shdf_state
@@ -37,6 +38,12 @@ class SegmentPanel(bpy.types.Panel):
         obj = context.active_object
         if obj is not None and PARTS_KEY in obj:
             layout.label(text=f"{obj.name}: {obj[PARTS_KEY]} parts", icon="INFO")
+        box = layout.box()
+        box.label(text="Learn named parts")
+        box.prop(settings, "label_attribute")
+        box.prop(settings, "label_names")
+        box.prop(settings, "learn_output")
+        box.operator("neural_shdf.learn_from_selected", icon="FILE_NEW")
 
 
 CLASSES = (SegmentPanel,)

@@ -10,6 +10,9 @@ MESH_ID_KEY = "neural_shdf_mesh_id"
 DIGEST_KEY = "neural_shdf_digest"
 SERVER_KEY = "neural_shdf_server"
 PARTS_KEY = "neural_shdf_part_count"
+#: Named parts: the labeller's id and its names by integer (JSON), kept on the object.
+LABELER_KEY = "neural_shdf_labeler"
+LABEL_NAMES_KEY = "neural_shdf_label_names"
 
 
 class NeuralShdfSettings(bpy.types.PropertyGroup):
@@ -79,6 +82,32 @@ class NeuralShdfSettings(bpy.types.PropertyGroup):
         name="Split into Objects",
         description="Also make one object per part (in a new collection; the source is hidden)",
         default=False,
+    )
+    labeler_file: StringProperty(  # type: ignore[valid-type]
+        name="Labeller",
+        description="A part labeller file (.npz, from 'neural-shdf labeler train' or Learn "
+        "from Selected): parts are then its named labels. Empty: segment",
+        default="",
+        subtype="FILE_PATH",
+    )
+    label_attribute: StringProperty(  # type: ignore[valid-type]
+        name="Label Attribute",
+        description="Integer face attribute holding each polygon's label: written with a "
+        "labeller, read by Learn from Selected",
+        default="neural_shdf_label",
+    )
+    label_names: StringProperty(  # type: ignore[valid-type]
+        name="Label Names",
+        description="Learn from Selected: names of the labels, comma-separated, one per "
+        "distinct label in increasing order (empty: the labels as text)",
+        default="",
+    )
+    learn_output: StringProperty(  # type: ignore[valid-type]
+        name="Save Labeller As",
+        description="Where Learn from Selected saves the labeller it trained (it then "
+        "becomes the panel's labeller)",
+        default="//labeler.npz",
+        subtype="FILE_PATH",
     )
 
     def options(self) -> dict[str, object]:

@@ -56,6 +56,19 @@ class Outcome:
     def part_count(self) -> int:
         return len(self.parts)
 
+    @property
+    def named(self) -> bool:
+        """Named parts by a labeller: ``labels`` hold its integers, ``parts`` its names."""
+        return bool(self.extra.get("labeler_id"))
+
+    def part_indices(self) -> array:
+        """Index of each polygon's part in ``parts`` (-1: none): the labels themselves for
+        a segmentation, the labeller's integers mapped for named parts."""
+        if not self.named:
+            return self.labels
+        index = {int(part["label"]): i for i, part in enumerate(self.parts)}
+        return array("i", (index.get(value, -1) for value in self.labels))
+
 
 def decode_labels(body: dict[str, Any]) -> array:
     """The labels of a segmentation response (base64 little-endian integers, or a JSON list)."""
@@ -69,8 +82,10 @@ def decode_labels(body: dict[str, Any]) -> array:
     return values if values.typecode == "i" else array("i", values)
 
 
-def multipart(fields: dict[str, str], filename: str, content: bytes) -> tuple[bytes, str]:
-    """A multipart/form-data body with ``fields`` and one file part named ``file``."""
+def multipart(
+    fields: dict[str, str], filename: str, content: bytes, file_field: str = "file"
+) -> tuple[bytes, str]:
+    """A multipart/form-data body with ``fields`` and one file part named ``file_field``."""
     boundary = uuid.uuid4().hex
     parts = []
     for name, value in fields.items():
@@ -78,7 +93,8 @@ def multipart(fields: dict[str, str], filename: str, content: bytes) -> tuple[by
             f'--{boundary}\r\nContent-Disposition: form-data; name="{name}"\r\n\r\n{value}\r\n'
         )
     head = "".join(parts) + (
-        f'--{boundary}\r\nContent-Disposition: form-data; name="file"; filename="{filename}"\r\n'
+        f'--{boundary}\r\nContent-Disposition: form-data; name="{file_field}"; '
+        f'filename="{filename}"\r\n'
         "Content-Type: application/octet-stream\r\n\r\n"
     )
     body = head.encode() + content + f"\r\n--{boundary}--\r\n".encode()
@@ -171,15 +187,60 @@ class Session:
     # -- calls ------------------------------------------------------------------------------
     def wait_job(self, job: dict[str, Any], progress: Progress) -> dict[str, Any]:
         """Poll a job (ShDF of a large mesh) until it succeeded; ServiceError if it failed."""
+        doing = "training the labeller" if job.get("kind") == "labeler" else "computing the ShDF"
         while job["state"] not in ("succeeded", "failed"):
-            progress(float(job.get("progress", 0.0)), f"computing the ShDF ({job['method']})")
+            progress(float(job.get("progress", 0.0)), f"{doing} ({job['method']})")
             self.pause(self.poll_s)
             _, job = self.json("GET", f"/v1/jobs/{job['job_id']}")
         if job["state"] == "failed":
             error = job.get("error") or {}
             raise ServiceError(error.get("message", "the job failed"), error.get("code", "failed"))
-        progress(1.0, "ShDF computed")
+        progress(1.0, "labeller trained" if job.get("kind") == "labeler" else "ShDF computed")
         return job
+
+    def upload_mesh(self, payload: bytes, filename: str, progress: Progress) -> str:
+        """Store a mesh on the service (its ShDF computed, a large mesh's job waited for);
+        its mesh id."""
+        progress(0.0, f"uploading {len(payload) / 1e6:.1f} MB")
+        body, content_type = multipart({}, filename, payload)
+        status, answer = self.request("POST", "/v1/meshes", body, content_type)
+        result = json.loads(answer)
+        if status == 202:
+            return str(self.wait_job(result, progress)["mesh_id"])
+        return str(result["mesh"]["mesh_id"])
+
+    def upload_labeler(self, data: bytes, filename: str) -> dict[str, Any]:
+        """Store a labeller file on the service (checked there); its description."""
+        body, content_type = multipart({}, filename, data)
+        _, answer = self.request("POST", "/v1/labelers", body, content_type)
+        return json.loads(answer)
+
+    def train_labeler(
+        self,
+        mesh_ids: list[str],
+        labels: array,
+        names: list[str] | None,
+        options: dict[str, Any],
+        progress: Progress,
+    ) -> dict[str, Any]:
+        """Train a labeller from stored meshes and one label per polygon of each (``labels``:
+        all meshes' labels, one after the other); waits for the job; its description."""
+        fields = {"mesh_ids": ",".join(mesh_ids)}
+        if names:
+            fields["names"] = ",".join(names)
+        fields.update({k: str(v) for k, v in options.items() if k in ("method", "seed")})
+        values = array("i", labels)
+        if sys.byteorder == "big":
+            values.byteswap()
+        body, content_type = multipart(fields, "labels.i32", values.tobytes(), "labels")
+        _, answer = self.request("POST", "/v1/labeler-trainings", body, content_type)
+        job = self.wait_job(json.loads(answer), progress)
+        _, info = self.json("GET", job["result_url"])
+        return info
+
+    def labeler_file(self, labeler_id: str) -> bytes:
+        """A stored labeller's file."""
+        return self.request("GET", f"/v1/labelers/{labeler_id}/file")[1]
 
     def segment_by_id(
         self, mesh_id: str, options: dict[str, Any], progress: Progress

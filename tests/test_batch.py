@@ -349,3 +349,48 @@ def test_the_docs_example_runs_as_written(tmp_path: Path, monkeypatch):
     assert [row["status"] for row in namespace["rows"]] == ["ok"] * 3
     assert len(list((tmp_path / "out").rglob("*.seg"))) == 3
     assert len(list((tmp_path / "out").rglob("*.glb"))) == 3
+
+
+def test_a_labeler_gives_the_cli_labels_names_and_confidence(tmp_path: Path):
+    from tests.labeling.helpers import labelled_dumbbell, obj_of, small_labeler_file
+
+    labeler = tmp_path / "dumbbell.npz"
+    labeler.write_bytes(small_labeler_file())
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for name, stretch, seed in (("a", 0.9, 3), ("b", 1.1, 4)):
+        (folder / f"{name}.obj").write_bytes(obj_of(labelled_dumbbell(1500, stretch, seed)[0]))
+    out = tmp_path / "out"
+    rows = run_batch(
+        [folder], out, method=TEST_METHOD, outputs=["seg", "parts"], labeler=labeler, workers=1
+    )
+    assert [r["status"] for r in rows] == ["ok", "ok"], rows
+    names = json.loads((out / "label_names.json").read_text())
+    assert names["labels"] == [{"value": 2, "name": "neck"}, {"value": 5, "name": "ball"}]
+    for row in rows:
+        stem = out / row["output"]
+        cli = tmp_path / f"cli-{row['output']}"
+        assert main(["segment", row["path"], "-o", f"{cli}.seg", "--labeler", str(labeler),
+                     "--confidence", f"{cli}.txt", "--method", TEST_METHOD, "-q"]) == 0  # fmt: skip
+        assert Path(f"{cli}.seg").read_bytes() == Path(f"{stem}.seg").read_bytes()
+        assert Path(f"{cli}.txt").read_bytes() == Path(f"{stem}.confidence").read_bytes()
+        glb = Path(f"{stem}.parts.glb").read_bytes()
+        assert b'"name":"neck"' in glb and b'"name":"ball"' in glb
+        assert row["parts"] == 2
+    again = run_batch([folder], out, method=TEST_METHOD, outputs=["seg", "parts"],
+                      labeler=labeler, workers=0)  # fmt: skip
+    assert [r["status"] for r in again] == ["skipped", "skipped"]
+    plain = run_batch([folder], out, method=TEST_METHOD, outputs=["seg"], workers=0)
+    assert [r["status"] for r in plain] == ["ok", "ok"]  # another key: a segmentation
+
+
+def test_a_bad_labeler_or_confidence_without_one_fails_before_any_asset(tmp_path: Path):
+    _library(tmp_path / "in", 1)
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a labeller")
+    code = main(["batch", str(tmp_path / "in"), "-o", str(tmp_path / "out"),
+                 "--labeler", str(bad), "-q"])  # fmt: skip
+    assert code != 0
+    assert not (tmp_path / "out" / "manifest.csv").exists()
+    with pytest.raises(ValueError, match="needs a labeller"):
+        run_batch([tmp_path / "in"], tmp_path / "out2", outputs=["confidence"], workers=0)

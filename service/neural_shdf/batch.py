@@ -67,9 +67,12 @@ OUTPUT_SUFFIXES = {
     "shdf": ".shdf",
     "colored": ".colored.glb",
     "parts": ".parts.glb",
+    "confidence": ".confidence",
 }
 #: Outputs that need a segmentation (everything but the ShDF).
-SEGMENT_OUTPUTS = frozenset({"seg", "colored", "parts"})
+SEGMENT_OUTPUTS = frozenset({"seg", "colored", "parts", "confidence"})
+#: With a labeller: the label names of the run, written once beside the manifest.
+LABEL_NAMES_NAME = "label_names.json"
 RECORD_SUFFIX = ".batch.json"
 MANIFEST_NAME = "manifest.csv"
 MANIFEST_COLUMNS = (
@@ -122,6 +125,10 @@ class BatchConfig:
     #: onnxruntime intra-op threads per worker (not part of the key: results do not
     #: depend on it); None: the library's default.
     session_threads: int | None = None
+    #: A part labeller file (``labeling``): named parts instead of a segmentation, in the
+    #: training labels' own integers; ``labeler_id``: its content id (part of the key).
+    labeler: str | None = None
+    labeler_id: str | None = None
 
     def __post_init__(self) -> None:
         unknown = sorted(set(self.outputs) - set(OUTPUT_SUFFIXES))
@@ -130,6 +137,8 @@ class BatchConfig:
                 f"unknown or no outputs {unknown or list(self.outputs)}; "
                 f"choose from {', '.join(OUTPUT_SUFFIXES)}"
             )
+        if "confidence" in self.outputs and self.labeler is None:
+            raise ParameterError("the confidence output needs a labeller (--labeler)")
 
     @property
     def segments(self) -> bool:
@@ -142,9 +151,13 @@ class BatchConfig:
             "version": __version__,
             "shdf": shdf_version(self.method, version, self.seed),
             "seed": self.seed,
-            "params": dataclasses.asdict(self.params) if self.segments else None,
+            "params": dataclasses.asdict(self.params)
+            if self.segments and self.labeler_id is None
+            else None,
             "file_type": self.file_type,
         }
+        if self.labeler_id is not None:  # absent otherwise: earlier runs' keys unchanged
+            spec["labeler"] = self.labeler_id
         return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:20]
 
 
@@ -305,6 +318,24 @@ def shared_shdf(
     return outcome[0], method, outcome[1]
 
 
+_LABELERS: dict[tuple[str, str], Any] = {}
+
+
+def _worker_labeler(config: BatchConfig) -> Any:
+    """The run's labeller, loaded once per worker process (and checked to be the file
+    the run was started with: its content id)."""
+    from neural_shdf.labeling import labeler_id, load_labeler
+
+    assert config.labeler is not None and config.labeler_id is not None
+    key = (config.labeler, config.labeler_id)
+    if key not in _LABELERS:
+        labeler = load_labeler(config.labeler)
+        if labeler_id(labeler) != config.labeler_id:
+            raise ParameterError(f"the labeller file {config.labeler} changed during the batch")
+        _LABELERS[key] = labeler
+    return _LABELERS[key]
+
+
 def _row(asset: Asset, **values: Any) -> dict[str, Any]:
     row: dict[str, Any] = dict.fromkeys(MANIFEST_COLUMNS, "")
     row.update(path=asset.path, output=asset.output)
@@ -376,7 +407,9 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
         values = mesh.to_input_faces(shdf)
         _write_atomic(paths["shdf"], lambda temporary: write_values(temporary, values))
     parts: int | str = ""
-    if config.segments:
+    if config.labeler is not None and config.segments:
+        parts = _write_named_parts(mesh, shdf, paths, config)
+    elif config.segments:
         labels = segment(mesh, shdf, config.params).labels
         parts = int(labels.max()) + 1 if len(labels) else 0
         if "seg" in paths:
@@ -396,6 +429,50 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
         parts=parts,
         shdf_cached=cached,
     )
+
+
+def _write_named_parts(
+    mesh: TriangleMesh, shdf: NDArray, paths: dict[str, Path], config: BatchConfig
+) -> int:
+    """Label one asset with the run's labeller and write its outputs; the labels present."""
+    from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb
+    from neural_shdf.exchange.seg import write_labels, write_values
+    from neural_shdf.labeling import label_mesh
+
+    labeler = _worker_labeler(config)
+    per_face, confidence = label_mesh(mesh, labeler, shdf=shdf)
+    triangles = per_face[mesh.face_origin]
+    names = dict(zip(labeler.label_values.tolist(), labeler.label_names, strict=True))
+    if "seg" in paths:
+        _write_atomic(paths["seg"], lambda temporary: write_labels(temporary, per_face))
+    if "confidence" in paths:
+        _write_atomic(paths["confidence"], lambda temporary: write_values(temporary, confidence))
+    if "colored" in paths:
+        _write_bytes_atomic(paths["colored"], colored_glb(mesh, triangles))
+    if "parts" in paths:
+        _write_bytes_atomic(paths["parts"], parts_glb(mesh, triangles, names=names))
+    return len(np.unique(per_face[per_face >= 0]))
+
+
+def write_label_names(out_dir: Path, labeler_file: str) -> tuple[str, Path]:
+    """Check the labeller (before any asset is read) and write ``label_names.json``
+    (its id, and each label's integer and name); (its id, that file)."""
+    from neural_shdf.labeling import labeler_id, load_labeler
+    from neural_shdf.labeling.labeler import check_compatible
+
+    labeler = load_labeler(labeler_file)
+    check_compatible(labeler)
+    identifier = labeler_id(labeler)
+    document = {
+        "labeler_id": identifier,
+        "labels": [
+            {"value": int(value), "name": name}
+            for value, name in zip(labeler.label_values, labeler.label_names, strict=True)
+        ],
+    }
+    path = out_dir / LABEL_NAMES_NAME
+    _write_bytes_atomic(path, (json.dumps(document, indent=1) + "\n").encode())
+    return identifier, path
 
 
 def finished_row(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict | None:
@@ -584,6 +661,7 @@ def run_batch(
     scheduler: Any = None,
     progress: bool = False,
     manifest: bool = True,
+    labeler: str | Path | None = None,
 ) -> list[dict[str, Any]]:
     """Segment (or compute the ShDF of) every input; the manifest rows, in input order.
 
@@ -599,6 +677,10 @@ def run_batch(
         scheduler: a Dask scheduler address (``tcp://host:port``) or ``distributed.Client``;
             the workers must see the same paths.
         progress: show a progress bar on stderr.
+        labeler: a part labeller file: named parts instead of a segmentation (``seg``: the
+            training labels' own integers per input face; ``confidence``: added beside
+            ``seg``; ``parts``: nodes named by label) and ``label_names.json`` in
+            ``out_dir``. Checked before any asset is read.
     """
     # One seed for the ShDF and the segmentation (the CLI's convention): ``seed``, else
     # ``params.seed``.
@@ -618,6 +700,15 @@ def run_batch(
     out.mkdir(parents=True, exist_ok=True)
     for stale in out.rglob(".*.tmp"):  # left by a killed run (one batch per folder at a time)
         stale.unlink(missing_ok=True)
+    if labeler is not None:
+        identifier, _ = write_label_names(out, str(labeler))
+        named = config.outputs + (("confidence",) if "seg" in config.outputs else ())
+        config = dataclasses.replace(
+            config,
+            labeler=str(Path(labeler).resolve()),
+            labeler_id=identifier,
+            outputs=tuple(dict.fromkeys(named)),
+        )
     assets = collect_assets(inputs)
     key = config.key()
     rows: list[dict[str, Any] | None] = [None] * len(assets)

@@ -307,6 +307,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         workers=args.workers,
         scheduler=args.scheduler,
         progress=not args.quiet,
+        labeler=args.labeler,
     )
     counts = summary(rows)
     if not args.quiet:
@@ -392,9 +393,16 @@ def build_parser() -> argparse.ArgumentParser:
     batch.add_argument(
         "--formats",
         nargs="+",
-        choices=["seg", "shdf", "colored", "parts"],
+        choices=["seg", "shdf", "colored", "parts", "confidence"],
         help="outputs per asset (default: seg): labels, ShDF values, "
-        "GLB coloured by part, GLB with one node per part",
+        "GLB coloured by part, GLB with one node per part, confidence per face (--labeler)",
+    )
+    batch.add_argument(
+        "--labeler",
+        metavar="FILE",
+        help="named parts by a part labeller (labeler train): .seg holds the training "
+        "labels' own integers, .confidence the confidence per face, parts GLB nodes the "
+        "label names; label_names.json in the output folder",
     )
     batch.add_argument("--workers", type=int, help="local worker processes (default: one per core)")
     batch.add_argument(

@@ -101,6 +101,21 @@ def flat_triangle(name: str) -> dict:
     return {"name": name, "polygons": 1}
 
 
+def label_regions(name: str, attribute: str, boxes: int, bar: int) -> dict:
+    """An integer face attribute on a dumbbell: ``boxes`` on both boxes, ``bar`` on the bar
+    (by polygon centre, as the tests' ``regions``), as an artist would paint it."""
+    mesh = bpy.data.objects[name].data
+    centers = np.empty(len(mesh.polygons) * 3, dtype=np.float64)
+    mesh.polygons.foreach_get("center", centers)
+    x = centers[0::3] / (np.abs(centers[0::3]).max() / 2.0)  # boxes end at |x| = 2
+    labels = np.where(np.abs(x) >= 1 - 1e-6, boxes, bar).astype(np.int32)
+    existing = mesh.attributes.get(attribute)
+    if existing is not None:
+        mesh.attributes.remove(existing)
+    mesh.attributes.new(attribute, "INT", "FACE").data.foreach_set("value", labels)
+    return {"name": name, "labels": labels.tolist()}
+
+
 def select(names: list[str]) -> None:
     bpy.context.view_layer.update()
     for obj in bpy.context.scene.objects:
@@ -142,6 +157,22 @@ def segment(names: list[str], settings: dict) -> dict:
             result, error = ["CANCELLED"], str(report)
     seconds = time.perf_counter() - start
     return {"result": result, "error": error, "seconds": seconds, "output": output[0]}
+
+
+def learn(names: list[str], settings: dict) -> dict:
+    """Run "Learn from Selected" on ``names`` with the panel ``settings``."""
+    select(names)
+    panel = bpy.context.scene.neural_shdf
+    for key, value in settings.items():
+        setattr(panel, key, value)
+    error = None
+    with captured_stdout() as output:
+        try:
+            result = sorted(bpy.ops.neural_shdf.learn_from_selected())
+        except RuntimeError as report:
+            result, error = ["CANCELLED"], str(report)
+    return {"result": result, "error": error, "output": output[0],
+            "labeler_file": panel.labeler_file}  # fmt: skip
 
 
 def phases(names: list[str], settings: dict, payload_path: str | None = None) -> dict:
@@ -214,6 +245,12 @@ def inspect(name: str) -> dict:
         record["color_type"] = [colors.domain, colors.data_type]
         record["colors"] = values.reshape(-1, 4).tolist()
     record["props"] = {k: obj[k] for k in obj.keys() if k.startswith("neural_shdf")}  # noqa: SIM118
+    named = mesh.attributes.get("neural_shdf_label")
+    if named is not None:
+        values = np.empty(len(mesh.polygons), dtype=np.int32)
+        named.data.foreach_get("value", values)
+        record["label_values"] = values.tolist()
+        record["label_type"] = [named.domain, named.data_type]
     positions = np.empty(len(mesh.vertices) * 3, dtype=np.float64)
     mesh.vertices.foreach_get("co", positions)
     centers = np.empty(len(mesh.polygons) * 3, dtype=np.float64)
@@ -243,6 +280,11 @@ def main() -> None:
         elif "phases" in step:
             settings = step.get("settings", {})
             records.append({"phases": phases(step["phases"], settings, step.get("payload"))})
+        elif "label_regions" in step:
+            arguments = {k: v for k, v in step.items() if k != "label_regions"}
+            records.append({"labelled": label_regions(step["label_regions"], **arguments)})
+        elif "learn" in step:
+            records.append({"learn": learn(step["learn"], step.get("settings", {}))})
         elif "inspect" in step:
             records.append({"inspect": inspect(step["inspect"])})
     Path(sys.argv[2]).write_text(json.dumps(records))

@@ -4,6 +4,7 @@ run against a live service on a dumbbell (two boxes joined by a thin bar)."""
 from __future__ import annotations
 
 import collections
+import json
 
 import httpx
 import numpy as np
@@ -235,3 +236,75 @@ def test_part_materials_never_remove_the_objects_own(session, service_url):
     # Off again: each polygon has its own material back; the labels stay.
     assert restored["materials"] == own and restored["material_index"] == own_slots
     assert len(restored["labels"]) == polygons
+
+
+@pytest.fixture(scope="module")
+def named_session(run_blender, service_url, tmp_path_factory) -> dict:
+    """Learn a labeller from two dumbbells whose polygons carry a label attribute (boxes
+    7, bar 3), then label a third dumbbell with it; two failures (no attribute, missing
+    labeller file)."""
+    learnt = tmp_path_factory.mktemp("learnt") / "dumbbells.npz"
+    steps = [
+        {"make": "dumbbell", "name": "TrainA", "cuts": 3},
+        {"make": "dumbbell", "name": "TrainB", "cuts": 2, "stretch": 1.3},
+        {"label_regions": "TrainA", "attribute": "neural_shdf_label", "boxes": 7, "bar": 3},
+        {"label_regions": "TrainB", "attribute": "neural_shdf_label", "boxes": 7, "bar": 3},
+        {
+            "learn": ["TrainA", "TrainB"],
+            "settings": {
+                "server_url": service_url,
+                "label_names": "bar,box",
+                "learn_output": str(learnt),
+            },
+        },
+        {"make": "dumbbell", "name": "Target", "cuts": 2, "stretch": 1.15},
+        {"segment": ["Target"], "settings": {"assign_materials": True, "split_parts": True}},
+        {"inspect": "Target"},
+        {"make": "dumbbell", "name": "Bare", "cuts": 1},
+        {"learn": ["Bare"]},
+        {"segment": ["TrainA"], "settings": {"labeler_file": str(learnt) + ".missing"}},
+    ]
+    records = run_blender(steps)
+    return {
+        "learnt": learnt,
+        "learns": [r["learn"] for r in records if "learn" in r],
+        "segments": [r["segment"] for r in records if "segment" in r],
+        "inspections": [r["inspect"] for r in records if "inspect" in r],
+    }
+
+
+def test_learn_from_selected_trains_a_labeller_from_the_label_attribute(named_session):
+    from neural_shdf.labeling import load_labeler
+
+    learnt, failed = named_session["learns"]
+    assert learnt["result"] == ["FINISHED"], learnt
+    assert learnt["labeler_file"] == str(named_session["learnt"])
+    assert "labeller of 2 objects (bar, box)" in learnt["output"]
+    labeler = load_labeler(named_session["learnt"])
+    assert labeler.label_names == ("bar", "box") and labeler.label_values.tolist() == [3, 7]
+    assert failed["result"] == ["CANCELLED"]
+    assert "has no integer face attribute 'neural_shdf_label'" in failed["error"]
+
+
+def test_a_labeller_names_the_attribute_materials_and_objects(named_session, service_url):
+    segmented, missing = named_session["segments"]
+    assert segmented["result"] == ["FINISHED"], segmented
+    assert "Target: bar, box (uploaded)" in segmented["output"]
+    record = named_session["inspections"][0]
+    assert record["label_type"] == ["FACE", "INT"]
+    values = np.asarray(record["label_values"])
+    x = np.asarray(record["center_x"])
+    truth = np.where(np.abs(x) / (np.abs(x).max() / 2) >= 1 - 1e-6, 7, 3)
+    assert np.mean(values == truth) > 0.9
+    # The API's named parts of the same polygons with the same labeller, face for face.
+    data = obj_bytes(np.array(record["vertices"]), record["polygons_vertices"])
+    with Client(service_url) as client:
+        stored = client.upload_labeler(named_session["learnt"])
+        expected = client.segment_file(data, file_type="obj", labeler_id=stored.labeler_id)
+    assert values.tolist() == expected.labels.tolist()
+    assert record["props"]["neural_shdf_labeler"] == stored.labeler_id
+    assert json.loads(record["props"]["neural_shdf_label_names"]) == {"3": "bar", "7": "box"}
+    assert record["materials"] == ["neural_shdf part bar", "neural_shdf part box"]
+    assert record["labels"] == [0 if v == 3 else 1 for v in values]  # part index per polygon
+    assert [name for name, _ in record["part_objects"]] == ["Target bar", "Target box"]
+    assert missing["result"] == ["CANCELLED"] and "does not exist" in missing["error"]

@@ -252,3 +252,78 @@ def test_part_editing_example_runs_as_written(service, tmp_path, monkeypatch):
     namespace: dict = {}
     exec(block.replace("http://127.0.0.1:8000", service), namespace)  # noqa: S102
     assert namespace["edited"].labels.tolist() != namespace["plain"].labels.tolist()
+
+
+def test_named_parts_upload_train_segment_and_delete_a_labeler(service):
+    from neural_shdf.labeling import label_mesh, load_labeler
+    from neural_shdf.pipeline import compute_shdf
+    from tests.labeling.helpers import BALL, NECK, labelled_dumbbell, obj_of, small_labeler_file
+
+    data = small_labeler_file()
+    target, truth = labelled_dumbbell(1500, 0.9, 3)
+    with Client(service, progress=False) as client:
+        info = client.upload_labeler(data)
+        assert (info.label_names, info.label_values) == (["neck", "ball"], [NECK, BALL])
+        assert info.labeler_id in [entry.labeler_id for entry in client.labelers()]
+        assert client.labeler(info.labeler_id) == info
+        assert client.labeler_file(info.labeler_id) == data
+        mesh_id = client.upload(obj_of(target), file_type="obj").mesh_id
+        named = client.segment(mesh_id, labeler_id=info.labeler_id)
+        assert named.labeler_id == info.labeler_id and named.hierarchy is None
+        assert named.names == {NECK: "neck", BALL: "ball"}
+        mesh = load_mesh(obj_of(target), "obj")
+        expected, confidence = label_mesh(
+            mesh, load_labeler(data), shdf=compute_shdf(mesh, method=TEST_METHOD).values
+        )
+        np.testing.assert_array_equal(named.labels, expected)
+        assert named.confidence is not None and named.confidence.dtype == np.float32
+        np.testing.assert_allclose(named.confidence, confidence, atol=1e-6)
+        assert {part.name for part in named.parts} == {"neck", "ball"}
+        assert named.face_names()[int(np.argmax(truth == BALL))] == "ball"
+        assert b'"name":"neck"' in client.parts_glb(mesh_id, labeler_id=info.labeler_id)
+        # Trained on the service from stored meshes, then used the same way.
+        examples = [labelled_dumbbell(1500, s, seed) for s, seed in ((1.0, None), (1.2, 5))]
+        ids = [client.upload(obj_of(m), file_type="obj").mesh_id for m, _ in examples]
+        trained = client.train_labeler(ids, [labels for _, labels in examples], names=["n", "b"])
+        assert trained.label_names == ["n", "b"] and trained.training_meshes == 2
+        again = client.segment(mesh_id, labeler_id=trained.labeler_id)
+        assert np.mean(again.labels == truth) > 0.95
+        with pytest.raises(InvalidRequestError, match="labels for meshes of"):
+            client.train_labeler(ids[:1], [examples[0][1][:-1]])
+        with pytest.raises(ValueError, match="comma"):
+            client.train_labeler(ids, [labels for _, labels in examples], names=["a,b", "c"])
+        client.delete_labeler(info.labeler_id)
+        with pytest.raises(NotFoundError, match="labeler"):
+            client.segment(mesh_id, labeler_id=info.labeler_id)
+
+    async def asynchronous() -> None:
+        async with AsyncClient(service, progress=False) as client:
+            stored = await client.upload_labeler(data)
+            assert [e.labeler_id for e in await client.labelers()].count(stored.labeler_id) == 1
+            named = await client.segment(mesh_id, labeler_id=stored.labeler_id)
+            np.testing.assert_array_equal(named.labels, expected)
+            await client.delete_labeler(stored.labeler_id)
+
+    asyncio.run(asynchronous())
+
+
+def test_named_parts_example_runs_as_written(service, tmp_path, monkeypatch, capsys):
+    """docs/client.md's named-parts example, with a dumbbell labeller and dumbbells."""
+    from neural_shdf.labeling import load_labeler
+    from tests.doc_examples import python_blocks
+    from tests.labeling.helpers import labelled_dumbbell, obj_of, small_labeler_file
+
+    (block,) = python_blocks("docs/client.md", "Named parts")
+    (tmp_path / "parts.npz").write_bytes(small_labeler_file())
+    (tmp_path / "model.obj").write_bytes(obj_of(labelled_dumbbell(1500, 0.9, 3)[0]))
+    for name, stretch, seed in (("a", 1.0, None), ("b", 1.2, 5)):
+        mesh, labels = labelled_dumbbell(1500, stretch, seed)
+        (tmp_path / f"{name}.obj").write_bytes(obj_of(mesh))
+        (tmp_path / f"{name}.txt").write_text("\n".join(map(str, labels)) + "\n")
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    exec(block.replace("http://127.0.0.1:8000", service), namespace)  # noqa: S102
+    assert "['neck', 'ball']" in capsys.readouterr().out
+    assert len(namespace["named"].labels) == len(namespace["named"].confidence)
+    assert b'"name":"ball"' in namespace["parts_glb"]
+    assert load_labeler(tmp_path / "learnt.npz").label_names == ("neck", "ball")

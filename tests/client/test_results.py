@@ -33,6 +33,7 @@ MIRRORS = [
     (results.Job, schemas.Job),
     (results.PartSummary, schemas.PartSummary),
     (results.Timings, schemas.Timings),
+    (results.LabelerInfo, schemas.LabelerInfo),
     (results.Upload, schemas.UploadResult),
 ]
 #: What the client must never need: the service's and the library's heavy dependencies.
@@ -80,7 +81,9 @@ def test_segmentation_reads_every_member_of_the_services_answer():
     assert set(schemas.PartHierarchy.model_fields) == results.HIERARCHY_FIELDS
 
 
-@pytest.mark.parametrize(("wire", "schema"), MIRRORS[:-1], ids=lambda m: m.__name__)
+@pytest.mark.parametrize(
+    ("wire", "schema"), [m for m in MIRRORS if m[0] is not results.Upload], ids=lambda m: m.__name__
+)
 def test_wire_models_parse_the_services_answers(wire, schema):
     body = schema_example(schema)
     parsed = wire.from_json({**body, "added_by_a_newer_service": 1})
@@ -194,3 +197,32 @@ def test_the_blocker_refuses_what_it_should(tmp_path):
     )
     assert run.returncode != 0
     assert re.search(r"ImportError: (scipy|numba) is not installed here", run.stderr)
+
+
+def test_a_named_parts_answer_parses_in_both_forms(service):
+    from tests.labeling.helpers import labelled_dumbbell, obj_of, small_labeler_file
+
+    labeler = httpx.post(
+        f"{service}/v1/labelers", files={"file": ("l.npz", small_labeler_file())}, timeout=120
+    ).json()["labeler_id"]
+    mesh_id = httpx.post(
+        f"{service}/v1/meshes",
+        files={"file": ("d.obj", obj_of(labelled_dumbbell(1500, 0.9, 3)[0]))},
+        timeout=120,
+    ).json()["mesh"]["mesh_id"]
+    parsed = {}
+    for labels_format in ("json", "base64"):
+        body = httpx.post(
+            f"{service}/v1/segment",
+            json={"mesh_id": mesh_id, "labeler_id": labeler, "labels_format": labels_format},
+            timeout=120,
+        ).json()
+        described = schemas.Segmentation.model_validate(body)
+        parsed[labels_format] = results.Segmentation.from_json(body)
+        assert parsed[labels_format].label_names == described.label_names == ["neck", "ball"]
+        assert [part.name for part in parsed[labels_format].parts] == ["neck", "ball"]
+        assert parsed[labels_format].extra == {}
+    json_form, compact = parsed["json"], parsed["base64"]
+    np.testing.assert_array_equal(json_form.labels, compact.labels)
+    assert json_form.confidence is not None and compact.confidence is not None
+    np.testing.assert_allclose(json_form.confidence, compact.confidence, atol=1e-4)

@@ -192,3 +192,15 @@ def test_glbs_we_write_read_back_with_every_face_in_place(sphere_mesh):
     ):
         loaded = load_mesh(data, "glb")
         np.testing.assert_allclose(loaded.vertices[loaded.faces], triangles, atol=1e-6)
+
+
+def test_parts_glb_names_nodes_and_meshes_by_the_given_names(sphere_mesh):
+    labels = _labels_by_height(sphere_mesh, 3) * 2 + 1  # label values 1, 3, 5
+    names = {1: "left arm", 3: 'say "hi"\\', 7: "unused"}
+    data = parts_glb(sphere_mesh, labels, names=names)
+    length = struct.unpack_from("<I", data, 12)[0]
+    document = json.loads(data[20 : 20 + length])
+    expected = ["left arm", 'say "hi"\\', part_name(5)]  # 5 has no name: part_name
+    assert [node["name"] for node in document["nodes"]] == expected
+    assert [mesh["name"] for mesh in document["meshes"]] == expected
+    assert load_mesh(data, "glb").face_count == sphere_mesh.face_count

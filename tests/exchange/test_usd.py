@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 pxr = pytest.importorskip("pxr")
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdUtils, Vt  # noqa: E402
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, UsdUtils, Vt  # noqa: E402
 
 from neural_shdf.errors import (  # noqa: E402
     InvalidGeometryError,
@@ -458,3 +458,34 @@ def test_a_usdz_input_is_written_back_with_its_parts(tmp_path: Path):
     assert {name: faces.tolist() for name, faces in drum.items()} == {
         part_name(k): np.flatnonzero(labels[counts[0] :] == k).tolist() for k in range(3)
     }
+
+
+def test_named_parts_become_named_subsets_with_materials_of_their_colour(tmp_path: Path):
+    source = tmp_path / "dumbbell.usda"
+    counts = _dumbbell_stage(source)
+    mesh = load_mesh(source)
+    labels = np.repeat([4, 9], counts)
+    names = {4: "left arm", 9: "9 lives"}
+    output = tmp_path / "named.usda"
+    usd.write_mesh_parts_usd(mesh, labels, output, names=names)
+    _check_compliance(output)
+    stage = Usd.Stage.Open(str(output))
+    subsets = _subsets(UsdGeom.Mesh.Get(stage, "/World/Mesh"))
+    assert subsets.keys() == {"left_arm", "_9_lives"}
+    assert subsets["left_arm"].tolist() == np.flatnonzero(labels == 4).tolist()
+    for prim_name, name, label in (("left_arm", "left arm", 4), ("_9_lives", "9 lives", 9)):
+        prim = stage.GetPrimAtPath(f"/World/Mesh/{prim_name}")
+        assert prim.GetCustomDataByKey(usd.LABEL_NAME_KEY) == name
+        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+        assert material.GetPath() == f"/World/Looks/{prim_name}"
+        assert material.GetPrim().GetCustomDataByKey(usd.LABEL_NAME_KEY) == name
+        shader = UsdShade.Shader.Get(stage, f"/World/Looks/{prim_name}/Surface")
+        colour = shader.GetInput("diffuseColor").Get()
+        expected = usd.linear_face_colors(labels)[np.flatnonzero(labels == label)[0]]
+        np.testing.assert_allclose(list(colour), expected, atol=1e-6)
+    assert usd.mesh_parts_usda(mesh, labels, names=names) == output.read_bytes()
+
+
+def test_names_that_become_the_same_identifier_stay_apart():
+    assert usd._subset_names([1, 2], {1: "arm-l", 2: "arm l"}) == ["arm_l_1", "arm_l_2"]
+    assert usd._subset_names([0, 1], None) == [part_name(0), part_name(1)]

@@ -14,6 +14,8 @@ from neural_shdf.labeling.model import (
     Labeler,
     LabelerFileError,
     TreeEnsemble,
+    labeler_bytes,
+    labeler_id,
     load_labeler,
     save_labeler,
 )
@@ -116,3 +118,30 @@ def test_trees_whose_children_leave_the_tree_are_refused(tmp_path) -> None:
     with pytest.raises(LabelerFileError, match="inconsistent"):
         load_labeler(path)
     assert zipfile.is_zipfile(path)
+
+
+def test_a_file_that_would_unpack_beyond_the_limit_is_refused_before_reading(monkeypatch):
+    import neural_shdf.labeling.model as model
+
+    data = labeler_bytes(a_labeler())
+    monkeypatch.setattr(model, "MAX_FILE_BYTES", len(data) + 10)  # the zip fits, its members not
+    with pytest.raises(LabelerFileError, match="unpacks to"):
+        load_labeler(data)
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr("metadata.npy", b"\0" * (len(data) + 100))  # compresses to little
+    with pytest.raises(LabelerFileError, match="unpacks to"):
+        load_labeler(buffer.getvalue())
+
+
+def test_the_id_names_what_labels_not_the_file_or_training_time(tmp_path) -> None:
+    labeler = a_labeler()
+    again = load_labeler(save_labeler(labeler, tmp_path / "l.npz"))
+    assert labeler_id(again) == labeler_id(labeler)
+    assert len(labeler_id(labeler)) == 64
+    timed = Labeler(labeler.trees, labeler.label_values, labeler.label_names,
+                    labeler.metadata | {"training": {"fit_seconds": 3.0}})  # fmt: skip
+    assert labeler_id(timed) == labeler_id(labeler)
+    renamed = Labeler(labeler.trees, labeler.label_values, ("a", "b", "c"), labeler.metadata)
+    assert labeler_id(renamed) != labeler_id(labeler)
+    assert labeler_bytes(labeler) == (tmp_path / "l.npz").read_bytes()

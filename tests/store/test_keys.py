@@ -56,8 +56,21 @@ def test_every_key_of_a_result_is_grouped_by_its_mesh():
         keys.shdf_key(MESH, "exact", 0, None),
         segmentation,
         keys.atlas_png_key(keys.atlas_key(segmentation, UnwrapParams())),
+        keys.labeling_key(MESH, shdf, "f" * 64),
     ):
         assert key.startswith(f"{MESH}:")
+
+
+def test_a_labellers_entries_are_grouped_by_its_id_and_its_labels_by_mesh_and_labeller():
+    labeler = "f" * 64
+    group = keys.labeler_group(labeler)
+    assert group == f"labeler:{labeler}"
+    for key in (keys.labeler_file_key(labeler), keys.labeler_meta_key(labeler)):
+        assert key.startswith(f"{group}:")
+    assert not keys.labeler_index_key().startswith(group)
+    shdf = keys.shdf_version("exact", None, 0)
+    assert keys.labeling_key(MESH, shdf, labeler) == f"{MESH}:labels:{__version__}:{shdf}:{labeler}"
+    assert keys.labeling_key(MESH, shdf, labeler) != keys.labeling_key(MESH, shdf, "e" * 64)
 
 
 def test_a_neural_key_needs_the_model_version():

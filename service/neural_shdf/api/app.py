@@ -21,7 +21,7 @@ from neural_shdf.api.errors import BodySizeLimitMiddleware, install_error_handle
 from neural_shdf.api.jobs import JobAccepted, public_job
 from neural_shdf.api.links import add_links
 from neural_shdf.api.metrics import Metrics, RequestMetricsMiddleware
-from neural_shdf.api.routes import health, jobs, meshes, segment, unwrap
+from neural_shdf.api.routes import health, jobs, labelers, meshes, segment, unwrap
 from neural_shdf.api.routes.viewer import install_viewer
 from neural_shdf.api.settings import Settings
 from neural_shdf.pipeline import warm_up
@@ -119,7 +119,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         )
 
     app.add_exception_handler(JobAccepted, job_accepted)
-    for module in (health, meshes, segment, unwrap, jobs):
+    for module in (health, meshes, segment, unwrap, labelers, jobs):
         app.include_router(module.router)
     install_viewer(app, settings)
     app.openapi = lambda: _openapi_with_error_shape(app)  # type: ignore[method-assign]

@@ -4,7 +4,9 @@
 - ``meshes`` (``api/mesh_store.py``): parse, store, load and delete meshes;
 - ``shdf`` (``api/shdf_service.py``): the ShDF, cached, and jobs for large meshes;
 - ``segmentations`` (``api/segmentation.py``): segmentations from the cached ShDF;
-- ``unwraps`` (``api/unwrapping.py``): UV atlases by part from the cached segmentation.
+- ``unwraps`` (``api/unwrapping.py``): UV atlases by part from the cached segmentation;
+- ``labelers`` (``api/labeler_store.py``): stored part labellers;
+- ``labelings`` (``api/labeling.py``): named parts from the cached ShDF, training jobs.
 
 Response bodies are built in ``api/responses.py``; routes stay thin.
 """
@@ -15,6 +17,8 @@ from collections.abc import Callable
 from typing import Any, TypeVar
 
 from neural_shdf.api.jobs import JobStore
+from neural_shdf.api.labeler_store import LabelerStore
+from neural_shdf.api.labeling import LabelingService
 from neural_shdf.api.mesh_store import MeshStore
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.segmentation import SegmentationService
@@ -43,6 +47,10 @@ class Engine:
         self.shdf = ShdfService(settings, cache, metrics, self.tasks, self.meshes, self.jobs)
         self.segmentations = SegmentationService(cache, metrics, self.tasks, self.meshes, self.shdf)
         self.unwraps = UnwrapService(cache, metrics, self.tasks, self.meshes, self.segmentations)
+        self.labelers = LabelerStore(settings, cache, metrics)
+        self.labelings = LabelingService(
+            settings, cache, metrics, self.tasks, self.meshes, self.shdf, self.labelers
+        )
 
     async def run(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
         """Run a CPU-heavy ``fn`` on the compute thread pool."""

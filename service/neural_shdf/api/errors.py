@@ -22,6 +22,7 @@ from neural_shdf.errors import (
     ParameterError,
     UnsupportedFormatError,
 )
+from neural_shdf.labeling.model import LabelerFileError
 
 logger = logging.getLogger(__name__)
 
@@ -80,6 +81,7 @@ _MESH_ERRORS: list[tuple[type[Exception], int, str]] = [
     (MeshParseError, 422, "mesh_parse_error"),
     (InvalidGeometryError, 422, "invalid_geometry"),
     (MeshError, 422, "invalid_mesh"),
+    (LabelerFileError, 422, "invalid_labeler"),
     (ParameterError, 422, "invalid_parameter"),
     (ModelUnavailableError, 503, "model_unavailable"),
 ]

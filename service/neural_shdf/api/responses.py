@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import base64
 import json
 from typing import Any
 
@@ -9,10 +10,13 @@ import numpy as np
 from fastapi import Response
 from numpy.typing import NDArray
 
+from neural_shdf.api.labeling import StoredLabels, label_summary
 from neural_shdf.api.schemas import MeshInfo, ShdfStatus, ShdfValues, UploadResult
-from neural_shdf.api.segmentation import StoredSegmentation
+from neural_shdf.api.segmentation import StoredSegmentation, pack_integers
 from neural_shdf.api.shdf_service import ShdfOutcome
 from neural_shdf.arrays import json_array, json_list
+from neural_shdf.labeling.model import Labeler
+from neural_shdf.mesh import TriangleMesh
 from neural_shdf.palette import part_color_hex
 
 F32_MEDIA_TYPE = "application/octet-stream"
@@ -101,6 +105,63 @@ def segmentation_response(
     rest = json.dumps(body, separators=(",", ":"))
     return Response(
         f'{{"labels":{labels},"hierarchy":{hierarchy},"parts":{json_list(parts)},{rest[1:]}'.encode(),
+        media_type="application/json",
+    )
+
+
+def labels_response(
+    mesh_id: str,
+    method: str,
+    labels_format: str,
+    labeler_id: str,
+    labeler: Labeler,
+    mesh: TriangleMesh,
+    shdf: NDArray[np.float64],
+    result: StoredLabels,
+    timings: dict[str, Any],
+) -> Response:
+    """The `Segmentation` JSON of named parts: labels in the training labels' integers,
+    a part per label present (with its name and colour, the coloured GLB's), the
+    labeller's names and the confidence per face."""
+    compact = labels_format == "base64"
+    values, faces, area, mean = label_summary(mesh, result, shdf)
+    names = dict(zip(labeler.label_values.tolist(), labeler.label_names, strict=True))
+    top = max([v for v in values if v >= 0], default=-1)
+    colors = part_color_hex(top + 1)
+    parts = [
+        {
+            "label": value,
+            "faces": int(f),
+            "area": float(a),
+            "mean_shdf": float(m),
+            "color": colors[value] if value >= 0 else "#808080",
+            "name": names.get(value, "unlabeled"),
+        }
+        for value, f, a, m in zip(values, faces, area, mean, strict=True)
+    ]
+    packed = pack_integers(result.labels) if compact else (None, None)
+    confidence = result.confidence.astype("<f4")
+    body = {
+        "mesh_id": mesh_id,
+        "method": method,
+        "faces": len(result.labels),
+        "part_count": len(parts),
+        "labels_base64": packed[0],
+        "labels_dtype": packed[1],
+        "parts": parts,
+        "timings": timings,
+        "hierarchy": None,
+        "labeler_id": labeler_id,
+        "label_names": list(labeler.label_names),
+        "label_values": labeler.label_values.tolist(),
+        "confidence_base64": base64.b64encode(confidence.tobytes()).decode() if compact else None,
+    }
+    labels = "null" if compact else json_array(result.labels)
+    rounded = np.round(confidence.astype(np.float64), 4)  # float32 digits, not float64's
+    scores = "null" if compact else json_array(rounded, nan_as_null=True)
+    rest = json.dumps(body, separators=(",", ":"))
+    return Response(
+        f'{{"labels":{labels},"confidence":{scores},{rest[1:]}'.encode(),
         media_type="application/json",
     )
 

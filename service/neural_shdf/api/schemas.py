@@ -24,12 +24,14 @@ ShdfMethodName = Literal["auto", "exact", "sampled", "neural"]
 ShdfProducerName = Literal["exact", "sampled", "neural"]
 JobState = Literal["queued", "running", "succeeded", "failed"]
 #: What a job computes: a ShDF, or a UV atlas for ``unwrapped.glb`` or ``atlas.png``.
-JobKind = Literal["shdf", "unwrap", "atlas"]
+JobKind = Literal["shdf", "unwrap", "atlas", "labeler"]
 
 MESH_ID_EXAMPLE = "3f1c0b6e2d4a8f7e9c1b2a3d4e5f60718293a4b5c6d7e8f9a0b1c2d3e4f5a6b7"
 MESH_ID_PATTERN = "^[0-9a-f]{64}$"
 JOB_ID_PATTERN = "^[0-9a-f]{32}$"
 JOB_ID_EXAMPLE = "5d0f3c8a9b6e4f21a7c3d2e1f0a9b8c7"
+LABELER_ID_PATTERN = "^[0-9a-f]{64}$"
+LABELER_ID_EXAMPLE = "9c4e1f0b7a2d3e5f60718293a4b5c6d7e8f9a0b1c2d3e4f5a6b73f1c0b6e2d4a8f"
 
 
 def documented_bounds(minimum: float, maximum: float) -> dict[str, float]:
@@ -233,8 +235,9 @@ class Job(BaseModel):
     mesh_id: str = Field(description="The mesh the job computes.", examples=[MESH_ID_EXAMPLE])
     kind: JobKind = Field(
         "shdf",
-        description="What the job computes: `shdf`, or the atlas of `unwrap` (unwrapped.glb) "
-        "or `atlas` (atlas.png).",
+        description="What the job computes: `shdf`, the atlas of `unwrap` (unwrapped.glb) "
+        "or `atlas` (atlas.png), or a part `labeler` (training; `mesh_id` is its first "
+        "mesh, and `result_url` the labeller once it succeeded).",
         examples=["shdf"],
     )
     method: ShdfMethodName = Field(
@@ -362,6 +365,20 @@ class SegmentOptions(BaseModel):
         return SegmentParams.from_attributes(self)
 
 
+class LabeledSegmentOptions(SegmentOptions):
+    """Segmentation options, or named parts by a stored labeller (`labeler_id`)."""
+
+    labeler_id: str | None = Field(
+        None,
+        pattern=LABELER_ID_PATTERN,
+        description="A stored part labeller (`POST /v1/labelers`): the labels are then its "
+        "named parts, in the training labels' own integers, with `label_names` and a "
+        "`confidence` per face, from the mesh's cached ShDF (`method`, `seed`); the "
+        "partitioning options are not used.",
+        examples=[LABELER_ID_EXAMPLE],
+    )
+
+
 class UnwrapOptions(SegmentOptions):
     """The segmentation to unwrap by, and how to chart and pack its parts."""
 
@@ -444,7 +461,7 @@ class PaintEdit(BaseModel):
 EditOperation = Annotated[GrowEdit | ShrinkEdit | MergeEdit | PaintEdit, Field(discriminator="op")]
 
 
-class SegmentRequest(SegmentOptions):
+class SegmentRequest(LabeledSegmentOptions):
     """Segment a stored mesh from its cached ShDF (optionally edited by hand: `edits`)."""
 
     model_config = ConfigDict(
@@ -480,7 +497,7 @@ class SegmentRequest(SegmentOptions):
     )
 
 
-class SegmentFileForm(SegmentOptions):
+class SegmentFileForm(LabeledSegmentOptions):
     """Multipart form of a one-shot segmentation: the mesh file and the options."""
 
     file: UploadFile = Field(description="OBJ, GLB/glTF (embedded buffers), OFF, PLY or STL.")
@@ -499,6 +516,11 @@ class PartSummary(BaseModel):
     color: str = Field(
         description="Display colour `#rrggbb`, the same as in the coloured GLB.",
         examples=["#e69f00"],
+    )
+    name: str | None = Field(
+        None,
+        description="The label's name (with `labeler_id`); null for unnamed parts.",
+        examples=["head"],
     )
 
 
@@ -654,3 +676,111 @@ class Segmentation(BaseModel):
         "any part count.",
     )
     timings: Timings = Field(description="Timings.")
+    labeler_id: str | None = Field(
+        None,
+        description="The labeller that named the parts; null for a segmentation.",
+        examples=[None],
+    )
+    label_names: list[str] | None = Field(
+        None,
+        description="With `labeler_id`: the labeller's label names, one per value of "
+        "`label_values` (the labels may use fewer).",
+        examples=[None],
+    )
+    label_values: list[int] | None = Field(
+        None,
+        description="With `labeler_id`: the labeller's label integers, as in `labels`.",
+        examples=[None],
+    )
+    confidence: list[float | None] | None = Field(
+        None,
+        description="With `labeler_id`: probability of each face's label (null: face "
+        "without triangles); null with `labels_format=base64`.",
+        examples=[None],
+    )
+    confidence_base64: str | None = Field(
+        None,
+        description="With `labeler_id` and `labels_format=base64`: the confidence as "
+        "base64 little-endian float32 (NaN: face without triangles).",
+        examples=[None],
+    )
+
+
+class LabelerInfo(BaseModel):
+    """A stored part labeller: what it labels, and with what."""
+
+    model_config = ConfigDict(
+        json_schema_extra={
+            "examples": [
+                {
+                    "labeler_id": LABELER_ID_EXAMPLE,
+                    "label_names": ["torso", "head", "arm"],
+                    "label_values": [1, 2, 3],
+                    "feature_version": 3,
+                    "smoothing": 0.003,
+                    "training_meshes": 12,
+                    "size_bytes": 183204,
+                    "stored_at": 1763791200.0,
+                }
+            ]
+        }
+    )
+
+    labeler_id: str = Field(
+        description="Content id of the labeller (64 hex digits): the same labeller "
+        "uploaded twice has one id.",
+        examples=[LABELER_ID_EXAMPLE],
+    )
+    label_names: list[str] = Field(
+        description="Name of each label, in `label_values` order.",
+        examples=[["torso", "head", "arm"]],
+    )
+    label_values: list[int] = Field(
+        description="The training labels' integers (what labels per face hold).",
+        examples=[[1, 2, 3]],
+    )
+    feature_version: int = Field(description="Version of its node features.", examples=[3])
+    smoothing: float = Field(description="Graph-cut smoothing of its labels.", examples=[0.003])
+    training_meshes: int = Field(description="Meshes it was trained on.", examples=[12])
+    size_bytes: int = Field(description="Size of its file.", examples=[183204])
+    stored_at: float = Field(description="Unix time it was first stored.", examples=[1763791200.0])
+
+
+class LabelerList(BaseModel):
+    """The stored part labellers, oldest first."""
+
+    labelers: list[LabelerInfo] = Field(description="Stored labellers.", examples=[[]])
+
+
+class LabelerTrainForm(BaseModel):
+    """Multipart form of a labeller training: stored meshes and a label per input face."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    mesh_ids: str = Field(
+        description="Ids of stored meshes (`POST /v1/meshes`), comma-separated.",
+        examples=[f"{MESH_ID_EXAMPLE},{MESH_ID_EXAMPLE[::-1]}"],
+    )
+    labels: UploadFile = Field(
+        description="One label per input face of each mesh, in the file's face order, the "
+        "meshes in `mesh_ids` order, as little-endian int32 (4 bytes per face)."
+    )
+    names: str | None = Field(
+        None,
+        description="Label names, comma-separated, one per distinct label in increasing "
+        "label order; default: the labels as text.",
+        examples=["torso,head,arm"],
+    )
+    method: ShdfMethodName | None = Field(
+        None,
+        description="ShDF method of the training meshes (their cached ShDF is reused); "
+        "default: the service's.",
+        examples=["auto"],
+    )
+    seed: int = Field(0, json_schema_extra=SEED_BOUNDS, description="ShDF seed.", examples=[0])
+    smoothing: float | None = Field(
+        None,
+        json_schema_extra=documented_bounds(0, MAX_SMOOTHING),
+        description="Graph-cut smoothing of the labels; default: the library's (0.003).",
+        examples=[0.003],
+    )

@@ -113,8 +113,8 @@ class StoredSegmentation:
 
 
 def pack_integers(values: NDArray) -> tuple[str, str]:
-    """(base64 of non-negative-or--1 integers as the narrowest little-endian type, its name)."""
-    top = int(values.max()) if len(values) else 0
+    """(base64 of integers as the narrowest little-endian type that holds them, its name)."""
+    top = max(int(values.max()), -int(values.min()) - 1) if len(values) else 0
     dtype = "int8" if top < 2**7 else "int16" if top < 2**15 else "int32"
     packed = values.astype(np.dtype(dtype).newbyteorder("<")).tobytes()
     return base64.b64encode(packed).decode(), dtype

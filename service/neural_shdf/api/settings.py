@@ -90,6 +90,23 @@ class Settings(BaseSettings):
         "hundred bytes); JSON is parsed and validated on the event loop, so this bounds "
         "how long one request can hold it.",
     )
+    max_labeler_bytes: int = Field(
+        32 * 1024**2,
+        ge=1,
+        description="Largest part-labeller file accepted (`POST /v1/labelers`); its "
+        "members may unpack to at most 256 MB (checked before they are read).",
+    )
+    max_train_meshes: int = Field(
+        64,
+        ge=1,
+        description="Most meshes one labeller training (`POST /v1/labeler-trainings`) takes.",
+    )
+    max_train_triangles: int = Field(
+        1_000_000,
+        ge=1,
+        description="Most triangles, all meshes together, one labeller training takes "
+        "(about 1 s of features per 1,500-face mesh, plus its ShDF when not cached).",
+    )
     max_faces: int = Field(
         DEFAULT_MAX_FACES,
         ge=1,

@@ -138,6 +138,22 @@ class ShdfService:
         self.metrics.shdf_seconds.labels(method).observe(seconds)
         return ShdfOutcome(np.ascontiguousarray(values, dtype=np.float64), False, seconds, method)
 
+    def progress_reporter(self, key: str) -> Callable[[float], None]:
+        """A callable recording the progress of the job computing under ``key`` (its
+        record shows it at the next heartbeat)."""
+
+        def report(fraction: float) -> None:
+            self._progress[key] = float(fraction)
+
+        return report
+
+    def compute_once(
+        self, key: str, mesh_id: str, mesh: TriangleMesh, method: str, seed: int
+    ) -> ShdfOutcome:
+        """Blocking (a compute thread): the cached ShDF, else computed and stored
+        (``method`` resolved; ``key`` its ``key``)."""
+        return self._compute_once(key, mesh_id, mesh, method, seed)
+
     def _compute_once(
         self,
         key: str,
@@ -204,15 +220,18 @@ class ShdfService:
         *,
         kind: str,
         result_url: str,
+        on_success: Callable[[Any], dict[str, Any]] | None = None,
     ) -> dict[str, Any]:
         """Record a job of another ``kind`` (e.g. an unwrap) running ``compute`` in the
-        background under the same leases and heartbeats as ShDF jobs; the job's record."""
+        background under the same leases and heartbeats as ShDF jobs; the job's record.
+        ``on_success``: further record changes made from the result (a ``result_url``
+        known only then)."""
         job = await self.tasks.io(
             self.jobs.create, mesh_id, method, seed, kind=kind, result_url=result_url
         )
         lease = self.jobs.runner_lease(job["job_id"])
         await self.tasks.io(lease.try_acquire)  # a fresh id: free
-        self.tasks.spawn(self._run_job(job, key, compute, lease))
+        self.tasks.spawn(self._run_job(job, key, compute, lease, on_success))
         return dict(job)
 
     def _launch_job(
@@ -229,7 +248,12 @@ class ShdfService:
         self.tasks.spawn(self._run_job(job, key, compute, lease))
 
     async def _run_job(
-        self, job: dict[str, Any], key: str, compute: Callable[[], ShdfOutcome], lease: Lease
+        self,
+        job: dict[str, Any],
+        key: str,
+        compute: Callable[[], Any],
+        lease: Lease,
+        on_success: Callable[[Any], dict[str, Any]] | None = None,
     ) -> None:
         """Run a job, rewriting its record with the progress and at least every heartbeat
         (a record left unwritten for a lease marks a dead runner)."""
@@ -247,8 +271,9 @@ class ShdfService:
                     changes = {"progress": min(progress, 0.99)} if moved else {}
                     await self.tasks.io(self.jobs.update, job, **changes)
                     written = time.monotonic()
-            work.result()
-            await self.tasks.io(self.jobs.update, job, state="succeeded", progress=1.0)
+            result = work.result()
+            changes = {} if on_success is None else on_success(result)
+            await self.tasks.io(self.jobs.update, job, state="succeeded", progress=1.0, **changes)
         except Exception as exc:  # noqa: BLE001 - a failed job is recorded, not raised
             if not isinstance(exc, ApiError | ValueError | RuntimeError):
                 logger.exception("job %s failed", job["job_id"])

@@ -24,6 +24,7 @@ from neural_shdf.client.errors import (
 from neural_shdf.client.operations import SegmentArgs
 from neural_shdf.client.results import (
     Job,
+    LabelerInfo,
     MeshInfo,
     PartHierarchy,
     PartSummary,
@@ -37,6 +38,7 @@ __all__ = [
     "InvalidRequestError",
     "Job",
     "JobFailedError",
+    "LabelerInfo",
     "MeshInfo",
     "NotFoundError",
     "PartHierarchy",

@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 import neural_shdf.client.operations as ops
 from neural_shdf.client.errors import error_from_transport
 from neural_shdf.client.operations import Call, Operation, Pause, PollPolicy, RetryPolicy
-from neural_shdf.client.results import Job, MeshInfo, Segmentation, Upload
+from neural_shdf.client.results import Job, LabelerInfo, MeshInfo, Segmentation, Upload
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 MeshSource = str | Path | bytes
@@ -212,6 +212,47 @@ class Client(_Settings):
         """Poll a job until it succeeded (raises JobFailedError if it failed)."""
         return self.run(ops.wait_job(self.job(job) if isinstance(job, str) else job, self.poll))
 
+    # -- part labellers (named parts) ----------------------------------------------
+    def upload_labeler(self, source: str | Path | bytes) -> LabelerInfo:
+        """Upload a labeller file (``neural-shdf labeler train``); its id is for
+        ``segment(mesh_id, labeler_id=...)``. The same file twice has one id."""
+        return self.run(ops.upload_labeler(source))
+
+    def train_labeler(
+        self,
+        mesh_ids: Sequence[str],
+        labels: Sequence[Any],
+        *,
+        names: Sequence[str] | None = None,
+        method: str | None = None,
+        seed: int = 0,
+        smoothing: float | None = None,
+    ) -> LabelerInfo:
+        """Train a labeller on the service from stored meshes and one integer label per
+        input face of each (``labels[i]`` for ``mesh_ids[i]``); ``names``: one per distinct
+        label, in increasing label order. Waits for the training job."""
+        operation = ops.train_labeler(
+            mesh_ids, labels, self.poll, names=names, method=method, seed=seed, smoothing=smoothing
+        )
+        return self.run(operation)
+
+    def labelers(self) -> list[LabelerInfo]:
+        """The stored labellers, oldest first."""
+        body = self.run(ops.get_json("/v1/labelers"))
+        return [LabelerInfo.from_json(entry) for entry in body["labelers"]]
+
+    def labeler(self, labeler_id: str) -> LabelerInfo:
+        """A stored labeller's names and metadata."""
+        return LabelerInfo.from_json(self.run(ops.get_json(f"/v1/labelers/{labeler_id}")))
+
+    def labeler_file(self, labeler_id: str) -> bytes:
+        """A stored labeller's file (for ``segment --labeler`` or ``load_labeler``)."""
+        return self.run(ops.labeler_file(labeler_id))
+
+    def delete_labeler(self, labeler_id: str) -> None:
+        """Delete a stored labeller."""
+        self.run(ops.delete_labeler(labeler_id))
+
 
 class AsyncClient(_Settings):
     """The asyncio twin of ``Client``: the same methods and arguments, awaited."""
@@ -343,3 +384,34 @@ class AsyncClient(_Settings):
     async def wait(self, job: Job | str) -> Job:
         current = await self.job(job) if isinstance(job, str) else job
         return await self.run(ops.wait_job(current, self.poll))
+
+    async def upload_labeler(self, source: str | Path | bytes) -> LabelerInfo:
+        return await self.run(ops.upload_labeler(source))
+
+    async def train_labeler(
+        self,
+        mesh_ids: Sequence[str],
+        labels: Sequence[Any],
+        *,
+        names: Sequence[str] | None = None,
+        method: str | None = None,
+        seed: int = 0,
+        smoothing: float | None = None,
+    ) -> LabelerInfo:
+        operation = ops.train_labeler(
+            mesh_ids, labels, self.poll, names=names, method=method, seed=seed, smoothing=smoothing
+        )
+        return await self.run(operation)
+
+    async def labelers(self) -> list[LabelerInfo]:
+        body = await self.run(ops.get_json("/v1/labelers"))
+        return [LabelerInfo.from_json(entry) for entry in body["labelers"]]
+
+    async def labeler(self, labeler_id: str) -> LabelerInfo:
+        return LabelerInfo.from_json(await self.run(ops.get_json(f"/v1/labelers/{labeler_id}")))
+
+    async def labeler_file(self, labeler_id: str) -> bytes:
+        return await self.run(ops.labeler_file(labeler_id))
+
+    async def delete_labeler(self, labeler_id: str) -> None:
+        await self.run(ops.delete_labeler(labeler_id))

@@ -22,6 +22,7 @@ import httpx
 from neural_shdf.client.errors import JobFailedError, ServiceTimeoutError, raise_for_error
 from neural_shdf.client.results import (
     Job,
+    LabelerInfo,
     MeshInfo,
     Segmentation,
     ShdfStatus,
@@ -112,6 +113,7 @@ class SegmentArgs(TypedDict, total=False):
     boundary_smoothing: bool | None
     crease_boundaries: bool | None  # boundaries moved onto concave creases
     seed: int | None  # seeds every random step: the ShDF's sampling and the segmentation
+    labeler_id: str | None  # named parts by a stored labeller (upload_labeler, train_labeler)
 
 
 def given(options: Mapping[str, Any]) -> dict[str, Any]:
@@ -154,7 +156,7 @@ def wait_job(job: Job, poll: PollPolicy) -> Operation:
     disable = None if poll.progress is None else not poll.progress
     with tqdm(
         total=100,
-        desc=f"ShDF ({job.method})",
+        desc=f"ShDF ({job.method})" if job.kind == "shdf" else job.kind,
         unit="%",
         disable=disable,
         file=sys.stderr,
@@ -284,6 +286,75 @@ def get_json(path: str) -> Operation:
     """A GET whose JSON body is the result."""
     response = raise_for_error((yield Call("GET", path)))
     return response.json()
+
+
+def upload_labeler(source: str | Path | bytes) -> Operation:
+    """Upload a labeller file (checked by the service, stored under its content id)."""
+    if isinstance(source, bytes | bytearray | memoryview):
+        part = ("labeler.npz", bytes(source))
+    else:
+        part = (Path(source).name, Path(source).read_bytes())
+    response = raise_for_error((yield Call("POST", "/v1/labelers", files={"file": part})))
+    return LabelerInfo.from_json(response.json())
+
+
+def training_labels(labels: Sequence[Any]) -> bytes:
+    """One integer label array per mesh as the training form's file: little-endian int32,
+    the meshes' labels one after the other. ValueError for labels that are not integers."""
+    import numpy as np
+
+    arrays = [np.asarray(values) for values in labels]
+    for values in arrays:
+        if values.ndim != 1 or not (
+            np.issubdtype(values.dtype, np.integer)
+            or (len(values) and np.all(values == np.round(values)))
+        ):
+            raise ValueError("give one 1-D array of integer labels per mesh, one per input face")
+    joined = np.concatenate(arrays) if arrays else np.zeros(0)
+    if len(joined) and (joined.min() < -(2**31) or joined.max() >= 2**31):
+        raise ValueError("labels must fit in 32-bit integers")
+    return joined.astype("<i4").tobytes()
+
+
+def train_labeler(
+    mesh_ids: Sequence[str],
+    labels: Sequence[Any],
+    poll: PollPolicy,
+    *,
+    names: Sequence[str] | None = None,
+    method: str | None = None,
+    seed: int = 0,
+    smoothing: float | None = None,
+) -> Operation:
+    """Train a labeller from stored meshes and one label array per mesh (per input face);
+    waits for the training job, returns the stored labeller."""
+    if len(mesh_ids) != len(labels):
+        raise ValueError(f"{len(mesh_ids)} mesh ids but {len(labels)} label arrays")
+    if names is not None and any("," in name or not name.strip() for name in names):
+        raise ValueError("label names must be non-empty and hold no comma")
+    form = {"mesh_ids": ",".join(mesh_ids), "seed": str(seed)}
+    if names is not None:
+        form["names"] = ",".join(names)
+    if method:
+        form["method"] = method
+    if smoothing is not None:
+        form["smoothing"] = repr(float(smoothing))
+    files = {"labels": ("labels.i32", training_labels(labels))}
+    call = Call("POST", "/v1/labeler-trainings", data=form, files=files)
+    response = raise_for_error((yield call))
+    job = yield from wait_job(Job.from_json(response.json()), poll)
+    info = raise_for_error((yield Call("GET", job.result_url)))
+    return LabelerInfo.from_json(info.json())
+
+
+def labeler_file(labeler_id: str) -> Operation:
+    response = raise_for_error((yield Call("GET", f"/v1/labelers/{labeler_id}/file")))
+    return response.content
+
+
+def delete_labeler(labeler_id: str) -> Operation:
+    raise_for_error((yield Call("DELETE", f"/v1/labelers/{labeler_id}")))
+    return None
 
 
 def delete_mesh(mesh_id: str) -> Operation:

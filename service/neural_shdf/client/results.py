@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 __all__ = [
     "ErrorDetail",
     "Job",
+    "LabelerInfo",
     "MeshDiagnostics",
     "MeshInfo",
     "PartHierarchy",
@@ -43,6 +44,7 @@ W = TypeVar("W")
 SEGMENTATION_FIELDS = frozenset(
     {"mesh_id", "method", "faces", "part_count", "parts", "timings"}
     | {"labels", "labels_base64", "labels_dtype", "hierarchy"}
+    | {"labeler_id", "label_names", "label_values", "confidence", "confidence_base64"}
 )
 #: The members of its ``hierarchy`` this client reads.
 HIERARCHY_FIELDS = frozenset(
@@ -165,6 +167,7 @@ class PartSummary:
     area: float
     mean_shdf: float
     color: str
+    name: str | None = None  # the label's name (named parts by a labeller)
 
     @classmethod
     def from_json(cls, body: Mapping[str, Any]) -> PartSummary:
@@ -266,6 +269,10 @@ class Segmentation:
     ``hierarchy``: the graph cut's part tree (None for METIS); ``hierarchy.labels(n)``
     gives the labels for any part count without a request. ``extra`` keeps response
     fields this client version does not model, unchanged.
+
+    Named parts (``segment(..., labeler_id=...)``): ``labels`` hold the training labels'
+    own integers, ``label_names``/``label_values`` the labeller's names and integers,
+    ``confidence`` the probability of each face's label (float32, NaN: no triangles).
     """
 
     mesh_id: str
@@ -275,10 +282,24 @@ class Segmentation:
     timings: Timings
     extra: dict[str, Any] = field(default_factory=dict)
     hierarchy: PartHierarchy | None = None
+    labeler_id: str | None = None
+    label_names: list[str] | None = None
+    label_values: list[int] | None = None
+    confidence: NDArray[np.float32] | None = None
 
     @property
     def part_count(self) -> int:
         return len(self.parts)
+
+    @property
+    def names(self) -> dict[int, str]:
+        """Label integer -> name (named parts; empty for a segmentation)."""
+        return dict(zip(self.label_values or [], self.label_names or [], strict=True))
+
+    def face_names(self) -> list[str]:
+        """The name of each face's label (``unlabeled`` for -1 or an unnamed label)."""
+        names = self.names
+        return [names.get(label, "unlabeled") for label in self.labels.tolist()]
 
     @classmethod
     def from_json(cls, body: dict[str, Any]) -> Segmentation:
@@ -295,7 +316,40 @@ class Segmentation:
             hierarchy=(
                 PartHierarchy.from_json(body["hierarchy"]) if body.get("hierarchy") else None
             ),
+            labeler_id=body.get("labeler_id"),
+            label_names=body.get("label_names"),
+            label_values=body.get("label_values"),
+            confidence=decode_confidence(body),
         )
+
+
+@dataclass(frozen=True)
+class LabelerInfo:
+    """A stored part labeller: its id, label names and integers, and what it was made of."""
+
+    labeler_id: str
+    label_names: list[str]
+    label_values: list[int]
+    feature_version: int
+    smoothing: float
+    training_meshes: int
+    size_bytes: int
+    stored_at: float
+
+    @classmethod
+    def from_json(cls, body: Mapping[str, Any]) -> LabelerInfo:
+        return parse(cls, body)
+
+
+def decode_confidence(body: Mapping[str, Any]) -> NDArray[np.float32] | None:
+    """Per-face confidence of named parts (float32; NaN: no triangles), or None."""
+    packed = body.get("confidence_base64")
+    if packed is not None:
+        return np.frombuffer(base64.b64decode(packed), dtype="<f4").astype(np.float32)
+    values = body.get("confidence")
+    if values is None:
+        return None
+    return np.array([np.nan if v is None else v for v in values], dtype=np.float32)
 
 
 def decode_labels(body: dict[str, Any]) -> NDArray[np.int32]:

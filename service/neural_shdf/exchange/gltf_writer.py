@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import struct
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -86,8 +87,11 @@ def part_name(label: int) -> str:
     return f"part_{label:03d}" if label >= 0 else "unlabeled"
 
 
-def parts_glb(mesh: TriangleMesh, labels: NDArray) -> bytes:
+def parts_glb(
+    mesh: TriangleMesh, labels: NDArray, *, names: Mapping[int, str] | None = None
+) -> bytes:
     """GLB scene with one node and mesh per part, named by part_name, in label order.
+    ``names``: a name per label value (a labeller's label names) used instead, where given.
 
     Each part keeps its triangles in the mesh's order and only the vertices they use
     (in vertex order), coloured by part. Written directly from numpy buffers (three
@@ -134,7 +138,9 @@ def parts_glb(mesh: TriangleMesh, labels: NDArray) -> bytes:
     document["buffers"] = [{"byteLength": offsets[-1]}]
     # Per-part entries as text from templates: json.dumps of a dict per accessor would
     # take most of the time with many parts.
-    names = [part_name(label) for label in values.tolist()]
+    given = names or {}
+    # JSON string bodies (the templates hold the quotes): a name may hold any character.
+    node_names = [json.dumps(given.get(label, part_name(label)))[1:-1] for label in values.tolist()]
     rows = zip(
         (12 * face_start).tolist(),
         (3 * face_count).tolist(),
@@ -150,9 +156,10 @@ def parts_glb(mesh: TriangleMesh, labels: NDArray) -> bytes:
         for index_at, corners, position_at, vertices, lo, hi, color_at in rows
     )
     meshes = ",".join(
-        _PART_MESH % (name, 3 * part + 1, 3 * part + 2, 3 * part) for part, name in enumerate(names)
+        _PART_MESH % (name, 3 * part + 1, 3 * part + 2, 3 * part)
+        for part, name in enumerate(node_names)
     )
-    nodes = ",".join(_PART_NODE % (name, part) for part, name in enumerate(names))
+    nodes = ",".join(_PART_NODE % (name, part) for part, name in enumerate(node_names))
     text = json.dumps(document, separators=(",", ":"))[:-1]  # without its closing brace
     text += f',"nodes":[{nodes}],"meshes":[{meshes}],"accessors":[{accessors}]}}'
     return glb_bytes(text, b"".join(blocks))

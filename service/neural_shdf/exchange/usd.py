@@ -39,7 +39,7 @@ import os
 import re
 import tempfile
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import partial
@@ -389,8 +389,35 @@ def _uninstance(stage: Any, paths: list[Any]) -> None:
             prim = stage.GetPrimAtPath(path)
 
 
-def _replace_part_subsets(stage: Any, mesh: Any, labels: NDArray[np.int64]) -> None:
-    """One GeomSubset per label of ``labels`` (per face of the prim), family ``part``."""
+#: Custom data key holding a label's own name on its subset and material (prim names
+#: are identifiers: "left arm" becomes ``left_arm``).
+LABEL_NAME_KEY = "neural_shdf:label_name"
+
+
+def usd_identifier(name: str) -> str:
+    """``name`` as a USD prim name: letters, digits and ``_``, not starting with a digit."""
+    identifier = re.sub(r"[^A-Za-z0-9_]", "_", name) or "_"
+    return f"_{identifier}" if identifier[0].isdigit() else identifier
+
+
+def _subset_names(labels: list[int], names: Mapping[int, str] | None) -> list[str]:
+    """Prim name per label: ``part_name``, or the label's name as an identifier (made
+    unique by its value when two names become the same identifier)."""
+
+    if names is None:
+        return [part_name(label) for label in labels]
+    chosen = [usd_identifier(names.get(label, part_name(label))) for label in labels]
+    return [
+        f"{name}_{label}" if chosen.count(name) > 1 else name
+        for name, label in zip(chosen, labels, strict=True)
+    ]
+
+
+def _replace_part_subsets(
+    stage: Any, mesh: Any, labels: NDArray[np.int64], names: Mapping[int, str] | None = None
+) -> None:
+    """One GeomSubset per label of ``labels`` (per face of the prim), family ``part``;
+    with ``names``, named by label and each bound to a material of that name."""
     from pxr import UsdGeom, Vt
 
     for old in UsdGeom.Subset.GetGeomSubsets(mesh, UsdGeom.Tokens.face, PART_FAMILY):
@@ -398,12 +425,39 @@ def _replace_part_subsets(stage: Any, mesh: Any, labels: NDArray[np.int64]) -> N
         stage.RemovePrim(path)
         if stage.GetPrimAtPath(path):  # defined in a layer below the root: switch it off
             stage.GetPrimAtPath(path).SetActive(False)
-    for label in np.unique(labels).tolist():
+    values = np.unique(labels).tolist()
+    colors = linear_face_colors(labels) if names is not None else None
+    for label, prim_name in zip(values, _subset_names(values, names), strict=True):
         faces = Vt.IntArray.FromNumpy(np.flatnonzero(labels == label).astype(np.int32))
-        UsdGeom.Subset.CreateGeomSubset(
-            mesh, part_name(label), UsdGeom.Tokens.face, faces, PART_FAMILY
+        subset = UsdGeom.Subset.CreateGeomSubset(
+            mesh, prim_name, UsdGeom.Tokens.face, faces, PART_FAMILY
         )
+        if names is not None and label in names:
+            subset.GetPrim().SetCustomDataByKey(LABEL_NAME_KEY, names[label])
+            colour = colors[np.flatnonzero(labels == label)[0]]  # type: ignore[index]
+            _bind_label_material(stage, subset, prim_name, names[label], colour)
     UsdGeom.Subset.SetFamilyType(mesh, PART_FAMILY, UsdGeom.Tokens.partition)
+
+
+def _bind_label_material(
+    stage: Any, subset: Any, prim_name: str, name: str, colour: NDArray[np.float64]
+) -> None:
+    """A material ``/World/Looks/<label name>`` (a UsdPreviewSurface of the label's
+    colour), made once per stage, bound to ``subset``."""
+    from pxr import Gf, Sdf, UsdShade
+
+    path = Sdf.Path(f"/World/Looks/{prim_name}")
+    material = UsdShade.Material.Get(stage, path)
+    if not material:
+        material = UsdShade.Material.Define(stage, path)
+        material.GetPrim().SetCustomDataByKey(LABEL_NAME_KEY, name)
+        shader = UsdShade.Shader.Define(stage, path.AppendChild("Surface"))
+        shader.CreateIdAttr("UsdPreviewSurface")
+        rgb = Gf.Vec3f(*(float(c) for c in colour))
+        shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(rgb)
+        surface = material.CreateSurfaceOutput()
+        surface.ConnectToSource(shader.ConnectableAPI(), "surface")
+    UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(material)
 
 
 def _set_display_colors(mesh: Any, labels: NDArray[np.int64]) -> None:
@@ -418,9 +472,15 @@ def _set_display_colors(mesh: Any, labels: NDArray[np.int64]) -> None:
     primvar.Set(Vt.Vec3fArray.FromNumpy(linear_face_colors(labels).astype(np.float32)))
 
 
-def _add_parts(stage: Any, paths: list[Any], counts: list[int], labels: NDArray[Any]) -> None:
+def _add_parts(
+    stage: Any,
+    paths: list[Any],
+    counts: list[int],
+    labels: NDArray[Any],
+    names: Mapping[int, str] | None = None,
+) -> None:
     """Subsets and display colours on the mesh prims at ``paths`` (``counts`` faces each,
-    ``labels`` one per face of all of them, prim after prim)."""
+    ``labels`` one per face of all of them, prim after prim); ``names``: per label."""
     from pxr import UsdGeom
 
     if sum(counts) != len(labels):
@@ -431,7 +491,7 @@ def _add_parts(stage: Any, paths: list[Any], counts: list[int], labels: NDArray[
     offsets = np.cumsum([0, *counts])
     for path, start, end in zip(paths, offsets[:-1], offsets[1:], strict=True):
         mesh = UsdGeom.Mesh(stage.GetPrimAtPath(path))
-        _replace_part_subsets(stage, mesh, labels[start:end])
+        _replace_part_subsets(stage, mesh, labels[start:end], names)
         _set_display_colors(mesh, labels[start:end])
 
 
@@ -467,6 +527,7 @@ def write_usd_parts(
     output: str | Path,
     *,
     input_format: str | None = None,
+    names: Mapping[int, str] | None = None,
 ) -> None:
     """Write the USD stage of ``source`` with its parts: on every mesh prim that
     ``read_usd_path`` reads, one ``UsdGeom.Subset`` per part (family ``part``,
@@ -480,6 +541,9 @@ def write_usd_parts(
     sublayers or references) is flattened. Instances holding meshes are made ordinary
     prims, so each copy gets its own subsets. ``output`` ends in .usda, .usdc, .usd or
     .usdz (a package of the one written layer: a USDZ input's textures are not carried).
+    ``names``: a name per label value (a labeller's): subsets are named by it (as an
+    identifier; the name itself in their custom data ``LABEL_NAME_KEY``), each bound to
+    a material ``/World/Looks/<name>`` of the label's colour.
     """
     from pxr import Usd, UsdGeom
 
@@ -498,7 +562,7 @@ def write_usd_parts(
             len(UsdGeom.Mesh(stage.GetPrimAtPath(p)).GetFaceVertexCountsAttr().Get(time) or [])
             for p in paths
         ]
-        _add_parts(stage, paths, counts, labels)
+        _add_parts(stage, paths, counts, labels, names)
         single = len([layer for layer in stage.GetUsedLayers() if not layer.anonymous]) == 1
         layer = stage.GetRootLayer() if single and extension != "usdz" else stage.Flatten()
         _export(layer, output, path.parent)
@@ -529,7 +593,13 @@ def input_polygons(mesh: TriangleMesh) -> tuple[NDArray[np.int64], NDArray[np.in
     return counts.astype(np.int64), faces[corners], origin[start]
 
 
-def write_mesh_parts_usd(mesh: TriangleMesh, face_labels: NDArray[Any], output: str | Path) -> None:
+def write_mesh_parts_usd(
+    mesh: TriangleMesh,
+    face_labels: NDArray[Any],
+    output: str | Path,
+    *,
+    names: Mapping[int, str] | None = None,
+) -> None:
     """A new USD stage of ``mesh`` with its parts, for inputs that are not USD (or whose
     file is gone, as in the service): one Mesh prim ``/World/Mesh`` whose faces are the
     input faces (``input_polygons``), with the subsets and display colours of
@@ -555,16 +625,18 @@ def write_mesh_parts_usd(mesh: TriangleMesh, face_labels: NDArray[Any], output: 
     prim.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
     lower, upper = mesh.vertices.min(axis=0), mesh.vertices.max(axis=0)
     prim.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([lower, upper]).astype(np.float32)))
-    _add_parts(stage, [Sdf.Path("/World/Mesh")], [len(counts)], labels[input_face])
+    _add_parts(stage, [Sdf.Path("/World/Mesh")], [len(counts)], labels[input_face], names)
     with tempfile.TemporaryDirectory(prefix="neural-shdf-usd-") as scratch:
         _export(stage.GetRootLayer(), output, Path(scratch))
 
 
-def mesh_parts_usda(mesh: TriangleMesh, face_labels: NDArray[Any]) -> bytes:
+def mesh_parts_usda(
+    mesh: TriangleMesh, face_labels: NDArray[Any], *, names: Mapping[int, str] | None = None
+) -> bytes:
     """``write_mesh_parts_usd`` as the bytes of a .usda file."""
     with tempfile.TemporaryDirectory(prefix="neural-shdf-usd-") as scratch:
         path = Path(scratch) / "parts.usda"
-        write_mesh_parts_usd(mesh, face_labels, path)
+        write_mesh_parts_usd(mesh, face_labels, path, names=names)
         return path.read_bytes()
 
 

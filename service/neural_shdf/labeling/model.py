@@ -177,6 +177,13 @@ def _checksum(arrays: dict[str, NDArray]) -> str:
 
 def save_labeler(labeler: Labeler, path: str | Path) -> Path:
     """Write ``labeler`` as one ``.npz`` file (see the module doc); returns the path."""
+    path = Path(path)
+    path.write_bytes(labeler_bytes(labeler))
+    return path
+
+
+def labeler_bytes(labeler: Labeler) -> bytes:
+    """The bytes of ``labeler``'s file (what ``save_labeler`` writes)."""
     arrays = labeler.trees.arrays() | {"label_values": labeler.label_values.astype(np.int64)}
     metadata = dict(labeler.metadata) | {
         "format": FORMAT,
@@ -185,13 +192,11 @@ def save_labeler(labeler: Labeler, path: str | Path) -> Path:
         "label_values": [int(v) for v in labeler.label_values],
         "sha256": _checksum(arrays),
     }
-    path = Path(path)
     buffer = io.BytesIO()
     np.savez_compressed(
         buffer, metadata=np.frombuffer(json.dumps(metadata).encode(), dtype=np.uint8), **arrays
     )
-    path.write_bytes(buffer.getvalue())
-    return path
+    return buffer.getvalue()
 
 
 def load_labeler(source: str | Path | bytes) -> Labeler:
@@ -203,6 +208,7 @@ def load_labeler(source: str | Path | bytes) -> Labeler:
     data = source if isinstance(source, bytes) else Path(source).read_bytes()
     if len(data) > MAX_FILE_BYTES:
         raise LabelerFileError(f"labeller file is {len(data)} bytes, more than {MAX_FILE_BYTES}")
+    _check_unpacked_size(data)
     try:
         with np.load(io.BytesIO(data), allow_pickle=False) as archive:
             arrays = {name: archive[name] for name in archive.files}
@@ -233,6 +239,33 @@ def load_labeler(source: str | Path | bytes) -> Labeler:
     if len(names) != len(label_values) or not all(isinstance(n, str) for n in names):
         raise LabelerFileError("labeller file: label names do not match its labels")
     return Labeler(trees, label_values, tuple(names), metadata)
+
+
+def _check_unpacked_size(data: bytes) -> None:
+    """Refuse a zip whose members would unpack to more than ``MAX_FILE_BYTES`` (a small
+    upload must not become gigabytes in memory), from its directory, before reading them."""
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            unpacked = sum(member.file_size for member in archive.infolist())
+    except (zipfile.BadZipFile, ValueError, EOFError) as error:
+        raise LabelerFileError(f"not a labeller file (.npz): {error}") from error
+    if unpacked > MAX_FILE_BYTES:
+        raise LabelerFileError(
+            f"labeller file unpacks to {unpacked} bytes, more than {MAX_FILE_BYTES}"
+        )
+
+
+def labeler_id(labeler: Labeler) -> str:
+    """Content id of a labeller (64 hex digits): the hash of what it labels with (trees,
+    labels, names, features, smoothing), not of its training statistics or file bytes, so
+    the same labeller saved twice has one id."""
+    arrays = labeler.trees.arrays() | {"label_values": labeler.label_values.astype(np.int64)}
+    # What save_labeler adds (format, names, values, checksum) is taken from the labeller.
+    added = ("training", "sha256", "format", "format_version", "label_names", "label_values")
+    described = {k: v for k, v in labeler.metadata.items() if k not in added}
+    described |= {"label_names": list(labeler.label_names), "trees": _checksum(arrays)}
+    text = json.dumps(described, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 _DTYPES = {

@@ -135,6 +135,35 @@ def atlas_png_key(atlas_key: str) -> str:
     return f"{atlas_key}:png"
 
 
+# -- part labellers (named parts) ----------------------------------------------------
+
+
+def labeler_group(labeler_id: str) -> str:
+    """The group of a stored labeller's entries (deleting the labeller removes it)."""
+    return f"labeler:{labeler_id}"
+
+
+def labeler_file_key(labeler_id: str) -> str:
+    """A stored labeller's file (``labeling.save_labeler``'s bytes, as one uint8 array)."""
+    return f"{labeler_group(labeler_id)}:file"
+
+
+def labeler_meta_key(labeler_id: str) -> str:
+    """A stored labeller's description (JSON: names, labels, training summary, size)."""
+    return f"{labeler_group(labeler_id)}:meta"
+
+
+def labeler_index_key() -> str:
+    """The ids of the stored labellers (JSON list), for listing them."""
+    return "labelers:index"
+
+
+def labeling_key(mesh_id: str, shdf_version: str, labeler_id: str) -> str:
+    """A mesh's labels by a labeller: the mesh, the ShDF they start from and the labeller
+    (content-addressed, so its id covers its trees, names and feature version)."""
+    return f"{mesh_id}:labels:{__version__}:{shdf_version}:{labeler_id}"
+
+
 # -- bookkeeping ----------------------------------------------------------------------
 
 

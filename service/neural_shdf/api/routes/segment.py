@@ -9,11 +9,18 @@ from fastapi import APIRouter, Form, Query, Response
 
 from neural_shdf.api.editing import edited_result
 from neural_shdf.api.engine import Engine
-from neural_shdf.api.responses import GLB_MEDIA_TYPE, glb_response, segmentation_response
+from neural_shdf.api.errors import ApiError
+from neural_shdf.api.responses import (
+    GLB_MEDIA_TYPE,
+    glb_response,
+    labels_response,
+    segmentation_response,
+)
 from neural_shdf.api.routes.deps import EngineDep, SingleFormFields, error_responses
 from neural_shdf.api.routes.meshes import MeshId, ingest
 from neural_shdf.api.schemas import (
     Job,
+    LabeledSegmentOptions,
     Segmentation,
     SegmentFileForm,
     SegmentOptions,
@@ -41,6 +48,14 @@ async def segment_response(
     edits: list[dict[str, Any]] | None = None,
 ) -> Response:
     method = await engine.resolved_method(mesh_id, options.method)
+    if isinstance(options, LabeledSegmentOptions) and options.labeler_id is not None:
+        if edits:
+            raise ApiError(
+                422,
+                "invalid_parameter",
+                "edits cannot be combined with labeler_id: named parts are not edited",
+            )
+        return await labeled_response(engine, mesh_id, method, options, options.labeler_id)
     result, timings = await engine.segmentations.get(mesh_id, method, params)
     tree_of = None
     if edits:
@@ -53,6 +68,28 @@ async def segment_response(
     # Serialising a million labels takes a while: never on the event loop.
     return await engine.io(
         segmentation_response, mesh_id, method, options.labels_format, result, timings, tree_of
+    )
+
+
+async def labeled_response(
+    engine: Engine, mesh_id: str, method: str, options: SegmentOptions, labeler_id: str
+) -> Response:
+    """Named parts of a stored mesh by a stored labeller, from its cached ShDF."""
+    result, labeler, shdf, timings = await engine.labelings.get(
+        mesh_id, method, options.seed, labeler_id
+    )
+    mesh = await engine.io(engine.meshes.load, mesh_id)
+    return await engine.io(
+        labels_response,
+        mesh_id,
+        method,
+        options.labels_format,
+        labeler_id,
+        labeler,
+        mesh,
+        shdf,
+        result,
+        timings,
     )
 
 
@@ -95,10 +132,15 @@ async def segment_file(
 
 def _glb_route(style: str):  # noqa: ANN202 - FastAPI endpoint factory
     async def endpoint(
-        engine: EngineDep, mesh_id: MeshId, options: Annotated[SegmentOptions, Query()]
+        engine: EngineDep, mesh_id: MeshId, options: Annotated[LabeledSegmentOptions, Query()]
     ) -> Response:
         params = options.segment_params()
         method = await engine.resolved_method(mesh_id, options.method)
+        if options.labeler_id is not None:
+            glb = await engine.labelings.glb(
+                mesh_id, method, options.seed, options.labeler_id, style
+            )
+            return glb_response(glb, mesh_id, style)
         glb = await engine.segmentations.glb(mesh_id, method, params, style)
         return glb_response(glb, mesh_id, style)
 
@@ -128,7 +170,8 @@ router.add_api_route(
     methods=["GET"],
     operation_id="get_parts_glb",
     summary="Segmentation as one mesh per part",
-    description="A GLB scene with one node and mesh per part, named `part_000`, `part_001`, ...",
+    description="A GLB scene with one node and mesh per part, named `part_000`, `part_001`, "
+    "...; with `labeler_id`, one per label present, named by the label's name.",
     response_class=Response,
     responses=_GLB_RESPONSES,
 )
@@ -144,7 +187,8 @@ USDA_MEDIA_TYPE = "model/vnd.usda"
     summary="Segmentation as a USD stage with one GeomSubset per part",
     description="A USD layer with one Mesh prim `/World/Mesh` whose faces are the input faces "
     "(in input order; faces without triangles are left out), one `GeomSubset` per part "
-    "(family `part`, named `part_000`, ...) and a per-face `primvars:displayColor`. The "
+    "(family `part`, named `part_000`, ...; with `labeler_id`, named by label, each with "
+    "a material of the label's name and colour) and a per-face `primvars:displayColor`. The "
     "uploaded file is not kept: segment USD files with the CLI's `--usd` to get parts on "
     "their own stage.",
     response_class=Response,
@@ -157,11 +201,14 @@ USDA_MEDIA_TYPE = "model/vnd.usda"
     },
 )
 async def get_parts_usda(
-    engine: EngineDep, mesh_id: MeshId, options: Annotated[SegmentOptions, Query()]
+    engine: EngineDep, mesh_id: MeshId, options: Annotated[LabeledSegmentOptions, Query()]
 ) -> Response:
     """The segmentation as USD, written from the stored mesh."""
     params = options.segment_params()
     method = await engine.resolved_method(mesh_id, options.method)
-    body = await engine.segmentations.usda(mesh_id, method, params)
+    if options.labeler_id is not None:
+        body = await engine.labelings.usda(mesh_id, method, options.seed, options.labeler_id)
+    else:
+        body = await engine.segmentations.usda(mesh_id, method, params)
     disposition = f'attachment; filename="{mesh_id[:16]}-parts.usda"'
     return Response(body, media_type=USDA_MEDIA_TYPE, headers={"Content-Disposition": disposition})

@@ -176,3 +176,25 @@ export function segmentQuery(request) {
   }
   return query.toString();
 }
+
+/** GET /v1/labelers: the stored part labellers ({labeler_id, label_names, label_values, ...}). */
+export async function listLabelers() {
+  return (await (await checked(await fetch('/v1/labelers'))).json()).labelers;
+}
+
+/** POST /v1/labelers: upload a labeller file (checked by the service); its description. */
+export async function uploadLabeler(file) {
+  const form = new FormData();
+  form.append('file', file, file.name);
+  return (await checked(await fetch('/v1/labelers', { method: 'POST', body: form }))).json();
+}
+
+/** Confidence per input face of named parts (Float32Array; NaN: no triangles), or null. */
+export function decodeConfidence(body) {
+  if (body.confidence_base64) {
+    const bytes = Uint8Array.from(atob(body.confidence_base64), (c) => c.charCodeAt(0));
+    return new Float32Array(bytes.buffer, 0, bytes.length / 4);
+  }
+  if (body.confidence) return Float32Array.from(body.confidence, (v) => (v === null ? NaN : v));
+  return null;
+}

@@ -187,6 +187,11 @@ export function setUpEditing(page) {
   return {
     /** A new segmentation on screen (not an edit): edits start again from it. */
     segmented(body, request, labels) {
+      if (body.labeler_id) {  // named parts are a labeller's answer: not edited by hand
+        Object.assign(session, { base: null, edits: [], result: null });
+        update();
+        return;
+      }
       const tree = body.hierarchy && state.tree ? { tree: state.tree.tree, leafLabels: state.tree.leafLabels } : null;
       Object.assign(session, { base: { body, request, labels, tree }, edits: [], result: null });
       $('edit-status').textContent = '';

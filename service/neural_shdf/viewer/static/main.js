@@ -50,6 +50,10 @@ const state = {
   dragPending: false, // a dragged value waits for the request in flight
   cache: new Map(),   // request key -> Segmentation, most recent last
   tree: null,         // the graph cut's part tree of the answer on screen, for recuts
+  labelerId: '',      // the part labeller chosen ('' : segment)
+  labelers: [],       // the stored labellers (GET /v1/labelers)
+  faceValues: null,   // named parts: the labeller's integer per input face (labels: indices)
+  confidence: null,   // named parts: Float32Array per input face
   view: 'parts',
   selected: -1,
   hidden: new Set(),
@@ -183,6 +187,9 @@ function controlValues() {
 }
 
 function currentRequest() {
+  if (state.labelerId) {  // named parts: the partitioning controls play no part
+    return { mesh_id: state.meshId, method: state.method, labeler_id: state.labelerId };
+  }
   return { mesh_id: state.meshId, method: state.method, ...controlValues() };
 }
 
@@ -331,10 +338,20 @@ function keepTree(body, request) {
 
 /** Show a segmentation; `edited`: a hand edit of the one on screen (editing keeps its base). */
 function applySegmentation(body, request, labels = null, edited = false) {
+  let faceValues = null;
+  let confidence = null;
   if (labels === null) {
     labels = api.decodeLabels(body);
     keepTree(body, request);
+    if (body.labeler_id) {
+      // Named parts come in the labeller's own integers; the page works on part indices.
+      faceValues = labels;
+      const index = new Map(body.parts.map((part, i) => [part.label, i]));
+      labels = Int32Array.from(faceValues, (value) => index.get(value) ?? -1);
+      confidence = api.decodeConfidence(body);
+    }
   }
+  Object.assign(state, { faceValues, confidence });
   const palette = new Uint8Array(body.parts.length * 3);
   body.parts.forEach((part, i) => palette.set(parseHex(part.color), i * 3));
   Object.assign(state, { labels, body, palette, shownRequest: request });
@@ -375,7 +392,8 @@ function select(label) {
   } else {
     const part = state.body.parts[label];
     $('selection-swatch').style.background = part.color;
-    $('selection-title').textContent = `Part ${label}`;
+    $('selection-title').textContent = partTitle(part, label);
+    $('selection-label').textContent = String(part.label);
     $('selection-faces').textContent = part.faces.toLocaleString();
     $('selection-area').textContent = formatNumber(part.area);
     $('selection-shdf').textContent = part.mean_shdf.toFixed(3);
@@ -411,6 +429,9 @@ function showAll() {
   select(state.selected);
 }
 
+/** "head" for a named part, "Part 3" for a segment. */
+const partTitle = (part, index) => part.name ?? `Part ${part.label ?? index}`;
+
 const formatNumber = (x) => (Math.abs(x) >= 1000 || (x !== 0 && Math.abs(x) < 0.01) ? x.toExponential(2) : x.toFixed(3));
 const MAX_ROWS = 500;
 
@@ -426,9 +447,12 @@ function renderPartsPanel() {
     row.classList.toggle('hidden-part', !visible);
     row.classList.toggle('selected', part.label === state.selected);
     row.innerHTML = `<td><span class="swatch" style="background:${part.color}"></span></td>
-      <td>${part.label}</td><td>${part.faces.toLocaleString()}</td><td>${formatNumber(part.area)}</td>
+      <td class="part-name"></td><td>${part.faces.toLocaleString()}</td><td>${formatNumber(part.area)}</td>
       <td>${part.mean_shdf.toFixed(3)}</td>
       <td><button class="eye" title="Hide or show">${visible ? '◉' : '○'}</button><button class="solo" title="Isolate">◎</button></td>`;
+    // A name comes from a labeller file: text, never markup.
+    row.querySelector('.part-name').textContent = part.name ?? String(part.label);
+    if (part.name) row.querySelector('.part-name').title = `label ${part.label}`;
     row.querySelector('.eye').onclick = (event) => { event.stopPropagation(); toggleHidden(part.label); };
     row.querySelector('.solo').onclick = (event) => { event.stopPropagation(); toggleIsolated(part.label); };
     row.onclick = () => select(part.label === state.selected ? -1 : part.label);
@@ -457,9 +481,13 @@ async function downloadGlb(style) {
   }
 }
 
-$('download-seg').onclick = () => saveBlob(new Blob([state.labels.join('\n') + '\n'], { type: 'text/plain' }), `${stem()}.seg`);
+/** Labels per input face as the service gives them (named parts: the labeller's integers). */
+const faceLabels = () => state.faceValues ?? state.labels;
+
+$('download-seg').onclick = () => saveBlob(new Blob([faceLabels().join('\n') + '\n'], { type: 'text/plain' }), `${stem()}.seg`);
 $('download-json').onclick = () => {
-  const body = { ...state.body, labels: Array.from(state.labels), labels_base64: null, labels_dtype: null };
+  const body = { ...state.body, labels: Array.from(faceLabels()), labels_base64: null, labels_dtype: null };
+  if (state.confidence) Object.assign(body, { confidence: Array.from(state.confidence, (v) => (Number.isNaN(v) ? null : v)), confidence_base64: null });
   saveBlob(new Blob([JSON.stringify(body)], { type: 'application/json' }), `${stem()}-segmentation.json`);
 };
 $('download-colored').onclick = () => downloadGlb('colored');
@@ -592,6 +620,92 @@ function setUpFileInput() {
   });
 }
 
+// ---- named parts: the labeller, the hover label -----------------------------------------
+function showLabelerNames() {
+  const chosen = state.labelers.find((entry) => entry.labeler_id === state.labelerId);
+  $('labeler-names').textContent = chosen ? chosen.label_names.join(', ') : '';
+  $('labeler-names').hidden = !chosen;
+  $('controls').classList.toggle('disabled', Boolean(state.labelerId));
+  for (const input of document.querySelectorAll('#controls input, #controls select')) input.disabled = Boolean(state.labelerId);
+}
+
+function fillLabelers(labelers) {
+  state.labelers = labelers;
+  const options = labelers.map((entry) => new Option(
+    `${entry.label_names.slice(0, 4).join(', ')}${entry.label_names.length > 4 ? ', …' : ''} (${entry.labeler_id.slice(0, 8)})`,
+    entry.labeler_id));
+  $('labeler').replaceChildren(new Option('none: segment', ''), ...options);
+  $('labeler').value = labelers.some((entry) => entry.labeler_id === state.labelerId) ? state.labelerId : '';
+  state.labelerId = $('labeler').value;
+  showLabelerNames();
+}
+
+async function refreshLabelers() {
+  try {
+    fillLabelers(await api.listLabelers());
+  } catch (error) {
+    showError(error, 'labellers');
+  }
+}
+
+async function chooseLabeler(labelerId) {
+  state.labelerId = labelerId;
+  $('labeler').value = labelerId;
+  showLabelerNames();
+  state.selected = -1;
+  await resegment({ reason: 'labeler' });
+}
+
+function setUpLabelers() {
+  $('labeler').addEventListener('change', () => chooseLabeler($('labeler').value));
+  $('labeler-input').addEventListener('change', async (event) => {
+    const [file] = event.target.files;
+    event.target.value = '';
+    if (!file) return;
+    clearError();
+    try {
+      const stored = await api.uploadLabeler(file);
+      fillLabelers([...state.labelers.filter((e) => e.labeler_id !== stored.labeler_id), stored]);
+      await chooseLabeler(stored.labeler_id);
+    } catch (error) {
+      showError(error, file.name);
+    }
+  });
+  refreshLabelers();
+}
+
+/** The text under the pointer: the part's name (and confidence of named parts), or none. */
+function hoverText(face) {
+  if (face < 0 || !state.labels || !state.body) return null;
+  const index = state.labels[face];
+  const part = state.body.parts[index];
+  if (!part) return null;
+  const confidence = state.confidence ? state.confidence[face] : NaN;
+  return Number.isNaN(confidence) ? partTitle(part, index) : `${partTitle(part, index)} · ${confidence.toFixed(2)}`;
+}
+
+function setUpHover() {
+  const canvas = $('canvas');
+  const label = $('hover-label');
+  let pending = null;
+  canvas.addEventListener('pointermove', (event) => {
+    if (event.buttons) { label.hidden = true; return; }  // orbiting or painting
+    const { clientX, clientY } = event;
+    if (pending !== null) cancelAnimationFrame(pending);
+    pending = requestAnimationFrame(() => {
+      pending = null;
+      const text = view.mesh ? hoverText(view.pick(clientX, clientY)) : null;
+      label.hidden = text === null;
+      if (text === null) return;
+      const box = $('stage').getBoundingClientRect();
+      label.textContent = text;
+      label.style.left = `${clientX - box.left}px`;
+      label.style.top = `${clientY - box.top}px`;
+    });
+  });
+  canvas.addEventListener('pointerleave', () => { label.hidden = true; });
+}
+
 function setUpPicking() {
   const canvas = $('canvas');
   let down = null;
@@ -614,6 +728,8 @@ window.shdfViewer.editing = editing;
 setUpControls();
 setUpFileInput();
 setUpPicking();
+setUpHover();
+setUpLabelers();
 setStatus('empty');
 if ($('message').dataset.code === 'three_missing') {  // three.js came, after a long wait
   clearError();
@@ -623,6 +739,8 @@ if ($('message').dataset.code === 'three_missing') {  // three.js came, after a 
 window.shdfViewer.openFile = openFile;
 window.shdfViewer.select = select;
 window.shdfViewer.controlValues = controlValues;
+window.shdfViewer.refreshLabelers = refreshLabelers;
+window.shdfViewer.chooseLabeler = chooseLabeler;
 window.shdfViewer.smoothingPosition = smoothingPosition;
 window.shdfViewer.smoothingValues = SMOOTHING_VALUES;
 window.shdfViewer.ready = true;

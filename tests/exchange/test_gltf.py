@@ -231,7 +231,7 @@ def test_buffer_length_beyond_its_data_is_rejected():
                             scenes=[{"nodes": [0]}]), MeshParseError, "cycle"),
         (lambda d: d["asset"].update(version="1.0"), UnsupportedFormatError, "version"),
         (lambda d: d.update(nodes=[{"mesh": 0, "extensions": {"EXT_mesh_gpu_instancing": {}}}],
-                            scenes=[{"nodes": [0]}]), UnsupportedFormatError, "instancing"),
+                            scenes=[{"nodes": [0]}]), MeshParseError, "EXT_mesh_gpu_instancing without attributes"),
     ],
 )  # fmt: skip
 def test_bad_documents_raise_typed_errors(edit, error, words):

@@ -461,7 +461,7 @@ def _export(layer: Any, output: Path, scratch: Path) -> None:
 
 
 def write_usd_parts(
-    source: str | Path,
+    source: str | Path | bytes,
     face_labels: NDArray[Any],
     output: str | Path,
     *,
@@ -473,7 +473,9 @@ def write_usd_parts(
     faces without a part, such as holes, in ``unlabeled``) and a per-face
     ``primvars:displayColor`` (uniform; the part colours, converted to linear).
 
-    ``face_labels``: one label per input face, in the reader's order (e.g.
+    ``source``: the USD file's path, or its bytes (then ``input_format`` says which
+    kind: usd, usda, usdc or usdz). ``face_labels``: one label per input face, in the
+    reader's order (e.g.
     ``SegmentResult.input_face_parts``). Everything else in the stage is kept. A stage of
     one layer is written as that layer; one composed of several layers (a USDZ with
     sublayers or references) is flattened. Instances holding meshes are made ordinary
@@ -483,9 +485,11 @@ def write_usd_parts(
     from pxr import Usd, UsdGeom
 
     output, labels = _check_output(output, face_labels)
-    source = Path(source)
-    extension = (input_format or source.suffix).lower().lstrip(".")
-    data = source.read_bytes()
+    if isinstance(source, bytes | bytearray | memoryview):
+        data, suffix = bytes(source), ""
+    else:
+        data, suffix = Path(source).read_bytes(), Path(source).suffix
+    extension = (input_format or suffix or "usd").lower().lstrip(".")
     if extension == "usd":
         extension = sniff_usd(data) or "usd"
     with usd_file(data, extension) as path:
@@ -501,6 +505,15 @@ def write_usd_parts(
         single = len([layer for layer in stage.GetUsedLayers() if not layer.anonymous]) == 1
         layer = stage.GetRootLayer() if single and extension != "usdz" else stage.Flatten()
         _export(layer, output, path.parent)
+
+
+def usd_parts_usda(data: bytes, input_format: str, face_labels: NDArray[Any]) -> bytes:
+    """``write_usd_parts`` of a USD file's bytes, as the bytes of a .usda layer (a stage of
+    several layers, such as a USDZ package, flattened)."""
+    with tempfile.TemporaryDirectory(prefix="neural-shdf-usd-") as scratch:
+        path = Path(scratch) / "parts.usda"
+        write_usd_parts(data, face_labels, path, input_format=input_format)
+        return path.read_bytes()
 
 
 def input_polygons(mesh: TriangleMesh) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[Any]]:
@@ -583,6 +596,7 @@ __all__ = [
     "read_usdz",
     "sniff_usd",
     "usd_file",
+    "usd_parts_usda",
     "write_mesh_parts_usd",
     "write_usd_parts",
 ]

@@ -354,7 +354,7 @@ def _flip_if_mirrored(faces: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     return faces[:, [0, 2, 1]] if np.linalg.det(matrix[:3, :3]) < 0 else faces
 
 
-def _draco_glb(mesh: trimesh.Trimesh, matrix: np.ndarray, *, required: bool) -> bytes:
+def draco_glb(mesh: trimesh.Trimesh, matrix: np.ndarray, *, required: bool) -> bytes:
     import DracoPy
 
     encoded = DracoPy.encode(
@@ -419,7 +419,7 @@ def _gltf_cases() -> list[Case]:
     )
 
     for required in (True, False):
-        data = _draco_glb(sphere, shift, required=required)
+        data = draco_glb(sphere, shift, required=required)
         name = "glb_draco_required" if required else "glb_draco_only_in_extensionsUsed"
         cases.append(
             Case(name, "glb", data, sphere_truth, _draco_independent(data, shift), tolerance=1e-4)
@@ -845,7 +845,7 @@ def _time_draco(faces: int) -> None:
     )
     plain_glb = plain.glb()
     started = time.perf_counter()
-    draco_glb = _draco_glb(sphere, np.eye(4), required=True)
+    draco_data = draco_glb(sphere, np.eye(4), required=True)
     encode_s = time.perf_counter() - started
     del DracoPy
 
@@ -857,11 +857,11 @@ def _time_draco(faces: int) -> None:
             times.append(time.perf_counter() - started)
         return min(times)
 
-    plain_s, draco_s = best(plain_glb), best(draco_glb)
+    plain_s, draco_s = best(plain_glb), best(draco_data)
     print(
         f"\nDraco timing: {len(sphere.faces)} faces; uncompressed GLB "
         f"{len(plain_glb) / 1e6:.1f} MB loads in {plain_s:.3f} s, Draco GLB "
-        f"{len(draco_glb) / 1e6:.1f} MB (encoded in {encode_s:.1f} s) "
+        f"{len(draco_data) / 1e6:.1f} MB (encoded in {encode_s:.1f} s) "
         f"in {draco_s:.3f} s: {draco_s - plain_s:+.3f} s beyond (target at most +1 s), "
         f"ratio {draco_s / plain_s:.2f}"
     )

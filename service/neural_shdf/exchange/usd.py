@@ -100,15 +100,19 @@ def _inside(path: str, folder: Path) -> bool:
     return bool(real) and os.path.realpath(real).startswith(str(folder.resolve()) + os.sep)
 
 
-def check_layers_inside(path: Path) -> None:
+def check_layers_inside(path: Path) -> list[Any]:
     """UnsupportedFormatError unless every layer the file composes (sublayers, references,
-    payloads, recursively) is the file itself or inside it (a USDZ's own layers)."""
+    payloads, recursively) is the file itself or inside it (a USDZ's own layers).
+
+    Returns the opened layers, root first: while they are held, opening the stage reuses
+    them (usd-core's layer registry) instead of parsing every layer a second time."""
     from pxr import Sdf
 
     root = Sdf.Layer.FindOrOpen(str(path))
     if root is None:
         raise MeshParseError("usd-core could not open the file as a USD layer")
     seen = {root.identifier}
+    opened = [root]
     pending = [root]
     while pending:
         layer = pending.pop()
@@ -136,14 +140,17 @@ def check_layers_inside(path: Path) -> None:
             if child is None:
                 raise MeshParseError(f"the USD layer {asset!r} is missing from the file")
             pending.append(child)
+            opened.append(child)
+    return opened
 
 
 def open_stage(path: Path) -> Any:
     """The composed stage of a USD file whose layers were checked with check_layers_inside."""
     from pxr import Usd
 
-    check_layers_inside(path)
-    stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+    layers = check_layers_inside(path)
+    stage = Usd.Stage.Open(layers[0], Usd.Stage.LoadAll)  # the layers parsed once
+    del layers  # the stage holds what it uses
     if stage is None:
         raise MeshParseError("usd-core could not open the file as a USD stage")
     return stage

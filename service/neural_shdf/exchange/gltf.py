@@ -667,10 +667,10 @@ def _read_document(
 
     vertices = np.concatenate(vertex_blocks) if vertex_blocks else np.zeros((0, 3))
     faces = np.concatenate(face_blocks) if face_blocks else np.zeros((0, 3), dtype=np.int64)
-    mesh = build_mesh(vertices, faces, None, len(faces), format_name=format_name, limits=limits)
+    read = build_mesh(vertices, faces, None, len(faces), format_name=format_name, limits=limits)
     if kept is None:
-        return SourceMesh(mesh)
-    return SourceMesh(mesh, kept.result(mesh, instances))
+        return SourceMesh(read)
+    return SourceMesh(read, kept.result(read, instances))
 
 
 def _is_kept_attribute(name: str) -> bool:

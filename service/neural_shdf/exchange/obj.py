@@ -286,9 +286,10 @@ def _attributes(
     if uv_table is None or not finite_rows(uv_table):
         corner_uv[:] = -1
     normal_usable = np.zeros(0, dtype=bool)
+    unit_table: NDArray[np.float32] | None = None
     if normal_table is not None:
-        normal_table, _ = unit_normals(normal_table)
-        normal_usable = np.abs(normal_table).sum(axis=1) > 0
+        unit_table, _ = unit_normals(normal_table)
+        normal_usable = np.abs(unit_table).sum(axis=1) > 0
     else:
         corner_normal[:] = -1
     corner_normal[corner_normal >= 0] = np.where(
@@ -340,8 +341,8 @@ def _attributes(
         uv[uv_index >= 0] = uv_table[uv_index[uv_index >= 0]]
         uv[:, 1] = 1.0 - uv[:, 1]  # OBJ's V points up, glTF's down
     normals = np.zeros((len(vertex), 3), dtype=np.float32)
-    if normal_table is not None and (normal_index >= 0).any():
-        normals[normal_index >= 0] = normal_table[normal_index[normal_index >= 0]]
+    if unit_table is not None and (normal_index >= 0).any():
+        normals[normal_index >= 0] = unit_table[normal_index[normal_index >= 0]]
     colors = None
     if colored and color_table is not None:
         colors = np.column_stack(

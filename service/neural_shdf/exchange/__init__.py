@@ -11,7 +11,7 @@ from neural_shdf.exchange.obj import read_obj, read_obj_source
 from neural_shdf.exchange.off import read_off
 from neural_shdf.exchange.ply import read_ply, read_ply_source
 from neural_shdf.exchange.stl import read_stl
-from neural_shdf.exchange.usd import read_usd, read_usda, read_usdc, read_usdz
+from neural_shdf.exchange.usd import read_usd, read_usd_source, read_usda, read_usdc, read_usdz
 
 #: Reader for each supported file extension (lower case, without the dot).
 READERS: dict[str, Reader] = {
@@ -43,6 +43,10 @@ SOURCE_READERS: dict[str, SourceReader] = {
     "ply": partial(read_ply_source, attributes=True),
     "glb": partial(read_glb_source, attributes=True),
     "gltf": partial(read_gltf_source, attributes=True),
+    **{
+        name: partial(read_usd_source, name, attributes=True)
+        for name in ("usd", "usda", "usdc", "usdz")
+    },
 }
 
 #: Formats refused on purpose, with the message that says what to do instead.

@@ -125,11 +125,10 @@ def parts_glb(
     label_span = int(labels.max()) - low + 1 if len(labels) else 1
     triangle_object = np.maximum(group_object[attributes.face_group], 0) if objects else 0
     key = (triangle_object * label_span + (labels - low)) * len(groups) + attributes.face_group
-    primitive_keys, primitive_of = np.unique(key, return_inverse=True)
-    primitive_of = primitive_of.reshape(-1)
-    order = np.argsort(primitive_of, kind="stable")
-    face_start = np.searchsorted(primitive_of[order], np.arange(len(primitive_keys)))
-    face_count = np.diff(np.append(face_start, len(order)))
+    order = np.argsort(key, kind="stable")
+    primitive_keys, face_start, face_count = np.unique(
+        key[order], return_index=True, return_counts=True
+    )
     primitive_group = primitive_keys % len(groups)
     primitive_label = (primitive_keys // len(groups)) % label_span + low
     primitive_object = primitive_keys // len(groups) // label_span
@@ -158,8 +157,9 @@ def parts_glb(
     )
     part_colored = ~np.array([g.colors for g in groups], dtype=bool) & ~own_material
     uses_part_color = part_colored[primitive_group]
-    palette = linear_color_bytes(_label_colors(np.unique(labels)))
-    part_colors = palette[np.searchsorted(np.unique(labels), primitive_label)][vertex_primitive]
+    label_values = np.unique(primitive_label)
+    palette = linear_color_bytes(_label_colors(label_values))
+    part_colors = palette[np.searchsorted(label_values, primitive_label)][vertex_primitive]
 
     builder = _GlbBuilder()
     index_view = builder.view(indices.tobytes(), target=34963)
@@ -200,19 +200,9 @@ def parts_glb(
         low_corner = high_corner = []
     # Per-primitive entries as text from templates: json.dumps of a dict per accessor
     # would take most of the time with many parts.
-    accessors: list[str] = []
-    primitives: list[str] = []
-    rows = zip(
-        primitive_group.tolist(), uses_part_color.tolist(), (12 * face_start).tolist(),
-        (3 * face_count).tolist(), vertex_start.tolist(), vertex_count.tolist(),
-        low_corner, high_corner, strict=True,
-    )  # fmt: skip
-    for group_index, part_color, index_at, corners, first, vertices, lo, hi in rows:
-        group = groups[group_index]
-        base = len(accessors)
-        accessors.append(_INDEX_ACCESSOR % (index_view, index_at, corners))
-        accessors.append(_POSITION_ACCESSOR % (position_view, 12 * first, vertices, *lo, *hi))
-        attribute_text = f'"POSITION":{base + 1}'
+    # Each group's attributes other than POSITION: (glTF name, view, element bytes, template).
+    layouts = []
+    for group, part_color in zip(groups, part_colored.tolist(), strict=True):
         wanted = [
             ("NORMAL", group.normals),
             ("TANGENT", group.tangents),
@@ -220,14 +210,28 @@ def parts_glb(
             ("COLOR_0", group.colors),
             ("PART_COLOR", part_color),
         ]
-        for name, present in wanted:
-            if not present or name not in views:
-                continue
-            view, element, template = views[name]
-            shown = "COLOR_0" if name == "PART_COLOR" else name
-            attribute_text += f',"{shown}":{len(accessors)}'
-            accessors.append(template % (view, element * first, vertices))
+        layout = [
+            ("COLOR_0" if name == "PART_COLOR" else name, *views[name])
+            for name, present in wanted
+            if present and name in views
+        ]
         material = f',"material":{group.material}' if group.material >= 0 else ""
+        layouts.append((layout, material))
+    accessors: list[str] = []
+    primitives: list[str] = []
+    rows = zip(
+        primitive_group.tolist(), (12 * face_start).tolist(), (3 * face_count).tolist(),
+        vertex_start.tolist(), vertex_count.tolist(), low_corner, high_corner, strict=True,
+    )  # fmt: skip
+    for group_index, index_at, corners, first, vertices, lo, hi in rows:
+        layout, material = layouts[group_index]
+        base = len(accessors)
+        accessors.append(_INDEX_ACCESSOR % (index_view, index_at, corners))
+        accessors.append(_POSITION_ACCESSOR % (position_view, 12 * first, vertices, *lo, *hi))
+        attribute_text = f'"POSITION":{base + 1}'
+        for number, (name, view, element, template) in enumerate(layout, start=base + 2):
+            attribute_text += f',"{name}":{number}'
+            accessors.append(template % (view, element * first, vertices))
         primitives.append(
             f'{{"attributes":{{{attribute_text}}},"indices":{base},"mode":4{material}}}'
         )
@@ -237,14 +241,14 @@ def parts_glb(
     mesh_values, mesh_first = np.unique(mesh_key, return_index=True)
     mesh_first = mesh_first.tolist() + [count]
     part_names = [
-        (names or {}).get(label, part_name(label))
+        _quoted((names or {}).get(label, part_name(label)))
         for label in primitive_label[mesh_first[:-1]].tolist()
     ]
     meshes = [
-        f'{{"name":{json.dumps(name)},"primitives":[{",".join(primitives[a:b])}]}}'
+        f'{{"name":{name},"primitives":[{",".join(primitives[a:b])}]}}'
         for name, a, b in zip(part_names, mesh_first[:-1], mesh_first[1:], strict=True)
     ]
-    nodes = [_PART_NODE % (json.dumps(name), m) for m, name in enumerate(part_names)]
+    nodes = [_PART_NODE % (name, m) for m, name in enumerate(part_names)]
     if objects:
         roots = []
         mesh_object = (mesh_values // label_span).tolist()
@@ -272,6 +276,11 @@ def parts_glb(
         f'"accessors":[{",".join(accessors)}]}}'
     )
     return glb_bytes(text, builder.binary())
+
+
+def _quoted(name: str) -> str:
+    """A name as JSON text (part_name's names need no escaping: no json.dumps per part)."""
+    return f'"{name}"' if name.isascii() and name.replace("_", "").isalnum() else json.dumps(name)
 
 
 def _plain_attributes(mesh: TriangleMesh) -> SurfaceAttributes:
@@ -370,8 +379,9 @@ class _GlbBuilder:
             view["byteStride"] = stride
         if target:
             view["target"] = target
-        self.blocks.append(data + b"\0" * (-len(data) % 4))
-        self.length += len(self.blocks[-1])
+        self.blocks.append(data)
+        self.blocks.append(b"\0" * (-len(data) % 4))
+        self.length += len(data) + len(self.blocks[-1])
         self.views.append(view)
         return len(self.views) - 1
 

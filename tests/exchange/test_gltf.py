@@ -515,3 +515,48 @@ def test_gpu_instancing_counts_against_the_face_budget():
     ]
     with pytest.raises(MeshTooLargeError, match="1000 glTF mesh instances"):
         load_mesh(b.glb(), "glb", max_faces=999)
+
+
+def test_draco_primitives_keep_their_normals_and_uvs_when_attributes_are_read():
+    """load_source of a Draco primitive: NORMAL and TEXCOORD_0 decoded from the Draco data
+    by the ids the extension gives; the mesh is the one load_mesh reads."""
+    import DracoPy
+
+    from neural_shdf.mesh_io import load_source
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    uv = (sphere.vertices[:, :2] + 1) / 2
+    encoded = DracoPy.encode(
+        sphere.vertices.astype(np.float32), sphere.faces.astype(np.uint32),
+        normals=sphere.vertex_normals.astype(np.float64), tex_coord=uv.astype(np.float64),
+        preserve_order=True,
+    )  # fmt: skip
+    ids = {}
+    decoded = DracoPy.decode(encoded)
+    for unique_id in range(3):
+        kind = decoded.get_attribute_by_unique_id(unique_id)["attribute_type"]
+        ids[{0: "POSITION", 1: "NORMAL", 3: "TEXCOORD_0"}[kind]] = unique_id
+    b = _Builder()
+    b.blob += encoded
+    b.doc["bufferViews"].append({"buffer": 0, "byteOffset": 0, "byteLength": len(encoded)})
+    vertices, faces = len(sphere.vertices), len(sphere.faces)
+    b.doc["accessors"] = [
+        {"componentType": 5125, "type": "SCALAR", "count": 3 * faces},
+        {"componentType": 5126, "type": "VEC3", "count": vertices},
+        {"componentType": 5126, "type": "VEC3", "count": vertices},
+        {"componentType": 5126, "type": "VEC2", "count": vertices},
+    ]
+    draco = {"bufferView": 0, "attributes": ids}
+    primitive = {"attributes": {"POSITION": 1, "NORMAL": 2, "TEXCOORD_0": 3}, "indices": 0,
+                 "extensions": {"KHR_draco_mesh_compression": draco}}  # fmt: skip
+    b.doc["meshes"] = [{"primitives": [primitive]}]
+    b.doc["extensionsUsed"] = b.doc["extensionsRequired"] = ["KHR_draco_mesh_compression"]
+    data = b.glb()
+    source = load_source(data, "glb")
+    assert source.mesh.content_hash() == load_mesh(data, "glb").content_hash()
+    attributes = source.attributes
+    assert attributes.groups[0].normals and attributes.groups[0].uv_sets == 1
+    np.testing.assert_allclose(
+        attributes.normals[attributes.corners], sphere.vertex_normals[sphere.faces], atol=1e-6
+    )
+    np.testing.assert_allclose(attributes.uvs[0][attributes.corners], uv[sphere.faces], atol=1e-6)

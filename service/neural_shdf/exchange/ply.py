@@ -312,10 +312,13 @@ def read_ply_source(
     )
     if not attributes:
         return SourceMesh(mesh)
-    return SourceMesh(mesh, _vertex_attributes(mesh, vertex))
+    element = elements[names.index("vertex")]
+    return SourceMesh(mesh, _vertex_attributes(mesh, vertex, element))
 
 
-def _vertex_attributes(mesh: TriangleMesh, vertex: _Columns) -> SurfaceAttributes | None:
+def _vertex_attributes(
+    mesh: TriangleMesh, vertex: _Columns, element: _Element
+) -> SurfaceAttributes | None:
     def column(name: str) -> NDArray[np.float64]:
         values = vertex[name]
         assert not isinstance(values, tuple)  # noqa: S101 - scalar properties only
@@ -335,8 +338,10 @@ def _vertex_attributes(mesh: TriangleMesh, vertex: _Columns) -> SurfaceAttribute
     colors = None
     if {"red", "green", "blue"} <= scalars:
         names = ("red", "green", "blue") + (("alpha",) if "alpha" in scalars else ())
-        raw = vertex["red"]
-        scale = 255.0 if np.asarray(raw).dtype.kind in "iu" else 1.0
+        declared = next(p.value_type for p in element.properties if p.name == "red")
+        # Integer colours are bytes (0-255), float colours 0-1, whatever the column's dtype
+        # (ascii columns are read as floats).
+        scale = 255.0 if np.dtype(declared).kind in "iu" else 1.0
         rgba = np.stack([column(n) / scale for n in names], axis=1)
         if rgba.shape[1] == 3:
             rgba = np.column_stack([rgba, np.ones(len(rgba))])

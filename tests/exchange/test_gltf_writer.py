@@ -285,3 +285,24 @@ def test_parts_of_an_obj_keep_its_uvs_normals_and_material_names(tmp_path):
     assert [m["name"] for m in document["materials"]] == ["skin", "cloth"]
     # Named materials without definitions (no .mtl read): the part colours show.
     assert all("COLOR_0" in p["attributes"] for m in document["meshes"] for p in m["primitives"])
+
+
+def test_parts_of_an_object_scaled_to_nothing_keep_their_world_positions():
+    """A node with a zero scale cannot be inverted: its parts keep world positions under a
+    node without a transform, and the file reads back face for face."""
+    from neural_shdf.mesh_io import load_source
+
+    from .scene_helpers import textured_scene_glb
+
+    data = textured_scene_glb()
+    document = json.loads(data[20 : 20 + struct.unpack_from("<I", data, 12)[0]])
+    source = load_source(data, "glb")
+    flat = load_source(
+        data.replace(b'"scale": [-1.0, 1.0, 1.0]', b'"scale": [ 0.0, 1.0, 1.0]'), "glb"
+    )
+    assert document["nodes"][1]["scale"] == [-1.0, 1.0, 1.0]
+    assert flat.mesh.face_count == source.mesh.face_count
+    labels = _labels_by_height(flat.mesh, 2)
+    back = load_mesh(parts_glb(flat.mesh, labels, attributes=flat.attributes), "glb")
+    assert back.face_count == flat.mesh.face_count
+    assert np.isclose(back.normals_and_areas[1].sum(), flat.mesh.normals_and_areas[1].sum())

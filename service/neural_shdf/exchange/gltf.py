@@ -714,7 +714,8 @@ class _KeptAttributes:
                 object=instance,
                 material=material,
                 normals=values.get("NORMAL") is not None,
-                tangents=values.get("TANGENT") is not None,
+                # glTF wants a NORMAL beside every TANGENT
+                tangents=values.get("TANGENT") is not None and values.get("NORMAL") is not None,
                 uv_sets=uv_sets,
                 colors=values.get("COLOR_0") is not None,
             )

@@ -120,6 +120,12 @@ def parts_glb(
     groups = attributes.groups
     group_object = np.array([g.object for g in groups], dtype=np.int64)
     objects = attributes.objects if (group_object >= 0).any() else ()
+    # An object whose transform flattens it (a zero scale) keeps its world positions
+    # under an untransformed node: its own space cannot be recovered.
+    objects = tuple(
+        o if abs(np.linalg.det(o.matrix)) > 1e-300 else SceneObject(o.name, np.eye(4))
+        for o in objects
+    )
     # One output primitive per (object, label, group), in that order.
     low = int(labels.min()) if len(labels) else 0
     label_span = int(labels.max()) - low + 1 if len(labels) else 1

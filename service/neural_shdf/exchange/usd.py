@@ -354,22 +354,25 @@ class _UsdAttributes:
         st = _corner_values(primvars.GetPrimvar("st"), time, flat, face_of_corner, 2)
         normal_primvar = primvars.GetPrimvar("normals")
         if normal_primvar and normal_primvar.HasAuthoredValue():
-            normals = _corner_values(normal_primvar, time, flat, face_of_corner, 3)
+            found = _corner_values(normal_primvar, time, flat, face_of_corner, 3)
         else:
-            normals = _corner_values(
+            found = _corner_values(
                 mesh.GetNormalsAttr(), time, flat, face_of_corner, 3,
                 interpolation=mesh.GetNormalsInterpolation(),
             )  # fmt: skip
-        if normals is not None:
-            unit, usable = unit_normals(normals[0])
-            normals = (unit, normals[1]) if usable else None
+        normals: tuple[NDArray[np.float32], NDArray[np.int64]] | None = None
+        if found is not None:
+            unit, usable = unit_normals(found[0])
+            normals = (unit, found[1]) if usable else None
         corners = triangle_corners.reshape(-1)
         vertex = flat[corners]
         key = vertex
-        for found in (st, normals):
-            if found is not None:
-                _, pairs = np.unique(key * (len(found[0]) + 1) + found[1][corners],
-                                     return_inverse=True)  # fmt: skip
+        for table_size, index in (
+            (len(st[0]), st[1]) if st is not None else (0, None),
+            (len(normals[0]), normals[1]) if normals is not None else (0, None),
+        ):
+            if index is not None:
+                _, pairs = np.unique(key * (table_size + 1) + index[corners], return_inverse=True)
                 key = pairs.reshape(-1)
         _, first, corner_key = np.unique(key, return_index=True, return_inverse=True)
         self.objects.append(SceneObject(str(mesh.GetPath()), matrix))

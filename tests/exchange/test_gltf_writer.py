@@ -306,3 +306,38 @@ def test_parts_of_an_object_scaled_to_nothing_keep_their_world_positions():
     back = load_mesh(parts_glb(flat.mesh, labels, attributes=flat.attributes), "glb")
     assert back.face_count == flat.mesh.face_count
     assert np.isclose(back.normals_and_areas[1].sum(), flat.mesh.normals_and_areas[1].sum())
+
+
+def test_a_primitive_with_a_normal_of_no_direction_loses_its_normals_and_tangents(tmp_path):
+    """glTF allows only unit normals and no TANGENT without a NORMAL: a primitive with a
+    zero normal keeps its UVs but neither; the other primitive keeps all of its own."""
+    from neural_shdf.mesh_io import load_source
+
+    from .scene_helpers import GltfBuilder
+
+    builder = GltfBuilder()
+    square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float32)
+    primitives = []
+    for shift, broken in ((0.0, False), (2.0, True)):
+        normals = np.tile([0, 0, 1], (4, 1)).astype(np.float32)
+        if broken:
+            normals[2] = 0
+        attributes = {
+            "POSITION": builder.accessor(
+                (square + [shift, 0, 0]).astype(np.float32), "VEC3", minmax=True
+            ),
+            "NORMAL": builder.accessor(normals, "VEC3"),
+            "TANGENT": builder.accessor(np.tile([1, 0, 0, 1], (4, 1)).astype(np.float32), "VEC4"),
+            "TEXCOORD_0": builder.accessor(square[:, :2].copy(), "VEC2"),
+        }
+        indices = builder.accessor(np.array([0, 1, 2, 0, 2, 3], np.uint32), "SCALAR")
+        primitives.append({"attributes": attributes, "indices": indices})
+    builder.doc["meshes"] = [{"primitives": primitives}]
+    builder.doc["nodes"] = [{"mesh": 0}]
+    source = load_source(builder.glb(), "glb")
+    kept, dropped = source.attributes.groups
+    assert (kept.normals, kept.tangents, kept.uv_sets) == (True, True, 1)
+    assert (dropped.normals, dropped.tangents, dropped.uv_sets) == (False, False, 1)
+    data = parts_glb(source.mesh, np.zeros(4, np.int64), attributes=source.attributes)
+    issues = _khronos_issues(tmp_path, {"normals.glb": data})["normals.glb"]
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]

@@ -168,13 +168,19 @@ def unit_normals(normals: NDArray[Any]) -> tuple[NDArray[np.float32], bool]:
     normals of any length (OBJ's ``vn``), glTF needs unit ones; a zero or non-finite
     normal has no direction, so the caller drops those normals. Normals already of unit
     length (to float32 precision) are kept exactly as they are."""
+    scaled, good = unit_normal_rows(normals)
+    return scaled, bool(good.all())
+
+
+def unit_normal_rows(normals: NDArray[Any]) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """``unit_normals`` row by row: the scaled normals and which rows have a direction."""
     normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
     length = np.linalg.norm(normals, axis=1)
     good = np.isfinite(length) & (length > 1e-12)
     scale = good & (np.abs(length - 1.0) > 1e-6)
     scaled = np.where(good[:, None], normals, 0.0)
     scaled[scale] = normals[scale] / length[scale, None]
-    return scaled.astype(np.float32), bool(good.all())
+    return scaled.astype(np.float32), good
 
 
 def finite_rows(values: NDArray[Any]) -> bool:
@@ -189,6 +195,7 @@ __all__ = [
     "SourceMesh",
     "SurfaceAttributes",
     "finite_rows",
+    "unit_normal_rows",
     "unit_normals",
     "vertex_attributes",
 ]

@@ -23,7 +23,7 @@ from __future__ import annotations
 import base64
 import json
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -43,7 +43,7 @@ from neural_shdf.exchange.attributes import (
     SourceMesh,
     SurfaceAttributes,
     finite_rows,
-    unit_normals,
+    unit_normal_rows,
 )
 from neural_shdf.mesh import TriangleMesh
 
@@ -699,10 +699,6 @@ class _KeptAttributes:
             name: self._values(mesh_index, primitive, name, vertices)
             for name in self._names(primitive)
         }
-        normals = values.get("NORMAL")
-        if normals is not None:
-            normals, all_unit = unit_normals(normals)
-            values["NORMAL"] = normals if all_unit else None
         uv_sets = 0
         while values.get(f"TEXCOORD_{uv_sets}") is not None:
             uv_sets += 1
@@ -713,16 +709,16 @@ class _KeptAttributes:
             FaceGroup(
                 object=instance,
                 material=material,
-                normals=values.get("NORMAL") is not None,
-                # glTF wants a NORMAL beside every TANGENT
-                tangents=values.get("TANGENT") is not None and values.get("NORMAL") is not None,
+                normals=values.get("NORMAL") is not None,  # unless unusable: ``result``
+                tangents=values.get("TANGENT") is not None,
                 uv_sets=uv_sets,
                 colors=values.get("COLOR_0") is not None,
             )
         )
         self.group_sizes.append(triangles)
-        for name in set(self.blocks) | set(values):
-            column = self.blocks.setdefault(name, [None] * len(self.vertex_counts))
+        for name in values.keys() - self.blocks.keys():  # a name not seen before
+            self.blocks[name] = [None] * len(self.vertex_counts)
+        for name, column in self.blocks.items():
             column.append(values.get(name))
         self.vertex_counts.append(vertices)
 
@@ -751,6 +747,25 @@ class _KeptAttributes:
             values = np.column_stack([values, np.ones(len(values))])
         return values
 
+    def _unit_normals(self, arrays: dict[str, NDArray]) -> None:
+        """Normals scaled to unit length, for all primitives at once; a primitive with a
+        normal of no direction loses its normals (and its tangents: glTF wants a NORMAL
+        beside every TANGENT)."""
+        if "NORMAL" not in arrays:
+            self.groups = [replace(g, tangents=False) for g in self.groups]
+            return
+        arrays["NORMAL"], good = unit_normal_rows(arrays["NORMAL"])
+        counts = np.array(self.vertex_counts, dtype=np.int64)
+        starts = np.cumsum(counts) - counts
+        usable = np.zeros(len(counts), dtype=bool)
+        filled = counts > 0
+        if filled.any():
+            usable[filled] = np.logical_and.reduceat(good, starts[filled])
+        self.groups = [
+            replace(g, normals=g.normals and ok, tangents=g.tangents and g.normals and ok)
+            for g, ok in zip(self.groups, usable.tolist(), strict=True)
+        ]
+
     def result(self, mesh: TriangleMesh, instances: list[_Instance]) -> SurfaceAttributes:
         width = {"NORMAL": 3, "TANGENT": 4, "COLOR_0": 4}
         arrays: dict[str, NDArray] = {}
@@ -766,6 +781,7 @@ class _KeptAttributes:
                 if column
                 else np.zeros((0, size), np.float32)
             )
+        self._unit_normals(arrays)
         uv_sets = max((group.uv_sets for group in self.groups), default=0)
         gltf = self.document.gltf
         objects = []

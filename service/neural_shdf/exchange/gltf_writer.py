@@ -126,19 +126,23 @@ def parts_glb(
         o if abs(np.linalg.det(o.matrix)) > 1e-300 else SceneObject(o.name, np.eye(4))
         for o in objects
     )
-    # One output primitive per (object, label, group), in that order.
-    low = int(labels.min()) if len(labels) else 0
-    label_span = int(labels.max()) - low + 1 if len(labels) else 1
-    triangle_object = np.maximum(group_object[attributes.face_group], 0) if objects else 0
-    key = (triangle_object * label_span + (labels - low)) * len(groups) + attributes.face_group
-    order = np.argsort(key, kind="stable")
-    primitive_keys, face_start, face_count = np.unique(
-        key[order], return_index=True, return_counts=True
+    # One output primitive per (object, label, group), in that order (a group lies in one
+    # object); sorted by keys, not one combined integer that many objects could overflow.
+    triangle_object = (
+        np.maximum(group_object[attributes.face_group], 0)
+        if objects
+        else np.zeros(len(labels), dtype=np.int64)
     )
-    primitive_group = primitive_keys % len(groups)
-    primitive_label = (primitive_keys // len(groups)) % label_span + low
-    primitive_object = primitive_keys // len(groups) // label_span
-    count = len(primitive_keys)
+    order = np.lexsort((attributes.face_group, labels, triangle_object))
+    sorted_label, sorted_group = labels[order], attributes.face_group[order]
+    starts = np.ones(len(order), dtype=bool)
+    starts[1:] = (sorted_label[1:] != sorted_label[:-1]) | (sorted_group[1:] != sorted_group[:-1])
+    face_start = np.flatnonzero(starts)
+    face_count = np.diff(np.append(face_start, len(order)))
+    primitive_group = sorted_group[face_start]
+    primitive_label = sorted_label[face_start]
+    primitive_object = triangle_object[order][face_start]
+    count = len(face_start)
 
     # Vertices: one per (primitive, attribute vertex), primitive by primitive.
     corner_primitive = np.repeat(np.arange(count), 3 * face_count)
@@ -243,9 +247,11 @@ def parts_glb(
         )
 
     # Meshes: one per (object, label), its primitives in group order; nodes likewise.
-    mesh_key = primitive_keys // len(groups)
-    mesh_values, mesh_first = np.unique(mesh_key, return_index=True)
-    mesh_first = mesh_first.tolist() + [count]
+    new_mesh = np.ones(count, dtype=bool)
+    new_mesh[1:] = (primitive_label[1:] != primitive_label[:-1]) | (
+        primitive_object[1:] != primitive_object[:-1]
+    )
+    mesh_first = np.flatnonzero(new_mesh).tolist() + [count]
     part_names = [
         _quoted((names or {}).get(label, part_name(label)))
         for label in primitive_label[mesh_first[:-1]].tolist()
@@ -257,11 +263,13 @@ def parts_glb(
     nodes = [_PART_NODE % (name, m) for m, name in enumerate(part_names)]
     if objects:
         roots = []
-        mesh_object = (mesh_values // label_span).tolist()
-        for index in sorted(set(mesh_object)):
-            children = [m for m, o in enumerate(mesh_object) if o == index]
+        mesh_object = primitive_object[mesh_first[:-1]]  # meshes come object by object
+        first_mesh = np.flatnonzero(np.r_[True, mesh_object[1:] != mesh_object[:-1]])
+        ends = np.append(first_mesh[1:], len(mesh_object)).tolist()
+        for start, end in zip(first_mesh.tolist(), ends, strict=True):
             roots.append(len(nodes))
-            nodes.append(_object_node(objects[index], children))
+            children = list(range(start, end))
+            nodes.append(_object_node(objects[int(mesh_object[start])], children))
     else:
         roots = list(range(len(nodes)))
 

@@ -2,7 +2,8 @@
 
 Generates every file in memory (OBJ, OFF, PLY, STL, glTF/GLB flavours, Draco, meshopt,
 sparse, BOMs, header lies; USD stages and an FBX header), reads each through
-``neural_shdf.mesh_io.load_mesh`` and through an independent reader (trimesh; DracoPy
+``neural_shdf.mesh_io.load_mesh`` (and ``load_source``, which must read the same mesh
+beside the file's attributes) and through an independent reader (trimesh; DracoPy
 for Draco; none for USD, checked against the generator alone), and prints one row per file:
 the expected outcome, ours (triangles, input faces, area and bounds against the
 generator's own geometry, or the refusal message), the independent reader's, and a
@@ -32,7 +33,8 @@ import numpy as np
 import trimesh
 
 from neural_shdf.errors import MeshError
-from neural_shdf.mesh_io import load_mesh
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.mesh_io import load_mesh, load_source
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "exchange" / "data"
 BOM = b"\xef\xbb\xbf"
@@ -354,7 +356,7 @@ def _flip_if_mirrored(faces: np.ndarray, matrix: np.ndarray) -> np.ndarray:
     return faces[:, [0, 2, 1]] if np.linalg.det(matrix[:3, :3]) < 0 else faces
 
 
-def _draco_glb(mesh: trimesh.Trimesh, matrix: np.ndarray, *, required: bool) -> bytes:
+def draco_glb(mesh: trimesh.Trimesh, matrix: np.ndarray, *, required: bool) -> bytes:
     import DracoPy
 
     encoded = DracoPy.encode(
@@ -419,7 +421,7 @@ def _gltf_cases() -> list[Case]:
     )
 
     for required in (True, False):
-        data = _draco_glb(sphere, shift, required=required)
+        data = draco_glb(sphere, shift, required=required)
         name = "glb_draco_required" if required else "glb_draco_only_in_extensionsUsed"
         cases.append(
             Case(name, "glb", data, sphere_truth, _draco_independent(data, shift), tolerance=1e-4)
@@ -637,6 +639,84 @@ def _gltf_cases() -> list[Case]:
     )
     simple("glb_sparse_without_bufferview", builder, box_truth)
 
+    # EXT_mesh_gpu_instancing: three instances (translation, rotation, scale) under a moved
+    # node; instance order, world = node @ T @ R @ S (no independent reader knows it).
+    builder = _Gltf()
+    mesh = builder.mesh(
+        [
+            {
+                "attributes": {"POSITION": _positions(builder, box.vertices)},
+                "indices": _indices(builder, box.faces.reshape(-1), np.uint16),
+            }
+        ]
+    )
+    turn = trimesh.transformations.quaternion_about_axis(np.pi / 3, [0, 0, 1])  # w, x, y, z
+    instances = [
+        trimesh.transformations.translation_matrix([0, 0, 0]),
+        trimesh.transformations.translation_matrix([3, 0, 0])
+        @ trimesh.transformations.quaternion_matrix(turn),
+        trimesh.transformations.translation_matrix([0, 3, 0]) @ np.diag([2.0, 2, 2, 1]),
+    ]
+    gpu = {
+        "TRANSLATION": builder.accessor(
+            np.array([[0, 0, 0], [3, 0, 0], [0, 3, 0]], np.float32), "VEC3", 5126
+        ),
+        "ROTATION": builder.accessor(
+            np.array([[0, 0, 0, 1], [*turn[1:], turn[0]], [0, 0, 0, 1]], np.float32), "VEC4", 5126
+        ),
+        "SCALE": builder.accessor(np.array([[1, 1, 1], [1, 1, 1], [2, 2, 2]], np.float32), "VEC3",
+                                  5126),
+    }  # fmt: skip
+    builder.node(
+        mesh,
+        translation=[0, 0, 1],
+        extensions={"EXT_mesh_gpu_instancing": {"attributes": gpu}},
+    )
+    builder.doc["extensionsUsed"] = ["EXT_mesh_gpu_instancing"]
+    node = trimesh.transformations.translation_matrix([0, 0, 1])
+    vertices = np.concatenate([_transform(box.vertices, node @ m) for m in instances])
+    faces = np.concatenate([box.faces + 8 * i for i in range(3)])
+    data = builder.glb()
+    cases.append(
+        Case("glb_ext_mesh_gpu_instancing", "glb", data, Truth(vertices, faces, len(faces)), None,
+             tolerance=1e-5)
+    )  # fmt: skip
+
+    # An artist's file: normals, UVs, colours, a textured material (embedded PNG) beside
+    # the positions; the geometry reads the same, the attributes are kept (load_source).
+    builder = _Gltf()
+    soup = box.vertices[box.faces].reshape(-1, 3)
+    normals = np.repeat(box.face_normals, 3, axis=0)
+    uv = np.tile([[0, 0], [1, 0], [0, 1]], (len(box.faces), 1)).astype(np.float32)
+    colors = np.tile([1.0, 0.5, 0.25, 1.0], (len(soup), 1)).astype(np.float32)
+    png = io.BytesIO()
+    from PIL import Image
+
+    Image.new("RGB", (2, 2), (255, 0, 0)).save(png, format="PNG")
+    builder.doc["images"] = [{"bufferView": builder.view(png.getvalue()), "mimeType": "image/png"}]
+    builder.doc["textures"] = [{"source": 0}]
+    builder.doc["materials"] = [{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]
+    builder.node(
+        builder.mesh(
+            [
+                {
+                    "attributes": {
+                        "POSITION": _positions(builder, soup),
+                        "NORMAL": builder.accessor(normals.astype(np.float32), "VEC3", 5126),
+                        "TEXCOORD_0": builder.accessor(uv, "VEC2", 5126),
+                        "COLOR_0": builder.accessor(colors, "VEC4", 5126),
+                    },
+                    "material": 0,
+                }
+            ]
+        )
+    )
+    simple(
+        "glb_normals_uvs_colors_texture",
+        builder,
+        _soup_truth(trimesh.Trimesh(soup, np.arange(len(soup)).reshape(-1, 3), process=False)),
+    )
+
     # Truncated GLB: must be refused.
     builder = _Gltf()
     builder.node(
@@ -782,6 +862,23 @@ def _compare(vertices: np.ndarray, faces: np.ndarray, truth: Truth, tolerance: f
     return ""
 
 
+def _attributes_problem(case: Case, mesh: TriangleMesh) -> str:
+    """What differs when the file is read with its attributes (``load_source``): the mesh
+    must be the same (content hash), the attributes must fit it."""
+    try:
+        source = load_source(case.data, case.file_type)
+    except Exception as exc:  # noqa: BLE001 - reported in the row
+        return f"load_source fails: {type(exc).__name__}: {exc}"[:80]
+    if source.mesh.content_hash() != mesh.content_hash():
+        return "load_source reads another mesh"
+    if source.attributes is not None:
+        try:
+            source.attributes.check(mesh)
+        except ValueError as exc:
+            return f"attributes do not fit: {exc}"
+    return ""
+
+
 def _run(case: Case) -> tuple[str, str, str, str]:
     """(expected, ours, independent, verdict) of one case."""
     expected = (
@@ -811,6 +908,8 @@ def _run(case: Case) -> tuple[str, str, str, str]:
                 and not np.array_equal(mesh.face_origin, case.truth.origin)
             ):
                 problem = "triangles map to the wrong input faces"
+            if not problem:
+                problem = _attributes_problem(case, mesh)
             verdict = f"MISREAD: {problem}" if problem else "ok"
     independent = "-"
     if case.independent is not None:
@@ -845,7 +944,7 @@ def _time_draco(faces: int) -> None:
     )
     plain_glb = plain.glb()
     started = time.perf_counter()
-    draco_glb = _draco_glb(sphere, np.eye(4), required=True)
+    draco_data = draco_glb(sphere, np.eye(4), required=True)
     encode_s = time.perf_counter() - started
     del DracoPy
 
@@ -857,11 +956,11 @@ def _time_draco(faces: int) -> None:
             times.append(time.perf_counter() - started)
         return min(times)
 
-    plain_s, draco_s = best(plain_glb), best(draco_glb)
+    plain_s, draco_s = best(plain_glb), best(draco_data)
     print(
         f"\nDraco timing: {len(sphere.faces)} faces; uncompressed GLB "
         f"{len(plain_glb) / 1e6:.1f} MB loads in {plain_s:.3f} s, Draco GLB "
-        f"{len(draco_glb) / 1e6:.1f} MB (encoded in {encode_s:.1f} s) "
+        f"{len(draco_data) / 1e6:.1f} MB (encoded in {encode_s:.1f} s) "
         f"in {draco_s:.3f} s: {draco_s - plain_s:+.3f} s beyond (target at most +1 s), "
         f"ratio {draco_s / plain_s:.2f}"
     )

@@ -72,7 +72,7 @@ def test_outputs_are_the_cli_outputs_byte_for_byte(tmp_path: Path):
         tmp_path / "out",
         method=TEST_METHOD,
         params=SegmentParams(clusters=4),
-        outputs=["seg", "shdf", "colored", "parts"],
+        outputs=["seg", "shdf", "colored", "parts", "usd"],
         workers=0,
     )
     assert [r["status"] for r in rows] == ["ok", "ok"]
@@ -83,12 +83,13 @@ def test_outputs_are_the_cli_outputs_byte_for_byte(tmp_path: Path):
         args = ["--method", TEST_METHOD, "-q"]
         assert main(["segment", str(mesh), "-o", str(cli / "a.seg"), "--clusters", "4",
                      "--colored", str(cli / "a.glb"), "--parts-glb", str(cli / "p.glb"),
-                     *args]) == 0  # fmt: skip
+                     "--usd", str(cli / "p.usda"), *args]) == 0  # fmt: skip
         assert main(["shdf", str(mesh), "-o", str(cli / "a.shdf"), *args]) == 0
         assert (cli / "a.seg").read_bytes() == Path(f"{stem}.seg").read_bytes()
         assert (cli / "a.shdf").read_bytes() == Path(f"{stem}.shdf").read_bytes()
         assert (cli / "a.glb").read_bytes() == Path(f"{stem}.colored.glb").read_bytes()
         assert (cli / "p.glb").read_bytes() == Path(f"{stem}.parts.glb").read_bytes()
+        assert (cli / "p.usda").read_bytes() == Path(f"{stem}.parts.usda").read_bytes()
         faces = len(Path(f"{stem}.seg").read_text().split())
         assert faces == row["faces"] == len(trimesh.load(mesh, process=False).faces)
         assert row["parts"] == len(set(Path(f"{stem}.seg").read_text().split()))

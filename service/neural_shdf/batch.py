@@ -2,7 +2,9 @@
 
 ``run_batch(inputs, out_dir, ...)`` (and ``neural-shdf batch``) writes, per asset, the
 requested outputs (``.seg`` labels and/or ``.shdf`` values, one line per input face, in
-the input file's face order; optionally ``.colored.glb`` and ``.parts.glb``) next to a
+the input file's face order; optionally ``.colored.glb``, ``.parts.glb`` (keeping the
+file's normals, UVs, colours, materials and objects) and ``.parts.usda`` (a USD input's
+own stage with a GeomSubset per part; a new stage for other inputs)) next to a
 small ``.batch.json`` record, then ``manifest.csv`` with one row per asset.
 
 * Resumable: an asset whose record matches its file's content hash and the run's
@@ -51,7 +53,7 @@ from neural_shdf.errors import (
 from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb
 from neural_shdf.exchange.seg import write_labels, write_values
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.mesh_io import SUPPORTED_FORMATS, load_mesh
+from neural_shdf.mesh_io import SUPPORTED_FORMATS
 from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
 from neural_shdf.segment.params import check_seed
@@ -68,9 +70,10 @@ OUTPUT_SUFFIXES = {
     "colored": ".colored.glb",
     "parts": ".parts.glb",
     "confidence": ".confidence",
+    "usd": ".parts.usda",
 }
 #: Outputs that need a segmentation (everything but the ShDF).
-SEGMENT_OUTPUTS = frozenset({"seg", "colored", "parts", "confidence"})
+SEGMENT_OUTPUTS = frozenset({"seg", "colored", "parts", "confidence", "usd"})
 #: With a labeller: the label names of the run, written once beside the manifest.
 LABEL_NAMES_NAME = "label_names.json"
 RECORD_SUFFIX = ".batch.json"
@@ -386,13 +389,17 @@ def process_asset(asset: Asset, out_dir: str, config: BatchConfig, key: str) -> 
 
 
 def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict[str, Any]:
+    from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb
+    from neural_shdf.mesh_io import load_source
+
     path = Path(asset.path)
     if not path.is_file():
         raise FileNotFoundError(f"mesh file not found: {path}")
     content_hash = file_hash(path)
-    mesh = load_mesh(
+    source = load_source(
         path, config.file_type, max_faces=config.max_faces, max_vertices=config.max_vertices
     )
+    mesh = source.mesh
     if mesh.face_count == 0:
         raise InvalidGeometryError(f"{path}: the mesh has no triangles")
     mesh_id = mesh.content_hash()
@@ -418,7 +425,10 @@ def _process(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict
         if "colored" in paths:
             _write_bytes_atomic(paths["colored"], colored_glb(mesh, labels))
         if "parts" in paths:
-            _write_bytes_atomic(paths["parts"], parts_glb(mesh, labels))
+            glb = parts_glb(mesh, labels, attributes=source.attributes)
+            _write_bytes_atomic(paths["parts"], glb)
+        if "usd" in paths:
+            _write_bytes_atomic(paths["usd"], _parts_usda(path, config.file_type, mesh, labels))
     return _row(
         asset,
         content_hash=content_hash,
@@ -435,8 +445,6 @@ def _write_named_parts(
     mesh: TriangleMesh, shdf: NDArray, paths: dict[str, Path], config: BatchConfig
 ) -> int:
     """Label one asset with the run's labeller and write its outputs; the labels present."""
-    from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb
-    from neural_shdf.exchange.seg import write_labels, write_values
     from neural_shdf.labeling import label_mesh
 
     labeler = _worker_labeler(config)
@@ -473,6 +481,18 @@ def write_label_names(out_dir: Path, labeler_file: str) -> tuple[str, Path]:
     path = out_dir / LABEL_NAMES_NAME
     _write_bytes_atomic(path, (json.dumps(document, indent=1) + "\n").encode())
     return identifier, path
+
+
+def _parts_usda(path: Path, file_type: str | None, mesh: TriangleMesh, labels: NDArray) -> bytes:
+    """The parts as a .usda layer: a USD input's own stage with subsets, else a new stage."""
+    from neural_shdf.exchange.usd import USD_EXTENSIONS, mesh_parts_usda, usd_parts_usda
+    from neural_shdf.mesh_io import detect_format, normalize_format
+
+    kind = normalize_format(file_type) if file_type else detect_format(path)
+    per_face = mesh.labels_to_input_faces(labels)
+    if kind in USD_EXTENSIONS:
+        return usd_parts_usda(path.read_bytes(), kind, per_face)
+    return mesh_parts_usda(mesh, per_face)
 
 
 def finished_row(asset: Asset, out_dir: Path, config: BatchConfig, key: str) -> dict | None:

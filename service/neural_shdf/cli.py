@@ -83,6 +83,18 @@ def _load(args: argparse.Namespace):
     )
 
 
+def _load_source(args: argparse.Namespace):
+    """The mesh with the file's own attributes (``mesh_io.load_source``), for outputs
+    written back into the artist's kind of file."""
+    from neural_shdf.mesh_io import load_source
+
+    if not Path(args.mesh).is_file():
+        raise FileNotFoundError(f"mesh file not found: {args.mesh}")
+    return load_source(
+        Path(args.mesh), args.format, max_faces=args.max_faces, max_vertices=args.max_vertices
+    )
+
+
 def _shdf(mesh, args: argparse.Namespace) -> tuple[np.ndarray, str]:
     """The ShDF per triangle and a note naming the producer that ran (``auto`` resolved),
     for the command's summary line."""
@@ -118,7 +130,8 @@ def cmd_segment(args: argparse.Namespace) -> int:
     labeler = None
     if args.labeler or args.confidence:
         labeler = labeler_option(args)  # its file and flags checked before any work
-    mesh = _load(args)
+    source = _load_source(args) if args.parts_glb else None
+    mesh = source.mesh if source is not None else _load(args)
     shdf, note = _shdf(mesh, args)
     if labeler is not None:
         return segment_with_labeler(args, mesh, shdf, labeler)
@@ -132,7 +145,8 @@ def cmd_segment(args: argparse.Namespace) -> int:
     if args.colored:
         Path(args.colored).write_bytes(colored_glb(mesh, labels))
     if args.parts_glb:
-        Path(args.parts_glb).write_bytes(parts_glb(mesh, labels))
+        attributes = source.attributes if source is not None else None
+        Path(args.parts_glb).write_bytes(parts_glb(mesh, labels, attributes=attributes))
     if args.usd:
         _write_usd(args, mesh, face_labels)
     if not args.quiet:
@@ -340,7 +354,10 @@ def build_parser() -> argparse.ArgumentParser:
         "each node, merge costs; any part count is a cut of it",
     )
     segment.add_argument(
-        "--parts-glb", metavar="OUT.glb", help="write a GLB with one mesh node per part"
+        "--parts-glb",
+        metavar="OUT.glb",
+        help="write a GLB with one mesh node per part, keeping the file's normals, UVs, "
+        "colours, materials and scene objects",
     )
     segment.add_argument(
         "--usd",
@@ -366,7 +383,8 @@ def build_parser() -> argparse.ArgumentParser:
     batch = commands.add_parser(
         "batch",
         help="segment many meshes (files, folders, manifests); resumable, parallel",
-        description="Per asset: OUT_DIR/<name>.seg (and/or .shdf, .colored.glb, .parts.glb) "
+        description="Per asset: OUT_DIR/<name>.seg (and/or .shdf, .colored.glb, .parts.glb, "
+        ".parts.usda) "
         "and a row of OUT_DIR/manifest.csv. A re-run skips finished assets. "
         "Exit code 2 when any asset failed (its row says why).",
     )
@@ -393,9 +411,11 @@ def build_parser() -> argparse.ArgumentParser:
     batch.add_argument(
         "--formats",
         nargs="+",
-        choices=["seg", "shdf", "colored", "parts", "confidence"],
+        choices=["seg", "shdf", "colored", "parts", "confidence", "usd"],
         help="outputs per asset (default: seg): labels, ShDF values, "
-        "GLB coloured by part, GLB with one node per part, confidence per face (--labeler)",
+        "GLB coloured by part, GLB with one node per part (keeping the file's UVs, normals, "
+        "materials and objects), confidence per face (--labeler), USD (.parts.usda: a USD "
+        "input's own stage with a GeomSubset per part)",
     )
     batch.add_argument(
         "--labeler",

@@ -29,8 +29,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from neural_shdf.errors import MeshParseError, UnsupportedFormatError
-from neural_shdf.exchange import READERS, REFUSED
+from neural_shdf.exchange import READERS, REFUSED, SOURCE_READERS
 from neural_shdf.exchange._common import MeshLimits, parse_guard, strip_bom
+from neural_shdf.exchange.attributes import SourceMesh
 from neural_shdf.exchange.fbx import looks_like_fbx
 from neural_shdf.exchange.usd import sniff_usd
 from neural_shdf.mesh import TriangleMesh
@@ -109,6 +110,29 @@ def load_mesh(
     more than ``max_vertices`` vertices, counting what glTF instancing expands to (both
     checked from declared counts before the arrays are made; None: no limit).
     """
+    name, data = _read(source, file_type)
+    with parse_guard(_FORMAT_NAMES[name]):
+        return READERS[name](data, MeshLimits(max_faces, max_vertices))
+
+
+def load_source(
+    source: str | Path | bytes,
+    file_type: str | None = None,
+    *,
+    max_faces: int | None = None,
+    max_vertices: int | None = None,
+) -> SourceMesh:
+    """``load_mesh`` with the file's own normals, UVs, vertex colours, materials and scene
+    objects (``exchange.attributes``; None for formats that hold none of them), for
+    writing results back into the artist's file (``gltf_writer.parts_glb``). The mesh is
+    the one ``load_mesh`` reads: same geometry, order and content hash."""
+    name, data = _read(source, file_type)
+    with parse_guard(_FORMAT_NAMES[name]):
+        return SOURCE_READERS[name](data, MeshLimits(max_faces, max_vertices))
+
+
+def _read(source: str | Path | bytes, file_type: str | None) -> tuple[str, bytes]:
+    """(format, bytes) of a path or bytes, with the errors of ``load_mesh``."""
     if isinstance(source, bytes | bytearray | memoryview):
         data = bytes(source)
         if file_type is None:
@@ -129,18 +153,18 @@ def load_mesh(
             raise MeshParseError(f"cannot read mesh file {shown!r}: {exc.strerror}") from exc
         label = f"{path.name!r}"
     name = normalize_format(file_type)
-    format_name = _FORMAT_NAMES[name]
     if not data.strip():
-        raise MeshParseError(f"{label} is empty; expected a {format_name} mesh")
-    with parse_guard(format_name):
-        return READERS[name](data, MeshLimits(max_faces, max_vertices))
+        raise MeshParseError(f"{label} is empty; expected a {_FORMAT_NAMES[name]} mesh")
+    return name, data
 
 
 __all__ = [
     "SUPPORTED_FORMATS",
     "MeshLimits",
+    "SourceMesh",
     "detect_format",
     "load_mesh",
+    "load_source",
     "normalize_format",
     "sniff_format",
 ]

@@ -90,3 +90,23 @@ def test_deleting_a_mesh_while_its_job_runs_leaves_nothing_behind(app_factory, c
         again = client.post("/v1/meshes", files={"file": ("m.obj", capsule_obj)})
         assert again.status_code == 202, again.text  # computed again: nothing was kept
         assert wait_job(client, again.json())["state"] == "succeeded"
+
+
+def test_an_uploads_file_is_kept_per_upload_and_deleted_with_its_mesh(app_factory, capsule_obj):
+    """Two files of one geometry (the second with a comment) get two source ids; each
+    names its own bytes; deleting the mesh deletes both."""
+    app = app_factory(warm_up=False)
+    engine = app.state.engine
+    with TestClient(app) as client:
+        first = _upload(client, capsule_obj)["mesh"]
+        second = _upload(client, b"# exported by hand\n" + capsule_obj)["mesh"]
+        assert first["mesh_id"] == second["mesh_id"]
+        assert first["source_id"] != second["source_id"]
+        mesh_id = first["mesh_id"]
+        assert engine.meshes.source(mesh_id, second["source_id"])[0].startswith(b"# exported")
+        assert engine.meshes.source(mesh_id, first["source_id"]) == (capsule_obj, "obj")
+        assert client.delete(f"/v1/meshes/{mesh_id}").status_code == 204
+        for upload in (first, second):
+            with pytest.raises(ApiError) as missing:
+                engine.meshes.source(mesh_id, upload["source_id"])
+            assert missing.value.status_code == 404

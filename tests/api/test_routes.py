@@ -349,3 +349,70 @@ def test_an_inside_out_upload_says_so_and_gets_the_published_shdf(client):
     values = client.get(f"/v1/meshes/{mesh_id}/shdf").json()["values"]
     expected = client.get(f"/v1/meshes/{reference['mesh']['mesh_id']}/shdf").json()["values"]
     np.testing.assert_allclose(values, expected, atol=1e-9)
+
+
+def test_parts_come_back_in_the_uploads_own_usd_stage(client, tmp_path):
+    """parts.usda with the source_id of a USD upload: the file's own prims (transforms,
+    UVs, normals) with one GeomSubset per part on each mesh prim."""
+    import hashlib
+
+    from pxr import Usd, UsdGeom
+
+    from tests.exchange.test_usd import _dumbbell_stage
+
+    source = tmp_path / "dumbbell.usda"
+    counts = _dumbbell_stage(source)
+    body = upload(client, source.read_bytes(), "dumbbell.usda", method=TEST_METHOD).json()
+    mesh_id, source_id = body["mesh"]["mesh_id"], body["mesh"]["source_id"]
+    assert source_id == hashlib.sha256(b"usda\0" + source.read_bytes()).hexdigest()
+    assert client.get(f"/v1/meshes/{mesh_id}").json()["source_id"] is None  # per upload
+    labels = np.array(
+        client.post("/v1/segment", json={"mesh_id": mesh_id, "method": TEST_METHOD}).json()[
+            "labels"
+        ]
+    )
+    query = f"?method={TEST_METHOD}&source={source_id}"
+    answer = client.get(f"/v1/meshes/{mesh_id}/segmentation/parts.usda{query}")
+    assert answer.status_code == 200, answer.text
+    path = tmp_path / "parts.usda"
+    path.write_bytes(answer.content)
+    stage = Usd.Stage.Open(str(path))
+    offsets = np.cumsum([0, *counts])
+    for prim_path, start, end in zip(
+        ("/World/Bar/Shape", "/World/Drum/Shape"), offsets[:-1], offsets[1:], strict=True
+    ):
+        mesh = UsdGeom.Mesh.Get(stage, prim_path)
+        assert UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st").IsDefined()  # the file's own UVs
+        subsets = UsdGeom.Subset.GetGeomSubsets(mesh, UsdGeom.Tokens.face, "part")
+        found = {s.GetPrim().GetName(): list(s.GetIndicesAttr().Get()) for s in subsets}
+        own = labels[start:end]
+        assert found == {f"part_{k:03d}": np.flatnonzero(own == k).tolist() for k in np.unique(own)}
+    missing = client.get(f"/v1/meshes/{mesh_id}/segmentation/parts.usda?source={'0' * 64}")
+    assert missing.status_code == 404 and missing.json()["error"]["code"] == "source_not_found"
+
+
+def test_parts_glb_keeps_the_uploads_uvs_normals_and_materials(client):
+    from neural_shdf.mesh_io import load_source
+    from tests.exchange.scene_helpers import parts_order, textured_scene_glb
+
+    data = textured_scene_glb()
+    body = upload(client, data, "scene.glb", method=TEST_METHOD).json()
+    mesh_id, source_id = body["mesh"]["mesh_id"], body["mesh"]["source_id"]
+    query = f"?method={TEST_METHOD}&partitioner=metis&parts=3&source={source_id}"
+    answer = client.get(f"/v1/meshes/{mesh_id}/segmentation/parts.glb{query}")
+    assert answer.status_code == 200, answer.text
+    labels = np.array(
+        client.post(
+            "/v1/segment",
+            json={"mesh_id": mesh_id, "method": TEST_METHOD, "partitioner": "metis", "parts": 3},
+        ).json()["labels"]
+    )
+    source, back = load_source(data, "glb"), load_source(answer.content, "glb")
+    order = parts_order(source, labels)
+    for name in ("normals", "colors"):
+        ours = getattr(back.attributes, name)[back.attributes.corners]
+        theirs = getattr(source.attributes, name)[source.attributes.corners][order]
+        np.testing.assert_array_equal(ours, theirs)
+    assert len(back.attributes.uvs) == 2
+    plain = client.get(f"/v1/meshes/{mesh_id}/segmentation/parts.glb?method={TEST_METHOD}")
+    assert load_source(plain.content, "glb").attributes.normals is None  # no source: as before

@@ -19,9 +19,10 @@ from neural_shdf.client import (
     ServiceUnavailableError,
     UnsupportedMediaError,
 )
-from neural_shdf.mesh_io import load_mesh
+from neural_shdf.mesh_io import load_mesh, load_source
 from neural_shdf.segment.synthetic import dumbbell
 from tests.api.api_helpers import TEST_METHOD, capsule, free_port, obj_bytes, quad_box
+from tests.exchange.scene_helpers import textured_scene_glb
 
 
 def two_boxes_obj() -> bytes:
@@ -209,12 +210,17 @@ def test_client_examples_run_as_written(service, tmp_path, monkeypatch, capsys):
     blocks = python_blocks("docs/client.md", "Python client")
     assert len(blocks) == 2
     (tmp_path / "model.obj").write_bytes(capsule().export(file_type="obj").encode())
+    (tmp_path / "scene.glb").write_bytes(textured_scene_glb())
     monkeypatch.chdir(tmp_path)
+    owns = []
     for block in blocks:
         namespace: dict = {}
         exec(block.replace("http://127.0.0.1:8000", service), namespace)  # noqa: S102
+        owns.append(namespace.get("own"))
     assert "invalid_parameter" in capsys.readouterr().out
     assert (tmp_path / "parts.glb").read_bytes()[:4] == b"glTF"
+    own = load_source(owns[0], "glb").attributes  # the scene's parts keep its attributes
+    assert own is not None and own.normals is not None and len(own.uvs) == 2
     results = asyncio.run(namespace["sweep"]("model.obj"))
     assert [len(r.labels) for r in results] == [
         load_mesh(tmp_path / "model.obj").input_face_count

@@ -231,7 +231,7 @@ def test_buffer_length_beyond_its_data_is_rejected():
                             scenes=[{"nodes": [0]}]), MeshParseError, "cycle"),
         (lambda d: d["asset"].update(version="1.0"), UnsupportedFormatError, "version"),
         (lambda d: d.update(nodes=[{"mesh": 0, "extensions": {"EXT_mesh_gpu_instancing": {}}}],
-                            scenes=[{"nodes": [0]}]), UnsupportedFormatError, "instancing"),
+                            scenes=[{"nodes": [0]}]), MeshParseError, "without attributes"),
     ],
 )  # fmt: skip
 def test_bad_documents_raise_typed_errors(edit, error, words):
@@ -465,3 +465,98 @@ def test_text_gltf_with_a_byte_order_mark():
     text = b"\xef\xbb\xbf" + _simple().gltf()
     assert load_mesh(text, "gltf").faces.tolist() == [[0, 1, 2], [0, 2, 3]]
     assert sniff_format(text) == "gltf"
+
+
+def test_gpu_instancing_places_the_mesh_once_per_instance_in_instance_order():
+    """EXT_mesh_gpu_instancing: each instance's triangles in instance order, in the node's
+    place among the others; world = node @ translation @ rotation @ scale of the instance."""
+    b = _Builder()
+    b.mesh(SQUARE, SQUARE_INDICES)
+    b.mesh(TRIANGLE, TRIANGLE_INDICES)
+    translations = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0]], np.float32)
+    quarter_turn = np.array([0, 0, math.sin(math.pi / 4), math.cos(math.pi / 4)], np.float32)
+    rotations = np.array([[0, 0, 0, 1], quarter_turn, [0, 0, 0, 1]], np.float32)
+    scales = np.array([[1, 1, 1], [1, 1, 1], [2, 2, 2]], np.float32)
+    instancing = {"attributes": {
+        "TRANSLATION": b.accessor(translations, "VEC3", 5126),
+        "ROTATION": b.accessor(rotations, "VEC4", 5126),
+        "SCALE": b.accessor(scales, "VEC3", 5126),
+    }}  # fmt: skip
+    b.doc["nodes"] = [
+        {"mesh": 1},
+        {"mesh": 0, "translation": [0, 0, 5],
+         "extensions": {"EXT_mesh_gpu_instancing": instancing}},
+        {"mesh": 1, "translation": [0, 0, -5]},
+    ]  # fmt: skip
+    b.doc["scenes"] = [{"nodes": [0, 1, 2]}]
+    b.doc["extensionsUsed"] = ["EXT_mesh_gpu_instancing"]
+    mesh = load_mesh(b.glb(), "glb")
+    assert mesh.face_count == 1 + 3 * 2 + 1
+    corners = mesh.vertices[mesh.faces]
+    square = SQUARE[SQUARE_INDICES.reshape(-1, 3)].astype(np.float64)
+    rotated = square @ np.array([[0, 1, 0], [-1, 0, 0], [0, 0, 1]], np.float64)
+    expected = [
+        TRIANGLE[None].astype(np.float64),
+        square + [0, 0, 5],
+        rotated + [10, 0, 5],
+        2 * square + [0, 10, 5],
+        TRIANGLE[None] + np.array([0, 0, -5.0]),
+    ]
+    np.testing.assert_allclose(corners, np.concatenate(expected), atol=1e-6)
+
+
+def test_gpu_instancing_counts_against_the_face_budget():
+    b = _Builder()
+    b.mesh(TRIANGLE, TRIANGLE_INDICES)
+    translations = np.zeros((1000, 3), np.float32)
+    attributes = {"TRANSLATION": b.accessor(translations, "VEC3", 5126)}
+    b.doc["nodes"] = [
+        {"mesh": 0, "extensions": {"EXT_mesh_gpu_instancing": {"attributes": attributes}}}
+    ]
+    with pytest.raises(MeshTooLargeError, match="1000 glTF mesh instances"):
+        load_mesh(b.glb(), "glb", max_faces=999)
+
+
+def test_draco_primitives_keep_their_normals_and_uvs_when_attributes_are_read():
+    """load_source of a Draco primitive: NORMAL and TEXCOORD_0 decoded from the Draco data
+    by the ids the extension gives; the mesh is the one load_mesh reads."""
+    import DracoPy
+
+    from neural_shdf.mesh_io import load_source
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    uv = (sphere.vertices[:, :2] + 1) / 2
+    encoded = DracoPy.encode(
+        sphere.vertices.astype(np.float32), sphere.faces.astype(np.uint32),
+        normals=sphere.vertex_normals.astype(np.float64), tex_coord=uv.astype(np.float64),
+        preserve_order=True,
+    )  # fmt: skip
+    ids = {}
+    decoded = DracoPy.decode(encoded)
+    for unique_id in range(3):
+        kind = decoded.get_attribute_by_unique_id(unique_id)["attribute_type"]
+        ids[{0: "POSITION", 1: "NORMAL", 3: "TEXCOORD_0"}[kind]] = unique_id
+    b = _Builder()
+    b.blob += encoded
+    b.doc["bufferViews"].append({"buffer": 0, "byteOffset": 0, "byteLength": len(encoded)})
+    vertices, faces = len(sphere.vertices), len(sphere.faces)
+    b.doc["accessors"] = [
+        {"componentType": 5125, "type": "SCALAR", "count": 3 * faces},
+        {"componentType": 5126, "type": "VEC3", "count": vertices},
+        {"componentType": 5126, "type": "VEC3", "count": vertices},
+        {"componentType": 5126, "type": "VEC2", "count": vertices},
+    ]
+    draco = {"bufferView": 0, "attributes": ids}
+    primitive = {"attributes": {"POSITION": 1, "NORMAL": 2, "TEXCOORD_0": 3}, "indices": 0,
+                 "extensions": {"KHR_draco_mesh_compression": draco}}  # fmt: skip
+    b.doc["meshes"] = [{"primitives": [primitive]}]
+    b.doc["extensionsUsed"] = b.doc["extensionsRequired"] = ["KHR_draco_mesh_compression"]
+    data = b.glb()
+    source = load_source(data, "glb")
+    assert source.mesh.content_hash() == load_mesh(data, "glb").content_hash()
+    attributes = source.attributes
+    assert attributes.groups[0].normals and attributes.groups[0].uv_sets == 1
+    np.testing.assert_allclose(
+        attributes.normals[attributes.corners], sphere.vertex_normals[sphere.faces], atol=1e-6
+    )
+    np.testing.assert_allclose(attributes.uvs[0][attributes.corners], uv[sphere.faces], atol=1e-6)

@@ -204,3 +204,152 @@ def test_parts_glb_names_nodes_and_meshes_by_the_given_names(sphere_mesh):
     assert [node["name"] for node in document["nodes"]] == expected
     assert [mesh["name"] for mesh in document["meshes"]] == expected
     assert load_mesh(data, "glb").face_count == sphere_mesh.face_count
+
+
+def _corner_values(source, name):
+    """Per triangle corner values of an attribute (``uvs`` as a list of sets)."""
+    attributes = source.attributes
+    if name == "uvs":
+        return [uv[attributes.corners] for uv in attributes.uvs]
+    return getattr(attributes, name)[attributes.corners]
+
+
+def test_parts_keep_the_files_normals_uvs_colours_materials_and_objects(tmp_path):
+    """A scene of two nodes (one mirrored), two primitives with normals, tangents, two UV
+    sets, colours and a textured material: parts.glb keeps all of it on every part,
+    under one node per object, and passes the Khronos validator without a warning."""
+    from neural_shdf.mesh_io import load_source
+
+    from .scene_helpers import parts_order, textured_scene_glb
+
+    source = load_source(textured_scene_glb(), "glb")
+    mesh = source.mesh
+    labels = _labels_by_height(mesh, 3)
+    data = parts_glb(mesh, labels, attributes=source.attributes)
+    issues = _khronos_issues(tmp_path, {"scene-parts.glb": data})["scene-parts.glb"]
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]
+
+    back = load_source(data, "glb")
+    order = parts_order(source, labels)
+    assert back.mesh.face_count == mesh.face_count
+    np.testing.assert_allclose(
+        back.mesh.vertices[back.mesh.faces], mesh.vertices[mesh.faces][order], atol=1e-5
+    )
+    for name in ("normals", "tangents", "colors"):
+        np.testing.assert_array_equal(
+            _corner_values(back, name), _corner_values(source, name)[order], err_msg=name
+        )
+    back_uvs, source_uvs = _corner_values(back, "uvs"), _corner_values(source, "uvs")
+    assert len(back_uvs) == len(source_uvs) == 2
+    for ours, theirs in zip(back_uvs, source_uvs, strict=True):
+        np.testing.assert_array_equal(ours, theirs[order])
+    groups, back_groups = source.attributes.groups, back.attributes.groups
+    material = [groups[g].material for g in source.attributes.face_group[order]]
+    assert [back_groups[g].material for g in back.attributes.face_group] == material
+
+    document = json.loads(data[20 : 20 + struct.unpack_from("<I", data, 12)[0]])
+    assert [m["name"] for m in document["materials"]] == ["Painted", "Plain"]
+    assert document["images"][0]["mimeType"] == "image/png"
+    roots = [document["nodes"][n] for n in document["scenes"][0]["nodes"]]
+    assert [node["name"] for node in roots] == ["Body", "Mirror"]
+    group_object = np.array([g.object for g in groups])[source.attributes.face_group]
+    for index, root in enumerate(roots):  # a child node per part, in label order
+        children = [document["nodes"][c]["name"] for c in root["children"]]
+        assert children == [part_name(p) for p in np.unique(labels[group_object == index])]
+    # Part colours only where the file has no material or colours of its own: nowhere.
+    for mesh_entry in document["meshes"]:
+        for primitive in mesh_entry["primitives"]:
+            assert ("COLOR_0" in primitive["attributes"]) == (primitive["material"] == 0)
+
+
+def test_parts_names_hook_names_the_given_parts(sphere_mesh):
+    labels = _labels_by_height(sphere_mesh, 3)
+    data = parts_glb(sphere_mesh, labels, names={1: "handle"})
+    document = json.loads(data[20 : 20 + struct.unpack_from("<I", data, 12)[0]])
+    assert [node["name"] for node in document["nodes"]] == ["part_000", "handle", "part_002"]
+
+
+def test_parts_of_an_obj_keep_its_uvs_normals_and_material_names(tmp_path):
+    from neural_shdf.mesh_io import load_source
+
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    uv = (sphere.vertices[:, :2] + 1) / 2
+    lines = [f"v {x} {y} {z}" for x, y, z in sphere.vertices]
+    lines += [f"vt {u} {v}" for u, v in uv]
+    lines += [f"vn {x} {y} {z}" for x, y, z in sphere.vertex_normals]
+    for index, (a, b, c) in enumerate(sphere.faces + 1):
+        if index in (0, 200):
+            lines.append("usemtl " + ("skin" if index == 0 else "cloth"))
+        lines.append(f"f {a}/{a}/{a} {b}/{b}/{b} {c}/{c}/{c}")
+    source = load_source("\n".join(lines).encode(), "obj")
+    labels = _labels_by_height(source.mesh, 4)
+    data = parts_glb(source.mesh, labels, attributes=source.attributes)
+    issues = _khronos_issues(tmp_path, {"obj-parts.glb": data})["obj-parts.glb"]
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]
+    back = load_source(data, "glb")
+    order = np.lexsort((source.attributes.face_group, labels))
+    (back_uv,) = _corner_values(back, "uvs")
+    np.testing.assert_allclose(back_uv[..., 1], 1 - uv[sphere.faces[order]][..., 1], atol=1e-7)
+    np.testing.assert_allclose(
+        _corner_values(back, "normals"), sphere.vertex_normals[sphere.faces[order]], atol=1e-6
+    )
+    document = json.loads(data[20 : 20 + struct.unpack_from("<I", data, 12)[0]])
+    assert [m["name"] for m in document["materials"]] == ["skin", "cloth"]
+    # Named materials without definitions (no .mtl read): the part colours show.
+    assert all("COLOR_0" in p["attributes"] for m in document["meshes"] for p in m["primitives"])
+
+
+def test_parts_of_an_object_scaled_to_nothing_keep_their_world_positions():
+    """A node with a zero scale cannot be inverted: its parts keep world positions under a
+    node without a transform, and the file reads back face for face."""
+    from neural_shdf.mesh_io import load_source
+
+    from .scene_helpers import textured_scene_glb
+
+    data = textured_scene_glb()
+    document = json.loads(data[20 : 20 + struct.unpack_from("<I", data, 12)[0]])
+    source = load_source(data, "glb")
+    flat = load_source(
+        data.replace(b'"scale": [-1.0, 1.0, 1.0]', b'"scale": [ 0.0, 1.0, 1.0]'), "glb"
+    )
+    assert document["nodes"][1]["scale"] == [-1.0, 1.0, 1.0]
+    assert flat.mesh.face_count == source.mesh.face_count
+    labels = _labels_by_height(flat.mesh, 2)
+    back = load_mesh(parts_glb(flat.mesh, labels, attributes=flat.attributes), "glb")
+    assert back.face_count == flat.mesh.face_count
+    assert np.isclose(back.normals_and_areas[1].sum(), flat.mesh.normals_and_areas[1].sum())
+
+
+def test_a_primitive_with_a_normal_of_no_direction_loses_its_normals_and_tangents(tmp_path):
+    """glTF allows only unit normals and no TANGENT without a NORMAL: a primitive with a
+    zero normal keeps its UVs but neither; the other primitive keeps all of its own."""
+    from neural_shdf.mesh_io import load_source
+
+    from .scene_helpers import GltfBuilder
+
+    builder = GltfBuilder()
+    square = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], np.float32)
+    primitives = []
+    for shift, broken in ((0.0, False), (2.0, True)):
+        normals = np.tile([0, 0, 1], (4, 1)).astype(np.float32)
+        if broken:
+            normals[2] = 0
+        attributes = {
+            "POSITION": builder.accessor(
+                (square + [shift, 0, 0]).astype(np.float32), "VEC3", minmax=True
+            ),
+            "NORMAL": builder.accessor(normals, "VEC3"),
+            "TANGENT": builder.accessor(np.tile([1, 0, 0, 1], (4, 1)).astype(np.float32), "VEC4"),
+            "TEXCOORD_0": builder.accessor(square[:, :2].copy(), "VEC2"),
+        }
+        indices = builder.accessor(np.array([0, 1, 2, 0, 2, 3], np.uint32), "SCALAR")
+        primitives.append({"attributes": attributes, "indices": indices})
+    builder.doc["meshes"] = [{"primitives": primitives}]
+    builder.doc["nodes"] = [{"mesh": 0}]
+    source = load_source(builder.glb(), "glb")
+    kept, dropped = source.attributes.groups
+    assert (kept.normals, kept.tangents, kept.uv_sets) == (True, True, 1)
+    assert (dropped.normals, dropped.tangents, dropped.uv_sets) == (False, False, 1)
+    data = parts_glb(source.mesh, np.zeros(4, np.int64), attributes=source.attributes)
+    issues = _khronos_issues(tmp_path, {"normals.glb": data})["normals.glb"]
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]

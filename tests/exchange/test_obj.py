@@ -160,3 +160,32 @@ def test_errors_name_the_line():
         _load(SQUARE_AND_MORE + "f 1 2 3\nf 1 2 9\n")
     with pytest.raises(MeshParseError, match="OBJ line 2: .*'v 0,5 0 0'"):
         _load("v 0 0 0\nv 0,5 0 0\nv 0 1 0\nf 1 2 3\n")
+
+
+def test_uvs_normals_and_materials_follow_each_corner_when_attributes_are_read():
+    """Each corner's own vt/vn (also negative and missing ones), one attribute vertex per
+    distinct v/vt/vn, one face group per material and set of attributes."""
+    from neural_shdf.mesh_io import load_source
+
+    text = (
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
+        "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\nvn 0 0 1\nvn 0 0 -1\n"
+        "usemtl wood\nf 1/1/1 2/2/1 3/3/1 4/4/1\n"
+        "f 1/-4/-1 3/-2/-1 4/-1/-1  # relative indices\n"
+        "usemtl metal\nf 1 2 3\nf 2/9 3/3 4/4\n"
+    )
+    source = load_source(text.encode(), "obj")
+    attributes = source.attributes
+    assert source.mesh.face_count == 5
+    uv = attributes.uvs[0][attributes.corners]
+    normals = attributes.normals[attributes.corners]
+    np.testing.assert_array_equal(uv[0], [[0, 1], [1, 1], [1, 0]])  # vt 1, 2, 3 with V down
+    np.testing.assert_array_equal(normals[2], [[0, 0, -1]] * 3)
+    np.testing.assert_array_equal(uv[2], [[0, 1], [1, 0], [0, 0]])
+    groups = [attributes.groups[g] for g in attributes.face_group]
+    assert [(g.material, g.uv_sets, g.normals) for g in groups] == [
+        (0, 1, True), (0, 1, True), (0, 1, True), (1, 0, False), (1, 0, False),
+    ]  # fmt: skip
+    assert [m["name"] for m in attributes.materials.materials] == ["wood", "metal"]
+    assert not attributes.materials.defined  # names only: the .mtl is not read
+    assert np.array_equal(attributes.vertex[attributes.corners], source.mesh.faces)

@@ -148,3 +148,28 @@ def test_byte_order_mark_is_skipped():
         "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n"
     )
     assert load_mesh(b"\xef\xbb\xbf" + text.encode(), "ply").faces.tolist() == [[0, 1, 2]]
+
+
+def test_vertex_normals_uvs_and_colours_are_kept_when_attributes_are_read():
+    from neural_shdf.mesh_io import load_source
+    from neural_shdf.palette import srgb_to_linear
+
+    header = (
+        "ply\nformat ascii 1.0\nelement vertex 4\n"
+        + "".join(f"property float {n}\n" for n in ("x", "y", "z", "nx", "ny", "nz", "s", "t"))
+        + "property uchar red\nproperty uchar green\nproperty uchar blue\n"
+        + "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+    )
+    rows = [
+        "0 0 0 0 0 2 0 0 255 0 0",  # a normal of length 2: scaled to unit
+        "1 0 0 0 0 1 1 0 0 255 0",
+        "1 1 0 0 0 1 1 1 0 0 255",
+        "0 1 0 0 0 1 0 1 128 128 128",
+    ]
+    source = load_source((header + "\n".join(rows) + "\n4 0 1 2 3\n").encode(), "ply")
+    attributes = source.attributes
+    assert source.mesh.face_count == 2 and attributes.groups[0].colors
+    np.testing.assert_array_equal(attributes.normals, [[0, 0, 1]] * 4)
+    np.testing.assert_array_equal(attributes.uvs[0], [[0, 1], [1, 1], [1, 0], [0, 0]])  # V down
+    np.testing.assert_allclose(attributes.colors[3, :3], srgb_to_linear(np.full(3, 128 / 255)))
+    assert np.array_equal(attributes.vertex[attributes.corners], source.mesh.faces)

@@ -1,6 +1,7 @@
 """USD reader and parts writer: prim order, face order, transforms, instancing, hostile stages,
 and a segment-write-read round trip checked by usd-core's own compliance checker."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -489,3 +490,59 @@ def test_named_parts_become_named_subsets_with_materials_of_their_colour(tmp_pat
 def test_names_that_become_the_same_identifier_stay_apart():
     assert usd._subset_names([1, 2], {1: "arm-l", 2: "arm l"}) == ["arm_l_1", "arm_l_2"]
     assert usd._subset_names([0, 1], None) == [part_name(0), part_name(1)]
+
+
+def test_parts_glb_of_a_stage_keep_its_prims_uvs_and_normals(tmp_path: Path):
+    """load_source of a stage: one object per mesh prim (path, world transform), its st
+    (V turned down for glTF) and normals; parts.glb keeps them, one node per prim."""
+    from neural_shdf.exchange.gltf_writer import parts_glb
+    from neural_shdf.mesh_io import load_source
+
+    from .scene_helpers import parts_order
+    from .test_gltf_writer import _khronos_issues
+
+    path = tmp_path / "dumbbell.usda"
+    _dumbbell_stage(path)
+    source = load_source(path)
+    assert source.mesh.content_hash() == load_mesh(path).content_hash()
+    attributes = source.attributes
+    assert [o.name for o in attributes.objects] == ["/World/Bar/Shape", "/World/Drum/Shape"]
+    stage = Usd.Stage.Open(str(path))
+    for scene_object in attributes.objects:
+        prim = stage.GetPrimAtPath(scene_object.name)
+        world = np.array(UsdGeom.XformCache().GetLocalToWorldTransform(prim)).T
+        np.testing.assert_allclose(scene_object.matrix, world)
+    # The prim's own st per corner, V turned: read back from the triangles' corners.
+    bar = UsdGeom.Mesh.Get(stage, "/World/Bar/Shape")
+    st = np.array(UsdGeom.PrimvarsAPI(bar).GetPrimvar("st").ComputeFlattened())
+    flat = np.array(bar.GetFaceVertexIndicesAttr().Get())
+    first = source.mesh.faces[0]  # the bar's first quad's first triangle: corners 0, 1, 2
+    assert np.array_equal(first, flat[:3])
+    uv = attributes.uvs[0][attributes.corners[0]]
+    interpolation = UsdGeom.PrimvarsAPI(bar).GetPrimvar("st").GetInterpolation()
+    expected = st[flat[:3]] if interpolation == UsdGeom.Tokens.vertex else st[:3]
+    np.testing.assert_allclose(uv, np.column_stack([expected[:, 0], 1 - expected[:, 1]]))
+
+    labels = (source.mesh.vertices[source.mesh.faces].mean(axis=1)[:, 2] > 0).astype(np.int64)
+    data = parts_glb(source.mesh, labels, attributes=attributes)
+    issues = _khronos_issues(tmp_path, {"usd-parts.glb": data})["usd-parts.glb"]
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]
+    back = load_source(data, "glb")
+    order = parts_order(source, labels)
+    np.testing.assert_allclose(
+        back.mesh.vertices[back.mesh.faces],
+        source.mesh.vertices[source.mesh.faces][order],
+        atol=1e-5,
+    )
+    for name in ("normals",):
+        np.testing.assert_array_equal(
+            getattr(back.attributes, name)[back.attributes.corners],
+            getattr(attributes, name)[attributes.corners][order],
+        )
+    np.testing.assert_array_equal(
+        back.attributes.uvs[0][back.attributes.corners],
+        attributes.uvs[0][attributes.corners][order],
+    )
+    document = json.loads(data[20 : 20 + int.from_bytes(data[12:16], "little")])
+    roots = [document["nodes"][n]["name"] for n in document["scenes"][0]["nodes"]]
+    assert roots == ["/World/Bar/Shape", "/World/Drum/Shape"]  # the parts under their prims

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import threading
 import time
 import uuid
 from typing import Any
 
+import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.api.errors import ApiError, not_found
@@ -20,7 +22,7 @@ from neural_shdf.mesh_io import load_mesh
 from neural_shdf.segment.creases import CreaseGraph
 from neural_shdf.store.cache import ResultCache
 from neural_shdf.store.codec import mesh_arrays, mesh_from_arrays
-from neural_shdf.store.keys import mesh_key, meta_key
+from neural_shdf.store.keys import mesh_key, meta_key, source_key
 
 logger = logging.getLogger(__name__)
 
@@ -28,7 +30,11 @@ logger = logging.getLogger(__name__)
 #: Metadata of one upload, answered to that uploader only. A mesh is stored under the hash
 #: of its geometry, so several clients may upload the same one: they share the geometry's
 #: facts and everything computed from it, never each other's file name or upload time.
-UPLOAD_FIELDS = ("format", "filename", "uploaded_at")
+UPLOAD_FIELDS = ("format", "filename", "uploaded_at", "source_id")
+#: Formats whose uploaded file is kept (``MeshStore.keep_source``): their normals, UVs,
+#: colours, materials and objects, or their USD stage, go back into ``parts.glb`` and
+#: ``parts.usda``.
+SOURCE_FORMATS = frozenset({"obj", "ply", "glb", "gltf", "usd", "usda", "usdc", "usdz"})
 #: Bookkeeping in the stored metadata that no client sees.
 PRIVATE_FIELDS = ("generation",)
 
@@ -72,7 +78,11 @@ class MeshStore:
         return mesh
 
     def store(
-        self, mesh: TriangleMesh, file_type: str | None, filename: str | None
+        self,
+        mesh: TriangleMesh,
+        file_type: str | None,
+        filename: str | None,
+        data: bytes | None = None,
     ) -> dict[str, Any]:
         """Store the mesh (if new) and return its metadata as this upload's answer: the
         shared facts of the geometry plus this upload's own file name, format and time,
@@ -105,7 +115,36 @@ class MeshStore:
                 meta = self.cache.get_json(meta_entry) or meta
         self.cache.remember(mesh_key(mesh_id), mesh)
         upload = {"format": file_type, "filename": filename, "uploaded_at": time.time()}
+        if data is not None and file_type in SOURCE_FORMATS:
+            upload["source_id"] = self.keep_source(mesh_id, data, file_type)
         return {**shared_meta(meta), **upload}
+
+    def keep_source(self, mesh_id: str, data: bytes, file_type: str) -> str:
+        """Store an upload's file with the mesh (deleted with it) under the SHA-256 of its
+        format and bytes: its ``source_id``. Only a client that has the file can name it,
+        so one uploader's file never reaches another who uploaded the same geometry."""
+        source_id = hashlib.sha256(file_type.encode() + b"\0" + data).hexdigest()
+        key = source_key(mesh_id, source_id)
+        if self.cache.get_raw(key) is None:
+            arrays = {
+                "data": np.frombuffer(data, dtype=np.uint8),
+                "format": np.frombuffer(file_type.encode(), dtype=np.uint8),
+            }
+            self.cache.put_arrays(key, arrays, group=mesh_id)
+        return source_id
+
+    def source(self, mesh_id: str, source_id: str) -> tuple[bytes, str]:
+        """(bytes, format) of an upload's file kept with the mesh; 404 when it is not."""
+        arrays = self.cache.get_arrays(source_key(mesh_id, source_id))
+        if arrays is None or "data" not in arrays or "format" not in arrays:
+            raise ApiError(
+                404,
+                "source_not_found",
+                f"no uploaded file {source_id!r} is kept with mesh {mesh_id!r} (never "
+                "uploaded with it, deleted or evicted from the cache): upload the file "
+                "again and use the source_id of that answer",
+            )
+        return arrays["data"].tobytes(), arrays["format"].tobytes().decode()
 
     def meta(self, mesh_id: str) -> dict[str, Any]:
         """Metadata of a mesh that can be used (one whose geometry is gone is gone): what

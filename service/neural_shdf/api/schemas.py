@@ -173,6 +173,15 @@ class MeshInfo(BaseModel):
         description="Unix time of this upload (only in the upload's answer).",
         examples=[1763791200.0],
     )
+    source_id: str | None = Field(
+        None,
+        description="Id of this upload's own file, kept with the mesh (OBJ, PLY, glTF/GLB "
+        "and USD uploads; only in the upload's answer): pass it as `source` to `parts.glb` "
+        "(the parts keep the file's normals, UVs, colours, materials and objects) or "
+        "`parts.usda` (a USD file's own stage with a GeomSubset per part).",
+        pattern=MESH_ID_PATTERN,
+        examples=[MESH_ID_EXAMPLE],
+    )
     bounds: list[list[float]] = Field(
         description="Axis-aligned bounding box `[[min x,y,z], [max x,y,z]]`.",
         examples=[[[-0.5, -0.5, -0.5], [0.5, 0.5, 0.5]]],

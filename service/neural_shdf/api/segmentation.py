@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf.api.errors import ApiError
 from neural_shdf.api.mesh_store import MeshStore, mesh_missing
 from neural_shdf.api.metrics import Metrics
 from neural_shdf.api.shdf_service import ShdfService
@@ -267,22 +268,64 @@ class SegmentationService:
         }
         return result, timings
 
-    async def glb(self, mesh_id: str, method: str, params: SegmentParams, style: str) -> bytes:
-        """The segmentation as a GLB: ``colored`` (vertex colours) or ``parts`` (a node each)."""
+    async def glb(
+        self,
+        mesh_id: str,
+        method: str,
+        params: SegmentParams,
+        style: str,
+        source_id: str | None = None,
+    ) -> bytes:
+        """The segmentation as a GLB: ``colored`` (vertex colours) or ``parts`` (a node
+        each; with ``source_id``, keeping that uploaded file's attributes and objects)."""
+
         result, _ = await self.get(mesh_id, method, params)
         mesh = await self.tasks.io(self.meshes.load, mesh_id)
-        writer = colored_glb if style == "colored" else parts_glb
         labels = result.triangle_labels.astype(np.int64)
+        if style == "colored":
+            write = functools.partial(colored_glb, mesh, labels)
+        elif source_id is None:
+            write = functools.partial(parts_glb, mesh, labels)
+        else:
+            write = functools.partial(self._source_parts_glb, mesh_id, source_id, mesh, labels)
         # Identical requests share one writer; it runs within the request timeout.
-        write = functools.partial(writer, mesh, labels)
-        key = f"{self.key(mesh_id, method, params)}:glb:{style}"
+        key = f"{self.key(mesh_id, method, params)}:glb:{style}:{source_id or ''}"
         return await self.tasks.with_timeout(self.tasks.single_flight(key, write))
 
-    async def usda(self, mesh_id: str, method: str, params: SegmentParams) -> bytes:
-        """The segmentation as a new USD stage of the stored mesh's input faces, one
-        GeomSubset per part (the uploaded file is not kept, so its own stage cannot be)."""
+    def _source_parts_glb(
+        self, mesh_id: str, source_id: str, mesh: TriangleMesh, labels: NDArray[np.int64]
+    ) -> bytes:
+        from neural_shdf.mesh_io import load_source
+
+        data, file_type = self.meshes.source(mesh_id, source_id)
+        settings = self.meshes.settings
+        source = load_source(
+            data, file_type, max_faces=settings.max_faces, max_vertices=settings.max_vertices
+        )
+        if source.mesh.content_hash() != mesh_id:  # kept under the mesh: never expected
+            raise ApiError(
+                409,
+                "source_mismatch",
+                f"the uploaded file {source_id!r} does not hold mesh {mesh_id!r} (this "
+                "version reads it differently); upload the file again",
+            )
+        return parts_glb(mesh, labels, attributes=source.attributes)
+
+    async def usda(
+        self, mesh_id: str, method: str, params: SegmentParams, source_id: str | None = None
+    ) -> bytes:
+        """The segmentation as USD: with the ``source_id`` of a USD upload, that file's own
+        stage with one GeomSubset per part; otherwise a new stage of the stored mesh's
+        input faces."""
+        from neural_shdf.exchange.usd import USD_EXTENSIONS, usd_parts_usda
+
         result, _ = await self.get(mesh_id, method, params)
         mesh = await self.tasks.io(self.meshes.load, mesh_id)
-        write = functools.partial(mesh_parts_usda, mesh, result.labels.astype(np.int64))
-        key = f"{self.key(mesh_id, method, params)}:usda"
+        labels = result.labels.astype(np.int64)
+        write = functools.partial(mesh_parts_usda, mesh, labels)
+        if source_id is not None:
+            data, file_type = await self.tasks.io(self.meshes.source, mesh_id, source_id)
+            if file_type in USD_EXTENSIONS:
+                write = functools.partial(usd_parts_usda, data, file_type, labels)
+        key = f"{self.key(mesh_id, method, params)}:usda:{source_id or ''}"
         return await self.tasks.with_timeout(self.tasks.single_flight(key, write))

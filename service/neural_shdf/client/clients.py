@@ -200,9 +200,14 @@ class Client(_Settings):
         """The segmentation as a GLB with one colour per part."""
         return self.run(ops.glb(mesh_id, "colored", ops.given(options), self.poll))
 
-    def parts_glb(self, mesh_id: str, **options: Unpack[ops.SegmentArgs]) -> bytes:
-        """The segmentation as a GLB with one node per part (``part_000``, ...)."""
-        return self.run(ops.glb(mesh_id, "parts", ops.given(options), self.poll))
+    def parts_glb(
+        self, mesh_id: str, *, source: str | None = None, **options: Unpack[ops.SegmentArgs]
+    ) -> bytes:
+        """The segmentation as a GLB with one node per part (``part_000``, ...); ``source``
+        (an upload's ``mesh.source_id``): keeping that file's UVs, normals, colours,
+        materials and objects."""
+        query = ops.given({**options, "source": source})
+        return self.run(ops.glb(mesh_id, "parts", query, self.poll))
 
     def job(self, job_id: str) -> Job:
         """A job's state and progress."""
@@ -375,8 +380,11 @@ class AsyncClient(_Settings):
     async def colored_glb(self, mesh_id: str, **options: Unpack[ops.SegmentArgs]) -> bytes:
         return await self.run(ops.glb(mesh_id, "colored", ops.given(options), self.poll))
 
-    async def parts_glb(self, mesh_id: str, **options: Unpack[ops.SegmentArgs]) -> bytes:
-        return await self.run(ops.glb(mesh_id, "parts", ops.given(options), self.poll))
+    async def parts_glb(
+        self, mesh_id: str, *, source: str | None = None, **options: Unpack[ops.SegmentArgs]
+    ) -> bytes:
+        query = ops.given({**options, "source": source})
+        return await self.run(ops.glb(mesh_id, "parts", query, self.poll))
 
     async def job(self, job_id: str) -> Job:
         return Job.from_json(await self.run(ops.get_json(f"/v1/jobs/{job_id}")))

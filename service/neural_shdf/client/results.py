@@ -109,6 +109,8 @@ class MeshInfo:
     filename: str | None = None
     uploaded_at: float | None = None
     diagnostics: MeshDiagnostics | None = None
+    #: The upload's own file kept with the mesh: ``parts_glb(..., source=...)``.
+    source_id: str | None = None
 
     @classmethod
     def from_json(cls, body: Mapping[str, Any]) -> MeshInfo:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import base64
 import json
 import struct
+from dataclasses import dataclass, replace
 from typing import Any, TypeGuard
 
 import numpy as np
@@ -35,6 +36,15 @@ from neural_shdf.errors import (
     UnsupportedFormatError,
 )
 from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, build_mesh, strip_bom
+from neural_shdf.exchange.attributes import (
+    FaceGroup,
+    Materials,
+    SceneObject,
+    SourceMesh,
+    SurfaceAttributes,
+    finite_rows,
+    unit_normal_rows,
+)
 from neural_shdf.mesh import TriangleMesh
 
 _GLB_MAGIC = b"glTF"
@@ -44,6 +54,8 @@ _COMPONENTS = {5120: "i1", 5121: "u1", 5122: "i2", 5123: "u2", 5125: "u4", 5126:
 _WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 _TRIANGLES, _STRIP, _FAN = 4, 5, 6
 _DRACO = "KHR_draco_mesh_compression"
+_GPU_INSTANCING = "EXT_mesh_gpu_instancing"
+_INSTANCE_ATTRIBUTES = {"TRANSLATION": 3, "ROTATION": 4, "SCALE": 3}
 _MESHOPT = ("EXT_meshopt_compression", "KHR_meshopt_compression")
 _MESHOPT_MODES = ("ATTRIBUTES", "TRIANGLES", "INDICES")
 #: Cap on node visits, so a node graph that instances exponentially cannot blow up
@@ -84,6 +96,7 @@ class _Document:
         self._accessors: dict[int, NDArray[Any]] = {}
         self._decoded_views: dict[int, bytes] = {}
         self._draco: dict[int, tuple[NDArray[Any], NDArray[Any]]] = {}
+        self._draco_meshes: dict[int, Any] = {}
         #: Bytes each compressed bufferView may decode to: what the accessors read from it
         #: need (set by ``_check_budget`` from the declared, budgeted counts).
         self.view_allowance: dict[int, int] = {}
@@ -265,16 +278,10 @@ class _Document:
         result[targets] = replacements
         return result
 
-    def draco(
-        self, mesh_index: int, primitive: JsonObject, extension: Any
-    ) -> tuple[NDArray[Any], NDArray[Any]]:
-        """(positions, triangles) of a KHR_draco_mesh_compression primitive, decoded once,
-        and checked against the primitive's declared (and budgeted) accessor counts."""
-        if not isinstance(extension, dict):
-            raise MeshParseError(f"glTF mesh {mesh_index} has invalid Draco settings")
-        view_index: Any = extension.get("bufferView")  # checked by ``_view``
-        if view_index in self._draco:
-            return self._draco[view_index]
+    def _draco_decoded(self, mesh_index: int, view_index: Any) -> Any:
+        """The DracoPy mesh of a bufferView, decoded once."""
+        if view_index in self._draco_meshes:
+            return self._draco_meshes[view_index]
         buffer, offset, length, _ = self._view(view_index)
         import DracoPy  # noqa: PLC0415, N813 - only files that need it pay for it
 
@@ -285,6 +292,45 @@ class _Document:
                 f"the Draco-compressed data of glTF mesh {mesh_index} cannot be decoded "
                 f"({exc or type(exc).__name__}): the file is corrupt"
             ) from None
+        self._draco_meshes[view_index] = decoded
+        return decoded
+
+    def draco_attribute(
+        self,
+        mesh_index: int,
+        primitive: dict[str, Any],
+        extension: Any,
+        name: str,
+        spec: dict[str, Any],
+    ) -> NDArray[Any] | None:
+        """A Draco primitive's attribute ``name`` (float64; normalized integers scaled as
+        the accessor ``spec`` says), or None when the Draco data does not hold it."""
+        attribute_id = ((extension or {}).get("attributes") or {}).get(name)
+        if not _is_count(attribute_id):
+            return None
+        self.draco(mesh_index, primitive, extension)  # decoded, and checked against the counts
+        attribute = self._draco_decoded(mesh_index, extension.get("bufferView"))
+        found = attribute.get_attribute_by_unique_id(attribute_id)
+        if found is None:
+            return None
+        raw = np.asarray(found["data"])
+        if raw.ndim == 1:
+            raw = raw.reshape(len(raw), -1) if len(raw) else raw.reshape(0, 1)
+        if raw.dtype.kind in "iu" and spec.get("normalized", False):
+            return np.maximum(raw.astype(np.float64) / np.iinfo(raw.dtype).max, -1.0)
+        return raw.astype(np.float64)
+
+    def draco(
+        self, mesh_index: int, primitive: dict[str, Any], extension: Any
+    ) -> tuple[NDArray[Any], NDArray[Any]]:
+        """(positions, triangles) of a KHR_draco_mesh_compression primitive, decoded once,
+        and checked against the primitive's declared (and budgeted) accessor counts."""
+        if not isinstance(extension, dict):
+            raise MeshParseError(f"glTF mesh {mesh_index} has invalid Draco settings")
+        view_index: Any = extension.get("bufferView")  # checked by ``_view``
+        if view_index in self._draco:
+            return self._draco[view_index]
+        decoded = self._draco_decoded(mesh_index, view_index)
         attribute_id = (extension.get("attributes") or {}).get("POSITION")
         attribute = (
             decoded.get_attribute_by_unique_id(attribute_id) if _is_count(attribute_id) else None
@@ -393,16 +439,29 @@ def _scene_roots(gltf: JsonObject) -> list[int]:
     return [i for i in range(len(nodes)) if i not in children]
 
 
-def _mesh_instances(gltf: JsonObject) -> list[tuple[int, NDArray[np.float64]]]:
-    """(mesh index, world matrix) of every mesh instance, in the depth-first node order.
+@dataclass(frozen=True)
+class _Instance:
+    """A mesh placed by a node: ``matrix`` is the node's world transform; ``gpu`` the
+    node's EXT_mesh_gpu_instancing attributes (each of its instances is one placement)."""
+
+    mesh: int
+    matrix: NDArray[Any]
+    node: int = -1
+    gpu: dict[str, Any] | None = None
+
+
+def _mesh_instances(gltf: dict[str, Any]) -> list[_Instance]:
+    """Every mesh placement (a node with a mesh), in the depth-first node order.
 
     Iterative (a chain of thousands of nodes is fine); a node met again on its own
     path is a cycle; more than ``MAX_NODE_VISITS`` visits (a DAG that instances
     exponentially) is too large.
     """
     if not (gltf.get("nodes") or gltf.get("scenes")):
-        return [(mesh_index, np.eye(4)) for mesh_index in range(len(gltf.get("meshes", [])))]
-    instances: list[tuple[int, NDArray[np.float64]]] = []
+        return [
+            _Instance(mesh_index, np.eye(4)) for mesh_index in range(len(gltf.get("meshes", [])))
+        ]
+    instances: list[_Instance] = []
     on_path: set[int] = set()
     visits = 0
     # Entries: (node, parent matrix) to enter, or (node, None) to leave.
@@ -426,15 +485,17 @@ def _mesh_instances(gltf: JsonObject) -> list[tuple[int, NDArray[np.float64]]]:
                 maximum=MAX_NODE_VISITS,
                 found=visits,
             )
-        if "EXT_mesh_gpu_instancing" in (node.get("extensions") or {}):
-            raise UnsupportedFormatError(
-                "glTF GPU instancing (EXT_mesh_gpu_instancing) is not supported; "
-                "export with instances realised as nodes"
-            )
         matrix = parent @ _local_matrix(node)
         if "mesh" in node:
             _item(gltf, "meshes", node["mesh"])  # a valid reference, before it is counted
-            instances.append((node["mesh"], matrix))
+            gpu = (node.get("extensions") or {}).get(_GPU_INSTANCING)
+            if gpu is not None and not (
+                isinstance(gpu, dict) and isinstance(gpu.get("attributes"), dict)
+            ):
+                raise MeshParseError(
+                    f"glTF node {node_index} has {_GPU_INSTANCING} without attributes"
+                )
+            instances.append(_Instance(node["mesh"], matrix, node_index, gpu))
         children = node.get("children", [])
         if not isinstance(children, list):
             raise MeshParseError(f"glTF node {node_index} has children that are not a list")
@@ -444,18 +505,72 @@ def _mesh_instances(gltf: JsonObject) -> list[tuple[int, NDArray[np.float64]]]:
     return instances
 
 
+def _gpu_instance_count(gltf: dict[str, Any], instance: _Instance) -> int:
+    """How many placements an EXT_mesh_gpu_instancing node makes (declared counts; they
+    must agree), 1 for an ordinary node."""
+    if instance.gpu is None:
+        return 1
+    counts = {
+        _declared_count(_item(gltf, "accessors", accessor))
+        for name, accessor in instance.gpu["attributes"].items()
+        if name in _INSTANCE_ATTRIBUTES
+    }
+    if len(counts) != 1:
+        raise MeshParseError(
+            f"the {_GPU_INSTANCING} attributes of glTF node {instance.node} "
+            + ("have different counts" if counts else "have no TRANSLATION, ROTATION or SCALE")
+        )
+    return counts.pop()
+
+
+def _expand_gpu_instances(document: _Document, instances: list[_Instance]) -> list[_Instance]:
+    """Each EXT_mesh_gpu_instancing placement as an instance of its own, in instance
+    order (world = node @ T @ R @ S of the instance), in the node's place."""
+    expanded: list[_Instance] = []
+    for instance in instances:
+        if instance.gpu is None:
+            expanded.append(instance)
+            continue
+        count = _gpu_instance_count(document.gltf, instance)
+        attributes = instance.gpu["attributes"]
+        trs = {}
+        for name, width in _INSTANCE_ATTRIBUTES.items():
+            if name in attributes:
+                values = document.accessor(attributes[name])
+                if values.shape != (count, width):
+                    raise MeshParseError(
+                        f"{_GPU_INSTANCING} {name} of glTF node {instance.node} must be "
+                        f"{'VEC3' if width == 3 else 'VEC4'}"
+                    )
+                trs[name.lower()] = values
+        for k in range(count):
+            local = _local_matrix({key: values[k].tolist() for key, values in trs.items()})
+            expanded.append(_Instance(instance.mesh, instance.matrix @ local, instance.node))
+    return expanded
+
+
 def _check_budget(
-    document: _Document, instances: list[tuple[int, NDArray[np.float64]]], limits: MeshLimits
+    document: _Document,
+    instances: list[_Instance],
+    limits: MeshLimits,
+    *,
+    attributes: bool = False,
 ) -> None:
     """Vertices and triangles the instances expand to, from the JSON alone, against
-    ``limits``: a mesh of 1M vertices placed by 40 nodes is 40M vertices, rejected
-    before a single accessor is read."""
+    ``limits``: a mesh of 1M vertices placed by 40 nodes (or 40 GPU instances) is 40M
+    vertices, rejected before a single accessor is read. ``attributes``: the views of
+    the attribute accessors may be decompressed too."""
     gltf = document.gltf
-    vertices = triangles = 0
+    vertices = triangles = placements = 0
     allowed_meshes: set[int] = set()
     uses: dict[int, int] = {}
-    for mesh_index, _ in instances:
-        uses[mesh_index] = uses.get(mesh_index, 0) + 1
+    for instance in instances:
+        count = _gpu_instance_count(gltf, instance)
+        placements += count
+        uses[instance.mesh] = uses.get(instance.mesh, 0) + count
+        if instance.gpu is not None:
+            for accessor in instance.gpu["attributes"].values():
+                _allow_views(document, _item(gltf, "accessors", accessor))
     for mesh_index, count in uses.items():
         for primitive in _item(gltf, "meshes", mesh_index).get("primitives", []):
             if primitive.get("mode", _TRIANGLES) not in (_TRIANGLES, _STRIP, _FAN):
@@ -467,12 +582,19 @@ def _check_budget(
             vertices += count * vertex_count
             triangles += count * _triangle_count(document, primitive, vertex_count)
             if mesh_index not in allowed_meshes:
-                for accessor in (position, primitive.get("indices")):
+                read = [position, primitive.get("indices")]
+                if attributes:
+                    read += [
+                        accessor
+                        for name, accessor in (primitive.get("attributes") or {}).items()
+                        if name != "POSITION" and _is_kept_attribute(name)
+                    ]
+                for accessor in read:
                     if accessor is not None:
                         _allow_views(document, _item(gltf, "accessors", accessor))
         allowed_meshes.add(mesh_index)
-    plural = "s" if len(instances) != 1 else ""
-    context = f" after expanding its {len(instances)} glTF mesh instance{plural}"
+    plural = "s" if placements != 1 else ""
+    context = f" after expanding its {placements} glTF mesh instance{plural}"
     limits.check_faces(triangles, "triangles", context=context)
     limits.check_vertices(vertices, context=context)
 
@@ -498,14 +620,19 @@ def _allow_views(document: _Document, spec: JsonObject) -> None:
                 allowance[view_index] = allowance.get(view_index, 0) + extra
 
 
-def _read_document(document: _Document, format_name: str, limits: MeshLimits) -> TriangleMesh:
+def _read_document(
+    document: _Document, format_name: str, limits: MeshLimits, *, attributes: bool = False
+) -> SourceMesh:
     gltf = document.gltf
     instances = _mesh_instances(gltf)
-    _check_budget(document, instances, limits)
+    _check_budget(document, instances, limits, attributes=attributes)
+    instances = _expand_gpu_instances(document, instances)
     vertex_blocks: list[NDArray[Any]] = []
     face_blocks: list[NDArray[Any]] = []
+    kept = _KeptAttributes(document) if attributes else None
     vertex_total = 0
-    for mesh_index, matrix in instances:
+    for instance_number, instance in enumerate(instances):
+        mesh_index, matrix = instance.mesh, instance.matrix
         mesh = _item(gltf, "meshes", mesh_index)
         flip = np.linalg.det(matrix[:3, :3]) < 0
         for primitive in mesh.get("primitives", []):
@@ -547,10 +674,205 @@ def _read_document(document: _Document, format_name: str, limits: MeshLimits) ->
             vertex_blocks.append(positions @ matrix[:3, :3].T + matrix[:3, 3])
             face_blocks.append(triangles + vertex_total)
             vertex_total += len(positions)
+            if kept is not None:
+                kept.add(instance_number, mesh_index, primitive, len(positions), len(triangles))
 
     vertices = np.concatenate(vertex_blocks) if vertex_blocks else np.zeros((0, 3))
     faces = np.concatenate(face_blocks) if face_blocks else np.zeros((0, 3), dtype=np.int64)
-    return build_mesh(vertices, faces, None, len(faces), format_name=format_name, limits=limits)
+    read = build_mesh(vertices, faces, None, len(faces), format_name=format_name, limits=limits)
+    if kept is None:
+        return SourceMesh(read)
+    return SourceMesh(read, kept.result(read, instances))
+
+
+def _is_kept_attribute(name: str) -> bool:
+    return name in ("NORMAL", "TANGENT", "COLOR_0") or name.startswith("TEXCOORD_")
+
+
+class _KeptAttributes:
+    """Normals, tangents, UVs, colours and materials of the primitives read, gathered
+    primitive by primitive (one face group each) for ``SurfaceAttributes``.
+
+    An attribute whose accessor does not have one value per vertex of its primitive, or
+    whose values are not finite, is left out of that group (the geometry is read as it
+    would be without attributes)."""
+
+    def __init__(self, document: _Document) -> None:
+        self.document = document
+        self.groups: list[FaceGroup] = []
+        self.group_sizes: list[int] = []
+        self.vertex_counts: list[int] = []
+        self.blocks: dict[str, list[NDArray[Any] | None]] = {}
+
+    def add(
+        self,
+        instance: int,
+        mesh_index: int,
+        primitive: dict[str, Any],
+        vertices: int,
+        triangles: int,
+    ) -> None:
+        values = {
+            name: self._values(mesh_index, primitive, name, vertices)
+            for name in self._names(primitive)
+        }
+        uv_sets = 0
+        while values.get(f"TEXCOORD_{uv_sets}") is not None:
+            uv_sets += 1
+        material = primitive.get("material", -1)
+        if not (_is_count(material) and material < len(self.document.gltf.get("materials", []))):
+            material = -1
+        self.groups.append(
+            FaceGroup(
+                object=instance,
+                material=material,
+                normals=values.get("NORMAL") is not None,  # unless unusable: ``result``
+                tangents=values.get("TANGENT") is not None,
+                uv_sets=uv_sets,
+                colors=values.get("COLOR_0") is not None,
+            )
+        )
+        self.group_sizes.append(triangles)
+        for name in values.keys() - self.blocks.keys():  # a name not seen before
+            self.blocks[name] = [None] * len(self.vertex_counts)
+        for name, column in self.blocks.items():
+            column.append(values.get(name))
+        self.vertex_counts.append(vertices)
+
+    @staticmethod
+    def _names(primitive: dict[str, Any]) -> list[str]:
+        return [name for name in primitive.get("attributes", {}) if _is_kept_attribute(name)]
+
+    def _values(
+        self, mesh_index: int, primitive: dict[str, Any], name: str, vertices: int
+    ) -> NDArray[Any] | None:
+        accessor = primitive["attributes"][name]
+        spec = _item(self.document.gltf, "accessors", accessor)
+        width = {"NORMAL": 3, "TANGENT": 4}.get(name, 2)
+        if name == "COLOR_0":
+            width = _WIDTHS.get(spec.get("type", ""), 0)
+            if width not in (3, 4):
+                return None
+        if _declared_count(spec) != vertices or _WIDTHS.get(spec.get("type", "")) != width:
+            return None
+        draco = _draco_extension(primitive)
+        if draco is not None:
+            values = self.document.draco_attribute(mesh_index, primitive, draco, name, spec)
+        else:
+            values = self.document.accessor(accessor)
+        if values is None or values.shape != (vertices, width) or not finite_rows(values):
+            return None
+        if name == "COLOR_0" and width == 3:
+            values = np.column_stack([values, np.ones(len(values))])
+        return values
+
+    def _unit_normals(self, arrays: dict[str, NDArray[Any]]) -> None:
+        """Normals scaled to unit length, for all primitives at once; a primitive with a
+        normal of no direction loses its normals (and its tangents: glTF wants a NORMAL
+        beside every TANGENT)."""
+        if "NORMAL" not in arrays:
+            self.groups = [replace(g, tangents=False) for g in self.groups]
+            return
+        arrays["NORMAL"], good = unit_normal_rows(arrays["NORMAL"])
+        counts = np.array(self.vertex_counts, dtype=np.int64)
+        starts = np.cumsum(counts) - counts
+        usable = np.zeros(len(counts), dtype=bool)
+        filled = counts > 0
+        if filled.any():
+            usable[filled] = np.logical_and.reduceat(good, starts[filled])
+        self.groups = [
+            replace(g, normals=g.normals and ok, tangents=g.tangents and g.normals and ok)
+            for g, ok in zip(self.groups, usable.tolist(), strict=True)
+        ]
+
+    def result(self, mesh: TriangleMesh, instances: list[_Instance]) -> SurfaceAttributes:
+        width = {"NORMAL": 3, "TANGENT": 4, "COLOR_0": 4}
+        arrays: dict[str, NDArray[Any]] = {}
+        for name, column in self.blocks.items():
+            size = width.get(name, 2)
+            arrays[name] = (
+                np.concatenate(
+                    [
+                        np.zeros((count, size)) if block is None else block
+                        for block, count in zip(column, self.vertex_counts, strict=True)
+                    ]
+                ).astype(np.float32)
+                if column
+                else np.zeros((0, size), np.float32)
+            )
+        self._unit_normals(arrays)
+        uv_sets = max((group.uv_sets for group in self.groups), default=0)
+        gltf = self.document.gltf
+        objects = []
+        for instance in instances:
+            node = gltf["nodes"][instance.node] if instance.node >= 0 else {}
+            name = node.get("name") or _item(gltf, "meshes", instance.mesh).get("name") or ""
+            objects.append(SceneObject(str(name), instance.matrix))
+        face_group = np.repeat(np.arange(len(self.groups)), self.group_sizes)
+        attributes = SurfaceAttributes(
+            corners=mesh.faces,
+            vertex=np.arange(len(mesh.vertices), dtype=np.int64),
+            face_group=face_group.astype(np.int64),
+            groups=tuple(self.groups),
+            normals=arrays.get("NORMAL") if any(g.normals for g in self.groups) else None,
+            tangents=arrays.get("TANGENT") if any(g.tangents for g in self.groups) else None,
+            uvs=tuple(arrays[f"TEXCOORD_{k}"] for k in range(uv_sets)),
+            colors=arrays.get("COLOR_0") if any(g.colors for g in self.groups) else None,
+            objects=tuple(objects),
+            materials=_materials(self.document),
+        )
+        attributes.check(mesh)
+        return attributes
+
+
+def _materials(document: _Document) -> Materials:
+    """The document's materials, textures, samplers and images (their bytes read out of
+    the buffers or data URIs, so a writer can embed them)."""
+    gltf = document.gltf
+    images, image_data = [], []
+    for index, image in enumerate(gltf.get("images") or []):
+        image = dict(image) if isinstance(image, dict) else {}
+        data: bytes | None = None
+        if _is_count(image.get("bufferView")):
+            buffer, offset, length, _ = document._view(image.pop("bufferView"))
+            data = bytes(buffer[offset : offset + length])
+        elif isinstance(image.get("uri"), str) and image["uri"].startswith("data:"):
+            header, _, payload = image.pop("uri").partition(",")
+            if not header.endswith(";base64"):
+                raise UnsupportedFormatError(f"glTF image {index} has a data: URI without base64")
+            data = base64.b64decode(payload, validate=True)
+            image.setdefault("mimeType", header[5:].split(";", 1)[0] or "image/png")
+        images.append(image)
+        image_data.append(data)
+    parts = {key: tuple(x for x in gltf.get(key) or [] if isinstance(x, dict))
+             for key in ("materials", "textures", "samplers")}  # fmt: skip
+    used = sorted(
+        _extension_names([parts["materials"], parts["textures"], parts["samplers"], images])
+    )
+    return Materials(
+        materials=parts["materials"],
+        textures=parts["textures"],
+        samplers=parts["samplers"],
+        images=tuple(images),
+        image_data=tuple(image_data),
+        extensions=tuple(used),
+        required=tuple(name for name in used if name in (gltf.get("extensionsRequired") or [])),
+    )
+
+
+def _extension_names(value: Any) -> set[str]:
+    """Names of the glTF extensions used anywhere in a JSON value."""
+    names: set[str] = set()
+    if isinstance(value, dict):
+        extensions = value.get("extensions")
+        if isinstance(extensions, dict):
+            names.update(str(name) for name in extensions)
+        for item in value.values():
+            names |= _extension_names(item)
+    elif isinstance(value, list | tuple):
+        for item in value:
+            names |= _extension_names(item)
+    return names
 
 
 def _parse_json(text: bytes, format_name: str) -> Any:
@@ -570,8 +892,22 @@ def _parse_json(text: bytes, format_name: str) -> Any:
 
 def read_glb(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     """Parse binary glTF (GLB) bytes; declared lengths are checked before anything is read."""
+    return read_glb_source(data, limits).mesh
+
+
+def read_gltf(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
+    """Parse text glTF bytes whose buffers are embedded as base64 ``data:`` URIs."""
+    return read_gltf_source(data, limits).mesh
+
+
+def read_glb_source(
+    data: bytes, limits: MeshLimits = NO_LIMITS, *, attributes: bool = False
+) -> SourceMesh:
+    """``read_glb`` with, when ``attributes``, the file's normals, tangents, UVs, colours,
+    materials and scene objects (``exchange.attributes``): one face group per primitive
+    of each placement, one object per placement (named by its node, else its mesh)."""
     if strip_bom(data).lstrip()[:1] == b"{":  # a text glTF sent as GLB
-        return read_gltf(data, limits)
+        return read_gltf_source(data, limits, attributes=attributes)
     if len(data) < 12 or data[:4] != _GLB_MAGIC:
         raise MeshParseError("a GLB file must start with the 'glTF' magic bytes; is it a GLB?")
     version, length = struct.unpack_from("<II", data, 4)
@@ -596,14 +932,17 @@ def read_glb(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
         raise MeshParseError("the GLB has no JSON chunk")
     binary = next((payload for kind, payload in chunks[1:] if kind == _CHUNK_BIN), None)
     gltf = _parse_json(chunks[0][1], "GLB")
-    return _read_document(_Document(gltf, binary), "GLB", limits)
+    return _read_document(_Document(gltf, binary), "GLB", limits, attributes=attributes)
 
 
-def read_gltf(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
-    """Parse text glTF bytes whose buffers are embedded as base64 ``data:`` URIs."""
+def read_gltf_source(
+    data: bytes, limits: MeshLimits = NO_LIMITS, *, attributes: bool = False
+) -> SourceMesh:
+    """``read_gltf`` with the file's attributes (``read_glb_source``)."""
     if data[:4] == _GLB_MAGIC:
-        return read_glb(data, limits)
-    return _read_document(_Document(_parse_json(data, "glTF"), None), "glTF", limits)
+        return read_glb_source(data, limits, attributes=attributes)
+    document = _Document(_parse_json(data, "glTF"), None)
+    return _read_document(document, "glTF", limits, attributes=attributes)
 
 
-__all__ = ["read_glb", "read_gltf"]
+__all__ = ["read_glb", "read_glb_source", "read_gltf", "read_gltf_source"]

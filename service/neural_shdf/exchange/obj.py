@@ -1,11 +1,16 @@
 """Wavefront OBJ reader: every ``f`` record is one input face, in file order.
 
-Groups (``g``/``o``) and materials (``usemtl``) are ignored, so faces are never
-regrouped or reordered (trimesh's OBJ loader splits by material, which is why
-this reader exists). Only the position index of ``v/vt/vn`` references is used;
-negative indices are relative to the vertices defined so far. Texture coordinates,
-normals, lines (``l``) and points (``p``) are ignored. A UTF-8 byte-order mark
-and ``#`` comments after a record are skipped; errors name the file's line.
+Groups (``g``/``o``) and materials (``usemtl``) never regroup or reorder faces
+(trimesh's OBJ loader splits by material, which is why this reader exists). The
+geometry uses the position index of ``v/vt/vn`` references; negative indices are
+relative to the vertices defined so far. Lines (``l``) and points (``p``) are
+ignored. A UTF-8 byte-order mark and ``#`` comments after a record are skipped;
+errors name the file's line.
+
+``read_obj_source(..., attributes=True)`` also keeps each corner's ``vt`` and ``vn``
+(a reference to one that does not exist counts as none), vertex colours written as
+``v x y z r g b`` (taken as sRGB) and each face's ``usemtl`` name (``exchange.attributes``;
+the .mtl file itself is not read).
 """
 
 from __future__ import annotations
@@ -21,10 +26,20 @@ from neural_shdf.exchange._common import (
     NO_LIMITS,
     MeshLimits,
     decode_text,
+    fan_triangulate,
     polygon_mesh,
     strip_bom,
 )
+from neural_shdf.exchange.attributes import (
+    FaceGroup,
+    Materials,
+    SourceMesh,
+    SurfaceAttributes,
+    finite_rows,
+    unit_normals,
+)
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.palette import srgb_to_linear
 
 FORMAT_NAME = "OBJ"
 
@@ -80,6 +95,83 @@ def read_obj(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     face: it gets no triangle, and per-face outputs keep its line (label -1, ShDF NaN),
     so the faces after it keep their place.
     """
+    return read_obj_source(data, limits).mesh
+
+
+class _Extras:
+    """What ``attributes=True`` keeps beside the geometry, record by record."""
+
+    def __init__(self) -> None:
+        self.uv_values: list[str] = []
+        self.normal_values: list[str] = []
+        self.color_values: list[str] = []
+        self.colored_vertices = 0
+        self.uv_refs: list[str] = []  # per f corner: its vt reference as written
+        self.normal_refs: list[str] = []  # per f corner: its vn reference as written
+        self.face_material = array("q")  # per f record: index into names, or -1
+        self.face_corners = array("q")  # per f record: its corners
+        self.uv_defined = array("q")  # per f record: vt records before it
+        self.normal_defined = array("q")  # per f record: vn records before it
+        self.names: dict[str, int] = {}
+        self.material = -1
+
+    def vertex(self, parts: list[str]) -> None:
+        if len(parts) >= 7:
+            self.color_values.extend(parts[4:7])
+            self.colored_vertices += 1
+
+    def record(self, parts: list[str]) -> bool:
+        """Read a ``vt``, ``vn`` or ``usemtl`` record; False for anything else."""
+        keyword = parts[0]
+        if keyword == "vt" and len(parts) >= 3:
+            self.uv_values.extend(parts[1:3])
+        elif keyword == "vt":
+            self.uv_values.extend([parts[1] if len(parts) > 1 else "0", "0"])
+        elif keyword == "vn" and len(parts) >= 4:
+            self.normal_values.extend(parts[1:4])
+        elif keyword == "vn":
+            self.normal_values.extend(["0", "0", "0"])  # no direction: dropped later
+        elif keyword == "usemtl":
+            name = " ".join(parts[1:])
+            self.material = self.names.setdefault(name, len(self.names))
+        else:
+            return False
+        return True
+
+    def face(self, corners: int) -> None:
+        self.face_material.append(self.material)
+        self.face_corners.append(corners)
+        self.uv_defined.append(len(self.uv_values) // 2)
+        self.normal_defined.append(len(self.normal_values) // 3)
+
+    def corner_indices(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """0-based ``vt`` and ``vn`` of every face corner (-1: none, or one that does not
+        exist), negative references resolved against what was defined before the face."""
+        corners = np.array(self.face_corners, dtype=np.int64)
+        return (
+            _references(self.uv_refs, np.repeat(np.array(self.uv_defined), corners)),
+            _references(self.normal_refs, np.repeat(np.array(self.normal_defined), corners)),
+        )
+
+
+def _references(texts: list[str], defined: NDArray[np.int64]) -> NDArray[np.int64]:
+    """1-based (or negative, relative) OBJ references as 0-based indices; -1 where
+    missing, not a number or out of range."""
+    try:  # int() per text: several times faster than numpy's string-to-int conversion
+        numbers = np.array(list(map(int, [t or "0" for t in texts])), dtype=np.int64)
+    except ValueError:  # some reference is not a number: one by one
+        numbers = np.array([int(t) if t.lstrip("-").isdigit() else 0 for t in texts], np.int64)
+    if not len(numbers):
+        return numbers
+    index = np.where(numbers > 0, numbers - 1, defined + numbers)
+    return np.where((numbers != 0) & (index >= 0) & (index < defined), index, -1)
+
+
+def read_obj_source(
+    data: bytes, limits: MeshLimits = NO_LIMITS, *, attributes: bool = False
+) -> SourceMesh:
+    """``read_obj`` with, when ``attributes``, the file's UVs, normals, vertex colours and
+    material names (module docstring)."""
     data = strip_bom(data)
     limits.check_faces(_record_count(data, b"f"))
     limits.check_vertices(_record_count(data, b"v"))
@@ -92,6 +184,10 @@ def read_obj(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     polygon_count = 0
     vertex_limit = limits.max_vertices if limits.max_vertices is not None else len(data)
     face_limit = limits.max_faces if limits.max_faces is not None else len(data)
+    extras = _Extras() if attributes else None
+    uv_refs = extras.uv_refs if extras is not None else None
+    normal_refs = extras.normal_refs if extras is not None else None
+    first_letters = "vfu" if attributes else "vf"
     line_number = 0
     for chunk in _chunks(text):
         lines = chunk.splitlines()
@@ -100,12 +196,14 @@ def read_obj(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
         flat: list[int] = []
         for line_number, raw in enumerate(lines, start=first_line):
             line = raw.lstrip()
-            if not line or line[0] not in "vf":
+            if not line or line[0] not in first_letters:
                 continue
             if "#" in line:  # a comment may follow a record
                 line = line.split("#", 1)[0]
             parts = line.split()
             if not parts or parts[0] not in ("v", "f"):
+                if parts and extras is not None:
+                    extras.record(parts)
                 continue
             if parts[0] == "v":
                 if len(parts) < 4:
@@ -116,11 +214,14 @@ def read_obj(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
                 vertex_count += 1
                 if vertex_count > vertex_limit:
                     limits.check_vertices(vertex_count, at_least=True)
+                if extras is not None:
+                    extras.vertex(parts)
                 continue
             # parts[0] == "f"
             references = parts[1:]
             for reference in references:
-                position = reference.split("/", 1)[0]
+                fields = reference.split("/", 2)
+                position = fields[0]
                 try:
                     index = int(position)
                 except ValueError:
@@ -132,8 +233,13 @@ def read_obj(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
                         f"OBJ line {line_number}: face index 0 is invalid (OBJ indices start at 1)"
                     )
                 flat.append(index - 1 if index > 0 else vertex_count + index)
+                if uv_refs is not None and normal_refs is not None:  # attributes
+                    uv_refs.append(fields[1] if len(fields) > 1 else "")
+                    normal_refs.append(fields[2] if len(fields) > 2 else "")
             counts.append(len(references))
             face_lines.append(line_number)
+            if extras is not None:
+                extras.face(len(references))
             if len(references) >= 3:
                 polygon_count += 1
                 if polygon_count > face_limit:
@@ -161,10 +267,116 @@ def read_obj(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
             f"vertices that do not exist (first: face {face} of the file; there are "
             f"{vertex_count} vertices); the file is corrupt or truncated"
         )
-    return polygon_mesh(
+    face_counts = np.array(counts, dtype=np.int64)
+    mesh = polygon_mesh(
         vertices,
-        np.array(counts, dtype=np.int64),
+        face_counts,
         flat_indices,
         format_name=FORMAT_NAME,
         limits=limits,
     )
+    if extras is None:
+        return SourceMesh(mesh)
+    return SourceMesh(mesh, _attributes(mesh, face_counts, flat_indices, extras, vertex_count))
+
+
+def _numbers(values: list[str], width: int) -> NDArray[np.float64] | None:
+    """The values as rows of ``width`` numbers; None when some are not numbers."""
+    try:
+        return np.array(values, dtype=np.float64).reshape(-1, width)
+    except ValueError:
+        return None
+
+
+def _attributes(
+    mesh: TriangleMesh,
+    counts: NDArray[np.int64],
+    flat: NDArray[np.int64],
+    extras: _Extras,
+    vertex_count: int,
+) -> SurfaceAttributes | None:
+    """Attribute vertices (one per distinct ``v/vt/vn``) and face groups (one per
+    material and set of attributes) of the file's triangles."""
+    uv_table = _numbers(extras.uv_values, 2)
+    normal_table = _numbers(extras.normal_values, 3)
+    color_table = _numbers(extras.color_values, 3)
+    corner_uv, corner_normal = extras.corner_indices()
+    if uv_table is None or not finite_rows(uv_table):
+        corner_uv[:] = -1
+    normal_usable = np.zeros(0, dtype=bool)
+    unit_table: NDArray[np.float32] | None = None
+    if normal_table is not None:
+        unit_table, _ = unit_normals(normal_table)
+        normal_usable = np.abs(unit_table).sum(axis=1) > 0
+    else:
+        corner_normal[:] = -1
+    corner_normal[corner_normal >= 0] = np.where(
+        normal_usable[corner_normal[corner_normal >= 0]], corner_normal[corner_normal >= 0], -1
+    )
+    colored = (
+        color_table is not None
+        and extras.colored_vertices == vertex_count
+        and finite_rows(color_table)
+    )
+    found = (corner_uv >= 0).any() or (corner_normal >= 0).any() or colored or extras.names
+    if not found:
+        return None
+    # Triangle corners -> the file's face corners (the same fan as the geometry).
+    triangle_corner, origin = fan_triangulate(counts, np.arange(len(flat), dtype=np.int64))
+    # One attribute vertex per distinct (v, vt, vn).
+    attribute_pair = (corner_uv + 1) * (len(normal_usable) + 1) + (corner_normal + 1)
+    pair_values, pair_id = np.unique(attribute_pair, return_inverse=True)
+    key = flat * len(pair_values) + pair_id.reshape(-1)
+    _, corner_key = np.unique(key[triangle_corner.reshape(-1)], return_inverse=True)
+    first = triangle_corner.reshape(-1)[np.unique(corner_key, return_index=True)[1]]
+    vertex = flat[first]
+    uv_index, normal_index = corner_uv[first], corner_normal[first]
+    # Face groups: material, and whether the face's corners all have UVs, normals.
+    face_of_corner = np.repeat(np.arange(len(counts)), counts)
+    face_has_uv = np.bincount(face_of_corner[corner_uv < 0], minlength=len(counts)) == 0
+    face_has_normal = np.bincount(face_of_corner[corner_normal < 0], minlength=len(counts)) == 0
+    material = np.array(extras.face_material, dtype=np.int64)
+    face_key = (material + 1) * 4 + np.asarray(face_has_uv, dtype=np.int64) * 2
+    face_key = face_key + np.asarray(face_has_normal, dtype=np.int64)
+    triangle_key = face_key[origin]
+    group_keys, first_seen, group_of = np.unique(
+        triangle_key, return_index=True, return_inverse=True
+    )
+    order = np.argsort(first_seen, kind="stable")  # groups in order of first appearance
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    groups = tuple(
+        FaceGroup(
+            material=int(k // 4) - 1,
+            normals=bool(k & 1),
+            uv_sets=int((k >> 1) & 1),
+            colors=colored,
+        )
+        for k in group_keys[order].tolist()
+    )
+    uv = np.zeros((len(vertex), 2), dtype=np.float32)
+    if uv_table is not None and (uv_index >= 0).any():
+        uv[uv_index >= 0] = uv_table[uv_index[uv_index >= 0]]
+        uv[:, 1] = 1.0 - uv[:, 1]  # OBJ's V points up, glTF's down
+    normals = np.zeros((len(vertex), 3), dtype=np.float32)
+    if unit_table is not None and (normal_index >= 0).any():
+        normals[normal_index >= 0] = unit_table[normal_index[normal_index >= 0]]
+    colors = None
+    if colored and color_table is not None:
+        colors = np.column_stack(
+            [srgb_to_linear(np.clip(color_table[vertex], 0.0, 1.0)), np.ones(len(vertex))]
+        ).astype(np.float32)
+    attributes = SurfaceAttributes(
+        corners=corner_key.reshape(-1, 3).astype(np.int64),
+        vertex=vertex,
+        face_group=rank[group_of.reshape(-1)].astype(np.int64),
+        groups=groups,
+        normals=normals if any(g.normals for g in groups) else None,
+        uvs=(uv,) if any(g.uv_sets for g in groups) else (),
+        colors=colors,
+        materials=Materials(
+            materials=tuple({"name": name} for name in extras.names), defined=False
+        ),
+    )
+    attributes.check(mesh)
+    return attributes

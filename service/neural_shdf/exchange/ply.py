@@ -15,7 +15,9 @@ from numpy.typing import NDArray
 
 from neural_shdf.errors import InvalidGeometryError, MeshParseError, UnsupportedFormatError
 from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, polygon_mesh, strip_bom
+from neural_shdf.exchange.attributes import SourceMesh, SurfaceAttributes, vertex_attributes
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.palette import srgb_to_linear
 
 FORMAT_NAME = "PLY"
 _TYPES = {
@@ -252,6 +254,19 @@ def _read_binary_element(
 def read_ply(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     """Parse PLY bytes; polygons are fan-triangulated, one input face per face row
     (a row of fewer than 3 vertices is an input face without a triangle)."""
+    return read_ply_source(data, limits).mesh
+
+
+#: Vertex properties read as UVs (first pair found), as written by common tools.
+_UV_NAMES = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
+
+
+def read_ply_source(
+    data: bytes, limits: MeshLimits = NO_LIMITS, *, attributes: bool = False
+) -> SourceMesh:
+    """``read_ply`` with, when ``attributes``, the vertex normals (``nx ny nz``), UVs
+    (``u v``, ``s t``, ``texture_u texture_v``; V flipped to glTF's downward V) and
+    colours (``red green blue [alpha]``: bytes or 0-1 floats, sRGB, made linear)."""
     data = strip_bom(data)
     endian, elements, body = _parse_header(data)
     names = [e.name for e in elements]
@@ -288,10 +303,48 @@ def read_ply(data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     flat = np.asarray(flat)
     if flat.dtype.kind == "f" and not np.array_equal(flat, np.round(flat)):
         raise MeshParseError("PLY face indices must be integers")
-    return polygon_mesh(
+    mesh = polygon_mesh(
         vertices,
         counts,
         flat.astype(np.int64),
         format_name=FORMAT_NAME,
         limits=limits,
     )
+    if not attributes:
+        return SourceMesh(mesh)
+    element = elements[names.index("vertex")]
+    return SourceMesh(mesh, _vertex_attributes(mesh, vertex, element))
+
+
+def _vertex_attributes(
+    mesh: TriangleMesh, vertex: _Columns, element: _Element
+) -> SurfaceAttributes | None:
+    def column(name: str) -> NDArray[np.float64]:
+        values = vertex[name]
+        assert not isinstance(values, tuple)  # noqa: S101 - scalar properties only
+        return np.asarray(values, dtype=np.float64)
+
+    scalars = {name for name, values in vertex.items() if not isinstance(values, tuple)}
+    normals = (
+        np.stack([column(n) for n in ("nx", "ny", "nz")], axis=1)
+        if {"nx", "ny", "nz"} <= scalars
+        else None
+    )
+    uv = None
+    for u, v in _UV_NAMES:
+        if {u, v} <= scalars:
+            uv = np.stack([column(u), 1.0 - column(v)], axis=1)
+            break
+    colors = None
+    if {"red", "green", "blue"} <= scalars:
+        names = ("red", "green", "blue") + (("alpha",) if "alpha" in scalars else ())
+        declared = next(p.value_type for p in element.properties if p.name == "red")
+        # Integer colours are bytes (0-255), float colours 0-1, whatever the column's dtype
+        # (ascii columns are read as floats).
+        scale = 255.0 if np.dtype(declared).kind in "iu" else 1.0
+        rgba = np.stack([column(n) / scale for n in names], axis=1)
+        if rgba.shape[1] == 3:
+            rgba = np.column_stack([rgba, np.ones(len(rgba))])
+        rgba[:, :3] = srgb_to_linear(np.clip(rgba[:, :3], 0.0, 1.0))
+        colors = rgba
+    return vertex_attributes(mesh, normals=normals, uv=uv, colors=colors)

@@ -58,6 +58,14 @@ from neural_shdf.errors import (
 )
 from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, build_mesh, fan_triangulate
 from neural_shdf.exchange._usdc import crate_array_sizes
+from neural_shdf.exchange.attributes import (
+    FaceGroup,
+    SceneObject,
+    SourceMesh,
+    SurfaceAttributes,
+    finite_rows,
+    unit_normals,
+)
 from neural_shdf.exchange.gltf_writer import part_name
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.palette import UNLABELED_COLOR, part_colors, srgb_to_linear
@@ -105,15 +113,19 @@ def _inside(path: str, folder: Path) -> bool:
     return bool(real) and os.path.realpath(real).startswith(str(folder.resolve()) + os.sep)
 
 
-def check_layers_inside(path: Path) -> None:
+def check_layers_inside(path: Path) -> list[Any]:
     """UnsupportedFormatError unless every layer the file composes (sublayers, references,
-    payloads, recursively) is the file itself or inside it (a USDZ's own layers)."""
+    payloads, recursively) is the file itself or inside it (a USDZ's own layers).
+
+    Returns the opened layers, root first: while they are held, opening the stage reuses
+    them (usd-core's layer registry) instead of parsing every layer a second time."""
     from pxr import Sdf
 
     root = Sdf.Layer.FindOrOpen(str(path))
     if root is None:
         raise MeshParseError("usd-core could not open the file as a USD layer")
     seen = {root.identifier}
+    opened = [root]
     pending = [root]
     while pending:
         layer = pending.pop()
@@ -141,14 +153,17 @@ def check_layers_inside(path: Path) -> None:
             if child is None:
                 raise MeshParseError(f"the USD layer {asset!r} is missing from the file")
             pending.append(child)
+            opened.append(child)
+    return opened
 
 
 def open_stage(path: Path) -> Any:
     """The composed stage of a USD file whose layers were checked with check_layers_inside."""
     from pxr import Usd
 
-    check_layers_inside(path)
-    stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
+    layers = check_layers_inside(path)
+    stage = Usd.Stage.Open(layers[0], Usd.Stage.LoadAll)  # the layers parsed once
+    del layers  # the stage holds what it uses
     if stage is None:
         raise MeshParseError("usd-core could not open the file as a USD stage")
     return stage
@@ -222,6 +237,15 @@ def _prim_label(prim: Any) -> str:
 
 def read_usd_stage(stage: Any, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
     """All mesh prims of an open stage as one TriangleMesh (order: module docstring)."""
+    return read_usd_stage_source(stage, limits).mesh
+
+
+def read_usd_stage_source(
+    stage: Any, limits: MeshLimits = NO_LIMITS, *, attributes: bool = False
+) -> SourceMesh:
+    """``read_usd_stage`` with, when ``attributes``, one scene object per mesh prim (its
+    path and world transform), its normals and its ``st`` UVs (V turned to glTF's
+    downward V), for ``gltf_writer.parts_glb``."""
     from pxr import Usd, UsdGeom
 
     time = Usd.TimeCode.EarliestTime()
@@ -242,6 +266,7 @@ def read_usd_stage(stage: Any, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
         raise MeshParseError("the USD stage has no Mesh prim (UsdGeom.Mesh) to read")
 
     xforms = UsdGeom.XformCache(time)
+    kept = _UsdAttributes() if attributes else None
     vertex_parts: list[NDArray[Any]] = []
     face_parts: list[NDArray[Any]] = []
     origin_parts: list[NDArray[Any]] = []
@@ -260,18 +285,24 @@ def read_usd_stage(stage: Any, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
         matrix = np.array(xforms.GetLocalToWorldTransform(prim), dtype=np.float64)
         points = points @ matrix[:3, :3] + matrix[3, :3]  # USD transforms row vectors
         left_handed = mesh.GetOrientationAttr().Get(time) == UsdGeom.Tokens.leftHanded
+        file_flat = flat
+        corner_ids = np.arange(len(flat), dtype=np.int64)  # the file's corner of each entry
         if left_handed != (np.linalg.det(matrix[:3, :3]) < 0):
             flat = _reverse_windings(counts, flat)
+            corner_ids = _reverse_windings(counts, corner_ids)
         usable = counts.copy()
         holes = entry.holes[(entry.holes >= 0) & (entry.holes < len(counts))]
         usable[holes] = 0  # a hole stays an input face, without triangles
         if len(holes):
             keep = np.repeat(usable > 0, counts)
             flat, triangulated = flat[keep], usable[usable > 0]
+            corner_ids = corner_ids[keep]
             faces, local_origin = fan_triangulate(triangulated, flat)
+            triangle_corners, _ = fan_triangulate(triangulated, corner_ids)
             local_origin = np.flatnonzero(usable > 0)[local_origin]
         else:
             faces, local_origin = fan_triangulate(counts, flat)
+            triangle_corners, _ = fan_triangulate(counts, corner_ids)
         bad = (faces < 0) | (faces >= len(points))
         if bad.any():
             face = int(local_origin[np.flatnonzero(bad.any(axis=1))[0]])
@@ -279,12 +310,14 @@ def read_usd_stage(stage: Any, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
                 f"{_prim_label(prim)}: face {face} refers to a point that does not exist "
                 f"(the prim has {len(points)} points)"
             )
+        if kept is not None:
+            kept.add(mesh, time, matrix.T, counts, file_flat, triangle_corners, vertex_offset)
         vertex_parts.append(points)
         face_parts.append(faces + vertex_offset)
         origin_parts.append(local_origin + face_offset)
         vertex_offset += len(points)
         face_offset += len(counts)
-    return build_mesh(
+    read = build_mesh(
         np.concatenate(vertex_parts),
         np.concatenate(face_parts),
         np.concatenate(origin_parts),
@@ -292,6 +325,148 @@ def read_usd_stage(stage: Any, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
         format_name=FORMAT_NAME,
         limits=limits,
     )
+    return SourceMesh(read, None if kept is None else kept.result(read))
+
+
+class _UsdAttributes:
+    """Per mesh prim: a scene object, a face group, and attribute vertices (one per
+    distinct point, ``st`` value and normal a triangle corner uses)."""
+
+    def __init__(self) -> None:
+        self.objects: list[SceneObject] = []
+        self.groups: list[FaceGroup] = []
+        self.sizes: list[int] = []
+        self.corners: list[NDArray[np.int64]] = []
+        self.vertex: list[NDArray[np.int64]] = []
+        self.uv: list[NDArray[np.float32] | None] = []
+        self.normals: list[NDArray[np.float32] | None] = []
+        self.count = 0
+
+    def add(
+        self,
+        mesh: Any,
+        time: Any,
+        matrix: NDArray[np.float64],
+        counts: NDArray[np.int64],
+        flat: NDArray[np.int64],
+        triangle_corners: NDArray[np.int64],
+        vertex_offset: int,
+    ) -> None:
+        from pxr import UsdGeom
+
+        primvars = UsdGeom.PrimvarsAPI(mesh)
+        face_of_corner = np.repeat(np.arange(len(counts), dtype=np.int64), counts)
+        st = _corner_values(primvars.GetPrimvar("st"), time, flat, face_of_corner, 2)
+        normal_primvar = primvars.GetPrimvar("normals")
+        if normal_primvar and normal_primvar.HasAuthoredValue():
+            found = _corner_values(normal_primvar, time, flat, face_of_corner, 3)
+        else:
+            found = _corner_values(
+                mesh.GetNormalsAttr(), time, flat, face_of_corner, 3,
+                interpolation=mesh.GetNormalsInterpolation(),
+            )  # fmt: skip
+        normals: tuple[NDArray[np.float32], NDArray[np.int64]] | None = None
+        if found is not None:
+            unit, usable = unit_normals(found[0])
+            normals = (unit, found[1]) if usable else None
+        corners = triangle_corners.reshape(-1)
+        vertex = flat[corners]
+        key = vertex
+        for table_size, index in (
+            (len(st[0]), st[1]) if st is not None else (0, None),
+            (len(normals[0]), normals[1]) if normals is not None else (0, None),
+        ):
+            if index is not None:
+                _, pairs = np.unique(key * (table_size + 1) + index[corners], return_inverse=True)
+                key = pairs.reshape(-1)
+        _, first, corner_key = np.unique(key, return_index=True, return_inverse=True)
+        self.objects.append(SceneObject(str(mesh.GetPath()), matrix))
+        self.groups.append(
+            FaceGroup(
+                object=len(self.objects) - 1,
+                normals=normals is not None,
+                uv_sets=int(st is not None),
+            )
+        )
+        self.sizes.append(len(triangle_corners))
+        self.corners.append(corner_key.reshape(-1, 3) + self.count)
+        self.vertex.append(vertex[first] + vertex_offset)
+        chosen = corners[first]
+        if st is not None:
+            uv = st[0][st[1][chosen]].astype(np.float32)
+            uv[:, 1] = 1.0 - uv[:, 1]  # USD's st has V up, glTF's V points down
+            self.uv.append(uv)
+        else:
+            self.uv.append(None)
+        self.normals.append(None if normals is None else normals[0][normals[1][chosen]])
+        self.count += len(first)
+
+    def result(self, mesh: TriangleMesh) -> SurfaceAttributes:
+        def column(blocks: list[NDArray[np.float32] | None], width: int) -> NDArray[np.float32]:
+            return np.concatenate(
+                [
+                    np.zeros((len(v), width), np.float32) if b is None else b
+                    for b, v in zip(blocks, self.vertex, strict=True)
+                ]
+            ).astype(np.float32)
+
+        has_uv = any(g.uv_sets for g in self.groups)
+        attributes = SurfaceAttributes(
+            corners=np.concatenate(self.corners).astype(np.int64),
+            vertex=np.concatenate(self.vertex).astype(np.int64),
+            face_group=np.repeat(np.arange(len(self.groups)), self.sizes).astype(np.int64),
+            groups=tuple(self.groups),
+            normals=column(self.normals, 3) if any(g.normals for g in self.groups) else None,
+            uvs=(column(self.uv, 2),) if has_uv else (),
+            objects=tuple(self.objects),
+        )
+        attributes.check(mesh)
+        return attributes
+
+
+def _corner_values(
+    source: Any,
+    time: Any,
+    flat: NDArray[np.int64],
+    face_of_corner: NDArray[np.int64],
+    width: int,
+    *,
+    interpolation: str | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.int64]] | None:
+    """``(table, index of each face corner's value in it)`` of a primvar (or the normals
+    attribute, whose ``interpolation`` is given), or None when it is absent or does not
+    fit the prim (wrong length, wrong width, values that are not finite)."""
+    from pxr import UsdGeom
+
+    if not source or not source.HasAuthoredValue():
+        return None
+    raw = source.Get(time)
+    if raw is None or len(raw) == 0:
+        return None
+    table = np.asarray(raw, dtype=np.float64)
+    if table.ndim != 2 or table.shape[1] != width or not finite_rows(table):
+        return None
+    indices = None
+    if interpolation is None:
+        interpolation = source.GetInterpolation()
+        if source.IsIndexed():
+            indices = np.asarray(source.GetIndices(time), dtype=np.int64)
+    base = {
+        UsdGeom.Tokens.vertex: flat,
+        UsdGeom.Tokens.varying: flat,
+        UsdGeom.Tokens.faceVarying: np.arange(len(flat), dtype=np.int64),
+        UsdGeom.Tokens.uniform: face_of_corner,
+        UsdGeom.Tokens.constant: np.zeros(len(flat), dtype=np.int64),
+    }.get(interpolation)
+    if base is None:
+        return None
+    if indices is not None:
+        if len(base) and (base.max() >= len(indices)):
+            return None
+        base = indices[base]
+    if len(base) and (base.min() < 0 or base.max() >= len(table)):
+        return None
+    return table, base
 
 
 def _usd_message(error: Exception) -> str:
@@ -349,13 +524,28 @@ def check_crate_arrays(data: bytes, limits: MeshLimits) -> None:
 
 
 def _read_usd_bytes(extension: str, data: bytes, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
+    return read_usd_source(extension, data, limits).mesh
+
+
+def read_usd_source(
+    extension: str, data: bytes, limits: MeshLimits = NO_LIMITS, *, attributes: bool = False
+) -> SourceMesh:
+    """A USD file's bytes (``extension``: usd, usda, usdc or usdz) read as
+    ``read_usd_stage_source`` reads its stage."""
     if extension == "usd":
         extension = sniff_usd(data) or "usd"
     if extension == "usdz" and not data.startswith(b"PK\x03\x04"):
         raise MeshParseError("a .usdz file is a zip archive, and this file is not one")
     check_crate_arrays(data, limits)
+    from pxr import Tf
+
     with usd_file(data, extension) as path:
-        return read_usd_path(path, limits)
+        try:
+            return read_usd_stage_source(open_stage(path), limits, attributes=attributes)
+        except Tf.ErrorException as error:
+            raise MeshParseError(
+                f"usd-core could not read the file: {_usd_message(error)}"
+            ) from None
 
 
 #: Readers for the registry, one per extension (the extension tells usd-core the encoding).
@@ -522,7 +712,7 @@ def _export(layer: Any, output: Path, scratch: Path) -> None:
 
 
 def write_usd_parts(
-    source: str | Path,
+    source: str | Path | bytes,
     face_labels: NDArray[Any],
     output: str | Path,
     *,
@@ -535,7 +725,9 @@ def write_usd_parts(
     faces without a part, such as holes, in ``unlabeled``) and a per-face
     ``primvars:displayColor`` (uniform; the part colours, converted to linear).
 
-    ``face_labels``: one label per input face, in the reader's order (e.g.
+    ``source``: the USD file's path, or its bytes (then ``input_format`` says which
+    kind: usd, usda, usdc or usdz). ``face_labels``: one label per input face, in the
+    reader's order (e.g.
     ``SegmentResult.input_face_parts``). Everything else in the stage is kept. A stage of
     one layer is written as that layer; one composed of several layers (a USDZ with
     sublayers or references) is flattened. Instances holding meshes are made ordinary
@@ -548,9 +740,11 @@ def write_usd_parts(
     from pxr import Usd, UsdGeom
 
     output, labels = _check_output(output, face_labels)
-    source = Path(source)
-    extension = (input_format or source.suffix).lower().lstrip(".")
-    data = source.read_bytes()
+    if isinstance(source, bytes | bytearray | memoryview):
+        data, suffix = bytes(source), ""
+    else:
+        data, suffix = Path(source).read_bytes(), Path(source).suffix
+    extension = (input_format or suffix or "usd").lower().lstrip(".")
     if extension == "usd":
         extension = sniff_usd(data) or "usd"
     with usd_file(data, extension) as path:
@@ -566,6 +760,15 @@ def write_usd_parts(
         single = len([layer for layer in stage.GetUsedLayers() if not layer.anonymous]) == 1
         layer = stage.GetRootLayer() if single and extension != "usdz" else stage.Flatten()
         _export(layer, output, path.parent)
+
+
+def usd_parts_usda(data: bytes, input_format: str, face_labels: NDArray[Any]) -> bytes:
+    """``write_usd_parts`` of a USD file's bytes, as the bytes of a .usda layer (a stage of
+    several layers, such as a USDZ package, flattened)."""
+    with tempfile.TemporaryDirectory(prefix="neural-shdf-usd-") as scratch:
+        path = Path(scratch) / "parts.usda"
+        write_usd_parts(data, face_labels, path, input_format=input_format)
+        return path.read_bytes()
 
 
 def input_polygons(mesh: TriangleMesh) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[Any]]:
@@ -650,12 +853,15 @@ __all__ = [
     "open_stage",
     "read_usd",
     "read_usd_path",
+    "read_usd_source",
     "read_usd_stage",
+    "read_usd_stage_source",
     "read_usda",
     "read_usdc",
     "read_usdz",
     "sniff_usd",
     "usd_file",
+    "usd_parts_usda",
     "write_mesh_parts_usd",
     "write_usd_parts",
 ]

@@ -42,6 +42,11 @@ def meta_key(mesh_id: str) -> str:
     return f"{mesh_id}:meta"
 
 
+def source_key(mesh_id: str, source_id: str) -> str:
+    """An upload's own file (its bytes and format), for results written back into it."""
+    return f"{mesh_id}:source:{source_id}"
+
+
 def face_graph_key(mesh_id: str) -> str:
     """A mesh's face graph (process memory only: rebuilt faster than read back)."""
     return f"{mesh_id}:graph"

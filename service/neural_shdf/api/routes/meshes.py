@@ -51,7 +51,7 @@ async def ingest(
     fmt = upload_format(upload, file_type)
     mesh = await engine.run(engine.meshes.parse, data, fmt)
     detected = normalize_format(fmt) if fmt else sniff_format(data)
-    meta = await engine.io(engine.meshes.store, mesh, detected, upload.filename)
+    meta = await engine.io(engine.meshes.store, mesh, detected, upload.filename, data)
     return meta, mesh
 
 

@@ -19,6 +19,7 @@ from neural_shdf.api.responses import (
 from neural_shdf.api.routes.deps import EngineDep, SingleFormFields, error_responses
 from neural_shdf.api.routes.meshes import MeshId, ingest
 from neural_shdf.api.schemas import (
+    MESH_ID_PATTERN,
     Job,
     LabeledSegmentOptions,
     Segmentation,
@@ -130,9 +131,40 @@ async def segment_file(
     return await segment_response(engine, meta["mesh_id"], form, params)
 
 
+SourceId = Annotated[
+    str | None,
+    Query(
+        pattern=MESH_ID_PATTERN,
+        description="`source_id` of an upload of this mesh (its answer's `mesh.source_id`): "
+        "write the parts into that file's own kind of content (normals, UVs, colours, "
+        "materials and objects kept; a USD file's own stage).",
+    ),
+]
+
+
 def _glb_route(style: str):  # noqa: ANN202 - FastAPI endpoint factory
-    async def endpoint(
-        engine: EngineDep, mesh_id: MeshId, options: Annotated[LabeledSegmentOptions, Query()]
+    if style == "colored":
+
+        async def colored(
+            engine: EngineDep, mesh_id: MeshId, options: Annotated[LabeledSegmentOptions, Query()]
+        ) -> Response:
+            params = options.segment_params()
+            method = await engine.resolved_method(mesh_id, options.method)
+            if options.labeler_id is not None:
+                glb = await engine.labelings.glb(
+                    mesh_id, method, options.seed, options.labeler_id, style
+                )
+            else:
+                glb = await engine.segmentations.glb(mesh_id, method, params, style)
+            return glb_response(glb, mesh_id, style)
+
+        return colored
+
+    async def parts(
+        engine: EngineDep,
+        mesh_id: MeshId,
+        options: Annotated[LabeledSegmentOptions, Query()],
+        source: SourceId = None,
     ) -> Response:
         params = options.segment_params()
         method = await engine.resolved_method(mesh_id, options.method)
@@ -141,10 +173,10 @@ def _glb_route(style: str):  # noqa: ANN202 - FastAPI endpoint factory
                 mesh_id, method, options.seed, options.labeler_id, style
             )
             return glb_response(glb, mesh_id, style)
-        glb = await engine.segmentations.glb(mesh_id, method, params, style)
+        glb = await engine.segmentations.glb(mesh_id, method, params, style, source)
         return glb_response(glb, mesh_id, style)
 
-    return endpoint
+    return parts
 
 
 _GLB_RESPONSES = {
@@ -171,7 +203,10 @@ router.add_api_route(
     operation_id="get_parts_glb",
     summary="Segmentation as one mesh per part",
     description="A GLB scene with one node and mesh per part, named `part_000`, `part_001`, "
-    "...; with `labeler_id`, one per label present, named by the label's name.",
+    "...; with `source`, the parts keep that upload's normals, UV sets, vertex colours and "
+    "materials, under one node per object of its scene (name and transform kept); with "
+    "`labeler_id`, one per label present, named by "
+    "the label's name (`source` is not used then).",
     response_class=Response,
     responses=_GLB_RESPONSES,
 )
@@ -185,12 +220,13 @@ USDA_MEDIA_TYPE = "model/vnd.usda"
     "/meshes/{mesh_id}/segmentation/parts.usda",
     operation_id="get_parts_usda",
     summary="Segmentation as a USD stage with one GeomSubset per part",
-    description="A USD layer with one Mesh prim `/World/Mesh` whose faces are the input faces "
-    "(in input order; faces without triangles are left out), one `GeomSubset` per part "
-    "(family `part`, named `part_000`, ...; with `labeler_id`, named by label, each with "
-    "a material of the label's name and colour) and a per-face `primvars:displayColor`. The "
-    "uploaded file is not kept: segment USD files with the CLI's `--usd` to get parts on "
-    "their own stage.",
+    description="With the `source` of a USD upload: that file's own stage (prims, "
+    "transforms, UVs, normals, materials kept) with, on every mesh prim, one `GeomSubset` "
+    "per part (family `part`, named `part_000`, ...) and a per-face "
+    "`primvars:displayColor`. Otherwise a USD layer with one Mesh prim `/World/Mesh` whose "
+    "faces are the input faces (in input order; faces without triangles are left out), "
+    "with the same subsets and colours. With `labeler_id`: a new stage, subsets named by "
+    "label, each with a material of the label's name and colour.",
     response_class=Response,
     responses={
         200: {
@@ -201,14 +237,17 @@ USDA_MEDIA_TYPE = "model/vnd.usda"
     },
 )
 async def get_parts_usda(
-    engine: EngineDep, mesh_id: MeshId, options: Annotated[LabeledSegmentOptions, Query()]
+    engine: EngineDep,
+    mesh_id: MeshId,
+    options: Annotated[LabeledSegmentOptions, Query()],
+    source: SourceId = None,
 ) -> Response:
-    """The segmentation as USD, written from the stored mesh."""
+    """The segmentation as USD: the uploaded USD file's own stage, or a new one."""
     params = options.segment_params()
     method = await engine.resolved_method(mesh_id, options.method)
     if options.labeler_id is not None:
         body = await engine.labelings.usda(mesh_id, method, options.seed, options.labeler_id)
     else:
-        body = await engine.segmentations.usda(mesh_id, method, params)
+        body = await engine.segmentations.usda(mesh_id, method, params, source)
     disposition = f'attachment; filename="{mesh_id[:16]}-parts.usda"'
     return Response(body, media_type=USDA_MEDIA_TYPE, headers={"Content-Disposition": disposition})

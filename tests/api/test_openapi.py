@@ -11,7 +11,7 @@ COMMITTED = REPO_ROOT / "openapi" / "openapi.json"
 OPERATIONS = {
     "health", "ready", "metrics", "upload_mesh", "get_mesh", "delete_mesh", "get_shdf",
     "get_job", "segment_mesh", "segment_file", "get_colored_glb", "get_parts_glb", "get_geometry",
-    "get_unwrapped_glb", "get_atlas_png", "get_parts_usda",
+    "get_unwrapped_glb", "get_atlas_png", "get_parts_usda", "get_unwrapped_obj", "get_uvs",
 }  # fmt: skip
 
 

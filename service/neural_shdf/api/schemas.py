@@ -23,8 +23,9 @@ ShdfMethodName = Literal["auto", "exact", "sampled", "neural"]
 #: The ShDF producer that ran (``auto`` resolved).
 ShdfProducerName = Literal["exact", "sampled", "neural"]
 JobState = Literal["queued", "running", "succeeded", "failed"]
-#: What a job computes: a ShDF, or a UV atlas for ``unwrapped.glb`` or ``atlas.png``.
-JobKind = Literal["shdf", "unwrap", "atlas"]
+#: What a job computes: a ShDF, or a UV atlas for ``unwrapped.glb``, ``unwrapped.obj``,
+#: ``atlas.png`` or ``uvs``.
+JobKind = Literal["shdf", "unwrap", "obj", "atlas", "uvs"]
 
 MESH_ID_EXAMPLE = "3f1c0b6e2d4a8f7e9c1b2a3d4e5f60718293a4b5c6d7e8f9a0b1c2d3e4f5a6b7"
 MESH_ID_PATTERN = "^[0-9a-f]{64}$"
@@ -233,8 +234,8 @@ class Job(BaseModel):
     mesh_id: str = Field(description="The mesh the job computes.", examples=[MESH_ID_EXAMPLE])
     kind: JobKind = Field(
         "shdf",
-        description="What the job computes: `shdf`, or the atlas of `unwrap` (unwrapped.glb) "
-        "or `atlas` (atlas.png).",
+        description="What the job computes: `shdf`, or the atlas of `unwrap` (unwrapped.glb), "
+        "`obj` (unwrapped.obj), `atlas` (atlas.png) or `uvs`.",
         examples=["shdf"],
     )
     method: ShdfMethodName = Field(
@@ -390,6 +391,43 @@ class UnwrapOptions(SegmentOptions):
         return UnwrapParams(
             atlas_size=self.atlas_size, padding=self.padding, max_stretch=self.max_stretch
         )
+
+
+class UvLayout(BaseModel):
+    """UVs of every corner of every input face, in the input file's face order and each
+    polygon's own corner order (``unwrapped.glb``'s atlas, for clients that keep their
+    own mesh, such as the Blender add-on)."""
+
+    mesh_id: str = Field(description="Mesh id.", examples=[MESH_ID_EXAMPLE])
+    faces: int = Field(description="Input faces.", examples=[2])
+    corners: int = Field(
+        description="Corners of all input faces (the sum of `corner_counts`).", examples=[6]
+    )
+    corner_counts_base64: str = Field(
+        description="Corners of each input face as base64 little-endian int32 (0: a face "
+        "without triangles, which has no UVs).",
+        examples=["AwAAAAMAAAA="],
+    )
+    uvs_base64: str = Field(
+        description="`corners` (u, v) pairs as base64 little-endian float32, face after face, "
+        "each face's corners in the file's order; in [0, 1], v up (OBJ's and Blender's "
+        "convention).",
+        examples=["AAAAAAAAAAAAAIA/AAAAAAAAAAAAAIA/AACAPwAAAAAAAIA/AACAPwAAAAAAAIA/"],
+    )
+    chart_base64: str = Field(
+        description="The chart of each input face (its first triangle's) as base64 "
+        "little-endian int32; -1: none.",
+        examples=["AAAAAAAAAAA="],
+    )
+    chart_part: list[int] = Field(description="The part of each chart.", examples=[[0]])
+    width: int = Field(description="Packed atlas width in texels.", examples=[1024])
+    height: int = Field(description="Packed atlas height in texels.", examples=[1024])
+    utilization: float = Field(description="Fraction of the atlas covered.", examples=[0.62])
+    split_faces: int = Field(
+        description="Input faces a chart boundary runs through: their triangles disagree "
+        "on a shared corner's UV, and the corners here are the outer ones of the fan.",
+        examples=[0],
+    )
 
 
 FACE_INDEX = {"minimum": 0}

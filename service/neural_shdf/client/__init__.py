@@ -30,6 +30,7 @@ from neural_shdf.client.results import (
     Segmentation,
     Upload,
 )
+from neural_shdf.client.unwrapping import UnwrapArgs, UvLayout
 
 __all__ = [
     "AsyncClient",
@@ -48,6 +49,8 @@ __all__ = [
     "ServiceTimeoutError",
     "ServiceUnavailableError",
     "UnsupportedMediaError",
+    "UnwrapArgs",
     "Upload",
+    "UvLayout",
     "edits",
 ]

@@ -479,7 +479,20 @@ class PaintEdit(BaseModel):
     )
 
 
-EditOperation = Annotated[GrowEdit | ShrinkEdit | MergeEdit | PaintEdit, Field(discriminator="op")]
+class SplitEdit(BaseModel):
+    """The part holding `face` is cut in two halves of similar face count with the shortest
+    boundary (METIS bisection); the half holding `face` stays, the other is a new part."""
+
+    model_config = ConfigDict(extra="forbid")
+    op: Literal["split"] = Field(description="Operation.", examples=["split"])
+    face: int = Field(
+        json_schema_extra=FACE_INDEX, description="A face of the part.", examples=[120]
+    )
+
+
+EditOperation = Annotated[
+    GrowEdit | ShrinkEdit | MergeEdit | PaintEdit | SplitEdit, Field(discriminator="op")
+]
 
 
 class SegmentRequest(SegmentOptions):

@@ -110,7 +110,9 @@ def input_face_adjacency(
     between = pairs[:, 0] != pairs[:, 1]
     pairs, length = pairs[between], np.asarray(edge_length, dtype=np.float64)[between]
     unique, inverse = np.unique(pairs, axis=0, return_inverse=True)
-    total = np.bincount(inverse.reshape(-1), weights=length, minlength=len(unique))
+    total = np.bincount(inverse.reshape(-1), weights=length, minlength=len(unique)).astype(
+        np.float64
+    )
     return FaceAdjacency(unique.astype(np.int64).reshape(-1, 2), total)
 
 

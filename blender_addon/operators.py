@@ -4,6 +4,7 @@ background mode wait for the same task); labels come back as attributes and mate
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 from dataclasses import dataclass, field
@@ -12,7 +13,14 @@ import bpy
 import numpy as np
 
 from . import apply_parts, colors, mesh_payload, service
-from .properties import DIGEST_KEY, MESH_ID_KEY, PARTS_KEY, SERVER_KEY
+from .properties import (
+    DIGEST_KEY,
+    EDITS_KEY,
+    MESH_ID_KEY,
+    OPTIONS_KEY,
+    PARTS_KEY,
+    SERVER_KEY,
+)
 
 
 @dataclass
@@ -53,6 +61,18 @@ class SegmentTask:
     def done(self) -> bool:
         return self.thread is not None and not self.thread.is_alive()
 
+    def run_one(
+        self, session: service.Session, request: ObjectRequest, report: service.Progress
+    ) -> service.Outcome:
+        """What the worker does for one object (a subclass may do more)."""
+        return session.segment(
+            request.payload,
+            f"{request.object_name}.ply",
+            self.options,
+            report,
+            mesh_id=request.known_mesh_id,
+        )
+
     def _work(self) -> None:
         started = time.perf_counter()
         try:
@@ -63,13 +83,7 @@ class SegmentTask:
                     self.progress = (index + min(max(fraction, 0.0), 1.0)) / len(self.requests)
                     self.status = f"{self.requests[index].object_name}: {status}"
 
-                self.outcomes[request.object_name] = session.segment(
-                    request.payload,
-                    f"{request.object_name}.ply",
-                    self.options,
-                    report,
-                    mesh_id=request.known_mesh_id,
-                )
+                self.outcomes[request.object_name] = self.run_one(session, request, report)
         except service.Cancelled:
             self.cancelled = True
         except service.ServiceError as error:
@@ -155,6 +169,12 @@ def apply(context: bpy.types.Context, task: SegmentTask, settings) -> list[str]:
         obj[SERVER_KEY] = task.server_url
         obj[PARTS_KEY] = outcome.part_count
         target = target_object(context, obj, request)
+        # What a hand edit of the target needs: the mesh id and the options it ran with.
+        target[MESH_ID_KEY] = outcome.mesh_id
+        target[SERVER_KEY] = task.server_url
+        target[OPTIONS_KEY] = json.dumps(task.options)
+        if EDITS_KEY in target:  # a new segmentation starts a new edit
+            del target[EDITS_KEY]
         labels = np.frombuffer(outcome.labels, dtype=np.int32)
         part_colors = colors.part_colors(outcome.parts)  # the service's, linear
         apply_parts.write_labels(target.data, labels, part_colors)
@@ -180,12 +200,10 @@ def _show(context: bpy.types.Context, task: SegmentTask | None) -> None:
                 area.tag_redraw()
 
 
-class SegmentSelectedOperator(bpy.types.Operator):
-    """Split the selected meshes into parts with the neural-shdf service"""
-
-    bl_idname = "neural_shdf.segment_selected"
-    bl_label = "Segment Selected"
-    bl_options = {"REGISTER", "UNDO"}
+class ServiceTaskOperator:
+    """What "Segment Selected" and the operators made like it share: a task on a worker
+    thread, polled on a timer (Esc cancels), its outcomes written back on the main thread.
+    A mixin (Blender cannot register a subclass of a registered operator)."""
 
     _task: SegmentTask | None = None
     _timer = None
@@ -203,9 +221,17 @@ class SegmentSelectedOperator(bpy.types.Operator):
             return False
         return True
 
+    def make_task(self, context: bpy.types.Context) -> SegmentTask:
+        """The worker's task for the selection (a subclass may make another kind)."""
+        return prepare(context, context.scene.neural_shdf)
+
+    def write_back(self, context: bpy.types.Context, task: SegmentTask) -> list[str]:
+        """Write the task's outcomes to the objects (main thread); one line per object."""
+        return apply(context, task, context.scene.neural_shdf)
+
     def _start(self, context: bpy.types.Context) -> bool:
         try:
-            self._task = prepare(context, context.scene.neural_shdf)
+            self._task = self.make_task(context)
         except (service.ServiceError, ValueError) as error:
             self.report({"ERROR"}, f"neural-shdf: {error}")
             return False
@@ -225,7 +251,7 @@ class SegmentSelectedOperator(bpy.types.Operator):
             self.report({"ERROR"}, f"neural-shdf: {task.error}")
             return {"CANCELLED"}
         try:
-            lines = apply(context, task, context.scene.neural_shdf)
+            lines = self.write_back(context, task)
         except Exception as error:  # noqa: BLE001 - shown to the user, never a traceback
             self.report({"ERROR"}, f"neural-shdf: could not write the parts back: {error}")
             return {"CANCELLED"}
@@ -270,6 +296,14 @@ class SegmentSelectedOperator(bpy.types.Operator):
         while self._task.thread.is_alive():
             self._task.thread.join(0.05)
         return self._finish(context)
+
+
+class SegmentSelectedOperator(ServiceTaskOperator, bpy.types.Operator):
+    """Split the selected meshes into parts with the neural-shdf service"""
+
+    bl_idname = "neural_shdf.segment_selected"
+    bl_label = "Segment Selected"
+    bl_options = {"REGISTER", "UNDO"}
 
 
 CLASSES = (SegmentSelectedOperator,)

@@ -10,6 +10,9 @@ MESH_ID_KEY = "neural_shdf_mesh_id"
 DIGEST_KEY = "neural_shdf_digest"
 SERVER_KEY = "neural_shdf_server"
 PARTS_KEY = "neural_shdf_part_count"
+#: The segmentation options of the last run (JSON) and the hand-edit document (JSON list).
+OPTIONS_KEY = "neural_shdf_options"
+EDITS_KEY = "neural_shdf_edits"
 
 
 class NeuralShdfSettings(bpy.types.PropertyGroup):

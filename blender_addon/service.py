@@ -170,15 +170,17 @@ class Session:
 
     # -- calls ------------------------------------------------------------------------------
     def wait_job(self, job: dict[str, Any], progress: Progress) -> dict[str, Any]:
-        """Poll a job (ShDF of a large mesh) until it succeeded; ServiceError if it failed."""
+        """Poll a job (a large mesh's ShDF or atlas) until it succeeded; ServiceError if it
+        failed."""
+        what = "computing the ShDF" if job.get("kind", "shdf") == "shdf" else "unwrapping"
         while job["state"] not in ("succeeded", "failed"):
-            progress(float(job.get("progress", 0.0)), f"computing the ShDF ({job['method']})")
+            progress(float(job.get("progress", 0.0)), f"{what} ({job['method']})")
             self.pause(self.poll_s)
             _, job = self.json("GET", f"/v1/jobs/{job['job_id']}")
         if job["state"] == "failed":
             error = job.get("error") or {}
             raise ServiceError(error.get("message", "the job failed"), error.get("code", "failed"))
-        progress(1.0, "ShDF computed")
+        progress(1.0, "ShDF computed" if what == "computing the ShDF" else "unwrapped")
         return job
 
     def segment_by_id(

@@ -506,3 +506,21 @@ def test_the_mesh_diagnostics_line_says_what_was_reoriented(tmp_path: Path, caps
         f"mesh: 3 shells, 0 open boundary loops, 0 non-manifold edges, {count} faces "
         "re-oriented, 0 degenerate, 0 duplicate"
     )
+
+
+def test_segment_symmetry_reports_the_mirror_plane_and_labels_like_the_library(
+    dumbbell_obj: Path, tmp_path: Path, capsys
+):
+    from neural_shdf.mesh_io import load_mesh
+    from neural_shdf.pipeline import compute_shdf, segment
+    from neural_shdf.segment import SegmentParams
+
+    out = tmp_path / "labels.seg"
+    argv = ["segment", str(dumbbell_obj), "-o", str(out), "--method", "exact", "--symmetry"]
+    assert main(argv) == 0
+    assert "symmetry: mirror plane normal (" in capsys.readouterr().err
+    mesh = load_mesh(dumbbell_obj)
+    shdf = compute_shdf(mesh, method="exact").values
+    result = segment(mesh, shdf, SegmentParams(symmetry=True))
+    assert result.reflection is not None
+    assert [int(v) for v in _read_lines(out)] == mesh.labels_to_input_faces(result.labels).tolist()

@@ -343,6 +343,14 @@ class SegmentOptions(BaseModel):
         "of `hierarchy` has them.",
         examples=[DEFAULT_CREASE_BOUNDARIES],
     )
+    symmetry: bool = Field(
+        False,
+        description="Cut both sides of a mirror-symmetric shape alike: when a global "
+        "reflective symmetry is found (a plane pairing at least 90% of the surface with "
+        "mirror faces), each face's ShDF evidence is averaged with its mirror face's before "
+        "the mixture. No symmetry found: the labels are those without it.",
+        examples=[False],
+    )
     seed: int = Field(
         0,
         json_schema_extra=SEED_BOUNDS,

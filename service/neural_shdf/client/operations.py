@@ -111,6 +111,7 @@ class SegmentArgs(TypedDict, total=False):
     refine: bool | None
     boundary_smoothing: bool | None
     crease_boundaries: bool | None  # boundaries moved onto concave creases
+    symmetry: bool | None  # both sides of a mirror-symmetric shape cut alike
     seed: int | None  # seeds every random step: the ShDF's sampling and the segmentation
 
 

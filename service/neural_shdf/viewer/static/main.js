@@ -180,6 +180,7 @@ function controlValues() {
     refine: $('refine').checked,
     boundary_smoothing: $('boundary-smoothing').checked,
     crease_boundaries: $('crease-boundaries').checked,
+    symmetry: $('symmetry').checked,
   };
 }
 

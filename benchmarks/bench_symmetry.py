@@ -2,9 +2,10 @@
 sides are cut with and without ``symmetry`` (exact ShDF, default segmentation).
 
 Per model: the share of the surface the plane pairs (``-``: no plane, the option changes
-nothing), the cut symmetry without and with the option (``segment.symmetry.cut_symmetry``:
-of the part boundaries' edges, the share whose mirror edge is a boundary too; 1 = the two
-sides cut alike) and the part counts. Quality against the humans: ``bench_psb.py --extra
+nothing), the mirror agreement without and with the option (``segment.symmetry.
+mirror_agreement``: the area-weighted Rand index between the labels and the labels of the
+mirror faces; 1 = the two sides cut alike) and the part counts. Quality against the humans:
+``bench_psb.py --extra
 'sym=exact-graphcut:{"symmetry": true}'``.
 
     python benchmarks/bench_symmetry.py [--bench-dir DIR] [--models 1 2 3 4 61 62 63 64]
@@ -28,7 +29,7 @@ from neural_shdf.evaluate.benchmark import (
 )
 from neural_shdf.pipeline import segment
 from neural_shdf.segment import SegmentParams
-from neural_shdf.segment.symmetry import cut_symmetry
+from neural_shdf.segment.symmetry import mirror_agreement
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_BENCH = REPO_ROOT / ".." / "shared" / "data" / "psb-dev"
@@ -45,7 +46,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     plain_params = SegmentParams()
     symmetric_params = dataclasses.replace(plain_params, symmetry=True)
-    print(f"{'model':>5} {'faces':>7} {'paired':>7} {'cut sym off':>11} {'on':>6} "
+    print(f"{'model':>5} {'faces':>7} {'paired':>7} {'agree off':>11} {'on':>6} "
           f"{'parts off':>9} {'on':>4} {'detect s':>8}")  # fmt: skip
     before, after = [], []
     for model in list_models(args.bench_dir, ids=args.models):
@@ -59,17 +60,17 @@ def main(argv: list[str] | None = None) -> int:
         if reflection is None:
             print(f"{model.model_id:>5} {mesh.face_count:>7} {'-':>7}")
             continue
-        pairs = mesh.face_graph.pairs
-        off = cut_symmetry(plain.labels, pairs, reflection.mirror)
-        on = cut_symmetry(symmetric.labels, pairs, reflection.mirror)
+        _, areas = mesh.normals_and_areas
+        off = mirror_agreement(plain.labels, reflection.mirror, areas)
+        on = mirror_agreement(symmetric.labels, reflection.mirror, areas)
         before.append(off)
         after.append(on)
         print(f"{model.model_id:>5} {mesh.face_count:>7} {reflection.matched_area:>7.3f} "
-              f"{off:>11.3f} {on:>6.3f} {plain.part_count:>9} {symmetric.part_count:>4} "
+              f"{off:>11.4f} {on:>6.4f} {plain.part_count:>9} {symmetric.part_count:>4} "
               f"{seconds:>8.2f}")  # fmt: skip
     if before:
-        print(f"mean cut symmetry over {len(before)} models with a plane: "
-              f"{np.nanmean(before):.3f} off, {np.nanmean(after):.3f} on")  # fmt: skip
+        print(f"mean mirror agreement over {len(before)} models with a plane: "
+              f"{np.nanmean(before):.4f} off, {np.nanmean(after):.4f} on")  # fmt: skip
     return 0
 
 

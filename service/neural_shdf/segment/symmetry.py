@@ -159,25 +159,33 @@ def symmetrize(values: NDArray, mirror: NDArray) -> NDArray[np.float64]:
     return out
 
 
-def cut_symmetry(labels: NDArray, pairs: NDArray, mirror: NDArray) -> float:
-    """How alike the two sides are cut: of the face-graph edges (``pairs``) between two
-    parts whose both faces have a mirror, the share whose mirrored edge is cut too (1:
-    every boundary has its mirror image). NaN when no such edge is cut."""
-    labels = np.asarray(labels)
-    pairs = np.asarray(pairs, dtype=np.int64)
-    a, b = pairs[:, 0], pairs[:, 1]
-    mapped = (mirror[a] >= 0) & (mirror[b] >= 0)
-    cut = (labels[a] != labels[b]) & mapped
-    if not cut.any():
+def mirror_agreement(labels: NDArray, mirror: NDArray, areas: NDArray) -> float:
+    """How alike the two sides are cut: the area-weighted Rand index between the labels and
+    the labels of the mirror faces, over the faces that have one. 1: the mirror image of
+    the segmentation is the segmentation itself (a left part mirrors a right part, whatever
+    their labels); lower: parts cut differently on the two sides. NaN: no face has a mirror.
+    """
+    labels = np.asarray(labels, dtype=np.int64)
+    mirror = np.asarray(mirror, dtype=np.int64)
+    paired = np.flatnonzero(mirror >= 0)
+    if len(paired) == 0:
         return float("nan")
-    mirrored_cut = labels[mirror[a[cut]]] != labels[mirror[b[cut]]]
-    return float(mirrored_cut.mean())
+    own, other = labels[paired], labels[mirror[paired]]
+    weight = np.asarray(areas, dtype=np.float64)[paired]
+    total = float(weight.sum())
+    _, own = np.unique(own, return_inverse=True)
+    _, other = np.unique(other, return_inverse=True)
+    joint = np.bincount(own * (other.max() + 1) + other, weights=weight)
+    rows = np.bincount(own, weights=weight)
+    cols = np.bincount(other, weights=weight)
+    disagree = (rows**2).sum() + (cols**2).sum() - 2.0 * (joint**2).sum()
+    return float(1.0 - disagree / total**2)
 
 
 __all__ = [
     "MIN_MATCHED_AREA",
     "Reflection",
-    "cut_symmetry",
     "detect_reflection",
+    "mirror_agreement",
     "symmetrize",
 ]

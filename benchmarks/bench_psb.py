@@ -28,6 +28,7 @@ References: humans against humans on the whole benchmark score 1-RI 0.103, CD 0.
 
     python benchmarks/bench_psb.py [--bench-dir DIR] [--jobs 2] [--json out.json]
         [--rows before-tree tree-auto ...] [--extra NAME=METHOD:JSON ...] [--no-split]
+        [--models ID ...]
 
 ``--extra`` adds a row, e.g. ``smooth=exact-graphcut:{"boundary_smoothing": true}``.
 Exact ShDF values are cached in ~/.cache/neural-shdf/psb (``--cache-dir``).
@@ -97,6 +98,9 @@ def main(argv: list[str] | None = None) -> int:
         help="more rows: NAME=METHOD[:JSON SegmentParams overrides]",
     )
     parser.add_argument("--limit", type=int, help="only the first N models")
+    parser.add_argument(
+        "--models", type=int, nargs="+", help="only these model ids (e.g. 1 2 3 4 61 62 63 64)"
+    )
     parser.add_argument("--jobs", type=int, default=2, help="worker processes (at most 2)")
     parser.add_argument("--cache-dir", type=Path, default=DEFAULT_CACHE_DIR)
     parser.add_argument("--json", type=Path, help="also write per-model scores as JSON")
@@ -114,7 +118,9 @@ def main(argv: list[str] | None = None) -> int:
     }
     for name, (method, params) in rows.items():
         print(f"{name}: {method} {json.dumps(params) if params else ''}")
-    table = evaluate_folder(args.bench_dir, predictors, limit=args.limit, jobs=args.jobs)
+    table = evaluate_folder(
+        args.bench_dir, predictors, limit=args.limit, jobs=args.jobs, ids=args.models
+    )
     print("\n== all models")
     print(format_table(table))
     if not args.no_split:

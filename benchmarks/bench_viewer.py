@@ -1,6 +1,7 @@
 """Web viewer latency in real Chromium: slider release to new colours on screen.
 
-``python benchmarks/bench_viewer.py [--repeat 8] [--sizes 10000,100000] [--screenshot PNG]``
+``python benchmarks/bench_viewer.py [--repeat 8] [--sizes 10000,100000] [--screenshot PNG]
+[--busy]``
 
 Starts ``neural-shdf serve`` (temp cache) and headless Chromium (/usr/bin/chromium, WebGL on
 the CPU), opens the viewer, uploads a mesh of about each size (psb-dev 1, 9.4k faces, and
@@ -20,6 +21,8 @@ and per new k (its process, all threads) is printed too: on an oversubscribed ma
 times mostly measure waiting for a core, CPU time much less so.
 
 Target: release to new colours < 150 ms at 100k faces; ratio = median / target.
+``--busy`` keeps one core busy with another process (a Python loop) for the whole run: the
+figures a user on a loaded machine sees.
 ``--screenshot`` also saves the page showing psb-dev model 381 (the README's picture).
 The browser, the server and the benchmark share this machine's cores.
 """
@@ -28,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -87,7 +91,21 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=8, help="slider releases per mesh")
     parser.add_argument("--sizes", default="10000,100000")
     parser.add_argument("--screenshot", type=Path, help="save the page on psb-dev 381 here")
+    parser.add_argument("--busy", action="store_true", help="keep one core busy meanwhile")
     args = parser.parse_args()
+    if args.busy:
+        spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+        print(f"one core kept busy by process {spinner.pid}")
+        try:
+            run(args)
+        finally:
+            spinner.terminate()
+            spinner.wait()
+        return
+    run(args)
+
+
+def run(args: argparse.Namespace) -> None:
     missing = chromium_missing()
     if missing:
         sys.exit(f"cannot run: {missing}")

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 
 def _modules():  # noqa: ANN202
-    from . import operators, panel, properties
+    from . import editing, operators, panel, properties, unwrap
 
-    return properties, operators, panel
+    return properties, operators, panel, unwrap, editing
 
 
 def register() -> None:
@@ -21,12 +21,14 @@ def register() -> None:
         for cls in module.CLASSES:
             bpy.utils.register_class(cls)
     _modules()[0].register()
+    _modules()[3].register()
 
 
 def unregister() -> None:
     import bpy
 
-    properties = _modules()[0]
+    properties, unwrap = _modules()[0], _modules()[3]
+    unwrap.unregister()
     properties.unregister()
     for module in reversed(_modules()):
         for cls in reversed(module.CLASSES):

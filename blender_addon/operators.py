@@ -17,9 +17,11 @@ import numpy as np
 from . import apply_parts, colors, mesh_payload, service
 from .properties import (
     DIGEST_KEY,
+    EDITS_KEY,
     LABEL_NAMES_KEY,
     LABELER_KEY,
     MESH_ID_KEY,
+    OPTIONS_KEY,
     PARTS_KEY,
     SERVER_KEY,
 )
@@ -66,6 +68,18 @@ class SegmentTask:
     def done(self) -> bool:
         return self.thread is not None and not self.thread.is_alive()
 
+    def run_one(
+        self, session: service.Session, request: ObjectRequest, report: service.Progress
+    ) -> service.Outcome:
+        """What the worker does for one object (a subclass may do more)."""
+        return session.segment(
+            request.payload,
+            f"{request.object_name}.ply",
+            self.options,
+            report,
+            mesh_id=request.known_mesh_id,
+        )
+
     def _work(self) -> None:
         started = time.perf_counter()
         try:
@@ -80,13 +94,7 @@ class SegmentTask:
                     self.progress = (index + min(max(fraction, 0.0), 1.0)) / len(self.requests)
                     self.status = f"{self.requests[index].object_name}: {status}"
 
-                self.outcomes[request.object_name] = session.segment(
-                    request.payload,
-                    f"{request.object_name}.ply",
-                    self.options,
-                    report,
-                    mesh_id=request.known_mesh_id,
-                )
+                self.outcomes[request.object_name] = self.run_one(session, request, report)
         except service.Cancelled:
             self.cancelled = True
         except service.ServiceError as error:
@@ -182,8 +190,14 @@ def apply(context: bpy.types.Context, task: SegmentTask, settings) -> list[str]:
         obj[SERVER_KEY] = task.server_url
         obj[PARTS_KEY] = outcome.part_count
         target = target_object(context, obj, request)
+        # What a hand edit of the target needs: the mesh id and the options it ran with.
+        target[MESH_ID_KEY] = outcome.mesh_id
+        target[SERVER_KEY] = task.server_url
+        target[OPTIONS_KEY] = json.dumps(task.options)
+        if EDITS_KEY in target:  # a new segmentation starts a new edit
+            del target[EDITS_KEY]
         labels = np.frombuffer(outcome.part_indices(), dtype=np.int32)
-        part_colors = [colors.hex_to_linear(part["color"]) for part in outcome.parts]
+        part_colors = colors.part_colors(outcome.parts)  # the service's, linear
         names = [str(part["name"]) for part in outcome.parts] if outcome.named else None
         apply_parts.write_labels(target.data, labels, part_colors)
         if outcome.named:
@@ -221,12 +235,12 @@ def _show(context: bpy.types.Context, task: SegmentTask | None) -> None:
                 area.tag_redraw()
 
 
-class WorkerOperator:
-    """An operator whose work runs on a worker thread: a modal timer polls it in the UI
-    (Esc cancels); scripts and background mode wait for it. Subclasses make the task
-    (``make_task``, main thread) and write its result back (``write_back``)."""
+class ServiceTaskOperator:
+    """What "Segment Selected" and the operators made like it share: a task on a worker
+    thread, polled on a timer (Esc cancels), its outcomes written back on the main thread.
+    A mixin (Blender cannot register a subclass of a registered operator)."""
 
-    _task = None
+    _task: SegmentTask | None = None
     _timer = None
     running_message = "A request to the service is running"
 
@@ -243,11 +257,13 @@ class WorkerOperator:
             return False
         return True
 
-    def make_task(self, context: bpy.types.Context):  # noqa: ANN201
-        raise NotImplementedError
+    def make_task(self, context: bpy.types.Context) -> SegmentTask:
+        """The worker's task for the selection (a subclass may make another kind)."""
+        return prepare(context, context.scene.neural_shdf)
 
-    def write_back(self, context: bpy.types.Context, task) -> list[str]:  # noqa: ANN001
-        raise NotImplementedError
+    def write_back(self, context: bpy.types.Context, task: SegmentTask) -> list[str]:
+        """Write the task's outcomes to the objects (main thread); one line per object."""
+        return apply(context, task, context.scene.neural_shdf)
 
     def _start(self, context: bpy.types.Context) -> bool:
         try:
@@ -318,7 +334,7 @@ class WorkerOperator:
         return self._finish(context)
 
 
-class SegmentSelectedOperator(WorkerOperator, bpy.types.Operator):
+class SegmentSelectedOperator(ServiceTaskOperator, bpy.types.Operator):
     """Split the selected meshes into parts with the neural-shdf service (named parts
     when the panel names a labeller)"""
 
@@ -326,12 +342,6 @@ class SegmentSelectedOperator(WorkerOperator, bpy.types.Operator):
     bl_label = "Segment Selected"
     bl_options = {"REGISTER", "UNDO"}
     running_message = "A segmentation is running"
-
-    def make_task(self, context: bpy.types.Context) -> SegmentTask:
-        return prepare(context, context.scene.neural_shdf)
-
-    def write_back(self, context: bpy.types.Context, task: SegmentTask) -> list[str]:
-        return apply(context, task, context.scene.neural_shdf)
 
 
 @dataclass
@@ -412,7 +422,7 @@ def prepare_learning(context: bpy.types.Context, settings) -> LearnTask:  # noqa
     return LearnTask(server, options, meshes, labels, names)
 
 
-class LearnFromSelectedOperator(WorkerOperator, bpy.types.Operator):
+class LearnFromSelectedOperator(ServiceTaskOperator, bpy.types.Operator):
     """Train a part labeller on the service from the selected objects' integer label
     attribute; save it and make it the panel's labeller"""
 

@@ -13,6 +13,9 @@ PARTS_KEY = "neural_shdf_part_count"
 #: Named parts: the labeller's id and its names by integer (JSON), kept on the object.
 LABELER_KEY = "neural_shdf_labeler"
 LABEL_NAMES_KEY = "neural_shdf_label_names"
+#: The segmentation options of the last run (JSON) and the hand-edit document (JSON list).
+OPTIONS_KEY = "neural_shdf_options"
+EDITS_KEY = "neural_shdf_edits"
 
 
 class NeuralShdfSettings(bpy.types.PropertyGroup):

@@ -186,16 +186,22 @@ class Session:
 
     # -- calls ------------------------------------------------------------------------------
     def wait_job(self, job: dict[str, Any], progress: Progress) -> dict[str, Any]:
-        """Poll a job (ShDF of a large mesh) until it succeeded; ServiceError if it failed."""
-        doing = "training the labeller" if job.get("kind") == "labeler" else "computing the ShDF"
+        """Poll a job (a large mesh's ShDF or atlas, a labeller's training) until it
+        succeeded; ServiceError if it failed."""
+        kind = job.get("kind", "shdf")
+        what = {"shdf": "computing the ShDF", "labeler": "training the labeller"}.get(
+            kind, "unwrapping"
+        )
         while job["state"] not in ("succeeded", "failed"):
-            progress(float(job.get("progress", 0.0)), f"{doing} ({job['method']})")
+            progress(float(job.get("progress", 0.0)), f"{what} ({job['method']})")
             self.pause(self.poll_s)
             _, job = self.json("GET", f"/v1/jobs/{job['job_id']}")
         if job["state"] == "failed":
             error = job.get("error") or {}
             raise ServiceError(error.get("message", "the job failed"), error.get("code", "failed"))
-        progress(1.0, "labeller trained" if job.get("kind") == "labeler" else "ShDF computed")
+        progress(
+            1.0, {"shdf": "ShDF computed", "labeler": "labeller trained"}.get(kind, "unwrapped")
+        )
         return job
 
     def upload_mesh(self, payload: bytes, filename: str, progress: Progress) -> str:

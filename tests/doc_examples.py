@@ -24,6 +24,9 @@ RUN_BY: dict[tuple[str, str], str] = {
     ("docs/client.md", "Named parts"): (
         "tests/client/test_clients.py::test_named_parts_example_runs_as_written"
     ),
+    ("docs/client.md", "Unwrap"): (
+        "tests/client/test_unwrapping.py::test_unwrap_example_runs_as_written"
+    ),
     ("docs/batch.md", "From Python"): "tests/test_batch.py::test_the_docs_example_runs_as_written",
     ("docs/labeling.md", "Use"): (
         "tests/labeling/test_labeler.py::test_the_docs_example_runs_as_written"

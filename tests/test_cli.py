@@ -540,3 +540,21 @@ def test_segment_parts_glb_round_trips_the_files_uvs_normals_and_materials(tmp_p
         np.testing.assert_array_equal(ours[back.attributes.corners], corners)
     issues = _khronos_issues(tmp_path, {"parts.glb": parts.read_bytes()})["parts.glb"]
     assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]
+
+
+def test_segment_symmetry_reports_the_mirror_plane_and_labels_like_the_library(
+    dumbbell_obj: Path, tmp_path: Path, capsys
+):
+    from neural_shdf.mesh_io import load_mesh
+    from neural_shdf.pipeline import compute_shdf, segment
+    from neural_shdf.segment import SegmentParams
+
+    out = tmp_path / "labels.seg"
+    argv = ["segment", str(dumbbell_obj), "-o", str(out), "--method", "exact", "--symmetry"]
+    assert main(argv) == 0
+    assert "symmetry: mirror plane normal (" in capsys.readouterr().err
+    mesh = load_mesh(dumbbell_obj)
+    shdf = compute_shdf(mesh, method="exact").values
+    result = segment(mesh, shdf, SegmentParams(symmetry=True))
+    assert result.reflection is not None
+    assert [int(v) for v in _read_lines(out)] == mesh.labels_to_input_faces(result.labels).tolist()

@@ -14,6 +14,7 @@ from neural_shdf.unwrap import (
     atlas_layout_image,
     input_face_corner_uvs,
     part_labels_per_triangle,
+    polygon_corner_uvs,
     rasterize_charts,
     unwrap,
 )
@@ -94,6 +95,26 @@ def test_polygons_stay_in_one_part_and_keep_their_corner_uvs():
     assert [p.tolist() for p in polygons_out] == polygons.tolist()
     assert len(corner_uvs) == 24
     assert consistent.all()
+
+
+def test_polygon_corner_uvs_reads_each_polygon_back_from_its_fan():
+    """A pentagon, a face without triangles, a triangle and a quad a chart boundary runs
+    through: corners in the file's order, UVs per corner, the split quad flagged."""
+    from neural_shdf.exchange._common import fan_triangulate
+
+    polygons = [[0, 1, 2, 3, 4], [5, 6], [4, 3, 5], [6, 7, 8, 9]]
+    counts = np.array([len(p) for p in polygons])
+    faces, origin = fan_triangulate(counts, np.concatenate(polygons))
+    mesh = TriangleMesh(np.random.default_rng(0).random((10, 3)), faces, origin, 4)
+    vertex_uv = np.random.default_rng(1).random((10, 2))
+    corner_uvs = vertex_uv[faces].copy()
+    corner_uvs[-1, 0] += 0.25  # the quad's second triangle moves the apex: two charts
+    layout = polygon_corner_uvs(mesh, corner_uvs)
+    assert layout.corner_counts.tolist() == [5, 0, 3, 4]
+    assert layout.vertices.tolist() == polygons[0] + polygons[2] + polygons[3]
+    expected = vertex_uv[layout.vertices]
+    np.testing.assert_array_equal(layout.uvs, expected)  # the apex from the first triangle
+    assert layout.consistent.tolist() == [True, True, True, False]
 
 
 def test_layout_image_shows_every_chart():

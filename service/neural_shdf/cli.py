@@ -121,6 +121,15 @@ def cmd_shdf(args: argparse.Namespace) -> int:
     return 0
 
 
+def symmetry_summary(reflection: object) -> str:
+    """One line on the mirror plane ``--symmetry`` found (a ``Reflection``), or that none was."""
+    if reflection is None:
+        return "symmetry: no reflective symmetry found (labels as without --symmetry)"
+    normal = ", ".join(f"{v:.3f}" for v in reflection.normal)  # type: ignore[attr-defined]
+    matched = reflection.matched_area  # type: ignore[attr-defined]
+    return f"symmetry: mirror plane normal ({normal}), {matched:.0%} of the surface paired"
+
+
 def cmd_segment(args: argparse.Namespace) -> int:
     params = SegmentParams.from_attributes(args)
     if args.tree and params.partitioner != "graphcut":
@@ -157,6 +166,8 @@ def cmd_segment(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         print(mesh.orientation.diagnostics.summary(), file=sys.stderr)
+        if params.symmetry:
+            print(symmetry_summary(result.reflection), file=sys.stderr)
     return 0
 
 
@@ -297,6 +308,12 @@ def _add_segment_options(parser: argparse.ArgumentParser) -> None:
         default=DEFAULT_CREASE_BOUNDARIES,
         help="move the graph cut's part boundaries onto nearby concave creases "
         "(a min cut in a band around each boundary; default: on)",
+    )
+    parser.add_argument(
+        "--symmetry",
+        action="store_true",
+        help="cut both sides of a mirror-symmetric shape alike (when a global reflective "
+        "symmetry is found; default: off)",
     )
 
 

@@ -666,43 +666,83 @@ def _pack(
     )
 
 
+@dataclass(frozen=True)
+class PolygonUvs:
+    """UVs per corner of every input polygon, in the input file's face order.
+
+    Attributes:
+        corner_counts: (P,) corners of each input face (0: a face without triangles).
+        vertices: (C,) the mesh vertex of each corner, polygons concatenated in order,
+            each from its first vertex on (the file's own corner order).
+        uvs: (C, 2) the UV of each corner.
+        consistent: (P,) whether all the polygon's triangles agree on every shared
+            corner (False where a chart boundary runs through it: its corner UVs are
+            then those of its fan's outer edges, and a writer that can split the polygon
+            into its triangles should).
+    """
+
+    corner_counts: NDArray[np.int64]
+    vertices: NDArray[np.int64]
+    uvs: NDArray[np.float64]
+    consistent: NDArray[np.bool_]
+
+
+def polygon_corner_uvs(mesh: TriangleMesh, corner_uvs: NDArray) -> PolygonUvs:
+    """Read every input polygon's corners and their UVs back from its fan of triangles
+    ``(v0, v1, v2), (v0, v2, v3), ...`` (how every loader triangulates); no Python loop."""
+    corner_uvs = np.asarray(corner_uvs, dtype=np.float64).reshape(-1, 3, 2)
+    origin = np.asarray(mesh.face_origin, dtype=np.int64)
+    triangles = np.bincount(origin, minlength=mesh.input_face_count).astype(np.int64)
+    counts = np.where(triangles > 0, triangles + 2, 0)
+    first = np.zeros(mesh.input_face_count, dtype=np.int64)
+    np.cumsum(triangles[:-1], out=first[1:])
+    ring_start = np.zeros(mesh.input_face_count, dtype=np.int64)
+    np.cumsum(counts[:-1], out=ring_start[1:])
+    total = int(counts.sum())
+    vertices = np.zeros(total, dtype=np.int64)
+    uvs = np.zeros((total, 2), dtype=np.float64)
+    has = np.flatnonzero(triangles > 0)
+    # Corner 0: the fan's apex; corners 1..n-2: each triangle's second corner; n-1: the
+    # last triangle's third corner.
+    vertices[ring_start[has]] = mesh.faces[first[has], 0]
+    uvs[ring_start[has]] = corner_uvs[first[has], 0]
+    within = np.arange(len(origin), dtype=np.int64) - first[origin]
+    middle = ring_start[origin] + 1 + within
+    vertices[middle] = mesh.faces[:, 1]
+    uvs[middle] = corner_uvs[:, 1]
+    last_triangle = first[has] + triangles[has] - 1
+    end = ring_start[has] + counts[has] - 1
+    vertices[end] = mesh.faces[last_triangle, 2]
+    uvs[end] = corner_uvs[last_triangle, 2]
+    # A polygon is consistent when every triangle has the apex's UV at its apex and
+    # consecutive triangles agree on the diagonal they share.
+    apex_off = ~np.all(
+        np.isclose(corner_uvs[:, 0], corner_uvs[first[origin], 0], atol=1e-9, rtol=0), axis=1
+    )
+    bad = np.bincount(origin[apex_off], minlength=mesh.input_face_count)
+    if len(origin) > 1:
+        same_polygon = origin[1:] == origin[:-1]
+        diagonal_off = same_polygon & ~np.all(
+            np.isclose(corner_uvs[:-1, 2], corner_uvs[1:, 1], atol=1e-9, rtol=0), axis=1
+        )
+        bad = bad + np.bincount(origin[1:][diagonal_off], minlength=mesh.input_face_count)
+    return PolygonUvs(counts, vertices, uvs, bad == 0)
+
+
 def input_face_corner_uvs(
     mesh: TriangleMesh, corner_uvs: NDArray
 ) -> tuple[list[NDArray[np.int64]], NDArray[np.float64], NDArray[np.bool_]]:
     """UVs per corner of every input polygon, for writers that keep polygons.
 
-    A fan-triangulated polygon's corners are read back from its triangles. Returns
-    ``(polygons, polygon_uvs, consistent)``: the polygon's vertex indices, its corner
+    Returns ``(polygons, polygon_uvs, consistent)``: the polygon's vertex indices, its corner
     UVs (same lengths, concatenated in polygon order) and, per input face, whether
     all its triangles agree on every shared corner (False where a chart boundary
-    runs through the polygon: a writer must then split it into its triangles).
+    runs through the polygon: a writer must then split it into its triangles); see
+    ``polygon_corner_uvs``.
     """
-    corner_uvs = np.asarray(corner_uvs, dtype=np.float64)
-    origin = mesh.face_origin
-    starts = np.searchsorted(origin, np.arange(mesh.input_face_count))
-    counts = np.bincount(origin, minlength=mesh.input_face_count)
-    polygons: list[NDArray[np.int64]] = []
-    uv_rows: list[NDArray[np.float64]] = []
-    consistent = np.ones(mesh.input_face_count, dtype=bool)
-    for face in range(mesh.input_face_count):
-        first, count = int(starts[face]), int(counts[face])
-        if count == 0:
-            polygons.append(np.zeros(0, np.int64))
-            uv_rows.append(np.zeros((0, 2)))
-            continue
-        triangles = mesh.faces[first : first + count]
-        uvs = corner_uvs[first : first + count]
-        # Fan (v0, v_i, v_i+1): corners are v0, then v1..vn-1 from consecutive triangles.
-        ring = np.concatenate([triangles[:, 0][:1], triangles[:, 1], triangles[-1:, 2]])
-        ring_uvs = np.concatenate([uvs[:1, 0], uvs[:, 1], uvs[-1:, 2]])
-        if count > 1:
-            same_apex = np.allclose(uvs[:, 0], uvs[0, 0], atol=1e-9)
-            same_diagonal = np.allclose(uvs[:-1, 2], uvs[1:, 1], atol=1e-9)
-            consistent[face] = same_apex and same_diagonal
-        polygons.append(ring)
-        uv_rows.append(ring_uvs)
-    flat = np.concatenate(uv_rows) if uv_rows else np.zeros((0, 2))
-    return polygons, flat, consistent
+    layout = polygon_corner_uvs(mesh, corner_uvs)
+    polygons = np.split(layout.vertices, np.cumsum(layout.corner_counts)[:-1])
+    return polygons, layout.uvs, layout.consistent
 
 
 @kernel
@@ -952,7 +992,9 @@ __all__ = [
     "atlas_layout_image",
     "atlas_layout_png",
     "chart_outline_edges",
+    "PolygonUvs",
     "input_face_corner_uvs",
+    "polygon_corner_uvs",
     "part_labels_per_triangle",
     "png_bytes",
     "rasterize_charts",

@@ -82,6 +82,38 @@ def test_bad_edits_are_422_that_say_why(client, capsule_obj):
     assert out_of_range.status_code == 422
     assert f"face {faces} is out of range" in out_of_range.json()["error"]["message"]
     unknown = client.post(
-        "/v1/segment", json={"mesh_id": mesh_id, "edits": [{"op": "split", "face": 0}]}
+        "/v1/segment", json={"mesh_id": mesh_id, "edits": [{"op": "cut", "face": 0}]}
     )
     assert unknown.status_code == 422
+
+
+def test_split_bisects_a_part_as_the_library_does(client, capsule_obj, tmp_path):
+    from neural_shdf.segment.editing import input_face_adjacency
+
+    mesh_id = upload_capsule(client, capsule_obj)
+    request = {"mesh_id": mesh_id, "smoothing": 0.02, "parts": 2, "method": TEST_METHOD}
+    plain = client.post("/v1/segment", json=request).json()
+    document = [{"op": "split", "face": 0}, {"op": "merge", "faces": [1, 2]}]
+    edited = client.post("/v1/segment", json={**request, "edits": document})
+    assert edited.status_code == 200, edited.text
+    body = edited.json()
+
+    path = tmp_path / "capsule.obj"
+    path.write_bytes(capsule_obj)
+    mesh = load_mesh(path)
+    shdf = compute_shdf(mesh, method=TEST_METHOD).values
+    result = segment(mesh, shdf, SegmentParams(smoothing=0.02, parts=2))
+    _, leaves = result.input_face_parts(mesh)
+    graph = mesh.face_graph
+    adjacency = input_face_adjacency(graph.pairs, graph.edge_length, mesh.face_origin)
+    expected = apply_edits(result.tree, leaves, 2, document, adjacency)
+    assert body["labels"] == expected.tolist()
+    # The part holding face 0 lost faces to a new part, which kept no face of another part.
+    before, after = np.asarray(plain["labels"]), np.asarray(body["labels"])
+    part = before == before[0]
+    assert body["part_count"] >= plain["part_count"]
+    assert set(after[~part].tolist()).isdisjoint(set(after[part & (after != after[0])].tolist()))
+    # METIS: split applies too.
+    metis = {**request, "partitioner": "metis", "edits": [{"op": "split", "face": 0}]}
+    answer = client.post("/v1/segment", json=metis)
+    assert answer.status_code == 200 and answer.json()["part_count"] == 3

@@ -12,7 +12,8 @@ OPERATIONS = {
     "health", "ready", "metrics", "upload_mesh", "get_mesh", "delete_mesh", "get_shdf",
     "get_job", "segment_mesh", "segment_file", "get_colored_glb", "get_parts_glb", "get_geometry",
     "get_unwrapped_glb", "get_atlas_png", "get_parts_usda", "upload_labeler", "list_labelers",
-    "get_labeler", "get_labeler_file", "delete_labeler", "train_labeler",
+    "get_labeler", "get_labeler_file", "delete_labeler", "train_labeler", "get_unwrapped_obj",
+    "get_uvs",
 }  # fmt: skip
 
 

@@ -416,3 +416,26 @@ def test_parts_glb_keeps_the_uploads_uvs_normals_and_materials(client):
     assert len(back.attributes.uvs) == 2
     plain = client.get(f"/v1/meshes/{mesh_id}/segmentation/parts.glb?method={TEST_METHOD}")
     assert load_source(plain.content, "glb").attributes.normals is None  # no source: as before
+
+
+def test_segment_symmetry_is_the_librarys_and_keeps_its_own_basis(client, capsule_obj, tmp_path):
+    from neural_shdf.pipeline import segment
+    from neural_shdf.segment import SegmentParams
+
+    mesh_id = client.post("/v1/meshes", files={"file": ("capsule.obj", capsule_obj)}).json()[
+        "mesh"
+    ]["mesh_id"]
+    request = {"mesh_id": mesh_id, "method": TEST_METHOD, "smoothing": 0.02}
+    plain = client.post("/v1/segment", json=request).json()
+    symmetric = client.post("/v1/segment", json={**request, "symmetry": True})
+    assert symmetric.status_code == 200, symmetric.text
+    path = tmp_path / "capsule.obj"
+    path.write_bytes(capsule_obj)
+    mesh = load_mesh(path)
+    shdf = compute_shdf(mesh, method=TEST_METHOD).values
+    expected = segment(mesh, shdf, SegmentParams(smoothing=0.02, symmetry=True))
+    assert expected.reflection is not None
+    labels, _ = expected.input_face_parts(mesh)
+    assert symmetric.json()["labels"] == labels.tolist()
+    # Off again: the plain labels (the symmetric basis never stands in for the plain one).
+    assert client.post("/v1/segment", json=request).json()["labels"] == plain["labels"]

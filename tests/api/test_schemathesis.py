@@ -105,8 +105,9 @@ def test_stateful_fuzzing_follows_the_links_from_real_uploads(tmp_path):
         settings=settings(
             # Derandomized, yet which links it follows depends on the schema and on
             # timing (an upload answered by a job offers other links): 10 examples left
-            # get_shdf or segment_mesh unreached once `crease_boundaries` joined the schema.
-            max_examples=20,
+            # get_shdf or segment_mesh unreached once `crease_boundaries` joined the schema,
+            # and 20 once the labeller routes did.
+            max_examples=40,
             stateful_step_count=8,
             deadline=None,
             suppress_health_check=list(HealthCheck),

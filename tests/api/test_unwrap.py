@@ -134,3 +134,48 @@ def test_the_atlas_is_computed_in_a_worker_process_with_the_library_s_result(cli
     mesh = load_mesh(capsule_obj, "obj")
     atlas = unwrap(mesh, labels[mesh.face_origin], UnwrapParams(atlas_size=256))
     np.testing.assert_allclose(loaded.visual.uv[loaded.faces], atlas.corner_uvs, atol=1e-6)
+
+
+def test_uvs_and_the_obj_give_each_input_polygon_its_corner_uvs(client):
+    """A quad-dominant mesh: /uvs answers one UV per corner of each polygon in the file's order (the
+    library's atlas read back from each fan), and unwrapped.obj has one `f` per polygon."""
+    import base64
+
+    from neural_shdf.unwrap import UnwrapParams, polygon_corner_uvs, unwrap
+    from tests.api.api_helpers import quad_dumbbell_obj
+
+    data = quad_dumbbell_obj(rings=12, sectors=8)
+    response = client.post("/v1/meshes", files={"file": ("dumbbell.obj", data)})
+    assert response.status_code == 200, response.text
+    mesh_id = response.json()["mesh"]["mesh_id"]
+    query = {"method": TEST_METHOD, "clusters": 3, "atlas_size": 256}
+    answer = client.get(f"/v1/meshes/{mesh_id}/segmentation/uvs", params=query)
+    assert answer.status_code == 200, answer.text
+    body = answer.json()
+    counts = np.frombuffer(base64.b64decode(body["corner_counts_base64"]), "<i4")
+    uvs = np.frombuffer(base64.b64decode(body["uvs_base64"]), "<f4").reshape(-1, 2)
+    chart = np.frombuffer(base64.b64decode(body["chart_base64"]), "<i4")
+    mesh = load_mesh(data, "obj")
+    assert body["faces"] == mesh.input_face_count == len(counts) == len(chart)
+    assert set(counts.tolist()) == {3, 4}  # triangle fans at the poles, quads between
+    assert body["corners"] == len(uvs) == counts.sum()
+
+    segment = {k: v for k, v in query.items() if k != "atlas_size"}
+    labels = np.array(
+        client.post("/v1/segment", json={"mesh_id": mesh_id, **segment}).json()["labels"]
+    )
+    atlas = unwrap(mesh, labels, UnwrapParams(atlas_size=256))
+    expected = polygon_corner_uvs(mesh, atlas.corner_uvs)
+    np.testing.assert_allclose(uvs, expected.uvs, atol=1e-6)
+    assert body["split_faces"] == int((~expected.consistent).sum())
+    # Each face's chart is one of its part's charts.
+    assert np.array_equal(np.asarray(body["chart_part"])[chart], labels)
+
+    obj = client.get(f"/v1/meshes/{mesh_id}/segmentation/unwrapped.obj", params=query)
+    assert obj.status_code == 200 and obj.headers["content-type"].startswith("model/obj")
+    lines = obj.text.splitlines()
+    face_lines = [line for line in lines if line.startswith("f ")]
+    assert len(face_lines) == mesh.input_face_count + body["split_faces"]
+    vt = np.array([line.split()[1:] for line in lines if line.startswith("vt ")], dtype=float)
+    first = [int(corner.split("/")[1]) - 1 for corner in face_lines[0].split()[1:]]
+    np.testing.assert_allclose(vt[first], uvs[: counts[0]], atol=1e-6)

@@ -683,3 +683,16 @@ def test_controls_fit_720p_frame_by_up_axis_and_name_the_method(page, server, me
         page.js("localStorage.clear()")
         driver.execute_cdp_cmd("Emulation.clearDeviceMetricsOverride", {})
     assert severe(page) == []
+
+
+def test_symmetric_parts_checkbox_sends_symmetry_and_shows_the_apis_labels(page, server, meshes):
+    page.upload(meshes["small"])  # a dumbbell: mirror-symmetric
+    assert page.status() == "ready", page.message()
+    detail = page.release_slider("symmetry", True)
+    assert detail["request"]["symmetry"] is True
+    shown = page.segmentation()
+    mesh_id = page.js("return window.shdfViewer.state.meshId")
+    controls = controls_of(shown, symmetry=True)
+    controls["crease_boundaries"] = detail["request"]["crease_boundaries"]
+    assert_colours_match(shown, api_labels(server, mesh_id, controls))
+    assert severe(page) == []

@@ -276,3 +276,31 @@ def test_edit_round_trip_at_100k_faces(page, server, meshes):
         f"(grow alone {median('grow'):.1f} ms; the parts slider's recut, release to frame, "
         f"{recut['totalMs']:.1f} ms)"
     )
+
+
+def test_split_goes_to_the_service_and_later_edits_follow_it(page, server, meshes):
+    """Split needs METIS on the mesh: the page sends the document (one request per edit
+    from then on) and shows the service's labels."""
+    from selenium.webdriver.common.by import By
+
+    page.upload(meshes["small"])
+    assert page.status() == "ready", page.message()
+    page.release_slider("parts", 2)
+    before = page.segmentation()["labels"]
+    sent = segment_requests(page)
+    watch_edits(page)
+    click_part(page, 0)
+    page.driver.find_element(By.ID, "edit-split").click()
+    split = wait_edits(page, 1)[-1]
+    assert split["source"] == "service" and split["parts"] == 3
+    assert segment_requests(page) == sent + 1
+    request = page.js("return window.shdfViewer.editing.session.base.request")
+    document = page.js("return window.shdfViewer.editing.document()")
+    assert [edit["op"] for edit in document] == ["split"]
+    shown = page.segmentation()["labels"]
+    assert shown == api_segmentation(server, request, document)["labels"] != before
+
+    page.driver.find_element(By.ID, "edit-undo").click()  # back to no edit: in the page
+    wait_edits(page, 2)
+    assert page.segmentation()["labels"] == before
+    assert severe(page) == []

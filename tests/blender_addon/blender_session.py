@@ -175,6 +175,72 @@ def learn(names: list[str], settings: dict) -> dict:
             "labeler_file": panel.labeler_file}  # fmt: skip
 
 
+def unwrap(names: list[str], settings: dict, unwrap_settings: dict) -> dict:
+    """Run "Unwrap by Parts" on ``names`` with the panels' settings."""
+    select(names)
+    panel = bpy.context.scene.neural_shdf
+    for key, value in settings.items():
+        setattr(panel, key, value)
+    for key, value in unwrap_settings.items():
+        setattr(bpy.context.scene.neural_shdf_unwrap, key, value)
+    error = None
+    with captured_stdout() as output:
+        try:
+            result = sorted(bpy.ops.neural_shdf.unwrap_selected())
+        except RuntimeError as report:
+            result, error = ["CANCELLED"], str(report)
+    return {"result": result, "error": error, "output": output[0]}
+
+
+def edit(name: str, op: str, faces: list[int], active: int, edit_mode: bool = False) -> dict:
+    """Select ``faces`` of ``name`` (``active``: the active face, -1 none) and press the
+    edit button ``op`` (``reset``: Reset Edits), in Edit Mode when ``edit_mode``."""
+    select([name])
+    obj = bpy.data.objects[name]
+    mesh = obj.data
+    chosen = np.zeros(len(mesh.polygons), dtype=bool)
+    chosen[faces] = True
+    mesh.polygons.foreach_set("select", chosen)
+    if active >= 0:
+        mesh.polygons.active = active
+    if edit_mode:
+        bpy.ops.object.mode_set(mode="EDIT")
+    error = None
+    with captured_stdout() as output:
+        try:
+            if op == "reset":
+                result = sorted(bpy.ops.neural_shdf.reset_edits())
+            else:
+                result = sorted(bpy.ops.neural_shdf.edit_parts(op=op))
+        except RuntimeError as report:
+            result, error = ["CANCELLED"], str(report)
+    mode = obj.mode
+    if edit_mode:
+        bpy.ops.object.mode_set(mode="OBJECT")
+    return {"result": result, "error": error, "output": output[0], "mode": mode}
+
+
+def inspect_uv(name: str, uv_map: str) -> dict:
+    """The UV map's value per loop and each polygon's loops, and the add-on's note."""
+    obj = bpy.data.objects[name]
+    mesh = obj.data
+    layer = mesh.uv_layers.get(uv_map)
+    if layer is None:
+        return {"exists": False, "maps": [m.name for m in mesh.uv_layers]}
+    values = np.empty(len(mesh.loops) * 2, dtype=np.float32)
+    layer.data.foreach_get("uv", values)
+    loop_total = np.empty(len(mesh.polygons), dtype=np.int32)
+    mesh.polygons.foreach_get("loop_total", loop_total)
+    return {
+        "exists": True,
+        "active": mesh.uv_layers.active.name,
+        "maps": [m.name for m in mesh.uv_layers],
+        "uvs": values.reshape(-1, 2).tolist(),
+        "loop_total": loop_total.tolist(),
+        "note": obj["neural_shdf_unwrap"].to_dict() if "neural_shdf_unwrap" in obj else None,
+    }
+
+
 def phases(names: list[str], settings: dict, payload_path: str | None = None) -> dict:
     """The operator's three steps timed apart: prepare (evaluate + PLY, main thread), the
     worker (network and service), apply (attributes, materials)."""
@@ -244,7 +310,11 @@ def inspect(name: str) -> dict:
         colors.data.foreach_get("color", values)
         record["color_type"] = [colors.domain, colors.data_type]
         record["colors"] = values.reshape(-1, 4).tolist()
-    record["props"] = {k: obj[k] for k in obj.keys() if k.startswith("neural_shdf")}  # noqa: SIM118
+    record["props"] = {
+        k: obj[k].to_dict() if hasattr(obj[k], "to_dict") else obj[k]
+        for k in obj.keys()  # noqa: SIM118
+        if k.startswith("neural_shdf")
+    }
     named = mesh.attributes.get("neural_shdf_label")
     if named is not None:
         values = np.empty(len(mesh.polygons), dtype=np.int32)
@@ -287,6 +357,16 @@ def main() -> None:
             records.append({"learn": learn(step["learn"], step.get("settings", {}))})
         elif "inspect" in step:
             records.append({"inspect": inspect(step["inspect"])})
+        elif "unwrap" in step:
+            unwrapped = unwrap(
+                step["unwrap"], step.get("settings", {}), step.get("unwrap_settings", {})
+            )
+            records.append({"unwrap": unwrapped})
+        elif "edit" in step:
+            arguments = {k: v for k, v in step.items() if k != "edit"}
+            records.append({"edit": edit(step["edit"], **arguments)})
+        elif "inspect_uv" in step:
+            records.append({"inspect_uv": inspect_uv(step["inspect_uv"], step["uv_map"])})
     Path(sys.argv[2]).write_text(json.dumps(records))
 
 

@@ -18,7 +18,7 @@ import pytest
 from pydantic import BaseModel
 
 from neural_shdf.api import schemas
-from neural_shdf.client import results
+from neural_shdf.client import results, unwrapping
 from neural_shdf.mesh_io import load_mesh
 from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
@@ -34,6 +34,7 @@ MIRRORS = [
     (results.PartSummary, schemas.PartSummary),
     (results.Timings, schemas.Timings),
     (results.LabelerInfo, schemas.LabelerInfo),
+    (unwrapping.UvLayout, schemas.UvLayout),
     (results.Upload, schemas.UploadResult),
 ]
 #: What the client must never need: the service's and the library's heavy dependencies.

@@ -8,13 +8,16 @@ import pytest
 from neural_shdf.segment.editing import (
     MAX_EDIT_OPERATIONS,
     EditError,
+    FaceAdjacency,
     Grow,
     Merge,
     Paint,
     Shrink,
+    Split,
     apply_edits,
     apply_label_edits,
     edit_document,
+    input_face_adjacency,
     parse_edits,
 )
 from neural_shdf.segment.hierarchy import PartTree
@@ -32,6 +35,13 @@ FINE = PartTree(
     np.arange(8),
     np.array([[0, 1], [2, 3], [4, 5], [6, 7], [8, 9], [10, 11], [12, 13]]),
     np.arange(7, dtype=float),
+)
+
+
+# The eight faces in a row, each sharing one unit edge with the next; the edge between
+# faces 2 and 3 is short.
+CHAIN = FaceAdjacency(
+    np.array([[i, i + 1] for i in range(7)]), np.array([1, 1, 0.05, 1, 1, 1, 1], dtype=float)
 )
 
 
@@ -156,7 +166,8 @@ def test_random_trees_match_the_cut_and_are_deterministic() -> None:
 @pytest.mark.parametrize(
     ("document", "message"),
     [
-        ([{"op": "split", "face": 0}], "unknown op 'split'"),
+        ([{"op": "cut", "face": 0}], "unknown op 'cut'"),
+        ([{"op": "split", "face": 0}], "'split' needs the mesh's face adjacency"),
         ([{"op": "grow"}], "'grow' takes exactly"),
         ([{"op": "grow", "face": 8}], "face 8 is out of range .* 8 input faces"),
         ([{"op": "merge", "faces": [0, -1]}], "face -1 is out of range"),
@@ -173,9 +184,11 @@ def test_bad_documents_say_what_is_wrong(document: list, message: str) -> None:
 
 
 def test_typed_operations_round_trip() -> None:
-    typed = [Grow(0), Shrink(1), Merge((0, 2)), Paint((3,), 5)]
+    typed = [Grow(0), Shrink(1), Merge((0, 2)), Paint((3,), 5), Split(4)]
     assert parse_edits(edit_document(typed)) == typed
-    assert edit(2, *edit_document(typed)) == apply_edits(TREE, LEAVES, 2, typed).tolist()
+    assert apply_edits(TREE, LEAVES, 2, edit_document(typed), CHAIN).tolist() == (
+        apply_edits(TREE, LEAVES, 2, typed, CHAIN).tolist()
+    )
 
 
 def test_label_edits_without_a_tree() -> None:
@@ -186,3 +199,55 @@ def test_label_edits_without_a_tree() -> None:
     assert painted.tolist() == [0, 1, 1, 1, -1, 2]
     with pytest.raises(EditError, match="'grow' needs the part tree.*METIS"):
         apply_label_edits(labels, [{"op": "grow", "face": 0}])
+
+
+def test_split_bisects_the_part_along_its_shortest_boundary() -> None:
+    whole = apply_edits(TREE, LEAVES, 1, [{"op": "split", "face": 0}], CHAIN)
+    assert whole.tolist() == [0, 0, 0, 1, 1, 1, 1, 1]  # cut at the short edge
+    kept = apply_edits(TREE, LEAVES, 1, [{"op": "split", "face": 7}], CHAIN)
+    assert kept.tolist() == whole.tolist()  # numbered by smallest face either way
+    # The adjacency is built only when a split asks for it.
+    built: list[int] = []
+
+    def lazily() -> FaceAdjacency:
+        built.append(1)
+        return CHAIN
+
+    assert apply_edits(TREE, LEAVES, 2, [{"op": "grow", "face": 0}], lazily).tolist() == [0] * 8
+    assert built == []
+    apply_edits(TREE, LEAVES, 1, [{"op": "split", "face": 0}], lazily)
+    assert built == [1]
+
+
+def test_split_acts_on_parts_as_they_are_and_its_halves_stay_painted() -> None:
+    document = [{"op": "merge", "faces": [0, 6]}, {"op": "split", "face": 6}]
+    # Parts at 4: {0,1}, {2,3}, {4,5}, {6,7}; merged {0,1,6,7}; its faces 0-1 and 6-7 are
+    # not adjacent, so the halves are those two pieces.
+    assert apply_edits(TREE, LEAVES, 4, document, CHAIN).tolist() == [0, 0, 1, 1, 2, 2, 3, 3]
+    # Parts at 2: {0..3} and {4..7}; the split cuts face 3 off {0..3} (the short edge). A
+    # later grow of the node holding face 0 (to the root) takes {4..7} in, not face 3.
+    grown = apply_edits(
+        TREE, LEAVES, 2, [{"op": "split", "face": 0}, {"op": "grow", "face": 0}], CHAIN
+    )
+    assert grown.tolist() == [0, 0, 0, 1, 0, 0, 0, 0]
+    # A one-face part: no-op.
+    assert apply_edits(FINE, np.arange(8), 8, [{"op": "split", "face": 3}], CHAIN).tolist() == (
+        list(range(8))
+    )
+
+
+def test_split_without_a_tree_and_deterministic() -> None:
+    labels = np.array([0, 0, 0, 0, 0, 0, 0, 0])
+    once = apply_label_edits(labels, [{"op": "split", "face": 0}], CHAIN, seed=3)
+    assert once.tolist() == [0, 0, 0, 1, 1, 1, 1, 1]
+    assert once.tolist() == apply_label_edits(labels, [Split(0)], CHAIN, seed=3).tolist()
+
+
+def test_input_face_adjacency_sums_shared_edges_and_drops_polygon_diagonals() -> None:
+    # Triangles 0-1 form input face 0 (a quad), 2 is face 1, 3 is face 2.
+    origin = np.array([0, 0, 1, 2])
+    pairs = np.array([[0, 1], [1, 2], [0, 2], [2, 3], [3, 1]])
+    length = np.array([9.0, 1.0, 2.0, 4.0, 0.5])
+    adjacency = input_face_adjacency(pairs, length, origin)
+    assert adjacency.pairs.tolist() == [[0, 1], [0, 2], [1, 2]]
+    assert adjacency.length.tolist() == [3.0, 0.5, 4.0]

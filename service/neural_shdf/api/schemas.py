@@ -23,8 +23,9 @@ ShdfMethodName = Literal["auto", "exact", "sampled", "neural"]
 #: The ShDF producer that ran (``auto`` resolved).
 ShdfProducerName = Literal["exact", "sampled", "neural"]
 JobState = Literal["queued", "running", "succeeded", "failed"]
-#: What a job computes: a ShDF, or a UV atlas for ``unwrapped.glb`` or ``atlas.png``.
-JobKind = Literal["shdf", "unwrap", "atlas", "labeler"]
+#: What a job computes: a ShDF, a UV atlas for ``unwrapped.glb``, ``unwrapped.obj``,
+#: ``atlas.png`` or ``uvs``, or a part labeller (training).
+JobKind = Literal["shdf", "unwrap", "obj", "atlas", "uvs", "labeler"]
 
 MESH_ID_EXAMPLE = "3f1c0b6e2d4a8f7e9c1b2a3d4e5f60718293a4b5c6d7e8f9a0b1c2d3e4f5a6b7"
 MESH_ID_PATTERN = "^[0-9a-f]{64}$"
@@ -244,9 +245,9 @@ class Job(BaseModel):
     mesh_id: str = Field(description="The mesh the job computes.", examples=[MESH_ID_EXAMPLE])
     kind: JobKind = Field(
         "shdf",
-        description="What the job computes: `shdf`, the atlas of `unwrap` (unwrapped.glb) "
-        "or `atlas` (atlas.png), or a part `labeler` (training; `mesh_id` is its first "
-        "mesh, and `result_url` the labeller once it succeeded).",
+        description="What the job computes: `shdf`, the atlas of `unwrap` (unwrapped.glb), "
+        "`obj` (unwrapped.obj), `atlas` (atlas.png) or `uvs`, or a part `labeler` (training; "
+        "`mesh_id` is its first mesh, and `result_url` the labeller once it succeeded).",
         examples=["shdf"],
     )
     method: ShdfMethodName = Field(
@@ -354,6 +355,14 @@ class SegmentOptions(BaseModel):
         "of `hierarchy` has them.",
         examples=[DEFAULT_CREASE_BOUNDARIES],
     )
+    symmetry: bool = Field(
+        False,
+        description="Cut both sides of a mirror-symmetric shape alike: when a global "
+        "reflective symmetry is found (a plane pairing at least 90% of the surface with "
+        "mirror faces), each face's ShDF evidence is averaged with its mirror face's before "
+        "the mixture. No symmetry found: the labels are those without it.",
+        examples=[False],
+    )
     seed: int = Field(
         0,
         json_schema_extra=SEED_BOUNDS,
@@ -418,6 +427,43 @@ class UnwrapOptions(SegmentOptions):
         )
 
 
+class UvLayout(BaseModel):
+    """UVs of every corner of every input face, in the input file's face order and each
+    polygon's own corner order (``unwrapped.glb``'s atlas, for clients that keep their
+    own mesh, such as the Blender add-on)."""
+
+    mesh_id: str = Field(description="Mesh id.", examples=[MESH_ID_EXAMPLE])
+    faces: int = Field(description="Input faces.", examples=[2])
+    corners: int = Field(
+        description="Corners of all input faces (the sum of `corner_counts`).", examples=[6]
+    )
+    corner_counts_base64: str = Field(
+        description="Corners of each input face as base64 little-endian int32 (0: a face "
+        "without triangles, which has no UVs).",
+        examples=["AwAAAAMAAAA="],
+    )
+    uvs_base64: str = Field(
+        description="`corners` (u, v) pairs as base64 little-endian float32, face after face, "
+        "each face's corners in the file's order; in [0, 1], v up (OBJ's and Blender's "
+        "convention).",
+        examples=["AAAAAAAAAAAAAIA/AAAAAAAAAAAAAIA/AACAPwAAAAAAAIA/AACAPwAAAAAAAIA/"],
+    )
+    chart_base64: str = Field(
+        description="The chart of each input face (its first triangle's) as base64 "
+        "little-endian int32; -1: none.",
+        examples=["AAAAAAAAAAA="],
+    )
+    chart_part: list[int] = Field(description="The part of each chart.", examples=[[0]])
+    width: int = Field(description="Packed atlas width in texels.", examples=[1024])
+    height: int = Field(description="Packed atlas height in texels.", examples=[1024])
+    utilization: float = Field(description="Fraction of the atlas covered.", examples=[0.62])
+    split_faces: int = Field(
+        description="Input faces a chart boundary runs through: their triangles disagree "
+        "on a shared corner's UV, and the corners here are the outer ones of the fan.",
+        examples=[0],
+    )
+
+
 FACE_INDEX = {"minimum": 0}
 FACE_LIST = {"minItems": 1, "maxItems": MAX_EDIT_FACES}
 
@@ -467,7 +513,20 @@ class PaintEdit(BaseModel):
     )
 
 
-EditOperation = Annotated[GrowEdit | ShrinkEdit | MergeEdit | PaintEdit, Field(discriminator="op")]
+class SplitEdit(BaseModel):
+    """The part holding `face` is cut in two halves of similar face count with the shortest
+    boundary (METIS bisection); the half holding `face` stays, the other is a new part."""
+
+    model_config = ConfigDict(extra="forbid")
+    op: Literal["split"] = Field(description="Operation.", examples=["split"])
+    face: int = Field(
+        json_schema_extra=FACE_INDEX, description="A face of the part.", examples=[120]
+    )
+
+
+EditOperation = Annotated[
+    GrowEdit | ShrinkEdit | MergeEdit | PaintEdit | SplitEdit, Field(discriminator="op")
+]
 
 
 class SegmentRequest(LabeledSegmentOptions):

@@ -198,7 +198,9 @@ class SegmentationService:
             segmentation = self.tasks.isolated(segment, mesh.portable(), shdf, params)
         else:
             shdf_version = self.shdf.version(method, params.seed)
-            basis_key = segmentation_basis_key(mesh_id, shdf_version, params.clusters, params.seed)
+            basis_key = segmentation_basis_key(
+                mesh_id, shdf_version, params.clusters, params.seed, params.symmetry
+            )
             basis = self.cache.working_set(basis_key)
             if basis is None or not basis.matches(params, shdf):
                 if params.crease_boundaries:

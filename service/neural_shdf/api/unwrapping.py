@@ -3,6 +3,7 @@ parameters) from the cached segmentation, cached."""
 
 from __future__ import annotations
 
+import base64
 import functools
 
 import numpy as np
@@ -18,11 +19,16 @@ from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import SegmentParams
 from neural_shdf.store.cache import ResultCache
 from neural_shdf.store.keys import atlas_key, atlas_png_key
-from neural_shdf.unwrap import UnwrapParams, UvAtlas, atlas_layout_png
+from neural_shdf.unwrap import UnwrapParams, UvAtlas, atlas_layout_png, polygon_corner_uvs
 from neural_shdf.unwrap import unwrap as unwrap_mesh
 
 #: The file each kind of atlas job serves once it succeeded.
-RESULT_FILES = {"unwrap": "unwrapped.glb", "atlas": "atlas.png"}
+RESULT_FILES = {
+    "unwrap": "unwrapped.glb",
+    "obj": "unwrapped.obj",
+    "atlas": "atlas.png",
+    "uvs": "uvs",
+}
 
 
 def _atlas_arrays(atlas: UvAtlas) -> dict[str, NDArray]:
@@ -141,6 +147,42 @@ class UnwrapService:
         # Identical requests share one writer; it runs within the request timeout.
         return await self.tasks.with_timeout(self.tasks.single_flight(f"{key}:glb", write))
 
+    async def obj(
+        self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
+    ) -> bytes:
+        """The mesh as OBJ with its atlas UVs (``vt``), one ``f`` per input face."""
+        from neural_shdf.exchange.obj_writer import obj_text_with_uvs
+
+        mesh, atlas = await self.get(mesh_id, method, params, unwrap, kind="obj")
+        key = self.key(mesh_id, method, params, unwrap)
+        write = functools.partial(_obj_bytes, obj_text_with_uvs, mesh, atlas)
+        return await self.tasks.with_timeout(self.tasks.single_flight(f"{key}:obj", write))
+
+    async def uvs(
+        self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
+    ) -> dict[str, object]:
+        """The ``UvLayout`` answer: UVs per corner of every input face
+        (``polygon_corner_uvs``), the chart of each input face and the atlas's figures."""
+        mesh, atlas = await self.get(mesh_id, method, params, unwrap, kind="uvs")
+        layout = await self.tasks.io(polygon_corner_uvs, mesh, atlas.corner_uvs)
+        first_triangle = np.searchsorted(mesh.face_origin, np.arange(mesh.input_face_count))
+        chart = np.full(mesh.input_face_count, -1, dtype="<i4")
+        has = layout.corner_counts > 0
+        chart[has] = atlas.chart[first_triangle[has]]
+        return {
+            "mesh_id": mesh_id,
+            "faces": mesh.input_face_count,
+            "corners": len(layout.uvs),
+            "corner_counts_base64": _base64(layout.corner_counts.astype("<i4")),
+            "uvs_base64": _base64(layout.uvs.astype("<f4")),
+            "chart_base64": _base64(chart),
+            "chart_part": [int(part) for part in atlas.chart_part],
+            "width": atlas.width,
+            "height": atlas.height,
+            "utilization": atlas.utilization,
+            "split_faces": int((~layout.consistent).sum()),
+        }
+
     async def atlas_png(
         self, mesh_id: str, method: str, params: SegmentParams, unwrap: UnwrapParams
     ) -> bytes:
@@ -187,6 +229,15 @@ class UnwrapService:
     @staticmethod
     def _draw_png(atlas: UvAtlas, unwrap: UnwrapParams) -> bytes:
         return atlas_layout_png(atlas, size=unwrap.atlas_size)
+
+
+def _base64(values: NDArray) -> str:
+    return base64.b64encode(np.ascontiguousarray(values).tobytes()).decode("ascii")
+
+
+def _obj_bytes(write, mesh: TriangleMesh, atlas: UvAtlas) -> bytes:  # noqa: ANN001
+    text, _ = write(mesh, atlas)
+    return text.encode()
 
 
 def _png_from_arrays(arrays: dict[str, NDArray]) -> bytes:

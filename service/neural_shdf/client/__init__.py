@@ -31,6 +31,7 @@ from neural_shdf.client.results import (
     Segmentation,
     Upload,
 )
+from neural_shdf.client.unwrapping import UnwrapArgs, UvLayout
 
 __all__ = [
     "AsyncClient",
@@ -50,6 +51,8 @@ __all__ = [
     "ServiceTimeoutError",
     "ServiceUnavailableError",
     "UnsupportedMediaError",
+    "UnwrapArgs",
     "Upload",
+    "UvLayout",
     "edits",
 ]

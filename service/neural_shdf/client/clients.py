@@ -23,6 +23,7 @@ import neural_shdf.client.operations as ops
 from neural_shdf.client.errors import error_from_transport
 from neural_shdf.client.operations import Call, Operation, Pause, PollPolicy, RetryPolicy
 from neural_shdf.client.results import Job, LabelerInfo, MeshInfo, Segmentation, Upload
+from neural_shdf.client.unwrapping import UnwrapArgs, UvLayout, download, uv_layout
 
 DEFAULT_URL = "http://127.0.0.1:8000"
 MeshSource = str | Path | bytes
@@ -209,6 +210,23 @@ class Client(_Settings):
         query = ops.given({**options, "source": source})
         return self.run(ops.glb(mesh_id, "parts", query, self.poll))
 
+    # -- unwrap by parts (neural_shdf.client.unwrapping) -----------------------------
+    def unwrapped_glb(self, mesh_id: str, **options: Unpack[UnwrapArgs]) -> bytes:
+        """The mesh with UVs charted part by part in one atlas, the atlas as texture (GLB)."""
+        return self.run(download(mesh_id, "glb", ops.given(options), self.poll))
+
+    def unwrapped_obj(self, mesh_id: str, **options: Unpack[UnwrapArgs]) -> bytes:
+        """The same UVs as OBJ text: ``v``, ``vt``, one ``f v/vt`` per input face."""
+        return self.run(download(mesh_id, "obj", ops.given(options), self.poll))
+
+    def atlas_png(self, mesh_id: str, **options: Unpack[UnwrapArgs]) -> bytes:
+        """The atlas layout as a PNG: charts coloured by part, outlined."""
+        return self.run(download(mesh_id, "atlas", ops.given(options), self.poll))
+
+    def uvs(self, mesh_id: str, **options: Unpack[UnwrapArgs]) -> UvLayout:
+        """The same UVs per corner of every input face, in the file's order (numpy)."""
+        return self.run(uv_layout(mesh_id, ops.given(options), self.poll))
+
     def job(self, job_id: str) -> Job:
         """A job's state and progress."""
         return Job.from_json(self.run(ops.get_json(f"/v1/jobs/{job_id}")))
@@ -385,6 +403,18 @@ class AsyncClient(_Settings):
     ) -> bytes:
         query = ops.given({**options, "source": source})
         return await self.run(ops.glb(mesh_id, "parts", query, self.poll))
+
+    async def unwrapped_glb(self, mesh_id: str, **options: Unpack[UnwrapArgs]) -> bytes:
+        return await self.run(download(mesh_id, "glb", ops.given(options), self.poll))
+
+    async def unwrapped_obj(self, mesh_id: str, **options: Unpack[UnwrapArgs]) -> bytes:
+        return await self.run(download(mesh_id, "obj", ops.given(options), self.poll))
+
+    async def atlas_png(self, mesh_id: str, **options: Unpack[UnwrapArgs]) -> bytes:
+        return await self.run(download(mesh_id, "atlas", ops.given(options), self.poll))
+
+    async def uvs(self, mesh_id: str, **options: Unpack[UnwrapArgs]) -> UvLayout:
+        return await self.run(uv_layout(mesh_id, ops.given(options), self.poll))
 
     async def job(self, job_id: str) -> Job:
         return Job.from_json(await self.run(ops.get_json(f"/v1/jobs/{job_id}")))

@@ -38,4 +38,10 @@ def paint(faces: Iterable[int], to_face: int) -> dict[str, Any]:
     return {"op": "paint", "faces": [int(face) for face in faces], "to_face": int(to_face)}
 
 
-__all__ = ["grow", "merge", "paint", "shrink"]
+def split(face: int) -> dict[str, Any]:
+    """The part holding ``face`` is bisected (METIS); the half without ``face`` is a new
+    part. Needs the mesh, so only the service applies it (not ``PartHierarchy.edited``)."""
+    return {"op": "split", "face": int(face)}
+
+
+__all__ = ["grow", "merge", "paint", "shrink", "split"]

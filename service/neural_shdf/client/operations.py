@@ -112,6 +112,7 @@ class SegmentArgs(TypedDict, total=False):
     refine: bool | None
     boundary_smoothing: bool | None
     crease_boundaries: bool | None  # boundaries moved onto concave creases
+    symmetry: bool | None  # both sides of a mirror-symmetric shape cut alike
     seed: int | None  # seeds every random step: the ShDF's sampling and the segmentation
     labeler_id: str | None  # named parts by a stored labeller (upload_labeler, train_labeler)
 

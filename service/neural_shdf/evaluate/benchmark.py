@@ -30,7 +30,7 @@ import math
 import os
 import re
 from collections import Counter
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -140,14 +140,19 @@ class MethodTable:
 EvalTable = dict[str, MethodTable]
 
 
-def list_models(bench_dir: Path, limit: int | None = None) -> list[BenchModel]:
-    """Models of a PSB-layout folder that have a mesh and human segmentations, by id."""
+def list_models(
+    bench_dir: Path, limit: int | None = None, ids: Collection[int] | None = None
+) -> list[BenchModel]:
+    """Models of a PSB-layout folder that have a mesh and human segmentations, by id
+    (only ``ids`` when given)."""
     bench_dir = Path(bench_dir)
     if not (bench_dir / "off").is_dir() or not (bench_dir / "seg").is_dir():
         raise ParameterError(f"{bench_dir} is not a benchmark folder: it needs off/ and seg/")
     models = []
     for path in sorted((bench_dir / "off").glob("*.off"), key=lambda p: (len(p.stem), p.stem)):
         if not path.stem.isdigit():
+            continue
+        if ids is not None and int(path.stem) not in ids:
             continue
         humans = tuple(sorted((bench_dir / "seg" / path.stem).glob("*.seg")))
         if humans:
@@ -307,6 +312,7 @@ def evaluate_folder(
     limit: int | None = None,
     jobs: int = 1,
     progress: Callable[[int, int], None] | None = None,
+    ids: Collection[int] | None = None,
 ) -> EvalTable:
     """Score predictors on every model of a PSB-layout folder.
 
@@ -316,7 +322,7 @@ def evaluate_folder(
     """
     if callable(predictors):
         predictors = {"method": predictors}
-    models = list_models(Path(bench_dir), limit)
+    models = list_models(Path(bench_dir), limit, ids)
     jobs = max(1, min(int(jobs), MAX_JOBS, len(models)))
     per_method: dict[str, list[ModelResult]] = {name: [] for name in predictors}
 

@@ -12,11 +12,19 @@ from neural_shdf.unwrap import UvAtlas, input_face_corner_uvs
 
 
 def write_obj_with_uvs(path: str | Path, mesh: TriangleMesh, atlas: UvAtlas) -> int:
-    """Write an OBJ with ``v``, ``vt`` and ``f v/vt`` lines, one ``f`` per input face in the
+    """Write ``obj_text_with_uvs`` to ``path``; returns how many polygons were split."""
+    text, split = obj_text_with_uvs(mesh, atlas)
+    Path(path).write_text(text)
+    return split
+
+
+def obj_text_with_uvs(mesh: TriangleMesh, atlas: UvAtlas) -> tuple[str, int]:
+    """An OBJ with ``v``, ``vt`` and ``f v/vt`` lines, one ``f`` per input face in the
     input order, each polygon with its UVs per corner.
 
     A polygon a chart boundary runs through (its triangles disagree on a shared corner's
-    UV) is written as its triangles, in place. Returns how many polygons were split so.
+    UV) is written as its triangles, in place. Returns the text and how many polygons
+    were split so.
     Input faces that produced no triangle are left out.
     """
     polygons, polygon_uvs, consistent = input_face_corner_uvs(mesh, atlas.corner_uvs)
@@ -50,5 +58,4 @@ def write_obj_with_uvs(path: str | Path, mesh: TriangleMesh, atlas: UvAtlas) -> 
         offset += count
     lines.extend(f"vt {u:.9g} {v:.9g}" for u, v in uv_rows)
     lines.extend(faces_text)
-    Path(path).write_text("\n".join(lines) + "\n")
-    return int((~consistent).sum())
+    return "\n".join(lines) + "\n", int((~consistent).sum())

@@ -14,6 +14,7 @@ from neural_shdf.segment.graphcut import CutHierarchy, cut_hierarchy
 from neural_shdf.segment.mixture import Mixture
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import FaceData
+from neural_shdf.segment.symmetry import Reflection
 
 
 @dataclass
@@ -22,7 +23,8 @@ class SegmentBasis:
     boundary options enter: face data, the mixture and its posteriors, data costs, edge
     weights at smoothing 1 and the graph cut's coarse graphs (built on first use).
 
-    It depends on the mesh, its ShDF, ``clusters`` and ``seed`` only, so a caller that
+    It depends on the mesh, its ShDF, ``clusters``, ``seed`` and ``symmetry`` only (with
+    ``symmetry``, ``reflection`` is the plane found, None when none was), so a caller that
     keeps it (the service, per mesh) re-segments with new values of the other parameters
     without refitting the mixture or coarsening the graph again; the labels are the same
     as without it.
@@ -38,6 +40,8 @@ class SegmentBasis:
     data: NDArray[np.float64]
     unit_weights: NDArray[np.float64]
     seconds: float = 0.0
+    symmetry: bool = False
+    reflection: Reflection | None = None
     _cut: CutHierarchy | None = field(default=None, repr=False)
 
     def cut(self, graph: FaceGraph) -> CutHierarchy:
@@ -58,6 +62,8 @@ class SegmentBasis:
         another field)."""
         if self.clusters != params.clusters or self.seed != params.seed:
             return False
+        if self.symmetry != params.symmetry:
+            return False
         if shdf is self.shdf:
             return True
         shdf = np.asarray(shdf, dtype=np.float64).reshape(-1)
@@ -69,6 +75,8 @@ class SegmentBasis:
         arrays = (self.shdf, self.values, self.posteriors, self.data, self.unit_weights)
         geometry = (self.geometry.areas, self.geometry.centroids, self.geometry.face_weight)
         size = sum(a.nbytes for a in arrays + geometry)
+        if self.reflection is not None:
+            size += self.reflection.mirror.nbytes
         if self._cut is not None:
             finest = self._cut.levels[0]  # shares the data, weights and the graph's pairs
             size += self._cut.nbytes - finest.data.nbytes - finest.unit_weights.nbytes

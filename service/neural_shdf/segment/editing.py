@@ -13,19 +13,23 @@ operations run in order on the parts of the tree cut at ``parts``:
   a leaf.
 * ``{"op": "merge", "faces": [F1, F2, ...]}``: the parts holding these faces become one.
 * ``{"op": "paint", "faces": [...], "to_face": G}``: these faces join the part holding G.
+* ``{"op": "split", "face": F}``: the part holding F is cut in two halves of similar face
+  count with the shortest boundary (a METIS bisection of its faces' adjacency); the half
+  holding F stays in F's part, the other becomes a new part (its faces count as painted
+  there). No-op for a one-face part.
 
 Grow and shrink act on the tree: the node that holds F is the one its leaf lies under,
 even when F was painted into another part (paint moves a face, not its node). Merge and
-paint act on the parts as they are, paint included. A painted face stays where it was
-painted until it is painted again.
+paint (and split) act on the parts as they are, paint included. A painted face stays where
+it was painted until it is painted again.
 
 Final labels are numbered by each part's smallest input face; faces without a leaf (-1:
-no triangles) stay -1. Without a tree (METIS), only merge and paint apply.
+no triangles) stay -1. Without a tree (METIS), merge, paint and split apply.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -34,13 +38,14 @@ from numpy.typing import NDArray
 
 from neural_shdf.errors import ParameterError
 from neural_shdf.segment.hierarchy import PartTree
+from neural_shdf.segment.metis import split_graph
 
 #: Most operations in one document.
 MAX_EDIT_OPERATIONS = 1000
 #: Most faces named in one document (all operations together).
 MAX_EDIT_FACES = 1_000_000
 #: The operations a document may hold.
-EDIT_OPERATIONS = ("grow", "shrink", "merge", "paint")
+EDIT_OPERATIONS = ("grow", "shrink", "merge", "paint", "split")
 
 
 class EditError(ParameterError):
@@ -76,7 +81,43 @@ class Paint:
     to_face: int
 
 
-Edit = Grow | Shrink | Merge | Paint
+@dataclass(frozen=True)
+class Split:
+    """The part holding ``face`` is bisected; the half without ``face`` is a new part."""
+
+    face: int
+
+
+Edit = Grow | Shrink | Merge | Paint | Split
+
+
+@dataclass(frozen=True)
+class FaceAdjacency:
+    """Input faces that share an edge: ``pairs`` (E, 2), each pair once with a < b, and
+    the total ``length`` of the edges they share. What ``split`` bisects."""
+
+    pairs: NDArray[np.int64]
+    length: NDArray[np.float64]
+
+
+def input_face_adjacency(
+    triangle_pairs: NDArray[Any], edge_length: NDArray[Any], face_origin: NDArray[Any]
+) -> FaceAdjacency:
+    """The adjacency of input faces from their triangles' face graph (``FaceGraph.pairs``
+    and ``edge_length``) and each triangle's input face; edges inside a polygon drop out."""
+    pairs = np.asarray(face_origin, dtype=np.int64)[np.asarray(triangle_pairs, dtype=np.int64)]
+    pairs = np.sort(pairs.reshape(-1, 2), axis=1)
+    between = pairs[:, 0] != pairs[:, 1]
+    pairs, length = pairs[between], np.asarray(edge_length, dtype=np.float64)[between]
+    unique, inverse = np.unique(pairs, axis=0, return_inverse=True)
+    total = np.bincount(inverse.reshape(-1), weights=length, minlength=len(unique)).astype(
+        np.float64
+    )
+    return FaceAdjacency(unique.astype(np.int64).reshape(-1, 2), total)
+
+
+#: How ``apply_edits`` gets the adjacency a ``split`` needs: built only when one is asked.
+AdjacencySource = FaceAdjacency | Callable[[], FaceAdjacency] | None
 
 
 def _face_index(value: Any, where: str) -> int:
@@ -100,7 +141,7 @@ def parse_edits(document: Iterable[Mapping[str, Any] | Edit]) -> list[Edit]:
         if index >= MAX_EDIT_OPERATIONS:
             raise EditError(f"at most {MAX_EDIT_OPERATIONS} edit operations per document")
         where = f"edit {index}"
-        if isinstance(item, Grow | Shrink | Merge | Paint):
+        if isinstance(item, Grow | Shrink | Merge | Paint | Split):
             edit: Edit = item
         elif not isinstance(item, Mapping):
             raise EditError(f"{where}: expected an object with an 'op', got {item!r}")
@@ -111,6 +152,7 @@ def parse_edits(document: Iterable[Mapping[str, Any] | Edit]) -> list[Edit]:
                 "shrink": {"op", "face"},
                 "merge": {"op", "faces"},
                 "paint": {"op", "faces", "to_face"},
+                "split": {"op", "face"},
             }.get(op)  # type: ignore[arg-type]
             if expected is None:
                 raise EditError(f"{where}: unknown op {op!r}; use one of {EDIT_OPERATIONS}")
@@ -120,6 +162,8 @@ def parse_edits(document: Iterable[Mapping[str, Any] | Edit]) -> list[Edit]:
                 edit = Grow(_face_index(item["face"], where))
             elif op == "shrink":
                 edit = Shrink(_face_index(item["face"], where))
+            elif op == "split":
+                edit = Split(_face_index(item["face"], where))
             elif op == "merge":
                 edit = Merge(_face_list(item["faces"], where))
             else:
@@ -139,6 +183,8 @@ def edit_document(edits: Sequence[Edit]) -> list[dict[str, Any]]:
             out.append({"op": "grow", "face": edit.face})
         elif isinstance(edit, Shrink):
             out.append({"op": "shrink", "face": edit.face})
+        elif isinstance(edit, Split):
+            out.append({"op": "split", "face": edit.face})
         elif isinstance(edit, Merge):
             out.append({"op": "merge", "faces": list(edit.faces)})
         else:
@@ -243,8 +289,24 @@ class _EditState:
     def paint(self, faces: Sequence[int], to_face: int) -> None:
         self.painted[np.asarray(faces, dtype=np.int64)] = self.part(to_face)
 
-    def labels(self) -> NDArray[np.int64]:
-        """Part per face, numbered by each part's smallest face; -1 stays -1."""
+    def split(self, face: int, adjacency: FaceAdjacency, seed: int) -> None:
+        members = np.flatnonzero(self.groups() == self.part(face))
+        if len(members) < 2:
+            return
+        pairs = adjacency.pairs
+        inside = np.isin(pairs[:, 0], members) & np.isin(pairs[:, 1], members)
+        local = np.searchsorted(members, pairs[inside])
+        halves = split_graph(len(members), local, adjacency.length[inside], 2, seed)
+        moved = members[halves != halves[np.searchsorted(members, face)]]
+        if len(moved) == 0:
+            return
+        new_group = len(self.group_parent)
+        self.group_parent.append(new_group)
+        self.group_nodes.append(set())
+        self.painted[moved] = new_group
+
+    def groups(self) -> NDArray[np.int64]:
+        """The part (group root) of every face now, paint included; -1: no part."""
         groups = len(self.group_parent)
         root = np.array([self.find(g) for g in range(groups)], dtype=np.int64)
         node_group = np.full(2 * self.leaves - 1, -1, dtype=np.int64)
@@ -252,8 +314,11 @@ class _EditState:
         valid = self.face_position >= 0
         tree_group = node_group[self.top[np.maximum(self.face_position, 0)]]
         group = np.where(self.painted >= 0, self.painted, tree_group)
-        group = np.where(valid, root[np.maximum(group, 0)], -1)
-        return canonical_face_labels(group)
+        return np.where(valid, root[np.maximum(group, 0)], -1)
+
+    def labels(self) -> NDArray[np.int64]:
+        """Part per face, numbered by each part's smallest face; -1 stays -1."""
+        return canonical_face_labels(self.groups())
 
 
 def canonical_face_labels(groups: NDArray[Any]) -> NDArray[np.int64]:
@@ -294,7 +359,7 @@ def _check_faces(edits: Sequence[Edit], leaf_of_face: NDArray[Any], *, tree: boo
                 f"edit {index}: '{op}' needs the part tree, which the METIS partitioner does "
                 "not make; use merge and paint, or the graphcut partitioner"
             )
-        faces = (edit.face,) if isinstance(edit, Grow | Shrink) else edit.faces
+        faces = (edit.face,) if isinstance(edit, Grow | Shrink | Split) else edit.faces
         if isinstance(edit, Paint):
             faces = (*faces, edit.to_face)
         named = np.asarray(faces, dtype=np.int64)
@@ -316,11 +381,15 @@ def apply_edits(
     leaf_of_face: NDArray[Any],
     parts: int,
     edits: Iterable[Mapping[str, Any] | Edit],
+    adjacency: AdjacencySource = None,
+    seed: int = 0,
 ) -> NDArray[np.int64]:
     """Labels per input face: ``tree`` cut at ``parts`` (clamped to 1..L), then ``edits``.
 
     ``leaf_of_face``: the tree's leaf per input face (-1: no triangles). With no edits the
-    labels are ``tree.relabel(leaf_of_face, parts)``. Raises EditError for a bad document.
+    labels are ``tree.relabel(leaf_of_face, parts)``. ``adjacency`` (or a function that
+    builds it, called only when a ``split`` needs it) and ``seed``: the METIS bisection of
+    ``split``. Raises EditError for a bad document.
     """
     leaf_of_face = np.asarray(leaf_of_face, dtype=np.int64)
     operations = parse_edits(edits)
@@ -337,14 +406,17 @@ def apply_edits(
         if up >= 0 and up < limit:
             top[node] = top[up]
     state = _EditState(parent, tree.merges, leaf_of_face, top[:leaves])
-    return _run(state, operations)
+    return _run(state, operations, adjacency, seed)
 
 
 def apply_label_edits(
-    labels: NDArray[Any], edits: Iterable[Mapping[str, Any] | Edit]
+    labels: NDArray[Any],
+    edits: Iterable[Mapping[str, Any] | Edit],
+    adjacency: AdjacencySource = None,
+    seed: int = 0,
 ) -> NDArray[Any]:
-    """Merge and paint on labels with no tree (METIS): each part is one leaf; grow and
-    shrink raise EditError. -1 stays -1."""
+    """Merge, paint and split on labels with no tree (METIS): each part is one leaf; grow
+    and shrink raise EditError. -1 stays -1."""
     labels = np.asarray(labels, dtype=np.int64)
     operations = parse_edits(edits)
     _check_faces(operations, labels, tree=False)
@@ -361,11 +433,23 @@ def apply_label_edits(
     if leaves > 1:
         parent[chain.reshape(-1)] = np.repeat(np.arange(leaves, 2 * leaves - 1), 2)
     state = _EditState(parent, chain, dense, np.arange(leaves, dtype=np.int64))
-    return _run(state, operations)
+    return _run(state, operations, adjacency, seed)
 
 
-def _run(state: _EditState, operations: Sequence[Edit]) -> NDArray[np.int64]:
-    for edit in operations:
+def _run(
+    state: _EditState, operations: Sequence[Edit], adjacency: AdjacencySource, seed: int
+) -> NDArray[np.int64]:
+    for index, edit in enumerate(operations):
+        if isinstance(edit, Split):
+            if adjacency is None:
+                raise EditError(
+                    f"edit {index}: 'split' needs the mesh's face adjacency (the service "
+                    "applies it; a part tree alone cannot)"
+                )
+            if not isinstance(adjacency, FaceAdjacency):
+                adjacency = adjacency()
+            state.split(edit.face, adjacency, seed)
+            continue
         if isinstance(edit, Grow):
             state.grow(edit.face)
         elif isinstance(edit, Shrink):
@@ -383,13 +467,16 @@ __all__ = [
     "MAX_EDIT_OPERATIONS",
     "Edit",
     "EditError",
+    "FaceAdjacency",
     "Grow",
     "Merge",
     "Paint",
     "Shrink",
+    "Split",
     "apply_edits",
     "apply_label_edits",
     "canonical_face_labels",
     "edit_document",
+    "input_face_adjacency",
     "parse_edits",
 ]

@@ -34,6 +34,7 @@ from neural_shdf.segment.mixture import fit_best_mixture, fit_mixture
 from neural_shdf.segment.params import AUTO_CLUSTERS, DEFAULT_CLUSTERS, SegmentParams
 from neural_shdf.segment.partitioners import PARTITIONERS, Partitioning
 from neural_shdf.segment.parts import FaceData
+from neural_shdf.segment.symmetry import Reflection, detect_reflection, symmetrize
 from neural_shdf.shdf.postprocess import log_normalize
 
 #: ShDF values may stray this far outside [0, 1] (rounding) before they are refused.
@@ -52,6 +53,9 @@ class SegmentResult:
     tree: PartTree | None = None
     #: What the orientation pass found in the mesh.
     diagnostics: MeshDiagnostics | None = None
+    #: The mirror plane the segmentation was made symmetric by (``params.symmetry``), or
+    #: None (not asked, or no symmetry found).
+    reflection: Reflection | None = None
 
     @property
     def part_count(self) -> int:
@@ -75,7 +79,7 @@ class SegmentResult:
 def prepare_segment(
     mesh: TriangleMesh, shdf: NDArray[Any], params: SegmentParams | None = None
 ) -> SegmentBasis:
-    """The ``SegmentBasis`` of a mesh, its ShDF and ``params.clusters``/``params.seed``:
+    """The ``SegmentBasis`` of a mesh, its ShDF and ``params.clusters``/``seed``/``symmetry``:
     pass it to ``segment`` to try other smoothing or part counts quickly. Checks the ShDF
     and ``params`` against the mesh (ParameterError)."""
     start = time.perf_counter()
@@ -88,6 +92,12 @@ def prepare_segment(
     mesh = distinct.mesh
     geometry = FaceData.of(mesh.vertices, mesh.faces, mesh.normals_and_areas[1], mesh.centroids)
     values = log_normalize(shdf)
+    reflection = None
+    if params.symmetry:
+        normals, areas = mesh.normals_and_areas
+        reflection = detect_reflection(mesh.centroids, normals, areas)
+        if reflection is not None:  # both sides get the same evidence
+            values = symmetrize(values, reflection.mirror)
     if params.clusters == AUTO_CLUSTERS:
         mixture = fit_best_mixture(values, params.seed)
     else:
@@ -105,6 +115,8 @@ def prepare_segment(
         data=data_costs(posteriors, geometry.face_weight),
         unit_weights=dihedral_weights(mesh.face_graph, 1.0),
         seconds=time.perf_counter() - start,
+        symmetry=params.symmetry,
+        reflection=reflection,
     )
 
 
@@ -163,7 +175,13 @@ def segment(
         if tree is not None:
             tree = replace(tree, leaf_labels=tree.leaf_labels[distinct.copy_of])
     return SegmentResult(
-        labels, basis.mixture.size, params.effective_smoothing, timings, tree, diagnostics
+        labels,
+        basis.mixture.size,
+        params.effective_smoothing,
+        timings,
+        tree,
+        diagnostics,
+        basis.reflection,
     )
 
 

@@ -148,14 +148,24 @@ def split_faces(
     """``parts`` pieces of one connected face graph with the shortest total boundary
     (METIS on edge lengths, or on ``edge_length`` given per pair), labels 0..parts-1."""
     length = graph.edge_length if edge_length is None else np.asarray(edge_length, float)
+    return split_graph(graph.face_count, graph.pairs, length, parts, seed)
+
+
+def split_graph(
+    node_count: int, pairs: NDArray[Any], length: NDArray[Any], parts: int, seed: int = 0
+) -> NDArray[np.int64]:
+    """``parts`` pieces of a graph given as unique node pairs with a length per pair, with
+    the shortest total boundary (METIS), labels 0..parts-1 (all used)."""
+    length = np.asarray(length, dtype=np.float64)
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     top = float(length.max(initial=0.0))
     weights = (
         np.clip(np.rint(length / top * WEIGHT_RANGE), 1, WEIGHT_RANGE).astype(np.int64)
         if top > 0
         else np.ones(len(length), dtype=np.int64)
     )
-    faces = np.arange(graph.face_count, dtype=np.int64)
-    return _partition_component(faces, graph.pairs, weights, parts, seed)
+    faces = np.arange(node_count, dtype=np.int64)
+    return _partition_component(faces, pairs, weights, parts, seed)
 
 
 def _partition_component(

@@ -77,6 +77,10 @@ class SegmentParams:
             (a small shell with no neighbour joins the nearest part); 0 keeps all.
             ``metis`` parts are never merged (their count is exact).
         refine_depth: how deep ``refine`` may recurse.
+        symmetry: when the mesh has a global reflective symmetry (``segment.symmetry``:
+            a mirror plane pairing at least ``MIN_MATCHED_AREA`` of the surface), each
+            face's ShDF evidence is averaged with its mirror face's before the mixture,
+            so both sides are cut alike; no symmetry found: no change.
         reference_faces: resolution normalisation of the graph cut. CGAL's
             energy counts data per face and smoothness per edge, so a finer
             tessellation of the same shape gets more parts. When set, edge
@@ -96,6 +100,7 @@ class SegmentParams:
     min_part_fraction: float = DEFAULT_MIN_PART_FRACTION
     refine_depth: int = DEFAULT_REFINE_DEPTH
     reference_faces: int | None = None
+    symmetry: bool = False
 
     def __post_init__(self) -> None:
         """Every parameter checked here, once, whoever builds the parameters (CLI, API,
@@ -123,7 +128,7 @@ class SegmentParams:
             )
         if self.parts is not None and (not _is_int(self.parts) or not 1 <= self.parts <= MAX_PARTS):
             raise ParameterError(f"parts must be an integer in 1..{MAX_PARTS}, got {self.parts!r}")
-        for name in ("refine", "boundary_smoothing", "crease_boundaries"):
+        for name in ("refine", "boundary_smoothing", "crease_boundaries", "symmetry"):
             if not isinstance(getattr(self, name), bool | np.bool_):
                 raise ParameterError(f"{name} must be true or false, got {getattr(self, name)!r}")
         check_seed(self.seed)

@@ -113,8 +113,12 @@ def shdf_key(mesh_id: str, method: str, seed: int, model_version: str | None) ->
 
 
 def segment_params_digest(params: SegmentParams) -> str:
-    """Stable hash of the segmentation parameters (a key's parameter part)."""
-    return hashlib.sha256(json.dumps(asdict(params), sort_keys=True).encode()).hexdigest()[:20]
+    """Stable hash of the segmentation parameters (a key's parameter part). ``symmetry``
+    off is left out, so the keys of results made before the option existed still hold."""
+    used = asdict(params)
+    if not used["symmetry"]:
+        del used["symmetry"]
+    return hashlib.sha256(json.dumps(used, sort_keys=True).encode()).hexdigest()[:20]
 
 
 def segmentation_key(mesh_id: str, shdf_version: str, params: SegmentParams) -> str:
@@ -123,10 +127,12 @@ def segmentation_key(mesh_id: str, shdf_version: str, params: SegmentParams) -> 
     return f"{mesh_id}:seg:{__version__}:{shdf_version}:{segment_params_digest(params)}"
 
 
-def segmentation_basis_key(mesh_id: str, shdf_version: str, clusters: int | None, seed: int) -> str:
-    """What a graph-cut segmentation keeps per mesh, ShDF, clusters and seed, so that a
-    new smoothing or part count only re-cuts (process memory only)."""
-    return f"{mesh_id}:basis:{shdf_version}:{clusters}:{seed}"
+def segmentation_basis_key(
+    mesh_id: str, shdf_version: str, clusters: int | None, seed: int, symmetry: bool = False
+) -> str:
+    """What a graph-cut segmentation keeps per mesh, ShDF, clusters, seed and symmetry, so
+    that a new smoothing or part count only re-cuts (process memory only)."""
+    return f"{mesh_id}:basis:{shdf_version}:{clusters}:{seed}" + (":sym" if symmetry else "")
 
 
 def atlas_key(segmentation_key: str, unwrap: UnwrapParams) -> str:

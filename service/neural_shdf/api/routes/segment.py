@@ -64,7 +64,7 @@ async def segment_response(
         mesh = await engine.io(engine.meshes.load, mesh_id)
         shdf = await engine.shdf.get(mesh_id, mesh, method, params.seed)
         tree_of = result
-        result = await engine.run(edited_result, result, mesh, shdf.values, edits)
+        result = await engine.run(edited_result, result, mesh, shdf.values, edits, params.seed)
         timings = {**timings, "total_ms": timings["total_ms"] + _ms_since(start)}
     # Serialising a million labels takes a while: never on the event loop.
     return await engine.io(

@@ -32,7 +32,7 @@ function errorFromBody(status, text) {
   return new ServiceError(status, 'http_error', text ? text.slice(0, 300) : `HTTP ${status}`);
 }
 
-async function checked(response) {
+export async function checked(response) {
   if (!response.ok) throw errorFromBody(response.status, await response.text());
   return response;
 }

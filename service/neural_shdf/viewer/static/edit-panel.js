@@ -1,6 +1,8 @@
-// Part editing controls: grow, shrink, merge and paint the selected part; undo, reset,
-// apply on the server, export. Edits run in the page (editing.js) on the part tree it
-// has, with no request; the document names input faces, as the API's `edits` does.
+// Part editing controls: grow, shrink, merge, paint and split the selected part; undo,
+// reset, apply on the server, export. Edits run in the page (editing.js) on the part tree
+// it has, with no request; the document names input faces, as the API's `edits` does. A
+// split needs the mesh's adjacency and METIS, so a document holding one is applied by the
+// service (each edit then costs a request).
 import * as api from './api.js';
 import { applyEdits, applyLabelEdits } from './editing.js';
 import { leafSums } from './hierarchy.js';
@@ -77,10 +79,27 @@ export function setUpEditing(page) {
     return detail;
   }
 
+  /** Whether only the service can apply `edits` (a split: METIS on the mesh). */
+  const needsService = (edits) => edits.some((operation) => operation.op === 'split');
+
+  /** The document through POST /v1/segment, shown with the service's labels. */
+  async function serviceEdit(edits, face, start) {
+    try {
+      const body = await api.segment({ ...session.base.request, edits }, undefined);
+      session.edits = edits;
+      session.result = null;
+      return show(api.decodeLabels(body), 'service', start, face);
+    } catch (error) {
+      page.showError(error, 'edits on the service');
+      return null;
+    }
+  }
+
   /** Add an operation and show the result; `start`: when the user asked (for timings). */
   async function edit(operation, face, start = performance.now()) {
     if (!session.base) return null;
     const edits = [...session.edits, operation];
+    if (needsService(edits)) return serviceEdit(edits, face, start);
     let result;
     try {
       result = editedLabels(edits);
@@ -95,6 +114,7 @@ export function setUpEditing(page) {
 
   async function replay(start = performance.now()) {
     const face = state.selectedFace;
+    if (needsService(session.edits)) return serviceEdit(session.edits, face, start);
     session.result = session.edits.length ? editedLabels(session.edits) : null;
     const labels = session.result ? session.result.labels : session.base.labels;
     return show(labels, 'page', start, face);
@@ -119,6 +139,7 @@ export function setUpEditing(page) {
     $('edit-shrink').disabled = !selected || !tree;
     $('edit-merge').disabled = !selected;
     $('edit-paint').disabled = !selected;
+    $('edit-split').disabled = !selected;
     for (const id of ['edit-undo', 'edit-reset', 'edit-apply', 'edit-export']) $(id).disabled = session.edits.length === 0;
     if (!selected && session.mode) setMode(session.mode);  // leave the mode
   }
@@ -159,6 +180,7 @@ export function setUpEditing(page) {
 
   $('edit-grow').onclick = () => treeEdit('grow');
   $('edit-shrink').onclick = () => treeEdit('shrink');
+  $('edit-split').onclick = () => split();
   $('edit-merge').onclick = () => setMode('merge');
   $('edit-paint').onclick = () => setMode('paint');
   $('edit-undo').onclick = () => { session.edits = session.edits.slice(0, -1); replay(); };
@@ -171,6 +193,14 @@ export function setUpEditing(page) {
     link.click();
   };
   $('edit-apply').onclick = () => applyOnServer();
+
+  /** Cut the selected part in two (a METIS bisection, by the service). */
+  function split() {
+    const face = partFace(true);
+    if (face < 0) return null;
+    state.selectedFace = face;
+    return edit({ op: 'split', face }, face);
+  }
 
   /** The same document through POST /v1/segment: the service's labels on screen. */
   async function applyOnServer() {
@@ -213,6 +243,7 @@ export function setUpEditing(page) {
     grow: () => treeEdit('grow'),
     reset: () => { session.edits = []; return replay(); },
     shrink: () => treeEdit('shrink'),
+    split,
     edit,
     document: editDocument,
     applyOnServer,

@@ -3,6 +3,7 @@ import * as api from './api.js';
 import { setUpEditing } from './edit-panel.js';
 import { faceParts, leafParts, leafSums, partSums } from './hierarchy.js';
 import { MeshView, heatGradient, parseHex } from './scene.js';
+import { setUpUnwrap } from './unwrap-panel.js';
 
 const config = JSON.parse(document.getElementById('viewer-config').textContent);
 const UNLABELED = parseHex(config.unlabeledColor);
@@ -183,6 +184,7 @@ function controlValues() {
     refine: $('refine').checked,
     boundary_smoothing: $('boundary-smoothing').checked,
     crease_boundaries: $('crease-boundaries').checked,
+    symmetry: $('symmetry').checked,
   };
 }
 
@@ -362,7 +364,7 @@ function applySegmentation(body, request, labels = null, edited = false) {
   updateVisibility();
   paint();
   renderPartsPanel();
-  for (const id of ['download-seg', 'download-json', 'download-colored', 'download-parts']) $(id).disabled = false;
+  for (const id of ['download-seg', 'download-json', 'download-colored', 'download-parts', 'unwrap-open']) $(id).disabled = false;
   if (!edited) editing.segmented(body, request, labels);
 }
 
@@ -725,6 +727,11 @@ const editing = setUpEditing({
   show: (body, request, labels) => applySegmentation(body, request, labels, true),
 });
 window.shdfViewer.editing = editing;
+window.shdfViewer.unwrap = setUpUnwrap({
+  state, showError,
+  save: (blob, suffix) => saveBlob(blob, `${stem()}${suffix}`),
+  editCount: () => editing.document().length,
+});
 setUpControls();
 setUpFileInput();
 setUpPicking();

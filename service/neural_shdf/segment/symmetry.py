@@ -1,0 +1,191 @@
+"""A global reflective symmetry of a mesh, and ShDF values made to agree across it.
+
+``detect_reflection`` tries the planes through the area-weighted centroid normal to each
+principal axis, refines each from the face pairs it matches (reflected centroid onto the
+nearest face centroid, with a mirrored normal), and keeps the plane that pairs the largest
+share of the surface, when that share reaches ``MIN_MATCHED_AREA``. The test is geometric
+only: the ShDF of a solid is a function of its shape, so a mirror-symmetric surface has a
+mirror-symmetric ShDF, up to the estimator's noise (rays, samples, the network), which
+is what averaging takes out; a per-face ShDF test would refuse exactly the faces where
+that noise is large.
+``symmetrize`` averages per-face values with the mirror face's, so the mixture, the graph
+cut's data costs and the part tree's merge costs see the same evidence on both sides: a
+symmetric shape is cut alike on both sides (the smoothness term is geometric, so it is
+symmetric up to the tessellation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+#: Share of the surface area a plane must pair with mirror faces to count as a symmetry.
+MIN_MATCHED_AREA = 0.9
+#: A reflected centroid pairs with a face closer than this fraction of the bounding box's
+#: diagonal (or 1.5 times the median face's side, on a coarse mesh).
+MATCH_DISTANCE = 0.015
+#: ... whose normal is within about 60 degrees of the reflected normal.
+MIN_NORMAL_COSINE = 0.5
+#: Refinements of each candidate plane from the pairs it matches.
+REFINEMENTS = 3
+#: Faces the candidate planes are tried on (a regular sample of larger meshes).
+SAMPLE_FACES = 4000
+
+
+@dataclass(frozen=True)
+class Reflection:
+    """A mirror plane ``{x : normal . x = offset}`` and each face's mirror face.
+
+    Attributes:
+        normal: (3,) unit normal of the plane.
+        offset: the plane's distance from the origin along ``normal``.
+        mirror: (F,) the face nearest each face's reflection (with a mirrored normal),
+            -1 where none is near enough.
+        matched_area: share of the surface area with a mirror face.
+    """
+
+    normal: NDArray[np.float64]
+    offset: float
+    mirror: NDArray[np.int64]
+    matched_area: float
+
+
+def _reflect(points: NDArray, normal: NDArray, offset: float) -> NDArray[np.float64]:
+    return points - 2.0 * (points @ normal - offset)[:, None] * normal
+
+
+def _pairs(
+    tree: cKDTree,
+    centroids: NDArray,
+    normals: NDArray,
+    normal: NDArray,
+    offset: float,
+    distance: float,
+    faces: NDArray[np.int64],
+) -> NDArray[np.int64]:
+    """The mirror face of each of ``faces`` for this plane (-1: none within the limits)."""
+    # Bounded: a point with no face within ``distance`` is answered at once (n: none).
+    found_distance, found = tree.query(
+        _reflect(centroids[faces], normal, offset), k=1, distance_upper_bound=distance
+    )
+    found = np.minimum(np.asarray(found, dtype=np.int64), len(centroids) - 1)
+    own = normals[faces]
+    mirrored = own - 2.0 * (own @ normal)[:, None] * normal
+    ok = (found_distance <= distance) & (
+        np.sum(mirrored * normals[found], axis=1) >= MIN_NORMAL_COSINE
+    )
+    return np.where(ok, found, -1)
+
+
+def _refit(
+    centroids: NDArray, areas: NDArray, faces: NDArray, mirror: NDArray, normal: NDArray
+) -> tuple[NDArray[np.float64], float] | None:
+    """The plane that best bisects the matched pairs of ``faces`` (None: too few)."""
+    matched = mirror >= 0
+    if matched.sum() < 3:
+        return None
+    paired, mirror = faces[matched], mirror[matched]
+    gap = centroids[paired] - centroids[mirror]
+    sign = np.sign(gap @ normal)
+    direction = ((gap * sign[:, None]) * areas[paired, None]).sum(axis=0)
+    length = float(np.linalg.norm(direction))
+    if length == 0.0:
+        return None
+    fitted = direction / length
+    middle = 0.5 * (centroids[paired] + centroids[mirror])
+    offset = float(np.average(middle @ fitted, weights=areas[paired]))
+    return fitted, offset
+
+
+def detect_reflection(centroids: NDArray, normals: NDArray, areas: NDArray) -> Reflection | None:
+    """The mesh's global reflective symmetry, or None when no plane pairs at least
+    ``MIN_MATCHED_AREA`` of the surface. Per-face ``centroids``, unit ``normals`` and
+    ``areas``. Deterministic."""
+    centroids = np.asarray(centroids, dtype=np.float64)
+    normals = np.asarray(normals, dtype=np.float64)
+    areas = np.asarray(areas, dtype=np.float64)
+    total = float(areas.sum())
+    if len(areas) < 4 or total <= 0:
+        return None
+    weights = areas / total
+    centre = weights @ centroids
+    spread = (centroids - centre) * np.sqrt(weights)[:, None]
+    _, axes = np.linalg.eigh(spread.T @ spread)
+    diagonal = float(np.linalg.norm(centroids.max(axis=0) - centroids.min(axis=0)))
+    distance = max(MATCH_DISTANCE * diagonal, 1.5 * float(np.sqrt(2.0 * np.median(areas))))
+    tree = cKDTree(centroids)
+    # The planes are found on a sample of the faces (every n-th: deterministic), the
+    # mirror of every face only for the best one.
+    sample = np.arange(0, len(areas), max(1, len(areas) // SAMPLE_FACES), dtype=np.int64)
+    sample_area = float(areas[sample].sum())
+    best: tuple[float, NDArray[np.float64], float] | None = None
+    for axis in range(3):
+        normal = axes[:, axis] / np.linalg.norm(axes[:, axis])
+        offset = float(normal @ centre)
+        for round_ in range(REFINEMENTS + 1):
+            # Looser pairs first, while the plane is still the principal axes' guess.
+            limit = distance * (3.0 if round_ == 0 else 1.0)
+            mirror = _pairs(tree, centroids, normals, normal, offset, limit, sample)
+            if round_ == REFINEMENTS:
+                break
+            fitted = _refit(centroids, areas, sample, mirror, normal)
+            if fitted is None:
+                break
+            normal, offset = fitted
+        matched = float(areas[sample[mirror >= 0]].sum() / sample_area)
+        if best is None or matched > best[0]:
+            best = (matched, normal, offset)
+    if best is None or best[0] < MIN_MATCHED_AREA:
+        return None
+    _, normal, offset = best
+    everyone = np.arange(len(areas), dtype=np.int64)
+    mirror = _pairs(tree, centroids, normals, normal, offset, distance, everyone)
+    matched = float(areas[mirror >= 0].sum() / total)
+    if matched < MIN_MATCHED_AREA:
+        return None
+    return Reflection(normal, offset, mirror, matched)
+
+
+def symmetrize(values: NDArray, mirror: NDArray) -> NDArray[np.float64]:
+    """Per-face ``values`` averaged with their mirror face's (unchanged where -1)."""
+    values = np.asarray(values, dtype=np.float64)
+    mirror = np.asarray(mirror, dtype=np.int64)
+    paired = mirror >= 0
+    out = values.copy()
+    out[paired] = 0.5 * (values[paired] + values[mirror[paired]])
+    return out
+
+
+def mirror_agreement(labels: NDArray, mirror: NDArray, areas: NDArray) -> float:
+    """How alike the two sides are cut: the area-weighted Rand index between the labels and
+    the labels of the mirror faces, over the faces that have one. 1: the mirror image of
+    the segmentation is the segmentation itself (a left part mirrors a right part, whatever
+    their labels); lower: parts cut differently on the two sides. NaN: no face has a mirror.
+    """
+    labels = np.asarray(labels, dtype=np.int64)
+    mirror = np.asarray(mirror, dtype=np.int64)
+    paired = np.flatnonzero(mirror >= 0)
+    if len(paired) == 0:
+        return float("nan")
+    own, other = labels[paired], labels[mirror[paired]]
+    weight = np.asarray(areas, dtype=np.float64)[paired]
+    total = float(weight.sum())
+    _, own = np.unique(own, return_inverse=True)
+    _, other = np.unique(other, return_inverse=True)
+    joint = np.bincount(own * (other.max() + 1) + other, weights=weight)
+    rows = np.bincount(own, weights=weight)
+    cols = np.bincount(other, weights=weight)
+    disagree = (rows**2).sum() + (cols**2).sum() - 2.0 * (joint**2).sum()
+    return float(1.0 - disagree / total**2)
+
+
+__all__ = [
+    "MIN_MATCHED_AREA",
+    "Reflection",
+    "detect_reflection",
+    "mirror_agreement",
+    "symmetrize",
+]

@@ -19,6 +19,9 @@ GOLDEN = {
     1: "5ee33c7d099cd0d92512580967e781745716be427f636ccacadcf67d5ec44fe9",
     # The ray cone turns with each triangle; segmentation grids along the mesh's axes.
     2: "3091e815157e21cac5ad8de2257dee47ee4e677d537cea33a4907df064a30d0c",
+    # The graph cut normalised for resolution (reference_faces 40k), tree concavity
+    # measured against the mesh's mean bending.
+    3: "8734aaa5dd9a1c6cf4fd4d502ff19d318576fd5b9b88d08cb2c4500683cce633",
 }
 
 

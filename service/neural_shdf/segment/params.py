@@ -40,6 +40,13 @@ DEFAULT_MIN_PART_FRACTION = 0.002
 #: lowers the cut discrepancy on psb-dev, held-out models included, and leaves the human
 #: body set unchanged (``benchmarks/bench_psb.py``, ``bench_human_seg.py``).
 DEFAULT_CREASE_BOUNDARIES = True
+#: Default resolution normalisation of the graph cut (``SegmentParams.reference_faces``):
+#: its energy weighs each face by its share of the surface and each cut edge by its length
+#: against the mean edge, so without it a finer tessellation of the same shape cuts into
+#: more, smaller parts (a psb-dev mesh Loop-subdivided x64 had twice the leaves). The value
+#: scored best on the psb-dev tuning models (20k and 40k tie; 10k, 60k-140k worse:
+#: ``benchmarks/bench_psb.py``); meshes below it are smoothed less than CGAL's energy would.
+DEFAULT_REFERENCE_FACES = 40_000
 #: How many times refinement may re-segment a part of a part.
 DEFAULT_REFINE_DEPTH = 2
 
@@ -79,10 +86,10 @@ class SegmentParams:
         refine_depth: how deep ``refine`` may recurse.
         reference_faces: resolution normalisation of the graph cut. CGAL's
             energy counts data per face and smoothness per edge, so a finer
-            tessellation of the same shape gets more parts. When set, edge
-            weights are scaled by ``sqrt(faces / reference_faces)``, so any
-            tessellation segments like one with ``reference_faces`` faces
-            (e.g. 10000). None: CGAL's behaviour.
+            tessellation of the same shape gets more parts. Edge weights are
+            scaled by ``sqrt(faces / reference_faces)``, so any tessellation
+            segments like one with ``reference_faces`` faces (default
+            ``DEFAULT_REFERENCE_FACES``). None: CGAL's behaviour (no scaling).
     """
 
     partitioner: Partitioner = "graphcut"
@@ -95,7 +102,7 @@ class SegmentParams:
     seed: int = 0
     min_part_fraction: float = DEFAULT_MIN_PART_FRACTION
     refine_depth: int = DEFAULT_REFINE_DEPTH
-    reference_faces: int | None = None
+    reference_faces: int | None = DEFAULT_REFERENCE_FACES
 
     def __post_init__(self) -> None:
         """Every parameter checked here, once, whoever builds the parameters (CLI, API,

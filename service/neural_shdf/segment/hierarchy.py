@@ -61,7 +61,7 @@ CONCAVITY_WEIGHT = 8.0
 #: pi. A finer tessellation of a smooth shape spreads a crease over more edges, each
 #: folding less (a Loop pass halves the angles, and the mean bending with them), so raw
 #: angles lost the crease at 1M faces. psb-dev meshes bend 0.045-0.18 per edge.
-REFERENCE_BENDING = 0.1
+REFERENCE_BENDING = 0.07
 #: Smallest neck ratio (a shell with no shared boundary counts as this narrow).
 NECK_FLOOR = 0.05
 
@@ -225,7 +225,7 @@ def merge_tree(
     lengths = graph.edge_length[cut]
     boundary = np.bincount(inverse, weights=lengths, minlength=len(keys))
     depth = np.where(graph.concave[cut], graph.dihedral[cut] / np.pi, 0.0)
-    depth = np.minimum(depth * (REFERENCE_BENDING / mean_bending(graph)), 1.0)
+    depth = np.minimum(depth * max(1.0, REFERENCE_BENDING / mean_bending(graph)), 1.0)
     concave = np.bincount(inverse, weights=lengths * depth, minlength=len(keys))
 
     node_count = 2 * leaf_count - 1

@@ -46,7 +46,7 @@ DEFAULT_CREASE_BOUNDARIES = True
 #: more, smaller parts (a psb-dev mesh Loop-subdivided x64 had twice the leaves). The value
 #: scored best on the psb-dev tuning models (20k and 40k tie; 10k, 60k-140k worse:
 #: ``benchmarks/bench_psb.py``); meshes below it are smoothed less than CGAL's energy would.
-DEFAULT_REFERENCE_FACES = 40_000
+DEFAULT_REFERENCE_FACES = 60_000
 #: How many times refinement may re-segment a part of a part.
 DEFAULT_REFINE_DEPTH = 2
 
@@ -162,7 +162,7 @@ class SegmentParams:
         smoothing = self.effective_smoothing
         if self.reference_faces is None:
             return smoothing * 1.0
-        return smoothing * np.sqrt(face_count / self.reference_faces)
+        return smoothing * np.sqrt(max(face_count / self.reference_faces, 1.0))
 
     @classmethod
     def from_attributes(cls, source: object) -> SegmentParams:

@@ -42,10 +42,11 @@ DEFAULT_MIN_PART_FRACTION = 0.002
 DEFAULT_CREASE_BOUNDARIES = True
 #: Default resolution normalisation of the graph cut (``SegmentParams.reference_faces``):
 #: its energy weighs each face by its share of the surface and each cut edge by its length
-#: against the mean edge, so without it a finer tessellation of the same shape cuts into
-#: more, smaller parts (a psb-dev mesh Loop-subdivided x64 had twice the leaves). The value
-#: scored best on the psb-dev tuning models (20k and 40k tie; 10k, 60k-140k worse:
-#: ``benchmarks/bench_psb.py``); meshes below it are smoothed less than CGAL's energy would.
+#: against the mean edge, so a finer tessellation of the same shape cuts into more, smaller
+#: parts. Meshes above this many faces are segmented as if they had this many (above every
+#: psb-dev mesh, so those segment as tuned; normalising every mesh to 20k-40k faces scored
+#: better on the psb-dev tuning models but worse on the held-out ones:
+#: ``benchmarks/bench_psb.py``, ``bench_production.py --variants subdivided``).
 DEFAULT_REFERENCE_FACES = 60_000
 #: How many times refinement may re-segment a part of a part.
 DEFAULT_REFINE_DEPTH = 2
@@ -87,9 +88,9 @@ class SegmentParams:
         reference_faces: resolution normalisation of the graph cut. CGAL's
             energy counts data per face and smoothness per edge, so a finer
             tessellation of the same shape gets more parts. Edge weights are
-            scaled by ``sqrt(faces / reference_faces)``, so any tessellation
-            segments like one with ``reference_faces`` faces (default
-            ``DEFAULT_REFERENCE_FACES``). None: CGAL's behaviour (no scaling).
+            scaled by ``sqrt(faces / reference_faces)`` on meshes with more faces, so
+            any finer tessellation segments like one with ``reference_faces`` faces
+            (default ``DEFAULT_REFERENCE_FACES``). None: CGAL's behaviour (no scaling).
     """
 
     partitioner: Partitioner = "graphcut"
@@ -158,7 +159,7 @@ class SegmentParams:
     def smoothing_for(self, face_count: int) -> float:
         """The smoothing lambda the graph cut uses on a mesh of ``face_count`` faces:
         ``effective_smoothing``, times ``sqrt(face_count / reference_faces)`` when
-        ``reference_faces`` is set (resolution normalisation)."""
+        ``reference_faces`` is set and exceeded (resolution normalisation)."""
         smoothing = self.effective_smoothing
         if self.reference_faces is None:
             return smoothing * 1.0

@@ -25,7 +25,7 @@ Default models: the held-out fourth of each category (ids 4, 24, ..., 384), neve
 for tuning. Run it on two checkouts to compare code (``PYTHONPATH=.../service``).
 
     python benchmarks/bench_production.py [--bench-dir DIR] [--models 4 24 ...]
-        [--limit N] [--variants reversed holes ...] [--json out.json]
+        [--limit N] [--variants reversed holes ...] [--json out.json] [--shdf-fidelity]
 """
 
 from __future__ import annotations
@@ -247,6 +247,11 @@ def main() -> int:
     )
     parser.add_argument("--json", type=Path, help="write the per-model scores here")
     parser.add_argument("--verbose", action="store_true", help="a line per model and variant")
+    parser.add_argument(
+        "--shdf-fidelity",
+        action="store_true",
+        help="also the default ShDF against full exact on each variant (Pearson; slow)",
+    )
     args = parser.parse_args()
     if not (args.bench_dir / "off").is_dir():
         print(f"no benchmark folder at {args.bench_dir}", file=sys.stderr)
@@ -263,6 +268,7 @@ def main() -> int:
     # variant -> list of (published 1-RI, CD, variant 1-RI, CD)
     rows: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name in args.variants}
     per_model: list[dict] = []
+    fidelity: dict[str, list[float]] = {name: [] for name in args.variants}
     start = time.perf_counter()
     for model_id in args.models:
         model = models[model_id]
@@ -280,6 +286,11 @@ def main() -> int:
             base = score(v, f, kept, published[kept], humans)
             ours = score(v, f, kept, kept_labels, humans)
             rows[name].append((*base, *ours))
+            if args.shdf_fidelity:
+                auto = compute_shdf(variant.mesh).values
+                exact = compute_shdf(variant.mesh, method="exact").values
+                fidelity[name].append(float(np.corrcoef(auto, exact)[0, 1]))
+                print(f"{model_id:4d} {name:10s} ShDF Pearson {fidelity[name][-1]:.4f}", flush=True)
             per_model.append(
                 {
                     "model": model_id,
@@ -312,6 +323,9 @@ def main() -> int:
             f"{name:10s} {b_ri:15.3f} {v_ri:13.3f} {v_ri - b_ri:+7.3f}"
             f" {b_cd:13.3f} {v_cd:11.3f} {v_cd - b_cd:+7.3f}"
         )
+    for name, values in fidelity.items():
+        if values:
+            print(f"{name:10s} default ShDF vs exact, median Pearson {np.median(values):.4f}")
     if args.json:
         args.json.write_text(json.dumps(per_model, indent=1))
     return 0

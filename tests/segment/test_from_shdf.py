@@ -12,7 +12,7 @@ from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import compute_shdf
 from neural_shdf.segment.basis import SegmentBasis
 from neural_shdf.segment.from_shdf import SegmentResult, prepare_segment, segment
-from neural_shdf.segment.params import AUTO_CLUSTERS, SegmentParams
+from neural_shdf.segment.params import AUTO_CLUSTERS, DEFAULT_REFERENCE_FACES, SegmentParams
 from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
 
 
@@ -111,6 +111,15 @@ def test_reference_faces_make_part_counts_independent_of_tessellation():
         params = SegmentParams(clusters=AUTO_CLUSTERS, smoothing=0.26, reference_faces=3000)
         counts.append(labels_of(vertices, faces, shdf, params).max() + 1)
     assert counts == [3, 3]
+
+
+def test_the_default_graph_cut_is_normalised_for_resolution():
+    params = SegmentParams()
+    assert params.reference_faces == DEFAULT_REFERENCE_FACES
+    assert params.smoothing_for(4 * DEFAULT_REFERENCE_FACES) == pytest.approx(
+        2 * params.effective_smoothing
+    )
+    assert SegmentParams(reference_faces=None).smoothing_for(10**6) == params.effective_smoothing
 
 
 def test_graphcut_parts_cut_its_merge_tree(dumbbell_case):

@@ -7,10 +7,12 @@ import pytest
 import trimesh
 
 from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
+from neural_shdf.segment import hierarchy
 from neural_shdf.segment.hierarchy import (
     MergeCost,
     PartTree,
     automatic_part_count,
+    mean_bending,
     merge_tree,
 )
 from neural_shdf.segment.parts import canonical_labels, connected_parts
@@ -113,6 +115,55 @@ def test_deterministic_and_independent_of_leaf_numbering(dumbbell_leaves):
     again = merge_tree(leaves.copy(), graph, areas, values)
     assert np.array_equal(first.merges, again.merges)
     assert np.array_equal(first.costs, again.costs)
+
+
+def loop_subdivided(vertices, faces, passes):
+    """Loop subdivision and the input face of each new face (trimesh writes face i's four
+    children at rows 4i..4i+3)."""
+    fine_vertices, fine_faces = trimesh.remesh.subdivide_loop(vertices, faces, iterations=passes)
+    return fine_vertices, fine_faces, np.arange(len(fine_faces)) // 4**passes
+
+
+def test_mean_bending_follows_the_tessellation_not_the_size():
+    mesh, _ = dumbbell(3000)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    coarse = mean_bending(graph_and_areas(vertices, faces)[0])
+    assert mean_bending(graph_and_areas(1000.0 * vertices + 5.0, faces)[0]) == pytest.approx(coarse)
+    fine_vertices, fine_faces, _ = loop_subdivided(vertices, faces, 2)
+    # Each Loop pass halves the edges, so the angle between neighbours roughly halves
+    # (and the coarse grid's flat quad diagonals, which do not count, now bend a little).
+    assert 3.0 < coarse / mean_bending(graph_and_areas(fine_vertices, fine_faces)[0]) < 6.0
+
+
+def test_a_crease_weighs_more_like_itself_when_finely_tessellated(monkeypatch):
+    mesh, shdf = dumbbell(3000)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    z = mesh.triangles_center[:, 2]
+    regions = np.where(z < -JUNCTION_Z, 0, np.where(z > JUNCTION_Z, 2, 1))
+    values = log_normalize(shdf)
+    graph, areas = graph_and_areas(vertices, faces)
+    fine_vertices, fine_faces, parent = loop_subdivided(vertices, faces, 2)
+    fine_graph, fine_areas = graph_and_areas(fine_vertices, fine_faces)
+
+    def cost_ratio() -> np.ndarray:
+        coarse = merge_tree(regions, graph, areas, values).costs
+        return merge_tree(regions[parent], fine_graph, fine_areas, values[parent]).costs / coarse
+
+    scaled = cost_ratio()
+    monkeypatch.setattr(hierarchy, "REFERENCE_BENDING", 0.0)  # raw angles, as before
+    raw = cost_ratio()
+    # The fine mesh's rounded creases fold little per edge: raw angles lose most of the
+    # concavity term; scaled by the mesh's bending, the costs come closer to the coarse.
+    assert np.all(raw < 0.7)
+    assert np.all(np.abs(np.log(scaled)) < np.abs(np.log(raw)) - 0.2)
+
+
+def test_midpoint_subdivision_keeps_the_mean_bending():
+    mesh, _ = dumbbell(3000)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    fine_vertices, fine_faces = trimesh.remesh.subdivide(vertices, faces)
+    coarse = mean_bending(graph_and_areas(vertices, faces)[0])
+    assert mean_bending(graph_and_areas(fine_vertices, fine_faces)[0]) == pytest.approx(coarse)
 
 
 def test_cost_prefers_small_similar_parts_across_flat_wide_boundaries():

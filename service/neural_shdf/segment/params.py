@@ -40,6 +40,14 @@ DEFAULT_MIN_PART_FRACTION = 0.002
 #: lowers the cut discrepancy on psb-dev, held-out models included, and leaves the human
 #: body set unchanged (``benchmarks/bench_psb.py``, ``bench_human_seg.py``).
 DEFAULT_CREASE_BOUNDARIES = True
+#: Default resolution normalisation of the graph cut (``SegmentParams.reference_faces``):
+#: its energy weighs each face by its share of the surface and each cut edge by its length
+#: against the mean edge, so a finer tessellation of the same shape cuts into more, smaller
+#: parts. Meshes above this many faces are segmented as if they had this many (above every
+#: psb-dev mesh, so those segment as tuned; normalising every mesh to 20k-40k faces scored
+#: better on the psb-dev tuning models but worse on the held-out ones:
+#: ``benchmarks/bench_psb.py``, ``bench_production.py --variants subdivided``).
+DEFAULT_REFERENCE_FACES = 60_000
 #: How many times refinement may re-segment a part of a part.
 DEFAULT_REFINE_DEPTH = 2
 
@@ -83,10 +91,10 @@ class SegmentParams:
             so both sides are cut alike; no symmetry found: no change.
         reference_faces: resolution normalisation of the graph cut. CGAL's
             energy counts data per face and smoothness per edge, so a finer
-            tessellation of the same shape gets more parts. When set, edge
-            weights are scaled by ``sqrt(faces / reference_faces)``, so any
-            tessellation segments like one with ``reference_faces`` faces
-            (e.g. 10000). None: CGAL's behaviour.
+            tessellation of the same shape gets more parts. Edge weights are
+            scaled by ``sqrt(faces / reference_faces)`` on meshes with more faces, so
+            any finer tessellation segments like one with ``reference_faces`` faces
+            (default ``DEFAULT_REFERENCE_FACES``). None: CGAL's behaviour (no scaling).
     """
 
     partitioner: Partitioner = "graphcut"
@@ -99,7 +107,7 @@ class SegmentParams:
     seed: int = 0
     min_part_fraction: float = DEFAULT_MIN_PART_FRACTION
     refine_depth: int = DEFAULT_REFINE_DEPTH
-    reference_faces: int | None = None
+    reference_faces: int | None = DEFAULT_REFERENCE_FACES
     symmetry: bool = False
 
     def __post_init__(self) -> None:
@@ -156,11 +164,11 @@ class SegmentParams:
     def smoothing_for(self, face_count: int) -> float:
         """The smoothing lambda the graph cut uses on a mesh of ``face_count`` faces:
         ``effective_smoothing``, times ``sqrt(face_count / reference_faces)`` when
-        ``reference_faces`` is set (resolution normalisation)."""
+        ``reference_faces`` is set and exceeded (resolution normalisation)."""
         smoothing = self.effective_smoothing
         if self.reference_faces is None:
             return smoothing * 1.0
-        scaled: float = smoothing * np.sqrt(face_count / self.reference_faces)
+        scaled: float = smoothing * np.sqrt(max(face_count / self.reference_faces, 1.0))
         return scaled
 
     @classmethod

@@ -20,6 +20,7 @@ from neural_shdf.geometry import (
 from neural_shdf.orientation import Orientation, orient_faces, reversed_slots
 from neural_shdf.orientation import welded_edges as sorted_welded_edges
 from neural_shdf.segment.creases import CreaseGraph, crease_graph
+from neural_shdf.stitching import stitch_shells
 
 
 @dataclass(frozen=True, eq=False)
@@ -100,29 +101,48 @@ class TriangleMesh:
         return normals, areas
 
     @cached_property
+    def coincident_welding(
+        self,
+    ) -> tuple[NDArray[np.int64], tuple[NDArray[np.int64], NDArray[np.int64]]]:
+        """``faces`` with coincident vertices sharing one index (``geometry.weld_faces``) and
+        their sorted edges (``orientation.welded_edges``): what the orientation pass works on."""
+        coincident = weld_faces(self.vertices, self.faces)
+        coincident.flags.writeable = False
+        return coincident, sorted_welded_edges(coincident)
+
+    @cached_property
     def welded_faces(self) -> NDArray[np.int64]:
-        """``faces`` with coincident vertices sharing one index (``geometry.weld_faces``),
-        computed once per mesh: the adjacency every graph of the mesh uses."""
-        welded = weld_faces(self.vertices, self.faces)
-        welded.flags.writeable = False
+        """``coincident_welding`` with the open boundaries of separate shells that meet
+        stitched together (``stitching.stitch_shells``), computed once per mesh: the
+        adjacency of the face and crease graphs and of the hole caps. The same array as
+        ``coincident_welding``'s where nothing is stitched."""
+        coincident, edges = self.coincident_welding
+        welded = stitch_shells(self.vertices, coincident, edges)
+        if welded is not coincident:
+            edges = sorted_welded_edges(welded)
+            welded.flags.writeable = False
+        self.__dict__.setdefault("welded_edges", edges)
         return welded
 
     @cached_property
     def welded_edges(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """The edges of ``welded_faces`` sorted by vertex pair (``orientation.welded_edges``),
-        computed once per mesh for the orientation pass and the face graph."""
-        return sorted_welded_edges(self.welded_faces)
+        computed once per mesh for the face graph and the hole caps."""
+        welded = self.welded_faces  # seeds the edges it sorted on the way
+        seeded = self.__dict__.get("welded_edges")
+        return seeded if seeded is not None else sorted_welded_edges(welded)
 
     @cached_property
     def orientation(self) -> Orientation:
         """Which triangles to reverse so that every shell faces out of its solid, and what
         the pass found in the mesh (``orientation.orient_faces``); computed once per mesh."""
+        coincident, edges = self.coincident_welding
         return orient_faces(
             self.vertices,
             self.faces,
-            welded=self.welded_faces,
+            welded=coincident,
             areas=self.normals_and_areas[1],
-            edges=self.welded_edges,
+            edges=edges,
         )
 
     @cached_property

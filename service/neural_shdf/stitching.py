@@ -1,0 +1,153 @@
+"""Proximity stitching: open shells that meet along a cut become one surface for the graphs.
+
+A kitbashed or CAD assembly, or an export that splits a surface into pieces, gives open
+shells whose boundaries run along each other, a little apart (each piece moved, rounded
+or re-tessellated). Left apart, each piece is a solid of its own for the orientation
+pass, each boundary loop gets a cap for the ShDF's rays (a lid through the middle of a
+limb), and the segmentation's graph has no edge between the pieces.
+
+``stitch_shells`` joins, for the graphs only (never the output), boundary vertices of
+different shells that are each other's nearest boundary vertex of another shell and lie
+within ``STITCH_TOLERANCE`` times their local boundary edge length (the mean length of
+the boundary edges at the two vertices). What is stitched and what is not:
+
+* only vertices on open boundaries (an edge of one triangle), and only between
+  different shells (pieces connected through shared vertices): a hole in one piece, a
+  closed shell (eyes in a head, a bolt in a plate) and anything farther apart than the
+  tolerance stay as they are;
+* pairs are mutual nearest neighbours, so each vertex joins at most one other and no
+  triangle collapses; a boundary edge whose two ends join the two ends of another
+  shell's boundary edge becomes an ordinary edge between the two pieces;
+* meshes with no open boundary, or a single shell, are returned unchanged (the same array).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+#: Boundary vertices of different shells closer than this many local boundary edge
+#: lengths (their boundary edges' mean length) are stitched.
+STITCH_TOLERANCE = 3.0
+#: Nearest boundary vertices looked at per boundary vertex for one of another shell.
+_NEIGHBOURS = 16
+#: Rounds of mutual-nearest pairing, each among the vertices not yet paired.
+_ROUNDS = 1
+#: Passes that undo stitches which fold the surface, each followed by stitching again.
+_UNDO_PASSES = 2
+
+
+def boundary_edges(
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]], vertex_count: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(lo, hi) vertex indices of the edges of only one triangle, from ``welded_edges``."""
+    keys = edges[0][:, 0]
+    alone = np.ones(len(keys), dtype=bool)
+    if len(keys) > 1:
+        repeated = keys[1:] == keys[:-1]
+        alone[1:] &= ~repeated
+        alone[:-1] &= ~repeated
+    boundary = keys[alone]
+    return boundary // vertex_count, boundary % vertex_count
+
+
+def stitch_shells(
+    vertices: NDArray[Any],
+    welded: NDArray[Any],
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]],
+    tolerance: float = STITCH_TOLERANCE,
+) -> NDArray[np.int64]:
+    """``welded`` with the boundary vertices of different shells that meet sharing one index.
+
+    ``welded``: triangles with coincident vertices welded (``geometry.weld_faces``);
+    ``edges``: their ``orientation.welded_edges``. Returns ``welded`` itself where nothing
+    is stitched. Each stitched pair takes the lower of its two indices.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    welded = np.asarray(welded, dtype=np.int64).reshape(-1, 3)
+    if len(welded) == 0:
+        return welded
+    vertex_count = int(welded.max()) + 1
+    lo, hi = boundary_edges(edges, vertex_count)
+    if len(lo) == 0:
+        return welded
+    # Shells: vertices connected through triangle edges.
+    rows = welded.reshape(-1)
+    cols = welded[:, [1, 2, 0]].reshape(-1)
+    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), (vertex_count,) * 2)
+    _, shell = connected_components(graph, directed=False)
+    on_boundary, local = np.unique(np.concatenate([lo, hi]), return_inverse=True)
+    boundary_shell = shell[on_boundary]
+    if np.all(boundary_shell == boundary_shell[0]):
+        return welded
+    points = np.asarray(vertices, dtype=np.float64)[on_boundary]
+    ends = local.reshape(2, -1)
+    length = np.linalg.norm(points[ends[0]] - points[ends[1]], axis=1)
+    incident = np.bincount(ends.reshape(-1), minlength=len(on_boundary))
+    scale = np.bincount(ends.reshape(-1), np.tile(length, 2), len(on_boundary)) / incident
+    partner = np.full(len(points), -1, dtype=np.int64)
+    for _ in range(_ROUNDS):
+        free = np.flatnonzero(partner < 0)
+        pairs = _mutual_nearest(points[free], boundary_shell[free], scale[free], tolerance)
+        if len(pairs) == 0:
+            break
+        partner[free[pairs[:, 0]]] = free[pairs[:, 1]]
+        partner[free[pairs[:, 1]]] = free[pairs[:, 0]]
+    stitched = welded
+    for _ in range(_UNDO_PASSES + 1):
+        joined = np.flatnonzero(partner >= 0)
+        if len(joined) == 0:
+            return welded
+        representative = np.arange(vertex_count, dtype=np.int64)
+        a, b = on_boundary[joined], on_boundary[partner[joined]]
+        representative[np.maximum(a, b)] = np.minimum(a, b)
+        stitched = representative[welded]
+        # A stitch that puts an edge on three triangles or more folds the surface (the
+        # pair did not run along each other): undo the stitches at the fold's ends.
+        folded = _edges_on_many(stitched, vertex_count)
+        undo = np.isin(representative[on_boundary], folded) & (partner >= 0)
+        if not undo.any():
+            break
+        partner[partner[undo]] = -1
+        partner[undo] = -1
+    return stitched
+
+
+def _edges_on_many(faces: NDArray[np.int64], vertex_count: int) -> NDArray[np.int64]:
+    """Vertices of the edges that three triangles or more share."""
+    keys = np.sort(
+        np.sort(np.stack([faces, faces[:, [1, 2, 0]]], axis=2), axis=2)
+        @ np.array([vertex_count, 1], dtype=np.int64),
+        axis=None,
+    )
+    many = keys[2:][keys[2:] == keys[:-2]]
+    return np.unique(np.concatenate([many // vertex_count, many % vertex_count]))
+
+
+def _mutual_nearest(
+    points: NDArray[np.float64], shell: NDArray[Any], scale: NDArray[np.float64], tolerance: float
+) -> NDArray[np.int64]:
+    """(P, 2) pairs of points of different shells, each the other's nearest such point
+    within ``tolerance`` times their mean ``scale``."""
+    from scipy.spatial import cKDTree
+
+    if len(points) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    reach = tolerance * float(scale.max())
+    count = min(_NEIGHBOURS, len(points))
+    distance, neighbour = cKDTree(points).query(points, k=count, distance_upper_bound=reach)
+    distance, neighbour = distance.reshape(len(points), -1), neighbour.reshape(len(points), -1)
+    found = neighbour < len(points)
+    other = np.where(found, neighbour, 0)
+    limit = 0.5 * tolerance * (scale[:, None] + scale[other])
+    candidate = found & (shell[other] != shell[:, None]) & (distance <= limit)
+    # The nearest candidate (query results are sorted by distance), kept where mutual.
+    has = np.flatnonzero(candidate.any(axis=1))
+    best = np.full(len(points), -1, dtype=np.int64)
+    best[has] = other[has, np.argmax(candidate[has], axis=1)]
+    mutual = has[(best[best[has]] == has) & (has < best[has])]
+    return np.stack([mutual, best[mutual]], axis=1)

@@ -68,13 +68,14 @@ def stitch_shells(
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
+    given = welded
     welded = np.asarray(welded, dtype=np.int64).reshape(-1, 3)
     if len(welded) == 0:
-        return welded
+        return given
     vertex_count = int(welded.max()) + 1
     lo, hi = boundary_edges(edges, vertex_count)
     if len(lo) == 0:
-        return welded
+        return given
     # Shells: vertices connected through triangle edges.
     rows = welded.reshape(-1)
     cols = welded[:, [1, 2, 0]].reshape(-1)
@@ -83,7 +84,7 @@ def stitch_shells(
     on_boundary, local = np.unique(np.concatenate([lo, hi]), return_inverse=True)
     boundary_shell = shell[on_boundary]
     if np.all(boundary_shell == boundary_shell[0]):
-        return welded
+        return given
     points = np.asarray(vertices, dtype=np.float64)[on_boundary]
     ends = local.reshape(2, -1)
     length = np.linalg.norm(points[ends[0]] - points[ends[1]], axis=1)
@@ -101,7 +102,7 @@ def stitch_shells(
     for _ in range(_UNDO_PASSES + 1):
         joined = np.flatnonzero(partner >= 0)
         if len(joined) == 0:
-            return welded
+            return given
         representative = np.arange(vertex_count, dtype=np.int64)
         a, b = on_boundary[joined], on_boundary[partner[joined]]
         representative[np.maximum(a, b)] = np.minimum(a, b)

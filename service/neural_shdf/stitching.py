@@ -28,6 +28,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf.compiled import kernel
+from neural_shdf.orientation import _find, _union
+
 #: Boundary vertices of different shells closer than this many local boundary edge
 #: lengths (their boundary edges' mean length) are stitched.
 STITCH_TOLERANCE = 3.0
@@ -65,9 +68,6 @@ def stitch_shells(
     ``edges``: their ``orientation.welded_edges``. Returns ``welded`` itself where nothing
     is stitched. Each stitched pair takes the lower of its two indices.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     given = welded
     welded = np.asarray(welded, dtype=np.int64).reshape(-1, 3)
     if len(welded) == 0:
@@ -76,11 +76,7 @@ def stitch_shells(
     lo, hi = boundary_edges(edges, vertex_count)
     if len(lo) == 0:
         return given
-    # Shells: vertices connected through triangle edges.
-    rows = welded.reshape(-1)
-    cols = welded[:, [1, 2, 0]].reshape(-1)
-    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), (vertex_count,) * 2)
-    _, shell = connected_components(graph, directed=False)
+    shell = _vertex_shells(welded, vertex_count)
     on_boundary, local = np.unique(np.concatenate([lo, hi]), return_inverse=True)
     boundary_shell = shell[on_boundary]
     if np.all(boundary_shell == boundary_shell[0]):
@@ -109,7 +105,10 @@ def stitch_shells(
         stitched = representative[welded]
         # A stitch that puts an edge on three triangles or more folds the surface (the
         # pair did not run along each other): undo the stitches at the fold's ends.
-        folded = _edges_on_many(stitched, vertex_count)
+        touched = np.zeros(vertex_count, dtype=bool)
+        touched[np.minimum(a, b)] = True
+        near = stitched[touched[stitched].any(axis=1)]  # only their edges can have changed
+        folded = _edges_on_many(near, vertex_count)
         undo = np.isin(representative[on_boundary], folded) & (partner >= 0)
         if not undo.any():
             break
@@ -152,3 +151,17 @@ def _mutual_nearest(
     best[has] = other[has, np.argmax(candidate[has], axis=1)]
     mutual = has[(best[best[has]] == has) & (has < best[has])]
     return np.stack([mutual, best[mutual]], axis=1)
+
+
+@kernel
+def _vertex_shells(  # pragma: no cover - numba
+    faces: NDArray[np.int64], vertex_count: int
+) -> NDArray[np.int64]:
+    """Per vertex, the lowest vertex of its shell (vertices connected through triangles)."""
+    parent = np.arange(vertex_count)
+    for face in range(faces.shape[0]):
+        _union(parent, faces[face, 0], faces[face, 1])
+        _union(parent, faces[face, 0], faces[face, 2])
+    for vertex in range(vertex_count):
+        parent[vertex] = _find(parent, vertex)
+    return parent

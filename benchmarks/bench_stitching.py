@@ -2,10 +2,11 @@
 
 Meshes: a dense-dev scan Loop-subdivided past 900k faces (horse_head: 1.0M, open), as
 given and as the ``shells`` variant of ``bench_production.py`` (4 patches made open
-shells, each moved by ``--move`` of the bounding diagonal). Per mesh: seconds of the coincident welding
-and its edge sort (``TriangleMesh.coincident_welding``), of the stitching on top
-(``welded_faces`` and ``welded_edges``: boundary search, shells, KD-tree, the second
-edge sort) and their ratio; and the boundary edges before and after. Best of ``--repeat``.
+shells, each moved by ``--move`` of the bounding diagonal). Per mesh: seconds of the
+coincident welding and its edge sort (``TriangleMesh.coincident_welding``), of the
+stitching on top (``welded_faces`` and ``welded_edges``: boundary search, shells,
+KD-tree, the second edge sort) and their ratio; and the boundary edges before and
+after. Best of ``--repeat``.
 
     python benchmarks/bench_stitching.py [--scan horse_head] [--move 0.01] [--repeat 2]
 """

@@ -36,8 +36,11 @@ from neural_shdf.orientation import _find, _union
 STITCH_TOLERANCE = 3.0
 #: Nearest boundary vertices looked at per boundary vertex for one of another shell.
 _NEIGHBOURS = 16
-#: Rounds of mutual-nearest pairing, each among the vertices not yet paired.
-_ROUNDS = 1
+#: Rounds that match again with each vertex moved by its nearest stitches' offset.
+_GUIDED_ROUNDS = 3
+#: How far (in local boundary edge lengths) a guided pair may lie from where the offset
+#: of the nearest stitches of its shell predicts.
+_GUIDED_SLACK = 1.0
 #: Passes that undo stitches which fold the surface, each followed by stitching again.
 _UNDO_PASSES = 2
 
@@ -87,13 +90,16 @@ def stitch_shells(
     incident = np.bincount(ends.reshape(-1), minlength=len(on_boundary))
     scale = np.bincount(ends.reshape(-1), np.tile(length, 2), len(on_boundary)) / incident
     partner = np.full(len(points), -1, dtype=np.int64)
-    for _ in range(_ROUNDS):
-        free = np.flatnonzero(partner < 0)
-        pairs = _mutual_nearest(points[free], boundary_shell[free], scale[free], tolerance)
-        if len(pairs) == 0:
+    pairs = _mutual_nearest(points, boundary_shell, scale, tolerance)
+    for _ in range(_GUIDED_ROUNDS):
+        partner[:] = -1
+        partner[pairs[:, 0]], partner[pairs[:, 1]] = pairs[:, 1], pairs[:, 0]
+        guided = _guided_pairs(points, boundary_shell, scale, partner)
+        if len(guided) <= len(pairs):
             break
-        partner[free[pairs[:, 0]]] = free[pairs[:, 1]]
-        partner[free[pairs[:, 1]]] = free[pairs[:, 0]]
+        pairs = guided
+    partner[:] = -1
+    partner[pairs[:, 0]], partner[pairs[:, 1]] = pairs[:, 1], pairs[:, 0]
     stitched = welded
     for _ in range(_UNDO_PASSES + 1):
         joined = np.flatnonzero(partner >= 0)
@@ -115,6 +121,45 @@ def stitch_shells(
         partner[partner[undo]] = -1
         partner[undo] = -1
     return stitched
+
+
+def _guided_pairs(
+    points: NDArray[np.float64],
+    shell: NDArray[Any],
+    scale: NDArray[np.float64],
+    partner: NDArray[np.int64],
+) -> NDArray[np.int64]:
+    """(P, 2) pairs matched again, each point moved by the mean offset of the stitches
+    (paired points) nearest to it in its shell, towards their shell: where two pieces were
+    moved apart by about the boundary's spacing or more, nearest points across the gap are
+    often a neighbour of each other's counterpart, and mixing such shifts leaves slits."""
+    from scipy.spatial import cKDTree
+
+    anchors = np.flatnonzero(partner >= 0)
+    if len(anchors) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    count = min(_NEIGHBOURS, len(anchors))
+    _, near = cKDTree(points[anchors]).query(points, k=count)
+    near = anchors[near.reshape(len(points), -1)]
+    # Stitches of the point's own shell that go where its nearest such stitch goes.
+    nearest_own = np.argmax(shell[near] == shell[:, None], axis=1)
+    target = shell[partner[near[np.arange(len(points)), nearest_own]]]
+    same = (shell[near] == shell[:, None]) & (shell[partner[near]] == target[:, None])
+    has = same.any(axis=1)
+    offsets = points[partner[near]] - points[near]
+    weights = same[:, :, None].astype(np.float64)
+    offset = (offsets * weights).sum(axis=1) / np.maximum(weights.sum(axis=1), 1.0)
+    predicted = points + offset
+    count = min(_NEIGHBOURS, len(points))
+    distance, found = cKDTree(points).query(predicted, k=count)
+    distance, found = distance.reshape(len(points), -1), found.reshape(len(points), -1)
+    limit = 0.5 * _GUIDED_SLACK * (scale[:, None] + scale[found])
+    candidate = has[:, None] & (shell[found] == target[:, None]) & (distance <= limit)
+    chosen = np.flatnonzero(candidate.any(axis=1))
+    best = np.full(len(points), -1, dtype=np.int64)
+    best[chosen] = found[chosen, np.argmax(candidate[chosen], axis=1)]
+    mutual = chosen[(best[best[chosen]] == chosen) & (chosen < best[chosen])]
+    return np.stack([mutual, best[mutual]], axis=1)
 
 
 def _edges_on_many(faces: NDArray[np.int64], vertex_count: int) -> NDArray[np.int64]:

@@ -20,7 +20,7 @@ from neural_shdf.geometry import (
 from neural_shdf.orientation import Orientation, orient_faces, reversed_slots
 from neural_shdf.orientation import welded_edges as sorted_welded_edges
 from neural_shdf.segment.creases import CreaseGraph, crease_graph
-from neural_shdf.stitching import stitch_shells
+from neural_shdf.stitching import stitch_shells, stitched_edge_geometry
 
 
 @dataclass(frozen=True, eq=False)
@@ -158,6 +158,12 @@ class TriangleMesh:
         backwards = flips[:, None]
         faces = np.where(backwards, self.faces[:, ::-1], self.faces)
         welded = np.where(backwards, self.welded_faces[:, ::-1], self.welded_faces)
+        coincident, coincident_edges = self.coincident_welding
+        if coincident is self.welded_faces:
+            oriented_coincident = welded
+        else:
+            oriented_coincident = np.where(backwards, coincident[:, ::-1], coincident)
+            oriented_coincident.flags.writeable = False
         oriented = TriangleMesh(self.vertices, faces, self.face_origin, self.input_face_count)
         _, areas = self.normals_and_areas
         normals, _ = face_normals(self.vertices, faces)  # unchanged rows: the same values
@@ -165,10 +171,17 @@ class TriangleMesh:
         welded.flags.writeable = False
         # Seed the caches: the areas, the welding and the edges do not change with the winding.
         edge_table, slot = self.welded_edges
+        oriented_edges = (edge_table, reversed_slots(slot, flips))
+        if oriented_coincident is not welded:
+            coincident_table, coincident_slot = coincident_edges
+            coincident_edges = (coincident_table, reversed_slots(coincident_slot, flips))
+        else:
+            coincident_edges = oriented_edges
         oriented.__dict__.update(
             normals_and_areas=(normals, areas),
+            coincident_welding=(oriented_coincident, coincident_edges),
             welded_faces=welded,
-            welded_edges=(edge_table, reversed_slots(slot, flips)),
+            welded_edges=oriented_edges,
         )
         oriented.__dict__["oriented"] = oriented
         return oriented
@@ -210,7 +223,12 @@ class TriangleMesh:
         if oriented is not self:
             return oriented.face_graph
         normals, _ = self.normals_and_areas
-        return build_face_graph(self.vertices, self.welded_faces, normals, edges=self.welded_edges)
+        welded = self.welded_faces
+        graph = build_face_graph(self.vertices, welded, normals, edges=self.welded_edges)
+        coincident, _ = self.coincident_welding
+        if coincident is welded:
+            return graph
+        return stitched_edge_geometry(graph, self.vertices, self.faces, normals, coincident, welded)
 
     @cached_property
     def centroids(self) -> NDArray[np.float64]:

@@ -23,12 +23,14 @@ the boundary edges at the two vertices). What is stitched and what is not:
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
+from neural_shdf.geometry import FaceGraph
 from neural_shdf.orientation import _find, _union
 
 #: Boundary vertices of different shells closer than this many local boundary edge
@@ -37,7 +39,7 @@ STITCH_TOLERANCE = 3.0
 #: Nearest boundary vertices looked at per boundary vertex for one of another shell.
 _NEIGHBOURS = 16
 #: Rounds that match again with each vertex moved by its nearest stitches' offset.
-_GUIDED_ROUNDS = 3
+_GUIDED_ROUNDS = 8
 #: How far (in local boundary edge lengths) a guided pair may lie from where the offset
 #: of the nearest stitches of its shell predicts.
 _GUIDED_SLACK = 1.0
@@ -210,3 +212,45 @@ def _vertex_shells(  # pragma: no cover - numba
     for vertex in range(vertex_count):
         parent[vertex] = _find(parent, vertex)
     return parent
+
+
+def stitched_edge_geometry(
+    graph: FaceGraph,
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
+    normals: NDArray[Any],
+    coincident: NDArray[Any],
+    welded: NDArray[Any],
+) -> FaceGraph:
+    """``graph`` (built on ``welded``) with the length and concavity of the edges at stitched
+    vertices measured on each triangle's own vertices, as if the pieces were not apart.
+
+    A stitched index stands for two vertices a gap apart, so the length and fold measured
+    at its one position are off by the gap (a crease read as concave is cheap to cut).
+    Each edge's length is that of its first triangle's own edge, and its fold is measured
+    with the second triangle moved so that its copy of the edge meets the first's.
+    ``faces``, ``normals``, ``coincident`` and ``welded``: the triangles ``graph`` was built
+    on (same winding) and their normals, with coincident vertices welded, and stitched too.
+    """
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    welded = np.asarray(welded, dtype=np.int64).reshape(-1, 3)
+    changed = np.asarray(coincident).reshape(-1, 3) != welded
+    if not changed.any() or len(graph.pairs) == 0:
+        return graph
+    vertices = np.asarray(vertices, dtype=np.float64)
+    stitched = np.zeros(int(welded.max()) + 1, dtype=bool)
+    stitched[welded[changed]] = True
+    lo_all, hi_all = graph.edge_vertices[:, 0], graph.edge_vertices[:, 1]
+    at = np.flatnonzero(stitched[lo_all] | stitched[hi_all])
+    a, b = graph.pairs[at, 0], graph.pairs[at, 1]
+    lo, hi = lo_all[at][:, None], hi_all[at][:, None]
+    a_lo, a_hi = np.argmax(welded[a] == lo, axis=1), np.argmax(welded[a] == hi, axis=1)
+    b_lo, b_hi = np.argmax(welded[b] == lo, axis=1), np.argmax(welded[b] == hi, axis=1)
+    first_lo, first_hi = vertices[faces[a, a_lo]], vertices[faces[a, a_hi]]
+    shift = 0.5 * (first_lo - vertices[faces[b, b_lo]] + first_hi - vertices[faces[b, b_hi]])
+    off_edge = vertices[faces[b, (3 - b_lo - b_hi) % 3]] + shift
+    edge_length = graph.edge_length.copy()
+    concave = graph.concave.copy()
+    edge_length[at] = np.linalg.norm(first_lo - first_hi, axis=1)
+    concave[at] = np.einsum("ij,ij->i", off_edge - first_lo, np.asarray(normals)[a]) > 0
+    return replace(graph, edge_length=edge_length, concave=concave)

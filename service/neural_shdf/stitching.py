@@ -254,3 +254,60 @@ def stitched_edge_geometry(
     edge_length[at] = np.linalg.norm(first_lo - first_hi, axis=1)
     concave[at] = np.einsum("ij,ij->i", off_edge - first_lo, np.asarray(normals)[a]) > 0
     return replace(graph, edge_length=edge_length, concave=concave)
+
+
+def bridge_gaps(
+    vertices: NDArray[Any],
+    coincident: NDArray[Any],
+    welded: NDArray[Any],
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]],
+    caps: NDArray[np.int64],
+    tolerance: float = STITCH_TOLERANCE,
+) -> NDArray[np.int64]:
+    """``caps`` (``orientation.hole_caps`` of ``welded``) with the loops left open between
+    stitched shells bridged across instead of fanned to their centroid.
+
+    Where the stitching leaves a slit (pieces moved apart by more than the boundary's
+    spacing do not pair everywhere), the slit's loop runs along both pieces, and a fan to
+    its centroid would be a lid through the solid. Each boundary edge with a boundary
+    vertex of another shell within ``tolerance`` edge lengths gets the triangle from its
+    ends to the nearest such vertex (wound as its cap was); every loop with such an edge
+    is bridged that way only. ``coincident``: the triangles with coincident vertices
+    welded, which say the shells; ``edges``: ``welded``'s ``orientation.welded_edges``.
+    """
+    from scipy.spatial import cKDTree
+
+    caps = np.asarray(caps, dtype=np.int64).reshape(-1, 3)
+    if len(caps) == 0:
+        return caps
+    vertices = np.asarray(vertices, dtype=np.float64)
+    coincident = np.asarray(coincident, dtype=np.int64).reshape(-1, 3)
+    welded = np.asarray(welded, dtype=np.int64).reshape(-1, 3)
+    shell = _vertex_shells(coincident, len(vertices))
+    start, end, loop = caps[:, 0], caps[:, 1], caps[:, 2]
+    # The shell of the triangle on each cap's edge (a stitched index stands for two shells).
+    vertex_count = int(welded.max()) + 1
+    keys = np.minimum(start, end) * vertex_count + np.maximum(start, end)
+    table = edges[0]
+    owner = table[np.searchsorted(table[:, 0], keys), 1]
+    own_shell = shell[coincident[owner, 0]]
+    ends = np.unique(np.concatenate([start, end]))
+    middle = 0.5 * (vertices[start] + vertices[end])
+    length = np.linalg.norm(vertices[start] - vertices[end], axis=1)
+    count = min(_NEIGHBOURS, len(ends))
+    distance, found = cKDTree(vertices[ends]).query(
+        middle, k=count, distance_upper_bound=tolerance * float(length.max())
+    )
+    distance, found = distance.reshape(len(caps), -1), found.reshape(len(caps), -1)
+    inside = found < len(ends)
+    nearest = ends[np.where(inside, found, 0)]
+    candidate = inside & (shell[nearest] != own_shell[:, None])
+    candidate &= distance <= tolerance * length[:, None]
+    candidate &= (nearest != start[:, None]) & (nearest != end[:, None])
+    bridged = candidate.any(axis=1)
+    if not bridged.any():
+        return caps
+    target = nearest[np.arange(len(caps)), np.argmax(candidate, axis=1)]
+    slit = np.isin(loop, loop[bridged])
+    bridges = np.stack([start, end, target], axis=1)[slit & bridged]
+    return np.vstack([caps[~slit], bridges])

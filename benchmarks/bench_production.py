@@ -19,13 +19,14 @@ the same faces. Variants:
   surface: same geometry, no shared vertex across a seam);
 * ``doublesided``: every face twice, the copy reversed (a double-sided card export);
 * ``shells``: 4 patches made separate open shells, each moved by 1% of the diagonal in a
-  random direction, so they overlap and gap (a kitbashed or CAD assembly).
+  random direction, so they overlap and gap (a kitbashed or CAD assembly);
+  ``--shells-move`` moves them by another share of the diagonal.
 
 Default models: the held-out fourth of each category (ids 4, 24, ..., 384), never used
 for tuning. Run it on two checkouts to compare code (``PYTHONPATH=.../service``).
 
     python benchmarks/bench_production.py [--bench-dir DIR] [--models 4 24 ...]
-        [--variants reversed holes ...] [--json out.json]
+        [--variants reversed holes ...] [--shells-move 0.01] [--json out.json]
 """
 
 from __future__ import annotations
@@ -175,12 +176,17 @@ def double_sided(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
     return Variant(v, np.concatenate([f, f[:, ::-1]]), np.tile(np.arange(len(f)), 2))
 
 
+#: How far ``shells`` moves each shell, as a share of the bounding diagonal (``--shells-move``).
+SHELLS_MOVE = 0.01
+
+
 def shells(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
     vertices, faces, vertex_patch = split_vertices(v, f, patches(v, f, 4, rng))
     diagonal = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
     directions = rng.normal(size=(int(vertex_patch.max()) + 1, 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    return Variant(vertices + 0.01 * diagonal * directions[vertex_patch], faces, np.arange(len(f)))
+    moved = vertices + SHELLS_MOVE * diagonal * directions[vertex_patch]
+    return Variant(moved, faces, np.arange(len(f)))
 
 
 VARIANTS: dict[str, Callable[[NDArray, NDArray, np.random.Generator], Variant]] = {
@@ -225,9 +231,17 @@ def main() -> int:
         "--models", type=int, nargs="+", help="model ids (default: the held-out 4th of each)"
     )
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    parser.add_argument(
+        "--shells-move",
+        type=float,
+        default=SHELLS_MOVE,
+        help="how far the shells variant moves each shell, as a share of the diagonal",
+    )
     parser.add_argument("--json", type=Path, help="write the per-model scores here")
     parser.add_argument("--verbose", action="store_true", help="a line per model and variant")
     args = parser.parse_args()
+    global SHELLS_MOVE
+    SHELLS_MOVE = args.shells_move
     if not (args.bench_dir / "off").is_dir():
         print(f"no benchmark folder at {args.bench_dir}", file=sys.stderr)
         return 1

@@ -121,3 +121,27 @@ def test_labels_keep_the_input_face_order_and_parts_cross_the_cut():
     assert labels.shape == (len(faces),)
     # A ball is one part: the cut between the halves is not a part boundary.
     assert len(np.unique(labels)) == 1
+
+
+def test_stitched_edges_have_the_length_and_fold_of_the_uncut_surface():
+    vertices, faces = _sphere()
+    whole = TriangleMesh(vertices, faces).face_graph
+    moved, split, _ = _halves(0.5)
+    graph = TriangleMesh(moved, split).face_graph
+    assert np.array_equal(graph.pairs, whole.pairs)
+    # A sphere is convex everywhere: a fold read across the gap would say concave.
+    assert not graph.concave.any()
+    assert np.allclose(graph.edge_length, whole.edge_length)
+
+
+def test_rays_meet_bridges_across_the_slits_not_a_lid_through_the_middle():
+    from neural_shdf.shdf.stage import ray_targets
+
+    vertices, faces, _ = _halves(1.5)
+    mesh = TriangleMesh(vertices, faces)
+    ray_vertices, targets = ray_targets(mesh, close_holes=True)
+    caps = targets[len(faces) :]
+    assert len(caps) > 0
+    # Every cap lies on the cut (|z| small), none reaches into the ball (a fan's centroid).
+    heights = np.abs(ray_vertices[caps, 2] - 0.5 * (vertices[:, 2].max() + vertices[:, 2].min()))
+    assert heights.max() < 0.2

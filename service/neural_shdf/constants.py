@@ -28,4 +28,4 @@ DEFAULT_MAX_VERTICES = 6_000_000
 #: the code before (the package version alone did not change between such commits). Bump
 #: it whenever a result changes; tests/test_constants.py keeps the golden result of each
 #: version and fails when the result changes under the same version.
-ALGORITHM_VERSION = 3
+ALGORITHM_VERSION = 4

@@ -32,6 +32,7 @@ for tuning. Run it on two checkouts to compare code (``PYTHONPATH=.../service``)
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 import time
@@ -180,12 +181,12 @@ def double_sided(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
 SHELLS_MOVE = 0.01
 
 
-def shells(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+def shells(v: NDArray, f: NDArray, rng: np.random.Generator, move: float = SHELLS_MOVE) -> Variant:
     vertices, faces, vertex_patch = split_vertices(v, f, patches(v, f, 4, rng))
     diagonal = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
     directions = rng.normal(size=(int(vertex_patch.max()) + 1, 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    moved = vertices + SHELLS_MOVE * diagonal * directions[vertex_patch]
+    moved = vertices + move * diagonal * directions[vertex_patch]
     return Variant(moved, faces, np.arange(len(f)))
 
 
@@ -240,8 +241,7 @@ def main() -> int:
     parser.add_argument("--json", type=Path, help="write the per-model scores here")
     parser.add_argument("--verbose", action="store_true", help="a line per model and variant")
     args = parser.parse_args()
-    global SHELLS_MOVE
-    SHELLS_MOVE = args.shells_move
+    VARIANTS["shells"] = functools.partial(shells, move=args.shells_move)
     if not (args.bench_dir / "off").is_dir():
         print(f"no benchmark folder at {args.bench_dir}", file=sys.stderr)
         return 1

@@ -242,7 +242,7 @@ def stitched_edge_geometry(
     stitched[welded[changed]] = True
     lo_all, hi_all = graph.edge_vertices[:, 0], graph.edge_vertices[:, 1]
     # Pairs with a stitched vertex on the edge or off it (the fold is measured there too).
-    touching = stitched[welded].any(axis=1)
+    touching: NDArray[np.bool_] = np.any(stitched[welded], axis=1)
     at = np.flatnonzero(touching[graph.pairs[:, 0]] | touching[graph.pairs[:, 1]])
     a, b = graph.pairs[at, 0], graph.pairs[at, 1]
     lo, hi = lo_all[at][:, None], hi_all[at][:, None]

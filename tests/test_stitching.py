@@ -145,3 +145,15 @@ def test_rays_meet_bridges_across_the_slits_not_a_lid_through_the_middle():
     # Every cap lies on the cut (|z| small), none reaches into the ball (a fan's centroid).
     heights = np.abs(ray_vertices[caps, 2] - 0.5 * (vertices[:, 2].max() + vertices[:, 2].min()))
     assert heights.max() < 0.2
+
+
+def test_a_mostly_open_mesh_of_separate_sheets_is_not_stitched():
+    # Each triangle a sheet of its own, a little apart: nothing to restore, and the work
+    # stays bounded (boundary edges are every edge here).
+    vertices, faces = _sphere()
+    corners = vertices[faces]
+    apart = corners + 0.02 * corners.mean(axis=1, keepdims=True)
+    soup_vertices = apart.reshape(-1, 3)
+    soup_faces = np.arange(len(soup_vertices)).reshape(-1, 3)
+    coincident, stitched = _stitched(soup_vertices, soup_faces)
+    assert stitched is coincident

@@ -18,7 +18,10 @@ the boundary edges at the two vertices). What is stitched and what is not:
 * pairs are mutual nearest neighbours, so each vertex joins at most one other and no
   triangle collapses; a boundary edge whose two ends join the two ends of another
   shell's boundary edge becomes an ordinary edge between the two pieces;
-* meshes with no open boundary, or a single shell, are returned unchanged (the same array).
+* meshes with no open boundary, or a single shell, are returned unchanged (the same array),
+  and so are mostly open ones (boundary edges more than ``MAX_BOUNDARY_SHARE`` of the
+  triangles, as ``orientation.hole_caps``: separate sheets, not a surface cut in pieces),
+  which also bounds the work to a share of the mesh.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
 from neural_shdf.geometry import FaceGraph
-from neural_shdf.orientation import _find, _union
+from neural_shdf.orientation import MAX_BOUNDARY_SHARE, _find, _union
 
 #: Boundary vertices of different shells closer than this many local boundary edge
 #: lengths (their boundary edges' mean length) are stitched.
@@ -79,8 +82,8 @@ def stitch_shells(
         return given
     vertex_count = int(welded.max()) + 1
     lo, hi = boundary_edges(edges, vertex_count)
-    if len(lo) == 0:
-        return given
+    if len(lo) == 0 or len(lo) > MAX_BOUNDARY_SHARE * len(welded):
+        return given  # closed, or mostly open (separate sheets): no surface to restore
     shell = _vertex_shells(welded, vertex_count)
     on_boundary, local = np.unique(np.concatenate([lo, hi]), return_inverse=True)
     boundary_shell = shell[on_boundary]
@@ -148,9 +151,12 @@ def _guided_pairs(
     target = shell[partner[near[np.arange(len(points)), nearest_own]]]
     same = (shell[near] == shell[:, None]) & (shell[partner[near]] == target[:, None])
     has = same.any(axis=1)
-    offsets = points[partner[near]] - points[near]
-    weights = same[:, :, None].astype(np.float64)
-    offset = (offsets * weights).sum(axis=1) / np.maximum(weights.sum(axis=1), 1.0)
+    offset = np.zeros_like(points)
+    for column in range(near.shape[1]):  # a column at a time: no (P, k, 3) array
+        rows = np.flatnonzero(same[:, column])
+        anchor = near[rows, column]
+        offset[rows] += points[partner[anchor]] - points[anchor]
+    offset /= np.maximum(same.sum(axis=1), 1)[:, None]
     predicted = points + offset
     count = min(_NEIGHBOURS, len(points))
     distance, found = cKDTree(points).query(predicted, k=count)

@@ -317,5 +317,17 @@ def bridge_gaps(
         return caps
     target = nearest[np.arange(len(caps)), np.argmax(candidate, axis=1)]
     slit = np.isin(loop, loop[bridged])
+    # The slits' other edges (a piece's own boundary between stitches, farther across than
+    # the tolerance): bridged to the nearest vertex of another shell at any distance, so
+    # that the slit leaves no hole; a fan triangle where none is among the nearest.
+    rest = np.flatnonzero(slit & ~bridged)
+    if len(rest):
+        distance, found = cKDTree(vertices[ends]).query(middle[rest], k=count)
+        far = ends[found.reshape(len(rest), -1)]
+        other = (shell[far] != own_shell[rest, None]) & (far != start[rest, None])
+        other &= far != end[rest, None]
+        reached = other.any(axis=1)
+        target[rest[reached]] = far[reached, np.argmax(other[reached], axis=1)]
+        bridged[rest[reached]] = True
     bridges = np.stack([start, end, target], axis=1)[slit & bridged]
-    return np.vstack([caps[~slit], bridges])
+    return np.vstack([caps[~(slit & bridged)], bridges])

@@ -5,8 +5,9 @@ given and as the ``shells`` variant of ``bench_production.py`` (4 patches made o
 shells, each moved by ``--move`` of the bounding diagonal). Per mesh: seconds of the
 coincident welding and its edge sort (``TriangleMesh.coincident_welding``), of the
 stitching on top (``welded_faces`` and ``welded_edges``: boundary search, shells,
-KD-tree, the second edge sort) and their ratio; and the boundary edges before and
-after. Best of ``--repeat``.
+KD-tree, the second edge sort) and their ratio; the default ShDF (``compute_shdf``,
+``auto``, on a fresh copy: stitching included) and the stitching's share of it; and the
+boundary edges before and after. Best of ``--repeat``.
 
     python benchmarks/bench_stitching.py [--scan horse_head] [--move 0.01] [--repeat 2]
 """
@@ -23,6 +24,7 @@ import trimesh
 
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import load_mesh
+from neural_shdf.pipeline import compute_shdf, warm_up
 from neural_shdf.stitching import boundary_edges
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -45,6 +47,13 @@ def best_seconds(mesh: TriangleMesh, repeat: int) -> tuple[float, float]:
     return min(weld), min(stitch)
 
 
+def _timed_shdf(mesh: TriangleMesh) -> float:
+    fresh = mesh.bare()
+    start = time.perf_counter()
+    compute_shdf(fresh)
+    return time.perf_counter() - start
+
+
 def open_edges(faces: np.ndarray, edges: tuple) -> int:
     return len(boundary_edges(edges, int(faces.max()) + 1)[0])
 
@@ -59,6 +68,7 @@ def main() -> int:
     if path is None:
         print(f"no dense-dev scan matching {args.scan!r} in {DENSE}", file=sys.stderr)
         return 1
+    warm_up()
     scan = load_mesh(path)
     dense = trimesh.Trimesh(scan.vertices, scan.faces, process=False)
     while len(dense.faces) < 900_000:
@@ -72,15 +82,19 @@ def main() -> int:
     shells = vertices + args.move * diagonal * directions[vertex_patch]
     print(f"{path.name}: {len(f)} faces")
     print(
-        f"{'mesh':8s} {'weld s':>7s} {'stitch s':>9s} {'ratio':>6s}"
-        f" {'open before':>12s} {'after':>6s}"
+        f"{'mesh':8s} {'weld s':>7s} {'stitch s':>9s} {'ratio':>6s} {'ShDF s':>7s}"
+        f" {'share':>6s} {'open before':>12s} {'after':>6s}"
     )
     for name, mesh in (("closed", TriangleMesh(v, f)), ("shells", TriangleMesh(shells, faces))):
         weld, stitch = best_seconds(mesh, args.repeat)
         coincident, edges = mesh.coincident_welding
         before = open_edges(coincident, edges)
         after = open_edges(mesh.welded_faces, mesh.welded_edges)
-        print(f"{name:8s} {weld:7.3f} {stitch:9.3f} {stitch / weld:6.2f} {before:12d} {after:6d}")
+        shdf = min(_timed_shdf(mesh) for _ in range(args.repeat))
+        print(
+            f"{name:8s} {weld:7.3f} {stitch:9.3f} {stitch / weld:6.2f} {shdf:7.2f}"
+            f" {stitch / shdf:6.1%} {before:12d} {after:6d}"
+        )
     return 0
 
 

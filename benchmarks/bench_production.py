@@ -20,6 +20,7 @@ the same faces. Variants:
 * ``doublesided``: every face twice, the copy reversed (a double-sided card export);
 * ``shells``: 4 patches made separate open shells, each moved by 1% of the diagonal in a
   random direction, so they overlap and gap (a kitbashed or CAD assembly);
+  ``--shells-move`` moves them by another share of the diagonal;
 * ``subdivided``: Loop-subdivided until it has at least 400k faces (0.4-1.6M: the same
   shape at production resolution); each published face takes the label most of its
   children have (ties: the smallest). Subdivided meshes are cached (``--cache-dir``);
@@ -30,12 +31,14 @@ Default models: the held-out fourth of each category (ids 4, 24, ..., 384), neve
 for tuning. Run it on two checkouts to compare code (``PYTHONPATH=.../service``).
 
     python benchmarks/bench_production.py [--bench-dir DIR] [--models 4 24 ...]
-        [--limit N] [--variants reversed holes ...] [--json out.json] [--shdf-fidelity]
+        [--limit N] [--variants reversed holes ...] [--shells-move 0.01] [--json out.json]
+        [--shdf-fidelity]
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import hashlib
 import json
 import sys
@@ -186,12 +189,17 @@ def double_sided(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
     return Variant(v, np.concatenate([f, f[:, ::-1]]), np.tile(np.arange(len(f)), 2))
 
 
-def shells(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+#: How far ``shells`` moves each shell, as a share of the bounding diagonal (``--shells-move``).
+SHELLS_MOVE = 0.01
+
+
+def shells(v: NDArray, f: NDArray, rng: np.random.Generator, move: float = SHELLS_MOVE) -> Variant:
     vertices, faces, vertex_patch = split_vertices(v, f, patches(v, f, 4, rng))
     diagonal = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
     directions = rng.normal(size=(int(vertex_patch.max()) + 1, 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    return Variant(vertices + 0.01 * diagonal * directions[vertex_patch], faces, np.arange(len(f)))
+    moved = vertices + move * diagonal * directions[vertex_patch]
+    return Variant(moved, faces, np.arange(len(f)))
 
 
 def subdivision_passes(face_count: int) -> int:
@@ -298,6 +306,12 @@ def main() -> int:
     parser.add_argument(
         "--cache-dir", type=Path, default=DEFAULT_CACHE, help="subdivided meshes (reused)"
     )
+    parser.add_argument(
+        "--shells-move",
+        type=float,
+        default=SHELLS_MOVE,
+        help="how far the shells variant moves each shell, as a share of the diagonal",
+    )
     parser.add_argument("--json", type=Path, help="write the per-model scores here")
     parser.add_argument("--verbose", action="store_true", help="a line per model and variant")
     parser.add_argument(
@@ -306,6 +320,7 @@ def main() -> int:
         help="also the default ShDF against full exact on each variant (Pearson; slow)",
     )
     args = parser.parse_args()
+    VARIANTS["shells"] = functools.partial(shells, move=args.shells_move)
     if not (args.bench_dir / "off").is_dir():
         print(f"no benchmark folder at {args.bench_dir}", file=sys.stderr)
         return 1

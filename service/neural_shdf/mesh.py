@@ -21,6 +21,7 @@ from neural_shdf.geometry import (
 from neural_shdf.orientation import Orientation, orient_faces, reversed_slots
 from neural_shdf.orientation import welded_edges as sorted_welded_edges
 from neural_shdf.segment.creases import CreaseGraph, crease_graph
+from neural_shdf.stitching import stitch_shells, stitched_edge_geometry
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,29 +102,48 @@ class TriangleMesh:
         return normals, areas
 
     @cached_property
+    def coincident_welding(
+        self,
+    ) -> tuple[NDArray[np.int64], tuple[NDArray[np.int64], NDArray[np.int64]]]:
+        """``faces`` with coincident vertices sharing one index (``geometry.weld_faces``) and
+        their sorted edges (``orientation.welded_edges``): what the orientation pass works on."""
+        coincident = weld_faces(self.vertices, self.faces)
+        coincident.flags.writeable = False
+        return coincident, sorted_welded_edges(coincident)
+
+    @cached_property
     def welded_faces(self) -> NDArray[np.int64]:
-        """``faces`` with coincident vertices sharing one index (``geometry.weld_faces``),
-        computed once per mesh: the adjacency every graph of the mesh uses."""
-        welded = weld_faces(self.vertices, self.faces)
-        welded.flags.writeable = False
+        """``coincident_welding`` with the open boundaries of separate shells that meet
+        stitched together (``stitching.stitch_shells``), computed once per mesh: the
+        adjacency of the face and crease graphs and of the hole caps. The same array as
+        ``coincident_welding``'s where nothing is stitched."""
+        coincident, edges = self.coincident_welding
+        welded = stitch_shells(self.vertices, coincident, edges)
+        if welded is not coincident:
+            edges = sorted_welded_edges(welded)
+            welded.flags.writeable = False
+        self.__dict__.setdefault("welded_edges", edges)
         return welded
 
     @cached_property
     def welded_edges(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """The edges of ``welded_faces`` sorted by vertex pair (``orientation.welded_edges``),
-        computed once per mesh for the orientation pass and the face graph."""
-        return sorted_welded_edges(self.welded_faces)
+        computed once per mesh for the face graph and the hole caps."""
+        welded = self.welded_faces  # seeds the edges it sorted on the way
+        seeded = self.__dict__.get("welded_edges")
+        return seeded if seeded is not None else sorted_welded_edges(welded)
 
     @cached_property
     def orientation(self) -> Orientation:
         """Which triangles to reverse so that every shell faces out of its solid, and what
         the pass found in the mesh (``orientation.orient_faces``); computed once per mesh."""
+        coincident, edges = self.coincident_welding
         return orient_faces(
             self.vertices,
             self.faces,
-            welded=self.welded_faces,
+            welded=coincident,
             areas=self.normals_and_areas[1],
-            edges=self.welded_edges,
+            edges=edges,
         )
 
     @cached_property
@@ -139,6 +159,12 @@ class TriangleMesh:
         backwards = flips[:, None]
         faces = np.where(backwards, self.faces[:, ::-1], self.faces)
         welded = np.where(backwards, self.welded_faces[:, ::-1], self.welded_faces)
+        coincident, coincident_edges = self.coincident_welding
+        if coincident is self.welded_faces:
+            oriented_coincident = welded
+        else:
+            oriented_coincident = np.where(backwards, coincident[:, ::-1], coincident)
+            oriented_coincident.flags.writeable = False
         oriented = TriangleMesh(self.vertices, faces, self.face_origin, self.input_face_count)
         _, areas = self.normals_and_areas
         normals, _ = face_normals(self.vertices, faces)  # unchanged rows: the same values
@@ -146,10 +172,17 @@ class TriangleMesh:
         welded.flags.writeable = False
         # Seed the caches: the areas, the welding and the edges do not change with the winding.
         edge_table, slot = self.welded_edges
+        oriented_edges = (edge_table, reversed_slots(slot, flips))
+        if oriented_coincident is not welded:
+            coincident_table, coincident_slot = coincident_edges
+            coincident_edges = (coincident_table, reversed_slots(coincident_slot, flips))
+        else:
+            coincident_edges = oriented_edges
         oriented.__dict__.update(
             normals_and_areas=(normals, areas),
+            coincident_welding=(oriented_coincident, coincident_edges),
             welded_faces=welded,
-            welded_edges=(edge_table, reversed_slots(slot, flips)),
+            welded_edges=oriented_edges,
         )
         oriented.__dict__["oriented"] = oriented
         return oriented
@@ -191,7 +224,12 @@ class TriangleMesh:
         if oriented is not self:
             return oriented.face_graph
         normals, _ = self.normals_and_areas
-        return build_face_graph(self.vertices, self.welded_faces, normals, edges=self.welded_edges)
+        welded = self.welded_faces
+        graph = build_face_graph(self.vertices, welded, normals, edges=self.welded_edges)
+        coincident, _ = self.coincident_welding
+        if coincident is welded:
+            return graph
+        return stitched_edge_geometry(graph, self.vertices, self.faces, normals, coincident, welded)
 
     @cached_property
     def centroids(self) -> NDArray[np.float64]:

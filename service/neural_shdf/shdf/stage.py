@@ -57,6 +57,7 @@ from neural_shdf.shdf.sampling import (
     vertex_normal_sums,
     with_vertex_map,
 )
+from neural_shdf.stitching import bridge_gaps
 
 ShdfMethod = Literal["auto", "exact", "sampled", "neural"]
 RawMethod = Literal["exact", "sampled", "neural"]
@@ -174,6 +175,9 @@ def ray_targets(mesh: TriangleMesh, close_holes: bool) -> tuple[NDArray[Any], ND
     if not close_holes:
         return mesh.vertices, mesh.faces
     vertices, caps = hole_caps(mesh.vertices, mesh.welded_faces, mesh.welded_edges)
+    coincident, _ = mesh.coincident_welding
+    if coincident is not mesh.welded_faces:  # slits left between stitched shells
+        caps = bridge_gaps(mesh.vertices, coincident, mesh.welded_faces, mesh.welded_edges, caps)
     return vertices, np.vstack([mesh.faces, caps])
 
 

@@ -1,0 +1,333 @@
+"""Proximity stitching: open shells that meet along a cut become one surface for the graphs.
+
+A kitbashed or CAD assembly, or an export that splits a surface into pieces, gives open
+shells whose boundaries run along each other, a little apart (each piece moved, rounded
+or re-tessellated). Left apart, each piece is a solid of its own for the orientation
+pass, each boundary loop gets a cap for the ShDF's rays (a lid through the middle of a
+limb), and the segmentation's graph has no edge between the pieces.
+
+``stitch_shells`` joins, for the graphs only (never the output), boundary vertices of
+different shells that are each other's nearest boundary vertex of another shell and lie
+within ``STITCH_TOLERANCE`` times their local boundary edge length (the mean length of
+the boundary edges at the two vertices). What is stitched and what is not:
+
+* only vertices on open boundaries (an edge of one triangle), and only between
+  different shells (pieces connected through shared vertices): a hole in one piece, a
+  closed shell (eyes in a head, a bolt in a plate) and anything farther apart than the
+  tolerance stay as they are;
+* pairs are mutual nearest neighbours, so each vertex joins at most one other and no
+  triangle collapses; a boundary edge whose two ends join the two ends of another
+  shell's boundary edge becomes an ordinary edge between the two pieces;
+* meshes with no open boundary, or a single shell, are returned unchanged (the same array),
+  and so are mostly open ones (boundary edges more than ``MAX_BOUNDARY_SHARE`` of the
+  triangles, as ``orientation.hole_caps``: separate sheets, not a surface cut in pieces),
+  which also bounds the work to a share of the mesh.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from neural_shdf.compiled import kernel
+from neural_shdf.geometry import FaceGraph
+from neural_shdf.orientation import MAX_BOUNDARY_SHARE, _find, _union
+
+#: Boundary vertices of different shells closer than this many local boundary edge
+#: lengths (their boundary edges' mean length) are stitched.
+STITCH_TOLERANCE = 3.0
+#: Nearest boundary vertices looked at per boundary vertex for one of another shell.
+_NEIGHBOURS = 16
+#: Rounds that match again with each vertex moved by its nearest stitches' offset.
+_GUIDED_ROUNDS = 8
+#: How far (in local boundary edge lengths) a guided pair may lie from where the offset
+#: of the nearest stitches of its shell predicts.
+_GUIDED_SLACK = 1.0
+#: Passes that undo stitches which fold the surface, each followed by stitching again.
+_UNDO_PASSES = 2
+
+
+def boundary_edges(
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]], vertex_count: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(lo, hi) vertex indices of the edges of only one triangle, from ``welded_edges``."""
+    keys = edges[0][:, 0]
+    alone = np.ones(len(keys), dtype=bool)
+    if len(keys) > 1:
+        repeated = keys[1:] == keys[:-1]
+        alone[1:] &= ~repeated
+        alone[:-1] &= ~repeated
+    boundary = keys[alone]
+    return boundary // vertex_count, boundary % vertex_count
+
+
+def stitch_shells(
+    vertices: NDArray[Any],
+    welded: NDArray[Any],
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]],
+    tolerance: float = STITCH_TOLERANCE,
+) -> NDArray[np.int64]:
+    """``welded`` with the boundary vertices of different shells that meet sharing one index.
+
+    ``welded``: triangles with coincident vertices welded (``geometry.weld_faces``);
+    ``edges``: their ``orientation.welded_edges``. Returns ``welded`` itself where nothing
+    is stitched. Each stitched pair takes the lower of its two indices.
+    """
+    given = welded
+    welded = np.asarray(welded, dtype=np.int64).reshape(-1, 3)
+    if len(welded) == 0:
+        return given
+    vertex_count = int(welded.max()) + 1
+    lo, hi = boundary_edges(edges, vertex_count)
+    if len(lo) == 0 or len(lo) > MAX_BOUNDARY_SHARE * len(welded):
+        return given  # closed, or mostly open (separate sheets): no surface to restore
+    shell = _vertex_shells(welded, vertex_count)
+    on_boundary, local = np.unique(np.concatenate([lo, hi]), return_inverse=True)
+    boundary_shell = shell[on_boundary]
+    if np.all(boundary_shell == boundary_shell[0]):
+        return given
+    points = np.asarray(vertices, dtype=np.float64)[on_boundary]
+    ends = local.reshape(2, -1)
+    length = np.linalg.norm(points[ends[0]] - points[ends[1]], axis=1)
+    incident = np.bincount(ends.reshape(-1), minlength=len(on_boundary))
+    scale = np.bincount(ends.reshape(-1), np.tile(length, 2), len(on_boundary)) / incident
+    partner = np.full(len(points), -1, dtype=np.int64)
+    pairs = _mutual_nearest(points, boundary_shell, scale, tolerance)
+    for _ in range(_GUIDED_ROUNDS):
+        partner[:] = -1
+        partner[pairs[:, 0]], partner[pairs[:, 1]] = pairs[:, 1], pairs[:, 0]
+        guided = _guided_pairs(points, boundary_shell, scale, partner)
+        if len(guided) <= len(pairs):
+            break
+        pairs = guided
+    partner[:] = -1
+    partner[pairs[:, 0]], partner[pairs[:, 1]] = pairs[:, 1], pairs[:, 0]
+    stitched = welded
+    for _ in range(_UNDO_PASSES + 1):
+        joined = np.flatnonzero(partner >= 0)
+        if len(joined) == 0:
+            return given
+        representative = np.arange(vertex_count, dtype=np.int64)
+        a, b = on_boundary[joined], on_boundary[partner[joined]]
+        representative[np.maximum(a, b)] = np.minimum(a, b)
+        stitched = representative[welded]
+        # A stitch that puts an edge on three triangles or more folds the surface (the
+        # pair did not run along each other): undo the stitches at the fold's ends.
+        touched = np.zeros(vertex_count, dtype=bool)
+        touched[np.minimum(a, b)] = True
+        near = stitched[touched[stitched].any(axis=1)]  # only their edges can have changed
+        folded = _edges_on_many(near, vertex_count)
+        undo = np.isin(representative[on_boundary], folded) & (partner >= 0)
+        if not undo.any():
+            break
+        partner[partner[undo]] = -1
+        partner[undo] = -1
+    return stitched
+
+
+def _guided_pairs(
+    points: NDArray[np.float64],
+    shell: NDArray[Any],
+    scale: NDArray[np.float64],
+    partner: NDArray[np.int64],
+) -> NDArray[np.int64]:
+    """(P, 2) pairs matched again, each point moved by the mean offset of the stitches
+    (paired points) nearest to it in its shell, towards their shell: where two pieces were
+    moved apart by about the boundary's spacing or more, nearest points across the gap are
+    often a neighbour of each other's counterpart, and mixing such shifts leaves slits."""
+    from scipy.spatial import cKDTree
+
+    anchors = np.flatnonzero(partner >= 0)
+    if len(anchors) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    count = min(_NEIGHBOURS, len(anchors))
+    _, near = cKDTree(points[anchors]).query(points, k=count)
+    near = anchors[near.reshape(len(points), -1)]
+    # Stitches of the point's own shell that go where its nearest such stitch goes.
+    nearest_own = np.argmax(shell[near] == shell[:, None], axis=1)
+    target = shell[partner[near[np.arange(len(points)), nearest_own]]]
+    same = (shell[near] == shell[:, None]) & (shell[partner[near]] == target[:, None])
+    has = same.any(axis=1)
+    offset = np.zeros_like(points)
+    for column in range(near.shape[1]):  # a column at a time: no (P, k, 3) array
+        rows = np.flatnonzero(same[:, column])
+        anchor = near[rows, column]
+        offset[rows] += points[partner[anchor]] - points[anchor]
+    offset /= np.maximum(same.sum(axis=1), 1)[:, None]
+    predicted = points + offset
+    count = min(_NEIGHBOURS, len(points))
+    distance, found = cKDTree(points).query(predicted, k=count)
+    distance, found = distance.reshape(len(points), -1), found.reshape(len(points), -1)
+    limit = 0.5 * _GUIDED_SLACK * (scale[:, None] + scale[found])
+    candidate = has[:, None] & (shell[found] == target[:, None]) & (distance <= limit)
+    chosen = np.flatnonzero(candidate.any(axis=1))
+    best = np.full(len(points), -1, dtype=np.int64)
+    best[chosen] = found[chosen, np.argmax(candidate[chosen], axis=1)]
+    mutual = chosen[(best[best[chosen]] == chosen) & (chosen < best[chosen])]
+    return np.stack([mutual, best[mutual]], axis=1)
+
+
+def _edges_on_many(faces: NDArray[np.int64], vertex_count: int) -> NDArray[np.int64]:
+    """Vertices of the edges that three triangles or more share."""
+    keys = np.sort(
+        np.sort(np.stack([faces, faces[:, [1, 2, 0]]], axis=2), axis=2)
+        @ np.array([vertex_count, 1], dtype=np.int64),
+        axis=None,
+    )
+    many = keys[2:][keys[2:] == keys[:-2]]
+    return np.unique(np.concatenate([many // vertex_count, many % vertex_count]))
+
+
+def _mutual_nearest(
+    points: NDArray[np.float64], shell: NDArray[Any], scale: NDArray[np.float64], tolerance: float
+) -> NDArray[np.int64]:
+    """(P, 2) pairs of points of different shells, each the other's nearest such point
+    within ``tolerance`` times their mean ``scale``."""
+    from scipy.spatial import cKDTree
+
+    if len(points) < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    reach = tolerance * float(scale.max())
+    count = min(_NEIGHBOURS, len(points))
+    distance, neighbour = cKDTree(points).query(points, k=count, distance_upper_bound=reach)
+    distance, neighbour = distance.reshape(len(points), -1), neighbour.reshape(len(points), -1)
+    found = neighbour < len(points)
+    other = np.where(found, neighbour, 0)
+    limit = 0.5 * tolerance * (scale[:, None] + scale[other])
+    candidate = found & (shell[other] != shell[:, None]) & (distance <= limit)
+    # The nearest candidate (query results are sorted by distance), kept where mutual.
+    has = np.flatnonzero(candidate.any(axis=1))
+    best = np.full(len(points), -1, dtype=np.int64)
+    best[has] = other[has, np.argmax(candidate[has], axis=1)]
+    mutual = has[(best[best[has]] == has) & (has < best[has])]
+    return np.stack([mutual, best[mutual]], axis=1)
+
+
+@kernel
+def _vertex_shells(  # pragma: no cover - numba
+    faces: NDArray[np.int64], vertex_count: int
+) -> NDArray[np.int64]:
+    """Per vertex, the lowest vertex of its shell (vertices connected through triangles)."""
+    parent = np.arange(vertex_count)
+    for face in range(faces.shape[0]):
+        _union(parent, faces[face, 0], faces[face, 1])
+        _union(parent, faces[face, 0], faces[face, 2])
+    for vertex in range(vertex_count):
+        parent[vertex] = _find(parent, vertex)
+    return parent
+
+
+def stitched_edge_geometry(
+    graph: FaceGraph,
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
+    normals: NDArray[Any],
+    coincident: NDArray[Any],
+    welded: NDArray[Any],
+) -> FaceGraph:
+    """``graph`` (built on ``welded``) with the length and concavity of the edges at stitched
+    vertices measured on each triangle's own vertices, as if the pieces were not apart.
+
+    A stitched index stands for two vertices a gap apart, so the length and fold measured
+    at its one position are off by the gap (a crease read as concave is cheap to cut).
+    Each edge's length is that of its first triangle's own edge, and its fold is measured
+    with the second triangle moved so that its copy of the edge meets the first's.
+    ``faces``, ``normals``, ``coincident`` and ``welded``: the triangles ``graph`` was built
+    on (same winding) and their normals, with coincident vertices welded, and stitched too.
+    """
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    welded = np.asarray(welded, dtype=np.int64).reshape(-1, 3)
+    changed = np.asarray(coincident).reshape(-1, 3) != welded
+    if not changed.any() or len(graph.pairs) == 0:
+        return graph
+    vertices = np.asarray(vertices, dtype=np.float64)
+    stitched = np.zeros(int(welded.max()) + 1, dtype=bool)
+    stitched[welded[changed]] = True
+    lo_all, hi_all = graph.edge_vertices[:, 0], graph.edge_vertices[:, 1]
+    # Pairs with a stitched vertex on the edge or off it (the fold is measured there too).
+    touching: NDArray[np.bool_] = np.any(stitched[welded], axis=1)
+    at = np.flatnonzero(touching[graph.pairs[:, 0]] | touching[graph.pairs[:, 1]])
+    a, b = graph.pairs[at, 0], graph.pairs[at, 1]
+    lo, hi = lo_all[at][:, None], hi_all[at][:, None]
+    a_lo, a_hi = np.argmax(welded[a] == lo, axis=1), np.argmax(welded[a] == hi, axis=1)
+    b_lo, b_hi = np.argmax(welded[b] == lo, axis=1), np.argmax(welded[b] == hi, axis=1)
+    first_lo, first_hi = vertices[faces[a, a_lo]], vertices[faces[a, a_hi]]
+    shift = 0.5 * (first_lo - vertices[faces[b, b_lo]] + first_hi - vertices[faces[b, b_hi]])
+    off_edge = vertices[faces[b, (3 - b_lo - b_hi) % 3]] + shift
+    edge_length = graph.edge_length.copy()
+    concave = graph.concave.copy()
+    edge_length[at] = np.linalg.norm(first_lo - first_hi, axis=1)
+    concave[at] = np.einsum("ij,ij->i", off_edge - first_lo, np.asarray(normals)[a]) > 0
+    return replace(graph, edge_length=edge_length, concave=concave)
+
+
+def bridge_gaps(
+    vertices: NDArray[Any],
+    coincident: NDArray[Any],
+    welded: NDArray[Any],
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]],
+    caps: NDArray[np.int64],
+    tolerance: float = STITCH_TOLERANCE,
+) -> NDArray[np.int64]:
+    """``caps`` (``orientation.hole_caps`` of ``welded``) with the loops left open between
+    stitched shells bridged across instead of fanned to their centroid.
+
+    Where the stitching leaves a slit (pieces moved apart by more than the boundary's
+    spacing do not pair everywhere), the slit's loop runs along both pieces, and a fan to
+    its centroid would be a lid through the solid. Each boundary edge with a boundary
+    vertex of another shell within ``tolerance`` edge lengths gets the triangle from its
+    ends to the nearest such vertex (wound as its cap was); every loop with such an edge
+    is bridged that way only. ``coincident``: the triangles with coincident vertices
+    welded, which say the shells; ``edges``: ``welded``'s ``orientation.welded_edges``.
+    """
+    from scipy.spatial import cKDTree
+
+    caps = np.asarray(caps, dtype=np.int64).reshape(-1, 3)
+    if len(caps) == 0:
+        return caps
+    vertices = np.asarray(vertices, dtype=np.float64)
+    coincident = np.asarray(coincident, dtype=np.int64).reshape(-1, 3)
+    welded = np.asarray(welded, dtype=np.int64).reshape(-1, 3)
+    shell = _vertex_shells(coincident, len(vertices))
+    start, end, loop = caps[:, 0], caps[:, 1], caps[:, 2]
+    # The shell of the triangle on each cap's edge (a stitched index stands for two shells).
+    vertex_count = int(welded.max()) + 1
+    keys = np.minimum(start, end) * vertex_count + np.maximum(start, end)
+    table = edges[0]
+    owner = table[np.searchsorted(table[:, 0], keys), 1]
+    own_shell = shell[coincident[owner, 0]]
+    ends = np.unique(np.concatenate([start, end]))
+    middle = 0.5 * (vertices[start] + vertices[end])
+    length = np.linalg.norm(vertices[start] - vertices[end], axis=1)
+    count = min(_NEIGHBOURS, len(ends))
+    distance, found = cKDTree(vertices[ends]).query(
+        middle, k=count, distance_upper_bound=tolerance * float(length.max())
+    )
+    distance, found = distance.reshape(len(caps), -1), found.reshape(len(caps), -1)
+    inside = found < len(ends)
+    nearest = ends[np.where(inside, found, 0)]
+    candidate = inside & (shell[nearest] != own_shell[:, None])
+    candidate &= distance <= tolerance * length[:, None]
+    candidate &= (nearest != start[:, None]) & (nearest != end[:, None])
+    bridged = candidate.any(axis=1)
+    if not bridged.any():
+        return caps
+    target = nearest[np.arange(len(caps)), np.argmax(candidate, axis=1)]
+    slit = np.isin(loop, loop[bridged])
+    # The slits' other edges (a piece's own boundary between stitches, farther across than
+    # the tolerance): bridged to the nearest vertex of another shell at any distance, so
+    # that the slit leaves no hole; a fan triangle where none is among the nearest.
+    rest = np.flatnonzero(slit & ~bridged)
+    if len(rest):
+        distance, found = cKDTree(vertices[ends]).query(middle[rest], k=count)
+        far = ends[found.reshape(len(rest), -1)]
+        other = (shell[far] != own_shell[rest, None]) & (far != start[rest, None])
+        other &= far != end[rest, None]
+        reached = other.any(axis=1)
+        target[rest[reached]] = far[reached, np.argmax(other[reached], axis=1)]
+        bridged[rest[reached]] = True
+    bridges = np.stack([start, end, target], axis=1)[slit & bridged]
+    return np.vstack([caps[~(slit & bridged)], bridges])

@@ -1,0 +1,159 @@
+"""Proximity stitching: open shells split from one surface and moved a little are joined for
+the graphs; closed shells, holes in one shell and pieces far apart are not."""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+from scipy.sparse.csgraph import connected_components
+
+from neural_shdf.geometry import weld_faces
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.orientation import hole_caps, welded_edges
+from neural_shdf.stitching import STITCH_TOLERANCE, boundary_edges, stitch_shells
+
+
+def _sphere(subdivisions: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions, radius=1.0)
+    return np.asarray(sphere.vertices), np.asarray(sphere.faces)
+
+
+def _split(vertices: np.ndarray, faces: np.ndarray, piece: np.ndarray, shift: np.ndarray):
+    """Each piece of faces an open shell of its own (vertices copied along the cuts), piece
+    ``k`` moved by ``shift[k]``."""
+    keys = faces.reshape(-1) * (int(piece.max()) + 1) + np.repeat(piece, 3)
+    unique, inverse = np.unique(keys, return_inverse=True)
+    vertex, vertex_piece = np.divmod(unique, int(piece.max()) + 1)
+    return vertices[vertex] + shift[vertex_piece], inverse.reshape(-1, 3)
+
+
+def _halves(shift: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """A sphere cut in two open halves at z = 0, the upper moved by ``shift`` edge lengths
+    (sideways and up); also the median edge length."""
+    vertices, faces = _sphere()
+    upper = (vertices[faces, 2].mean(axis=1) > 0).astype(np.int64)
+    edge = float(np.median(np.linalg.norm(vertices[faces[:, 0]] - vertices[faces[:, 1]], axis=1)))
+    offset = np.array([[0.0, 0.0, 0.0], [0.6, 0.0, 0.8]]) * shift * edge
+    moved, split = _split(vertices, faces, upper, offset)
+    return moved, split, edge
+
+
+def _stitched(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    coincident = weld_faces(vertices, faces)
+    return coincident, stitch_shells(vertices, coincident, welded_edges(coincident))
+
+
+def _face_components(mesh: TriangleMesh) -> int:
+    return connected_components(mesh.face_graph.csr(), directed=False)[0]
+
+
+def test_a_closed_mesh_is_returned_as_given():
+    coincident, stitched = _stitched(*_sphere())
+    assert stitched is coincident
+
+
+def test_one_shell_with_a_hole_is_returned_as_given():
+    vertices, faces = _sphere()
+    coincident, stitched = _stitched(vertices, faces[10:])
+    assert stitched is coincident
+
+
+def test_halves_moved_apart_by_half_an_edge_length_are_zipped_closed():
+    vertices, faces, _ = _halves(0.5)
+    coincident, stitched = _stitched(vertices, faces)
+    assert len(boundary_edges(welded_edges(coincident), int(coincident.max()) + 1)[0]) == 96
+    assert len(boundary_edges(welded_edges(stitched), int(stitched.max()) + 1)[0]) == 0
+    _, caps = hole_caps(vertices, stitched, welded_edges(stitched))
+    assert len(caps) == 0
+
+
+def test_halves_moved_apart_by_an_edge_length_are_one_surface_for_the_graphs():
+    vertices, faces, _ = _halves(1.0)
+    coincident, stitched = _stitched(vertices, faces)
+    before = boundary_edges(welded_edges(coincident), int(coincident.max()) + 1)[0]
+    after = boundary_edges(welded_edges(stitched), int(stitched.max()) + 1)[0]
+    # Farther than about half an edge the mutual nearest pairs zip the cut only in part.
+    assert 0 < len(after) < 0.6 * len(before)
+    # Stitching joins pairs: no triangle repeats a vertex, no edge is on three triangles.
+    assert np.all((stitched[:, 0] != stitched[:, 1]) & (stitched[:, 1] != stitched[:, 2]))
+    mesh = TriangleMesh(vertices, faces)
+    assert _face_components(mesh) == 1
+    # The rays' caps close only what stays open, not a lid through the middle.
+    _, caps = hole_caps(vertices, mesh.welded_faces, mesh.welded_edges)
+    _, unstitched_caps = hole_caps(vertices, coincident, welded_edges(coincident))
+    assert len(caps) == len(after) < len(unstitched_caps)
+
+
+def test_the_orientation_pass_still_sees_each_piece_as_a_shell():
+    vertices, faces, _ = _halves(1.0)
+    mesh = TriangleMesh(vertices, faces)
+    assert mesh.orientation.diagnostics.shells == 2
+    assert not mesh.orientation.flips.any()
+
+
+def test_pieces_farther_apart_than_the_tolerance_stay_apart():
+    vertices, faces, _ = _halves(2.0 * STITCH_TOLERANCE)
+    coincident, stitched = _stitched(vertices, faces)
+    assert stitched is coincident
+    assert _face_components(TriangleMesh(vertices, faces)) == 2
+
+
+def test_a_closed_shell_next_to_open_ones_is_never_stitched():
+    vertices, faces, edge = _halves(1.0)
+    eye_vertices, eye_faces = _sphere(2)
+    # A closed ball touching the cut, as close as the halves are to each other.
+    eye_vertices = 0.2 * eye_vertices + np.array([1.0 + 0.2 + 0.5 * edge, 0.0, 0.0])
+    all_vertices = np.vstack([vertices, eye_vertices])
+    all_faces = np.vstack([faces, eye_faces + len(vertices)])
+    _, stitched = _stitched(all_vertices, all_faces)
+    eye = stitched[len(faces) :]
+    assert np.array_equal(eye, eye_faces + len(vertices))
+    assert not np.isin(stitched[: len(faces)], eye).any()
+    assert _face_components(TriangleMesh(all_vertices, all_faces)) == 2
+
+
+def test_labels_keep_the_input_face_order_and_parts_cross_the_cut():
+    from neural_shdf.pipeline import compute_shdf, segment
+
+    vertices, faces, _ = _halves(1.0)
+    mesh = TriangleMesh(vertices, faces)
+    labels = segment(mesh, compute_shdf(mesh, method="exact", seed=0).values).labels
+    assert labels.shape == (len(faces),)
+    # A ball is one part: the cut between the halves is not a part boundary.
+    assert len(np.unique(labels)) == 1
+
+
+def test_stitched_edges_have_the_length_and_fold_of_the_uncut_surface():
+    vertices, faces = _sphere()
+    whole = TriangleMesh(vertices, faces).face_graph
+    moved, split, _ = _halves(0.5)
+    graph = TriangleMesh(moved, split).face_graph
+    assert np.array_equal(graph.pairs, whole.pairs)
+    # A sphere is convex everywhere: a fold read across the gap would say concave.
+    assert not graph.concave.any()
+    assert np.allclose(graph.edge_length, whole.edge_length)
+
+
+def test_rays_meet_bridges_across_the_slits_not_a_lid_through_the_middle():
+    from neural_shdf.shdf.stage import ray_targets
+
+    vertices, faces, _ = _halves(1.5)
+    mesh = TriangleMesh(vertices, faces)
+    ray_vertices, targets = ray_targets(mesh, close_holes=True)
+    caps = targets[len(faces) :]
+    assert len(caps) > 0
+    # Every cap lies on the cut (|z| small), none reaches into the ball (a fan's centroid).
+    heights = np.abs(ray_vertices[caps, 2] - 0.5 * (vertices[:, 2].max() + vertices[:, 2].min()))
+    assert heights.max() < 0.2
+
+
+def test_a_mostly_open_mesh_of_separate_sheets_is_not_stitched():
+    # Each triangle a sheet of its own, a little apart: nothing to restore, and the work
+    # stays bounded (boundary edges are every edge here).
+    vertices, faces = _sphere()
+    corners = vertices[faces]
+    apart = corners + 0.02 * corners.mean(axis=1, keepdims=True)
+    soup_vertices = apart.reshape(-1, 3)
+    soup_faces = np.arange(len(soup_vertices)).reshape(-1, 3)
+    coincident, stitched = _stitched(soup_vertices, soup_faces)
+    assert stitched is coincident

@@ -35,6 +35,7 @@ from __future__ import annotations
 import heapq
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import maxflow
 import numpy as np
@@ -133,8 +134,8 @@ class CreaseGraph:
 
 def crease_graph(
     graph: FaceGraph,
-    areas: NDArray,
-    centroids: NDArray,
+    areas: NDArray[Any],
+    centroids: NDArray[Any],
     *,
     strength: float = CONCAVITY_STRENGTH,
     coarse_above: int = COARSE_ABOVE_FACES,
@@ -155,10 +156,10 @@ def crease_graph(
 
 
 def snap_boundaries_to_creases(
-    parts: NDArray,
+    parts: NDArray[Any],
     graph: FaceGraph,
-    areas: NDArray,
-    centroids: NDArray,
+    areas: NDArray[Any],
+    centroids: NDArray[Any],
     min_part_fraction: float,
     *,
     width: float = BAND_WIDTH,
@@ -198,7 +199,7 @@ def snap_boundaries_to_creases(
 
 
 def _snap(
-    parts: NDArray, creases: CreaseGraph, width: float, side_share: float, change_cost: float
+    parts: NDArray[Any], creases: CreaseGraph, width: float, side_share: float, change_cost: float
 ) -> NDArray[np.int64] | None:
     """The banded min cut on the crease graph (parts per node); None when nothing moves."""
     graph, areas, capacity = creases.graph, creases.areas, creases.capacity
@@ -260,11 +261,11 @@ def _snap(
 
 def _coarse_graph(
     graph: FaceGraph,
-    areas: NDArray,
-    centroids: NDArray,
-    capacity: NDArray,
+    areas: NDArray[Any],
+    centroids: NDArray[Any],
+    capacity: NDArray[Any],
     target_nodes: int,
-) -> tuple[FaceGraph, NDArray, NDArray, NDArray, NDArray]:
+) -> tuple[FaceGraph, NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]]:
     """Coarse nodes: connected pieces of one grid cell, never grouped across a concave
     crease; cells sized for about ``target_nodes`` nodes, laid along the mesh's own axes
     (``principal_coordinates``, ``grid_cells``: the same nodes in any pose).
@@ -300,14 +301,14 @@ def _coarse_graph(
 
 
 def _min_cut_in_bands(
-    parts: NDArray,
-    in_band: NDArray,
-    owner: NDArray,
-    boundary_low: NDArray,
-    boundary_high: NDArray,
-    pairs: NDArray,
-    capacity: NDArray,
-    change: NDArray,
+    parts: NDArray[Any],
+    in_band: NDArray[Any],
+    owner: NDArray[Any],
+    boundary_low: NDArray[Any],
+    boundary_high: NDArray[Any],
+    pairs: NDArray[Any],
+    capacity: NDArray[Any],
+    change: NDArray[Any],
 ) -> NDArray[np.int64]:
     """One max-flow: each band face picks its boundary's low (0) or high (1) part;
     ``change``: what a face pays for leaving its part."""

@@ -19,6 +19,7 @@ import ctypes.util
 import glob
 import os
 import threading
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -156,7 +157,9 @@ class Scene:
     ``BUILD_QUALITY`` (the hits are the same; build and traversal times differ).
     """
 
-    def __init__(self, vertices: NDArray, faces: NDArray, quality: str = "medium") -> None:
+    def __init__(
+        self, vertices: NDArray[Any], faces: NDArray[Any], quality: str = "medium"
+    ) -> None:
         if quality not in BUILD_QUALITY:
             raise ValueError(f"unknown build quality {quality!r}; use one of {list(BUILD_QUALITY)}")
         api = embree()
@@ -202,7 +205,7 @@ class Scene:
         self.arguments[1] = _FEATURE_FLAG_ALL
 
     @staticmethod
-    def center_of(vertices: NDArray) -> NDArray:
+    def center_of(vertices: NDArray[Any]) -> NDArray[Any]:
         """Centre of the bounding box: the origin of the scene's float32 coordinates."""
         low, high = bounding_box(vertices)
         return 0.5 * (low + high)
@@ -217,7 +220,7 @@ class Scene:
         """``(intersect16, scene, arguments)`` as numba kernels take them."""
         return self.api.intersect16, self.handle, self.arguments.ctypes.data
 
-    def first_hits(self, origins: NDArray, directions: NDArray) -> NDArray[np.int64]:
+    def first_hits(self, origins: NDArray[Any], directions: NDArray[Any]) -> NDArray[np.int64]:
         """Index of the first triangle each ray hits, -1 for none (origins relative to centre)."""
         origins = np.ascontiguousarray(origins, dtype=np.float32).reshape(-1, 3)
         directions = np.ascontiguousarray(directions, dtype=np.float32).reshape(-1, 3)
@@ -226,7 +229,7 @@ class Scene:
         return hits
 
 
-def bounding_box(vertices: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def bounding_box(vertices: NDArray[Any]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """(low, high) corners of the points' bounding box (one compiled pass: numpy's
     reductions along the short axis of an (N, 3) array are several times slower)."""
     vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
@@ -250,7 +253,7 @@ def _bounding_box(vertices):  # noqa: ANN001, ANN202
 
 
 @kernel
-def new_packet() -> tuple[NDArray, NDArray, NDArray]:
+def new_packet() -> tuple[NDArray[Any], NDArray[Any], NDArray[Any]]:
     """(rays as float32 rows, the same memory as uint32, valid mask) for ``intersect_packet``."""
     raw = np.zeros(PACKET_ROWS * LANES + LANES, dtype=np.float32)
     skip = (-raw.ctypes.data % 64) // 4

@@ -33,6 +33,7 @@ import math
 import os
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -90,7 +91,7 @@ def disk_samples(ray_count: int) -> tuple[NDArray[np.float64], NDArray[np.float6
 
 
 def face_tangents(
-    vertices: NDArray, faces: NDArray, which: NDArray | None = None
+    vertices: NDArray[Any], faces: NDArray[Any], which: NDArray[Any] | None = None
 ) -> NDArray[np.float64]:
     """(F, 3) unit vector in each triangle's plane that orients its ray cone's spiral
     (of the faces ``which`` only, in that order, when given).
@@ -165,7 +166,7 @@ def _face_tangents(vertices, faces, which, tolerance, out) -> None:  # noqa: ANN
                 out[k, axis] /= norm
 
 
-def plane_basis(normals: NDArray) -> tuple[NDArray, NDArray]:
+def plane_basis(normals: NDArray[Any]) -> tuple[NDArray[Any], NDArray[Any]]:
     """Unit in-plane vectors (base1, base2) of planes with the given unit normals.
 
     Same choice as CGAL's ``Plane_3::base1`` (CGAL >= 5): (1,0,0) if the normal
@@ -211,8 +212,8 @@ def cone_coefficients(ray_count: int, cone_angle: float) -> NDArray[np.float64]:
 
 
 def cone_frames(
-    inward_normals: NDArray, tangents: NDArray, rotation: NDArray | None = None
-) -> NDArray:
+    inward_normals: NDArray[Any], tangents: NDArray[Any], rotation: NDArray[Any] | None = None
+) -> NDArray[Any]:
     """(F, 3, 3) rows (inward normal, base1, base2) of each face's ray cone.
 
     ``base1`` is ``tangents`` (``face_tangents`` of the face the cone leaves from) made
@@ -237,14 +238,14 @@ def cone_frames(
 
 
 def cone_directions(
-    inward_normals: NDArray,
-    tangents: NDArray,
+    inward_normals: NDArray[Any],
+    tangents: NDArray[Any],
     *,
     cone_angle: float,
     ray_count: int,
-    rotation: NDArray | None = None,
+    rotation: NDArray[Any] | None = None,
     dtype: type = np.float64,
-) -> NDArray:
+) -> NDArray[Any]:
     """Unit ray directions (F, ray_count, 3) inside the cone around each inward normal,
     oriented by ``tangents`` (``cone_coefficients`` on ``cone_frames``)."""
     coefficients = cone_coefficients(ray_count, cone_angle).astype(dtype)
@@ -252,7 +253,7 @@ def cone_directions(
     return np.matmul(coefficients, frames.astype(dtype))
 
 
-def spatial_order(points: NDArray, bits: int = 10) -> NDArray[np.int64]:
+def spatial_order(points: NDArray[Any], bits: int = 10) -> NDArray[np.int64]:
     """Indices that sort points along a Morton (Z-order) curve of their bounding box.
 
     Casting the rays of nearby faces one after another keeps Embree's caches warm.
@@ -270,7 +271,7 @@ def spatial_order(points: NDArray, bits: int = 10) -> NDArray[np.int64]:
 
 
 @kernel(inline=True)
-def _sorted_median(values: NDArray, count: int) -> float:
+def _sorted_median(values: NDArray[Any], count: int) -> float:
     """Sort ``values[:count]`` in place (insertion sort: a face has few rays); their median."""
     for i in range(1, count):
         value = values[i]
@@ -283,7 +284,9 @@ def _sorted_median(values: NDArray, count: int) -> float:
 
 
 @kernel
-def _robust_mean_row(distances: NDArray, weights: NDArray, scratch: NDArray) -> float:
+def _robust_mean_row(
+    distances: NDArray[Any], weights: NDArray[Any], scratch: NDArray[Any]
+) -> float:
     """``robust_mean`` of one row; ``scratch`` is work space at least as long as the row."""
     count = 0
     for value in distances:
@@ -306,7 +309,7 @@ def _robust_mean_row(distances: NDArray, weights: NDArray, scratch: NDArray) -> 
     return total / total_weight if total > 0 else median
 
 
-def robust_mean(distances: NDArray, weights: NDArray) -> NDArray[np.float64]:
+def robust_mean(distances: NDArray[Any], weights: NDArray[Any]) -> NDArray[np.float64]:
     """Per row of ``distances`` (NaN = no hit): weighted mean of the values within
     ``OUTLIER_MAD_FACTOR`` median absolute deviations of the median; NaN for rows
     without values. Medians of an even count average the two middle values.
@@ -325,14 +328,14 @@ def _check_cone(cone_angle: float, ray_count: int) -> None:
 
 
 def raw_shdf(
-    vertices: NDArray,
-    faces: NDArray,
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
     *,
     cone_angle: float = constants.SHDF_CONE_ANGLE,
     ray_count: int = constants.SHDF_RAY_COUNT,
     seed: int = 0,
     rotate_pattern: bool = False,
-    normals: NDArray | None = None,
+    normals: NDArray[Any] | None = None,
     threads: int | None = None,
     progress: Progress | None = None,
     scene: Scene | Future[Scene] | None = None,
@@ -382,11 +385,11 @@ def raw_shdf(
 
 
 def raw_shdf_at_points(
-    vertices: NDArray,
-    faces: NDArray,
-    points: NDArray,
-    point_normals: NDArray,
-    point_faces: NDArray,
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
+    points: NDArray[Any],
+    point_normals: NDArray[Any],
+    point_faces: NDArray[Any],
     *,
     cone_angle: float = constants.SHDF_CONE_ANGLE,
     ray_count: int = constants.SHDF_RAY_COUNT,
@@ -427,11 +430,11 @@ def raw_shdf_at_points(
 
 
 def _cast_rays(
-    vertices: NDArray,
-    faces: NDArray,
-    origins: NDArray,
-    normals: NDArray,
-    own_faces: NDArray,
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
+    origins: NDArray[Any],
+    normals: NDArray[Any],
+    own_faces: NDArray[Any],
     *,
     cone_angle: float,
     ray_count: int,
@@ -442,7 +445,7 @@ def _cast_rays(
     statistics: bool,
     scene: Scene | Future[Scene] | None = None,
     quality: str = "medium",
-) -> tuple[NDArray, NDArray, NDArray]:
+) -> tuple[NDArray[Any], NDArray[Any], NDArray[Any]]:
     """Cones of rays from ``origins`` around their inward ``normals``, in batches over
     threads: (robust mean, spread, hit fraction) per origin; the last two only with
     ``statistics`` (else empty). Origins with a zero normal get NaN. ``scene``: the
@@ -483,7 +486,7 @@ def _cast_rays(
         local_origins = (origins - 0.5 * (low + high)).astype(np.float32)
         coefficients = cone_coefficients(ray_count, cone_angle).astype(np.float32)
 
-        def run_batch(batch: NDArray) -> None:
+        def run_batch(batch: NDArray[Any]) -> None:
             frames = cone_frames(
                 np.negative(np.take(normals, batch, axis=0)),
                 face_tangents(vertices, faces, np.take(own_faces, batch)),

@@ -12,6 +12,7 @@ import math
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -56,7 +57,7 @@ def bilateral_window(face_count: int) -> int:
     return int(math.sqrt(face_count / 2000.0)) + 1
 
 
-def fill_missing(values: NDArray, graph: FaceGraph) -> NDArray[np.float64]:
+def fill_missing(values: NDArray[Any], graph: FaceGraph) -> NDArray[np.float64]:
     """Faces with NaN take the mean of their neighbours' values, in face order.
 
     As CGAL does: a face filled earlier counts as a neighbour value for later
@@ -96,8 +97,8 @@ def fill_missing(values: NDArray, graph: FaceGraph) -> NDArray[np.float64]:
 
 
 def _window_pairs(
-    adjacency: sp.csr_matrix, rows: NDArray, window: int
-) -> tuple[NDArray, NDArray, NDArray]:
+    adjacency: sp.csr_matrix, rows: NDArray[Any], window: int
+) -> tuple[NDArray[Any], NDArray[Any], NDArray[Any]]:
     """(row position in ``rows``, face, ring) for every face within ``window`` edge rings.
 
     Breadth-first, all rows at once: ring k+1 is the neighbours of ring k minus
@@ -123,10 +124,10 @@ def _window_pairs(
 
 
 def _bilateral_vectorised(
-    values: NDArray,
+    values: NDArray[Any],
     adjacency: sp.csr_matrix,
     window_size: int,
-    spatial_weight: NDArray,
+    spatial_weight: NDArray[Any],
     range_sigma_factor: float,
 ) -> NDArray[np.float64]:
     """The filter with numpy/scipy only: all (face, window face) pairs, in row chunks."""
@@ -182,13 +183,13 @@ def _walk_rings(start, max_ring, indptr, indices, seen_by, queue, ring):  # noqa
 def _bilateral_faces(
     first: int,
     last: int,
-    indptr: NDArray,
-    indices: NDArray,
-    values: NDArray,
+    indptr: NDArray[Any],
+    indices: NDArray[Any],
+    values: NDArray[Any],
     window_size: int,
-    spatial_weight: NDArray,
+    spatial_weight: NDArray[Any],
     range_sigma_factor: float,
-    out: NDArray,
+    out: NDArray[Any],
 ) -> None:
     """The filter for faces ``first..last-1``, one breadth-first walk per face (compiled)."""
     face_count = len(values)
@@ -222,7 +223,7 @@ _bilateral_faces = kernel(_bilateral_faces)
 
 
 def bilateral_smooth(
-    values: NDArray,
+    values: NDArray[Any],
     graph: FaceGraph,
     *,
     window_size: int,
@@ -399,7 +400,7 @@ def _patch_bilateral_faces(  # noqa: PLR0913
         out[face] = total / norm if norm > 0 else centre
 
 
-def ring_length(graph: FaceGraph, centroids: NDArray) -> float:
+def ring_length(graph: FaceGraph, centroids: NDArray[Any]) -> float:
     """Straight-line distance per edge ring of the face graph: ``RING_PER_SPACING`` x the
     mean distance between the centroids of adjacent faces (``RING_LENGTH_PAIRS`` pairs
     evenly spread over the graph's). Turns a window in rings into a distance on the
@@ -408,7 +409,7 @@ def ring_length(graph: FaceGraph, centroids: NDArray) -> float:
     return _ring_length(centroids[pairs[:, 0]] - centroids[pairs[:, 1]])
 
 
-def mesh_ring_length(graph: FaceGraph, vertices: NDArray, faces: NDArray) -> float:
+def mesh_ring_length(graph: FaceGraph, vertices: NDArray[Any], faces: NDArray[Any]) -> float:
     """``ring_length`` from the mesh, computing only the centroids of the pairs it reads."""
     pairs = _spacing_pairs(graph)
     offset = np.empty((len(pairs), 3))
@@ -436,16 +437,16 @@ def _spacing_pairs(graph: FaceGraph) -> NDArray[np.int64]:
     return graph.pairs[:: max(1, len(graph.pairs) // RING_LENGTH_PAIRS)]
 
 
-def _ring_length(offset: NDArray) -> float:
+def _ring_length(offset: NDArray[Any]) -> float:
     if len(offset) == 0:
         return 0.0
     return RING_PER_SPACING * float(np.mean(np.sqrt(np.einsum("ij,ij->i", offset, offset))))
 
 
 def patch_bilateral(
-    values: NDArray,
+    values: NDArray[Any],
     graph: FaceGraph,
-    centroids: NDArray,
+    centroids: NDArray[Any],
     *,
     window_size: int,
     spatial_sigma: float | None = None,
@@ -539,7 +540,7 @@ def patch_bilateral(
     return out
 
 
-def linear_normalize(values: NDArray) -> NDArray[np.float64]:
+def linear_normalize(values: NDArray[Any]) -> NDArray[np.float64]:
     """Map to [0, 1] by min and max; constant input gives zeros."""
     values = np.asarray(values, dtype=np.float64)
     if len(values) == 0:
@@ -550,7 +551,9 @@ def linear_normalize(values: NDArray) -> NDArray[np.float64]:
     return np.clip((values - low) / (high - low), 0.0, 1.0)
 
 
-def log_normalize(values: NDArray, alpha: float = LOG_NORMALIZATION_ALPHA) -> NDArray[np.float64]:
+def log_normalize(
+    values: NDArray[Any], alpha: float = LOG_NORMALIZATION_ALPHA
+) -> NDArray[np.float64]:
     """CGAL's log normalisation of [0, 1] values: ``log(alpha * x + 1) / log(alpha + 1)``."""
     if alpha <= 0:
         raise ParameterError(f"alpha must be > 0, got {alpha}")
@@ -558,14 +561,14 @@ def log_normalize(values: NDArray, alpha: float = LOG_NORMALIZATION_ALPHA) -> ND
 
 
 def postprocess_shdf(
-    raw: NDArray,
+    raw: NDArray[Any],
     graph: FaceGraph,
     *,
     window_size: int | None = None,
     spatial_sigma: float | None = None,
     range_sigma_factor: float = RANGE_SIGMA_FACTOR,
     smooth: bool = True,
-    centroids: NDArray | None = None,
+    centroids: NDArray[Any] | None = None,
     progress: Progress | None = None,
 ) -> NDArray[np.float64]:
     """Raw diameters (NaN = no value) -> ShDF in [0, 1], as CGAL post-processes ``sdf_values``.

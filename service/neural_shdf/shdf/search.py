@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -52,7 +53,7 @@ def _run_blocks(function, count: int, workers: int) -> None:  # noqa: ANN001
 
 
 def nearest_points(
-    positions: NDArray, queries: NDArray, count: int, spacing: float, workers: int = 2
+    positions: NDArray[Any], queries: NDArray[Any], count: int, spacing: float, workers: int = 2
 ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """(Q, k) indices of the ``count`` points of ``positions`` nearest to each query
     (k = min(count, number of points)), nearest first, and their distances.
@@ -104,7 +105,9 @@ def nearest_points(
     return index, distance
 
 
-def _cell_of(points: NDArray, origin: NDArray, cell: float, dims: NDArray) -> NDArray[np.int64]:
+def _cell_of(
+    points: NDArray[Any], origin: NDArray[Any], cell: float, dims: NDArray[Any]
+) -> NDArray[np.int64]:
     """Linear grid cell of each point (coordinates clamped to the grid)."""
     coordinates = np.floor((points - origin) / cell).astype(np.int64)
     np.clip(coordinates, 0, dims - 1, out=coordinates)
@@ -228,8 +231,8 @@ def _grid_nearest(  # noqa: PLR0913
 
 
 def cone_neighbours(
-    positions: NDArray,
-    normals: NDArray,
+    positions: NDArray[Any],
+    normals: NDArray[Any],
     count: int,
     cone_cos: float,
     radius: float,
@@ -285,7 +288,7 @@ def cone_neighbours(
     return senders[valid], receivers[valid]
 
 
-def _kd_tree(positions: NDArray, normals: NDArray) -> tuple[NDArray, ...]:
+def _kd_tree(positions: NDArray[Any], normals: NDArray[Any]) -> tuple[NDArray[Any], ...]:
     """A k-d tree over the points (median splits on the widest axis, ``LEAF_SIZE`` per
     leaf): the point order, each node's range of it, children (-1 for leaves), the box
     of its positions (low xyz, high xyz) and the box of its normals."""

@@ -86,7 +86,9 @@ def crease_capacities(
 
 
 @kernel
-def _capacities(edge_length, dihedral, concave, strength):  # pragma: no cover - numba
+def _capacities(
+    edge_length: NDArray[Any], dihedral: NDArray[Any], concave: NDArray[Any], strength: float
+) -> NDArray[np.float64]:  # pragma: no cover - numba
     """``crease_capacities``: the length-weighted mean bend, then one pass over the edges."""
     bend_sum = 0.0
     length_sum = 0.0
@@ -350,8 +352,16 @@ def _min_cut_in_bands(
 
 @kernel
 def _coarsen(
-    pairs, edge_length, capacity, centroids, weight, cell_of, crease_ratio
-):  # pragma: no cover - numba
+    pairs: NDArray[Any],
+    edge_length: NDArray[Any],
+    capacity: NDArray[Any],
+    centroids: NDArray[Any],
+    weight: NDArray[Any],
+    cell_of: NDArray[Any],
+    crease_ratio: float,
+) -> tuple[
+    NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]
+]:  # pragma: no cover - numba
     """Union-find of faces sharing a grid cell (``cell_of``: a key per face) across
     non-crease edges, then the coarse nodes (numbered by lowest face: weights, weighted
     centroids) and their edges (lengths and capacities summed; duplicates merged
@@ -442,7 +452,9 @@ def _coarsen(
 
 
 @kernel
-def _majority_parts(node_of, parts, areas, node_count):  # pragma: no cover - numba
+def _majority_parts(
+    node_of: NDArray[Any], parts: NDArray[Any], areas: NDArray[Any], node_count: int
+) -> NDArray[np.int64]:  # pragma: no cover - numba
     """Each node's part: a weighted majority vote (Boyer-Moore) of its faces' parts, by
     area, in face order; exact wherever one part holds more than half of a node."""
     choice = np.full(node_count, -1, dtype=np.int64)
@@ -461,8 +473,15 @@ def _majority_parts(node_of, parts, areas, node_count):  # pragma: no cover - nu
 
 @kernel
 def _dijkstra(
-    indptr, neighbour, centroids, parts, seed_boundary, low, high, limit
-):  # pragma: no cover - numba
+    indptr: NDArray[Any],
+    neighbour: NDArray[Any],
+    centroids: NDArray[Any],
+    parts: NDArray[Any],
+    seed_boundary: NDArray[Any],
+    low: NDArray[Any],
+    high: NDArray[Any],
+    limit: NDArray[Any],
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:  # pragma: no cover - numba
     """Geodesic distance (over centroids) to the nearest boundary and its id (-1: none).
 
     Multi-source Dijkstra from the boundary nodes, spreading only through the two parts
@@ -474,7 +493,7 @@ def _dijkstra(
     distance = np.full(face_count, np.inf)
     owner = np.full(face_count, -1, dtype=np.int64)
     done = np.zeros(face_count, dtype=np.bool_)
-    heap = [(0.0, np.int64(0), np.int64(0))]
+    heap: list[tuple[float, Any, Any]] = [(0.0, np.int64(0), np.int64(0))]
     heap.pop()
     for face in range(face_count):
         if seed_boundary[face] < none:

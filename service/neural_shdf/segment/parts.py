@@ -59,7 +59,9 @@ def canonical_labels(labels: NDArray[Any]) -> NDArray[np.int64]:
 
 
 @kernel
-def _first_seen_order(labels: NDArray[Any], span: int) -> NDArray[np.int64]:  # pragma: no cover - compiled
+def _first_seen_order(
+    labels: NDArray[Any], span: int
+) -> NDArray[np.int64]:  # pragma: no cover - compiled
     rank = np.full(span, -1, dtype=np.int64)
     result = np.empty(len(labels), dtype=np.int64)
     seen = 0
@@ -94,7 +96,9 @@ def connected_components(
 
 
 @kernel
-def _components(pairs: NDArray[Any], keep: NDArray[Any], node_count: int) -> NDArray[np.int64]:  # pragma: no cover - compiled
+def _components(
+    pairs: NDArray[Any], keep: NDArray[Any], node_count: int
+) -> NDArray[np.int64]:  # pragma: no cover - compiled
     root = np.arange(node_count)
 
     def find(node: int) -> int:
@@ -190,7 +194,9 @@ def merge_small_parts(
     return canonical_labels(merged)
 
 
-def _part_boundaries(parts: NDArray[Any], graph: FaceGraph, part_count: int) -> list[dict[int, float]]:
+def _part_boundaries(
+    parts: NDArray[Any], graph: FaceGraph, part_count: int
+) -> list[dict[int, float]]:
     """For each part, {neighbour part: total length of the shared boundary}."""
     a, b = parts[graph.pairs[:, 0]], parts[graph.pairs[:, 1]]
     cut = a != b

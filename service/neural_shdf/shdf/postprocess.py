@@ -157,7 +157,15 @@ def _bilateral_vectorised(
 
 
 @kernel(inline=True)
-def _walk_rings(start, max_ring, indptr, indices, seen_by, queue, ring):  # noqa: ANN001, ANN202
+def _walk_rings(
+    start: int,
+    max_ring: int,
+    indptr: NDArray[Any],
+    indices: NDArray[Any],
+    seen_by: NDArray[Any],
+    queue: NDArray[Any],
+    ring: NDArray[Any],
+) -> int:
     """Breadth-first walk from ``start`` up to ``max_ring`` edge rings: fills ``queue`` with
     the nodes reached (``start`` first) and ``ring`` with their rings; returns their count.
     ``seen_by[node] == start`` marks a node reached by this walk (no clearing between walks)."""
@@ -292,7 +300,9 @@ def sorted_adjacency(graph: FaceGraph) -> tuple[NDArray[np.int64], NDArray[np.in
 
 
 @kernel
-def _cover_with_patches(indptr, indices, radius):  # noqa: ANN001, ANN202
+def _cover_with_patches(
+    indptr: NDArray[Any], indices: NDArray[Any], radius: int
+) -> NDArray[np.int64]:
     """Patch id per face: seeds at least ``2 radius`` edge rings apart (greedy, in face
     order: a face becomes a seed unless an earlier seed lies closer), then every face
     joins its nearest seed (multi-source breadth-first walk; ties: the earlier seed)."""
@@ -329,7 +339,9 @@ def _cover_with_patches(indptr, indices, radius):  # noqa: ANN001, ANN202
 
 
 @kernel
-def _patch_windows(indptr, indices, hops):  # noqa: ANN001, ANN202
+def _patch_windows(
+    indptr: NDArray[Any], indices: NDArray[Any], hops: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """For every patch, the patches within ``hops`` steps of the patch graph (itself
     included), as CSR arrays (start, members)."""
     count = len(indptr) - 1
@@ -353,20 +365,20 @@ def _patch_windows(indptr, indices, hops):  # noqa: ANN001, ANN202
 
 @kernel
 def _patch_bilateral_faces(  # noqa: PLR0913
-    first,  # noqa: ANN001
-    last,  # noqa: ANN001
-    values,  # noqa: ANN001
-    patch_of,  # noqa: ANN001
-    starts,  # noqa: ANN001
-    members,  # noqa: ANN001
-    member_weight,  # noqa: ANN001
-    patch_mean,  # noqa: ANN001
-    patch_variance,  # noqa: ANN001
-    window_faces,  # noqa: ANN001
-    window_first,  # noqa: ANN001
-    window_second,  # noqa: ANN001
-    range_sigma_factor,  # noqa: ANN001
-    out,  # noqa: ANN001
+    first: int,
+    last: int,
+    values: NDArray[Any],
+    patch_of: NDArray[Any],
+    starts: NDArray[Any],
+    members: NDArray[Any],
+    member_weight: NDArray[Any],
+    patch_mean: NDArray[Any],
+    patch_variance: NDArray[Any],
+    window_faces: NDArray[Any],
+    window_first: NDArray[Any],
+    window_second: NDArray[Any],
+    range_sigma_factor: float,
+    out: NDArray[Any],
 ) -> None:
     """``bilateral_smooth`` for faces ``first..last-1`` over the window of their patch:
     each member patch weighs in with ``member_weight`` (its face count x the spatial
@@ -423,7 +435,9 @@ def mesh_ring_length(graph: FaceGraph, vertices: NDArray[Any], faces: NDArray[An
 
 
 @kernel
-def _centroid_offsets(vertices, faces, pairs, out) -> None:  # noqa: ANN001
+def _centroid_offsets(
+    vertices: NDArray[Any], faces: NDArray[Any], pairs: NDArray[Any], out: NDArray[Any]
+) -> None:
     """Centroid of ``pairs[:, 0]`` minus centroid of ``pairs[:, 1]`` (as ``face_centroids``)."""
     for row in range(len(pairs)):
         a, b = faces[pairs[row, 0]], faces[pairs[row, 1]]

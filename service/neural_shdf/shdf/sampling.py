@@ -117,7 +117,15 @@ def sample_surface(
 
 
 @kernel
-def _points_on_faces(vertices, faces, face_ids, u, v, order, out) -> None:  # noqa: ANN001
+def _points_on_faces(
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
+    face_ids: NDArray[Any],
+    u: NDArray[Any],
+    v: NDArray[Any],
+    order: NDArray[Any],
+    out: NDArray[Any],
+) -> None:
     """Point ``i`` at barycentric (u, v) of its face (folded into the triangle when
     u + v > 1), made in the given ``order``."""
     for i in order:
@@ -180,7 +188,9 @@ def _conflict_pair_selection(points: NDArray[Any], radius: float) -> NDArray[np.
 
 
 @kernel
-def _dart_throw(points, radius, cell_size):  # pragma: no cover - numba
+def _dart_throw(
+    points: NDArray[Any], radius: float, cell_size: float
+) -> NDArray[np.int64]:  # pragma: no cover - numba
     """Sequential dart throwing over a hash grid; kept points chained per cell."""
     n = points.shape[0]
     squared_radius = radius * radius
@@ -248,7 +258,7 @@ def _dart_throw(points, radius, cell_size):  # pragma: no cover - numba
 
 
 @kernel(inline=True)
-def _cell_hash(x, y, z):  # pragma: no cover - numba
+def _cell_hash(x: int, y: int, z: int) -> np.int64:  # pragma: no cover - numba
     """A mixed 63-bit hash of integer cell coordinates."""
     key = np.uint64(x) * np.uint64(0x9E3779B97F4A7C15)
     key ^= np.uint64(y) * np.uint64(0xC2B2AE3D27D4EB4F) + (key >> np.uint64(29))
@@ -273,7 +283,9 @@ def vertex_normal_sums(
 
 
 @kernel
-def _vertex_normal_sums(vertex_count, faces, normals, areas):  # noqa: ANN001, ANN202
+def _vertex_normal_sums(
+    vertex_count: int, faces: NDArray[Any], normals: NDArray[Any], areas: NDArray[Any]
+) -> NDArray[np.float64]:
     out = np.zeros((vertex_count, 3))
     for face in range(len(faces)):
         for axis in range(3):
@@ -286,7 +298,10 @@ def _vertex_normal_sums(vertex_count, faces, normals, areas):  # noqa: ANN001, A
 def unit_rows(vectors: NDArray[Any]) -> NDArray[np.float64]:
     """Rows scaled to unit length; zero rows stay zero."""
     length = np.linalg.norm(vectors, axis=1, keepdims=True)
-    return np.divide(vectors, length, out=np.zeros_like(vectors), where=length > 0)
+    unit: NDArray[np.float64] = np.divide(
+        vectors, length, out=np.zeros_like(vectors), where=length > 0
+    )
+    return unit
 
 
 def sample_surface_points(
@@ -415,7 +430,15 @@ def interpolate_samples(
 
 
 @kernel
-def _interpolate(values, sample_normals, neighbours, distances, normals, offset, out) -> None:  # noqa: ANN001
+def _interpolate(
+    values: NDArray[Any],
+    sample_normals: NDArray[Any],
+    neighbours: NDArray[Any],
+    distances: NDArray[Any],
+    normals: NDArray[Any],
+    offset: np.float32,
+    out: NDArray[Any],
+) -> None:
     """``interpolate_samples`` into ``out``, in float32 throughout."""
     zero = np.float32(0.0)
     for point in range(len(out)):
@@ -467,7 +490,7 @@ def samples_to_faces(
 
 
 @kernel
-def _face_means(per_vertex, faces, out) -> None:  # noqa: ANN001
+def _face_means(per_vertex: NDArray[Any], faces: NDArray[Any], out: NDArray[Any]) -> None:
     """Mean of each face's three vertex values (summed in float32, as the vertex values)."""
     for face in range(len(faces)):
         total = per_vertex[faces[face, 0]] + per_vertex[faces[face, 1]] + per_vertex[faces[face, 2]]

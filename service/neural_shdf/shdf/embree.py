@@ -19,7 +19,8 @@ import ctypes.util
 import glob
 import os
 import threading
-from typing import Any
+from collections.abc import Callable
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -127,7 +128,7 @@ class Embree:
             raise RuntimeError(f"Embree could not create a device ({self.path})")
         address = ctypes.cast(lib.rtcIntersect16, ctypes.c_void_p).value
         #: ``rtcIntersect16(valid, scene, rayhit, arguments)``, callable from numba.
-        self.intersect16 = _IntersectPacket(address)
+        self.intersect16 = _IntersectPacket(cast(int, address))
 
     def check(self, what: str) -> None:
         """Raise if the device recorded an error during ``what``."""
@@ -216,7 +217,7 @@ class Scene:
             self.api.lib.rtcReleaseScene(handle)
             self.handle = None
 
-    def kernel_arguments(self) -> tuple:
+    def kernel_arguments(self) -> tuple[Callable[[int, int, int, int], None], int, int]:
         """``(intersect16, scene, arguments)`` as numba kernels take them."""
         return self.api.intersect16, self.handle, self.arguments.ctypes.data
 
@@ -239,7 +240,7 @@ def bounding_box(vertices: NDArray[Any]) -> tuple[NDArray[np.float64], NDArray[n
 
 
 @kernel
-def _bounding_box(vertices):  # noqa: ANN001, ANN202
+def _bounding_box(vertices: NDArray[Any]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     low = vertices[0].copy()
     high = vertices[0].copy()
     for row in range(1, len(vertices)):
@@ -264,7 +265,14 @@ def new_packet() -> tuple[NDArray[Any], NDArray[Any], NDArray[Any]]:
 
 
 @kernel(inline=True)
-def set_ray(rays, ids, lane, origin, direction, offset) -> None:  # noqa: ANN001
+def set_ray(
+    rays: NDArray[Any],
+    ids: NDArray[Any],
+    lane: int,
+    origin: NDArray[Any],
+    direction: NDArray[Any],
+    offset: float | np.float32,
+) -> None:
     """Put the ray from ``origin + offset * direction`` along ``direction`` (float32 rows)
     in ``lane`` of a packet and reset its hit."""
     rays[ORG_X, lane] = origin[0] + offset * direction[0]
@@ -283,7 +291,15 @@ def set_ray(rays, ids, lane, origin, direction, offset) -> None:  # noqa: ANN001
 
 
 @kernel(inline=True)
-def intersect_packet(intersect16, scene, arguments, rays, ids, valid, count) -> None:  # noqa: ANN001
+def intersect_packet(
+    intersect16: Callable[[int, int, int, int], None],
+    scene: int,
+    arguments: int,
+    rays: NDArray[Any],
+    ids: NDArray[Any],
+    valid: NDArray[Any],
+    count: int,
+) -> None:
     """Cast the first ``count`` lanes of a packet; ``hit_of`` then reads each lane's triangle."""
     for lane in range(LANES):
         valid[lane] = -1 if lane < count else 0
@@ -291,7 +307,7 @@ def intersect_packet(intersect16, scene, arguments, rays, ids, valid, count) -> 
 
 
 @kernel(inline=True)
-def hit_of(ids, lane) -> int:  # noqa: ANN001
+def hit_of(ids: NDArray[Any], lane: int) -> int | np.int64:
     """Triangle hit by ``lane`` after ``intersect_packet``, -1 for none."""
     if ids[GEOM_ID, lane] == INVALID_ID:
         return -1
@@ -299,7 +315,14 @@ def hit_of(ids, lane) -> int:  # noqa: ANN001
 
 
 @kernel
-def _first_hits(intersect16, scene, arguments, origins, directions, hits) -> None:  # noqa: ANN001
+def _first_hits(
+    intersect16: Callable[[int, int, int, int], None],
+    scene: int,
+    arguments: int,
+    origins: NDArray[Any],
+    directions: NDArray[Any],
+    hits: NDArray[Any],
+) -> None:
     rays, ids, valid = new_packet()
     no_offset = np.float32(0.0)
     for start in range(0, len(origins), LANES):

@@ -119,7 +119,13 @@ def face_tangents(
 
 
 @kernel
-def _face_tangents(vertices, faces, which, tolerance, out) -> None:  # noqa: ANN001
+def _face_tangents(
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
+    which: NDArray[Any],
+    tolerance: float,
+    out: NDArray[Any],
+) -> None:
     """``face_tangents`` into ``out``, one face at a time."""
     offsets = np.empty((3, 3))
     squared = np.empty(3)
@@ -208,7 +214,8 @@ def cone_coefficients(ray_count: int, cone_angle: float) -> NDArray[np.float64]:
     points, _ = disk_samples(ray_count)
     half = 0.5 * cone_angle
     coefficients = np.column_stack([np.full(ray_count, math.cos(half)), math.sin(half) * points])
-    return coefficients / np.linalg.norm(coefficients, axis=1, keepdims=True)
+    unit: NDArray[np.float64] = coefficients / np.linalg.norm(coefficients, axis=1, keepdims=True)
+    return unit
 
 
 def cone_frames(
@@ -248,9 +255,10 @@ def cone_directions(
 ) -> NDArray[Any]:
     """Unit ray directions (F, ray_count, 3) inside the cone around each inward normal,
     oriented by ``tangents`` (``cone_coefficients`` on ``cone_frames``)."""
-    coefficients = cone_coefficients(ray_count, cone_angle).astype(dtype)
+    coefficients: NDArray[Any] = cone_coefficients(ray_count, cone_angle).astype(dtype)
     frames = cone_frames(inward_normals, tangents, rotation)
-    return np.matmul(coefficients, frames.astype(dtype))
+    directions: NDArray[Any] = np.matmul(coefficients, frames.astype(dtype))
+    return directions
 
 
 def spatial_order(points: NDArray[Any], bits: int = 10) -> NDArray[np.int64]:
@@ -280,7 +288,8 @@ def _sorted_median(values: NDArray[Any], count: int) -> float:
             values[j + 1] = values[j]
             j -= 1
         values[j + 1] = value
-    return 0.5 * (values[(count - 1) // 2] + values[count // 2])
+    median: float = 0.5 * (values[(count - 1) // 2] + values[count // 2])
+    return median
 
 
 @kernel
@@ -517,7 +526,9 @@ def _cast_rays(
 
 
 @kernel(inline=True)
-def _exit_distance(rays, ids, lane, direction, offset) -> float:  # noqa: ANN001
+def _exit_distance(
+    rays: NDArray[Any], ids: NDArray[Any], lane: int, direction: NDArray[Any], offset: np.float32
+) -> float:
     """Distance from the face centroid to the ray's hit, NaN without a hit or when the
     ray does not leave through the back of the hit face (an outward normal facing it)."""
     if hit_of(ids, lane) < 0:
@@ -534,20 +545,20 @@ def _exit_distance(rays, ids, lane, direction, offset) -> float:  # noqa: ANN001
 
 @kernel
 def _shdf_of_faces(
-    intersect16,  # noqa: ANN001
-    scene,  # noqa: ANN001
-    arguments,  # noqa: ANN001
-    batch,  # noqa: ANN001
-    frames,  # noqa: ANN001
-    coefficients,  # noqa: ANN001
-    local_origins,  # noqa: ANN001
-    own_faces,  # noqa: ANN001
-    origin_offset,  # noqa: ANN001
-    retry_offset,  # noqa: ANN001
-    weights,  # noqa: ANN001
-    result,  # noqa: ANN001
-    spread,  # noqa: ANN001
-    hit_fraction,  # noqa: ANN001
+    intersect16: Callable[[int, int, int, int], None],
+    scene: int,
+    arguments: int,
+    batch: NDArray[Any],
+    frames: NDArray[Any],
+    coefficients: NDArray[Any],
+    local_origins: NDArray[Any],
+    own_faces: NDArray[Any],
+    origin_offset: np.float32,
+    retry_offset: np.float32,
+    weights: NDArray[Any],
+    result: NDArray[Any],
+    spread: NDArray[Any],
+    hit_fraction: NDArray[Any],
 ) -> None:
     """Raw ShDF of the origins ``batch`` into ``result``: rays of 16 origins per packet.
 
@@ -618,7 +629,9 @@ def _shdf_of_faces(
 
 
 @kernel(inline=True)
-def _hit_statistics(distances, item, spread, hit_fraction) -> None:  # noqa: ANN001
+def _hit_statistics(
+    distances: NDArray[Any], item: int, spread: NDArray[Any], hit_fraction: NDArray[Any]
+) -> None:
     """Relative standard deviation of the valid hit distances and their share of the rays."""
     hits = 0
     total = 0.0

@@ -35,6 +35,7 @@ from __future__ import annotations
 import heapq
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import maxflow
 import numpy as np
@@ -85,7 +86,9 @@ def crease_capacities(
 
 
 @kernel
-def _capacities(edge_length, dihedral, concave, strength):  # pragma: no cover - numba
+def _capacities(
+    edge_length: NDArray[Any], dihedral: NDArray[Any], concave: NDArray[Any], strength: float
+) -> NDArray[np.float64]:  # pragma: no cover - numba
     """``crease_capacities``: the length-weighted mean bend, then one pass over the edges."""
     bend_sum = 0.0
     length_sum = 0.0
@@ -133,8 +136,8 @@ class CreaseGraph:
 
 def crease_graph(
     graph: FaceGraph,
-    areas: NDArray,
-    centroids: NDArray,
+    areas: NDArray[Any],
+    centroids: NDArray[Any],
     *,
     strength: float = CONCAVITY_STRENGTH,
     coarse_above: int = COARSE_ABOVE_FACES,
@@ -155,10 +158,10 @@ def crease_graph(
 
 
 def snap_boundaries_to_creases(
-    parts: NDArray,
+    parts: NDArray[Any],
     graph: FaceGraph,
-    areas: NDArray,
-    centroids: NDArray,
+    areas: NDArray[Any],
+    centroids: NDArray[Any],
     min_part_fraction: float,
     *,
     width: float = BAND_WIDTH,
@@ -198,7 +201,7 @@ def snap_boundaries_to_creases(
 
 
 def _snap(
-    parts: NDArray, creases: CreaseGraph, width: float, side_share: float, change_cost: float
+    parts: NDArray[Any], creases: CreaseGraph, width: float, side_share: float, change_cost: float
 ) -> NDArray[np.int64] | None:
     """The banded min cut on the crease graph (parts per node); None when nothing moves."""
     graph, areas, capacity = creases.graph, creases.areas, creases.capacity
@@ -260,11 +263,11 @@ def _snap(
 
 def _coarse_graph(
     graph: FaceGraph,
-    areas: NDArray,
-    centroids: NDArray,
-    capacity: NDArray,
+    areas: NDArray[Any],
+    centroids: NDArray[Any],
+    capacity: NDArray[Any],
     target_nodes: int,
-) -> tuple[FaceGraph, NDArray, NDArray, NDArray, NDArray]:
+) -> tuple[FaceGraph, NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]]:
     """Coarse nodes: connected pieces of one grid cell, never grouped across a concave
     crease; cells sized for about ``target_nodes`` nodes, laid along the mesh's own axes
     (``principal_coordinates``, ``grid_cells``: the same nodes in any pose).
@@ -300,14 +303,14 @@ def _coarse_graph(
 
 
 def _min_cut_in_bands(
-    parts: NDArray,
-    in_band: NDArray,
-    owner: NDArray,
-    boundary_low: NDArray,
-    boundary_high: NDArray,
-    pairs: NDArray,
-    capacity: NDArray,
-    change: NDArray,
+    parts: NDArray[Any],
+    in_band: NDArray[Any],
+    owner: NDArray[Any],
+    boundary_low: NDArray[Any],
+    boundary_high: NDArray[Any],
+    pairs: NDArray[Any],
+    capacity: NDArray[Any],
+    change: NDArray[Any],
 ) -> NDArray[np.int64]:
     """One max-flow: each band face picks its boundary's low (0) or high (1) part;
     ``change``: what a face pays for leaving its part."""
@@ -349,8 +352,16 @@ def _min_cut_in_bands(
 
 @kernel
 def _coarsen(
-    pairs, edge_length, capacity, centroids, weight, cell_of, crease_ratio
-):  # pragma: no cover - numba
+    pairs: NDArray[Any],
+    edge_length: NDArray[Any],
+    capacity: NDArray[Any],
+    centroids: NDArray[Any],
+    weight: NDArray[Any],
+    cell_of: NDArray[Any],
+    crease_ratio: float,
+) -> tuple[
+    NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]
+]:  # pragma: no cover - numba
     """Union-find of faces sharing a grid cell (``cell_of``: a key per face) across
     non-crease edges, then the coarse nodes (numbered by lowest face: weights, weighted
     centroids) and their edges (lengths and capacities summed; duplicates merged
@@ -441,7 +452,9 @@ def _coarsen(
 
 
 @kernel
-def _majority_parts(node_of, parts, areas, node_count):  # pragma: no cover - numba
+def _majority_parts(
+    node_of: NDArray[Any], parts: NDArray[Any], areas: NDArray[Any], node_count: int
+) -> NDArray[np.int64]:  # pragma: no cover - numba
     """Each node's part: a weighted majority vote (Boyer-Moore) of its faces' parts, by
     area, in face order; exact wherever one part holds more than half of a node."""
     choice = np.full(node_count, -1, dtype=np.int64)
@@ -460,8 +473,15 @@ def _majority_parts(node_of, parts, areas, node_count):  # pragma: no cover - nu
 
 @kernel
 def _dijkstra(
-    indptr, neighbour, centroids, parts, seed_boundary, low, high, limit
-):  # pragma: no cover - numba
+    indptr: NDArray[Any],
+    neighbour: NDArray[Any],
+    centroids: NDArray[Any],
+    parts: NDArray[Any],
+    seed_boundary: NDArray[Any],
+    low: NDArray[Any],
+    high: NDArray[Any],
+    limit: NDArray[Any],
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:  # pragma: no cover - numba
     """Geodesic distance (over centroids) to the nearest boundary and its id (-1: none).
 
     Multi-source Dijkstra from the boundary nodes, spreading only through the two parts
@@ -473,7 +493,7 @@ def _dijkstra(
     distance = np.full(face_count, np.inf)
     owner = np.full(face_count, -1, dtype=np.int64)
     done = np.zeros(face_count, dtype=np.bool_)
-    heap = [(0.0, np.int64(0), np.int64(0))]
+    heap: list[tuple[float, Any, Any]] = [(0.0, np.int64(0), np.int64(0))]
     heap.pop()
     for face in range(face_count):
         if seed_boundary[face] < none:

@@ -20,6 +20,7 @@ would need tens of max-flows over the whole mesh.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, cast
 
 import maxflow
 import numpy as np
@@ -51,13 +52,15 @@ BAND_CYCLES = 1
 CREASE_FRACTION = 0.5
 
 
-def data_costs(posteriors: NDArray, face_weight: NDArray | None = None) -> NDArray[np.float64]:
+def data_costs(
+    posteriors: NDArray[Any], face_weight: NDArray[Any] | None = None
+) -> NDArray[np.float64]:
     """(F, k) cost ``-log(max(p, eps))`` of giving each face each cluster (CGAL's data term).
 
     ``face_weight`` (e.g. area over mean area) scales each face's row so that
     the energy does not depend on how finely a region is tessellated.
     """
-    cost = -np.log(np.maximum(posteriors, PROBABILITY_EPS))
+    cost: NDArray[np.float64] = -np.log(np.maximum(posteriors, PROBABILITY_EPS))
     np.maximum(cost, np.finfo(np.float64).eps, out=cost)
     if face_weight is not None:
         cost *= np.asarray(face_weight, dtype=np.float64)[:, None]
@@ -81,7 +84,7 @@ def dihedral_weights(graph: FaceGraph, smoothing: float) -> NDArray[np.float64]:
     return weight * length_factor(graph.edge_length)
 
 
-def length_factor(edge_length: NDArray) -> NDArray[np.float64]:
+def length_factor(edge_length: NDArray[Any]) -> NDArray[np.float64]:
     """Edge lengths over their mean (ones when every edge has zero length)."""
     mean = float(np.mean(edge_length)) if len(edge_length) else 0.0
     if not mean > 0:
@@ -89,7 +92,9 @@ def length_factor(edge_length: NDArray) -> NDArray[np.float64]:
     return np.asarray(edge_length, dtype=np.float64) / mean
 
 
-def labelling_energy(labels: NDArray, data: NDArray, pairs: NDArray, weights: NDArray) -> float:
+def labelling_energy(
+    labels: NDArray[Any], data: NDArray[Any], pairs: NDArray[Any], weights: NDArray[Any]
+) -> float:
     """E(l): data cost of each face's label plus the weight of every cut edge."""
     return float(
         _labelling_energy(
@@ -102,7 +107,9 @@ def labelling_energy(labels: NDArray, data: NDArray, pairs: NDArray, weights: ND
 
 
 @kernel
-def _labelling_energy(labels, data, pairs, weights):  # pragma: no cover - compiled
+def _labelling_energy(
+    labels: NDArray[Any], data: NDArray[Any], pairs: NDArray[Any], weights: NDArray[Any]
+) -> float:  # pragma: no cover - compiled
     unary = 0.0
     for node in range(len(labels)):
         unary += data[node, labels[node]]
@@ -114,7 +121,11 @@ def _labelling_energy(labels, data, pairs, weights):  # pragma: no cover - compi
 
 
 @kernel
-def _expansion_graph(labels, alpha, data, pairs, weights):  # pragma: no cover - compiled
+def _expansion_graph(
+    labels: NDArray[Any], alpha: int, data: NDArray[Any], pairs: NDArray[Any], weights: NDArray[Any]
+) -> tuple[
+    NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]
+]:  # pragma: no cover - compiled
     """The max-flow graph of one expansion move, in one pass: the free nodes (label not
     ``alpha``), their terminal capacities and the edges between free nodes.
 
@@ -169,7 +180,7 @@ def _expansion_graph(labels, alpha, data, pairs, weights):  # pragma: no cover -
 
 
 def expansion_move(
-    labels: NDArray, alpha: int, data: NDArray, pairs: NDArray, weights: NDArray
+    labels: NDArray[Any], alpha: int, data: NDArray[Any], pairs: NDArray[Any], weights: NDArray[Any]
 ) -> NDArray[np.int64]:
     """The best labelling reachable by letting any face switch to ``alpha`` (one max-flow)."""
     labels = np.asarray(labels, dtype=np.int64)
@@ -196,12 +207,12 @@ def expansion_move(
 
 
 def alpha_expansion(
-    data: NDArray,
-    pairs: NDArray,
-    weights: NDArray,
-    labels: NDArray | None = None,
+    data: NDArray[Any],
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
+    labels: NDArray[Any] | None = None,
     max_cycles: int = MAX_CYCLES,
-    alphas: NDArray | None = None,
+    alphas: NDArray[Any] | None = None,
 ) -> NDArray[np.int64]:
     """Minimise E(l) by alpha-expansion from ``labels`` (default: each face's cheapest label).
 
@@ -243,11 +254,11 @@ def alpha_expansion(
 
 
 def banded_alpha_expansion(
-    band_data: NDArray,
-    pairs: NDArray,
-    weights: NDArray,
-    labels: NDArray,
-    band: NDArray,
+    band_data: NDArray[Any],
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
+    labels: NDArray[Any],
+    band: NDArray[Any],
     max_cycles: int = MAX_CYCLES,
 ) -> NDArray[np.int64]:
     """Alpha-expansion where only ``band`` nodes may change; the rest stay fixed.
@@ -289,12 +300,12 @@ def banded_alpha_expansion(
 
 
 def near_boundary(
-    labels: NDArray,
-    pairs: NDArray,
+    labels: NDArray[Any],
+    pairs: NDArray[Any],
     node_count: int,
     rings: int,
-    adjacency: tuple[NDArray, NDArray] | None = None,
-) -> NDArray:
+    adjacency: tuple[NDArray[Any], NDArray[Any]] | None = None,
+) -> NDArray[Any]:
     """Nodes within ``rings`` hops (1 = the nodes on a cut edge) of a label boundary.
 
     ``adjacency``: ``adjacency_lists(pairs, node_count)`` where the caller keeps them.
@@ -303,12 +314,23 @@ def near_boundary(
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     if rings > 1 and adjacency is None:
         adjacency = adjacency_lists(pairs, node_count)
-    indptr, neighbours = adjacency if rings > 1 else (np.zeros(1, np.int64), np.zeros(0, np.int64))
+    indptr, neighbours = (
+        cast(tuple[NDArray[Any], NDArray[Any]], adjacency)
+        if rings > 1
+        else (np.zeros(1, np.int64), np.zeros(0, np.int64))
+    )
     return _near_boundary(labels, pairs, node_count, rings, indptr, neighbours)
 
 
 @kernel
-def _near_boundary(labels, pairs, node_count, rings, indptr, neighbours):  # pragma: no cover
+def _near_boundary(
+    labels: NDArray[Any],
+    pairs: NDArray[Any],
+    node_count: int,
+    rings: int,
+    indptr: NDArray[Any],
+    neighbours: NDArray[Any],
+) -> NDArray[np.bool_]:  # pragma: no cover
     band = np.zeros(node_count, dtype=np.bool_)
     front = np.empty(node_count, dtype=np.int64)
     size = 0
@@ -336,12 +358,12 @@ def _near_boundary(labels, pairs, node_count, rings, indptr, neighbours):  # pra
 
 
 def coarsen(
-    pairs: NDArray,
-    weights: NDArray,
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
     node_count: int,
-    cells: NDArray,
+    cells: NDArray[Any],
     crease_weight: float,
-    preferred: NDArray,
+    preferred: NDArray[Any],
 ) -> NDArray[np.int64]:
     """Coarse node of each node: connected pieces of one grid cell (``cells``: a key per
     node, ``grid_cells``).
@@ -355,8 +377,8 @@ def coarsen(
 
 
 def coarse_graph(
-    coarse_of: NDArray, pairs: NDArray, weights: NDArray, coarse_count: int
-) -> tuple[NDArray, NDArray]:
+    coarse_of: NDArray[Any], pairs: NDArray[Any], weights: NDArray[Any], coarse_count: int
+) -> tuple[NDArray[Any], NDArray[Any]]:
     """Edges between coarse nodes (pairs sorted by low, then high node) with summed weights;
     each sum adds its fine edges in their order."""
     ca, cb = coarse_of[pairs[:, 0]], coarse_of[pairs[:, 1]]
@@ -372,7 +394,9 @@ def coarse_graph(
 
 
 @kernel
-def _pair_order(low, high, count):  # pragma: no cover - compiled
+def _pair_order(
+    low: NDArray[Any], high: NDArray[Any], count: int
+) -> NDArray[np.int64]:  # pragma: no cover - compiled
     """``argsort(low * count + high, kind="stable")`` for ids in 0..count-1, in O(n + count):
     a stable counting sort by ``high``, then by ``low``."""
     by_high = _counting_order(high, np.arange(len(high)), count)
@@ -380,7 +404,9 @@ def _pair_order(low, high, count):  # pragma: no cover - compiled
 
 
 @kernel(inline=True)
-def _counting_order(keys, order, count):  # pragma: no cover - compiled
+def _counting_order(
+    keys: NDArray[Any], order: NDArray[Any], count: int
+) -> NDArray[np.int64]:  # pragma: no cover - compiled
     """``order`` stably re-sorted by ``keys[order]`` (keys in 0..count-1)."""
     start = np.zeros(count + 1, dtype=np.int64)
     for i in range(len(keys)):
@@ -394,13 +420,17 @@ def _counting_order(keys, order, count):  # pragma: no cover - compiled
     return result
 
 
-def coarse_data(coarse_of: NDArray, data: NDArray, coarse_count: int) -> NDArray[np.float64]:
+def coarse_data(
+    coarse_of: NDArray[Any], data: NDArray[Any], coarse_count: int
+) -> NDArray[np.float64]:
     """(coarse_count, k) data costs summed over each coarse node's nodes, in node order."""
     return _coarse_data(np.asarray(coarse_of, dtype=np.int64), data, coarse_count)
 
 
 @kernel
-def _coarse_data(coarse_of, data, coarse_count):  # pragma: no cover - compiled
+def _coarse_data(
+    coarse_of: NDArray[Any], data: NDArray[Any], coarse_count: int
+) -> NDArray[np.float64]:  # pragma: no cover - compiled
     summed = np.zeros((coarse_count, data.shape[1]))
     for node in range(len(coarse_of)):
         for label in range(data.shape[1]):
@@ -451,7 +481,8 @@ class CutHierarchy:
         finest = self.levels[0]
         if not smoothing > 0 or finest.data.shape[1] <= 1:
             # No smoothness term (or one label): each node's cheapest label is optimal.
-            return np.argmin(finest.data, axis=1).astype(np.int64)
+            cheapest: NDArray[np.int64] = np.argmin(finest.data, axis=1).astype(np.int64)
+            return cheapest
         top = self.levels[-1]
         labels = alpha_expansion(top.data, top.pairs, top.unit_weights * smoothing)
         for level in reversed(self.levels[:-1]):
@@ -469,11 +500,11 @@ class CutHierarchy:
 
 
 def cut_hierarchy(
-    data: NDArray,
-    pairs: NDArray,
-    unit_weights: NDArray,
-    centroids: NDArray,
-    areas: NDArray,
+    data: NDArray[Any],
+    pairs: NDArray[Any],
+    unit_weights: NDArray[Any],
+    centroids: NDArray[Any],
+    areas: NDArray[Any],
     coarse_nodes: int = COARSE_NODES,
     rings: int = BAND_RINGS,
 ) -> CutHierarchy:
@@ -535,11 +566,11 @@ def cut_hierarchy(
 
 
 def multilevel_alpha_expansion(
-    data: NDArray,
-    pairs: NDArray,
-    weights: NDArray,
-    centroids: NDArray,
-    areas: NDArray,
+    data: NDArray[Any],
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
+    centroids: NDArray[Any],
+    areas: NDArray[Any],
     coarse_nodes: int = COARSE_NODES,
     rings: int = BAND_RINGS,
 ) -> NDArray[np.int64]:

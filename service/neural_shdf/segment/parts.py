@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import heapq
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,10 +25,10 @@ class FaceData:
     @classmethod
     def of(
         cls,
-        vertices: NDArray,
-        faces: NDArray,
-        areas: NDArray | None = None,
-        centroids: NDArray | None = None,
+        vertices: NDArray[Any],
+        faces: NDArray[Any],
+        areas: NDArray[Any] | None = None,
+        centroids: NDArray[Any] | None = None,
     ) -> FaceData:
         """The data of ``faces``; ``areas`` and ``centroids`` where the caller has them
         (a ``TriangleMesh`` caches both)."""
@@ -37,12 +38,12 @@ class FaceData:
         centroids = face_centroids(vertices, faces) if centroids is None else centroids
         return cls(areas, centroids, weight)
 
-    def subset(self, faces: NDArray) -> FaceData:
+    def subset(self, faces: NDArray[Any]) -> FaceData:
         """The same data for some faces (weights stay relative to the whole mesh)."""
         return FaceData(self.areas[faces], self.centroids[faces], self.face_weight[faces])
 
 
-def canonical_labels(labels: NDArray) -> NDArray[np.int64]:
+def canonical_labels(labels: NDArray[Any]) -> NDArray[np.int64]:
     """Labels renumbered 0..P-1 in order of each label's lowest face index."""
     labels = np.asarray(labels).reshape(-1)
     if len(labels) == 0:
@@ -58,7 +59,9 @@ def canonical_labels(labels: NDArray) -> NDArray[np.int64]:
 
 
 @kernel
-def _first_seen_order(labels, span):  # pragma: no cover - compiled
+def _first_seen_order(
+    labels: NDArray[Any], span: int
+) -> NDArray[np.int64]:  # pragma: no cover - compiled
     rank = np.full(span, -1, dtype=np.int64)
     result = np.empty(len(labels), dtype=np.int64)
     seen = 0
@@ -71,14 +74,18 @@ def _first_seen_order(labels, span):  # pragma: no cover - compiled
     return result
 
 
-def connected_parts(labels: NDArray, pairs: NDArray, face_count: int) -> NDArray[np.int64]:
+def connected_parts(
+    labels: NDArray[Any], pairs: NDArray[Any], face_count: int
+) -> NDArray[np.int64]:
     """Connected components of faces with equal labels, as canonical part ids."""
     labels = np.asarray(labels, dtype=np.int64)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
     return connected_components(pairs, labels[pairs[:, 0]] == labels[pairs[:, 1]], face_count)
 
 
-def connected_components(pairs: NDArray, keep: NDArray, node_count: int) -> NDArray[np.int64]:
+def connected_components(
+    pairs: NDArray[Any], keep: NDArray[Any], node_count: int
+) -> NDArray[np.int64]:
     """Component of each node over the edges ``pairs[keep]``, numbered 0.. in order of each
     component's lowest node (union-find; linear)."""
     if node_count == 0:
@@ -89,10 +96,12 @@ def connected_components(pairs: NDArray, keep: NDArray, node_count: int) -> NDAr
 
 
 @kernel
-def _components(pairs, keep, node_count):  # pragma: no cover - compiled
+def _components(
+    pairs: NDArray[Any], keep: NDArray[Any], node_count: int
+) -> NDArray[np.int64]:  # pragma: no cover - compiled
     root = np.arange(node_count)
 
-    def find(node):
+    def find(node: int) -> int:
         while root[node] != node:
             root[node] = root[root[node]]  # path halving
             node = root[node]
@@ -117,20 +126,20 @@ def _components(pairs, keep, node_count):  # pragma: no cover - compiled
     return components
 
 
-def part_sizes(parts: NDArray, areas: NDArray) -> NDArray[np.float64]:
+def part_sizes(parts: NDArray[Any], areas: NDArray[Any]) -> NDArray[np.float64]:
     """Area of each part; face counts instead when the whole surface has no area."""
     count = int(parts.max()) + 1 if len(parts) else 0
-    size = np.bincount(parts, weights=areas, minlength=count)
+    size: NDArray[Any] = np.bincount(parts, weights=areas, minlength=count)
     if not size.sum() > 0:
         size = np.bincount(parts, minlength=count).astype(np.float64)
     return size
 
 
 def merge_small_parts(
-    parts: NDArray,
+    parts: NDArray[Any],
     graph: FaceGraph,
-    areas: NDArray,
-    centroids: NDArray,
+    areas: NDArray[Any],
+    centroids: NDArray[Any],
     min_fraction: float,
 ) -> NDArray[np.int64]:
     """Merge parts below ``min_fraction`` of the total area into a neighbour.
@@ -185,14 +194,16 @@ def merge_small_parts(
     return canonical_labels(merged)
 
 
-def _part_boundaries(parts: NDArray, graph: FaceGraph, part_count: int) -> list[dict]:
+def _part_boundaries(
+    parts: NDArray[Any], graph: FaceGraph, part_count: int
+) -> list[dict[int, float]]:
     """For each part, {neighbour part: total length of the shared boundary}."""
     a, b = parts[graph.pairs[:, 0]], parts[graph.pairs[:, 1]]
     cut = a != b
     low, high = np.minimum(a[cut], b[cut]), np.maximum(a[cut], b[cut])
     keys, inverse = np.unique(low * part_count + high, return_inverse=True)
     lengths = np.bincount(inverse.reshape(-1), weights=graph.edge_length[cut])
-    neighbours: list[dict] = [{} for _ in range(part_count)]
+    neighbours: list[dict[int, float]] = [{} for _ in range(part_count)]
     for key, length in zip(keys.tolist(), lengths.tolist(), strict=True):
         i, j = divmod(key, part_count)
         neighbours[i][j] = length
@@ -200,7 +211,7 @@ def _part_boundaries(parts: NDArray, graph: FaceGraph, part_count: int) -> list[
     return neighbours
 
 
-def _resolve(owner: NDArray) -> NDArray[np.int64]:
+def _resolve(owner: NDArray[Any]) -> NDArray[np.int64]:
     """Follow merge links to each part's final owner."""
     owner = owner.copy()
     while True:
@@ -211,7 +222,11 @@ def _resolve(owner: NDArray) -> NDArray[np.int64]:
 
 
 def _merge_isolated(
-    merged: NDArray, isolated: NDArray, size: NDArray, threshold: float, centroids: NDArray
+    merged: NDArray[Any],
+    isolated: NDArray[Any],
+    size: NDArray[Any],
+    threshold: float,
+    centroids: NDArray[Any],
 ) -> NDArray[np.int64]:
     """Give each isolated tiny part the label of the nearest face of a part that is not tiny."""
     kept = np.flatnonzero(size >= threshold)
@@ -236,10 +251,11 @@ def _merge_isolated(
     lookup = np.arange(int(merged.max()) + 1)
     for part, target in relabel.items():
         lookup[part] = target
-    return lookup[result]
+    relabelled: NDArray[np.int64] = lookup[result]
+    return relabelled
 
 
-def induced_subgraph(graph: FaceGraph, faces: NDArray) -> tuple[FaceGraph, NDArray[np.int64]]:
+def induced_subgraph(graph: FaceGraph, faces: NDArray[Any]) -> tuple[FaceGraph, NDArray[np.int64]]:
     """The graph on ``faces`` (sorted ascending) and the indices of its edges in ``graph``."""
     faces = np.asarray(faces, dtype=np.int64)
     inside = np.zeros(graph.face_count, dtype=bool)

@@ -19,6 +19,8 @@ import ctypes.util
 import glob
 import os
 import threading
+from collections.abc import Callable
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -126,7 +128,7 @@ class Embree:
             raise RuntimeError(f"Embree could not create a device ({self.path})")
         address = ctypes.cast(lib.rtcIntersect16, ctypes.c_void_p).value
         #: ``rtcIntersect16(valid, scene, rayhit, arguments)``, callable from numba.
-        self.intersect16 = _IntersectPacket(address)
+        self.intersect16 = _IntersectPacket(cast(int, address))
 
     def check(self, what: str) -> None:
         """Raise if the device recorded an error during ``what``."""
@@ -156,7 +158,9 @@ class Scene:
     ``BUILD_QUALITY`` (the hits are the same; build and traversal times differ).
     """
 
-    def __init__(self, vertices: NDArray, faces: NDArray, quality: str = "medium") -> None:
+    def __init__(
+        self, vertices: NDArray[Any], faces: NDArray[Any], quality: str = "medium"
+    ) -> None:
         if quality not in BUILD_QUALITY:
             raise ValueError(f"unknown build quality {quality!r}; use one of {list(BUILD_QUALITY)}")
         api = embree()
@@ -202,7 +206,7 @@ class Scene:
         self.arguments[1] = _FEATURE_FLAG_ALL
 
     @staticmethod
-    def center_of(vertices: NDArray) -> NDArray:
+    def center_of(vertices: NDArray[Any]) -> NDArray[Any]:
         """Centre of the bounding box: the origin of the scene's float32 coordinates."""
         low, high = bounding_box(vertices)
         return 0.5 * (low + high)
@@ -213,11 +217,11 @@ class Scene:
             self.api.lib.rtcReleaseScene(handle)
             self.handle = None
 
-    def kernel_arguments(self) -> tuple:
+    def kernel_arguments(self) -> tuple[Callable[[int, int, int, int], None], int, int]:
         """``(intersect16, scene, arguments)`` as numba kernels take them."""
         return self.api.intersect16, self.handle, self.arguments.ctypes.data
 
-    def first_hits(self, origins: NDArray, directions: NDArray) -> NDArray[np.int64]:
+    def first_hits(self, origins: NDArray[Any], directions: NDArray[Any]) -> NDArray[np.int64]:
         """Index of the first triangle each ray hits, -1 for none (origins relative to centre)."""
         origins = np.ascontiguousarray(origins, dtype=np.float32).reshape(-1, 3)
         directions = np.ascontiguousarray(directions, dtype=np.float32).reshape(-1, 3)
@@ -226,7 +230,7 @@ class Scene:
         return hits
 
 
-def bounding_box(vertices: NDArray) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def bounding_box(vertices: NDArray[Any]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """(low, high) corners of the points' bounding box (one compiled pass: numpy's
     reductions along the short axis of an (N, 3) array are several times slower)."""
     vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
@@ -236,7 +240,7 @@ def bounding_box(vertices: NDArray) -> tuple[NDArray[np.float64], NDArray[np.flo
 
 
 @kernel
-def _bounding_box(vertices):  # noqa: ANN001, ANN202
+def _bounding_box(vertices: NDArray[Any]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     low = vertices[0].copy()
     high = vertices[0].copy()
     for row in range(1, len(vertices)):
@@ -250,7 +254,7 @@ def _bounding_box(vertices):  # noqa: ANN001, ANN202
 
 
 @kernel
-def new_packet() -> tuple[NDArray, NDArray, NDArray]:
+def new_packet() -> tuple[NDArray[Any], NDArray[Any], NDArray[Any]]:
     """(rays as float32 rows, the same memory as uint32, valid mask) for ``intersect_packet``."""
     raw = np.zeros(PACKET_ROWS * LANES + LANES, dtype=np.float32)
     skip = (-raw.ctypes.data % 64) // 4
@@ -261,7 +265,14 @@ def new_packet() -> tuple[NDArray, NDArray, NDArray]:
 
 
 @kernel(inline=True)
-def set_ray(rays, ids, lane, origin, direction, offset) -> None:  # noqa: ANN001
+def set_ray(
+    rays: NDArray[Any],
+    ids: NDArray[Any],
+    lane: int,
+    origin: NDArray[Any],
+    direction: NDArray[Any],
+    offset: float | np.float32,
+) -> None:
     """Put the ray from ``origin + offset * direction`` along ``direction`` (float32 rows)
     in ``lane`` of a packet and reset its hit."""
     rays[ORG_X, lane] = origin[0] + offset * direction[0]
@@ -280,7 +291,15 @@ def set_ray(rays, ids, lane, origin, direction, offset) -> None:  # noqa: ANN001
 
 
 @kernel(inline=True)
-def intersect_packet(intersect16, scene, arguments, rays, ids, valid, count) -> None:  # noqa: ANN001
+def intersect_packet(
+    intersect16: Callable[[int, int, int, int], None],
+    scene: int,
+    arguments: int,
+    rays: NDArray[Any],
+    ids: NDArray[Any],
+    valid: NDArray[Any],
+    count: int,
+) -> None:
     """Cast the first ``count`` lanes of a packet; ``hit_of`` then reads each lane's triangle."""
     for lane in range(LANES):
         valid[lane] = -1 if lane < count else 0
@@ -288,7 +307,7 @@ def intersect_packet(intersect16, scene, arguments, rays, ids, valid, count) -> 
 
 
 @kernel(inline=True)
-def hit_of(ids, lane) -> int:  # noqa: ANN001
+def hit_of(ids: NDArray[Any], lane: int) -> int | np.int64:
     """Triangle hit by ``lane`` after ``intersect_packet``, -1 for none."""
     if ids[GEOM_ID, lane] == INVALID_ID:
         return -1
@@ -296,7 +315,14 @@ def hit_of(ids, lane) -> int:  # noqa: ANN001
 
 
 @kernel
-def _first_hits(intersect16, scene, arguments, origins, directions, hits) -> None:  # noqa: ANN001
+def _first_hits(
+    intersect16: Callable[[int, int, int, int], None],
+    scene: int,
+    arguments: int,
+    origins: NDArray[Any],
+    directions: NDArray[Any],
+    hits: NDArray[Any],
+) -> None:
     rays, ids, valid = new_packet()
     no_offset = np.float32(0.0)
     for start in range(0, len(origins), LANES):

@@ -33,6 +33,7 @@ import math
 import os
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -90,7 +91,7 @@ def disk_samples(ray_count: int) -> tuple[NDArray[np.float64], NDArray[np.float6
 
 
 def face_tangents(
-    vertices: NDArray, faces: NDArray, which: NDArray | None = None
+    vertices: NDArray[Any], faces: NDArray[Any], which: NDArray[Any] | None = None
 ) -> NDArray[np.float64]:
     """(F, 3) unit vector in each triangle's plane that orients its ray cone's spiral
     (of the faces ``which`` only, in that order, when given).
@@ -118,7 +119,13 @@ def face_tangents(
 
 
 @kernel
-def _face_tangents(vertices, faces, which, tolerance, out) -> None:  # noqa: ANN001
+def _face_tangents(
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
+    which: NDArray[Any],
+    tolerance: float,
+    out: NDArray[Any],
+) -> None:
     """``face_tangents`` into ``out``, one face at a time."""
     offsets = np.empty((3, 3))
     squared = np.empty(3)
@@ -165,7 +172,7 @@ def _face_tangents(vertices, faces, which, tolerance, out) -> None:  # noqa: ANN
                 out[k, axis] /= norm
 
 
-def plane_basis(normals: NDArray) -> tuple[NDArray, NDArray]:
+def plane_basis(normals: NDArray[Any]) -> tuple[NDArray[Any], NDArray[Any]]:
     """Unit in-plane vectors (base1, base2) of planes with the given unit normals.
 
     Same choice as CGAL's ``Plane_3::base1`` (CGAL >= 5): (1,0,0) if the normal
@@ -207,12 +214,13 @@ def cone_coefficients(ray_count: int, cone_angle: float) -> NDArray[np.float64]:
     points, _ = disk_samples(ray_count)
     half = 0.5 * cone_angle
     coefficients = np.column_stack([np.full(ray_count, math.cos(half)), math.sin(half) * points])
-    return coefficients / np.linalg.norm(coefficients, axis=1, keepdims=True)
+    unit: NDArray[np.float64] = coefficients / np.linalg.norm(coefficients, axis=1, keepdims=True)
+    return unit
 
 
 def cone_frames(
-    inward_normals: NDArray, tangents: NDArray, rotation: NDArray | None = None
-) -> NDArray:
+    inward_normals: NDArray[Any], tangents: NDArray[Any], rotation: NDArray[Any] | None = None
+) -> NDArray[Any]:
     """(F, 3, 3) rows (inward normal, base1, base2) of each face's ray cone.
 
     ``base1`` is ``tangents`` (``face_tangents`` of the face the cone leaves from) made
@@ -237,22 +245,23 @@ def cone_frames(
 
 
 def cone_directions(
-    inward_normals: NDArray,
-    tangents: NDArray,
+    inward_normals: NDArray[Any],
+    tangents: NDArray[Any],
     *,
     cone_angle: float,
     ray_count: int,
-    rotation: NDArray | None = None,
+    rotation: NDArray[Any] | None = None,
     dtype: type = np.float64,
-) -> NDArray:
+) -> NDArray[Any]:
     """Unit ray directions (F, ray_count, 3) inside the cone around each inward normal,
     oriented by ``tangents`` (``cone_coefficients`` on ``cone_frames``)."""
-    coefficients = cone_coefficients(ray_count, cone_angle).astype(dtype)
+    coefficients: NDArray[Any] = cone_coefficients(ray_count, cone_angle).astype(dtype)
     frames = cone_frames(inward_normals, tangents, rotation)
-    return np.matmul(coefficients, frames.astype(dtype))
+    directions: NDArray[Any] = np.matmul(coefficients, frames.astype(dtype))
+    return directions
 
 
-def spatial_order(points: NDArray, bits: int = 10) -> NDArray[np.int64]:
+def spatial_order(points: NDArray[Any], bits: int = 10) -> NDArray[np.int64]:
     """Indices that sort points along a Morton (Z-order) curve of their bounding box.
 
     Casting the rays of nearby faces one after another keeps Embree's caches warm.
@@ -270,7 +279,7 @@ def spatial_order(points: NDArray, bits: int = 10) -> NDArray[np.int64]:
 
 
 @kernel(inline=True)
-def _sorted_median(values: NDArray, count: int) -> float:
+def _sorted_median(values: NDArray[Any], count: int) -> float:
     """Sort ``values[:count]`` in place (insertion sort: a face has few rays); their median."""
     for i in range(1, count):
         value = values[i]
@@ -279,11 +288,14 @@ def _sorted_median(values: NDArray, count: int) -> float:
             values[j + 1] = values[j]
             j -= 1
         values[j + 1] = value
-    return 0.5 * (values[(count - 1) // 2] + values[count // 2])
+    median: float = 0.5 * (values[(count - 1) // 2] + values[count // 2])
+    return median
 
 
 @kernel
-def _robust_mean_row(distances: NDArray, weights: NDArray, scratch: NDArray) -> float:
+def _robust_mean_row(
+    distances: NDArray[Any], weights: NDArray[Any], scratch: NDArray[Any]
+) -> float:
     """``robust_mean`` of one row; ``scratch`` is work space at least as long as the row."""
     count = 0
     for value in distances:
@@ -306,7 +318,7 @@ def _robust_mean_row(distances: NDArray, weights: NDArray, scratch: NDArray) -> 
     return total / total_weight if total > 0 else median
 
 
-def robust_mean(distances: NDArray, weights: NDArray) -> NDArray[np.float64]:
+def robust_mean(distances: NDArray[Any], weights: NDArray[Any]) -> NDArray[np.float64]:
     """Per row of ``distances`` (NaN = no hit): weighted mean of the values within
     ``OUTLIER_MAD_FACTOR`` median absolute deviations of the median; NaN for rows
     without values. Medians of an even count average the two middle values.
@@ -325,14 +337,14 @@ def _check_cone(cone_angle: float, ray_count: int) -> None:
 
 
 def raw_shdf(
-    vertices: NDArray,
-    faces: NDArray,
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
     *,
     cone_angle: float = constants.SHDF_CONE_ANGLE,
     ray_count: int = constants.SHDF_RAY_COUNT,
     seed: int = 0,
     rotate_pattern: bool = False,
-    normals: NDArray | None = None,
+    normals: NDArray[Any] | None = None,
     threads: int | None = None,
     progress: Progress | None = None,
     scene: Scene | Future[Scene] | None = None,
@@ -382,11 +394,11 @@ def raw_shdf(
 
 
 def raw_shdf_at_points(
-    vertices: NDArray,
-    faces: NDArray,
-    points: NDArray,
-    point_normals: NDArray,
-    point_faces: NDArray,
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
+    points: NDArray[Any],
+    point_normals: NDArray[Any],
+    point_faces: NDArray[Any],
     *,
     cone_angle: float = constants.SHDF_CONE_ANGLE,
     ray_count: int = constants.SHDF_RAY_COUNT,
@@ -427,11 +439,11 @@ def raw_shdf_at_points(
 
 
 def _cast_rays(
-    vertices: NDArray,
-    faces: NDArray,
-    origins: NDArray,
-    normals: NDArray,
-    own_faces: NDArray,
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
+    origins: NDArray[Any],
+    normals: NDArray[Any],
+    own_faces: NDArray[Any],
     *,
     cone_angle: float,
     ray_count: int,
@@ -442,7 +454,7 @@ def _cast_rays(
     statistics: bool,
     scene: Scene | Future[Scene] | None = None,
     quality: str = "medium",
-) -> tuple[NDArray, NDArray, NDArray]:
+) -> tuple[NDArray[Any], NDArray[Any], NDArray[Any]]:
     """Cones of rays from ``origins`` around their inward ``normals``, in batches over
     threads: (robust mean, spread, hit fraction) per origin; the last two only with
     ``statistics`` (else empty). Origins with a zero normal get NaN. ``scene``: the
@@ -483,7 +495,7 @@ def _cast_rays(
         local_origins = (origins - 0.5 * (low + high)).astype(np.float32)
         coefficients = cone_coefficients(ray_count, cone_angle).astype(np.float32)
 
-        def run_batch(batch: NDArray) -> None:
+        def run_batch(batch: NDArray[Any]) -> None:
             frames = cone_frames(
                 np.negative(np.take(normals, batch, axis=0)),
                 face_tangents(vertices, faces, np.take(own_faces, batch)),
@@ -514,7 +526,9 @@ def _cast_rays(
 
 
 @kernel(inline=True)
-def _exit_distance(rays, ids, lane, direction, offset) -> float:  # noqa: ANN001
+def _exit_distance(
+    rays: NDArray[Any], ids: NDArray[Any], lane: int, direction: NDArray[Any], offset: np.float32
+) -> float:
     """Distance from the face centroid to the ray's hit, NaN without a hit or when the
     ray does not leave through the back of the hit face (an outward normal facing it)."""
     if hit_of(ids, lane) < 0:
@@ -531,20 +545,20 @@ def _exit_distance(rays, ids, lane, direction, offset) -> float:  # noqa: ANN001
 
 @kernel
 def _shdf_of_faces(
-    intersect16,  # noqa: ANN001
-    scene,  # noqa: ANN001
-    arguments,  # noqa: ANN001
-    batch,  # noqa: ANN001
-    frames,  # noqa: ANN001
-    coefficients,  # noqa: ANN001
-    local_origins,  # noqa: ANN001
-    own_faces,  # noqa: ANN001
-    origin_offset,  # noqa: ANN001
-    retry_offset,  # noqa: ANN001
-    weights,  # noqa: ANN001
-    result,  # noqa: ANN001
-    spread,  # noqa: ANN001
-    hit_fraction,  # noqa: ANN001
+    intersect16: Callable[[int, int, int, int], None],
+    scene: int,
+    arguments: int,
+    batch: NDArray[Any],
+    frames: NDArray[Any],
+    coefficients: NDArray[Any],
+    local_origins: NDArray[Any],
+    own_faces: NDArray[Any],
+    origin_offset: np.float32,
+    retry_offset: np.float32,
+    weights: NDArray[Any],
+    result: NDArray[Any],
+    spread: NDArray[Any],
+    hit_fraction: NDArray[Any],
 ) -> None:
     """Raw ShDF of the origins ``batch`` into ``result``: rays of 16 origins per packet.
 
@@ -615,7 +629,9 @@ def _shdf_of_faces(
 
 
 @kernel(inline=True)
-def _hit_statistics(distances, item, spread, hit_fraction) -> None:  # noqa: ANN001
+def _hit_statistics(
+    distances: NDArray[Any], item: int, spread: NDArray[Any], hit_fraction: NDArray[Any]
+) -> None:
     """Relative standard deviation of the valid hit distances and their share of the rays."""
     hits = 0
     total = 0.0

@@ -12,6 +12,7 @@ import math
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -56,7 +57,7 @@ def bilateral_window(face_count: int) -> int:
     return int(math.sqrt(face_count / 2000.0)) + 1
 
 
-def fill_missing(values: NDArray, graph: FaceGraph) -> NDArray[np.float64]:
+def fill_missing(values: NDArray[Any], graph: FaceGraph) -> NDArray[np.float64]:
     """Faces with NaN take the mean of their neighbours' values, in face order.
 
     As CGAL does: a face filled earlier counts as a neighbour value for later
@@ -96,8 +97,8 @@ def fill_missing(values: NDArray, graph: FaceGraph) -> NDArray[np.float64]:
 
 
 def _window_pairs(
-    adjacency: sp.csr_matrix, rows: NDArray, window: int
-) -> tuple[NDArray, NDArray, NDArray]:
+    adjacency: sp.csr_matrix, rows: NDArray[Any], window: int
+) -> tuple[NDArray[Any], NDArray[Any], NDArray[Any]]:
     """(row position in ``rows``, face, ring) for every face within ``window`` edge rings.
 
     Breadth-first, all rows at once: ring k+1 is the neighbours of ring k minus
@@ -123,10 +124,10 @@ def _window_pairs(
 
 
 def _bilateral_vectorised(
-    values: NDArray,
+    values: NDArray[Any],
     adjacency: sp.csr_matrix,
     window_size: int,
-    spatial_weight: NDArray,
+    spatial_weight: NDArray[Any],
     range_sigma_factor: float,
 ) -> NDArray[np.float64]:
     """The filter with numpy/scipy only: all (face, window face) pairs, in row chunks."""
@@ -156,7 +157,15 @@ def _bilateral_vectorised(
 
 
 @kernel(inline=True)
-def _walk_rings(start, max_ring, indptr, indices, seen_by, queue, ring):  # noqa: ANN001, ANN202
+def _walk_rings(
+    start: int,
+    max_ring: int,
+    indptr: NDArray[Any],
+    indices: NDArray[Any],
+    seen_by: NDArray[Any],
+    queue: NDArray[Any],
+    ring: NDArray[Any],
+) -> int:
     """Breadth-first walk from ``start`` up to ``max_ring`` edge rings: fills ``queue`` with
     the nodes reached (``start`` first) and ``ring`` with their rings; returns their count.
     ``seen_by[node] == start`` marks a node reached by this walk (no clearing between walks)."""
@@ -182,13 +191,13 @@ def _walk_rings(start, max_ring, indptr, indices, seen_by, queue, ring):  # noqa
 def _bilateral_faces(
     first: int,
     last: int,
-    indptr: NDArray,
-    indices: NDArray,
-    values: NDArray,
+    indptr: NDArray[Any],
+    indices: NDArray[Any],
+    values: NDArray[Any],
     window_size: int,
-    spatial_weight: NDArray,
+    spatial_weight: NDArray[Any],
     range_sigma_factor: float,
-    out: NDArray,
+    out: NDArray[Any],
 ) -> None:
     """The filter for faces ``first..last-1``, one breadth-first walk per face (compiled)."""
     face_count = len(values)
@@ -222,7 +231,7 @@ _bilateral_faces = kernel(_bilateral_faces)
 
 
 def bilateral_smooth(
-    values: NDArray,
+    values: NDArray[Any],
     graph: FaceGraph,
     *,
     window_size: int,
@@ -291,7 +300,9 @@ def sorted_adjacency(graph: FaceGraph) -> tuple[NDArray[np.int64], NDArray[np.in
 
 
 @kernel
-def _cover_with_patches(indptr, indices, radius):  # noqa: ANN001, ANN202
+def _cover_with_patches(
+    indptr: NDArray[Any], indices: NDArray[Any], radius: int
+) -> NDArray[np.int64]:
     """Patch id per face: seeds at least ``2 radius`` edge rings apart (greedy, in face
     order: a face becomes a seed unless an earlier seed lies closer), then every face
     joins its nearest seed (multi-source breadth-first walk; ties: the earlier seed)."""
@@ -328,7 +339,9 @@ def _cover_with_patches(indptr, indices, radius):  # noqa: ANN001, ANN202
 
 
 @kernel
-def _patch_windows(indptr, indices, hops):  # noqa: ANN001, ANN202
+def _patch_windows(
+    indptr: NDArray[Any], indices: NDArray[Any], hops: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """For every patch, the patches within ``hops`` steps of the patch graph (itself
     included), as CSR arrays (start, members)."""
     count = len(indptr) - 1
@@ -352,20 +365,20 @@ def _patch_windows(indptr, indices, hops):  # noqa: ANN001, ANN202
 
 @kernel
 def _patch_bilateral_faces(  # noqa: PLR0913
-    first,  # noqa: ANN001
-    last,  # noqa: ANN001
-    values,  # noqa: ANN001
-    patch_of,  # noqa: ANN001
-    starts,  # noqa: ANN001
-    members,  # noqa: ANN001
-    member_weight,  # noqa: ANN001
-    patch_mean,  # noqa: ANN001
-    patch_variance,  # noqa: ANN001
-    window_faces,  # noqa: ANN001
-    window_first,  # noqa: ANN001
-    window_second,  # noqa: ANN001
-    range_sigma_factor,  # noqa: ANN001
-    out,  # noqa: ANN001
+    first: int,
+    last: int,
+    values: NDArray[Any],
+    patch_of: NDArray[Any],
+    starts: NDArray[Any],
+    members: NDArray[Any],
+    member_weight: NDArray[Any],
+    patch_mean: NDArray[Any],
+    patch_variance: NDArray[Any],
+    window_faces: NDArray[Any],
+    window_first: NDArray[Any],
+    window_second: NDArray[Any],
+    range_sigma_factor: float,
+    out: NDArray[Any],
 ) -> None:
     """``bilateral_smooth`` for faces ``first..last-1`` over the window of their patch:
     each member patch weighs in with ``member_weight`` (its face count x the spatial
@@ -399,7 +412,7 @@ def _patch_bilateral_faces(  # noqa: PLR0913
         out[face] = total / norm if norm > 0 else centre
 
 
-def ring_length(graph: FaceGraph, centroids: NDArray) -> float:
+def ring_length(graph: FaceGraph, centroids: NDArray[Any]) -> float:
     """Straight-line distance per edge ring of the face graph: ``RING_PER_SPACING`` x the
     mean distance between the centroids of adjacent faces (``RING_LENGTH_PAIRS`` pairs
     evenly spread over the graph's). Turns a window in rings into a distance on the
@@ -408,7 +421,7 @@ def ring_length(graph: FaceGraph, centroids: NDArray) -> float:
     return _ring_length(centroids[pairs[:, 0]] - centroids[pairs[:, 1]])
 
 
-def mesh_ring_length(graph: FaceGraph, vertices: NDArray, faces: NDArray) -> float:
+def mesh_ring_length(graph: FaceGraph, vertices: NDArray[Any], faces: NDArray[Any]) -> float:
     """``ring_length`` from the mesh, computing only the centroids of the pairs it reads."""
     pairs = _spacing_pairs(graph)
     offset = np.empty((len(pairs), 3))
@@ -422,7 +435,9 @@ def mesh_ring_length(graph: FaceGraph, vertices: NDArray, faces: NDArray) -> flo
 
 
 @kernel
-def _centroid_offsets(vertices, faces, pairs, out) -> None:  # noqa: ANN001
+def _centroid_offsets(
+    vertices: NDArray[Any], faces: NDArray[Any], pairs: NDArray[Any], out: NDArray[Any]
+) -> None:
     """Centroid of ``pairs[:, 0]`` minus centroid of ``pairs[:, 1]`` (as ``face_centroids``)."""
     for row in range(len(pairs)):
         a, b = faces[pairs[row, 0]], faces[pairs[row, 1]]
@@ -436,16 +451,16 @@ def _spacing_pairs(graph: FaceGraph) -> NDArray[np.int64]:
     return graph.pairs[:: max(1, len(graph.pairs) // RING_LENGTH_PAIRS)]
 
 
-def _ring_length(offset: NDArray) -> float:
+def _ring_length(offset: NDArray[Any]) -> float:
     if len(offset) == 0:
         return 0.0
     return RING_PER_SPACING * float(np.mean(np.sqrt(np.einsum("ij,ij->i", offset, offset))))
 
 
 def patch_bilateral(
-    values: NDArray,
+    values: NDArray[Any],
     graph: FaceGraph,
-    centroids: NDArray,
+    centroids: NDArray[Any],
     *,
     window_size: int,
     spatial_sigma: float | None = None,
@@ -539,7 +554,7 @@ def patch_bilateral(
     return out
 
 
-def linear_normalize(values: NDArray) -> NDArray[np.float64]:
+def linear_normalize(values: NDArray[Any]) -> NDArray[np.float64]:
     """Map to [0, 1] by min and max; constant input gives zeros."""
     values = np.asarray(values, dtype=np.float64)
     if len(values) == 0:
@@ -550,7 +565,9 @@ def linear_normalize(values: NDArray) -> NDArray[np.float64]:
     return np.clip((values - low) / (high - low), 0.0, 1.0)
 
 
-def log_normalize(values: NDArray, alpha: float = LOG_NORMALIZATION_ALPHA) -> NDArray[np.float64]:
+def log_normalize(
+    values: NDArray[Any], alpha: float = LOG_NORMALIZATION_ALPHA
+) -> NDArray[np.float64]:
     """CGAL's log normalisation of [0, 1] values: ``log(alpha * x + 1) / log(alpha + 1)``."""
     if alpha <= 0:
         raise ParameterError(f"alpha must be > 0, got {alpha}")
@@ -558,14 +575,14 @@ def log_normalize(values: NDArray, alpha: float = LOG_NORMALIZATION_ALPHA) -> ND
 
 
 def postprocess_shdf(
-    raw: NDArray,
+    raw: NDArray[Any],
     graph: FaceGraph,
     *,
     window_size: int | None = None,
     spatial_sigma: float | None = None,
     range_sigma_factor: float = RANGE_SIGMA_FACTOR,
     smooth: bool = True,
-    centroids: NDArray | None = None,
+    centroids: NDArray[Any] | None = None,
     progress: Progress | None = None,
 ) -> NDArray[np.float64]:
     """Raw diameters (NaN = no value) -> ShDF in [0, 1], as CGAL post-processes ``sdf_values``.

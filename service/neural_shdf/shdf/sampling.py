@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -84,7 +85,11 @@ def poisson_radius(total_area: float, target_samples: int) -> float:
 
 
 def sample_surface(
-    vertices: NDArray, faces: NDArray, areas: NDArray, count: int, rng: np.random.Generator
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
+    areas: NDArray[Any],
+    count: int,
+    rng: np.random.Generator,
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """``count`` area-uniform random points on the triangles and their face ids.
 
@@ -112,7 +117,15 @@ def sample_surface(
 
 
 @kernel
-def _points_on_faces(vertices, faces, face_ids, u, v, order, out) -> None:  # noqa: ANN001
+def _points_on_faces(
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
+    face_ids: NDArray[Any],
+    u: NDArray[Any],
+    v: NDArray[Any],
+    order: NDArray[Any],
+    out: NDArray[Any],
+) -> None:
     """Point ``i`` at barycentric (u, v) of its face (folded into the triangle when
     u + v > 1), made in the given ``order``."""
     for i in order:
@@ -134,7 +147,7 @@ def _points_on_faces(vertices, faces, face_ids, u, v, order, out) -> None:  # no
 _MAX_GRID_CELLS = 2**40
 
 
-def greedy_disk_selection(points: NDArray, radius: float) -> NDArray[np.int64]:
+def greedy_disk_selection(points: NDArray[Any], radius: float) -> NDArray[np.int64]:
     """Indices of the points a sequential dart thrower keeps (in index order) for ``radius``.
 
     Point i is kept iff no kept point j < i lies within ``radius``. The kept points
@@ -153,7 +166,7 @@ def greedy_disk_selection(points: NDArray, radius: float) -> NDArray[np.int64]:
     return _dart_throw(points, radius, cell_size)
 
 
-def _conflict_pair_selection(points: NDArray, radius: float) -> NDArray[np.int64]:
+def _conflict_pair_selection(points: NDArray[Any], radius: float) -> NDArray[np.int64]:
     """``greedy_disk_selection`` in vectorised rounds over all conflict pairs (memory grows
     with the pairs: only for grids too fine for integer cell coordinates)."""
     n = len(points)
@@ -175,7 +188,9 @@ def _conflict_pair_selection(points: NDArray, radius: float) -> NDArray[np.int64
 
 
 @kernel
-def _dart_throw(points, radius, cell_size):  # pragma: no cover - numba
+def _dart_throw(
+    points: NDArray[Any], radius: float, cell_size: float
+) -> NDArray[np.int64]:  # pragma: no cover - numba
     """Sequential dart throwing over a hash grid; kept points chained per cell."""
     n = points.shape[0]
     squared_radius = radius * radius
@@ -243,7 +258,7 @@ def _dart_throw(points, radius, cell_size):  # pragma: no cover - numba
 
 
 @kernel(inline=True)
-def _cell_hash(x, y, z):  # pragma: no cover - numba
+def _cell_hash(x: int, y: int, z: int) -> np.int64:  # pragma: no cover - numba
     """A mixed 63-bit hash of integer cell coordinates."""
     key = np.uint64(x) * np.uint64(0x9E3779B97F4A7C15)
     key ^= np.uint64(y) * np.uint64(0xC2B2AE3D27D4EB4F) + (key >> np.uint64(29))
@@ -253,7 +268,7 @@ def _cell_hash(x, y, z):  # pragma: no cover - numba
 
 
 def vertex_normal_sums(
-    vertex_count: int, faces: NDArray, normals: NDArray, areas: NDArray
+    vertex_count: int, faces: NDArray[Any], normals: NDArray[Any], areas: NDArray[Any]
 ) -> NDArray[np.float64]:
     """Area-weighted sums of the normals of the faces around each vertex (not unit)."""
     faces = np.ascontiguousarray(faces, dtype=np.int64)
@@ -268,7 +283,9 @@ def vertex_normal_sums(
 
 
 @kernel
-def _vertex_normal_sums(vertex_count, faces, normals, areas):  # noqa: ANN001, ANN202
+def _vertex_normal_sums(
+    vertex_count: int, faces: NDArray[Any], normals: NDArray[Any], areas: NDArray[Any]
+) -> NDArray[np.float64]:
     out = np.zeros((vertex_count, 3))
     for face in range(len(faces)):
         for axis in range(3):
@@ -278,24 +295,27 @@ def _vertex_normal_sums(vertex_count, faces, normals, areas):  # noqa: ANN001, A
     return out
 
 
-def unit_rows(vectors: NDArray) -> NDArray[np.float64]:
+def unit_rows(vectors: NDArray[Any]) -> NDArray[np.float64]:
     """Rows scaled to unit length; zero rows stay zero."""
     length = np.linalg.norm(vectors, axis=1, keepdims=True)
-    return np.divide(vectors, length, out=np.zeros_like(vectors), where=length > 0)
+    unit: NDArray[np.float64] = np.divide(
+        vectors, length, out=np.zeros_like(vectors), where=length > 0
+    )
+    return unit
 
 
 def sample_surface_points(
-    vertices: NDArray,
-    faces: NDArray,
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
     target_samples: int = DEFAULT_TARGET_SAMPLES,
     *,
     interpolation_neighbours: int = DEFAULT_INTERPOLATION_NEIGHBOURS,
     seed: int = 0,
-    normals: NDArray | None = None,
-    areas: NDArray | None = None,
+    normals: NDArray[Any] | None = None,
+    areas: NDArray[Any] | None = None,
     workers: int = 2,
     map_vertices: bool = True,
-    normal_sums: NDArray | None = None,
+    normal_sums: NDArray[Any] | None = None,
     density: bool = False,
 ) -> SurfaceSamples:
     """About ``target_samples`` Poisson-disk samples of a triangle mesh.
@@ -353,8 +373,8 @@ def sample_surface_points(
 
 def with_vertex_map(
     samples: SurfaceSamples,
-    vertices: NDArray,
-    normal_sums: NDArray,
+    vertices: NDArray[Any],
+    normal_sums: NDArray[Any],
     interpolation_neighbours: int = DEFAULT_INTERPOLATION_NEIGHBOURS,
     workers: int = 2,
 ) -> SurfaceSamples:
@@ -373,7 +393,7 @@ def with_vertex_map(
 
 
 def nearest_samples(
-    positions: NDArray, points: NDArray, count: int, radius: float, workers: int = 2
+    positions: NDArray[Any], points: NDArray[Any], count: int, radius: float, workers: int = 2
 ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """(P, k) indices of the ``count`` samples (``positions``, Poisson ``radius``)
     nearest to each point (k at most the sample count), nearest first, and their
@@ -382,11 +402,11 @@ def nearest_samples(
 
 
 def interpolate_samples(
-    sample_values: NDArray,
-    sample_normals: NDArray,
-    neighbours: NDArray,
-    distances: NDArray,
-    point_normals: NDArray,
+    sample_values: NDArray[Any],
+    sample_normals: NDArray[Any],
+    neighbours: NDArray[Any],
+    distances: NDArray[Any],
+    point_normals: NDArray[Any],
     radius: float,
 ) -> NDArray[np.float32]:
     """Values at points from their nearest samples (``nearest_samples``).
@@ -410,7 +430,15 @@ def interpolate_samples(
 
 
 @kernel
-def _interpolate(values, sample_normals, neighbours, distances, normals, offset, out) -> None:  # noqa: ANN001
+def _interpolate(
+    values: NDArray[Any],
+    sample_normals: NDArray[Any],
+    neighbours: NDArray[Any],
+    distances: NDArray[Any],
+    normals: NDArray[Any],
+    offset: np.float32,
+    out: NDArray[Any],
+) -> None:
     """``interpolate_samples`` into ``out``, in float32 throughout."""
     zero = np.float32(0.0)
     for point in range(len(out)):
@@ -430,7 +458,7 @@ def _interpolate(values, sample_normals, neighbours, distances, normals, offset,
 
 
 def resample(
-    sample_values: NDArray, source: SurfaceSamples, target: SurfaceSamples, neighbours: int
+    sample_values: NDArray[Any], source: SurfaceSamples, target: SurfaceSamples, neighbours: int
 ) -> NDArray[np.float64]:
     """Values given at the samples of ``source``, interpolated at the samples of
     ``target`` (another sample set of the same surface) from their ``neighbours``
@@ -444,7 +472,7 @@ def resample(
 
 
 def samples_to_faces(
-    sample_values: NDArray, graph: SurfaceSamples, faces: NDArray
+    sample_values: NDArray[Any], graph: SurfaceSamples, faces: NDArray[Any]
 ) -> NDArray[np.float64]:
     """Per-face values from per-sample values: each vertex interpolates its nearest
     samples (``interpolate_samples``), a face takes the mean of its three vertices."""
@@ -462,7 +490,7 @@ def samples_to_faces(
 
 
 @kernel
-def _face_means(per_vertex, faces, out) -> None:  # noqa: ANN001
+def _face_means(per_vertex: NDArray[Any], faces: NDArray[Any], out: NDArray[Any]) -> None:
     """Mean of each face's three vertex values (summed in float32, as the vertex values)."""
     for face in range(len(faces)):
         total = per_vertex[faces[face, 0]] + per_vertex[faces[face, 1]] + per_vertex[faces[face, 2]]
@@ -474,9 +502,9 @@ FILL_NEIGHBOURS = 8
 
 
 def smooth_samples(
-    values: NDArray,
-    positions: NDArray,
-    normals: NDArray,
+    values: NDArray[Any],
+    positions: NDArray[Any],
+    normals: NDArray[Any],
     *,
     radius: float,
     spatial_sigma: float,
@@ -510,7 +538,7 @@ def smooth_samples(
     return np.where(varies, total / norm, values)
 
 
-def fill_samples(values: NDArray, positions: NDArray) -> NDArray[np.float64]:
+def fill_samples(values: NDArray[Any], positions: NDArray[Any]) -> NDArray[np.float64]:
     """Samples without a value (NaN) take the mean of their valid nearest samples;
     those with none nearby the smallest value; all NaN stays all NaN."""
     values = np.asarray(values, dtype=np.float64).copy()

@@ -17,7 +17,9 @@ the GIL; the result does not depend on the thread count).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -41,7 +43,7 @@ def _blocks(count: int, workers: int) -> list[tuple[int, int]]:
     return [(start, min(count, start + size)) for start in range(0, count, size)]
 
 
-def _run_blocks(function, count: int, workers: int) -> None:  # noqa: ANN001
+def _run_blocks(function: Callable[[int, int], object], count: int, workers: int) -> None:
     blocks = _blocks(count, workers)
     if workers <= 1 or len(blocks) <= 1:
         for first, last in blocks:
@@ -52,7 +54,7 @@ def _run_blocks(function, count: int, workers: int) -> None:  # noqa: ANN001
 
 
 def nearest_points(
-    positions: NDArray, queries: NDArray, count: int, spacing: float, workers: int = 2
+    positions: NDArray[Any], queries: NDArray[Any], count: int, spacing: float, workers: int = 2
 ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """(Q, k) indices of the ``count`` points of ``positions`` nearest to each query
     (k = min(count, number of points)), nearest first, and their distances.
@@ -104,15 +106,25 @@ def nearest_points(
     return index, distance
 
 
-def _cell_of(points: NDArray, origin: NDArray, cell: float, dims: NDArray) -> NDArray[np.int64]:
+def _cell_of(
+    points: NDArray[Any], origin: NDArray[Any], cell: float, dims: NDArray[Any]
+) -> NDArray[np.int64]:
     """Linear grid cell of each point (coordinates clamped to the grid)."""
     coordinates = np.floor((points - origin) / cell).astype(np.int64)
     np.clip(coordinates, 0, dims - 1, out=coordinates)
-    return (coordinates[:, 0] * dims[1] + coordinates[:, 1]) * dims[2] + coordinates[:, 2]
+    rows: NDArray[np.int64] = coordinates[:, 0] * dims[1] + coordinates[:, 1]
+    cells: NDArray[np.int64] = rows * dims[2] + coordinates[:, 2]
+    return cells
 
 
 @kernel(inline=True)
-def _insert(best_distance, best_index, found, candidate, squared) -> int:  # noqa: ANN001
+def _insert(
+    best_distance: NDArray[Any],
+    best_index: NDArray[Any],
+    found: int,
+    candidate: int,
+    squared: float | np.float32,
+) -> int:
     """Insert (squared distance, index) into the sorted top-k lists; new ``found``."""
     k = len(best_distance)
     last = min(found, k - 1)
@@ -135,7 +147,16 @@ def _insert(best_distance, best_index, found, candidate, squared) -> int:  # noq
 
 
 @kernel(inline=True)
-def _insert_point(queries, query, points, slot, original, best_distance, best_index, found) -> int:  # noqa: ANN001, E501
+def _insert_point(
+    queries: NDArray[Any],
+    query: int,
+    points: NDArray[Any],
+    slot: int,
+    original: NDArray[Any],
+    best_distance: NDArray[Any],
+    best_index: NDArray[Any],
+    found: int,
+) -> int:
     """``_insert`` the sorted point ``slot`` as a neighbour of ``query``."""
     dx = queries[query, 0] - points[slot, 0]
     dy = queries[query, 1] - points[slot, 1]
@@ -145,17 +166,17 @@ def _insert_point(queries, query, points, slot, original, best_distance, best_in
 
 @kernel
 def _grid_nearest(  # noqa: PLR0913
-    queries,  # noqa: ANN001
-    first,  # noqa: ANN001
-    last,  # noqa: ANN001
-    points,  # noqa: ANN001
-    original,  # noqa: ANN001
-    starts,  # noqa: ANN001
-    origin,  # noqa: ANN001
-    cell,  # noqa: ANN001
-    dims,  # noqa: ANN001
-    out_index,  # noqa: ANN001
-    out_distance,  # noqa: ANN001
+    queries: NDArray[Any],
+    first: int,
+    last: int,
+    points: NDArray[Any],
+    original: NDArray[Any],
+    starts: NDArray[Any],
+    origin: NDArray[Any],
+    cell: float,
+    dims: NDArray[Any],
+    out_index: NDArray[Any],
+    out_distance: NDArray[Any],
 ) -> None:
     """Squared distances and indices of the k nearest points of queries first..last-1."""
     k = out_index.shape[1]
@@ -228,8 +249,8 @@ def _grid_nearest(  # noqa: PLR0913
 
 
 def cone_neighbours(
-    positions: NDArray,
-    normals: NDArray,
+    positions: NDArray[Any],
+    normals: NDArray[Any],
     count: int,
     cone_cos: float,
     radius: float,
@@ -285,7 +306,7 @@ def cone_neighbours(
     return senders[valid], receivers[valid]
 
 
-def _kd_tree(positions: NDArray, normals: NDArray) -> tuple[NDArray, ...]:
+def _kd_tree(positions: NDArray[Any], normals: NDArray[Any]) -> tuple[NDArray[Any], ...]:
     """A k-d tree over the points (median splits on the widest axis, ``LEAF_SIZE`` per
     leaf): the point order, each node's range of it, children (-1 for leaves), the box
     of its positions (low xyz, high xyz) and the box of its normals."""
@@ -293,7 +314,9 @@ def _kd_tree(positions: NDArray, normals: NDArray) -> tuple[NDArray, ...]:
 
 
 @kernel
-def _build_kd_tree(positions, normals, leaf_size):  # noqa: ANN001, ANN202
+def _build_kd_tree(
+    positions: NDArray[Any], normals: NDArray[Any], leaf_size: int
+) -> tuple[NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]]:
     n = len(positions)
     capacity = 2 * (n // max(1, leaf_size) + 1) * 2 + 1
     order = np.arange(n)
@@ -351,12 +374,20 @@ def _build_kd_tree(positions, normals, leaf_size):  # noqa: ANN001, ANN202
 
 
 @kernel(inline=True)
-def _cone_accepts(pos, nrm, receiver, sender, tan_half, radius, cone_cos):  # noqa: ANN001, ANN202
+def _cone_accepts(
+    pos: NDArray[Any],
+    nrm: NDArray[Any],
+    receiver: int,
+    sender: int,
+    tan_half: float | np.float32,
+    radius: float | np.float32,
+    cone_cos: float | np.float32,
+) -> np.float32:
     """Squared distance (float32) if ``sender`` is a cone neighbour of ``receiver``, else -1."""
     ox = pos[sender, 0] - pos[receiver, 0]
     oy = pos[sender, 1] - pos[receiver, 1]
     oz = pos[sender, 2] - pos[receiver, 2]
-    squared = ox * ox + oy * oy + oz * oz
+    squared: np.float32 = ox * ox + oy * oy + oz * oz
     depth = -(ox * nrm[receiver, 0] + oy * nrm[receiver, 1] + oz * nrm[receiver, 2])
     if not depth > 0:
         return np.float32(-1.0)
@@ -376,7 +407,7 @@ def _cone_accepts(pos, nrm, receiver, sender, tan_half, radius, cone_cos):  # no
 
 
 @kernel(inline=True)
-def _box_gap(box, node, point) -> float:  # noqa: ANN001
+def _box_gap(box: NDArray[Any], node: int, point: NDArray[Any]) -> float:
     """Squared distance from ``point`` to the box of ``node`` (0 inside)."""
     gap = 0.0
     for axis in range(3):
@@ -391,22 +422,22 @@ def _box_gap(box, node, point) -> float:  # noqa: ANN001
 
 @kernel
 def _cone_search(  # noqa: PLR0913
-    first,  # noqa: ANN001
-    last,  # noqa: ANN001
-    pos,  # noqa: ANN001
-    nrm,  # noqa: ANN001
-    order,  # noqa: ANN001
-    node_start,  # noqa: ANN001
-    node_end,  # noqa: ANN001
-    children,  # noqa: ANN001
-    box,  # noqa: ANN001
-    normal_box,  # noqa: ANN001
-    tan_half,  # noqa: ANN001
-    radius,  # noqa: ANN001
-    cone_cos,  # noqa: ANN001
-    half_angle,  # noqa: ANN001
-    senders,  # noqa: ANN001
-    scores,  # noqa: ANN001
+    first: int,
+    last: int,
+    pos: NDArray[Any],
+    nrm: NDArray[Any],
+    order: NDArray[Any],
+    node_start: NDArray[Any],
+    node_end: NDArray[Any],
+    children: NDArray[Any],
+    box: NDArray[Any],
+    normal_box: NDArray[Any],
+    tan_half: float | np.float32,
+    radius: float | np.float32,
+    cone_cos: float | np.float32,
+    half_angle: float,
+    senders: NDArray[Any],
+    scores: NDArray[Any],
 ) -> None:
     """Cone neighbours of receivers first..last-1, depth first, nearer child first."""
     k = senders.shape[1]

@@ -20,12 +20,9 @@ from neural_shdf.api.viewer import VIEWER_DIR
 from neural_shdf.mesh_io import load_mesh
 from neural_shdf.palette import linear_color_bytes, srgb_to_linear
 from tests.api.api_helpers import TEST_METHOD, obj_bytes
-from tests.api.viewer_browser import ViewerPage, chromium_missing, neural_shdf_serve
+from tests.api.viewer_browser import ViewerPage, browser_marks, neural_shdf_serve
 
-_missing = chromium_missing()
-if _missing is None and not (VIEWER_DIR / "node_modules" / "three").is_dir():
-    _missing = "three.js is not installed: run `npm ci` in service/neural_shdf/viewer"
-pytestmark = [pytest.mark.slow, pytest.mark.skipif(_missing is not None, reason=str(_missing))]
+pytestmark = browser_marks()
 
 #: Meshes above this many triangles go through a job (the page polls it).
 SYNC_FACES = 2000

@@ -14,17 +14,13 @@ import httpx
 import numpy as np
 import pytest
 
-from neural_shdf.api.viewer import VIEWER_DIR
 from tests.api.api_helpers import TEST_METHOD
 from tests.api.test_viewer_browser import rgb
 from tests.api.test_viewer_editing_browser import FACE_ON_SCREEN
-from tests.api.viewer_browser import ViewerPage, chromium_missing, neural_shdf_serve
+from tests.api.viewer_browser import ViewerPage, browser_marks, neural_shdf_serve
 from tests.labeling.helpers import BALL, NECK, labelled_dumbbell, obj_of, small_labeler_file
 
-_missing = chromium_missing()
-if _missing is None and not (VIEWER_DIR / "node_modules" / "three").is_dir():
-    _missing = "three.js is not installed: run `npm ci` in service/neural_shdf/viewer"
-pytestmark = [pytest.mark.slow, pytest.mark.skipif(_missing is not None, reason=str(_missing))]
+pytestmark = browser_marks()
 
 
 @pytest.fixture(scope="module")

@@ -18,16 +18,12 @@ import httpx
 import numpy as np
 import pytest
 
-from neural_shdf.api.viewer import VIEWER_DIR
 from neural_shdf.mesh_io import load_mesh
 from tests.api.api_helpers import TEST_METHOD, obj_bytes
 from tests.api.test_viewer_browser import dumbbell_of_quads, rgb, severe, wait_file
-from tests.api.viewer_browser import ViewerPage, chromium_missing, neural_shdf_serve
+from tests.api.viewer_browser import ViewerPage, browser_marks, neural_shdf_serve
 
-_missing = chromium_missing()
-if _missing is None and not (VIEWER_DIR / "node_modules" / "three").is_dir():
-    _missing = "three.js is not installed: run `npm ci` in service/neural_shdf/viewer"
-pytestmark = [pytest.mark.slow, pytest.mark.skipif(_missing is not None, reason=str(_missing))]
+pytestmark = browser_marks()
 
 #: Meshes above this many triangles go through jobs (the ShDF's, then the atlas's).
 SYNC_FACES = 2000

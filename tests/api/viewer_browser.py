@@ -15,7 +15,9 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import pytest
 
+from neural_shdf.api.viewer import VIEWER_DIR
 from tests.api.api_helpers import free_port
 
 CHROMIUM = Path(os.environ.get("NEURAL_SHDF_CHROMIUM", "/usr/bin/chromium"))
@@ -32,6 +34,15 @@ CHROMIUM_FLAGS = (
     "--enable-unsafe-swiftshader",
     "--window-size=1400,900",
 )
+
+
+def browser_marks() -> list[pytest.MarkDecorator]:
+    """``pytestmark`` of a browser test module: slow, and skipped with the reason where
+    Chromium, its driver, selenium or the npm copy of three.js is missing."""
+    missing = chromium_missing()
+    if missing is None and not (VIEWER_DIR / "node_modules" / "three").is_dir():
+        missing = "three.js is not installed: run `npm ci` in service/neural_shdf/viewer"
+    return [pytest.mark.slow, pytest.mark.skipif(missing is not None, reason=str(missing))]
 
 
 def chromium_missing() -> str | None:

@@ -131,15 +131,12 @@ class LabelingService:
         return labeling_key(mesh_id, self.shdf.version(method, seed), labeler_id)
 
     def cached(self, key: str) -> StoredLabels | None:
-        result = self.cache.recall_arrays(key, StoredLabels.from_arrays)
-        self.metrics.count_cache("labels", hit=result is not None)
-        return result
+        return self.meshes.recall_result(key, StoredLabels.from_arrays, "labels")
 
     def _store(
         self, key: str, mesh_id: str, result: StoredLabels, guard: tuple[str, bytes] | None
     ) -> None:
-        self.meshes.store_result(key, mesh_id, result.arrays(), guard)
-        self.cache.remember(key, result)
+        self.meshes.keep_result(key, mesh_id, result, guard)
 
     async def get(
         self, mesh_id: str, method: str, seed: int, labeler_id: str

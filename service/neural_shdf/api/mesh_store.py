@@ -7,7 +7,8 @@ import logging
 import threading
 import time
 import uuid
-from typing import Any
+from collections.abc import Callable
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -54,6 +55,16 @@ def mesh_missing(mesh_id: str) -> ApiError:
         "damaged: upload it again)"
     )
     return error
+
+
+#: A result decoded from stored arrays.
+Result = TypeVar("Result")
+
+
+class StoredArrays(Protocol):
+    """A result kept as named arrays (a segmentation, a labelling)."""
+
+    def arrays(self) -> dict[str, NDArray[Any]]: ...
 
 
 class MeshStore:
@@ -216,6 +227,22 @@ class MeshStore:
             error = mesh_missing(mesh_id)
             error.message = f"mesh {mesh_id!r} was deleted while this result was computed"
             raise error
+
+    def recall_result(
+        self, key: str, decode: Callable[[dict[str, NDArray[Any]]], Result], kind: str
+    ) -> Result | None:
+        """A result of a stored mesh: this process's memory, else the shared cache through
+        ``decode``; None when absent. Counted as a cache hit or miss of ``kind``."""
+        result = self.cache.recall_arrays(key, decode)
+        self.metrics.count_cache(kind, hit=result is not None)
+        return result
+
+    def keep_result(
+        self, key: str, mesh_id: str, result: StoredArrays, guard: tuple[str, bytes] | None
+    ) -> None:
+        """Store a result of the mesh (as ``store_result``) and remember it in memory."""
+        self.store_result(key, mesh_id, result.arrays(), guard)
+        self.cache.remember(key, result)
 
     def delete(self, mesh_id: str) -> None:
         """Delete the mesh and everything derived from it; 404 when there was nothing."""

@@ -174,15 +174,12 @@ class SegmentationService:
 
     def cached(self, key: str) -> StoredSegmentation | None:
         """The cached segmentation (memory, then the shared cache), or None."""
-        result = self.cache.recall_arrays(key, StoredSegmentation.from_arrays)
-        self.metrics.count_cache("segmentation", hit=result is not None)
-        return result
+        return self.meshes.recall_result(key, StoredSegmentation.from_arrays, "segmentation")
 
     def _store(
         self, key: str, mesh_id: str, result: StoredSegmentation, guard: tuple[str, bytes] | None
     ) -> None:
-        self.meshes.store_result(key, mesh_id, result.arrays(), guard)
-        self.cache.remember(key, result)
+        self.meshes.keep_result(key, mesh_id, result, guard)
 
     def _compute(
         self, mesh_id: str, method: str, mesh: TriangleMesh, shdf: NDArray, params: SegmentParams

@@ -23,6 +23,13 @@ DEFAULT_SEED = 0
 DEFAULT_MAX_FACES = 2_000_000
 DEFAULT_MAX_VERTICES = 6_000_000
 
+#: Meshes above this many triangles are fine tessellations: the segmentation's graph cut
+#: is normalised to this many faces (``SegmentParams.reference_faces``) and the part
+#: tree's concave angles are measured against the mesh's mean bending
+#: (``segment.hierarchy.mean_bending``), so that the same shape at 1M faces gives the same
+#: parts. Below it (every psb-dev mesh and its production variants) neither applies.
+FINE_TESSELLATION_FACES = 60_000
+
 #: Version of the algorithms' results (ShDF, segmentation, atlas): part of the cache key of
 #: every computed result, so an upgrade that changes results never serves ones cached by
 #: the code before (the package version alone did not change between such commits). Bump

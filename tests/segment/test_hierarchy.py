@@ -136,6 +136,8 @@ def test_mean_bending_follows_the_tessellation_not_the_size():
 
 
 def test_a_crease_weighs_more_like_itself_when_finely_tessellated(monkeypatch):
+    # The rule applies above FINE_TESSELLATION_FACES: lowered so that a small mesh shows it.
+    monkeypatch.setattr(hierarchy, "FINE_TESSELLATION_FACES", 10_000)
     mesh, shdf = dumbbell(3000)
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     z = mesh.triangles_center[:, 2]
@@ -294,3 +296,19 @@ def test_from_parent_rebuilds_the_tree_and_its_cuts(dumbbell_leaves):
 def test_from_parent_refuses_what_is_not_a_merge_tree(parent):
     with pytest.raises(ValueError, match="not a merge tree"):
         PartTree.from_parent([0], parent, [0.0] * (len(parent) // 2))
+
+
+def test_coarse_meshes_keep_raw_angles_whatever_their_bending(monkeypatch):
+    """At or below FINE_TESSELLATION_FACES the tree's concavity is the raw angles: a few
+    slits or holes must not move a coarse mesh across the bending threshold."""
+    mesh, shdf = dumbbell(3000)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    fine_vertices, fine_faces, parent = loop_subdivided(vertices, faces, 2)
+    assert len(fine_faces) <= hierarchy.FINE_TESSELLATION_FACES
+    z = fine_vertices[fine_faces].mean(axis=1)[:, 2]
+    regions = np.where(z < -JUNCTION_Z, 0, np.where(z > JUNCTION_Z, 2, 1))
+    graph, areas = graph_and_areas(fine_vertices, fine_faces)
+    values = log_normalize(shdf)[parent]
+    default = merge_tree(regions, graph, areas, values).costs
+    monkeypatch.setattr(hierarchy, "REFERENCE_BENDING", 0.0)
+    np.testing.assert_array_equal(merge_tree(regions, graph, areas, values).costs, default)

@@ -39,6 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
+from neural_shdf.constants import FINE_TESSELLATION_FACES
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph
 
@@ -57,11 +58,13 @@ NECK_EXPONENT = 2.0
 COST_CONSTANT = 0.005
 #: Weight of the boundary's mean concave angle (over pi); the result is flat around it.
 CONCAVITY_WEIGHT = 8.0
-#: A mesh whose edges bend less than this on average (``mean_bending``, radians) has its
-#: concave angles scaled by ``REFERENCE_BENDING / mean bending`` (each at most pi): a finer
+#: A mesh above ``FINE_TESSELLATION_FACES`` whose edges bend less than this on average
+#: (``mean_bending``, radians) has its concave angles scaled by ``REFERENCE_BENDING /
+#: mean bending`` (each at most pi): a finer
 #: tessellation of a smooth shape spreads a crease over more edges, each folding less (a
 #: Loop pass halves the angles, and the mean bending with them), so raw angles lost the
-#: crease at 1M faces. Of the 76 psb-dev meshes, 69 bend more (they are unchanged).
+#: crease at 1M faces. Not below that size: on coarse meshes a few slits or holes moved
+#: the mean across the threshold (a shell variant of psb 24: 1-RI 0.061 -> 0.378).
 #: 0.04 and 0.07 tried on 8 tuning models subdivided, uncapped 0.1 on psb-dev (worse).
 REFERENCE_BENDING = 0.07
 #: Edges folding less than this (radians) are flat to ``mean_bending``.
@@ -236,7 +239,8 @@ def merge_tree(
     lengths = graph.edge_length[cut]
     boundary = np.bincount(inverse, weights=lengths, minlength=len(keys))
     depth = np.where(graph.concave[cut], graph.dihedral[cut] / np.pi, 0.0)
-    depth = np.minimum(depth * max(1.0, REFERENCE_BENDING / mean_bending(graph)), 1.0)
+    if face_count > FINE_TESSELLATION_FACES:  # a crease spread over many small folds
+        depth = np.minimum(depth * max(1.0, REFERENCE_BENDING / mean_bending(graph)), 1.0)
     concave = np.bincount(inverse, weights=lengths * depth, minlength=len(keys))
 
     node_count = 2 * leaf_count - 1

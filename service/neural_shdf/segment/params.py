@@ -8,6 +8,7 @@ from typing import Literal
 
 import numpy as np
 
+from neural_shdf.constants import FINE_TESSELLATION_FACES
 from neural_shdf.errors import ParameterError
 
 Partitioner = Literal["graphcut", "metis"]
@@ -47,7 +48,7 @@ DEFAULT_CREASE_BOUNDARIES = True
 #: psb-dev mesh, so those segment as tuned; normalising every mesh to 20k-40k faces scored
 #: better on the psb-dev tuning models but worse on the held-out ones:
 #: ``benchmarks/bench_psb.py``, ``bench_production.py --variants subdivided``).
-DEFAULT_REFERENCE_FACES = 60_000
+DEFAULT_REFERENCE_FACES = FINE_TESSELLATION_FACES
 #: How many times refinement may re-segment a part of a part.
 DEFAULT_REFINE_DEPTH = 2
 

@@ -65,7 +65,12 @@ def test_stateful_fuzzing_follows_the_links_from_real_uploads(tmp_path):
     route that takes the mesh id (segment, ShDF, GLBs, ...) and to the job polls."""
     from collections import Counter
 
-    schema = schemathesis.openapi.from_path(REPO_ROOT / "openapi" / "openapi.json")
+    # Without the labeller and unwrap routes (the stateless test fuzzes them; their own
+    # tests cover them): with them the walk spent its steps listing labellers or fetching
+    # UVs and reached segment_mesh in 2 of 40 examples.
+    schema = schemathesis.openapi.from_path(REPO_ROOT / "openapi" / "openapi.json").exclude(
+        path_regex="^/v1/labeler|/segmentation/(uvs|unwrapped|atlas)"
+    )
     schema.app = create_app(make_settings(tmp_path / "cache", max_upload_bytes=200_000))
     meshes = _real_meshes()
     statuses: Counter[tuple[str, int]] = Counter()
@@ -105,9 +110,8 @@ def test_stateful_fuzzing_follows_the_links_from_real_uploads(tmp_path):
         settings=settings(
             # Derandomized, yet which links it follows depends on the schema and on
             # timing (an upload answered by a job offers other links): 10 examples left
-            # get_shdf or segment_mesh unreached once `crease_boundaries` joined the schema,
-            # and 20 once the labeller routes did.
-            max_examples=40,
+            # get_shdf or segment_mesh unreached once `crease_boundaries` joined the schema.
+            max_examples=20,
             stateful_step_count=8,
             deadline=None,
             suppress_health_check=list(HealthCheck),

@@ -229,6 +229,28 @@ def test_isolated_arguments_travel_through_shared_memory_intact(tmp_path):
     assert set(shm.glob("psm_*")) <= before
 
 
+def test_isolated_arguments_go_in_band_where_shared_memory_lacks_room(tmp_path, monkeypatch):
+    """A container's /dev/shm is 64 MB by default, and writing past a full tmpfs is a
+    SIGBUS: arguments that would not fit are pickled in band instead."""
+    import os
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from neural_shdf.api import tasks as tasks_module
+
+    full = SimpleNamespace(f_bavail=1, f_frsize=4096)
+    monkeypatch.setattr(tasks_module.os, "statvfs", lambda path: full)
+    arrays = {"floats": np.random.default_rng(1).random((100_000, 3))}
+    assert tasks_module._SharedArguments.fitting((arrays,)) is None
+    tasks = runner(tmp_path)
+    try:
+        assert tasks.isolated(_array_summary, arrays) == _array_summary(arrays)
+        assert tasks.isolated(os.getpid) != os.getpid()
+    finally:
+        asyncio.run(tasks.close())
+
+
 def test_a_dead_worker_process_is_a_503_and_the_next_call_starts_a_new_one(tmp_path):
     import os
     import signal

@@ -25,6 +25,7 @@ import contextlib
 import contextvars
 import functools
 import multiprocessing
+import os
 import pickle
 import threading
 from collections.abc import Awaitable, Callable, Coroutine
@@ -253,7 +254,10 @@ class TaskRunner:
                 self._isolated = ProcessPoolExecutor(max_workers=1, mp_context=context)
             pool = self._isolated
         try:
-            with _SharedArguments(args) as shared:
+            shared = _SharedArguments.fitting(args)
+            if shared is None:  # no room in /dev/shm (a container's default is 64 MB)
+                return pool.submit(function, *args).result()
+            with shared:
                 payload, block_name, sizes = shared.handle
                 future = pool.submit(_call_with_shared, function, payload, block_name, sizes)
                 return future.result()
@@ -281,10 +285,8 @@ class _SharedArguments:
     one shared block. Pickling a million-face mesh in band is one C call on the executor's
     feeder thread that holds the GIL (and stalls the event loop) for a third of a second."""
 
-    def __init__(self, args: tuple[Any, ...]) -> None:
-        buffers: list[pickle.PickleBuffer] = []
-        self.payload = pickle.dumps(args, protocol=5, buffer_callback=buffers.append)
-        raws = [buffer.raw() for buffer in buffers]
+    def __init__(self, payload: bytes, raws: list[memoryview]) -> None:
+        self.payload = payload
         self.sizes = [raw.nbytes for raw in raws]
         self.block = shared_memory.SharedMemory(create=True, size=max(sum(self.sizes), 1))
         shared = np.ndarray((self.block.size,), np.uint8, buffer=self.block.buf)
@@ -293,6 +295,21 @@ class _SharedArguments:
             shared[offset : offset + size] = np.frombuffer(raw, np.uint8)
             offset += size
         del shared  # no view may outlive the block's close
+
+    @classmethod
+    def fitting(cls, args: tuple[Any, ...]) -> _SharedArguments | None:
+        """The arguments in shared memory, or None where the arrays would take more than
+        half the free space of ``/dev/shm`` (writing past a full tmpfs kills the process
+        with SIGBUS; pickling in band is slower, never fatal)."""
+        buffers: list[pickle.PickleBuffer] = []
+        payload = pickle.dumps(args, protocol=5, buffer_callback=buffers.append)
+        raws = [buffer.raw() for buffer in buffers]
+        needed = sum(raw.nbytes for raw in raws)
+        if os.path.isdir("/dev/shm"):
+            room = os.statvfs("/dev/shm")
+            if needed > 0.5 * room.f_bavail * room.f_frsize:
+                return None
+        return cls(payload, raws)
 
     @property
     def handle(self) -> tuple[bytes, str, list[int]]:

@@ -5,11 +5,10 @@ background mode wait for the same task); labels come back as attributes and mate
 from __future__ import annotations
 
 import json
-import threading
-import time
 from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import bpy
 import numpy as np
@@ -25,6 +24,7 @@ from .properties import (
     PARTS_KEY,
     SERVER_KEY,
 )
+from .worker import WorkerTask
 
 
 @dataclass
@@ -41,32 +41,16 @@ class ObjectRequest:
     evaluated_mesh: bpy.types.Mesh | None = None
 
 
-@dataclass
-class SegmentTask:
+@dataclass(kw_only=True)
+class SegmentTask(WorkerTask):
     """Requests of several objects, run one after the other on a worker thread."""
 
-    server_url: str
     options: dict[str, object]
     requests: list[ObjectRequest]
     #: A labeller file's bytes and name: uploaded first (the service keeps it by its
     #: content id), then every object is labelled by it instead of segmented.
     labeler: tuple[bytes, str] | None = None
-    cancel: threading.Event = field(default_factory=threading.Event)
     outcomes: dict[str, service.Outcome] = field(default_factory=dict)
-    error: str | None = None
-    cancelled: bool = False
-    progress: float = 0.0
-    status: str = "starting"
-    seconds: float = 0.0
-    thread: threading.Thread | None = None
-
-    def start(self) -> None:
-        self.thread = threading.Thread(target=self._work, name="neural-shdf", daemon=True)
-        self.thread.start()
-
-    @property
-    def done(self) -> bool:
-        return self.thread is not None and not self.thread.is_alive()
 
     def run_one(
         self, session: service.Session, request: ObjectRequest, report: service.Progress
@@ -80,28 +64,18 @@ class SegmentTask:
             mesh_id=request.known_mesh_id,
         )
 
-    def _work(self) -> None:
-        started = time.perf_counter()
-        try:
-            session = service.Session(self.server_url, cancel=self.cancel)
-            if self.labeler is not None:
-                self.status = "uploading the labeller"
-                stored = session.upload_labeler(*self.labeler)
-                self.options = {**self.options, "labeler_id": stored["labeler_id"]}
-            for index, request in enumerate(self.requests):
+    def work(self, session: service.Session) -> None:
+        if self.labeler is not None:
+            self.status = "uploading the labeller"
+            stored = session.upload_labeler(*self.labeler)
+            self.options = {**self.options, "labeler_id": stored["labeler_id"]}
+        for index, request in enumerate(self.requests):
 
-                def report(fraction: float, status: str, index: int = index) -> None:
-                    self.progress = (index + min(max(fraction, 0.0), 1.0)) / len(self.requests)
-                    self.status = f"{self.requests[index].object_name}: {status}"
+            def report(fraction: float, status: str, index: int = index) -> None:
+                self.progress = (index + min(max(fraction, 0.0), 1.0)) / len(self.requests)
+                self.status = f"{self.requests[index].object_name}: {status}"
 
-                self.outcomes[request.object_name] = self.run_one(session, request, report)
-        except service.Cancelled:
-            self.cancelled = True
-        except service.ServiceError as error:
-            self.error = error.message
-        except Exception as error:  # noqa: BLE001 - shown to the user, never a traceback
-            self.error = f"unexpected {type(error).__name__}: {error}"
-        self.seconds = time.perf_counter() - started
+            self.outcomes[request.object_name] = self.run_one(session, request, report)
 
 
 def selected_meshes(context: bpy.types.Context) -> list[bpy.types.Object]:
@@ -143,7 +117,12 @@ def prepare(context: bpy.types.Context, settings) -> SegmentTask:  # noqa: ANN00
                 ),
             )
         )
-    return SegmentTask(server, settings.options(), requests, labeler=read_labeler(settings))
+    return SegmentTask(
+        server_url=server,
+        options=settings.options(),
+        requests=requests,
+        labeler=read_labeler(settings),
+    )
 
 
 def read_labeler(settings) -> tuple[bytes, str] | None:  # noqa: ANN001
@@ -224,7 +203,7 @@ def apply(context: bpy.types.Context, task: SegmentTask, settings) -> list[str]:
     return lines
 
 
-def _show(context: bpy.types.Context, task: SegmentTask | None) -> None:
+def _show(context: bpy.types.Context, task: WorkerTask | None) -> None:
     state = context.window_manager.neural_shdf_state
     state.running = task is not None and not task.done
     state.progress = task.progress if task else 0.0
@@ -240,7 +219,7 @@ class ServiceTaskOperator:
     thread, polled on a timer (Esc cancels), its outcomes written back on the main thread.
     A mixin (Blender cannot register a subclass of a registered operator)."""
 
-    _task: SegmentTask | None = None
+    _task: WorkerTask | None = None
     _timer = None
     running_message = "A request to the service is running"
 
@@ -257,12 +236,13 @@ class ServiceTaskOperator:
             return False
         return True
 
-    def make_task(self, context: bpy.types.Context) -> SegmentTask:
+    def make_task(self, context: bpy.types.Context) -> WorkerTask:
         """The worker's task for the selection (a subclass may make another kind)."""
         return prepare(context, context.scene.neural_shdf)
 
-    def write_back(self, context: bpy.types.Context, task: SegmentTask) -> list[str]:
+    def write_back(self, context: bpy.types.Context, task: WorkerTask) -> list[str]:
         """Write the task's outcomes to the objects (main thread); one line per object."""
+        assert isinstance(task, SegmentTask)
         return apply(context, task, context.scene.neural_shdf)
 
     def _start(self, context: bpy.types.Context) -> bool:
@@ -328,9 +308,8 @@ class ServiceTaskOperator:
         """Scripts and background mode: the same worker, waited for here."""
         if not self._start(context):
             return {"CANCELLED"}
-        assert self._task is not None and self._task.thread is not None
-        while self._task.thread.is_alive():
-            self._task.thread.join(0.05)
+        assert self._task is not None
+        self._task.wait()
         return self._finish(context)
 
 
@@ -344,62 +323,38 @@ class SegmentSelectedOperator(ServiceTaskOperator, bpy.types.Operator):
     running_message = "A segmentation is running"
 
 
-@dataclass
-class LearnTask:
+@dataclass(kw_only=True)
+class LearnTask(WorkerTask):
     """Train a labeller on the service from objects and their label attribute: upload
     each mesh, train (a job), download the labeller file (worker thread)."""
 
-    server_url: str
+    thread_name: ClassVar[str] = "neural-shdf-learn"
+
     options: dict[str, object]
     meshes: list[tuple[str, bytes]]  # (object name, PLY of its polygons in order)
     labels: list[np.ndarray]  # per object, one label per polygon
     names: list[str] | None
-    cancel: threading.Event = field(default_factory=threading.Event)
     info: dict | None = None
     file: bytes = b""
-    error: str | None = None
-    cancelled: bool = False
-    progress: float = 0.0
-    status: str = "starting"
-    seconds: float = 0.0
-    thread: threading.Thread | None = None
 
-    def start(self) -> None:
-        self.thread = threading.Thread(target=self._work, name="neural-shdf-learn", daemon=True)
-        self.thread.start()
+    def work(self, session: service.Session) -> None:
+        mesh_ids = []
+        count = len(self.meshes)
+        for index, (name, payload) in enumerate(self.meshes):
 
-    @property
-    def done(self) -> bool:
-        return self.thread is not None and not self.thread.is_alive()
+            def report(fraction: float, status: str, index: int = index, name: str = name):
+                self.progress = 0.3 * (index + min(max(fraction, 0.0), 1.0)) / count
+                self.status = f"{name}: {status}"
 
-    def _work(self) -> None:
-        started = time.perf_counter()
-        try:
-            session = service.Session(self.server_url, cancel=self.cancel)
-            mesh_ids = []
-            count = len(self.meshes)
-            for index, (name, payload) in enumerate(self.meshes):
+            mesh_ids.append(session.upload_mesh(payload, f"{name}.ply", report))
 
-                def report(fraction: float, status: str, index: int = index, name: str = name):
-                    self.progress = 0.3 * (index + min(max(fraction, 0.0), 1.0)) / count
-                    self.status = f"{name}: {status}"
+        def training(fraction: float, status: str) -> None:
+            self.progress = 0.3 + 0.7 * min(max(fraction, 0.0), 1.0)
+            self.status = status
 
-                mesh_ids.append(session.upload_mesh(payload, f"{name}.ply", report))
-
-            def training(fraction: float, status: str) -> None:
-                self.progress = 0.3 + 0.7 * min(max(fraction, 0.0), 1.0)
-                self.status = status
-
-            labels = array("i", np.concatenate(self.labels).astype(np.int32).tolist())
-            self.info = session.train_labeler(mesh_ids, labels, self.names, self.options, training)
-            self.file = session.labeler_file(self.info["labeler_id"])
-        except service.Cancelled:
-            self.cancelled = True
-        except service.ServiceError as error:
-            self.error = error.message
-        except Exception as error:  # noqa: BLE001 - shown to the user, never a traceback
-            self.error = f"unexpected {type(error).__name__}: {error}"
-        self.seconds = time.perf_counter() - started
+        labels = array("i", np.concatenate(self.labels).astype(np.int32).tolist())
+        self.info = session.train_labeler(mesh_ids, labels, self.names, self.options, training)
+        self.file = session.labeler_file(self.info["labeler_id"])
 
 
 def prepare_learning(context: bpy.types.Context, settings) -> LearnTask:  # noqa: ANN001
@@ -419,7 +374,7 @@ def prepare_learning(context: bpy.types.Context, settings) -> LearnTask:  # noqa
         raise ValueError(f"Label Names has an empty name: {settings.label_names!r}")
     options = {"method": settings.method} if settings.method != "default" else {}
     server = settings.server_url.strip().rstrip("/")
-    return LearnTask(server, options, meshes, labels, names)
+    return LearnTask(server_url=server, options=options, meshes=meshes, labels=labels, names=names)
 
 
 class LearnFromSelectedOperator(ServiceTaskOperator, bpy.types.Operator):
@@ -434,7 +389,8 @@ class LearnFromSelectedOperator(ServiceTaskOperator, bpy.types.Operator):
     def make_task(self, context: bpy.types.Context) -> LearnTask:
         return prepare_learning(context, context.scene.neural_shdf)
 
-    def write_back(self, context: bpy.types.Context, task: LearnTask) -> list[str]:
+    def write_back(self, context: bpy.types.Context, task: WorkerTask) -> list[str]:
+        assert isinstance(task, LearnTask)
         settings = context.scene.neural_shdf
         path = Path(bpy.path.abspath(settings.learn_output or "//labeler.npz"))
         path.parent.mkdir(parents=True, exist_ok=True)

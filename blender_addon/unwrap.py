@@ -11,6 +11,7 @@ import numpy as np
 from bpy.props import IntProperty, StringProperty
 
 from . import operators, service, uv_layout
+from .worker import WorkerTask
 
 #: The custom property an object keeps about its last unwrap (charts, atlas use).
 UNWRAP_KEY = "neural_shdf_unwrap"
@@ -43,7 +44,7 @@ class NeuralShdfUnwrapSettings(bpy.types.PropertyGroup):
         return {"atlas_size": self.atlas_size, "padding": self.padding}
 
 
-@dataclass
+@dataclass(kw_only=True)
 class UnwrapTask(operators.SegmentTask):
     """Segment, then fetch the UV layout of the same segmentation, per object."""
 
@@ -102,13 +103,13 @@ class UnwrapSelectedOperator(operators.ServiceTaskOperator, bpy.types.Operator):
     def make_task(self, context: bpy.types.Context) -> operators.SegmentTask:
         base = operators.prepare(context, context.scene.neural_shdf)
         return UnwrapTask(
-            base.server_url,
-            base.options,
-            base.requests,
+            server_url=base.server_url,
+            options=base.options,
+            requests=base.requests,
             unwrap_options=context.scene.neural_shdf_unwrap.options(),
         )
 
-    def write_back(self, context: bpy.types.Context, task: operators.SegmentTask) -> list[str]:
+    def write_back(self, context: bpy.types.Context, task: WorkerTask) -> list[str]:
         assert isinstance(task, UnwrapTask)
         operators.apply(context, task, context.scene.neural_shdf)  # labels, as Segment does
         settings = context.scene.neural_shdf_unwrap

@@ -11,7 +11,13 @@ from scipy.spatial.transform import Rotation
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import prepare_segment, segment
 from neural_shdf.segment import SegmentParams
-from neural_shdf.segment.symmetry import detect_reflection, mirror_agreement, symmetrize
+from neural_shdf.segment.parts import canonical_labels
+from neural_shdf.segment.symmetry import (
+    detect_reflection,
+    mirror_agreement,
+    mirror_parts,
+    symmetrize,
+)
 
 #: A rotation and a shift that put the shapes in no axis-aligned pose.
 POSE = Rotation.from_euler("xyz", [0.4, -0.7, 1.1]).as_matrix()
@@ -68,6 +74,50 @@ def test_symmetrize_averages_each_face_with_its_mirror():
     assert symmetrize(values, mirror).tolist() == [2.0, 2.0, 5.0, 6.0]
 
 
+def two_way_mirror(mirror: np.ndarray) -> np.ndarray:
+    """The mirror map where it pairs faces both ways (-1 elsewhere)."""
+    paired = (mirror >= 0) & (mirror[np.maximum(mirror, 0)] == np.arange(len(mirror)))
+    return np.where(paired, mirror, -1)
+
+
+def assert_mirror_images(labels: np.ndarray, mirror: np.ndarray) -> None:
+    """Every part's faces map under the mirror onto the faces of one part (itself, or its
+    mirror part), and no two parts onto the same one."""
+    paired = mirror >= 0
+    images = {}
+    for part in np.unique(labels[paired]):
+        faces = np.flatnonzero((labels == part) & paired)
+        onto = np.unique(labels[mirror[faces]])
+        assert len(onto) == 1, (part, onto)
+        images[int(part)] = int(onto[0])
+    assert len(set(images.values())) == len(images)
+
+
+def test_mirror_parts_copies_one_sides_cut_onto_the_other():
+    mesh = plane_shape()
+    reflection = detect(mesh)
+    assert reflection is not None
+    centroids = mesh.oriented.centroids
+    _, areas = mesh.oriented.normals_and_areas
+    local = (centroids - SHIFT) @ POSE
+    # Fuselage 0; each wing cut in two, at |y| = 2 on one side and 2.8 on the other; fin 3.
+    labels = np.where(np.abs(local[:, 1]) < 0.45, 0, np.where(local[:, 1] > 0, 1, 4))
+    labels[local[:, 1] > 2.0] = 2
+    labels[local[:, 1] < -2.8] = 5
+    labels[local[:, 2] > 0.45] = 3
+    mirror = two_way_mirror(reflection.mirror)
+    assert mirror_agreement(labels, mirror, areas) < 0.99
+    mirrored = mirror_parts(labels, reflection, centroids, areas)
+    assert mirror_agreement(mirrored, mirror, areas) == pytest.approx(1.0, abs=1e-12)
+    assert_mirror_images(mirrored, mirror)
+    # Parts across the plane (fuselage, fin) keep their label; one wing's pieces are copied.
+    for part in (0, 3):
+        assert np.all(mirrored[labels == part] == part)
+    assert len(np.unique(mirrored)) == 6  # fuselage, fin, two pieces of each wing
+    again = mirror_parts(mirrored, reflection, centroids, areas)  # already alike: the same
+    assert np.array_equal(canonical_labels(again), canonical_labels(mirrored))
+
+
 def noisy_shdf(mesh: TriangleMesh) -> np.ndarray:
     """Thick fuselage, thin wings and fin, plus noise and a patch on one side only."""
     local = (mesh.oriented.centroids - SHIFT) @ POSE
@@ -91,6 +141,11 @@ def test_symmetry_cuts_both_sides_alike_and_is_off_by_default():
     before = mirror_agreement(plain.labels, mirror, areas)
     after = mirror_agreement(symmetric.labels, mirror, areas)
     assert after > before and after > 0.99, (before, after)
+    # Exact where the tessellation pairs faces both ways: parts map onto parts.
+    two_way = two_way_mirror(mirror)
+    assert mirror_agreement(symmetric.labels, two_way, areas) == pytest.approx(1.0, abs=1e-12)
+    assert_mirror_images(symmetric.labels, two_way)
+    assert_mirror_images(symmetric.tree.leaf_labels, two_way)
     again = segment(mesh, shdf, SegmentParams(**{**params.__dict__, "symmetry": True}))
     assert np.array_equal(again.labels, symmetric.labels)  # deterministic
 

@@ -30,6 +30,7 @@ from neural_shdf.segment.metis import metis_edge_weights, metis_partition
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
 from neural_shdf.segment.refine import refine_parts, smooth_boundaries
+from neural_shdf.segment.symmetry import mirror_parts
 
 
 @dataclass
@@ -103,6 +104,17 @@ class GraphCutPartitioner:
                 params.min_part_fraction,
             )
             work.lap("boundary_smoothing")
+        reflection = work.basis.reflection
+        if reflection is not None:  # the symmetry option found a plane: cut alike
+            mirrored = mirror_parts(parts, reflection, geometry.centroids, geometry.areas)
+            parts = merge_small_parts(
+                connected_parts(mirrored, graph.pairs, graph.face_count),
+                graph,
+                geometry.areas,
+                geometry.centroids,
+                params.min_part_fraction,
+            )
+            work.lap("symmetry")
         tree = merge_tree(canonical_labels(parts), graph, geometry.areas, work.basis.values)
         count = automatic_part_count(tree) if params.parts is None else params.parts
         labels = tree.labels(count)

@@ -159,6 +159,46 @@ def symmetrize(values: NDArray, mirror: NDArray) -> NDArray[np.float64]:
     return out
 
 
+def mirror_parts(
+    parts: NDArray, reflection: Reflection, centroids: NDArray, areas: NDArray
+) -> NDArray[np.int64]:
+    """Parts cut as exact mirror images on the two sides of the plane: each face on the
+    negative side whose mirror face is on the positive side takes the positive side's cut.
+
+    A positive-side part whose mirror image lies mostly (by area) in itself crosses the
+    plane: its mirror faces join it. Any other part is given a new label on the negative
+    side, its mirror copy (the left wing's copy replaces whatever the right wing was cut
+    into). Faces without a mirror keep their part; so do all positive-side faces. Where the
+    mirror map pairs faces both ways (a symmetric tessellation) the result is exact:
+    faces i, j share a part if and only if their mirror faces do. Returns labels that
+    are not canonical and may leave small pieces where no face had a mirror (the caller
+    splits them into connected parts and merges tiny ones).
+    """
+    parts = np.asarray(parts, dtype=np.int64)
+    mirror = np.asarray(reflection.mirror, dtype=np.int64)
+    normal = np.asarray(reflection.normal, dtype=np.float64)
+    offset = float(reflection.offset)
+    # The positive side is the one the normal's largest component points to (the fitted
+    # normal's sign is arbitrary): the same side whatever the mesh's face order.
+    if normal[np.argmax(np.abs(normal))] < 0:
+        normal, offset = -normal, -offset
+    side = np.asarray(centroids, dtype=np.float64) @ normal - offset
+    has = mirror >= 0
+    copy = np.flatnonzero(has & (side < 0) & (side[np.where(has, mirror, 0)] >= 0))
+    if len(copy) == 0:
+        return parts.copy()
+    source = parts[mirror[copy]]
+    count = int(parts.max()) + 1
+    weight = np.asarray(areas, dtype=np.float64)[copy]
+    # Per positive-side part: the share of its mirror image's area that it holds itself.
+    image = np.bincount(source, weights=weight, minlength=count)
+    inside = np.bincount(source, weights=weight * (parts[copy] == source), minlength=count)
+    crosses = inside >= 0.5 * image
+    out = parts.copy()
+    out[copy] = np.where(crosses[source], source, count + source)
+    return out
+
+
 def mirror_agreement(labels: NDArray, mirror: NDArray, areas: NDArray) -> float:
     """How alike the two sides are cut: the area-weighted Rand index between the labels and
     the labels of the mirror faces, over the faces that have one. 1: the mirror image of
@@ -187,5 +227,6 @@ __all__ = [
     "Reflection",
     "detect_reflection",
     "mirror_agreement",
+    "mirror_parts",
     "symmetrize",
 ]

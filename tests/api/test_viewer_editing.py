@@ -18,14 +18,22 @@ NODE = shutil.which("node")
 pytestmark = pytest.mark.skipif(NODE is None, reason="node is not installed")
 
 RUNNER = """
-import { applyEdits, applyLabelEdits } from '%s';
+import { applyEdits, applyLabelEdits, extendEdits } from '%s';
 const cases = JSON.parse(process.argv[2]);
+const apply = (c, edits) => (c.tree
+  ? applyEdits(c.tree, Int32Array.from(c.leaves), c.parts, edits)
+  : applyLabelEdits(Int32Array.from(c.leaves), edits));
 const out = cases.map((c) => {
   try {
-    const result = c.tree
-      ? applyEdits(c.tree, Int32Array.from(c.leaves), c.parts, c.edits)
-      : applyLabelEdits(Int32Array.from(c.leaves), c.edits);
-    return Array.from(result.labels);
+    if (!c.stepwise) return Array.from(apply(c, c.edits).labels);
+    // As the page edits: the first operation applied, each later one added to its state.
+    let result = apply(c, c.edits.slice(0, 1));
+    const steps = [Array.from(result.labels)];
+    for (let n = 2; n <= c.edits.length; n++) {
+      result = extendEdits(result, c.edits.slice(0, n));
+      steps.push(Array.from(result.labels));
+    }
+    return steps;
   } catch (error) {
     return { error: error.message };
   }
@@ -124,3 +132,47 @@ def test_page_refuses_what_the_service_refuses(tmp_path):
     assert "face 2 is out of range" in messages[0]
     assert "unknown op" in messages[1]
     assert "needs the part tree" in messages[2]
+
+
+def test_edits_added_one_at_a_time_equal_the_whole_document_applied(tmp_path):
+    """The page adds each new operation to its edit state (``extendEdits``) instead of
+    applying the whole document again: the labels after every step are the library's."""
+    rng = np.random.default_rng(5)
+    cases, expected = [], []
+    while len(cases) < 40:
+        leaves = int(rng.integers(2, 25))
+        merges = random_tree(rng, leaves)
+        faces = np.concatenate([np.arange(leaves), rng.integers(0, leaves, 30)])
+        tree = PartTree(faces, merges, np.zeros(leaves - 1))
+        parts = int(rng.integers(1, leaves + 1))
+        document = random_document(rng, len(faces), int(rng.integers(1, 12)))
+        with_tree = len(cases) % 4 != 0
+        leaf_input = faces if with_tree else tree.relabel(faces, parts)
+        if not with_tree:
+            document = [e for e in document if e["op"] in ("merge", "paint")] or [
+                {"op": "merge", "faces": [0, 1]}
+            ]
+        steps = [
+            (
+                apply_edits(tree, faces, parts, document[:n])
+                if with_tree
+                else apply_label_edits(leaf_input, document[:n])
+            ).tolist()
+            for n in range(1, len(document) + 1)
+        ]
+        expected.append(steps)
+        cases.append(
+            {
+                "tree": {"leaf_count": leaves, "parent": tree.parent.tolist()}
+                if with_tree
+                else None,
+                "leaves": leaf_input.tolist(),
+                "parts": parts,
+                "edits": document,
+                "stepwise": True,
+            }
+        )
+    got = run_node(tmp_path, cases)
+    for case, mine, theirs in zip(cases, got, expected, strict=True):
+        assert mine == theirs, case
+    assert sum(len(steps) for steps in expected) > 150

@@ -190,6 +190,17 @@ class ViewerPage:
         assert detail["request"]["smoothing"] == value, (value, detail["request"])
         return detail
 
+    def click_canvas(self, x: float, y: float) -> None:
+        """A real mouse click at (x, y) CSS pixels from the canvas's top left corner."""
+        from selenium.webdriver.common.action_chains import ActionChains
+        from selenium.webdriver.common.by import By
+
+        canvas = self.driver.find_element(By.ID, "canvas")
+        size = canvas.size
+        ActionChains(self.driver).move_to_element_with_offset(
+            canvas, int(x - size["width"] / 2), int(y - size["height"] / 2)
+        ).click().perform()
+
     def pixels(self) -> Any:
         """The page as the screen shows it: an (H, W, 3) uint8 array of a real screenshot."""
         import io

@@ -4,11 +4,11 @@
 // split needs the mesh's adjacency and METIS, so a document holding one is applied by the
 // service (each edit then costs a request).
 import * as api from './api.js';
-import { applyEdits, applyLabelEdits } from './editing.js';
+import { applyEdits, applyLabelEdits, extendEdits } from './editing.js';
 import { leafSums } from './hierarchy.js';
 
 /**
- * Wire the edit tools. `page`: { state, view, select(label), show(body, request, labels),
+ * Wire the edit tools. `page`: { state, view, select(label), show(body, request, labels, selected),
  * showError(error, context), partColor(label) } from main.js. Returns the hooks main.js calls:
  * `segmented(body, request, labels)` for every new segmentation on screen and `pick(face)`
  * for a click on the mesh (true when an edit mode took it).
@@ -63,17 +63,23 @@ export function setUpEditing(page) {
   }
 
   async function show(labels, source, start, face) {
-    const partCount = labels.reduce((top, label) => Math.max(top, label + 1), 0);
+    const labelled = performance.now();
+    let partCount = 0;
+    for (let f = 0; f < labels.length; f++) if (labels[f] >= partCount) partCount = labels[f] + 1;
     const body = {
       ...session.base.body, labels: null, labels_base64: null, labels_dtype: null,
       part_count: partCount, parts: summaries(labels, partCount),
     };
-    page.show(body, session.base.request, labels);
-    page.select(face >= 0 ? labels[face] : -1);
+    const summarised = performance.now();
+    page.show(body, session.base.request, labels, face >= 0 ? labels[face] : -1);
     update();
     const computed = performance.now();  // what follows is the browser drawing the frame
     const shown = await view.presented();
-    const detail = { source, edits: editDocument(), parts: partCount, ms: shown - start, computeMs: computed - start };
+    const detail = {
+      source, edits: editDocument(), parts: partCount, ms: shown - start, computeMs: computed - start,
+      // Where the time went: the labels (edit or request), the parts table's sums, showing.
+      labelsMs: labelled - start, summaryMs: summarised - labelled, showMs: computed - summarised,
+    };
     $('edit-status').textContent = `${session.edits.length} edits · ${partCount} parts · ${Math.round(detail.ms)} ms (${source})`;
     window.dispatchEvent(new CustomEvent('shdf:edited', { detail }));
     return detail;
@@ -102,7 +108,8 @@ export function setUpEditing(page) {
     if (needsService(edits)) return serviceEdit(edits, face, start);
     let result;
     try {
-      result = editedLabels(edits);
+      // One more operation on the page's edit state (no replay of the whole document).
+      result = session.result ? extendEdits(session.result, edits) : editedLabels(edits);
     } catch (error) {
       page.showError(error, 'edit');
       return null;

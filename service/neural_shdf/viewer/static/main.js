@@ -374,7 +374,7 @@ function paint() {
   else if (state.view === 'parts' && state.labels) view.paintParts(state.labels, state.palette, UNLABELED, state.selected);
   else view.paintPlain();
   $('shdf-legend').hidden = state.view !== 'shdf';  // an overlay: nothing else moves
-  view.render();
+  view.requestRender();
 }
 
 // ---- parts: selection, hide, isolate ----------------------------------------------------
@@ -386,7 +386,8 @@ function updateVisibility() {
   view.setVisibility(state.labels, filter);
 }
 
-function select(label) {
+/** Select part `label` (-1: none); `repaint`: false when the caller has just painted. */
+function select(label, repaint = true) {
   state.selected = label;
   const box = $('selection');
   if (label < 0 || !state.body) {
@@ -405,7 +406,7 @@ function select(label) {
   }
   for (const row of $('parts-table').tBodies[0].rows) row.classList.toggle('selected', Number(row.dataset.label) === label);
   editing.selected();
-  paint();
+  if (repaint) paint();
 }
 
 function toggleHidden(label) {
@@ -724,7 +725,11 @@ function setUpPicking() {
 
 const editing = setUpEditing({
   state, view, select, showError, partColor,
-  show: (body, request, labels) => applySegmentation(body, request, labels, true),
+  show: (body, request, labels, selected) => {
+    state.selected = selected;  // painted with the selection at once: one recolouring
+    applySegmentation(body, request, labels, true);
+    select(state.selected, false);
+  },
 });
 window.shdfViewer.editing = editing;
 window.shdfViewer.unwrap = setUpUnwrap({

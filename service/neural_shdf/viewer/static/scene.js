@@ -72,8 +72,9 @@ export class MeshView {
     this.camera.add(light);  // the light follows the view
     this.scene.add(this.camera);
     this.controls = new OrbitControls(this.camera, canvas);
-    this.controls.addEventListener('change', () => this.render());
+    this.controls.addEventListener('change', () => this.requestRender());
     this.mesh = null;
+    this.drawPending = false;
     this.faceOrigin = null;
     this.up = 'y';
     this.lit = true;
@@ -94,13 +95,28 @@ export class MeshView {
     this.render();
   }
 
+  /** Draw now (tests read the pixels back right after). */
   render() {
     this.renderer.render(this.scene, this.camera);
   }
 
+  /**
+   * Draw in the next animation frame, once however often it is asked: a recolouring and
+   * a selection in one task, or many orbit events, cost one draw of the whole mesh.
+   */
+  requestRender() {
+    if (this.drawPending) return;
+    this.drawPending = true;
+    requestAnimationFrame(() => {
+      this.drawPending = false;
+      this.render();
+    });
+  }
+
   /** Resolves after the browser has presented a frame with the current colours. */
   presented() {
-    this.render();
+    this.requestRender();
+    // Frame callbacks run in the order asked: this one runs after the draw above.
     return new Promise((resolve) => requestAnimationFrame(() => resolve(performance.now())));
   }
 
@@ -177,7 +193,7 @@ export class MeshView {
     // OrbitControls takes the up axis from the camera when it is made.
     this.controls.dispose();
     this.controls = new OrbitControls(this.camera, this.canvas);
-    this.controls.addEventListener('change', () => this.render());
+    this.controls.addEventListener('change', () => this.requestRender());
     this.controls.target.copy(center);
     this.controls.update();
     this.render();

@@ -312,3 +312,33 @@ def test_coarse_meshes_keep_raw_angles_whatever_their_bending(monkeypatch):
     default = merge_tree(regions, graph, areas, values).costs
     monkeypatch.setattr(hierarchy, "REFERENCE_BENDING", 0.0)
     np.testing.assert_array_equal(merge_tree(regions, graph, areas, values).costs, default)
+
+
+def test_mirror_merges_are_made_together_at_one_cost():
+    """A bar cut into 5 leaves symmetric about x = 0: with ``mirror_leaf`` each merge is
+    followed at once by its mirror merge, at the same cost, so every cut of the tree that
+    does not fall between the two is a mirror image; without it, greedy merging made the
+    second merge of a pair at another cost."""
+    box = trimesh.creation.box([10.0, 1.0, 1.0])
+    vertices, faces = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, 0.25)
+    vertices, faces = np.asarray(vertices), np.asarray(faces)
+    graph, areas = graph_and_areas(vertices, faces)
+    x = vertices[faces].mean(axis=1)[:, 0]
+    band = np.searchsorted([-2.5, -0.5, 0.5, 2.5], x)  # 0 1 2 3 4 along x
+    leaves = canonical_labels(band)
+    values = np.array([0.5, 0.52, 0.55, 0.52, 0.5])[band]
+    mirror_band = {0: 4, 1: 3, 2: 2, 3: 1, 4: 0}
+    mirror_leaf = np.array(
+        [leaves[band == mirror_band[int(band[leaves == leaf][0])]][0] for leaf in range(5)]
+    )
+    plain = merge_tree(leaves, graph, areas, values)
+    paired = merge_tree(leaves, graph, areas, values, mirror_leaf=mirror_leaf)
+    assert plain.costs[0] != plain.costs[1]
+    assert paired.costs[0] == paired.costs[1] and paired.costs[2] == paired.costs[3]
+    for count in (1, 3, 5):  # counts between the two merges of no pair
+        labels = paired.labels(count)
+        for leaf in range(5):  # a leaf's mirror leaf is in its part's mirror part
+            own, image = labels[leaves == leaf][0], labels[leaves == mirror_leaf[leaf]][0]
+            for other in range(5):
+                same = labels[leaves == other][0] == own
+                assert same == (labels[leaves == mirror_leaf[other]][0] == image)

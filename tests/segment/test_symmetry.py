@@ -15,6 +15,7 @@ from neural_shdf.segment.parts import canonical_labels
 from neural_shdf.segment.symmetry import (
     detect_reflection,
     mirror_agreement,
+    mirror_leaves,
     mirror_parts,
     symmetrize,
 )
@@ -116,6 +117,15 @@ def test_mirror_parts_copies_one_sides_cut_onto_the_other():
     assert len(np.unique(mirrored)) == 6  # fuselage, fin, two pieces of each wing
     again = mirror_parts(mirrored, reflection, centroids, areas)  # already alike: the same
     assert np.array_equal(canonical_labels(again), canonical_labels(mirrored))
+
+
+def test_mirror_leaves_pairs_parts_that_are_each_others_image():
+    mirror = np.array([1, 0, 3, 2, 4, 4, -1])  # faces 0<->1, 2<->3; 4 its own; 5 -> 4
+    areas = np.ones(7)
+    # Parts 0 | 1 mirror each other, 2 is its own image, 3's image is 2 but not the reverse.
+    leaves = np.array([0, 1, 2, 2, 2, 3, 3])
+    assert mirror_leaves(leaves, mirror, areas).tolist() == [1, 0, 2, -1]
+    assert mirror_leaves(leaves, np.full(7, -1), areas).tolist() == [-1, -1, -1, -1]
 
 
 def noisy_shdf(mesh: TriangleMesh) -> np.ndarray:

@@ -211,10 +211,15 @@ def merge_tree(
     areas: NDArray[Any],
     values: NDArray[Any],
     cost: MergeCost | None = None,
+    mirror_leaf: NDArray[Any] | None = None,
 ) -> PartTree:
     """The merge tree of the parts ``leaf_labels`` (canonical: 0..L-1 by lowest face).
 
     ``values``: per-face ShDF on the scale the cost compares (log-normalised, [0, 1]).
+    ``mirror_leaf``: the mirror image of each leaf (itself for a leaf across the plane, -1
+    for none; ``segment.symmetry.mirror_leaves``): each merge is followed at once, at the
+    same cost, by its mirror merge, so that the tree's cuts at its automatic count are
+    mirror images too (greedy merging alone lets near-equal costs go either way).
     """
     cost = MergeCost() if cost is None else cost
     leaves = np.asarray(leaf_labels, dtype=np.int64)
@@ -298,10 +303,37 @@ def merge_tree(
             heapq.heappush(heap, (pair_cost(other, node, *shared), other, node))
         return node
 
+    # Mirror image of every node (-1: none); a merged node's children point to it.
+    mirror = np.full(node_count, -1, dtype=np.int64)
+    if mirror_leaf is not None:
+        mirror[:leaf_count] = np.asarray(mirror_leaf, dtype=np.int64)
+    absorbed = np.full(node_count, -1, dtype=np.int64)
+
+    def current(node: int) -> int:
+        while node >= 0 and not alive[node]:
+            node = int(absorbed[node])
+        return node
+
     while heap:
         merge_cost, i, j = heapq.heappop(heap)
-        if alive[i] and alive[j]:
-            merge(i, j, merge_cost)
+        if not (alive[i] and alive[j]):
+            continue
+        node = merge(i, j, merge_cost)
+        absorbed[i] = absorbed[j] = node
+        if mirror_leaf is None:
+            continue
+        if mirror[i] < 0 or mirror[j] < 0:
+            continue  # no mirror image known: the node has none either
+        a, b = current(int(mirror[i])), current(int(mirror[j]))
+        if a == b:  # the merge was its own mirror image
+            mirror[node] = node if a == node else -1
+        elif b in neighbours[a]:  # the mirror merge, at once and at the same cost
+            twin = merge(min(a, b), max(a, b), merge_cost)
+            absorbed[a] = absorbed[b] = twin
+            if node in (a, b):  # both merges together are one symmetric node
+                mirror[twin] = twin
+            else:
+                mirror[node], mirror[twin] = twin, node
 
     # Separate shells: smallest first into the part of nearest mean ShDF.
     roots = np.flatnonzero(alive)

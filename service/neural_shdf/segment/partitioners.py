@@ -30,7 +30,7 @@ from neural_shdf.segment.metis import metis_edge_weights, metis_partition
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
 from neural_shdf.segment.refine import refine_parts, smooth_boundaries
-from neural_shdf.segment.symmetry import mirror_parts
+from neural_shdf.segment.symmetry import mirror_leaves, mirror_parts
 
 
 @dataclass
@@ -105,7 +105,10 @@ class GraphCutPartitioner:
             )
             work.lap("boundary_smoothing")
         reflection = work.basis.reflection
-        if reflection is not None:  # the symmetry option found a plane: cut alike
+        mirror_leaf = None
+        if reflection is not None:
+            # The symmetry option found a plane: leaves cut as mirror images, and mirror
+            # merges made together so that the tree's cuts are mirror images too.
             mirrored = mirror_parts(parts, reflection, geometry.centroids, geometry.areas)
             parts = merge_small_parts(
                 connected_parts(mirrored, graph.pairs, graph.face_count),
@@ -114,8 +117,10 @@ class GraphCutPartitioner:
                 geometry.centroids,
                 params.min_part_fraction,
             )
+            mirror_leaf = mirror_leaves(parts, reflection.mirror, geometry.areas)
             work.lap("symmetry")
-        tree = merge_tree(canonical_labels(parts), graph, geometry.areas, work.basis.values)
+        leaves = canonical_labels(parts)
+        tree = merge_tree(leaves, graph, geometry.areas, work.basis.values, mirror_leaf=mirror_leaf)
         count = automatic_part_count(tree) if params.parts is None else params.parts
         labels = tree.labels(count)
         work.lap("hierarchy")

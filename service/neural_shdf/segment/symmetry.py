@@ -199,6 +199,27 @@ def mirror_parts(
     return out
 
 
+def mirror_leaves(leaves: NDArray, mirror: NDArray, areas: NDArray) -> NDArray[np.int64]:
+    """The mirror image of each part of ``leaves`` (canonical labels 0..L-1): the part that
+    holds most (by area) of its faces' mirror faces, kept where the two parts are each
+    other's image (a part across the plane is its own); -1 elsewhere."""
+    leaves = np.asarray(leaves, dtype=np.int64)
+    mirror = np.asarray(mirror, dtype=np.int64)
+    count = int(leaves.max()) + 1 if len(leaves) else 0
+    best = np.full(count, -1, dtype=np.int64)
+    has = np.flatnonzero(mirror >= 0)
+    if len(has) == 0:
+        return best
+    keys, inverse = np.unique(leaves[has] * count + leaves[mirror[has]], return_inverse=True)
+    weight = np.bincount(inverse.reshape(-1), weights=np.asarray(areas, np.float64)[has])
+    source, image = keys // count, keys % count
+    order = np.lexsort((-weight, source))  # per source, the heaviest image first
+    first = order[np.r_[True, source[order][1:] != source[order][:-1]]]
+    best[source[first]] = image[first]
+    mutual = (best >= 0) & (best[np.maximum(best, 0)] == np.arange(count))
+    return np.where(mutual, best, -1)
+
+
 def mirror_agreement(labels: NDArray, mirror: NDArray, areas: NDArray) -> float:
     """How alike the two sides are cut: the area-weighted Rand index between the labels and
     the labels of the mirror faces, over the faces that have one. 1: the mirror image of
@@ -227,6 +248,7 @@ __all__ = [
     "Reflection",
     "detect_reflection",
     "mirror_agreement",
+    "mirror_leaves",
     "mirror_parts",
     "symmetrize",
 ]

@@ -3,6 +3,10 @@ changed key orphans every entry of its kind), and covering everything results de
 
 from __future__ import annotations
 
+import hashlib
+import json
+from dataclasses import asdict
+
 import pytest
 
 from neural_shdf import __version__
@@ -123,3 +127,17 @@ def test_segmentation_keys_cover_every_parameter():
     assert keys.segmentation_key(MESH, shdf, SegmentParams()) != keys.segmentation_key(
         MESH, other_shdf, SegmentParams()
     )
+
+
+def test_symmetric_segmentations_are_keyed_by_the_options_version():
+    """``symmetry`` on is keyed by ``SYMMETRY_VERSION``: results of the option's version 1
+    (evidence averaged only), stored under its ``true``, are never served as version 2's."""
+    shdf = keys.shdf_version("exact", None, 0)
+    symmetric = SegmentParams(symmetry=True)
+    version_1 = hashlib.sha256(json.dumps(asdict(symmetric), sort_keys=True).encode()).hexdigest()[
+        :20
+    ]
+    assert keys.SYMMETRY_VERSION == 2
+    key = keys.segmentation_key(MESH, shdf, symmetric)
+    assert not key.endswith(version_1)
+    assert key != keys.segmentation_key(MESH, shdf, SegmentParams())

@@ -112,11 +112,20 @@ def shdf_key(mesh_id: str, method: str, seed: int, model_version: str | None) ->
 # -- segmentations and what is made from them ----------------------------------------
 
 
+#: Version of what ``symmetry`` does to the labels (in its results' keys): 1, the ShDF
+#: evidence averaged across the plane; 2, also the cuts made mirror images.
+SYMMETRY_VERSION = 2
+
+
 def segment_params_digest(params: SegmentParams) -> str:
     """Stable hash of the segmentation parameters (a key's parameter part). ``symmetry``
-    off is left out, so the keys of results made before the option existed still hold."""
-    used = asdict(params)
-    if not used["symmetry"]:
+    off is left out, so the keys of results made before the option existed still hold;
+    on, it is the option's version (``SYMMETRY_VERSION``): results of an earlier version
+    of the option are never served for it."""
+    used: dict[str, object] = asdict(params)
+    if used["symmetry"]:
+        used["symmetry"] = SYMMETRY_VERSION
+    else:
         del used["symmetry"]
     return hashlib.sha256(json.dumps(used, sort_keys=True).encode()).hexdigest()[:20]
 

@@ -217,9 +217,10 @@ def merge_tree(
 
     ``values``: per-face ShDF on the scale the cost compares (log-normalised, [0, 1]).
     ``mirror_leaf``: the mirror image of each leaf (itself for a leaf across the plane, -1
-    for none; ``segment.symmetry.mirror_leaves``): each merge is followed at once, at the
-    same cost, by its mirror merge, so that the tree's cuts at its automatic count are
-    mirror images too (greedy merging alone lets near-equal costs go either way).
+    for none; ``segment.symmetry.mirror_leaves``): each merge is followed at once by its
+    mirror merge, both at the dearer of their two costs, so that the tree's cuts at its
+    automatic count are mirror images too (greedy merging alone lets near-equal costs go
+    either way).
     """
     cost = MergeCost() if cost is None else cost
     leaves = np.asarray(leaf_labels, dtype=np.int64)
@@ -327,8 +328,10 @@ def merge_tree(
         a, b = current(int(mirror[i])), current(int(mirror[j]))
         if a == b:  # the merge was its own mirror image
             mirror[node] = node if a == node else -1
-        elif b in neighbours[a]:  # the mirror merge, at once and at the same cost
-            twin = merge(min(a, b), max(a, b), merge_cost)
+        elif b in neighbours[a]:  # the mirror merge, at once; both at the dearer cost
+            pair = max(merge_cost, pair_cost(a, b, *neighbours[a][b]))
+            costs[-1] = pair
+            twin = merge(min(a, b), max(a, b), pair)
             absorbed[a] = absorbed[b] = twin
             if node in (a, b):  # both merges together are one symmetric node
                 mirror[twin] = twin

@@ -47,21 +47,37 @@ export function leafSums(leafCount, leafLabels, geometry, shdf) {
   const area = new Float64Array(leafCount);
   const moment = new Float64Array(leafCount);
   for (let i = 0; i < leafLabels.length; i++) if (leafLabels[i] >= 0) faces[leafLabels[i]]++;
-  const { positions: p, triangles: t, faceOrigin } = geometry;
+  const { faceOrigin } = geometry;
+  const areas = triangleAreas(geometry);
   for (let k = 0; k < faceOrigin.length; k++) {
     const face = faceOrigin[k];
     const leaf = leafLabels[face];
     if (leaf < 0) continue;
-    const a = 3 * t[3 * k], b = 3 * t[3 * k + 1], c = 3 * t[3 * k + 2];
-    const ux = p[b] - p[a], uy = p[b + 1] - p[a + 1], uz = p[b + 2] - p[a + 2];
-    const vx = p[c] - p[a], vy = p[c + 1] - p[a + 1], vz = p[c + 2] - p[a + 2];
-    const cx = uy * vz - uz * vy, cy = uz * vx - ux * vz, cz = ux * vy - uy * vx;
-    const triangleArea = 0.5 * Math.sqrt(cx * cx + cy * cy + cz * cz);
+    const triangleArea = areas[k];
     area[leaf] += triangleArea;
     const value = shdf ? shdf[face] : NaN;
     if (Number.isFinite(value)) moment[leaf] += triangleArea * value;
   }
   return { faces, area, moment };
+}
+
+const AREAS = new WeakMap();  // geometry -> its triangles' areas (every new answer sums them)
+
+/** Area of each display triangle, computed once per geometry. */
+function triangleAreas(geometry) {
+  let areas = AREAS.get(geometry);
+  if (areas) return areas;
+  const { positions: p, triangles: t, faceOrigin } = geometry;
+  areas = new Float64Array(faceOrigin.length);
+  for (let k = 0; k < faceOrigin.length; k++) {
+    const a = 3 * t[3 * k], b = 3 * t[3 * k + 1], c = 3 * t[3 * k + 2];
+    const ux = p[b] - p[a], uy = p[b + 1] - p[a + 1], uz = p[b + 2] - p[a + 2];
+    const vx = p[c] - p[a], vy = p[c + 1] - p[a + 1], vz = p[c + 2] - p[a + 2];
+    const cx = uy * vz - uz * vy, cy = uz * vx - ux * vz, cz = ux * vy - uy * vx;
+    areas[k] = 0.5 * Math.sqrt(cx * cx + cy * cy + cz * cz);
+  }
+  AREAS.set(geometry, areas);
+  return areas;
 }
 
 /** Parts' faces, area and area-weighted mean ShDF: the leaves' sums added up per part. */

@@ -325,15 +325,15 @@ def merge_tree(
             continue
         if mirror[i] < 0 or mirror[j] < 0:
             continue  # no mirror image known: the node has none either
-        a, b = current(int(mirror[i])), current(int(mirror[j]))
-        if a == b:  # the merge was its own mirror image
-            mirror[node] = node if a == node else -1
-        elif b in neighbours[a]:  # the mirror merge, at once; both at the dearer cost
-            pair = max(merge_cost, pair_cost(a, b, *neighbours[a][b]))
+        first, second = current(int(mirror[i])), current(int(mirror[j]))
+        if first == second:  # the merge was its own mirror image
+            mirror[node] = node if first == node else -1
+        elif second in neighbours[first]:  # the mirror merge, at once; both at the dearer cost
+            pair = max(merge_cost, pair_cost(first, second, *neighbours[first][second]))
             costs[-1] = pair
-            twin = merge(min(a, b), max(a, b), pair)
-            absorbed[a] = absorbed[b] = twin
-            if node in (a, b):  # both merges together are one symmetric node
+            twin = merge(min(first, second), max(first, second), pair)
+            absorbed[first] = absorbed[second] = twin
+            if node in (first, second):  # both merges together are one symmetric node
                 mirror[twin] = twin
             else:
                 mirror[node], mirror[twin] = twin, node

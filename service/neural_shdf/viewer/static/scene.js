@@ -275,8 +275,11 @@ export class MeshView {
     );
     const raycaster = new THREE.Raycaster();
     raycaster.setFromCamera(pointer, this.camera);
-    const [hit] = raycaster.intersectObject(this.mesh);
-    return hit ? this.faceOrigin[Math.floor(hit.face.a / 3)] : -1;
+    const geometry = this.mesh.geometry;  // the mesh is never moved: world = its own space
+    const triangle = nearestTriangle(
+      geometry.getAttribute('position').array, geometry.index?.array ?? null, raycaster.ray,
+    );
+    return triangle >= 0 ? this.faceOrigin[triangle] : -1;
   }
 
   /** sRGB bytes of each triangle's colour (tests compare them with the service's colours). */
@@ -288,6 +291,43 @@ export class MeshView {
     }
     return out;
   }
+}
+
+/**
+ * The drawn triangle a ray meets first (both sides count), or -1: one tight loop over the
+ * corner positions (three.js's general ray cast costs several times more at 100k
+ * triangles). `corners`: the index of the visible corners, or null for all.
+ */
+function nearestTriangle(position, corners, ray) {
+  const { x: ox, y: oy, z: oz } = ray.origin;
+  const { x: dx, y: dy, z: dz } = ray.direction;
+  const count = corners ? corners.length / 3 : position.length / 9;
+  let best = Infinity;
+  let found = -1;
+  for (let k = 0; k < count; k++) {
+    const t = corners ? corners[3 * k] / 3 : k;  // corners of triangle t: 3t, 3t+1, 3t+2
+    const a = 9 * t;
+    const ax = position[a], ay = position[a + 1], az = position[a + 2];
+    const e1x = position[a + 3] - ax, e1y = position[a + 4] - ay, e1z = position[a + 5] - az;
+    const e2x = position[a + 6] - ax, e2y = position[a + 7] - ay, e2z = position[a + 8] - az;
+    // Moller-Trumbore: p = d x e2, det = e1 . p.
+    const px = dy * e2z - dz * e2y, py = dz * e2x - dx * e2z, pz = dx * e2y - dy * e2x;
+    const det = e1x * px + e1y * py + e1z * pz;
+    if (det > -1e-12 && det < 1e-12) continue;  // parallel to the triangle
+    const inv = 1 / det;
+    const sx = ox - ax, sy = oy - ay, sz = oz - az;
+    const u = (sx * px + sy * py + sz * pz) * inv;
+    if (u < 0 || u > 1) continue;
+    const qx = sy * e1z - sz * e1y, qy = sz * e1x - sx * e1z, qz = sx * e1y - sy * e1x;
+    const v = (dx * qx + dy * qy + dz * qz) * inv;
+    if (v < 0 || u + v > 1) continue;
+    const distance = (e2x * qx + e2y * qy + e2z * qz) * inv;
+    if (distance > 0 && distance < best) {
+      best = distance;
+      found = t;
+    }
+  }
+  return found;
 }
 
 /** Area-weighted vertex normals of an indexed triangle mesh. */

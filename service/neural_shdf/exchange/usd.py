@@ -604,15 +604,17 @@ class UsdPreviewMaterials:
 
     def _image(self, asset: Any) -> bytes | None:
         """The bytes of a texture asset: from inside the package, else a side file."""
-        from pxr import Ar
+        from pxr import Ar, Sdf
 
-        resolved = getattr(asset, "resolvedPath", "")
+        if not isinstance(asset, Sdf.AssetPath):
+            return None
+        resolved = str(asset.resolvedPath)
         if resolved and self.package is not None and _inside(resolved, self.package):
             found = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(resolved))
             if found is not None and found.GetSize() <= MAX_SIDE_FILE_BYTES:
                 return bytes(found.GetBuffer())
-        if self.side_files is not None and getattr(asset, "path", ""):
-            return self.side_files.read(asset.path)
+        if self.side_files is not None and asset.path:
+            return self.side_files.read(str(asset.path))
         return None
 
 

@@ -459,6 +459,10 @@ def test_a_usdz_input_is_written_back_with_its_parts(tmp_path: Path):
     assert {name: faces.tolist() for name, faces in drum.items()} == {
         part_name(k): np.flatnonzero(labels[counts[0] :] == k).tolist() for k in range(3)
     }
+    # Flattened: the same bytes every time (usd-core's note would name a temporary folder).
+    text = usd.usd_parts_usda(package.read_bytes(), "usdz", labels)
+    assert text == usd.usd_parts_usda(package.read_bytes(), "usdz", labels)
+    assert b"neural-shdf-usd-" not in text
 
 
 def test_named_parts_become_named_subsets_with_materials_of_their_colour(tmp_path: Path):
@@ -686,6 +690,11 @@ def test_bound_materials_textures_and_display_colours_are_read(tmp_path: Path):
     assert UsdUtils.CreateNewUsdzPackage(str(path), str(package))
     packed = load_source(package.read_bytes(), "usdz").attributes.materials
     assert packed.image_data == (_png(WOOD_PNG),)
+    # Written back flattened: the texture path as the file wrote it, not the temporary
+    # folder it was read from (gone afterwards, the server's own, different every time).
+    text = usd.usd_parts_usda(package.read_bytes(), "usdz", np.zeros(26, dtype=np.int64))
+    assert b"@./tex/wood.png@" in text or b"@tex/wood.png@" in text
+    assert b"neural-shdf-usd-" not in text and str(tmp_path).encode() not in text
 
 
 def test_a_texture_outside_an_uploaded_file_is_never_read(tmp_path: Path):

@@ -971,8 +971,35 @@ def write_usd_parts(
         ]
         _add_parts(stage, paths, counts, labels, names)
         single = len([layer for layer in stage.GetUsedLayers() if not layer.anonymous]) == 1
-        layer = stage.GetRootLayer() if single and extension != "usdz" else stage.Flatten()
+        if single and extension != "usdz":
+            layer = stage.GetRootLayer()
+        else:
+            layer = stage.Flatten()
+            _unanchor(layer, path.parent)
         _export(layer, output, path.parent)
+
+
+def _unanchor(layer: Any, folder: Path) -> None:
+    """Asset paths of a flattened layer as the input wrote them, not anchored to the
+    temporary folder it was read from (which is gone afterwards, differs every time and
+    is the server's own): ``<folder>/upload.usdz[tex/a.png]`` becomes ``tex/a.png``,
+    ``<folder>/tex/a.png`` becomes ``tex/a.png``. usd-core's note naming the folder goes
+    too."""
+    from pxr import UsdUtils
+
+    prefix = str(folder) + os.sep
+    real_prefix = str(folder.resolve()) + os.sep
+
+    def relative(asset: str) -> str:
+        for start in (prefix, real_prefix):
+            if asset.startswith(start):
+                inner = asset[len(start) :]
+                _, bracket, member = inner.partition("[")
+                return member[:-1] if bracket and member.endswith("]") else inner
+        return asset
+
+    UsdUtils.ModifyAssetPaths(layer, relative)
+    layer.documentation = "Flattened from the input stage by neural-shdf"
 
 
 def usd_parts_usda(data: bytes, input_format: str, face_labels: NDArray[Any]) -> bytes:

@@ -39,7 +39,7 @@ import os
 import re
 import tempfile
 import zipfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import partial
@@ -57,6 +57,7 @@ from neural_shdf.errors import (
     UnsupportedFormatError,
 )
 from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, build_mesh, fan_triangulate
+from neural_shdf.exchange._usda_arrays import cut_arrays, restore_arrays
 from neural_shdf.exchange._usdc import crate_array_sizes
 from neural_shdf.exchange.attributes import (
     MAX_SIDE_FILE_BYTES,
@@ -160,11 +161,20 @@ def check_layers_inside(path: Path) -> list[Any]:
     return opened
 
 
-def open_stage(path: Path) -> Any:
-    """The composed stage of a USD file whose layers were checked with check_layers_inside."""
+class _ArraysNotRestored(Exception):  # noqa: N818 - a signal to read the text whole
+    """The cut arrays of a ``.usda`` could not all be put back (``_usda_arrays``)."""
+
+
+def open_stage(path: Path, prepare: Callable[[Any], bool] | None = None) -> Any:
+    """The composed stage of a USD file whose layers were checked with check_layers_inside.
+
+    ``prepare``: called with the root layer before the stage is composed
+    (``_usda_arrays.restore_arrays``); False raises ``_ArraysNotRestored``."""
     from pxr import Usd
 
     layers = check_layers_inside(path)
+    if prepare is not None and not prepare(layers[0]):
+        raise _ArraysNotRestored
     stage = Usd.Stage.Open(layers[0], Usd.Stage.LoadAll)  # the layers parsed once
     del layers  # the stage holds what it uses
     if stage is None:
@@ -746,19 +756,32 @@ def read_usd_source(
     check_crate_arrays(data, limits)
     from pxr import Tf
 
+    read = partial(
+        read_usd_stage_source, limits=limits, attributes=attributes, side_files=side_files
+    )
+    cut = cut_arrays(data, max_elements=_array_bound(limits)) if extension == "usda" else None
+    if cut is not None:
+        # The large arrays parsed by our kernel, the rest by usd-core; anything that does
+        # not come out exactly as usd-core alone reads it is read again by usd-core alone.
+        with usd_file(cut.text, extension) as path:
+            try:
+                return read(open_stage(path, partial(restore_arrays, cut=cut)), package=path.parent)
+            except (_ArraysNotRestored, Tf.ErrorException):
+                pass
     with usd_file(data, extension) as path:
         try:
-            return read_usd_stage_source(
-                open_stage(path),
-                limits,
-                attributes=attributes,
-                package=path.parent,
-                side_files=side_files,
-            )
+            return read(open_stage(path), package=path.parent)
         except Tf.ErrorException as error:
             raise MeshParseError(
                 f"usd-core could not read the file: {_usd_message(error)}"
             ) from None
+
+
+def _array_bound(limits: MeshLimits) -> int | None:
+    """Most elements an array of a mesh within ``limits`` has (``check_crate_arrays``)."""
+    if limits.max_faces is None or limits.max_vertices is None:
+        return None
+    return max(3 * limits.max_faces, limits.max_vertices)
 
 
 #: Readers for the registry, one per extension (the extension tells usd-core the encoding).

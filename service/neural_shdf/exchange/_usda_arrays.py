@@ -140,7 +140,7 @@ def _parse_literal(  # noqa: C901, PLR0912, PLR0915 - one pass over the bytes
         exponent = 0
         integer_digits = 0
         while position < end:
-            d = np.int64(text[position]) - 48
+            d = int(text[position]) - 48
             if d < 0 or d > 9:
                 break
             if digits > 0 or d != 0:
@@ -158,7 +158,7 @@ def _parse_literal(  # noqa: C901, PLR0912, PLR0915 - one pass over the bytes
             fraction = True
             position += 1
             while position < end:
-                d = np.int64(text[position]) - 48
+                d = int(text[position]) - 48
                 if d < 0 or d > 9:
                     break
                 if digits > 0 or d != 0:
@@ -180,7 +180,7 @@ def _parse_literal(  # noqa: C901, PLR0912, PLR0915 - one pass over the bytes
             exponent_digits = 0
             written = 0
             while position < end:
-                d = np.int64(text[position]) - 48
+                d = int(text[position]) - 48
                 if d < 0 or d > 9:
                     break
                 if exponent_digits < 6:
@@ -295,7 +295,7 @@ def cut_arrays(
                     found=elements,
                     maximum=max_elements,
                 )
-    # The literals in parallel (the kernel releases the GIL), largest first.
+    # The literals in parallel (the kernel releases the GIL).
     with ThreadPoolExecutor(max_workers=2) as pool:
         parsed = list(
             pool.map(lambda item: _values(data, buffer, item[0], item[1], item[2]), found)
@@ -305,22 +305,22 @@ def cut_arrays(
     ]
     if not kept:
         return None
-    pieces = []
+    pieces: list[bytes] = []
     previous = 0
-    for (opening, closing, _, _), _ in kept:
+    for (opening, closing, _, _), _values_found in kept:
         pieces.append(data[previous : opening - 1])
         previous = closing + 1
     pieces.append(data[previous:])
     rest = b"".join(pieces)
-    markers = []
+    markers: list[int] = []
     candidate = 9_000_001  # below 2**24: exact in every element type cut
     while len(markers) < len(kept):
         if str(candidate).encode() not in rest:
             markers.append(candidate)
         candidate += 1
-    text = []
+    text: list[bytes] = []
     arrays = []
-    for piece, ((_, _, type_name, name), values), marker in zip(
+    for piece, ((_, _, type_name, name), array_values), marker in zip(
         pieces, kept, markers, strict=False
     ):
         width = ARRAY_TYPES[type_name][1]
@@ -329,7 +329,7 @@ def cut_arrays(
             b"[" + number + b"]" if width == 0 else b"[(" + b", ".join([number] * width) + b")]"
         )
         text += [piece, literal]
-        arrays.append(CutArray(marker, type_name, name, values))
+        arrays.append(CutArray(marker, type_name, name, array_values))
     text.append(pieces[-1])
     return CutLayer(b"".join(text), tuple(arrays))
 

@@ -372,3 +372,9 @@ def restore_arrays(layer: Any, cut: CutLayer) -> bool:
         values = array.values.reshape(-1, width) if width else array.values
         spec.default = getattr(Vt, vt_name).FromNumpy(np.ascontiguousarray(values))
     return True
+
+
+def warm_up() -> None:
+    """Build (or load from its cache) the kernel, as ``pipeline.warm_up`` does for all."""
+    literal = b"(1.5, -2e3, 0.1234567890123456789)"
+    _values(literal, np.frombuffer(literal, dtype=np.uint8), 0, len(literal), "point3f")

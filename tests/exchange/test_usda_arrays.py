@@ -131,6 +131,10 @@ HOSTILE = {
     "ints out of range": "int[] faceVertexIndices = [0, 3000000000, 2]",
     "a tuple too short": "point3f[] points = [(0, 0), (1, 1, 1)]",
     "a number outside a tuple": "point3f[] points = [(0, 0, 0), 1]",
+    "int blanks": "int[] faceVertexCounts = [\n 3 ,3,\n\t3\n]",
+    "int edges": "int[] faceVertexIndices = [-0, 007, 2147483647, -2147483648, 0000000000001]",
+    "int line break before a comma": "int[] faceVertexCounts = [3\n, 3]",
+    "int too many digits": "int[] faceVertexIndices = [12345678901, 1]",
     "a plus sign": "float[] widths = [+1, 2]",
     "a leading dot": "float[] widths = [.5, 2]",
     "time samples": "point3f[] points.timeSamples = {\n 0: [(0, 0, 0), (1, 0, 0)],\n"
@@ -147,7 +151,8 @@ HOSTILE = {
 def test_hostile_literals_read_as_usd_core_reads_them_or_fall_back(name):
     text = f'#usda 1.0\ndef Mesh "M"\n{{\n    {HOSTILE[name]}\n}}\n'
     exact = name in ("blanks and newlines in tuples", "scientific notation", "doubles",
-                     "texture coordinates", "colours and widths")  # fmt: skip
+                     "texture coordinates", "colours and widths", "int blanks",
+                     "int edges")  # fmt: skip
     try:
         _full(text)
     except pxr.Tf.ErrorException:  # usd-core refuses it: so must the fast path

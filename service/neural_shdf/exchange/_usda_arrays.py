@@ -74,7 +74,6 @@ def _parse_literal(  # noqa: C901, PLR0912, PLR0915 - one pass over the bytes
     start: int,
     end: int,
     width: int,
-    integers: bool,
     powers: NDArray[np.float64],
     values: NDArray[np.float64],
     slow: NDArray[np.int64],
@@ -88,7 +87,7 @@ def _parse_literal(  # noqa: C901, PLR0912, PLR0915 - one pass over the bytes
     or does not fit the grammar (a trailing comma, a comment, ``nan``: usd-core reads
     those). A slow token's value is not exact by Clinger's fast path (more than 15
     digits, or a power of ten past 22): ``slow[3k:3k+3]`` holds its byte range and value
-    index, for the caller to compute. Integers: digits only, within int32.
+    index, for the caller to compute. Floats and doubles (``_parse_integers``: ints).
     One loop, no helper calls: several times faster in numba than the same grammar
     split into functions.
     """
@@ -153,9 +152,7 @@ def _parse_literal(  # noqa: C901, PLR0912, PLR0915 - one pass over the bytes
             position += 1
         if integer_digits == 0:
             return -1, 0
-        fraction = False
         if position < end and text[position] == 46:  # '.'
-            fraction = True
             position += 1
             while position < end:
                 d = int(text[position]) - 48
@@ -169,9 +166,7 @@ def _parse_literal(  # noqa: C901, PLR0912, PLR0915 - one pass over the bytes
                 else:
                     exponent -= 1
                 position += 1
-        scaled = False
         if position < end and (text[position] == 101 or text[position] == 69):  # e E
-            scaled = True
             position += 1
             exponent_negative = False
             if position < end and (text[position] == 43 or text[position] == 45):
@@ -190,14 +185,7 @@ def _parse_literal(  # noqa: C901, PLR0912, PLR0915 - one pass over the bytes
             if exponent_digits == 0:
                 return -1, 0
             exponent += -written if exponent_negative else written
-        if integers:
-            if fraction or scaled or digits > 10:
-                return -1, 0
-            number = -mantissa if negative else mantissa
-            if number < -2147483648 or number > 2147483647:
-                return -1, 0
-            values[count] = number
-        elif digits > 15 or exponent > 22 or exponent < -22:
+        if digits > 15 or exponent > 22 or exponent < -22:
             if 3 * slow_count + 2 >= slow.shape[0]:
                 return -1, 0
             slow[3 * slow_count] = token_start
@@ -219,6 +207,62 @@ def _parse_literal(  # noqa: C901, PLR0912, PLR0915 - one pass over the bytes
     return count, slow_count
 
 
+@kernel
+def _parse_integers(
+    text: NDArray[np.uint8], start: int, end: int, values: NDArray[np.int32]
+) -> int:
+    """``_parse_literal`` of int32 scalars (most of a mesh's text: its indices), in a
+    tighter loop: ``-?digits`` comma separated. Returns the count, or -1."""
+    count = 0
+    position = start
+    while True:
+        while position < end:
+            c = text[position]
+            if c != 32 and c != 9 and c != 10 and c != 13:
+                break
+            position += 1
+        if position >= end:
+            return -1  # empty, or a trailing comma
+        negative = text[position] == 45  # '-'
+        if negative:
+            position += 1
+        number = 0
+        digits = 0  # significant digits
+        seen = 0
+        while position < end:
+            d = int(text[position]) - 48
+            if d < 0 or d > 9:
+                break
+            if digits > 0 or d != 0:
+                digits += 1
+                if digits > 10:
+                    return -1
+                number = number * 10 + d
+            seen += 1
+            position += 1
+        if seen == 0:
+            return -1
+        if negative:
+            number = -number
+        if number < -2147483648 or number > 2147483647:
+            return -1
+        values[count] = number
+        count += 1
+        line_break = False
+        while position < end:
+            c = text[position]
+            if c == 10 or c == 13:
+                line_break = True
+            elif c != 32 and c != 9:
+                break
+            position += 1
+        if position >= end:
+            return count
+        if text[position] != 44 or line_break:  # ','; no line break right before it
+            return -1
+        position += 1
+
+
 @dataclass(frozen=True)
 class CutArray:
     """One literal taken out of the text: its marker and values (as usd-core makes them)."""
@@ -237,25 +281,26 @@ class CutLayer:
     arrays: tuple[CutArray, ...]
 
 
-def _values(data: bytes, buffer: NDArray[np.uint8], start: int, end: int,
-            type_name: str) -> NDArray[Any] | None:  # fmt: skip
-    """The values of ``data[start:end]`` as usd-core gives them for ``type_name``, or None
-    when the literal does not fit the grammar (module docstring)."""
+def _values(
+    data: bytes, buffer: NDArray[np.uint8], start: int, end: int, type_name: str, capacity: int
+) -> NDArray[Any] | None:
+    """The values of ``data[start:end]`` as usd-core gives them for ``type_name``
+    (``capacity``: at least their count), or None when the literal does not fit the
+    grammar (module docstring)."""
     kind, width, _ = ARRAY_TYPES[type_name]
-    capacity = int(np.count_nonzero(buffer[start:end] == 44)) + 1  # commas + 1
+    if kind == "i":
+        integers = np.empty(capacity, dtype=np.int32)
+        found = _parse_integers(buffer, start, end, integers)
+        return None if found < 0 else integers[:found]
     values = np.empty(capacity, dtype=np.float64)
     slow = np.empty(3 * MAX_SLOW_TOKENS, dtype=np.int64)
-    count, slow_count = _parse_literal(
-        buffer, start, end, width, kind == "i", _POWERS, values, slow
-    )
+    count, slow_count = _parse_literal(buffer, start, end, width, _POWERS, values, slow)
     if count < 0 or (width and count % width):
         return None
     values = values[:count]
     for k in range(slow_count):  # correctly rounded to a double, as usd-core parses
         token = data[int(slow[3 * k]) : int(slow[3 * k + 1])]
         values[int(slow[3 * k + 2])] = float(token)
-    if kind == "i":
-        return values.astype(np.int32)
     if kind == "f":
         with np.errstate(over="ignore"):
             return values.astype(np.float32)  # the double cast, as usd-core casts it
@@ -282,9 +327,10 @@ def cut_arrays(
     if not found:
         return None
     buffer = np.frombuffer(data, dtype=np.uint8)
+    # Values are at most the commas + 1: the arrays' sizes, and the limits' check.
+    capacities = [int(np.count_nonzero(buffer[a:b] == 44)) + 1 for a, b, _, _ in found]
     if max_elements is not None:
-        for opening, closing, type_name, name in found:
-            values = int(np.count_nonzero(buffer[opening:closing] == 44)) + 1
+        for (_, _, type_name, name), values in zip(found, capacities, strict=True):
             elements = values // max(ARRAY_TYPES[type_name][1], 1)
             if elements > max_elements:
                 raise MeshTooLargeError(
@@ -298,7 +344,11 @@ def cut_arrays(
     # The literals in parallel (the kernel releases the GIL).
     with ThreadPoolExecutor(max_workers=2) as pool:
         parsed = list(
-            pool.map(lambda item: _values(data, buffer, item[0], item[1], item[2]), found)
+            pool.map(
+                lambda item, size: _values(data, buffer, item[0], item[1], item[2], size),
+                found,
+                capacities,
+            )
         )
     kept = [
         (item, values) for item, values in zip(found, parsed, strict=True) if values is not None
@@ -377,4 +427,5 @@ def restore_arrays(layer: Any, cut: CutLayer) -> bool:
 def warm_up() -> None:
     """Build (or load from its cache) the kernel, as ``pipeline.warm_up`` does for all."""
     literal = b"(1.5, -2e3, 0.1234567890123456789)"
-    _values(literal, np.frombuffer(literal, dtype=np.uint8), 0, len(literal), "point3f")
+    _values(literal, np.frombuffer(literal, dtype=np.uint8), 0, len(literal), "point3f", 3)
+    _values(b"1, -2", np.frombuffer(b"1, -2", dtype=np.uint8), 0, 5, "int", 2)

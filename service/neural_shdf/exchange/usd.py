@@ -28,6 +28,10 @@ limits (``check_crate_arrays``: compressed arrays could otherwise expand thousan
 of times); then every prim's ``faceVertexCounts`` are read and the face and
 triangle budgets checked before indices and points are read.
 
+A ``.usda`` has its large numeric arrays parsed by ``_usda_arrays`` (usd-core's text
+parser reads about 25 MB/s) and put back into the root layer before the stage is
+composed; the file is read by usd-core alone whenever that cannot be done exactly.
+
 ``pxr`` (usd-core) is imported inside the functions that use it: it is slow to import and
 only USD files need it (docs/benchmarks.md, "Start-up and imports").
 """

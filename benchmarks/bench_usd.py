@@ -8,8 +8,9 @@ a GLB of its 2M triangles. Each file is read with ``mesh_io.load_mesh`` from its
 under the service's default limits (so USD's crate-array check runs); the table prints
 the best wall and CPU seconds of ``--repeat`` reads, the difference from the GLB above
 it (issue #19's target: Draco and USD at most 1 s beyond the GLB) and, for USD, the
-wall seconds of usd-core alone opening the stage (``Usd.Stage.Open``: its own parse,
-which our reader cannot shorten).
+wall seconds of usd-core alone opening the stage (``Usd.Stage.Open``: its own parse).
+``usda core only`` reads the same ``.usda`` without the fast path (``_usda_arrays``:
+its large arrays parsed by our kernel), side by side with ``usda``.
 
     python benchmarks/bench_usd.py [--repeat 3] [--subdivisions 8]
 """
@@ -26,6 +27,8 @@ from formats_corpus import draco_glb
 from timing import best_time
 
 from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
+from neural_shdf.exchange import usd
+from neural_shdf.exchange._usda_arrays import cut_arrays
 from neural_shdf.mesh_io import load_mesh
 
 
@@ -44,6 +47,11 @@ def write_usd(path: Path, vertices: np.ndarray, counts: np.ndarray, flat: np.nda
     stage.GetRootLayer().Save()
     if path.suffix == ".usdz":
         UsdUtils.CreateNewUsdzPackage(str(target), str(path))
+
+
+def _no_cut(data: bytes, **_: object) -> None:
+    """No array cut: usd-core parses the whole text."""
+    return None
 
 
 def _open_stage(path: Path) -> None:
@@ -75,6 +83,8 @@ def main() -> None:
         for suffix in ("usdc", "usda", "usdz"):
             files[suffix] = root / f"mesh.{suffix}"
             write_usd(files[suffix], vertices, triangles, faces.reshape(-1))
+        # The same .usda read by usd-core alone (without the fast path of _usda_arrays).
+        files["usda core only"] = files["usda"]
         # Quads (the fan path): a 1000 x 1000 grid, against the GLB of its triangles.
         side = 1000
         grid = np.stack(np.meshgrid(np.arange(side + 1), np.arange(side + 1)), -1).reshape(-1, 2)
@@ -90,6 +100,7 @@ def main() -> None:
         print(header + f"{'usd_core_s':>12}")
         glb_wall = 0.0
         for name, path in files.items():
+            usd.cut_arrays = _no_cut if name.endswith("core only") else cut_arrays  # type: ignore[assignment]
             wall, cpu, mesh = best_time(
                 lambda p=path: load_mesh(
                     p, max_faces=DEFAULT_MAX_FACES, max_vertices=DEFAULT_MAX_VERTICES

@@ -31,7 +31,7 @@ from pathlib import Path
 from neural_shdf.errors import MeshParseError, UnsupportedFormatError
 from neural_shdf.exchange import READERS, REFUSED, SOURCE_READERS
 from neural_shdf.exchange._common import MeshLimits, parse_guard, strip_bom
-from neural_shdf.exchange.attributes import SourceMesh
+from neural_shdf.exchange.attributes import SideFiles, SourceMesh
 from neural_shdf.exchange.fbx import looks_like_fbx
 from neural_shdf.exchange.usd import sniff_usd
 from neural_shdf.mesh import TriangleMesh
@@ -125,10 +125,16 @@ def load_source(
     """``load_mesh`` with the file's own normals, UVs, vertex colours, materials and scene
     objects (``exchange.attributes``; None for formats that hold none of them), for
     writing results back into the artist's file (``gltf_writer.parts_glb``). The mesh is
-    the one ``load_mesh`` reads: same geometry, order and content hash."""
+    the one ``load_mesh`` reads: same geometry, order and content hash.
+
+    From a path, the files beside it are read too (an OBJ's ``.mtl`` files and textures,
+    a USD layer's textures); from bytes, only what the bytes hold (a USDZ's textures)."""
     name, data = _read(source, file_type)
+    side_files = None
+    if not isinstance(source, bytes | bytearray | memoryview):
+        side_files = SideFiles(Path(source).resolve().parent)
     with parse_guard(_FORMAT_NAMES[name]):
-        return SOURCE_READERS[name](data, MeshLimits(max_faces, max_vertices))
+        return SOURCE_READERS[name](data, MeshLimits(max_faces, max_vertices), side_files)
 
 
 def _read(source: str | Path | bytes, file_type: str | None) -> tuple[str, bytes]:

@@ -74,6 +74,9 @@ def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "sampled", "neural")) ->
         basis.data, mesh.face_graph.pairs, basis.unit_weights, centroids, areas, 40
     )
     coarse.solve(0.06)
+    from neural_shdf.exchange._usda_arrays import warm_up as warm_up_usda
+
+    warm_up_usda()  # the .usda array kernel
     if "exact" in methods:  # the patch filter of wide windows (meshes above ~100k faces)
         wide = ShdfParams(window_size=EXACT_WINDOW_MAX + 1)
         compute_shdf(mesh, method="exact", params=wide)

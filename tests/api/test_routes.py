@@ -439,3 +439,41 @@ def test_segment_symmetry_is_the_librarys_and_keeps_its_own_basis(client, capsul
     assert symmetric.json()["labels"] == labels.tolist()
     # Off again: the plain labels (the symmetric basis never stands in for the plain one).
     assert client.post("/v1/segment", json=request).json()["labels"] == plain["labels"]
+
+
+def test_segment_file_names_the_uploads_kept_file(client, tmp_path):
+    """The one-shot route keeps the file like an upload and answers its source_id (body
+    and X-Source-Id), so parts.glb keeps a USDZ's materials and texture; a format whose
+    file holds nothing to keep (STL) answers none."""
+    import hashlib
+
+    from pxr import UsdUtils
+
+    from neural_shdf.mesh_io import load_source
+    from tests.exchange.test_usd import WOOD_PNG, _material_stage, _png
+
+    package = tmp_path / "materials.usdz"
+    assert UsdUtils.CreateNewUsdzPackage(str(_material_stage(tmp_path)), str(package))
+    data = package.read_bytes()
+    answer = client.post(
+        "/v1/segment/file",
+        files={"file": ("materials.usdz", data)},
+        data={"method": TEST_METHOD, "partitioner": "metis", "parts": 2},
+    )
+    assert answer.status_code == 200, answer.text
+    body = answer.json()
+    source_id = hashlib.sha256(b"usdz\0" + data).hexdigest()
+    assert body["source_id"] == answer.headers["x-source-id"] == source_id
+    query = f"?method={TEST_METHOD}&partitioner=metis&parts=2&source={source_id}"
+    glb = client.get(f"/v1/meshes/{body['mesh_id']}/segmentation/parts.glb{query}")
+    assert glb.status_code == 200, glb.text
+    back = load_source(glb.content, "glb").attributes.materials
+    assert back.image_data == (_png(WOOD_PNG),)
+    assert {m["name"] for m in back.materials} >= {"/World/Looks/Wood", "/World/Looks/Paint"}
+    stl = client.post(
+        "/v1/segment/file",
+        files={"file": ("capsule.stl", capsule().export(file_type="stl"))},
+        data={"method": TEST_METHOD},
+    )
+    assert stl.status_code == 200, stl.text
+    assert "source_id" not in stl.json() and "x-source-id" not in stl.headers

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import hashlib
 
 import httpx
 import numpy as np
@@ -113,6 +114,54 @@ def test_segment_file_bytes_polygons_and_glb_downloads(service):
     assert len(scene.geometry) == 2
 
 
+def test_segment_file_source_gives_parts_glb_and_parts_usda_of_the_users_file(service, tmp_path):
+    """segment_file answers the upload's source_id; parts_glb and parts_usda (sync and
+    async) with it give the file's own materials and stage, without it the stored faces."""
+    from pxr import Usd, UsdGeom, UsdUtils
+
+    from neural_shdf.exchange.gltf_writer import parts_glb
+    from tests.exchange.test_usd import _material_stage
+
+    package = tmp_path / "materials.usdz"
+    assert UsdUtils.CreateNewUsdzPackage(str(_material_stage(tmp_path)), str(package))
+    data = package.read_bytes()
+    options = {"partitioner": "metis", "parts": 3}
+    with Client(service) as client:
+        result = client.segment_file(package, **options)
+        assert result.source_id == hashlib.sha256(b"usdz\0" + data).hexdigest()
+        glb = client.parts_glb(result.mesh_id, source=result.source_id, **options)
+        usda = client.parts_usda(result.mesh_id, source=result.source_id, **options)
+        plain_usda = client.parts_usda(result.mesh_id, **options)
+    source = load_source(data, "usdz")
+    labels = result.labels[source.mesh.face_origin].astype(np.int64)
+    assert glb == parts_glb(source.mesh, labels, attributes=source.attributes)
+
+    async def scenario() -> tuple[bytes, bytes]:
+        async with AsyncClient(service) as client:
+            glb = await client.parts_glb(result.mesh_id, source=result.source_id, **options)
+            usda = await client.parts_usda(result.mesh_id, source=result.source_id, **options)
+            return glb, usda
+
+    assert asyncio.run(scenario()) == (glb, usda)
+    (tmp_path / "parts.usda").write_bytes(usda)
+    (tmp_path / "plain.usda").write_bytes(plain_usda)
+    stage = Usd.Stage.Open(str(tmp_path / "parts.usda"))
+    assert stage.GetPrimAtPath("/World/Looks/Wood")  # the file's own stage
+    offset = 0
+    for path in ("/World/Box", "/World/Plain", "/World/Bare"):
+        mesh = UsdGeom.Mesh.Get(stage, path)
+        count = len(mesh.GetFaceVertexCountsAttr().Get())
+        subsets = UsdGeom.Subset.GetGeomSubsets(mesh, UsdGeom.Tokens.face, "part")
+        own = result.labels[offset : offset + count]
+        found = {s.GetPrim().GetName(): list(s.GetIndicesAttr().Get()) for s in subsets}
+        assert found == {f"part_{k:03d}": np.flatnonzero(own == k).tolist() for k in np.unique(own)}
+        offset += count
+    plain = Usd.Stage.Open(str(tmp_path / "plain.usda"))
+    assert [p.GetPath().pathString for p in plain.Traverse() if p.IsA(UsdGeom.Mesh)] == [
+        "/World/Mesh"
+    ]
+
+
 def test_errors_carry_the_services_code_and_message(service):
     with Client(service) as client:
         with pytest.raises(UnsupportedMediaError) as unsupported:
@@ -144,6 +193,10 @@ def test_large_mesh_waits_for_its_job_with_a_progress_bar(service, capsys):
         uploaded = client.upload(data, file_type="ply")  # now cached: answered at once
     assert len(result.labels) == len(sphere.faces)
     assert uploaded.mesh_id == result.mesh_id and uploaded.shdf.cached
+    # Answered 202 first: the upload's file is still named (the 202's X-Source-Id).
+    assert (
+        result.source_id == uploaded.mesh.source_id == hashlib.sha256(b"ply\0" + data).hexdigest()
+    )
     assert f"ShDF ({TEST_METHOD})" in capsys.readouterr().err
 
 
@@ -217,6 +270,9 @@ def test_client_examples_run_as_written(service, tmp_path, monkeypatch, capsys):
         namespace: dict = {}
         exec(block.replace("http://127.0.0.1:8000", service), namespace)  # noqa: S102
         owns.append(namespace.get("own"))
+        if "own_usd" in namespace:  # segment_file's source_id: parts_usda of the scene
+            assert namespace["shot"].source_id == namespace["scene"].mesh.source_id
+            assert namespace["own_usd"].startswith(b"#usda")
     assert "invalid_parameter" in capsys.readouterr().out
     assert (tmp_path / "parts.glb").read_bytes()[:4] == b"glTF"
     own = load_source(owns[0], "glb").attributes  # the scene's parts keep its attributes

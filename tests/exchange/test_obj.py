@@ -189,3 +189,132 @@ def test_uvs_normals_and_materials_follow_each_corner_when_attributes_are_read()
     assert [m["name"] for m in attributes.materials.materials] == ["wood", "metal"]
     assert not attributes.materials.defined  # names only: the .mtl is not read
     assert np.array_equal(attributes.vertex[attributes.corners], source.mesh.faces)
+
+
+def _png(color: tuple[int, int, int]) -> bytes:
+    import io
+
+    from PIL import Image
+
+    out = io.BytesIO()
+    Image.new("RGB", (4, 4), color).save(out, format="PNG")
+    return out.getvalue()
+
+
+MTL = """\
+# written by hand: every statement the reader turns into glTF
+newmtl wood
+Kd 0.8 0.8 0.8
+Ns 250
+d 1
+map_Kd -s 1 1 1 -clamp on tex/wood.png
+newmtl glass
+Kd 0.1 0.2 0.3
+Ns 1000
+Tr 0.25
+Ke 0.5 0 2
+newmtl metal
+Kd 0.5 0.5 0.5
+Pr 0.2
+Pm 1
+map_Kd tex/metal.tga
+"""
+
+MTL_OBJ = (
+    "mtllib mats.mtl\n"
+    "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\n"
+    "vt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n"
+    "f 1 2 5\n"  # no material yet: part colours
+    "usemtl wood\nf 1/1 2/2 3/3 4/4\n"
+    "f 1 5 6\n"  # wood without UVs: the untextured copy
+    "usemtl glass\nf 2 3 6\n"
+    "usemtl metal\nf 3 4 6\n"
+    "usemtl nowhere\nf 4 1 5\n"
+)
+
+
+def _obj_with_library(folder):
+    (folder / "tex").mkdir()
+    (folder / "tex" / "wood.png").write_bytes(_png((200, 120, 40)))
+    (folder / "tex" / "metal.tga").write_bytes(b"\0\0\2" + bytes(15))  # not PNG or JPEG
+    (folder / "mats.mtl").write_text(MTL)
+    path = folder / "model.obj"
+    path.write_text(MTL_OBJ)
+    return path
+
+
+def test_mtl_libraries_beside_an_obj_on_disk_become_gltf_materials(tmp_path):
+    """Kd, Ns (as roughness), d/Tr (opacity), Pr/Pm, Ke and map_Kd (a PNG beside the .mtl,
+    its options skipped, -clamp kept) as glTF materials in usemtl order; faces without
+    UVs get a copy without the texture; a name the library lacks is a white dielectric."""
+    from neural_shdf.mesh_io import load_source
+
+    path = _obj_with_library(tmp_path)
+    source = load_source(path)
+    materials = source.attributes.materials
+    assert materials.defined
+    by_name = {m["name"]: m for m in materials.materials[:4]}  # usemtl order; then copies
+    wood = by_name["wood"]["pbrMetallicRoughness"]
+    assert wood["baseColorTexture"] == {"index": 0}
+    assert wood["baseColorFactor"] == [1.0, 1.0, 1.0, 1.0]  # the texture replaces Kd
+    assert wood["roughnessFactor"] == pytest.approx(0.5)  # 1 - sqrt(250 / 1000)
+    assert wood["metallicFactor"] == 0.0
+    assert materials.image_data == (_png((200, 120, 40)),)
+    assert materials.images == ({"mimeType": "image/png"},)
+    assert materials.samplers == ({"wrapS": 33071, "wrapT": 33071},)
+    glass = by_name["glass"]
+    assert glass["pbrMetallicRoughness"]["baseColorFactor"] == pytest.approx([0.1, 0.2, 0.3, 0.75])
+    assert glass["pbrMetallicRoughness"]["roughnessFactor"] == 0.0
+    assert glass["alphaMode"] == "BLEND" and glass["emissiveFactor"] == [0.5, 0.0, 1.0]
+    metal = by_name["metal"]["pbrMetallicRoughness"]
+    assert "baseColorTexture" not in metal  # a TGA: glTF holds PNG and JPEG only
+    assert (metal["roughnessFactor"], metal["metallicFactor"]) == (0.2, 1.0)
+    assert by_name["nowhere"]["pbrMetallicRoughness"]["baseColorFactor"] == [1.0] * 4
+    groups = [source.attributes.groups[g] for g in source.attributes.face_group]
+    names = [materials.materials[g.material]["name"] if g.material >= 0 else None for g in groups]
+    assert names == [None, "wood", "wood", "wood", "glass", "metal", "nowhere"]
+    untextured = materials.materials[groups[3].material]
+    assert groups[3].uv_sets == 0 and "baseColorTexture" not in untextured["pbrMetallicRoughness"]
+    # Bytes alone (an upload): the names only, as before.
+    from_bytes = load_source(path.read_bytes(), "obj").attributes.materials
+    assert not from_bytes.defined
+    assert [m["name"] for m in from_bytes.materials] == ["wood", "glass", "metal", "nowhere"]
+    # A library that is not there: names only too.
+    (tmp_path / "mats.mtl").unlink()
+    assert not load_source(path).attributes.materials.defined
+
+
+def test_parts_of_an_obj_with_its_library_pass_the_validator_and_read_back(tmp_path):
+    from neural_shdf.exchange.gltf_writer import parts_glb
+    from neural_shdf.mesh_io import load_source
+
+    from .test_gltf_writer import _khronos_issues
+
+    source = load_source(_obj_with_library(tmp_path))
+    labels = (source.mesh.vertices[source.mesh.faces].mean(axis=1)[:, 2] > 0.5).astype(np.int64)
+    data = parts_glb(source.mesh, labels, attributes=source.attributes)
+    issues = _khronos_issues(tmp_path, {"mtl-parts.glb": data})["mtl-parts.glb"]
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]
+    back = load_source(data, "glb").attributes
+    assert back.materials.image_data == (_png((200, 120, 40)),)
+    names = sorted({m["name"] for m in back.materials.materials})
+    assert names == ["glass", "metal", "nowhere", "wood"]
+    colored = [g.colors for g in back.groups if g.material < 0]
+    assert colored and all(colored)  # the face without a material shows its part colour
+    assert not any(g.colors for g in back.groups if g.material >= 0)
+
+
+@pytest.mark.parametrize(
+    ("statement", "expected"),
+    [
+        ("map_Kd wood.png", "wood.png"),
+        ("map_Kd -o 0.5 0.5 -s 2 wood.png", "wood.png"),
+        ("map_Kd -bm 1.0 -clamp off my wood.png", "my wood.png"),
+        ("map_Kd -mm 0 1 -imfchan r C:\\textures\\wood.png", "C:\\textures\\wood.png"),
+    ],
+)
+def test_texture_options_are_skipped_to_the_file_name(statement, expected):
+    from neural_shdf.exchange.obj import _map_file, parse_mtl
+
+    values = parse_mtl("newmtl a\n" + statement)["a"]["map_kd"]
+    assert _map_file(values)[0] == expected

@@ -459,6 +459,10 @@ def test_a_usdz_input_is_written_back_with_its_parts(tmp_path: Path):
     assert {name: faces.tolist() for name, faces in drum.items()} == {
         part_name(k): np.flatnonzero(labels[counts[0] :] == k).tolist() for k in range(3)
     }
+    # Flattened: the same bytes every time (usd-core's note would name a temporary folder).
+    text = usd.usd_parts_usda(package.read_bytes(), "usdz", labels)
+    assert text == usd.usd_parts_usda(package.read_bytes(), "usdz", labels)
+    assert b"neural-shdf-usd-" not in text
 
 
 def test_named_parts_become_named_subsets_with_materials_of_their_colour(tmp_path: Path):
@@ -546,3 +550,209 @@ def test_parts_glb_of_a_stage_keep_its_prims_uvs_and_normals(tmp_path: Path):
     document = json.loads(data[20 : 20 + int.from_bytes(data[12:16], "little")])
     roots = [document["nodes"][n]["name"] for n in document["scenes"][0]["nodes"]]
     assert roots == ["/World/Bar/Shape", "/World/Drum/Shape"]  # the parts under their prims
+
+
+def _png(color: tuple[int, int, int]) -> bytes:
+    import io
+
+    from PIL import Image
+
+    out = io.BytesIO()
+    Image.new("RGB", (4, 4), color).save(out, format="PNG")
+    return out.getvalue()
+
+
+def _preview_material(stage, path: str, *, texture: str | None = None, **values):
+    """A UsdPreviewSurface material; ``texture``: its diffuseColor read from that file
+    through the ``st`` primvar (as Blender and usdzconvert write it)."""
+    material = UsdShade.Material.Define(stage, path)
+    shader = UsdShade.Shader.Define(stage, f"{path}/Surface")
+    shader.CreateIdAttr("UsdPreviewSurface")
+    types = {"diffuseColor": Sdf.ValueTypeNames.Color3f,
+             "emissiveColor": Sdf.ValueTypeNames.Color3f}  # fmt: skip
+    for name, value in values.items():
+        shader.CreateInput(name, types.get(name, Sdf.ValueTypeNames.Float)).Set(value)
+    if texture is not None:
+        image = UsdShade.Shader.Define(stage, f"{path}/Image")
+        image.CreateIdAttr("UsdUVTexture")
+        image.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(texture)
+        image.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
+        reader = UsdShade.Shader.Define(stage, f"{path}/Reader")
+        reader.CreateIdAttr("UsdPrimvarReader_float2")
+        name = material.CreateInput("frame:stPrimvarName", Sdf.ValueTypeNames.Token)
+        name.Set("st")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.Token).ConnectToSource(name)
+        image.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
+            reader.ConnectableAPI(), "result"
+        )
+        image.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+        shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(
+            image.ConnectableAPI(), "rgb"
+        )
+    material.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+    return material
+
+
+WOOD_PNG = (200, 120, 40)
+
+
+def _material_stage(folder: Path, texture: str = "./tex/wood.png") -> Path:
+    """Three prims: a tube with UVs and normals bound to a textured material, its first
+    four faces bound (a materialBind GeomSubset) to a translucent paint; a tube with a
+    displayColor per face and no material; a tube without UVs bound to the textured one."""
+    (folder / "tex").mkdir(exist_ok=True)
+    (folder / "tex" / "wood.png").write_bytes(_png(WOOD_PNG))
+    path = folder / "materials.usda"
+    stage = _new_stage(path)
+    wood = _preview_material(stage, "/World/Looks/Wood", texture=texture, roughness=0.3,
+                             metallic=0.1)  # fmt: skip
+    paint = _preview_material(
+        stage, "/World/Looks/Paint", diffuseColor=Gf.Vec3f(0.2, 0.4, 0.6), opacity=0.5,
+        emissiveColor=Gf.Vec3f(0.0, 0.5, 0.0),
+    )  # fmt: skip
+    box = _define_mesh(stage, "/World/Box", *_tube(8, 2.0, 0.5), uvs_and_normals=True)
+    UsdShade.MaterialBindingAPI.Apply(box.GetPrim()).Bind(wood)
+    subset = UsdGeom.Subset.CreateGeomSubset(
+        box, "painted", UsdGeom.Tokens.face, [0, 1, 2, 3], UsdShade.Tokens.materialBind
+    )
+    UsdShade.MaterialBindingAPI.Apply(subset.GetPrim()).Bind(paint)
+    points, counts, indices = _tube(6, 1.0, 0.3)
+    plain = _define_mesh(stage, "/World/Plain", points + [0, 2, 0], counts, indices)
+    colors = np.stack([np.linspace(0, 1, len(counts))] * 3, axis=1).astype(np.float32)
+    colors[:, 1] = 0.25
+    UsdGeom.PrimvarsAPI(plain).CreatePrimvar(
+        "displayColor", Sdf.ValueTypeNames.Color3fArray, UsdGeom.Tokens.uniform
+    ).Set(Vt.Vec3fArray.FromNumpy(colors))
+    bare = _define_mesh(stage, "/World/Bare", points - [0, 2, 0], counts, indices)
+    UsdShade.MaterialBindingAPI.Apply(bare.GetPrim()).Bind(wood)
+    stage.GetRootLayer().Save()
+    return path
+
+
+def _group_materials(attributes) -> list[str | None]:
+    """The material name of each triangle's group (None: no material)."""
+    names = [m["name"] for m in attributes.materials.materials]
+    return [
+        names[attributes.groups[g].material] if attributes.groups[g].material >= 0 else None
+        for g in attributes.face_group
+    ]
+
+
+def test_bound_materials_textures_and_display_colours_are_read(tmp_path: Path):
+    """Per prim and per materialBind subset: UsdPreviewSurface values as glTF factors,
+    the diffuse texture (beside the file, or inside a USDZ) as the base colour texture;
+    displayColor as COLOR_0 where no material is bound; a prim without UVs gets the
+    material without its texture."""
+    from neural_shdf.mesh_io import load_source
+
+    path = _material_stage(tmp_path)
+    source = load_source(path)
+    attributes = source.attributes
+    materials = attributes.materials
+    by_name = {m["name"]: m for m in reversed(materials.materials)}  # the first of a name
+    wood = by_name["/World/Looks/Wood"]
+    assert wood["pbrMetallicRoughness"]["baseColorTexture"] == {"index": 0}
+    assert wood["pbrMetallicRoughness"]["baseColorFactor"] == [1.0, 1.0, 1.0, 1.0]
+    assert wood["pbrMetallicRoughness"]["roughnessFactor"] == pytest.approx(0.3)
+    assert wood["pbrMetallicRoughness"]["metallicFactor"] == pytest.approx(0.1)
+    assert materials.image_data == (_png(WOOD_PNG),)
+    assert materials.samplers == ({"wrapS": 33071, "wrapT": 10497},)
+    paint = by_name["/World/Looks/Paint"]
+    factor = paint["pbrMetallicRoughness"]["baseColorFactor"]
+    assert factor == pytest.approx([0.2, 0.4, 0.6, 0.5])
+    assert paint["alphaMode"] == "BLEND" and paint["emissiveFactor"] == [0.0, 0.5, 0.0]
+    # Faces 0-3 of the box (two triangles each) are painted, the rest of it is wood.
+    mesh = source.mesh
+    per_face = _group_materials(attributes)
+    box_triangles = np.flatnonzero(mesh.face_origin < 10)
+    painted = mesh.face_origin[box_triangles] < 4
+    assert {per_face[t] for t in box_triangles[painted]} == {"/World/Looks/Paint"}
+    assert {per_face[t] for t in box_triangles[~painted]} == {"/World/Looks/Wood"}
+    plain = [t for t, name in enumerate(per_face) if name is None]
+    stage = Usd.Stage.Open(str(path))
+    shown = np.array(UsdGeom.Mesh.Get(stage, "/World/Plain").GetDisplayColorAttr().Get())
+    first_plain_face = 10
+    expected = shown[mesh.face_origin[plain] - first_plain_face]
+    colors = attributes.colors[attributes.corners[plain]]
+    np.testing.assert_allclose(colors[..., :3], np.repeat(expected[:, None], 3, axis=1))
+    assert all(attributes.groups[attributes.face_group[t]].colors for t in plain)
+    bare = attributes.groups[attributes.face_group[-1]]
+    assert (
+        bare.uv_sets == 0
+        and "baseColorTexture" not in (materials.materials[bare.material]["pbrMetallicRoughness"])
+    )
+    # From bytes: the texture beside the file is not read (an upload has only its file);
+    # a USDZ package carries it.
+    alone = load_source(path.read_bytes(), "usda").attributes.materials
+    assert alone.image_data == ()
+    assert alone.materials[0]["pbrMetallicRoughness"]["baseColorFactor"] == [1.0] * 4
+    package = tmp_path / "materials.usdz"
+    assert UsdUtils.CreateNewUsdzPackage(str(path), str(package))
+    packed = load_source(package.read_bytes(), "usdz").attributes.materials
+    assert packed.image_data == (_png(WOOD_PNG),)
+    # Written back flattened: the texture path as the file wrote it, not the temporary
+    # folder it was read from (gone afterwards, the server's own, different every time).
+    text = usd.usd_parts_usda(package.read_bytes(), "usdz", np.zeros(26, dtype=np.int64))
+    assert b"@./tex/wood.png@" in text or b"@tex/wood.png@" in text
+    assert b"neural-shdf-usd-" not in text and str(tmp_path).encode() not in text
+
+
+def test_a_texture_outside_an_uploaded_file_is_never_read(tmp_path: Path):
+    """An upload naming an absolute path on the server: the material keeps its factors,
+    the server's file is not read (from a path on disk, a user's own files are)."""
+    from neural_shdf.mesh_io import load_source
+
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    secret = elsewhere / "secret.png"
+    secret.write_bytes(_png((1, 2, 3)))
+    folder = tmp_path / "model"
+    folder.mkdir()
+    path = _material_stage(folder, texture=str(secret))
+    assert load_source(path.read_bytes(), "usda").attributes.materials.image_data == ()
+    assert load_source(path).attributes.materials.image_data == (_png((1, 2, 3)),)
+
+
+def test_parts_glb_of_a_usd_with_materials_passes_the_validator_and_reads_back(tmp_path: Path):
+    """Segmented (the real pipeline, CLI), parts.glb of a USDZ with UVs and materials:
+    same faces in parts order, UVs and normals equal, materials and texture kept."""
+    from neural_shdf.cli import main
+    from neural_shdf.exchange.gltf_writer import parts_glb
+    from neural_shdf.mesh_io import load_source
+
+    from .scene_helpers import parts_order
+    from .test_gltf_writer import _khronos_issues
+
+    package = tmp_path / "materials.usdz"
+    assert UsdUtils.CreateNewUsdzPackage(str(_material_stage(tmp_path)), str(package))
+    seg, glb = tmp_path / "parts.seg", tmp_path / "parts.glb"
+    code = main(["segment", str(package), "-o", str(seg), "--parts-glb", str(glb),
+                 "--parts", "3", "--method", "exact"])  # fmt: skip
+    assert code == 0
+    source = load_source(package)
+    input_labels = np.loadtxt(seg, dtype=np.int64)
+    labels = input_labels[source.mesh.face_origin]
+    data = glb.read_bytes()
+    assert data == parts_glb(source.mesh, labels, attributes=source.attributes)
+    issues = _khronos_issues(tmp_path, {"usd-materials.glb": data})["usd-materials.glb"]
+    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, issues["messages"]
+    back = load_source(data, "glb")
+    order = parts_order(source, labels)
+    np.testing.assert_allclose(
+        back.mesh.vertices[back.mesh.faces], source.mesh.vertices[source.mesh.faces][order],
+        atol=1e-5,
+    )  # fmt: skip
+    for name in ("normals", "colors"):
+        kept = getattr(source.attributes, name)[source.attributes.corners][order]
+        read = getattr(back.attributes, name)[back.attributes.corners]
+        used = np.array([back.attributes.groups[g].colors for g in back.attributes.face_group])
+        if name == "colors":  # the display colours, where they are shown
+            kept, read = kept[used], read[used]
+        np.testing.assert_allclose(read, kept, atol=1e-6)
+    np.testing.assert_array_equal(
+        back.attributes.uvs[0][back.attributes.corners],
+        source.attributes.uvs[0][source.attributes.corners][order],
+    )
+    assert _group_materials(back.attributes) == [_group_materials(source.attributes)[t]
+                                                 for t in order]  # fmt: skip
+    assert back.attributes.materials.image_data == (_png(WOOD_PNG),)

@@ -115,7 +115,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return JSONResponse(
             public_job(exc.job),
             status_code=202,
-            headers={"Location": f"/v1/jobs/{exc.job['job_id']}"},
+            headers={"Location": f"/v1/jobs/{exc.job['job_id']}", **exc.headers},
         )
 
     app.add_exception_handler(JobAccepted, job_accepted)

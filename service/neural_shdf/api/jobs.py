@@ -43,6 +43,8 @@ class JobAccepted(Exception):  # noqa: N818 - a signal, not a failure
     def __init__(self, job: dict[str, Any]) -> None:
         super().__init__(job["job_id"])
         self.job = job
+        #: Headers the 202 answer carries besides ``Location`` (set by the route).
+        self.headers: dict[str, str] = {}
 
 
 def public_job(job: dict[str, Any]) -> dict[str, Any]:

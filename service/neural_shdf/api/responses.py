@@ -72,10 +72,13 @@ def segmentation_response(
     result: StoredSegmentation,
     timings: dict[str, Any],
     tree_of: StoredSegmentation | None = None,
+    *,
+    source_id: str | None = None,
 ) -> Response:
     """The `Segmentation` JSON, serialised directly (no per-label model validation).
 
     ``tree_of``: the result whose ``hierarchy`` to send (an edited result's unedited one).
+    ``source_id``: the upload's kept file (``/segment/file``), sent when given.
     """
     compact = labels_format == "base64"
     colors = part_color_hex(len(result.part_faces))
@@ -100,6 +103,8 @@ def segmentation_response(
         "labels_dtype": result.labels_base64[1] if compact else None,
         "timings": timings,
     }
+    if source_id is not None:
+        body["source_id"] = source_id
     labels = "null" if compact else result.labels_json
     hierarchy = (result if tree_of is None else tree_of).hierarchy_json(compact)
     rest = json.dumps(body, separators=(",", ":"))
@@ -119,10 +124,13 @@ def labels_response(
     shdf: NDArray[np.float64],
     result: StoredLabels,
     timings: dict[str, Any],
+    *,
+    source_id: str | None = None,
 ) -> Response:
     """The `Segmentation` JSON of named parts: labels in the training labels' integers,
     a part per label present (with its name and colour, the coloured GLB's), the
-    labeller's names and the confidence per face."""
+    labeller's names and the confidence per face (``source_id``: as in
+    ``segmentation_response``)."""
     compact = labels_format == "base64"
     values, faces, area, mean = label_summary(mesh, result, shdf)
     names = dict(zip(labeler.label_values.tolist(), labeler.label_names, strict=True))
@@ -156,6 +164,8 @@ def labels_response(
         "label_values": labeler.label_values.tolist(),
         "confidence_base64": base64.b64encode(confidence.tobytes()).decode() if compact else None,
     }
+    if source_id is not None:
+        body["source_id"] = source_id
     labels = "null" if compact else json_array(result.labels)
     rounded = np.round(confidence.astype(np.float64), 4)  # float32 digits, not float64's
     scores = "null" if compact else json_array(rounded, nan_as_null=True)

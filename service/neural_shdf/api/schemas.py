@@ -568,7 +568,10 @@ class SegmentRequest(LabeledSegmentOptions):
 class SegmentFileForm(LabeledSegmentOptions):
     """Multipart form of a one-shot segmentation: the mesh file and the options."""
 
-    file: UploadFile = Field(description="OBJ, GLB/glTF (embedded buffers), OFF, PLY or STL.")
+    file: UploadFile = Field(
+        description="OBJ, GLB/glTF (embedded buffers), OFF, PLY, STL or USD (.usd, .usda, "
+        ".usdc, .usdz; one file or package)."
+    )
     file_type: str | None = Field(
         None, description="Format; default: the file extension.", examples=["obj"]
     )
@@ -744,6 +747,15 @@ class Segmentation(BaseModel):
         "any part count.",
     )
     timings: Timings = Field(description="Timings.")
+    source_id: str | None = Field(
+        None,
+        description="Only in `/v1/segment/file`'s answer (and its `X-Source-Id` header, "
+        "also of a 202): the id of the uploaded file, kept with the mesh as an upload's "
+        "`mesh.source_id` is (OBJ, PLY, glTF/GLB and USD; absent for other formats). "
+        "Pass it as `source` to `parts.glb` or `parts.usda`.",
+        pattern=MESH_ID_PATTERN,
+        examples=[None],
+    )
     labeler_id: str | None = Field(
         None,
         description="The labeller that named the parts; null for a segmentation.",

@@ -210,6 +210,15 @@ class Client(_Settings):
         query = ops.given({**options, "source": source})
         return self.run(ops.glb(mesh_id, "parts", query, self.poll))
 
+    def parts_usda(
+        self, mesh_id: str, *, source: str | None = None, **options: Unpack[ops.SegmentArgs]
+    ) -> bytes:
+        """The segmentation as a USD text layer with one ``GeomSubset`` per part; ``source``
+        (the ``source_id`` of a USD upload or of ``segment_file``): that file's own stage
+        with the subsets, else a new stage of the mesh's input faces."""
+        query = ops.given({**options, "source": source})
+        return self.run(ops.usda(mesh_id, query, self.poll))
+
     # -- unwrap by parts (neural_shdf.client.unwrapping) -----------------------------
     def unwrapped_glb(self, mesh_id: str, **options: Unpack[UnwrapArgs]) -> bytes:
         """The mesh with UVs charted part by part in one atlas, the atlas as texture (GLB)."""
@@ -403,6 +412,12 @@ class AsyncClient(_Settings):
     ) -> bytes:
         query = ops.given({**options, "source": source})
         return await self.run(ops.glb(mesh_id, "parts", query, self.poll))
+
+    async def parts_usda(
+        self, mesh_id: str, *, source: str | None = None, **options: Unpack[ops.SegmentArgs]
+    ) -> bytes:
+        query = ops.given({**options, "source": source})
+        return await self.run(ops.usda(mesh_id, query, self.poll))
 
     async def unwrapped_glb(self, mesh_id: str, **options: Unpack[UnwrapArgs]) -> bytes:
         return await self.run(download(mesh_id, "glb", ops.given(options), self.poll))

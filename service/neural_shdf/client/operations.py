@@ -261,7 +261,9 @@ def segment_file(
     if response.status_code != 202:
         return Segmentation.from_json(response.json())
     job = yield from wait_job(Job.from_json(response.json()), poll)
-    return (yield from segment(job.mesh_id, options, poll))
+    result = yield from segment(job.mesh_id, options, poll)
+    # The answer by id does not name the upload's file; the 202 did, in a header.
+    return dataclasses.replace(result, source_id=response.headers.get("x-source-id"))
 
 
 def shdf(mesh_id: str, poll: PollPolicy, *, method: str | None = None, seed: int = 0) -> Operation:
@@ -279,6 +281,13 @@ def glb(mesh_id: str, style: str, options: Mapping[str, Any], poll: PollPolicy) 
     """The segmentation as a GLB: ``colored`` (one colour per part) or ``parts`` (one node
     per part)."""
     call = Call("GET", f"/v1/meshes/{mesh_id}/segmentation/{style}.glb", params=as_query(options))
+    response = yield from until_done(call, poll)
+    return response.content
+
+
+def usda(mesh_id: str, options: Mapping[str, Any], poll: PollPolicy) -> Operation:
+    """The segmentation as a USD text layer (``parts.usda``)."""
+    call = Call("GET", f"/v1/meshes/{mesh_id}/segmentation/parts.usda", params=as_query(options))
     response = yield from until_done(call, poll)
     return response.content
 

@@ -45,6 +45,7 @@ SEGMENTATION_FIELDS = frozenset(
     {"mesh_id", "method", "faces", "part_count", "parts", "timings"}
     | {"labels", "labels_base64", "labels_dtype", "hierarchy"}
     | {"labeler_id", "label_names", "label_values", "confidence", "confidence_base64"}
+    | {"source_id"}
 )
 #: The members of its ``hierarchy`` this client reads.
 HIERARCHY_FIELDS = frozenset(
@@ -288,6 +289,9 @@ class Segmentation:
     label_names: list[str] | None = None
     label_values: list[int] | None = None
     confidence: NDArray[np.float32] | None = None
+    #: ``segment_file``: the upload's own file kept with the mesh, for
+    #: ``parts_glb(..., source=...)`` and ``parts_usda(..., source=...)``.
+    source_id: str | None = None
 
     @property
     def part_count(self) -> int:
@@ -322,6 +326,7 @@ class Segmentation:
             label_names=body.get("label_names"),
             label_values=body.get("label_values"),
             confidence=decode_confidence(body),
+            source_id=body.get("source_id"),
         )
 
 

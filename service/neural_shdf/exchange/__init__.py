@@ -4,7 +4,7 @@ from collections.abc import Callable
 from functools import partial
 
 from neural_shdf.exchange._common import MeshLimits, Reader, fan_triangulate
-from neural_shdf.exchange.attributes import SourceMesh
+from neural_shdf.exchange.attributes import SideFiles, SourceMesh
 from neural_shdf.exchange.fbx import FBX_REFUSAL
 from neural_shdf.exchange.gltf import read_glb, read_glb_source, read_gltf, read_gltf_source
 from neural_shdf.exchange.obj import read_obj, read_obj_source
@@ -27,26 +27,40 @@ READERS: dict[str, Reader] = {
     "usdz": read_usdz,
 }
 
-#: A reader that also keeps the file's attributes (normals, UVs, colours, materials, objects).
-SourceReader = Callable[[bytes, MeshLimits], SourceMesh]
+#: A reader that also keeps the file's attributes (normals, UVs, colours, materials,
+#: objects); the side files are those of a file read from disk (None for bytes).
+SourceReader = Callable[[bytes, MeshLimits, SideFiles | None], SourceMesh]
 
 
-def _geometry_only(reader: Reader, data: bytes, limits: MeshLimits) -> SourceMesh:
+def _geometry_only(
+    reader: Reader, data: bytes, limits: MeshLimits, _: SideFiles | None
+) -> SourceMesh:
     return SourceMesh(reader(data, limits))
+
+
+def _no_side_files(
+    reader: Callable[..., SourceMesh], data: bytes, limits: MeshLimits, _: SideFiles | None
+) -> SourceMesh:
+    return reader(data, limits, attributes=True)
+
+
+def _obj(data: bytes, limits: MeshLimits, side_files: SideFiles | None) -> SourceMesh:
+    return read_obj_source(data, limits, attributes=True, side_files=side_files)
+
+
+def _usd(name: str, data: bytes, limits: MeshLimits, side_files: SideFiles | None) -> SourceMesh:
+    return read_usd_source(name, data, limits, attributes=True, side_files=side_files)
 
 
 #: Reader with attributes for each extension of ``READERS`` (formats whose files hold no
 #: attributes that the writers keep give the mesh alone).
 SOURCE_READERS: dict[str, SourceReader] = {
     **{name: partial(_geometry_only, reader) for name, reader in READERS.items()},
-    "obj": partial(read_obj_source, attributes=True),
-    "ply": partial(read_ply_source, attributes=True),
-    "glb": partial(read_glb_source, attributes=True),
-    "gltf": partial(read_gltf_source, attributes=True),
-    **{
-        name: partial(read_usd_source, name, attributes=True)
-        for name in ("usd", "usda", "usdc", "usdz")
-    },
+    "obj": _obj,
+    "ply": partial(_no_side_files, read_ply_source),
+    "glb": partial(_no_side_files, read_glb_source),
+    "gltf": partial(_no_side_files, read_gltf_source),
+    **{name: partial(_usd, name) for name in ("usd", "usda", "usdc", "usdz")},
 }
 
 #: Formats refused on purpose, with the message that says what to do instead.

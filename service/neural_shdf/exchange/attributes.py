@@ -14,7 +14,9 @@ stores them); positions are those of the mesh (world space).
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -188,13 +190,143 @@ def finite_rows(values: NDArray[Any]) -> bool:
     return bool(np.isfinite(values).all())
 
 
+#: Largest side file read beside a mesh file (an OBJ's .mtl, a texture image).
+MAX_SIDE_FILE_BYTES = 64 << 20
+#: Most texture images carried from one file.
+MAX_IMAGES = 256
+
+
+@dataclass(frozen=True)
+class SideFiles:
+    """The folder of a mesh file read from disk: its side files (an OBJ's ``.mtl`` and
+    textures, a USD layer's textures) are read from there. Bytes (an upload) have none:
+    a server never reads its own disk for a client."""
+
+    folder: Path
+
+    def find(self, name: str, max_bytes: int = MAX_SIDE_FILE_BYTES) -> Path | None:
+        """The file a mesh file names (relative to the folder, or absolute; Windows
+        separators accepted; a name not found there is looked for by its last component
+        in the folder, as when textures travel with the file), or None when it is
+        missing, not a plain file or larger than ``max_bytes``."""
+        name = name.strip().replace("\\", "/")
+        if not name:
+            return None
+        given = Path(name)
+        for path in (given if given.is_absolute() else self.folder / given,
+                     self.folder / given.name):  # fmt: skip
+            try:
+                if path.is_file() and path.stat().st_size <= max_bytes:
+                    return path
+            except OSError:
+                continue
+        return None
+
+    def read(self, name: str, max_bytes: int = MAX_SIDE_FILE_BYTES) -> bytes | None:
+        """The bytes of the file ``find`` finds, or None."""
+        path = self.find(name, max_bytes)
+        try:
+            return None if path is None else path.read_bytes()
+        except OSError:
+            return None
+
+
+def image_mime_type(data: bytes) -> str | None:
+    """``image/png`` or ``image/jpeg`` (the images core glTF holds); None for others."""
+    if data.startswith(b"\x89PNG\r\n\x1a\n"):
+        return "image/png"
+    if data.startswith(b"\xff\xd8\xff"):
+        return "image/jpeg"
+    return None
+
+
+#: Material keys that name a texture (removed for faces without UVs).
+_TEXTURE_KEYS = ("baseColorTexture", "metallicRoughnessTexture", "normalTexture",
+                 "occlusionTexture", "emissiveTexture")  # fmt: skip
+
+
+class MaterialTable:
+    """glTF materials made by a reader from the file's own (an OBJ's ``.mtl``, USD's
+    UsdPreviewSurface), with their images embedded, each material and image once."""
+
+    def __init__(self) -> None:
+        self.materials: list[dict[str, Any]] = []
+        self.textures: list[dict[str, Any]] = []
+        self.samplers: list[dict[str, Any]] = []
+        self.images: list[dict[str, Any]] = []
+        self.image_data: list[bytes | None] = []
+        self._material_keys: dict[Any, int] = {}
+        self._untextured: dict[int, int] = {}
+        self._texture_keys: dict[Any, int] = {}
+
+    def find(self, key: Any) -> int | None:
+        """The index of the material added under ``key``, if any."""
+        return self._material_keys.get(key)
+
+    def add(self, key: Any, material: dict[str, Any]) -> int:
+        """Index of ``material`` (glTF JSON), added once per ``key``."""
+        if key not in self._material_keys:
+            self._material_keys[key] = len(self.materials)
+            self.materials.append(material)
+        return self._material_keys[key]
+
+    def texture(self, image: bytes, sampler: dict[str, Any] | None = None) -> int | None:
+        """Index of a texture of the encoded ``image`` (PNG or JPEG; None for another kind
+        of image, or past ``MAX_IMAGES``), the same image and sampler once."""
+        mime = image_mime_type(image)
+        if mime is None:
+            return None
+        key = (image, repr(sorted((sampler or {}).items())))
+        if key not in self._texture_keys:
+            if len(self.images) >= MAX_IMAGES:
+                return None
+            texture: dict[str, Any] = {"source": len(self.images)}
+            self.images.append({"mimeType": mime})
+            self.image_data.append(image)
+            if sampler:
+                texture["sampler"] = len(self.samplers)
+                self.samplers.append(sampler)
+            self._texture_keys[key] = len(self.textures)
+            self.textures.append(texture)
+        return self._texture_keys[key]
+
+    def for_faces(self, index: int, has_uv: bool) -> int:
+        """``index``, or for faces without UVs a copy of that material without its
+        textures (a textured primitive needs TEXCOORD_0: glTF would be invalid)."""
+        material = self.materials[index]
+        if has_uv or not any(key in material.get("pbrMetallicRoughness", {}) or key in material
+                             for key in _TEXTURE_KEYS):  # fmt: skip
+            return index
+        if index not in self._untextured:
+            plain = copy.deepcopy(material)
+            for key in _TEXTURE_KEYS:
+                plain.pop(key, None)
+                plain.get("pbrMetallicRoughness", {}).pop(key, None)
+            self._untextured[index] = len(self.materials)
+            self.materials.append(plain)
+        return self._untextured[index]
+
+    def result(self) -> Materials:
+        return Materials(
+            materials=tuple(self.materials),
+            textures=tuple(self.textures),
+            samplers=tuple(self.samplers),
+            images=tuple(self.images),
+            image_data=tuple(self.image_data),
+        )
+
+
 __all__ = [
+    "MAX_SIDE_FILE_BYTES",
     "FaceGroup",
+    "MaterialTable",
     "Materials",
     "SceneObject",
+    "SideFiles",
     "SourceMesh",
     "SurfaceAttributes",
     "finite_rows",
+    "image_mime_type",
     "unit_normal_rows",
     "unit_normals",
     "vertex_attributes",

@@ -9,14 +9,17 @@ errors name the file's line.
 
 ``read_obj_source(..., attributes=True)`` also keeps each corner's ``vt`` and ``vn``
 (a reference to one that does not exist counts as none), vertex colours written as
-``v x y z r g b`` (taken as sRGB) and each face's ``usemtl`` name (``exchange.attributes``;
-the .mtl file itself is not read).
+``v x y z r g b`` (taken as sRGB) and each face's ``usemtl`` material
+(``exchange.attributes``). The ``mtllib`` files are read only from a file on disk
+(``side_files``: the OBJ's folder), as glTF materials (``mtl_material``); bytes alone (an
+upload) keep the material names only.
 """
 
 from __future__ import annotations
 
 from array import array
 from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,6 +36,8 @@ from neural_shdf.exchange._common import (
 from neural_shdf.exchange.attributes import (
     FaceGroup,
     Materials,
+    MaterialTable,
+    SideFiles,
     SourceMesh,
     SurfaceAttributes,
     finite_rows,
@@ -114,6 +119,7 @@ class _Extras:
         self.normal_defined = array("q")  # per f record: vn records before it
         self.names: dict[str, int] = {}
         self.material = -1
+        self.libraries: list[str] = []  # mtllib records, as written
 
     def vertex(self, parts: list[str]) -> None:
         if len(parts) >= 7:
@@ -134,6 +140,8 @@ class _Extras:
         elif keyword == "usemtl":
             name = " ".join(parts[1:])
             self.material = self.names.setdefault(name, len(self.names))
+        elif keyword == "mtllib" and len(parts) > 1:
+            self.libraries.append(" ".join(parts[1:]))
         else:
             return False
         return True
@@ -168,10 +176,14 @@ def _references(texts: list[str], defined: NDArray[np.int64]) -> NDArray[np.int6
 
 
 def read_obj_source(
-    data: bytes, limits: MeshLimits = NO_LIMITS, *, attributes: bool = False
+    data: bytes,
+    limits: MeshLimits = NO_LIMITS,
+    *,
+    attributes: bool = False,
+    side_files: SideFiles | None = None,
 ) -> SourceMesh:
     """``read_obj`` with, when ``attributes``, the file's UVs, normals, vertex colours and
-    material names (module docstring)."""
+    materials (module docstring; ``side_files``: where its .mtl files and textures are)."""
     data = strip_bom(data)
     limits.check_faces(_record_count(data, b"f"))
     limits.check_vertices(_record_count(data, b"v"))
@@ -187,7 +199,7 @@ def read_obj_source(
     extras = _Extras() if attributes else None
     uv_refs = extras.uv_refs if extras is not None else None
     normal_refs = extras.normal_refs if extras is not None else None
-    first_letters = "vfu" if attributes else "vf"
+    first_letters = "vfum" if attributes else "vf"
     line_number = 0
     for chunk in _chunks(text):
         lines = chunk.splitlines()
@@ -277,7 +289,9 @@ def read_obj_source(
     )
     if extras is None:
         return SourceMesh(mesh)
-    return SourceMesh(mesh, _attributes(mesh, face_counts, flat_indices, extras, vertex_count))
+    return SourceMesh(
+        mesh, _attributes(mesh, face_counts, flat_indices, extras, vertex_count, side_files)
+    )
 
 
 def _numbers(values: list[str], width: int) -> NDArray[np.float64] | None:
@@ -294,6 +308,7 @@ def _attributes(
     flat: NDArray[np.int64],
     extras: _Extras,
     vertex_count: int,
+    side_files: SideFiles | None = None,
 ) -> SurfaceAttributes | None:
     """Attribute vertices (one per distinct ``v/vt/vn``) and face groups (one per
     material and set of attributes) of the file's triangles."""
@@ -345,9 +360,14 @@ def _attributes(
     order = np.argsort(first_seen, kind="stable")  # groups in order of first appearance
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
+    library = _read_libraries(extras, side_files)
     groups = tuple(
         FaceGroup(
-            material=int(k // 4) - 1,
+            material=(
+                int(k // 4) - 1
+                if library is None or k < 4
+                else library.for_faces(int(k // 4) - 1, bool((k >> 1) & 1))
+            ),
             normals=bool(k & 1),
             uv_sets=int((k >> 1) & 1),
             colors=colored,
@@ -374,9 +394,140 @@ def _attributes(
         normals=normals if any(g.normals for g in groups) else None,
         uvs=(uv,) if any(g.uv_sets for g in groups) else (),
         colors=colors,
-        materials=Materials(
-            materials=tuple({"name": name} for name in extras.names), defined=False
+        materials=(
+            Materials(materials=tuple({"name": name} for name in extras.names), defined=False)
+            if library is None
+            else library.result()
         ),
     )
     attributes.check(mesh)
     return attributes
+
+
+def _read_libraries(extras: _Extras, side_files: SideFiles | None) -> MaterialTable | None:
+    """The faces' materials from the OBJ's ``mtllib`` files (first definition of a name
+    wins), in ``usemtl`` order; None when no library could be read (names only then)."""
+    if side_files is None or not extras.names:
+        return None
+    found: dict[str, tuple[dict[str, list[str]], SideFiles]] = {}
+    read_any = False
+    for record in extras.libraries:
+        # One name with spaces, else several names (the record allows a list).
+        names = [record] if side_files.find(record) else record.split()
+        for name in names:
+            path = side_files.find(name)
+            if path is None:
+                continue
+            try:
+                text = decode_text(strip_bom(path.read_bytes()), "MTL")
+            except (OSError, MeshParseError):
+                continue
+            read_any = True
+            for material, statements in parse_mtl(text).items():
+                found.setdefault(material, (statements, SideFiles(path.parent)))
+    if not read_any:
+        return None
+    table = MaterialTable()
+    for name in extras.names:  # indices follow the usemtl order
+        statements, folder = found.get(name, ({}, side_files))
+        table.add(name, mtl_material(name, statements, folder, table))
+    return table
+
+
+def parse_mtl(text: str) -> dict[str, dict[str, list[str]]]:
+    """An MTL file's materials: name -> keyword (lower case) -> its values (the last
+    statement of a keyword wins)."""
+    materials: dict[str, dict[str, list[str]]] = {}
+    current: dict[str, list[str]] | None = None
+    for raw in _joined_continuations(text).splitlines():
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        keyword, _, rest = line.partition(" ")
+        keyword = keyword.lower()
+        if keyword == "newmtl":
+            current = materials.setdefault(rest.strip(), {})
+        elif current is not None:
+            current[keyword] = rest.split()
+    return materials
+
+
+#: Options of MTL texture statements and how many values each takes (``-o``, ``-s``,
+#: ``-t``: one to three numbers).
+_MAP_OPTIONS = {"-blendu": 1, "-blendv": 1, "-bm": 1, "-boost": 1, "-cc": 1, "-clamp": 1,
+                "-imfchan": 1, "-mm": 2, "-texres": 1, "-type": 1, "-o": 3, "-s": 3,
+                "-t": 3}  # fmt: skip
+
+
+def _map_file(values: list[str]) -> tuple[str, bool]:
+    """``(file name, clamped)`` of a texture statement's values (options skipped)."""
+    clamp = False
+    index = 0
+    while index < len(values) and values[index].lower() in _MAP_OPTIONS:
+        option = values[index].lower()
+        taken = _MAP_OPTIONS[option]
+        if option == "-clamp":
+            clamp = index + 1 < len(values) and values[index + 1].lower() == "on"
+        index += 1
+        for _ in range(taken):  # numbers only for the variable-length options
+            if index < len(values) and (taken < 3 or _is_number(values[index])):
+                index += 1
+    return " ".join(values[index:]), clamp
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _floats(values: list[str] | None, count: int) -> list[float] | None:
+    """The first ``count`` values as finite numbers, or None."""
+    if values is None or len(values) < count:
+        return None
+    try:
+        numbers = [float(v) for v in values[:count]]
+    except ValueError:
+        return None
+    return numbers if all(np.isfinite(numbers)) else None
+
+
+def mtl_material(
+    name: str, statements: dict[str, list[str]], side_files: SideFiles, table: MaterialTable
+) -> dict[str, Any]:
+    """A glTF metallic-roughness material of an MTL material (as Blender's OBJ importer
+    reads it): ``Kd`` the base colour (linear values, as Blender writes them), ``map_Kd``
+    the base colour texture (PNG or JPEG, beside the .mtl; it replaces ``Kd``), ``d``
+    (or ``1 - Tr``) the opacity, ``Pr`` the roughness (else ``1 - sqrt(Ns / 1000)``),
+    ``Pm`` the metalness (else 0: MTL's model has no metals), ``Ke`` the emission.
+    A name the libraries do not define gets a plain white dielectric."""
+    pbr: dict[str, Any] = {"metallicFactor": 0.0}
+    material: dict[str, Any] = {"name": name, "pbrMetallicRoughness": pbr}
+    color = _floats(statements.get("kd"), 3) or [1.0, 1.0, 1.0]
+    opacity = _floats(statements.get("d"), 1)
+    if opacity is None and (transparency := _floats(statements.get("tr"), 1)) is not None:
+        opacity = [1.0 - transparency[0]]
+    alpha = float(np.clip(opacity[0], 0.0, 1.0)) if opacity else 1.0
+    if "map_kd" in statements:
+        file_name, clamp = _map_file(statements["map_kd"])
+        image = side_files.read(file_name)
+        sampler = {"wrapS": 33071, "wrapT": 33071} if clamp else None
+        texture = None if image is None else table.texture(image, sampler)
+        if texture is not None:
+            pbr["baseColorTexture"] = {"index": texture}
+            color = [1.0, 1.0, 1.0]
+    pbr["baseColorFactor"] = [*(float(np.clip(c, 0.0, 1.0)) for c in color), alpha]
+    if (rough := _floats(statements.get("pr"), 1)) is not None:
+        pbr["roughnessFactor"] = float(np.clip(rough[0], 0.0, 1.0))
+    elif (shine := _floats(statements.get("ns"), 1)) is not None:
+        pbr["roughnessFactor"] = float(1.0 - np.sqrt(np.clip(shine[0], 0.0, 1000.0) / 1000.0))
+    if (metal := _floats(statements.get("pm"), 1)) is not None:
+        pbr["metallicFactor"] = float(np.clip(metal[0], 0.0, 1.0))
+    emission = _floats(statements.get("ke"), 3)
+    if emission is not None and any(e > 0 for e in emission):
+        material["emissiveFactor"] = [float(np.clip(e, 0.0, 1.0)) for e in emission]
+    if alpha < 1.0:
+        material["alphaMode"] = "BLEND"
+    return material

@@ -28,6 +28,10 @@ limits (``check_crate_arrays``: compressed arrays could otherwise expand thousan
 of times); then every prim's ``faceVertexCounts`` are read and the face and
 triangle budgets checked before indices and points are read.
 
+A ``.usda`` has its large numeric arrays parsed by ``_usda_arrays`` (usd-core's text
+parser reads about 25 MB/s) and put back into the root layer before the stage is
+composed; the file is read by usd-core alone whenever that cannot be done exactly.
+
 ``pxr`` (usd-core) is imported inside the functions that use it: it is slow to import and
 only USD files need it (docs/benchmarks.md, "Start-up and imports").
 """
@@ -39,7 +43,7 @@ import os
 import re
 import tempfile
 import zipfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import partial
@@ -57,10 +61,14 @@ from neural_shdf.errors import (
     UnsupportedFormatError,
 )
 from neural_shdf.exchange._common import NO_LIMITS, MeshLimits, build_mesh, fan_triangulate
+from neural_shdf.exchange._usda_arrays import cut_arrays, restore_arrays
 from neural_shdf.exchange._usdc import crate_array_sizes
 from neural_shdf.exchange.attributes import (
+    MAX_SIDE_FILE_BYTES,
     FaceGroup,
+    MaterialTable,
     SceneObject,
+    SideFiles,
     SourceMesh,
     SurfaceAttributes,
     finite_rows,
@@ -157,11 +165,20 @@ def check_layers_inside(path: Path) -> list[Any]:
     return opened
 
 
-def open_stage(path: Path) -> Any:
-    """The composed stage of a USD file whose layers were checked with check_layers_inside."""
+class _ArraysNotRestored(Exception):  # noqa: N818 - a signal to read the text whole
+    """The cut arrays of a ``.usda`` could not all be put back (``_usda_arrays``)."""
+
+
+def open_stage(path: Path, prepare: Callable[[Any], bool] | None = None) -> Any:
+    """The composed stage of a USD file whose layers were checked with check_layers_inside.
+
+    ``prepare``: called with the root layer before the stage is composed
+    (``_usda_arrays.restore_arrays``); False raises ``_ArraysNotRestored``."""
     from pxr import Usd
 
     layers = check_layers_inside(path)
+    if prepare is not None and not prepare(layers[0]):
+        raise _ArraysNotRestored
     stage = Usd.Stage.Open(layers[0], Usd.Stage.LoadAll)  # the layers parsed once
     del layers  # the stage holds what it uses
     if stage is None:
@@ -241,11 +258,19 @@ def read_usd_stage(stage: Any, limits: MeshLimits = NO_LIMITS) -> TriangleMesh:
 
 
 def read_usd_stage_source(
-    stage: Any, limits: MeshLimits = NO_LIMITS, *, attributes: bool = False
+    stage: Any,
+    limits: MeshLimits = NO_LIMITS,
+    *,
+    attributes: bool = False,
+    package: Path | None = None,
+    side_files: SideFiles | None = None,
 ) -> SourceMesh:
     """``read_usd_stage`` with, when ``attributes``, one scene object per mesh prim (its
-    path and world transform), its normals and its ``st`` UVs (V turned to glTF's
-    downward V), for ``gltf_writer.parts_glb``."""
+    path and world transform), its normals, its ``st`` UVs (V turned to glTF's downward
+    V), its ``displayColor`` (on faces without a material) and its bound materials
+    (``UsdPreviewMaterials``: per prim and per ``materialBind`` GeomSubset), for
+    ``gltf_writer.parts_glb``. Textures are read from inside ``package`` (the folder
+    of the uploaded file: a USDZ's own images) or from ``side_files``."""
     from pxr import Usd, UsdGeom
 
     time = Usd.TimeCode.EarliestTime()
@@ -266,7 +291,7 @@ def read_usd_stage_source(
         raise MeshParseError("the USD stage has no Mesh prim (UsdGeom.Mesh) to read")
 
     xforms = UsdGeom.XformCache(time)
-    kept = _UsdAttributes() if attributes else None
+    kept = _UsdAttributes(UsdPreviewMaterials(time, package, side_files)) if attributes else None
     vertex_parts: list[NDArray[Any]] = []
     face_parts: list[NDArray[Any]] = []
     origin_parts: list[NDArray[Any]] = []
@@ -311,7 +336,10 @@ def read_usd_stage_source(
                 f"(the prim has {len(points)} points)"
             )
         if kept is not None:
-            kept.add(mesh, time, matrix.T, counts, file_flat, triangle_corners, vertex_offset)
+            kept.add(
+                mesh, time, matrix.T, counts, file_flat, triangle_corners, local_origin,
+                vertex_offset,
+            )  # fmt: skip
         vertex_parts.append(points)
         face_parts.append(faces + vertex_offset)
         origin_parts.append(local_origin + face_offset)
@@ -329,17 +357,20 @@ def read_usd_stage_source(
 
 
 class _UsdAttributes:
-    """Per mesh prim: a scene object, a face group, and attribute vertices (one per
-    distinct point, ``st`` value and normal a triangle corner uses)."""
+    """Per mesh prim: a scene object, a face group per bound material, and attribute
+    vertices (one per distinct point, ``st`` value, normal and display colour a triangle
+    corner uses)."""
 
-    def __init__(self) -> None:
+    def __init__(self, materials: UsdPreviewMaterials) -> None:
+        self.material_reader = materials
         self.objects: list[SceneObject] = []
         self.groups: list[FaceGroup] = []
-        self.sizes: list[int] = []
+        self.face_group: list[NDArray[np.int64]] = []
         self.corners: list[NDArray[np.int64]] = []
         self.vertex: list[NDArray[np.int64]] = []
         self.uv: list[NDArray[np.float32] | None] = []
         self.normals: list[NDArray[np.float32] | None] = []
+        self.colors: list[NDArray[np.float32] | None] = []
         self.count = 0
 
     def add(
@@ -350,6 +381,7 @@ class _UsdAttributes:
         counts: NDArray[np.int64],
         flat: NDArray[np.int64],
         triangle_corners: NDArray[np.int64],
+        triangle_face: NDArray[np.int64],
         vertex_offset: int,
     ) -> None:
         from pxr import UsdGeom
@@ -369,26 +401,42 @@ class _UsdAttributes:
         if found is not None:
             unit, usable = unit_normals(found[0])
             normals = (unit, found[1]) if usable else None
+        display = _corner_values(primvars.GetPrimvar("displayColor"), time, flat, face_of_corner, 3)
         corners = triangle_corners.reshape(-1)
         vertex = flat[corners]
         key = vertex
         for table_size, index in (
             (len(st[0]), st[1]) if st is not None else (0, None),
             (len(normals[0]), normals[1]) if normals is not None else (0, None),
+            (len(display[0]), display[1]) if display is not None else (0, None),
         ):
             if index is not None:
                 _, pairs = np.unique(key * (table_size + 1) + index[corners], return_inverse=True)
                 key = pairs.reshape(-1)
         _, first, corner_key = np.unique(key, return_index=True, return_inverse=True)
         self.objects.append(SceneObject(str(mesh.GetPath()), matrix))
-        self.groups.append(
-            FaceGroup(
-                object=len(self.objects) - 1,
-                normals=normals is not None,
-                uv_sets=int(st is not None),
-            )
+        # One group per material of the prim's faces (in order of first use); the
+        # display colour shows only where no material is bound, as in USD.
+        face_material = self.material_reader.face_materials(mesh.GetPrim(), len(counts))
+        triangle_material = face_material[triangle_face]
+        used, first_use, group_of = np.unique(
+            triangle_material, return_index=True, return_inverse=True
         )
-        self.sizes.append(len(triangle_corners))
+        order = np.argsort(first_use, kind="stable")
+        rank = np.empty_like(order)
+        rank[order] = np.arange(len(order))
+        table = self.material_reader.table
+        self.face_group.append(len(self.groups) + rank[group_of.reshape(-1)])
+        for material in used[order].tolist():
+            self.groups.append(
+                FaceGroup(
+                    object=len(self.objects) - 1,
+                    material=-1 if material < 0 else table.for_faces(material, st is not None),
+                    normals=normals is not None,
+                    uv_sets=int(st is not None),
+                    colors=display is not None and material < 0,
+                )
+            )
         self.corners.append(corner_key.reshape(-1, 3) + self.count)
         self.vertex.append(vertex[first] + vertex_offset)
         chosen = corners[first]
@@ -399,6 +447,11 @@ class _UsdAttributes:
         else:
             self.uv.append(None)
         self.normals.append(None if normals is None else normals[0][normals[1][chosen]])
+        if display is not None:
+            rgb = np.clip(display[0][display[1][chosen]], 0.0, 1.0)  # linear, as glTF's
+            self.colors.append(np.column_stack([rgb, np.ones(len(rgb))]).astype(np.float32))
+        else:
+            self.colors.append(None)
         self.count += len(first)
 
     def result(self, mesh: TriangleMesh) -> SurfaceAttributes:
@@ -414,14 +467,176 @@ class _UsdAttributes:
         attributes = SurfaceAttributes(
             corners=np.concatenate(self.corners).astype(np.int64),
             vertex=np.concatenate(self.vertex).astype(np.int64),
-            face_group=np.repeat(np.arange(len(self.groups)), self.sizes).astype(np.int64),
+            face_group=np.concatenate(self.face_group).astype(np.int64),
             groups=tuple(self.groups),
             normals=column(self.normals, 3) if any(g.normals for g in self.groups) else None,
             uvs=(column(self.uv, 2),) if has_uv else (),
+            colors=column(self.colors, 4) if any(g.colors for g in self.groups) else None,
             objects=tuple(self.objects),
+            materials=self.material_reader.table.result(),
         )
         attributes.check(mesh)
         return attributes
+
+
+#: glTF sampler wrap mode of UsdUVTexture's ``wrapS``/``wrapT`` (``black``: clamped,
+#: the nearest glTF has).
+_WRAP_MODES = {"repeat": 10497, "mirror": 33648, "clamp": 33071, "black": 33071}
+
+
+class UsdPreviewMaterials:
+    """The materials bound to mesh prims, as glTF metallic-roughness materials (one per
+    USD material, named by its path): a ``UsdPreviewSurface``'s ``diffuseColor`` (a value,
+    or a ``UsdUVTexture``'s ``rgb`` read through the ``st`` primvar: the base colour
+    texture, its ``scale`` the factor), ``opacity`` (``opacityThreshold``: a mask),
+    ``roughness``, ``metallic`` and ``emissiveColor`` values. Texture images (PNG, JPEG)
+    are read from inside ``package`` (the uploaded file's folder: a USDZ's images) or
+    from ``side_files``; one that is missing leaves the material untextured. A material
+    without a UsdPreviewSurface (MaterialX alone, say) becomes a named grey one."""
+
+    def __init__(self, time: Any, package: Path | None, side_files: SideFiles | None) -> None:
+        self.time = time
+        self.package = package
+        self.side_files = side_files
+        self.table = MaterialTable()
+
+    def face_materials(self, prim: Any, face_count: int) -> NDArray[np.int64]:
+        """Material index (in ``table``) of each face of a mesh prim; -1 where none."""
+        from pxr import UsdGeom, UsdShade
+
+        faces = np.full(face_count, -1, dtype=np.int64)
+        binding = UsdShade.MaterialBindingAPI(prim)
+        material, _ = binding.ComputeBoundMaterial()
+        if material:
+            faces[:] = self.index(material)
+        for subset in UsdGeom.Subset.GetGeomSubsets(
+            UsdGeom.Imageable(prim), UsdGeom.Tokens.face, UsdShade.Tokens.materialBind
+        ):
+            material, _ = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()
+            if not material:
+                continue
+            chosen = _array(subset.GetIndicesAttr(), self.time, np.int64)
+            chosen = chosen[(chosen >= 0) & (chosen < face_count)]
+            faces[chosen] = self.index(material)
+        return faces
+
+    def index(self, material: Any) -> int:
+        key = str(material.GetPath())
+        found = self.table.find(key)
+        return found if found is not None else self.table.add(key, self._gltf(material))
+
+    def _gltf(self, material: Any) -> dict[str, Any]:
+        from pxr import UsdShade
+
+        pbr: dict[str, Any] = {}
+        out: dict[str, Any] = {"name": str(material.GetPath()), "pbrMetallicRoughness": pbr}
+        shader = material.ComputeSurfaceSource()[0]
+        if not shader or shader.GetIdAttr().Get() != "UsdPreviewSurface":
+            shader = None
+        color = [0.18, 0.18, 0.18]  # UsdPreviewSurface's defaults
+        alpha, roughness, metallic = 1.0, 0.5, 0.0
+        if shader is not None:
+            diffuse = self._input(shader, "diffuseColor")
+            if isinstance(diffuse, UsdShade.Output):
+                texture = self._texture(diffuse)
+                if texture is not None:
+                    pbr["baseColorTexture"] = {"index": texture[0]}
+                color = texture[1] if texture is not None else [1.0, 1.0, 1.0]
+            elif diffuse is not None:
+                color = [float(c) for c in diffuse]
+            opacity = self._input(shader, "opacity")
+            if isinstance(opacity, UsdShade.Output):
+                # The diffuse texture's alpha: glTF reads it from the base colour texture.
+                same = isinstance(diffuse, UsdShade.Output) and (
+                    opacity.GetPrim().GetPath() == diffuse.GetPrim().GetPath()
+                    and opacity.GetBaseName() == "a"
+                )
+                if same and "baseColorTexture" in pbr:
+                    out["alphaMode"] = "BLEND"
+            elif opacity is not None:
+                alpha = float(opacity)
+            roughness = _number(self._input(shader, "roughness"), roughness)
+            metallic = _number(self._input(shader, "metallic"), metallic)
+            emission = self._input(shader, "emissiveColor")
+            if emission is not None and not isinstance(emission, UsdShade.Output):
+                emissive = [float(np.clip(c, 0.0, 1.0)) for c in emission]
+                if any(emissive):
+                    out["emissiveFactor"] = emissive
+            threshold = _number(self._input(shader, "opacityThreshold"), 0.0)
+            if threshold > 0:
+                out["alphaMode"] = "MASK"
+                out["alphaCutoff"] = float(threshold)
+            elif alpha < 1:
+                out["alphaMode"] = "BLEND"
+        finite = [c if np.isfinite(c) else 1.0 for c in color[:3]]
+        pbr["baseColorFactor"] = [float(np.clip(c, 0.0, 1.0)) for c in [*finite, alpha]]
+        pbr["roughnessFactor"] = float(np.clip(roughness, 0.0, 1.0))
+        pbr["metallicFactor"] = float(np.clip(metallic, 0.0, 1.0))
+        return out
+
+    def _input(self, shader: Any, name: str) -> Any:
+        """An input's value, the ``UsdShade.Output`` it is connected to, or None."""
+        from pxr import UsdShade
+
+        found = shader.GetInput(name)
+        if not found:
+            return None
+        sources = found.GetValueProducingAttributes()
+        if not sources:
+            return None
+        source = sources[0]
+        if UsdShade.Output.IsOutput(source):
+            return UsdShade.Output(source)
+        return source.Get(self.time)
+
+    def _texture(self, output: Any) -> tuple[int, list[float]] | None:
+        """(texture index, colour factor) of a ``UsdUVTexture``'s ``rgb`` output read
+        through the ``st`` primvar; None when it cannot be carried."""
+        from pxr import UsdShade
+
+        texture = UsdShade.Shader(output.GetPrim())
+        if texture.GetIdAttr().Get() != "UsdUVTexture" or output.GetBaseName() != "rgb":
+            return None
+        reader = self._input(texture, "st")
+        if not isinstance(reader, UsdShade.Output):
+            return None
+        primvar_reader = UsdShade.Shader(reader.GetPrim())
+        if self._input(primvar_reader, "varname") != "st":  # the only UVs read
+            return None
+        asset = self._input(texture, "file")
+        image = None if asset is None else self._image(asset)
+        if image is None:
+            return None
+        wraps = [_WRAP_MODES.get(str(self._input(texture, w)), 10497) for w in ("wrapS", "wrapT")]
+        sampler = None if wraps == [10497, 10497] else {"wrapS": wraps[0], "wrapT": wraps[1]}
+        index = self.table.texture(image, sampler)
+        if index is None:
+            return None
+        scale = self._input(texture, "scale")
+        factor = [1.0, 1.0, 1.0] if scale is None else [float(c) for c in list(scale)[:3]]
+        return index, factor
+
+    def _image(self, asset: Any) -> bytes | None:
+        """The bytes of a texture asset: from inside the package, else a side file."""
+        from pxr import Ar, Sdf
+
+        if not isinstance(asset, Sdf.AssetPath):
+            return None
+        resolved = str(asset.resolvedPath)
+        if resolved and self.package is not None and _inside(resolved, self.package):
+            found = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(resolved))
+            if found is not None and found.GetSize() <= MAX_SIDE_FILE_BYTES:
+                return bytes(found.GetBuffer())
+        if self.side_files is not None and asset.path:
+            return self.side_files.read(str(asset.path))
+        return None
+
+
+def _number(value: Any, default: float) -> float:
+    """A shader input's scalar value (``default`` when connected, absent or not finite)."""
+    if isinstance(value, int | float) and np.isfinite(value):
+        return float(value)
+    return default
 
 
 def _corner_values(
@@ -528,10 +743,16 @@ def _read_usd_bytes(extension: str, data: bytes, limits: MeshLimits = NO_LIMITS)
 
 
 def read_usd_source(
-    extension: str, data: bytes, limits: MeshLimits = NO_LIMITS, *, attributes: bool = False
+    extension: str,
+    data: bytes,
+    limits: MeshLimits = NO_LIMITS,
+    *,
+    attributes: bool = False,
+    side_files: SideFiles | None = None,
 ) -> SourceMesh:
     """A USD file's bytes (``extension``: usd, usda, usdc or usdz) read as
-    ``read_usd_stage_source`` reads its stage."""
+    ``read_usd_stage_source`` reads its stage (textures from inside the file, or from
+    ``side_files``: the folder of a file read from disk)."""
     if extension == "usd":
         extension = sniff_usd(data) or "usd"
     if extension == "usdz" and not data.startswith(b"PK\x03\x04"):
@@ -539,13 +760,32 @@ def read_usd_source(
     check_crate_arrays(data, limits)
     from pxr import Tf
 
+    read = partial(
+        read_usd_stage_source, limits=limits, attributes=attributes, side_files=side_files
+    )
+    cut = cut_arrays(data, max_elements=_array_bound(limits)) if extension == "usda" else None
+    if cut is not None:
+        # The large arrays parsed by our kernel, the rest by usd-core; anything that does
+        # not come out exactly as usd-core alone reads it is read again by usd-core alone.
+        with usd_file(cut.text, extension) as path:
+            try:
+                return read(open_stage(path, partial(restore_arrays, cut=cut)), package=path.parent)
+            except (_ArraysNotRestored, Tf.ErrorException):
+                pass
     with usd_file(data, extension) as path:
         try:
-            return read_usd_stage_source(open_stage(path), limits, attributes=attributes)
+            return read(open_stage(path), package=path.parent)
         except Tf.ErrorException as error:
             raise MeshParseError(
                 f"usd-core could not read the file: {_usd_message(error)}"
             ) from None
+
+
+def _array_bound(limits: MeshLimits) -> int | None:
+    """Most elements an array of a mesh within ``limits`` has (``check_crate_arrays``)."""
+    if limits.max_faces is None or limits.max_vertices is None:
+        return None
+    return max(3 * limits.max_faces, limits.max_vertices)
 
 
 #: Readers for the registry, one per extension (the extension tells usd-core the encoding).
@@ -758,8 +998,35 @@ def write_usd_parts(
         ]
         _add_parts(stage, paths, counts, labels, names)
         single = len([layer for layer in stage.GetUsedLayers() if not layer.anonymous]) == 1
-        layer = stage.GetRootLayer() if single and extension != "usdz" else stage.Flatten()
+        if single and extension != "usdz":
+            layer = stage.GetRootLayer()
+        else:
+            layer = stage.Flatten()
+            _unanchor(layer, path.parent)
         _export(layer, output, path.parent)
+
+
+def _unanchor(layer: Any, folder: Path) -> None:
+    """Asset paths of a flattened layer as the input wrote them, not anchored to the
+    temporary folder it was read from (which is gone afterwards, differs every time and
+    is the server's own): ``<folder>/upload.usdz[tex/a.png]`` becomes ``tex/a.png``,
+    ``<folder>/tex/a.png`` becomes ``tex/a.png``. usd-core's note naming the folder goes
+    too."""
+    from pxr import UsdUtils
+
+    prefix = str(folder) + os.sep
+    real_prefix = str(folder.resolve()) + os.sep
+
+    def relative(asset: str) -> str:
+        for start in (prefix, real_prefix):
+            if asset.startswith(start):
+                inner = asset[len(start) :]
+                _, bracket, member = inner.partition("[")
+                return member[:-1] if bracket and member.endswith("]") else inner
+        return asset
+
+    UsdUtils.ModifyAssetPaths(layer, relative)
+    layer.documentation = "Flattened from the input stage by neural-shdf"
 
 
 def usd_parts_usda(data: bytes, input_format: str, face_labels: NDArray[Any]) -> bytes:
@@ -846,6 +1113,7 @@ def mesh_parts_usda(
 __all__ = [
     "PART_FAMILY",
     "USD_EXTENSIONS",
+    "UsdPreviewMaterials",
     "check_layers_inside",
     "input_polygons",
     "mesh_parts_usda",

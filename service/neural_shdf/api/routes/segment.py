@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import time
 from typing import Annotated, Any
 
@@ -10,6 +11,7 @@ from fastapi import APIRouter, Form, Query, Response
 from neural_shdf.api.editing import edited_result
 from neural_shdf.api.engine import Engine
 from neural_shdf.api.errors import ApiError
+from neural_shdf.api.jobs import JobAccepted
 from neural_shdf.api.responses import (
     GLB_MEDIA_TYPE,
     glb_response,
@@ -31,6 +33,9 @@ from neural_shdf.segment import SegmentParams
 
 router = APIRouter(prefix="/v1", tags=["segmentation"])
 
+#: Header of ``/segment/file``'s answers (200 and 202) naming the upload's kept file.
+SOURCE_ID_HEADER = "X-Source-Id"
+
 SEGMENT_ERRORS = {
     202: {
         "model": Job,
@@ -47,7 +52,11 @@ async def segment_response(
     options: SegmentOptions,
     params: SegmentParams,
     edits: list[dict[str, Any]] | None = None,
+    *,
+    source_id: str | None = None,
 ) -> Response:
+    """The segmentation (or the named parts) of a stored mesh as the `Segmentation` JSON;
+    ``source_id``: an upload's own file, named in the answer (``/segment/file``)."""
     method = await engine.resolved_method(mesh_id, options.method)
     if isinstance(options, LabeledSegmentOptions) and options.labeler_id is not None:
         if edits:
@@ -56,7 +65,9 @@ async def segment_response(
                 "invalid_parameter",
                 "edits cannot be combined with labeler_id: named parts are not edited",
             )
-        return await labeled_response(engine, mesh_id, method, options, options.labeler_id)
+        return await labeled_response(
+            engine, mesh_id, method, options, options.labeler_id, source_id=source_id
+        )
     result, timings = await engine.segmentations.get(mesh_id, method, params)
     tree_of = None
     if edits:
@@ -68,12 +79,19 @@ async def segment_response(
         timings = {**timings, "total_ms": timings["total_ms"] + _ms_since(start)}
     # Serialising a million labels takes a while: never on the event loop.
     return await engine.io(
-        segmentation_response, mesh_id, method, options.labels_format, result, timings, tree_of
-    )
+        functools.partial(segmentation_response, source_id=source_id),
+        mesh_id, method, options.labels_format, result, timings, tree_of,
+    )  # fmt: skip
 
 
 async def labeled_response(
-    engine: Engine, mesh_id: str, method: str, options: SegmentOptions, labeler_id: str
+    engine: Engine,
+    mesh_id: str,
+    method: str,
+    options: SegmentOptions,
+    labeler_id: str,
+    *,
+    source_id: str | None = None,
 ) -> Response:
     """Named parts of a stored mesh by a stored labeller, from its cached ShDF."""
     result, labeler, shdf, timings = await engine.labelings.get(
@@ -81,7 +99,7 @@ async def labeled_response(
     )
     mesh = await engine.io(engine.meshes.load, mesh_id)
     return await engine.io(
-        labels_response,
+        functools.partial(labels_response, source_id=source_id),
         mesh_id,
         method,
         options.labels_format,
@@ -125,10 +143,22 @@ async def segment_file(
     engine: EngineDep,
     form: Annotated[SegmentFileForm, Form(media_type="multipart/form-data")],
 ) -> Response:
-    """Store the mesh, compute (or reuse) its ShDF and segment it."""
+    """Store the mesh, compute (or reuse) its ShDF and segment it. The upload's own file is
+    kept with the mesh like an upload's (OBJ, PLY, glTF/GLB, USD): its `source_id` is in
+    the answer, and in the `X-Source-Id` header (also of a 202 answer)."""
     params = form.segment_params()  # bad parameters fail before the upload is parsed
     meta, _ = await ingest(engine, form.file, form.file_type)
-    return await segment_response(engine, meta["mesh_id"], form, params)
+    source_id = meta.get("source_id")
+    headers = {SOURCE_ID_HEADER: source_id} if source_id else {}
+    try:
+        response = await segment_response(
+            engine, meta["mesh_id"], form, params, source_id=source_id
+        )
+    except JobAccepted as accepted:
+        accepted.headers.update(headers)
+        raise
+    response.headers.update(headers)
+    return response
 
 
 SourceId = Annotated[

@@ -1,13 +1,16 @@
 """Piece-wise UV unwrapping by parts (the paper's application).
 
-Each connected piece of a part is flattened on its own (cut to a disk with libigl, a
-least-squares conformal map, cut further while it is too stretched, halved with METIS
-when it still fails), so every chart lies within one part and seams run where parts
-meet, plus whatever cuts a part still needs to flatten; only the pieces that never
-flatten are charted by xatlas, inside the piece. xatlas packs all charts into one
-atlas. UVs are per triangle
-corner, in ``[0, 1]``, with ``v`` pointing up (OBJ's and trimesh's convention; the
-GLB writer flips it for glTF).
+Part borders are first straightened (a min-cut on edge length within a few rings of
+faces: borders along mesh edges, no stair steps). Each connected piece of a part is then
+flattened on its own (cut to a disk with libigl, a least-squares conformal map, cut
+further while it is too stretched and the cuts still help, halved with METIS into two
+balanced, connected halves along a straightened border when it still fails), so every
+chart lies within one part and seams run where parts meet, plus whatever cuts a part
+still needs to flatten. Sliver charts are merged into a neighbour of their part where the
+two flatten as one; only pieces that never flatten (non-manifold ones) are charted by
+xatlas, inside the piece. xatlas packs all charts into one atlas. UVs are per triangle
+corner, in ``[0, 1]``, with ``v`` pointing up (OBJ's and trimesh's convention; the GLB
+writer flips it for glTF).
 """
 
 from __future__ import annotations
@@ -157,13 +160,18 @@ def part_labels_per_triangle(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.
 def unwrap(mesh: TriangleMesh, labels: NDArray, params: UnwrapParams | None = None) -> UvAtlas:
     """Chart each part on its own, parameterise it, pack every chart into one atlas.
 
-    Each connected piece of a part becomes one chart where that is possible within
+    Part borders are straightened within ``params.straighten`` rings of faces (so a chart's
+    part, ``chart_part``, may differ from ``labels`` on a few faces along a border). Each
+    connected piece of a part becomes one chart where that is possible within
     ``params.max_stretch``: cut to a disk (libigl), flattened by a least-squares
     conformal map, and cut further from its most compressed point to its border while
-    it is too stretched. A piece that still fails (non-manifold, overlapping itself,
-    too stretched after ``max_cuts`` cuts) is charted by xatlas inside the piece. xatlas
-    packs all charts. ``labels``: a part per triangle or per input face (see
-    ``part_labels_per_triangle``). Deterministic.
+    it is too stretched and the cuts still lower the stretch. A piece that still fails is
+    halved (up to ``max_splits`` times); one that can be halved no further is kept as one
+    chart within ``LAST_PIECE_STRETCH`` times ``max_stretch``, else (non-manifold,
+    overlapping itself) charted by xatlas inside the piece. Sliver charts are merged into
+    a neighbour of their part where the two flatten as one. xatlas packs all charts.
+    ``labels``: a part per triangle or per input face (see ``part_labels_per_triangle``).
+    Deterministic.
     """
     params = params or UnwrapParams()
     labels = part_labels_per_triangle(mesh, labels)

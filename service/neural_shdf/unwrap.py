@@ -1220,6 +1220,7 @@ __all__ = [
     "atlas_layout_image",
     "atlas_layout_png",
     "chart_outline_edges",
+    "chart_widths",
     "PolygonUvs",
     "input_face_corner_uvs",
     "polygon_corner_uvs",

@@ -24,8 +24,13 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
 from neural_shdf.arrays import unique_rows
-from neural_shdf.geometry import build_face_graph, weld_faces
-from neural_shdf.unwrap import SLIVER_WIDTH_EDGES, rasterize_charts, stretch_terms
+from neural_shdf.geometry import build_face_graph, face_normals, weld_faces
+from neural_shdf.unwrap import (
+    SLIVER_WIDTH_EDGES,
+    chart_widths,
+    rasterize_charts,
+    stretch_terms,
+)
 
 
 @dataclass(frozen=True)
@@ -176,25 +181,14 @@ def chart_borders(vertices: NDArray, faces: NDArray, chart: NDArray) -> ChartBor
     vertices = np.asarray(vertices, dtype=np.float64)
     chart = np.asarray(chart, dtype=np.int64)
     welded = weld_faces(vertices, np.asarray(faces, dtype=np.int64))
-    graph = build_face_graph(vertices, welded)
+    charts = int(chart.max(initial=-1)) + 1
+    # The unwrapper's own sliver test: mean width (area over border with other charts).
+    width, mean_edge, graph = chart_widths(vertices, welded, chart, charts)
     left, right = graph.pairs[:, 0], graph.pairs[:, 1]
     border = chart[left] != chart[right]
-    edges = np.sort(welded[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    unique = unique_rows(edges)
-    mean_edge = float(
-        np.linalg.norm(vertices[unique[:, 0]] - vertices[unique[:, 1]], axis=1).mean()
-    )
-    # Per chart: area, and perimeter along other charts (the surface's own border is no seam).
-    p0, p1, p2 = (vertices[welded[:, k]] for k in range(3))
-    area = 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
-    charts = int(chart.max(initial=-1)) + 1
+    _, area = face_normals(vertices, welded)
     chart_area = np.bincount(chart[chart >= 0], weights=area[chart >= 0], minlength=charts)
-    length = graph.edge_length
-    perimeter = np.bincount(chart[left[border]], weights=length[border], minlength=charts)
-    perimeter += np.bincount(chart[right[border]], weights=length[border], minlength=charts)
-    exists = chart_area > 0
-    width = 2.0 * chart_area / np.maximum(perimeter, 1e-300)
-    sliver = exists & (perimeter > 0) & (width < SLIVER_WIDTH_EDGES * mean_edge)
+    sliver = (chart_area > 0) & (width < SLIVER_WIDTH_EDGES * mean_edge)
     total_area = float(chart_area.sum())
     # Border polylines: vertices of degree 2 in the border-edge graph move, the rest hold.
     ends = graph.edge_vertices[border]

@@ -7,10 +7,14 @@ import pytest
 import trimesh
 
 from neural_shdf.errors import ParameterError
-from neural_shdf.evaluate.uv import uv_quality
+from neural_shdf.evaluate.uv import chart_borders, uv_quality
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.unwrap import (
     UnwrapParams,
+    _bisect,
+    _connected_pieces,
+    _flatten_piece,
+    _merge_slivers,
     atlas_layout_image,
     input_face_corner_uvs,
     part_labels_per_triangle,
@@ -247,3 +251,71 @@ def test_layout_sizes_outside_the_documented_range_are_refused(size):
     atlas = unwrap(mesh, labels, UnwrapParams(atlas_size=256))
     with pytest.raises(ParameterError, match="size"):
         atlas_layout_png(atlas, size=size)
+
+
+def _grid_mesh(n: int) -> TriangleMesh:
+    """A flat n x n grid of unit squares, two triangles per square (lower one first)."""
+    xs, ys = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="xy")
+    vertices = np.column_stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)]).astype(float)
+    a = (np.arange(n)[None, :] + (n + 1) * np.arange(n)[:, None]).ravel()
+    lower = np.column_stack([a, a + 1, a + n + 2])
+    upper = np.column_stack([a, a + n + 2, a + n + 1])
+    return TriangleMesh(vertices, np.stack([lower, upper], axis=1).reshape(-1, 3))
+
+
+def test_stair_stepped_part_borders_are_straightened_along_mesh_edges():
+    n = 12
+    mesh = _grid_mesh(n)
+    square = np.repeat(np.arange(n * n), 2)
+    i, j = square % n, square // n
+    stairs = (i > j).astype(np.int64)  # diagonal squares all in part 0: unit steps
+    atlas = unwrap(mesh, stairs)
+    parts = atlas.chart_part[atlas.chart]
+    # One triangle per step moved, next to the old border (either diagonal line is as
+    # short); the border now runs along diagonal edges: no turn, barely rougher than a
+    # line (its ends bend where it meets the grid's edge).
+    moved = parts != stairs
+    assert n - 4 <= moved.sum() <= n + 4
+    assert np.all(np.abs(i - j)[moved] <= 1)
+    borders = chart_borders(mesh.vertices, mesh.faces, atlas.chart)
+    assert borders.roughness < 1.05 and borders.sharp_turns == 0
+    assert chart_borders(mesh.vertices, mesh.faces, stairs).roughness > 1.3
+    # straighten=0: charts follow the parts face for face.
+    exact = unwrap(mesh, stairs, UnwrapParams(straighten=0))
+    assert np.array_equal(exact.chart_part[exact.chart], stairs)
+
+
+def test_a_sliver_chart_is_merged_into_its_neighbour_of_the_same_part():
+    mesh = _grid_mesh(8)
+    chart = np.zeros(mesh.face_count, dtype=np.int64)
+    chart[: 2 * 8] = 1  # the bottom row of squares: a strip one square wide
+    corner_uvs = mesh.vertices[mesh.faces][:, :, :2].copy()
+
+    def flatten(piece: np.ndarray, max_stretch: float) -> np.ndarray | None:
+        used, local = np.unique(mesh.faces[piece], return_inverse=True)
+        return _flatten_piece(mesh.vertices[used], local.reshape(-1, 3), max_stretch, 10)
+
+    parts = _merge_slivers(
+        mesh.vertices, mesh.faces, corner_uvs, chart, np.array([0, 0]), flatten, 1.1
+    )
+    assert parts.tolist() == [0]
+    assert np.all(chart == 0)
+    quality = uv_quality(mesh.vertices, mesh.faces, corner_uvs, chart)
+    assert quality.flipped_fraction == 0 and np.isclose(quality.l2_stretch, 1.0)
+    # A strip in a part of its own stays: charts never cross parts.
+    chart[:] = 0
+    chart[: 2 * 8] = 1
+    parts = _merge_slivers(
+        mesh.vertices, mesh.faces, corner_uvs, chart, np.array([0, 1]), flatten, 1.1
+    )
+    assert parts.tolist() == [0, 1]
+
+
+def test_a_piece_is_halved_into_two_connected_halves_of_similar_size():
+    sphere = as_triangle_mesh(trimesh.creation.icosphere(subdivisions=4))
+    halves = _bisect(sphere.vertices, sphere.faces, np.zeros(0, dtype=np.int64))
+    counts = np.bincount(halves, minlength=2)
+    assert counts.max() <= 1.25 * counts.mean()
+    for half in (0, 1):
+        members = np.flatnonzero(halves == half)
+        assert len(_connected_pieces(sphere.faces, members)) == 1

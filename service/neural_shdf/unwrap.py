@@ -1,13 +1,16 @@
 """Piece-wise UV unwrapping by parts (the paper's application).
 
-Each connected piece of a part is flattened on its own (cut to a disk with libigl, a
-least-squares conformal map, cut further while it is too stretched, halved with METIS
-when it still fails), so every chart lies within one part and seams run where parts
-meet, plus whatever cuts a part still needs to flatten; only the pieces that never
-flatten are charted by xatlas, inside the piece. xatlas packs all charts into one
-atlas. UVs are per triangle
-corner, in ``[0, 1]``, with ``v`` pointing up (OBJ's and trimesh's convention; the
-GLB writer flips it for glTF).
+Part borders are first straightened (a min-cut on edge length within a few rings of
+faces: borders along mesh edges, no stair steps). Each connected piece of a part is then
+flattened on its own (cut to a disk with libigl, a least-squares conformal map, cut
+further while it is too stretched and the cuts still help, halved with METIS into two
+balanced, connected halves along a straightened border when it still fails), so every
+chart lies within one part and seams run where parts meet, plus whatever cuts a part
+still needs to flatten. Sliver charts are merged into a neighbour of their part where the
+two flatten as one; only pieces that never flatten (non-manifold ones) are charted by
+xatlas, inside the piece. xatlas packs all charts into one atlas. UVs are per triangle
+corner, in ``[0, 1]``, with ``v`` pointing up (OBJ's and trimesh's convention; the GLB
+writer flips it for glTF).
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import math
 import struct
 import zlib
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import igl
@@ -31,9 +34,10 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from neural_shdf.arrays import unique_rows
 from neural_shdf.compiled import kernel
 from neural_shdf.errors import MeshTooLargeError, ParameterError
-from neural_shdf.geometry import build_face_graph, weld_faces
+from neural_shdf.geometry import FaceGraph, build_face_graph, face_normals, weld_faces
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.palette import part_colors
+from neural_shdf.segment.graphcut import banded_alpha_expansion, near_boundary
 from neural_shdf.segment.metis import split_faces
 
 #: Atlas sides a user may ask for, in texels.
@@ -44,6 +48,24 @@ MAX_PADDING = 64
 PACK_ATTEMPTS = 12
 #: A piece smaller than twice this is never halved further.
 MIN_SPLIT_FACES = 16
+#: METIS imbalance when halving a piece (a half up to 1.2 times the mean): the segmenter's
+#: looser setting peels a sliver off a big piece instead of halving it.
+BISECT_UFACTOR = 200
+#: Rings of faces either side of a new halving's border that a min-cut on edge length may
+#: move it through: METIS's border zig-zags across triangles, this straightens it.
+BORDER_BAND_RINGS = 4
+#: A cut that has not halved the stretch over the first this many cuts is given up: the
+#: piece is halved instead (each cut costs one more solve at full resolution).
+CUTS_BEFORE_PROGRESS = 3
+#: A cut that lowers the stretch by less than this fraction of its excess stalls; after
+#: this many stalls in a row the piece is halved (on the dense scans a stalled piece
+#: stayed within 1% of its stretch for every further cut).
+STALL_FRACTION = 0.1
+STALLED_CUTS = 2
+#: Stretch above ``max_stretch`` that one cut (from the most compressed point, which fixes
+#: a cone or a tube's closed end at once) must bring the piece under, else it is halved:
+#: on the dense scans no piece further off ever came under ``max_stretch`` by more cuts.
+FIRST_CUT_SLACK = 0.4
 
 
 @dataclass(frozen=True)
@@ -57,14 +79,18 @@ class UnwrapParams:
             above it the part is cut further, then left to xatlas's charting.
         max_cuts: extra cuts tried per part before it is split in two.
         max_splits: how many times a part that cannot be one chart is halved (METIS,
-            shortest boundary) before xatlas charts what is left.
+            shortest boundary, straightened) before xatlas charts what is left.
+        straighten: rings of faces either side of a part border within which chart
+            borders are straightened (a min-cut on edge length; 0: charts follow the
+            part borders face for face, stair steps and all).
     """
 
     atlas_size: int = 1024
     padding: int = 2
     max_stretch: float = 1.1
     max_cuts: int = 10
-    max_splits: int = 3
+    max_splits: int = 6
+    straighten: int = BORDER_BAND_RINGS
 
     def __post_init__(self) -> None:
         if not MIN_ATLAS_SIZE <= self.atlas_size <= MAX_ATLAS_SIZE:
@@ -82,6 +108,8 @@ class UnwrapParams:
             raise ParameterError(f"max_cuts must be in [0, 64], got {self.max_cuts}")
         if not 0 <= self.max_splits <= 8:
             raise ParameterError(f"max_splits must be in [0, 8], got {self.max_splits}")
+        if not 0 <= self.straighten <= 16:
+            raise ParameterError(f"straighten must be in [0, 16] rings, got {self.straighten}")
 
 
 @dataclass(frozen=True)
@@ -132,45 +160,64 @@ def part_labels_per_triangle(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.
 def unwrap(mesh: TriangleMesh, labels: NDArray, params: UnwrapParams | None = None) -> UvAtlas:
     """Chart each part on its own, parameterise it, pack every chart into one atlas.
 
-    Each connected piece of a part becomes one chart where that is possible within
+    Part borders are straightened within ``params.straighten`` rings of faces (so a chart's
+    part, ``chart_part``, may differ from ``labels`` on a few faces along a border). Each
+    connected piece of a part becomes one chart where that is possible within
     ``params.max_stretch``: cut to a disk (libigl), flattened by a least-squares
     conformal map, and cut further from its most compressed point to its border while
-    it is too stretched. A piece that still fails (non-manifold, overlapping itself,
-    too stretched after ``max_cuts`` cuts) is charted by xatlas inside the piece. xatlas
-    packs all charts. ``labels``: a part per triangle or per input face (see
-    ``part_labels_per_triangle``). Deterministic.
+    it is too stretched and the cuts still lower the stretch. A piece that still fails is
+    halved (up to ``max_splits`` times); one that can be halved no further is kept as one
+    chart within ``LAST_PIECE_STRETCH`` times ``max_stretch``, else (non-manifold,
+    overlapping itself) charted by xatlas inside the piece. Sliver charts are merged into
+    a neighbour of their part where the two flatten as one. xatlas packs all charts.
+    ``labels``: a part per triangle or per input face (see ``part_labels_per_triangle``).
+    Deterministic.
     """
     params = params or UnwrapParams()
     labels = part_labels_per_triangle(mesh, labels)
     welded = weld_faces(mesh.vertices, mesh.faces)
+    diagonal_pairs = _polygon_diagonals(mesh, welded)
+    if params.straighten > 0:
+        labels = straighten_borders(
+            mesh.vertices, welded, labels, diagonal_pairs, params.straighten
+        )
     representative = _coincident_representative(welded, labels)
     first = representative == np.arange(mesh.face_count)
     parts = np.unique(labels)
     pieces = [_connected_pieces(welded, np.flatnonzero((labels == part) & first)) for part in parts]
     later = sum(len(found) for found in pieces)
     _check_chart_budget(later)
-    diagonal_pairs = _polygon_diagonals(mesh, welded)
     corner_uvs = np.zeros((mesh.face_count, 3, 2), dtype=np.float64)
     chart = np.full(mesh.face_count, -1, dtype=np.int64)
     chart_part: list[int] = []
     leftovers: list[tuple[int, NDArray[np.int64]]] = []
+
+    def flatten(piece: NDArray[np.int64], max_stretch: float) -> NDArray[np.float64] | None:
+        used, local = np.unique(welded[piece], return_inverse=True)
+        diagonals = _local_diagonals(diagonal_pairs, used)
+        return _flatten_piece(
+            mesh.vertices[used], local.reshape(-1, 3), max_stretch, params.max_cuts, diagonals
+        )
+
     for part, found in zip(parts, pieces, strict=True):
         pending = deque((piece, 0) for piece in found)
         later -= len(found)
         while pending:
             piece, depth = pending.popleft()
-            used, local = np.unique(welded[piece], return_inverse=True)
-            local = local.reshape(-1, 3)
-            diagonals = _local_diagonals(diagonal_pairs, used)
-            uvs = _flatten_piece(
-                mesh.vertices[used], local, params.max_stretch, params.max_cuts, diagonals
-            )
+            uvs = flatten(piece, params.max_stretch)
+            splits = depth < params.max_splits and len(piece) >= 2 * MIN_SPLIT_FACES
+            if uvs is None and not splits:
+                # Small and still too stretched: one chart a little more stretched beats
+                # the handful of slivers xatlas would make of it.
+                uvs = flatten(piece, params.max_stretch * LAST_PIECE_STRETCH)
             if uvs is not None:
                 corner_uvs[piece] = uvs
                 chart[piece] = len(chart_part)
                 chart_part.append(int(part))
-            elif depth < params.max_splits and len(piece) >= 2 * MIN_SPLIT_FACES:
-                halves = _bisect(mesh.vertices[used], local, diagonals)
+            elif splits:
+                used, local = np.unique(welded[piece], return_inverse=True)
+                diagonals = _local_diagonals(diagonal_pairs, used)
+                halves = _bisect(mesh.vertices[used], local.reshape(-1, 3), diagonals)
                 for half in (0, 1):
                     for sub in _connected_pieces(welded, piece[halves == half]):
                         pending.append((sub, depth + 1))
@@ -183,9 +230,92 @@ def unwrap(mesh: TriangleMesh, labels: NDArray, params: UnwrapParams | None = No
             chart[faces] = len(chart_part)
             chart_part.append(part)
         _check_chart_budget(len(chart_part))
-    atlas = _pack(mesh, corner_uvs, chart, np.asarray(chart_part, dtype=np.int64), params)
+    chart_part_array = _merge_slivers(
+        mesh.vertices,
+        welded,
+        corner_uvs,
+        chart,
+        np.asarray(chart_part, dtype=np.int64),
+        flatten,
+        params.max_stretch,
+    )
+    atlas = _pack(mesh, corner_uvs, chart, chart_part_array, params)
     _copy_to_coincident(atlas, welded, representative)
     return atlas
+
+
+#: A chart narrower on average (twice its area over its border with other charts) than this
+#: many mean edge lengths is a sliver: a strip a couple of triangles wide.
+SLIVER_WIDTH_EDGES = 3.0
+#: Stretch (times ``max_stretch``) a piece that can be halved no further may keep.
+LAST_PIECE_STRETCH = 1.5
+
+
+def chart_widths(
+    vertices: NDArray, welded: NDArray[np.int64], chart: NDArray[np.int64], charts: int
+) -> tuple[NDArray[np.float64], float, FaceGraph]:
+    """Per chart, its mean width (twice its area over its border with other charts; inf
+    with no such border), the mean edge length, and the face graph."""
+    graph = build_face_graph(vertices, welded)
+    _, areas = face_normals(vertices, welded)
+    charted = chart >= 0
+    chart_area = np.bincount(chart[charted], weights=areas[charted], minlength=charts)
+    left, right = graph.pairs[:, 0], graph.pairs[:, 1]
+    border = (chart[left] != chart[right]) & (chart[left] >= 0) & (chart[right] >= 0)
+    length = graph.edge_length[border]
+    perimeter = np.bincount(chart[left[border]], weights=length, minlength=charts)
+    perimeter += np.bincount(chart[right[border]], weights=length, minlength=charts)
+    with np.errstate(divide="ignore"):
+        width = np.where(perimeter > 0, 2.0 * chart_area / np.maximum(perimeter, 1e-300), np.inf)
+    mean_edge = float(graph.edge_length.mean()) if len(graph.edge_length) else 0.0
+    return width, mean_edge, graph
+
+
+def _merge_slivers(
+    vertices: NDArray,
+    welded: NDArray[np.int64],
+    corner_uvs: NDArray[np.float64],
+    chart: NDArray[np.int64],
+    chart_part: NDArray[np.int64],
+    flatten: Callable[[NDArray[np.int64], float], NDArray[np.float64] | None],
+    max_stretch: float,
+) -> NDArray[np.int64]:
+    """Merge every sliver chart (``SLIVER_WIDTH_EDGES``) into the chart of its part it
+    shares the longest border with, where the two flatten as one chart (no flip, no
+    overlap, within ``max_stretch``); else keep it. ``corner_uvs`` and ``chart`` change in
+    place; returns the part of each chart, charts renumbered in their first order."""
+    charts = len(chart_part)
+    if charts < 2:
+        return chart_part
+    width, mean_edge, graph = chart_widths(vertices, welded, chart, charts)
+    slivers = np.flatnonzero(width < SLIVER_WIDTH_EDGES * mean_edge)
+    if len(slivers) == 0:
+        return chart_part
+    left, right = chart[graph.pairs[:, 0]], chart[graph.pairs[:, 1]]
+    valid = (left >= 0) & (right >= 0)
+    left, right, length = left[valid], right[valid], graph.edge_length[valid]
+    charted = np.flatnonzero(chart >= 0)
+    merged = np.arange(charts)
+    for sliver in slivers[np.argsort(width[slivers], kind="stable")].tolist():
+        a, b = merged[left], merged[right]
+        across = (a != b) & ((a == sliver) | (b == sliver))
+        other = np.where(a[across] == sliver, b[across], a[across])
+        same_part = chart_part[other] == chart_part[sliver]
+        if not same_part.any():
+            continue
+        shared = np.bincount(other[same_part], weights=length[across][same_part])
+        target = int(np.argmax(shared))
+        owner = merged[chart[charted]]
+        union = charted[(owner == sliver) | (owner == target)]
+        uvs = flatten(union, max_stretch)
+        if uvs is None:
+            continue
+        corner_uvs[union] = uvs
+        merged[merged == sliver] = target
+    # Charts keep the order they were made in (ids ascending), the merged ones left out.
+    kept, new_id = np.unique(merged, return_inverse=True)
+    chart[charted] = new_id.reshape(-1)[chart[charted]]
+    return chart_part[kept]
 
 
 #: Most charts one atlas is packed with; each costs a few milliseconds to chart and pack,
@@ -279,18 +409,104 @@ def _connected_pieces(welded: NDArray[np.int64], faces: NDArray[np.int64]) -> li
     return np.split(faces[order], np.cumsum(np.bincount(component))[:-1])
 
 
+#: Cost of moving a face of average area off its part while straightening, in mean edge
+#: lengths: a tooth (one face, two border edges) saves about one edge and moves; a border
+#: never slides along a tube or a cap towards a shorter loop (every ring costs more than
+#: it saves), and only strips under ~4 faces wide can vanish.
+STRAIGHTEN_FACE_COST = 0.25
+
+
+def straighten_borders(
+    vertices: NDArray,
+    welded: NDArray[np.int64],
+    labels: NDArray[np.int64],
+    diagonal_pairs: NDArray[np.int64],
+    rings: int,
+) -> NDArray[np.int64]:
+    """Part labels with their borders straightened: within ``rings`` faces of a border,
+    the labelling with the shortest borders plus ``STRAIGHTEN_FACE_COST`` per face moved
+    (alpha-expansion, every face outside the band fixed), never across a polygon diagonal.
+    What a segmentation's graph cut leaves (borders zig-zagging across triangles along
+    noisy creases) becomes borders along mesh edges without stair steps."""
+    graph = build_face_graph(vertices, welded)
+    if len(graph.pairs) == 0:
+        return labels
+    values, dense = np.unique(labels, return_inverse=True)
+    dense = dense.reshape(-1).astype(np.int64)
+    if len(values) < 2:
+        return labels
+    band = near_boundary(dense, graph.pairs, len(dense), rings)
+    if not band.any():
+        return labels
+    length = _uncut_diagonals(graph, vertices, diagonal_pairs)
+    _, areas = face_normals(vertices, welded)
+    mean_edge = float(graph.edge_length.mean())
+    mean_area = max(float(areas.mean()), 1e-300)
+    inside = np.flatnonzero(band)
+    move = STRAIGHTEN_FACE_COST * mean_edge * areas[inside] / mean_area
+    data = np.repeat(move[:, None], len(values), axis=1)
+    data[np.arange(len(inside)), dense[inside]] = 0.0
+    straight = banded_alpha_expansion(data, graph.pairs, length, dense, band)
+    return values[straight]
+
+
+def _uncut_diagonals(graph, vertices: NDArray, diagonal_pairs: NDArray[np.int64]) -> NDArray:
+    """Edge length per face pair, a thousand times the longest edge on polygon diagonals."""
+    if len(diagonal_pairs) == 0:
+        return np.asarray(graph.edge_length, dtype=np.float64)
+    n = len(vertices)
+    keys = np.unique(diagonal_pairs[:, 0] * n + diagonal_pairs[:, 1])
+    a, b = graph.edge_vertices[:, 0], graph.edge_vertices[:, 1]
+    pair_keys = np.minimum(a, b) * n + np.maximum(a, b)
+    found = np.minimum(np.searchsorted(keys, pair_keys), len(keys) - 1)
+    return np.where(
+        keys[found] == pair_keys, graph.edge_length.max(initial=1.0) * 1e3, graph.edge_length
+    )
+
+
 def _bisect(
     vertices: NDArray, faces: NDArray[np.int64], diagonals: NDArray[np.int64]
 ) -> NDArray[np.int64]:
-    """0/1 per face: two halves of similar size with the shortest boundary (METIS), never
-    split across a polygon diagonal."""
+    """0/1 per face: two connected halves of similar size with a short, straight boundary
+    (METIS, then a min-cut on edge length within ``BORDER_BAND_RINGS`` of its border, then
+    stray fragments of a half given to the other), never split across a polygon diagonal."""
     graph = build_face_graph(vertices, faces)
     a, b = graph.edge_vertices[:, 0], graph.edge_vertices[:, 1]
     keys = np.minimum(a, b) * len(vertices) + np.maximum(a, b)
     found = np.minimum(np.searchsorted(diagonals, keys), max(len(diagonals) - 1, 0))
     inside = diagonals[found] == keys if len(diagonals) else np.zeros(len(keys), bool)
     length = np.where(inside, graph.edge_length.max(initial=1.0) * 1e3, graph.edge_length)
-    return split_faces(graph, 2, seed=0, edge_length=length)
+    halves = split_faces(graph, 2, seed=0, edge_length=length, ufactor=BISECT_UFACTOR)
+    band = near_boundary(halves, graph.pairs, len(faces), BORDER_BAND_RINGS)
+    if band.any():
+        straight = banded_alpha_expansion(
+            np.zeros((int(band.sum()), 2)), graph.pairs, length, halves, band
+        )
+        if 0 < straight.sum() < len(straight):
+            halves = straight
+    return _fold_fragments(halves, graph.pairs)
+
+
+def _fold_fragments(halves: NDArray[np.int64], pairs: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Each half kept to its largest connected fragment; the others (METIS leaves a few
+    specks, each a sliver chart otherwise) join the other half."""
+    n = len(halves)
+    joined = halves[pairs[:, 0]] == halves[pairs[:, 1]]
+    graph = sp.csr_matrix(
+        (np.ones(int(joined.sum()), dtype=np.int8), (pairs[joined, 0], pairs[joined, 1])),
+        shape=(n, n),
+    )
+    _, fragment = connected_components(graph, directed=False)
+    sizes = np.bincount(fragment)
+    result = halves.copy()
+    for half in (0, 1):
+        members = halves == half
+        if not members.any():
+            continue
+        largest = np.max(np.where(members, sizes[fragment], -1))
+        keep = int(fragment[np.flatnonzero(members & (sizes[fragment] == largest))[0]])
+        result[members & (fragment != keep)] = 1 - half
+    return result if 0 < result.sum() < n else halves
 
 
 def _is_edge_manifold(faces: NDArray[np.int64]) -> bool:
@@ -491,14 +707,26 @@ def _flatten_disk(
     """``_flatten_piece`` once the piece passed its checks: cut to a disk, map, cut more."""
     if not _open_to_disk(piece):
         return None
+    first_excess = math.inf
+    previous, stalls = math.inf, 0
     for cut in range(max_cuts + 1):
         uv = _lscm(piece.vertices, piece.faces)
         if uv is None:
             return None
         area_uv = _triangle_areas(uv, piece.faces)
-        if np.all(area_uv > 0) and _l2_stretch(piece.vertices, piece.faces, uv) <= max_stretch:
+        stretch = _l2_stretch(piece.vertices, piece.faces, uv)
+        if np.all(area_uv > 0) and stretch <= max_stretch:
             return None if _overlaps_itself(uv, piece.faces) else uv[piece.faces]
-        if cut == max_cuts:
+        if cut == 0:
+            first_excess = stretch - max_stretch
+        stalls = stalls + 1 if previous - stretch < STALL_FRACTION * (previous - max_stretch) else 0
+        previous = stretch
+        if (
+            cut == max_cuts
+            or stalls >= STALLED_CUTS
+            or (cut >= 1 and stretch > max_stretch + FIRST_CUT_SLACK)
+            or (cut >= CUTS_BEFORE_PROGRESS and stretch - max_stretch > 0.5 * first_excess)
+        ):
             return None
         # Cut from the most compressed interior vertex to the border.
         scale = area_uv / np.maximum(areas, 1e-300)
@@ -992,6 +1220,7 @@ __all__ = [
     "atlas_layout_image",
     "atlas_layout_png",
     "chart_outline_edges",
+    "chart_widths",
     "PolygonUvs",
     "input_face_corner_uvs",
     "polygon_corner_uvs",

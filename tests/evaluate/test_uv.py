@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from neural_shdf.evaluate.uv import seam_ratio, uv_quality
+from neural_shdf.evaluate.uv import chart_borders, seam_ratio, uv_quality
 
 
 def _grid(n: int = 4) -> tuple[np.ndarray, np.ndarray]:
@@ -57,3 +57,36 @@ def test_a_cut_between_two_charts_is_a_seam_and_overlap_is_counted():
     stacked[left] += np.array([0.25, 0.0])
     quality = uv_quality(vertices, faces, stacked, chart, raster_size=64)
     assert quality.overlapping_texels > 0
+
+
+def _staircase_labels(n: int) -> np.ndarray:
+    """Per triangle of ``_grid(n)``: 0 on squares left of the diagonal and on the diagonal
+    squares, 1 right of it: a border of unit steps where the diagonal edges would do."""
+    square = np.repeat(np.arange(n * n), 2)
+    i, j = square % n, square // n
+    return (i > j).astype(np.int64)
+
+
+def test_a_staircase_border_is_rough_and_a_border_along_edges_is_not():
+    vertices, faces = _grid(8)
+    stairs = chart_borders(vertices, faces, _staircase_labels(8))
+    lower = np.zeros(len(faces), dtype=bool)
+    lower[0::2] = True  # each square's triangle below its diagonal
+    square = np.repeat(np.arange(64), 2)
+    straight = (square % 8 > square // 8) | ((square % 8 == square // 8) & lower)
+    diagonal = chart_borders(vertices, faces, straight.astype(np.int64))
+    assert stairs.roughness > 1.3
+    assert np.isclose(diagonal.roughness, 1.0)
+    assert diagonal.sharp_turns == 0
+    assert stairs.slivers == diagonal.slivers == 0
+
+
+def test_a_strip_one_square_wide_is_a_sliver():
+    vertices, faces = _grid(8)
+    chart = np.zeros(len(faces), dtype=np.int64)
+    chart[: 2 * 8] = 1  # the bottom row of squares
+    borders = chart_borders(vertices, faces, chart)
+    assert borders.slivers == 1
+    assert np.isclose(borders.sliver_area, 8 / 64)
+    quality = uv_quality(vertices, faces, vertices[faces][:, :, :2] / 8.0, chart)
+    assert quality.slivers == 1

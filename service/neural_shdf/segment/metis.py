@@ -143,16 +143,26 @@ def metis_partition(
 
 
 def split_faces(
-    graph: FaceGraph, parts: int, seed: int = 0, edge_length: NDArray[Any] | None = None
+    graph: FaceGraph,
+    parts: int,
+    seed: int = 0,
+    edge_length: NDArray[Any] | None = None,
+    ufactor: int = UFACTOR,
 ) -> NDArray[np.int64]:
     """``parts`` pieces of one connected face graph with the shortest total boundary
-    (METIS on edge lengths, or on ``edge_length`` given per pair), labels 0..parts-1."""
+    (METIS on edge lengths, or on ``edge_length`` given per pair), labels 0..parts-1.
+    ``ufactor``: imbalance allowed (a part up to 1 + ufactor / 1000 times the mean)."""
     length = graph.edge_length if edge_length is None else np.asarray(edge_length, float)
-    return split_graph(graph.face_count, graph.pairs, length, parts, seed)
+    return split_graph(graph.face_count, graph.pairs, length, parts, seed, ufactor)
 
 
 def split_graph(
-    node_count: int, pairs: NDArray[Any], length: NDArray[Any], parts: int, seed: int = 0
+    node_count: int,
+    pairs: NDArray[Any],
+    length: NDArray[Any],
+    parts: int,
+    seed: int = 0,
+    ufactor: int = UFACTOR,
 ) -> NDArray[np.int64]:
     """``parts`` pieces of a graph given as unique node pairs with a length per pair, with
     the shortest total boundary (METIS), labels 0..parts-1 (all used)."""
@@ -165,17 +175,22 @@ def split_graph(
         else np.ones(len(length), dtype=np.int64)
     )
     faces = np.arange(node_count, dtype=np.int64)
-    return _partition_component(faces, pairs, weights, parts, seed)
+    return _partition_component(faces, pairs, weights, parts, seed, ufactor)
 
 
 def _partition_component(
-    faces: NDArray[Any], pairs: NDArray[Any], weights: NDArray[Any], parts: int, seed: int
+    faces: NDArray[Any],
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
+    parts: int,
+    seed: int,
+    ufactor: int = UFACTOR,
 ) -> NDArray[np.int64]:
     """Labels 0..parts-1 (all used) for the faces of one connected component."""
     if parts == 1:
         return np.zeros(len(faces), dtype=np.int64)
     local = np.searchsorted(faces, pairs)  # faces are sorted ascending
-    labels = _metis(len(faces), local, weights, parts, seed)
+    labels = _metis(len(faces), local, weights, parts, seed, ufactor)
     # METIS may leave parts empty (tiny graphs, many parts): fill each missing label, lowest
     # first, with half of the largest part. Each step costs one pass over the faces and
     # edges (a part never empties again: both halves keep faces).
@@ -185,7 +200,7 @@ def _partition_component(
         members = np.flatnonzero(labels == largest)
         keep = (labels[local[:, 0]] == largest) & (labels[local[:, 1]] == largest)
         sub_pairs = np.searchsorted(members, local[keep])
-        halves = _metis(len(members), sub_pairs, weights[keep], 2, seed)
+        halves = _metis(len(members), sub_pairs, weights[keep], 2, seed, ufactor)
         if halves.min() == halves.max():
             halves = (np.arange(len(members)) >= len(members) // 2).astype(np.int64)
         moved = members[halves == 1]
@@ -196,7 +211,12 @@ def _partition_component(
 
 
 def _metis(
-    node_count: int, pairs: NDArray[Any], weights: NDArray[Any], parts: int, seed: int
+    node_count: int,
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
+    parts: int,
+    seed: int,
+    ufactor: int = UFACTOR,
 ) -> NDArray[np.int64]:
     """pymetis k-way partition of a graph given as edge pairs (CSR built here)."""
     if node_count <= parts:
@@ -207,7 +227,7 @@ def _metis(
     order = np.lexsort((cols, rows))
     xadj = np.zeros(node_count + 1, dtype=np.int64)
     np.cumsum(np.bincount(rows, minlength=node_count), out=xadj[1:])
-    options = pymetis.Options(seed=int(seed) & 0x7FFFFFFF, ufactor=UFACTOR)
+    options = pymetis.Options(seed=int(seed) & 0x7FFFFFFF, ufactor=int(ufactor))
     graph: dict[str, Any]
     if hasattr(pymetis, "CSRAdjacency"):  # pymetis >= 2025.2
         graph = {"adjacency": pymetis.CSRAdjacency(xadj, cols[order])}

@@ -10,7 +10,7 @@ from scipy.sparse.csgraph import connected_components
 from neural_shdf.geometry import weld_faces
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.orientation import hole_caps, welded_edges
-from neural_shdf.stitching import STITCH_TOLERANCE, boundary_edges, stitch_shells
+from neural_shdf.stitching import STITCH_TOLERANCE, boundary_edges, stitch_counts, stitch_shells
 
 
 def _sphere(subdivisions: int = 3) -> tuple[np.ndarray, np.ndarray]:
@@ -89,6 +89,26 @@ def test_the_orientation_pass_still_sees_each_piece_as_a_shell():
     mesh = TriangleMesh(vertices, faces)
     assert mesh.orientation.diagnostics.shells == 2
     assert not mesh.orientation.flips.any()
+
+
+def test_the_diagnostics_say_how_many_shells_and_vertices_were_stitched():
+    vertices, faces, _ = _halves(0.5)
+    mesh = TriangleMesh(vertices, faces)
+    # Zipped closed: every one of the 48 vertices along the cut merged into its partner.
+    assert (mesh.diagnostics.stitched_shells, mesh.diagnostics.stitched_vertices) == (2, 48)
+    assert mesh.diagnostics.shells == 2  # the orientation pass's count is of the file's pieces
+    assert "2 shells stitched (48 vertices)" in mesh.diagnostics.summary()
+    apart = TriangleMesh(*_halves(2.0 * STITCH_TOLERANCE)[:2])
+    assert (apart.diagnostics.stitched_shells, apart.diagnostics.stitched_vertices) == (0, 0)
+
+
+def test_stitch_counts_count_only_the_shells_joined_to_another():
+    vertices, faces, _ = _halves(0.5)
+    far = _sphere()[1] + len(vertices)  # a third, closed shell far away: never stitched
+    vertices = np.vstack([vertices, _sphere()[0] + 10.0])
+    coincident, stitched = _stitched(vertices, np.vstack([faces, far]))
+    assert stitch_counts(coincident, stitched) == (2, 48)
+    assert stitch_counts(coincident, coincident) == (0, 0)
 
 
 def test_pieces_farther_apart_than_the_tolerance_stay_apart():

@@ -15,8 +15,8 @@ input file's faces with ``mesh.to_input_faces`` / ``mesh.labels_to_input_faces``
 ``SegmentResult.input_face_parts``. Every step works on ``mesh.oriented`` (each shell
 facing out of its solid, whatever the file's winding; ``orientation``), whose triangles
 are ``mesh``'s in the same order; ``mesh`` itself is never changed.
-``mesh.orientation.diagnostics`` says what the mesh had (shells, holes, non-manifold
-edges, reversed, degenerate and duplicate faces); the ShDF and segmentation results
+``mesh.diagnostics`` says what the mesh had (shells, holes, non-manifold
+edges, reversed, degenerate and duplicate faces, shells stitched); the ShDF and segmentation results
 carry it too.
 """
 

@@ -329,8 +329,7 @@ def compute_shdf(
     params = params or ShdfParams()
     if seed is not None:
         params = replace(params, seed=check_seed(seed))
-    orientation = mesh.orientation
-    diagnostics = orientation.diagnostics
+    diagnostics = mesh.diagnostics
     # One copy of each triangle (coincident copies share its value).
     distinct = mesh.distinct
     mesh, graph, copy_of = distinct.mesh, distinct.mesh.face_graph, distinct.copy_of

@@ -61,6 +61,9 @@ Progress = Callable[[float], None]
 #: Rays whose distance lies further than this many median absolute deviations
 #: from the median are outliers (CGAL's ``CGAL_NUMBER_OF_MAD``).
 OUTLIER_MAD_FACTOR = 1.5
+#: A ray's hit on a hole's cap counts only when it is at least this share of the median
+#: of the same origin's hits on the surface (``_drop_short_cap_hits``).
+CAP_HIT_SHARE = 0.5
 #: Faces whose rays are cast in one Embree call (bounds the memory of a batch).
 FACES_PER_BATCH = 32_768
 #: Smallest batch when a mesh is split over several threads.
@@ -509,6 +512,7 @@ def _cast_rays(
                 coefficients,
                 local_origins,
                 own_faces,
+                len(faces),
                 origin_offset,
                 retry_offset,
                 weights,
@@ -553,6 +557,7 @@ def _shdf_of_faces(
     coefficients: NDArray[Any],
     local_origins: NDArray[Any],
     own_faces: NDArray[Any],
+    surface_faces: int,
     origin_offset: np.float32,
     retry_offset: np.float32,
     weights: NDArray[Any],
@@ -564,7 +569,9 @@ def _shdf_of_faces(
 
     ``frames[k]`` holds the inward normal and the two plane vectors of origin
     ``batch[k]`` (float32), ``coefficients`` each ray's weights on them; a ray
-    hitting ``own_faces[origin]`` starts again further out. Each hit is read from
+    hitting ``own_faces[origin]`` starts again further out; hits on triangles past the
+    first ``surface_faces`` (holes' caps) count as ``_drop_short_cap_hits`` says. Each
+    hit is read from
     the packet itself (distance, geometric normal): no lookup of the hit
     triangle. ``spread`` and ``hit_fraction`` are filled when not empty.
     """
@@ -572,6 +579,7 @@ def _shdf_of_faces(
     ray_count = len(coefficients)
     directions = np.empty((LANES, ray_count, 3), dtype=np.float32)
     own_hit = np.empty((LANES, ray_count), dtype=np.bool_)
+    on_cap = np.zeros((LANES, ray_count), dtype=np.bool_)
     distances = np.empty((LANES, ray_count))
     scratch = np.empty(ray_count)
     retry_lane = np.empty(LANES * ray_count, dtype=np.int64)
@@ -598,6 +606,7 @@ def _shdf_of_faces(
                 distances[lane, i] = _exit_distance(
                     rays, ids, lane, directions[lane, i], origin_offset
                 )
+                on_cap[lane, i] = hit_of(ids, lane) >= surface_faces
         # Rays that hit their own triangle through rounding start again further out.
         pending = 0
         for lane in range(count):
@@ -621,11 +630,38 @@ def _shdf_of_faces(
                     if own
                     else _exit_distance(rays, ids, k, directions[lane, i], retry_offset)
                 )
+                on_cap[lane, i] = hit_of(ids, k) >= surface_faces
         for lane in range(count):
             item = batch[start + lane]
+            _drop_short_cap_hits(distances[lane], on_cap[lane], scratch)
             result[item] = _robust_mean_row(distances[lane], weights, scratch)
             if len(spread):
                 _hit_statistics(distances[lane], item, spread, hit_fraction)
+
+
+@kernel(inline=True)
+def _drop_short_cap_hits(
+    distances: NDArray[Any], on_cap: NDArray[Any], scratch: NDArray[Any]
+) -> None:
+    """Set to NaN the hits on a hole's cap shorter than ``CAP_HIT_SHARE`` of the median of
+    the same origin's hits on the surface (all cap hits count where it has none).
+
+    A cap stands in for missing surface: across a hole it stops a ray about where the
+    surface would have, but next to a cut through a limb (a scan with no base) it stands
+    across the limb, and the rays of the faces along its rim meet it at a fraction of the
+    limb's width: those few values stretched the ShDF's min-max normalisation.
+    """
+    count = 0
+    for i in range(len(distances)):
+        if not on_cap[i] and not np.isnan(distances[i]):
+            scratch[count] = distances[i]
+            count += 1
+    if count == 0:
+        return
+    limit = CAP_HIT_SHARE * _sorted_median(scratch, count)
+    for i in range(len(distances)):
+        if on_cap[i] and distances[i] < limit:
+            distances[i] = np.nan
 
 
 @kernel(inline=True)

@@ -339,8 +339,12 @@ def _orient_patches(  # pragma: no cover
     # (their edges would pair them with themselves).
     skip = np.zeros(face_count, dtype=np.bool_)
     forward = np.zeros(edge_count, dtype=np.bool_)
+    # Per face, the sum of its vertices: two faces on an edge have the same third vertex
+    # where their sums agree, read without a look-up of either face's row.
+    vertex_sum = np.empty(face_count, dtype=np.int64)
     for face in range(face_count):
         a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
+        vertex_sum[face] = a + b + c
         if a == b or b == c or a == c:  # noqa: SIM109 - compiled
             skip[face] = True
             continue
@@ -373,7 +377,8 @@ def _orient_patches(  # pragma: no cover
             if j - i == 2:
                 f, g = edge_table[i, 1], edge_table[i + 1, 1]
                 usable = (not skip[f] or first_copy[f] >= 0) and (not skip[g] or first_copy[g] >= 0)
-                if usable and _third_vertex(faces, f, lo, hi) == _third_vertex(faces, g, lo, hi):
+                # Third vertices equal: equal vertex sums (the edge's two are shared).
+                if usable and vertex_sum[f] == vertex_sum[g]:
                     first, second = min(f, g), max(f, g)
                     first_copy[second] = first if first_copy[first] < 0 else first_copy[first]
                     skip[second] = True

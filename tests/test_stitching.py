@@ -167,6 +167,22 @@ def test_rays_meet_bridges_across_the_slits_not_a_lid_through_the_middle():
     assert heights.max() < 0.2
 
 
+def test_bridges_come_first_and_count_as_surface_for_the_rays():
+    from neural_shdf.shdf.stage import ray_targets, surface_triangles
+
+    vertices, faces, _ = _halves(1.5)
+    mesh = TriangleMesh(vertices, faces)
+    _, targets = ray_targets(mesh, close_holes=True)
+    is_fan = targets[:, 2] >= len(vertices)  # a fan ends at its loop's centroid
+    surface = surface_triangles(mesh, targets)
+    assert len(faces) < surface  # bridges across the slit
+    assert not is_fan[:surface].any() and is_fan[surface:].all()
+    sphere_vertices, sphere_faces = _sphere()
+    holed = TriangleMesh(sphere_vertices, sphere_faces[10:])
+    _, holed_targets = ray_targets(holed, close_holes=True)
+    assert surface_triangles(holed, holed_targets) == len(sphere_faces) - 10  # fans only
+
+
 def test_a_mostly_open_mesh_of_separate_sheets_is_not_stitched():
     # Each triangle a sheet of its own, a little apart: nothing to restore, and the work
     # stays bounded (boundary edges are every edge here).

@@ -351,6 +351,7 @@ def raw_shdf(
     threads: int | None = None,
     progress: Progress | None = None,
     scene: Scene | Future[Scene] | None = None,
+    surface_triangles: int | None = None,
 ) -> NDArray[np.float64]:
     """Raw diameter per triangle (mesh units), NaN where no ray gave a valid hit.
 
@@ -370,6 +371,9 @@ def raw_shdf(
         scene: the Embree scene the rays are cast into (or its future), when the caller
             built it: ``faces`` first, in order, then any triangles that only stop rays
             (``shdf.stage.ray_targets``); default: one of ``faces``.
+        surface_triangles: how many of the scene's first triangles are surface (default
+            ``len(faces)``); hits on the others, holes' caps, count only as
+            ``_drop_short_cap_hits`` says.
     """
     _check_cone(cone_angle, ray_count)
     vertices = np.asarray(vertices, dtype=np.float64)
@@ -392,6 +396,7 @@ def raw_shdf(
         progress=progress,
         statistics=False,
         scene=scene,
+        surface_triangles=surface_triangles,
     )
     return result
 
@@ -407,6 +412,7 @@ def raw_shdf_at_points(
     ray_count: int = constants.SHDF_RAY_COUNT,
     threads: int | None = None,
     scene: Scene | Future[Scene] | None = None,
+    surface_triangles: int | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The exact ShDF's ray cone cast from surface points instead of face centroids.
 
@@ -416,7 +422,8 @@ def raw_shdf_at_points(
     (standard deviation over their mean, 0 without hits) and the fraction of rays
     with a valid hit. Same rays, back-face test and outlier filter as ``raw_shdf``.
     ``scene``: the mesh's Embree scene (or its future) when the caller built it;
-    otherwise one of ``low`` build quality is built (a few rays per triangle).
+    otherwise one of ``low`` build quality is built (a few rays per triangle);
+    ``surface_triangles`` as ``raw_shdf``'s.
     """
     _check_cone(cone_angle, ray_count)
     points = np.asarray(points, dtype=np.float64)
@@ -438,6 +445,7 @@ def raw_shdf_at_points(
         statistics=True,
         scene=scene,
         quality="low",
+        surface_triangles=surface_triangles,
     )
 
 
@@ -457,6 +465,7 @@ def _cast_rays(
     statistics: bool,
     scene: Scene | Future[Scene] | None = None,
     quality: str = "medium",
+    surface_triangles: int | None = None,
 ) -> tuple[NDArray[Any], NDArray[Any], NDArray[Any]]:
     """Cones of rays from ``origins`` around their inward ``normals``, in batches over
     threads: (robust mean, spread, hit fraction) per origin; the last two only with
@@ -512,7 +521,7 @@ def _cast_rays(
                 coefficients,
                 local_origins,
                 own_faces,
-                len(faces),
+                len(faces) if surface_triangles is None else surface_triangles,
                 origin_offset,
                 retry_offset,
                 weights,

@@ -74,6 +74,8 @@ def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "sampled", "neural")) ->
         basis.data, mesh.face_graph.pairs, basis.unit_weights, centroids, areas, 40
     )
     coarse.solve(0.06)
+    # The oriented copy of an inside-out file (its reversed rows, edge slots and normals).
+    _ = TriangleMesh(sphere.vertices, np.asarray(sphere.faces)[:, ::-1]).oriented
     if "exact" in methods:  # the patch filter of wide windows (meshes above ~100k faces)
         wide = ShdfParams(window_size=EXACT_WINDOW_MAX + 1)
         compute_shdf(mesh, method="exact", params=wide)

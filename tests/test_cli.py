@@ -504,7 +504,7 @@ def test_the_mesh_diagnostics_line_says_what_was_reoriented(tmp_path: Path, caps
     count = len(inside_out.faces)
     assert line == (
         f"mesh: 3 shells, 0 open boundary loops, 0 non-manifold edges, {count} faces "
-        "re-oriented, 0 degenerate, 0 duplicate"
+        "re-oriented, 0 degenerate, 0 duplicate, 0 shells stitched (0 vertices)"
     )
 
 

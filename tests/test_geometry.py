@@ -10,9 +10,11 @@ from neural_shdf.constants import AREA_EPS
 from neural_shdf.geometry import (
     EDGE_CLIQUE,
     build_face_graph,
+    count_zero_rows,
     face_normals,
     grid_cells,
     principal_coordinates,
+    renewed_normals,
     weld_faces,
     zero_area_limit,
 )
@@ -317,3 +319,15 @@ def test_grid_cells_partition_the_points_alike_whatever_the_axis_signs():
         np.testing.assert_array_equal(groups(grid_cells(coordinates * signs, 0.7)), groups(keys))
     # Walls half a cell from the origin: the origin's cell is centred on it.
     assert len(set(grid_cells(np.array([[0.3, -0.3, 0.0], [0, 0, 0], [0.6, 0, 0]]), 1.0))) == 2
+
+
+def test_renewed_normals_are_those_of_the_triangles_as_listed_bit_for_bit():
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    faces = np.vstack([faces, [[0, 0, 1]]])  # and a degenerate triangle
+    normals, _ = face_normals(vertices, faces)
+    rows = np.arange(len(faces)) % 3 == 0
+    reversed_rows = np.where(rows[:, None], faces[:, ::-1], faces)
+    expected, _ = face_normals(vertices, reversed_rows)
+    np.testing.assert_array_equal(renewed_normals(vertices, reversed_rows, rows, normals), expected)
+    assert count_zero_rows(expected) == 1

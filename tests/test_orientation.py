@@ -10,7 +10,13 @@ import trimesh
 from neural_shdf.geometry import build_face_graph, face_centroids, weld_faces
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import load_mesh
-from neural_shdf.orientation import hole_caps, orient_faces
+from neural_shdf.orientation import (
+    hole_caps,
+    orient_faces,
+    reverse_rows,
+    reversed_slots,
+    welded_edges,
+)
 from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.shdf.stage import ShdfParams, raw_diameters
 
@@ -48,6 +54,8 @@ def test_an_outward_closed_mesh_is_left_alone():
         "reoriented_faces": 0,
         "degenerate_faces": 0,
         "duplicate_faces": 0,
+        "stitched_shells": 0,
+        "stitched_vertices": 0,
     }
 
 
@@ -282,3 +290,14 @@ def test_a_double_sided_shell_is_read_as_its_single_sided_self():
     values = compute_shdf(double, method="exact").values
     np.testing.assert_allclose(values[:320], expected, atol=1e-9)
     np.testing.assert_allclose(values[320:], expected, atol=1e-9)
+
+
+def test_reversed_rows_and_slots_are_those_of_the_triangles_listed_backwards():
+    vertices, faces = _sphere()
+    flips = np.arange(len(faces)) % 4 == 1
+    backwards = reverse_rows(faces, flips)
+    np.testing.assert_array_equal(backwards, np.where(flips[:, None], faces[:, ::-1], faces))
+    table, slot = welded_edges(faces)
+    again_table, again_slot = welded_edges(backwards)
+    np.testing.assert_array_equal(again_table, table)
+    np.testing.assert_array_equal(reversed_slots(slot, flips), again_slot)

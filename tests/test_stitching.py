@@ -10,7 +10,7 @@ from scipy.sparse.csgraph import connected_components
 from neural_shdf.geometry import weld_faces
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.orientation import hole_caps, welded_edges
-from neural_shdf.stitching import STITCH_TOLERANCE, boundary_edges, stitch_shells
+from neural_shdf.stitching import STITCH_TOLERANCE, boundary_edges, stitch_counts, stitch_shells
 
 
 def _sphere(subdivisions: int = 3) -> tuple[np.ndarray, np.ndarray]:
@@ -91,6 +91,26 @@ def test_the_orientation_pass_still_sees_each_piece_as_a_shell():
     assert not mesh.orientation.flips.any()
 
 
+def test_the_diagnostics_say_how_many_shells_and_vertices_were_stitched():
+    vertices, faces, _ = _halves(0.5)
+    mesh = TriangleMesh(vertices, faces)
+    # Zipped closed: every one of the 48 vertices along the cut merged into its partner.
+    assert (mesh.diagnostics.stitched_shells, mesh.diagnostics.stitched_vertices) == (2, 48)
+    assert mesh.diagnostics.shells == 2  # the orientation pass's count is of the file's pieces
+    assert "2 shells stitched (48 vertices)" in mesh.diagnostics.summary()
+    apart = TriangleMesh(*_halves(2.0 * STITCH_TOLERANCE)[:2])
+    assert (apart.diagnostics.stitched_shells, apart.diagnostics.stitched_vertices) == (0, 0)
+
+
+def test_stitch_counts_count_only_the_shells_joined_to_another():
+    vertices, faces, _ = _halves(0.5)
+    far = _sphere()[1] + len(vertices)  # a third, closed shell far away: never stitched
+    vertices = np.vstack([vertices, _sphere()[0] + 10.0])
+    coincident, stitched = _stitched(vertices, np.vstack([faces, far]))
+    assert stitch_counts(coincident, stitched) == (2, 48)
+    assert stitch_counts(coincident, coincident) == (0, 0)
+
+
 def test_pieces_farther_apart_than_the_tolerance_stay_apart():
     vertices, faces, _ = _halves(2.0 * STITCH_TOLERANCE)
     coincident, stitched = _stitched(vertices, faces)
@@ -145,6 +165,22 @@ def test_rays_meet_bridges_across_the_slits_not_a_lid_through_the_middle():
     # Every cap lies on the cut (|z| small), none reaches into the ball (a fan's centroid).
     heights = np.abs(ray_vertices[caps, 2] - 0.5 * (vertices[:, 2].max() + vertices[:, 2].min()))
     assert heights.max() < 0.2
+
+
+def test_bridges_come_first_and_count_as_surface_for_the_rays():
+    from neural_shdf.shdf.stage import ray_targets, surface_triangles
+
+    vertices, faces, _ = _halves(1.5)
+    mesh = TriangleMesh(vertices, faces)
+    _, targets = ray_targets(mesh, close_holes=True)
+    is_fan = targets[:, 2] >= len(vertices)  # a fan ends at its loop's centroid
+    surface = surface_triangles(mesh, targets)
+    assert len(faces) < surface  # bridges across the slit
+    assert not is_fan[:surface].any() and is_fan[surface:].all()
+    sphere_vertices, sphere_faces = _sphere()
+    holed = TriangleMesh(sphere_vertices, sphere_faces[10:])
+    _, holed_targets = ray_targets(holed, close_holes=True)
+    assert surface_triangles(holed, holed_targets) == len(sphere_faces) - 10  # fans only
 
 
 def test_a_mostly_open_mesh_of_separate_sheets_is_not_stitched():

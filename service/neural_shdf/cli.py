@@ -117,7 +117,7 @@ def cmd_shdf(args: argparse.Namespace) -> int:
     write_values(args.output, mesh.to_input_faces(values))
     if not args.quiet:
         print(f"{mesh.input_face_count} faces, {note}", file=sys.stderr)
-        print(mesh.orientation.diagnostics.summary(), file=sys.stderr)
+        print(mesh.diagnostics.summary(), file=sys.stderr)
     return 0
 
 
@@ -165,7 +165,7 @@ def cmd_segment(args: argparse.Namespace) -> int:
             f"{parts} parts, {mesh.input_face_count} faces, {note}, segmented in {elapsed:.2f} s",
             file=sys.stderr,
         )
-        print(mesh.orientation.diagnostics.summary(), file=sys.stderr)
+        print(mesh.diagnostics.summary(), file=sys.stderr)
         if params.symmetry:
             print(symmetry_summary(result.reflection), file=sys.stderr)
     return 0

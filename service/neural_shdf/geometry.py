@@ -34,6 +34,69 @@ def face_normals(
     return normals, areas
 
 
+def renewed_normals(
+    vertices: NDArray[Any], faces: NDArray[Any], rows: NDArray[Any], normals: NDArray[Any]
+) -> NDArray[np.float64]:
+    """``normals`` (F, 3) with the rows where ``rows`` (F,) is set computed again from
+    ``faces``, as ``face_normals(vertices, faces)`` would give them bit for bit (the same
+    triangles' corners: the same degenerate limit), the others copied."""
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    result = np.array(normals, dtype=np.float64)
+    if np.any(rows):
+        _renew_normals(
+            vertices, faces, zero_area_limit(vertices, faces), np.asarray(rows, bool), result
+        )
+    return result
+
+
+@kernel
+def _renew_normals(  # pragma: no cover - numba
+    vertices: NDArray[np.float64],
+    faces: NDArray[np.int64],
+    area_eps: float,
+    rows: NDArray[np.bool_],
+    normals: NDArray[np.float64],
+) -> None:
+    """``_normals_and_areas``' normal of each face in ``rows``, into ``normals``."""
+    for face in range(faces.shape[0]):
+        if not rows[face]:
+            continue
+        a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
+        ux = vertices[b, 0] - vertices[a, 0]
+        uy = vertices[b, 1] - vertices[a, 1]
+        uz = vertices[b, 2] - vertices[a, 2]
+        vx = vertices[c, 0] - vertices[a, 0]
+        vy = vertices[c, 1] - vertices[a, 1]
+        vz = vertices[c, 2] - vertices[a, 2]
+        cx = uy * vz - uz * vy
+        cy = uz * vx - ux * vz
+        cz = ux * vy - uy * vx
+        norm = math.sqrt(cx * cx + cy * cy + cz * cz)
+        if norm > area_eps:
+            normals[face, 0] = cx / norm
+            normals[face, 1] = cy / norm
+            normals[face, 2] = cz / norm
+        else:
+            normals[face, 0] = 0.0
+            normals[face, 1] = 0.0
+            normals[face, 2] = 0.0
+
+
+def count_zero_rows(normals: NDArray[Any]) -> int:
+    """How many rows of ``normals`` (F, 3) are all zero: ``face_normals``' degenerate faces."""
+    return int(_count_zero_rows(np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)))
+
+
+@kernel
+def _count_zero_rows(normals: NDArray[np.float64]) -> int:  # pragma: no cover - numba
+    count = 0
+    for row in range(normals.shape[0]):
+        if normals[row, 0] == 0.0 and normals[row, 1] == 0.0 and normals[row, 2] == 0.0:
+            count += 1
+    return count
+
+
 def zero_area_limit(vertices: NDArray[Any], faces: NDArray[Any]) -> float:
     """Twice-area at or below which a triangle is degenerate (has no normal):
     ``AREA_EPS`` times the squared diagonal of the triangles' bounding box, so the same

@@ -4,7 +4,7 @@ trimesh caches its properties) and its link back to the input file's faces."""
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any
 
@@ -14,14 +14,22 @@ from numpy.typing import NDArray
 from neural_shdf.geometry import (
     FaceGraph,
     build_face_graph,
+    count_zero_rows,
     face_centroids,
     face_normals,
+    renewed_normals,
     weld_faces,
 )
-from neural_shdf.orientation import Orientation, orient_faces, reversed_slots
+from neural_shdf.orientation import (
+    MeshDiagnostics,
+    Orientation,
+    orient_faces,
+    reverse_rows,
+    reversed_slots,
+)
 from neural_shdf.orientation import welded_edges as sorted_welded_edges
 from neural_shdf.segment.creases import CreaseGraph, crease_graph
-from neural_shdf.stitching import stitch_shells, stitched_edge_geometry
+from neural_shdf.stitching import stitch_counts, stitch_shells, stitched_edge_geometry
 
 
 @dataclass(frozen=True, eq=False)
@@ -83,10 +91,14 @@ class TriangleMesh:
         )
         light_oriented.__dict__["oriented"] = light_oriented
         if oriented is self:
-            light_oriented.__dict__["orientation"] = self.orientation
+            light_oriented.__dict__.update(
+                orientation=self.orientation, diagnostics=self.diagnostics
+            )
             return light_oriented
         light = self.bare()
-        light.__dict__.update(orientation=self.orientation, oriented=light_oriented)
+        light.__dict__.update(
+            orientation=self.orientation, diagnostics=self.diagnostics, oriented=light_oriented
+        )
         return light
 
     @cached_property
@@ -138,12 +150,27 @@ class TriangleMesh:
         """Which triangles to reverse so that every shell faces out of its solid, and what
         the pass found in the mesh (``orientation.orient_faces``); computed once per mesh."""
         coincident, edges = self.coincident_welding
+        normals, areas = self.normals_and_areas
         return orient_faces(
             self.vertices,
             self.faces,
             welded=coincident,
-            areas=self.normals_and_areas[1],
+            areas=areas,
             edges=edges,
+            degenerate=count_zero_rows(normals),
+        )
+
+    @cached_property
+    def diagnostics(self) -> MeshDiagnostics:
+        """What the mesh had and what was done about it: the orientation pass's findings
+        (``orientation``) and the shells stitched for the graphs (``welded_faces``)."""
+        stitched_shells, stitched_vertices = stitch_counts(
+            self.coincident_welding[0], self.welded_faces
+        )
+        return replace(
+            self.orientation.diagnostics,
+            stitched_shells=stitched_shells,
+            stitched_vertices=stitched_vertices,
         )
 
     @cached_property
@@ -156,18 +183,19 @@ class TriangleMesh:
         flips = self.orientation.flips
         if not flips.any():
             return self
-        backwards = flips[:, None]
-        faces = np.where(backwards, self.faces[:, ::-1], self.faces)
-        welded = np.where(backwards, self.welded_faces[:, ::-1], self.welded_faces)
+        faces = reverse_rows(self.faces, flips)
+        welded = reverse_rows(self.welded_faces, flips)
         coincident, coincident_edges = self.coincident_welding
         if coincident is self.welded_faces:
             oriented_coincident = welded
         else:
-            oriented_coincident = np.where(backwards, coincident[:, ::-1], coincident)
+            oriented_coincident = reverse_rows(coincident, flips)
             oriented_coincident.flags.writeable = False
         oriented = TriangleMesh(self.vertices, faces, self.face_origin, self.input_face_count)
-        _, areas = self.normals_and_areas
-        normals, _ = face_normals(self.vertices, faces)  # unchanged rows: the same values
+        given_normals, areas = self.normals_and_areas
+        # The reversed rows' normals computed from their new order (bit for bit those of a
+        # file wound that way), the others kept.
+        normals = renewed_normals(self.vertices, faces, flips, given_normals)
         normals.flags.writeable = False
         welded.flags.writeable = False
         # Seed the caches: the areas, the welding and the edges do not change with the winding.

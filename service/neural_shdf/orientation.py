@@ -70,6 +70,10 @@ class MeshDiagnostics:
         reoriented_faces: triangles whose winding the ShDF and segmentation use reversed.
         degenerate_faces: triangles of zero area (collinear or repeated vertices).
         duplicate_faces: triangles on the same three vertices as an earlier one.
+        stitched_shells: open shells joined to another along their boundaries for the
+            graphs (``stitching.stitch_shells``; 0 from ``orient_faces``, which does not
+            stitch: ``TriangleMesh.diagnostics`` fills it).
+        stitched_vertices: boundary vertices merged into one of another shell by it.
     """
 
     shells: int
@@ -78,6 +82,8 @@ class MeshDiagnostics:
     reoriented_faces: int
     degenerate_faces: int
     duplicate_faces: int
+    stitched_shells: int = 0
+    stitched_vertices: int = 0
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)
@@ -89,7 +95,9 @@ class MeshDiagnostics:
             f"{self.boundary_loops} open boundary loop{'s' * (self.boundary_loops != 1)}, "
             f"{self.non_manifold_edges} non-manifold edge{'s' * (self.non_manifold_edges != 1)}, "
             f"{self.reoriented_faces} face{'s' * (self.reoriented_faces != 1)} re-oriented, "
-            f"{self.degenerate_faces} degenerate, {self.duplicate_faces} duplicate"
+            f"{self.degenerate_faces} degenerate, {self.duplicate_faces} duplicate, "
+            f"{self.stitched_shells} shell{'s' * (self.stitched_shells != 1)} stitched "
+            f"({self.stitched_vertices} vert{'ices' if self.stitched_vertices != 1 else 'ex'})"
         )
 
 
@@ -110,11 +118,13 @@ def orient_faces(
     welded: NDArray[Any] | None = None,
     areas: NDArray[Any] | None = None,
     edges: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None,
+    degenerate: int | None = None,
 ) -> Orientation:
     """Per-triangle flips that make every shell consistently wound and facing outward.
 
     Where the caller has them: ``welded``, ``weld_faces(vertices, faces)``; ``areas``,
-    the triangles' areas (``face_normals``); ``edges``, ``welded_edges(welded)``.
+    the triangles' areas (``face_normals``); ``edges``, ``welded_edges(welded)``;
+    ``degenerate``, how many triangles ``face_normals`` gave no normal (zero area).
     Deterministic; the arrays are not modified.
     """
     vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
@@ -128,19 +138,24 @@ def orient_faces(
     areas = np.asarray(areas, dtype=np.float64)
     edge_table, slot = welded_edges(welded) if edges is None else edges
     n_vertices = int(welded.max()) + 1
-    (first_copy, patch, relative, volume, is_open, shells, loops, non_manifold) = _orient_patches(
-        welded, edge_table, slot, n_vertices, vertices, vertices.mean(axis=0)
+    (
+        first_copy,
+        patch,
+        relative,
+        volume,
+        is_open,
+        patch_area,
+        flipped_area,
+        shells,
+        loops,
+        non_manifold,
+    ) = _orient_patches(
+        welded, edge_table, slot, n_vertices, vertices, vertices.mean(axis=0), areas
     )
-    active = patch >= 0
-    patch_of = patch[active]
-    patch_area = np.bincount(patch_of, weights=areas[active], minlength=len(volume))
-    # Area per patch that the search's relative winding reverses against the file.
-    flipped_area = np.bincount(patch_of, weights=(areas * relative)[active], minlength=len(volume))
     ambiguous = (volume == 0) | (is_open & (np.abs(volume) < AMBIGUOUS_VOLUME * patch_area**1.5))
     # Where the volume cannot decide, the winding of most of the patch's area in the file.
     patch_flip = np.where(ambiguous, flipped_area > 0.5 * patch_area, volume < 0)
-    flips = np.zeros(count, dtype=bool)
-    flips[active] = relative[active].astype(bool) ^ patch_flip[patch_of]
+    flips = _face_flips(patch, relative, patch_flip)
     # Duplicates face as their first copy does; collapsed faces keep the file's winding.
     copies = np.flatnonzero(first_copy >= 0)
     originals = first_copy[copies]
@@ -151,7 +166,11 @@ def orient_faces(
         boundary_loops=int(loops),
         non_manifold_edges=int(non_manifold),
         reoriented_faces=int(flips.sum()),
-        degenerate_faces=int(np.count_nonzero(2.0 * areas <= zero_area_limit(vertices, faces))),
+        degenerate_faces=(
+            int(np.count_nonzero(2.0 * areas <= zero_area_limit(vertices, faces)))
+            if degenerate is None
+            else int(degenerate)
+        ),
         duplicate_faces=len(copies),
     )
     return Orientation(flips, diagnostics, np.asarray(first_copy, dtype=np.int64))
@@ -169,10 +188,29 @@ def reversed_slots(slot: NDArray[Any], flips: NDArray[Any]) -> NDArray[np.int64]
     """``slot`` of ``welded_edges`` for the same triangles with those in ``flips`` listed
     backwards, (a, b, c) -> (c, b, a): their edges (c, b), (b, a), (a, c) were corners 1, 0, 2.
     The edge table itself does not depend on the winding."""
-    slots = np.array(slot, dtype=np.int64).reshape(-1, 3)
-    flipped = np.flatnonzero(flips)
-    slots[flipped, 0], slots[flipped, 1] = slots[flipped, 1], slots[flipped, 0]
-    return slots.reshape(-1)
+    slots = np.ascontiguousarray(slot, dtype=np.int64).reshape(-1, 3)
+    return _permute_flipped_rows(slots, np.asarray(flips, dtype=bool), 1, 0, 2).reshape(-1)
+
+
+def reverse_rows(faces: NDArray[Any], flips: NDArray[Any]) -> NDArray[np.int64]:
+    """Triangles (F, 3) with those in ``flips`` listed backwards, (a, b, c) -> (c, b, a)."""
+    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    return _permute_flipped_rows(faces, np.asarray(flips, dtype=bool), 2, 1, 0)
+
+
+@kernel
+def _permute_flipped_rows(  # pragma: no cover - numba
+    rows: NDArray[np.int64], flips: NDArray[np.bool_], first: int, second: int, third: int
+) -> NDArray[np.int64]:
+    """A copy of ``rows`` (N, 3) with each flipped row's columns in the order given."""
+    result = np.empty_like(rows)
+    for row in range(rows.shape[0]):
+        if flips[row]:
+            a, b, c = rows[row, first], rows[row, second], rows[row, third]
+        else:
+            a, b, c = rows[row, 0], rows[row, 1], rows[row, 2]
+        result[row, 0], result[row, 1], result[row, 2] = a, b, c
+    return result
 
 
 def _same_cyclic_order(faces: NDArray[Any], others: NDArray[Any]) -> NDArray[np.bool_]:
@@ -272,22 +310,27 @@ def _orient_patches(  # pragma: no cover
     n_vertices: int,
     vertices: NDArray[np.float64],
     centre: NDArray[np.float64],
+    areas: NDArray[np.float64],
 ) -> tuple[
     NDArray[np.int64],
     NDArray[np.int64],
     NDArray[np.int8],
     NDArray[np.float64],
     NDArray[np.bool_],
+    NDArray[np.float64],
+    NDArray[np.float64],
     int,
     int,
     int,
 ]:
     """Duplicates, patches over manifold edges with a consistent relative winding, per
-    patch its capped signed volume and openness; shell, loop and non-manifold counts.
+    patch its capped signed volume, openness, area and the area its relative winding
+    reverses; shell, loop and non-manifold counts.
 
     Returns (first copy (F,) or -1, patch (F,) or -1 (duplicates and collapsed faces),
-    relative flip (F,) int8, volume (P,), open (P,), shells, boundary loops,
-    non-manifold edges). ``edge_table, slot`` from ``welded_edges``.
+    relative flip (F,) int8, volume (P,), open (P,), area (P,), reversed area (P,),
+    shells, boundary loops, non-manifold edges). ``edge_table, slot`` from
+    ``welded_edges``; ``areas`` (F,) the triangles' areas.
     """
     face_count = faces.shape[0]
     edge_count = edge_table.shape[0]
@@ -296,8 +339,12 @@ def _orient_patches(  # pragma: no cover
     # (their edges would pair them with themselves).
     skip = np.zeros(face_count, dtype=np.bool_)
     forward = np.zeros(edge_count, dtype=np.bool_)
+    # Per face, the sum of its vertices: two faces on an edge have the same third vertex
+    # where their sums agree, read without a look-up of either face's row.
+    vertex_sum = np.empty(face_count, dtype=np.int64)
     for face in range(face_count):
         a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
+        vertex_sum[face] = a + b + c
         if a == b or b == c or a == c:  # noqa: SIM109 - compiled
             skip[face] = True
             continue
@@ -330,7 +377,8 @@ def _orient_patches(  # pragma: no cover
             if j - i == 2:
                 f, g = edge_table[i, 1], edge_table[i + 1, 1]
                 usable = (not skip[f] or first_copy[f] >= 0) and (not skip[g] or first_copy[g] >= 0)
-                if usable and _third_vertex(faces, f, lo, hi) == _third_vertex(faces, g, lo, hi):
+                # Third vertices equal: equal vertex sums (the edge's two are shared).
+                if usable and vertex_sum[f] == vertex_sum[g]:
                     first, second = min(f, g), max(f, g)
                     first_copy[second] = first if first_copy[first] < 0 else first_copy[first]
                     skip[second] = True
@@ -379,6 +427,8 @@ def _orient_patches(  # pragma: no cover
     patch = np.full(face_count, -1, dtype=np.int64)
     relative = np.zeros(face_count, dtype=np.int8)
     volume = np.zeros(face_count)
+    patch_area = np.zeros(face_count)
+    flipped_area = np.zeros(face_count)
     point = np.zeros(6)
     point[:3] = centre
     patch_count = 0
@@ -393,8 +443,10 @@ def _orient_patches(  # pragma: no cover
             patch[face] = patch[root]
         relative[face] = flipped
         a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
+        patch_area[patch[face]] += areas[face]
         if flipped:
             b, c = c, b
+            flipped_area[patch[face]] += areas[face]
         volume[patch[face]] += _signed_volume(vertices, a, b, c, point)
     volume = volume[:patch_count]
     # Loop centres: the vertices of each component of open edges.
@@ -445,10 +497,25 @@ def _orient_patches(  # pragma: no cover
         relative,
         volume / 6.0,
         is_open,
+        patch_area[:patch_count],
+        flipped_area[:patch_count],
         shells,
         loops,
         non_manifold,
     )
+
+
+@kernel
+def _face_flips(  # pragma: no cover - numba
+    patch: NDArray[np.int64], relative: NDArray[np.int8], patch_flip: NDArray[np.bool_]
+) -> NDArray[np.bool_]:
+    """Per face: its winding against its patch's root, reversed where the patch is; False
+    for faces of no patch (duplicates, collapsed faces)."""
+    flips = np.zeros(len(patch), dtype=np.bool_)
+    for face in range(len(patch)):
+        if patch[face] >= 0:
+            flips[face] = (relative[face] != 0) != patch_flip[patch[face]]
+    return flips
 
 
 def hole_caps(

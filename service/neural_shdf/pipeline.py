@@ -15,8 +15,8 @@ input file's faces with ``mesh.to_input_faces`` / ``mesh.labels_to_input_faces``
 ``SegmentResult.input_face_parts``. Every step works on ``mesh.oriented`` (each shell
 facing out of its solid, whatever the file's winding; ``orientation``), whose triangles
 are ``mesh``'s in the same order; ``mesh`` itself is never changed.
-``mesh.orientation.diagnostics`` says what the mesh had (shells, holes, non-manifold
-edges, reversed, degenerate and duplicate faces); the ShDF and segmentation results
+``mesh.diagnostics`` says what the mesh had (shells, holes, non-manifold
+edges, reversed, degenerate and duplicate faces, shells stitched); the ShDF and segmentation results
 carry it too.
 """
 
@@ -77,6 +77,8 @@ def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "sampled", "neural")) ->
     from neural_shdf.exchange._usda_arrays import warm_up as warm_up_usda
 
     warm_up_usda()  # the .usda array kernel
+    # The oriented copy of an inside-out file (its reversed rows, edge slots and normals).
+    _ = TriangleMesh(sphere.vertices, np.asarray(sphere.faces)[:, ::-1]).oriented
     if "exact" in methods:  # the patch filter of wide windows (meshes above ~100k faces)
         wide = ShdfParams(window_size=EXACT_WINDOW_MAX + 1)
         compute_shdf(mesh, method="exact", params=wide)

@@ -128,6 +128,25 @@ def stitch_shells(
     return stitched
 
 
+def stitch_counts(coincident: NDArray[Any], stitched: NDArray[Any]) -> tuple[int, int]:
+    """(shells joined to another shell, vertices merged into another) by ``stitch_shells``:
+    ``coincident`` its input triangles, ``stitched`` its result. (0, 0) where it returned
+    its input."""
+    if stitched is coincident:
+        return 0, 0
+    coincident = np.asarray(coincident, dtype=np.int64).reshape(-1, 3)
+    stitched = np.asarray(stitched, dtype=np.int64).reshape(-1, 3)
+    vertex_count = int(coincident.max()) + 1
+    vertices = len(np.unique(coincident)) - len(np.unique(stitched))
+    before = _vertex_shells(coincident, vertex_count)[coincident[:, 0]]
+    after = _vertex_shells(stitched, vertex_count)[stitched[:, 0]]
+    # A shell is stitched when the shell it ends up in holds faces of another shell.
+    pairs = np.unique(np.stack([after, before], axis=1), axis=0)
+    joined, members = np.unique(pairs[:, 0], return_counts=True)
+    shells = int(members[members > 1].sum())
+    return shells, int(vertices)
+
+
 def _guided_pairs(
     points: NDArray[np.float64],
     shell: NDArray[Any],

@@ -328,6 +328,21 @@ def test_graphcut_returns_its_part_tree_for_cuts_without_a_request(client, capsu
     assert metis["hierarchy"] is None
 
 
+def test_an_upload_of_a_surface_split_in_pieces_says_what_was_stitched(client):
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    upper = vertices[faces].mean(axis=1)[:, 2] > 0
+    # The upper half on copies of the vertices moved up a little (a quarter of an edge):
+    # two open shells along the cut, as a kitbashed or CAD export gives them.
+    split = np.where(upper[:, None], faces + len(vertices), faces)
+    body = off_bytes(np.vstack([vertices, vertices + [0.0, 0.0, 0.02]]), split)
+    response = upload(client, body, "halves.off")
+    assert response.status_code == 200, response.text
+    diagnostics = response.json()["mesh"]["diagnostics"]
+    assert diagnostics["shells"] == 2 and diagnostics["boundary_loops"] == 2
+    assert diagnostics["stitched_shells"] == 2 and diagnostics["stitched_vertices"] > 0
+
+
 def test_an_inside_out_upload_says_so_and_gets_the_published_shdf(client):
     published = capsule()
     faces = np.asarray(published.faces)
@@ -342,6 +357,8 @@ def test_an_inside_out_upload_says_so_and_gets_the_published_shdf(client):
         "reoriented_faces": len(faces),
         "degenerate_faces": 0,
         "duplicate_faces": 0,
+        "stitched_shells": 0,
+        "stitched_vertices": 0,
     }
     mesh_id = response.json()["mesh"]["mesh_id"]
     assert client.get(f"/v1/meshes/{mesh_id}").json()["diagnostics"] == diagnostics

@@ -20,6 +20,7 @@ from neural_shdf.shdf.exact import (
     raw_shdf,
     robust_mean,
 )
+from neural_shdf.shdf.stage import ShdfParams, raw_diameters
 from tests.mesh_helpers import balls_and_bar
 
 
@@ -308,3 +309,22 @@ def test_exact_shdf_progress_rises_to_one():
     seen = []
     compute_shdf(mesh, method="exact", progress=seen.append)
     assert seen == sorted(seen) and seen[-1] == 1.0 and len(seen) >= 2
+
+
+def test_rays_meeting_the_cap_across_a_cut_limb_near_its_rim_are_not_read_as_thin():
+    """A long ellipsoid's end cut off (a limb of a scan with no base): the faces along the
+    cut keep about the closed mesh's diameters, and the mesh's smallest value is the closed
+    mesh's (rays grazing the cap had read 3% of it there, stretching the normalisation)."""
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    vertices, faces = np.asarray(sphere.vertices) * [3.0, 0.6, 0.6], np.asarray(sphere.faces)
+    closed = TriangleMesh(vertices, faces)
+    along = vertices[faces].mean(axis=1)[:, 0]
+    kept = np.flatnonzero(along > -2.0)
+    cut = TriangleMesh(vertices, faces[kept])
+    assert cut.diagnostics.boundary_loops == 1
+    params = ShdfParams()
+    whole = raw_diameters(closed, closed.face_graph, "exact", params)[kept]
+    capped = raw_diameters(cut, cut.face_graph, "exact", params, close_holes=True)
+    rim = along[kept] < -1.8
+    assert np.min(capped[rim] / whole[rim]) > 0.9
+    assert capped.min() == pytest.approx(whole.min(), rel=1e-6)

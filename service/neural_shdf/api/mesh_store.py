@@ -115,7 +115,7 @@ class MeshStore:
                 # results are stored under (``TaskRunner.compute_once``), so a result of
                 # the deleted mesh never lands in the cache of the one uploaded again.
                 "generation": uuid.uuid4().hex,
-                "diagnostics": mesh.orientation.diagnostics.as_dict(),
+                "diagnostics": mesh.diagnostics.as_dict(),
             }
             # keep_local: readable through a Redis outage (only the client could restore it)
             self.cache.put_arrays(

@@ -116,6 +116,17 @@ class MeshDiagnosticsInfo(BaseModel):
     duplicate_faces: int = Field(
         description="Triangles on the same three vertices as an earlier one.", examples=[0]
     )
+    stitched_shells: int = Field(
+        default=0,
+        description="Open shells joined to another along their boundaries for the "
+        "segmentation's graphs (pieces of one surface split in the file).",
+        examples=[0],
+    )
+    stitched_vertices: int = Field(
+        default=0,
+        description="Boundary vertices merged into one of another shell by that stitching.",
+        examples=[0],
+    )
 
 
 class MeshInfo(BaseModel):
@@ -144,6 +155,8 @@ class MeshInfo(BaseModel):
                         "reoriented_faces": 0,
                         "degenerate_faces": 0,
                         "duplicate_faces": 0,
+                        "stitched_shells": 0,
+                        "stitched_vertices": 0,
                     },
                 }
             ]

@@ -89,6 +89,8 @@ class MeshDiagnostics:
     reoriented_faces: int
     degenerate_faces: int
     duplicate_faces: int
+    stitched_shells: int = 0
+    stitched_vertices: int = 0
 
     @classmethod
     def from_json(cls, body: Mapping[str, Any]) -> MeshDiagnostics:

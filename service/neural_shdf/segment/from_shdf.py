@@ -144,7 +144,7 @@ def segment(
         timings[name] = timings.get(name, 0.0) + now - clock
         clock = now
 
-    diagnostics = mesh.orientation.diagnostics
+    diagnostics = mesh.diagnostics
     distinct = mesh.distinct
     if basis is not None:
         if distinct.has_copies and np.shape(shdf) == (mesh.face_count,):

@@ -61,6 +61,9 @@ Progress = Callable[[float], None]
 #: Rays whose distance lies further than this many median absolute deviations
 #: from the median are outliers (CGAL's ``CGAL_NUMBER_OF_MAD``).
 OUTLIER_MAD_FACTOR = 1.5
+#: A ray's hit on a hole's cap counts only when it is at least this share of the median
+#: of the same origin's hits on the surface (``_drop_short_cap_hits``).
+CAP_HIT_SHARE = 0.5
 #: Faces whose rays are cast in one Embree call (bounds the memory of a batch).
 FACES_PER_BATCH = 32_768
 #: Smallest batch when a mesh is split over several threads.
@@ -348,6 +351,7 @@ def raw_shdf(
     threads: int | None = None,
     progress: Progress | None = None,
     scene: Scene | Future[Scene] | None = None,
+    surface_triangles: int | None = None,
 ) -> NDArray[np.float64]:
     """Raw diameter per triangle (mesh units), NaN where no ray gave a valid hit.
 
@@ -367,6 +371,9 @@ def raw_shdf(
         scene: the Embree scene the rays are cast into (or its future), when the caller
             built it: ``faces`` first, in order, then any triangles that only stop rays
             (``shdf.stage.ray_targets``); default: one of ``faces``.
+        surface_triangles: how many of the scene's first triangles are surface (default
+            ``len(faces)``); hits on the others, holes' caps, count only as
+            ``_drop_short_cap_hits`` says.
     """
     _check_cone(cone_angle, ray_count)
     vertices = np.asarray(vertices, dtype=np.float64)
@@ -389,6 +396,7 @@ def raw_shdf(
         progress=progress,
         statistics=False,
         scene=scene,
+        surface_triangles=surface_triangles,
     )
     return result
 
@@ -404,6 +412,7 @@ def raw_shdf_at_points(
     ray_count: int = constants.SHDF_RAY_COUNT,
     threads: int | None = None,
     scene: Scene | Future[Scene] | None = None,
+    surface_triangles: int | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The exact ShDF's ray cone cast from surface points instead of face centroids.
 
@@ -413,7 +422,8 @@ def raw_shdf_at_points(
     (standard deviation over their mean, 0 without hits) and the fraction of rays
     with a valid hit. Same rays, back-face test and outlier filter as ``raw_shdf``.
     ``scene``: the mesh's Embree scene (or its future) when the caller built it;
-    otherwise one of ``low`` build quality is built (a few rays per triangle).
+    otherwise one of ``low`` build quality is built (a few rays per triangle);
+    ``surface_triangles`` as ``raw_shdf``'s.
     """
     _check_cone(cone_angle, ray_count)
     points = np.asarray(points, dtype=np.float64)
@@ -435,6 +445,7 @@ def raw_shdf_at_points(
         statistics=True,
         scene=scene,
         quality="low",
+        surface_triangles=surface_triangles,
     )
 
 
@@ -454,6 +465,7 @@ def _cast_rays(
     statistics: bool,
     scene: Scene | Future[Scene] | None = None,
     quality: str = "medium",
+    surface_triangles: int | None = None,
 ) -> tuple[NDArray[Any], NDArray[Any], NDArray[Any]]:
     """Cones of rays from ``origins`` around their inward ``normals``, in batches over
     threads: (robust mean, spread, hit fraction) per origin; the last two only with
@@ -509,6 +521,7 @@ def _cast_rays(
                 coefficients,
                 local_origins,
                 own_faces,
+                len(faces) if surface_triangles is None else surface_triangles,
                 origin_offset,
                 retry_offset,
                 weights,
@@ -553,6 +566,7 @@ def _shdf_of_faces(
     coefficients: NDArray[Any],
     local_origins: NDArray[Any],
     own_faces: NDArray[Any],
+    surface_faces: int,
     origin_offset: np.float32,
     retry_offset: np.float32,
     weights: NDArray[Any],
@@ -564,7 +578,9 @@ def _shdf_of_faces(
 
     ``frames[k]`` holds the inward normal and the two plane vectors of origin
     ``batch[k]`` (float32), ``coefficients`` each ray's weights on them; a ray
-    hitting ``own_faces[origin]`` starts again further out. Each hit is read from
+    hitting ``own_faces[origin]`` starts again further out; hits on triangles past the
+    first ``surface_faces`` (holes' caps) count as ``_drop_short_cap_hits`` says. Each
+    hit is read from
     the packet itself (distance, geometric normal): no lookup of the hit
     triangle. ``spread`` and ``hit_fraction`` are filled when not empty.
     """
@@ -572,6 +588,7 @@ def _shdf_of_faces(
     ray_count = len(coefficients)
     directions = np.empty((LANES, ray_count, 3), dtype=np.float32)
     own_hit = np.empty((LANES, ray_count), dtype=np.bool_)
+    on_cap = np.zeros((LANES, ray_count), dtype=np.bool_)
     distances = np.empty((LANES, ray_count))
     scratch = np.empty(ray_count)
     retry_lane = np.empty(LANES * ray_count, dtype=np.int64)
@@ -598,6 +615,7 @@ def _shdf_of_faces(
                 distances[lane, i] = _exit_distance(
                     rays, ids, lane, directions[lane, i], origin_offset
                 )
+                on_cap[lane, i] = hit_of(ids, lane) >= surface_faces
         # Rays that hit their own triangle through rounding start again further out.
         pending = 0
         for lane in range(count):
@@ -621,11 +639,38 @@ def _shdf_of_faces(
                     if own
                     else _exit_distance(rays, ids, k, directions[lane, i], retry_offset)
                 )
+                on_cap[lane, i] = hit_of(ids, k) >= surface_faces
         for lane in range(count):
             item = batch[start + lane]
+            _drop_short_cap_hits(distances[lane], on_cap[lane], scratch)
             result[item] = _robust_mean_row(distances[lane], weights, scratch)
             if len(spread):
                 _hit_statistics(distances[lane], item, spread, hit_fraction)
+
+
+@kernel(inline=True)
+def _drop_short_cap_hits(
+    distances: NDArray[Any], on_cap: NDArray[Any], scratch: NDArray[Any]
+) -> None:
+    """Set to NaN the hits on a hole's cap shorter than ``CAP_HIT_SHARE`` of the median of
+    the same origin's hits on the surface (all cap hits count where it has none).
+
+    A cap stands in for missing surface: across a hole it stops a ray about where the
+    surface would have, but next to a cut through a limb (a scan with no base) it stands
+    across the limb, and the rays of the faces along its rim meet it at a fraction of the
+    limb's width: those few values stretched the ShDF's min-max normalisation.
+    """
+    count = 0
+    for i in range(len(distances)):
+        if not on_cap[i] and not np.isnan(distances[i]):
+            scratch[count] = distances[i]
+            count += 1
+    if count == 0:
+        return
+    limit = CAP_HIT_SHARE * _sorted_median(scratch, count)
+    for i in range(len(distances)):
+        if on_cap[i] and distances[i] < limit:
+            distances[i] = np.nan
 
 
 @kernel(inline=True)

@@ -178,7 +178,17 @@ def ray_targets(mesh: TriangleMesh, close_holes: bool) -> tuple[NDArray[Any], ND
     coincident, _ = mesh.coincident_welding
     if coincident is not mesh.welded_faces:  # slits left between stitched shells
         caps = bridge_gaps(mesh.vertices, coincident, mesh.welded_faces, mesh.welded_edges, caps)
+        # Bridges (to a vertex of the surface) first: they count as surface for the rays.
+        caps = caps[np.argsort(caps[:, 2] >= len(mesh.vertices), kind="stable")]
     return vertices, np.vstack([mesh.faces, caps])
+
+
+def surface_triangles(mesh: TriangleMesh, triangles: NDArray[Any]) -> int:
+    """How many of ``ray_targets``' triangles are surface for the rays: the mesh's and the
+    bridges across slits between stitched shells (which end at a vertex of the surface);
+    the rest are fans over holes to their loop's centroid, whose hits the exact ShDF
+    trusts only as far as ``exact._drop_short_cap_hits`` says."""
+    return int(np.count_nonzero(np.asarray(triangles)[:, 2] < len(mesh.vertices)))
 
 
 def sampled_raw_shdf(
@@ -200,7 +210,8 @@ def sampled_raw_shdf(
     workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
     normals, areas = mesh.normals_and_areas
     with ThreadPoolExecutor(max_workers=2) as pool:
-        scene = pool.submit(Scene, *ray_targets(mesh, close_holes), "low")
+        targets = ray_targets(mesh, close_holes)
+        scene = pool.submit(Scene, *targets, "low")
         normal_sums = vertex_normal_sums(len(mesh.vertices), mesh.faces, normals, areas)
 
         def cast(
@@ -235,6 +246,7 @@ def sampled_raw_shdf(
                 ray_count=params.ray_count,
                 threads=workers,
                 scene=scene,
+                surface_triangles=surface_triangles(mesh, targets[1]),
             )
             return samples, mapped, diameters
 
@@ -269,6 +281,7 @@ def raw_diameters(
     """
     if method == "exact":
         normals, _ = mesh.normals_and_areas
+        targets = ray_targets(mesh, close_holes)
         return raw_shdf(
             mesh.vertices,
             mesh.faces,
@@ -276,7 +289,8 @@ def raw_diameters(
             ray_count=params.ray_count,
             normals=normals,
             progress=progress,
-            scene=Scene(*ray_targets(mesh, True)) if close_holes else None,
+            scene=Scene(*targets) if close_holes else None,
+            surface_triangles=surface_triangles(mesh, targets[1]),
         )
     if method == "sampled":
         return sampled_raw_shdf(mesh, graph, params, close_holes=close_holes)
@@ -329,8 +343,7 @@ def compute_shdf(
     params = params or ShdfParams()
     if seed is not None:
         params = replace(params, seed=check_seed(seed))
-    orientation = mesh.orientation
-    diagnostics = orientation.diagnostics
+    diagnostics = mesh.diagnostics
     # One copy of each triangle (coincident copies share its value).
     distinct = mesh.distinct
     mesh, graph, copy_of = distinct.mesh, distinct.mesh.face_graph, distinct.copy_of

@@ -68,14 +68,22 @@ HUMAN_SEG_NAMES = (
 
 
 def training_graph(
-    path: Path, labels: np.ndarray, values: np.ndarray, cache: Path, subdivided: bool
-) -> dict[str, np.ndarray]:
-    """Network inputs and per-sample classes of one training mesh (or its x16 copy), cached."""
+    path: Path,
+    labels: np.ndarray,
+    values: np.ndarray,
+    cache: Path,
+    subdivided: bool,
+    cached_only: bool = False,
+) -> dict[str, np.ndarray] | None:
+    """Network inputs and per-sample classes of one training mesh (or its x16 copy),
+    cached; ``cached_only``: None when not cached yet (another process prepares it)."""
     name = path.stem + ("-x16" if subdivided else "")
     file = cache / f"emd-graphs-v{FEATURE_VERSION}" / f"{name}.npz"
     if file.is_file():
         with np.load(file) as data:
             return {k: data[k] for k in data.files}
+    if cached_only:
+        return None
     mesh = load_mesh(path)
     per_triangle = triangle_labels(mesh, labels)
     if subdivided:
@@ -119,6 +127,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--smoothing", type=float, default=DEFAULT_SMOOTHING)
     parser.add_argument("--no-augment", action="store_true")
     parser.add_argument("--prepare-only", action="store_true", help="only cache the graphs")
+    parser.add_argument(
+        "--while-preparing",
+        action="store_true",
+        help="start on the graphs already cached and pick up the others as "
+        "--prepare-only processes write them",
+    )
     parser.add_argument("--part", default="0/1", help="i/n: this process's share (prepare)")
     parser.add_argument("--out", type=Path, help="ONNX file (default CACHE/RUN/labeler.onnx)")
     args = parser.parse_args(argv)
@@ -153,9 +167,28 @@ def main(argv: list[str] | None = None) -> int:
             training_graph(path, truth[path.stem], values, cache, fine)
         log(f"prepared {len(jobs[part::parts])} graphs in {time.time() - start:.0f}s")
         return 0
-    graphs = [training_graph(p, truth[p.stem], values, cache, fine) for p, fine in jobs]
+    pending = list(jobs)
+
+    def gather() -> list[dict[str, np.ndarray]]:
+        """Graphs of the pending jobs that are ready (all of them unless --while-preparing)."""
+        found, waiting = [], []
+        for path, fine in pending:
+            graph = training_graph(
+                path, truth[path.stem], values, cache, fine, cached_only=args.while_preparing
+            )
+            if graph is None:
+                waiting.append((path, fine))
+            else:
+                found.append(graph)
+        pending[:] = waiting
+        return found
+
+    graphs = gather()
     prepare_seconds = time.time() - start
-    log(f"{len(graphs)} training graphs ({len(chosen)} meshes) ready in {prepare_seconds:.0f}s")
+    log(
+        f"{len(graphs)} training graphs ({len(chosen)} meshes) ready in {prepare_seconds:.0f}s; "
+        f"{len(pending)} pending"
+    )
 
     model = LabelNetwork(len(values), latent=args.latent, steps=args.message_steps)
     optimizer = torch.optim.Adam(model.parameters(), lr=args.lr)
@@ -217,6 +250,8 @@ def main(argv: list[str] | None = None) -> int:
         right += int((log_probabilities.argmax(1) == batch["target"]).sum())
         total += len(batch["target"])
         state["step"] += 1
+        if pending and state["step"] % 100 == 0:
+            graphs += gather()
         if state["step"] % 200 == 0:
             metrics = {
                 "step": state["step"],
@@ -224,6 +259,7 @@ def main(argv: list[str] | None = None) -> int:
                 "train_loss": round(float(np.mean(losses)), 4),
                 "train_sample_accuracy": round(right / max(total, 1), 4),
                 "lr": optimizer.param_groups[0]["lr"],
+                "graphs": len(graphs),
             }
             state["history"].append(metrics)
             log(json.dumps(metrics))

@@ -150,6 +150,14 @@ def evaluate(labeler, described, smoothing=None) -> dict[str, tuple[float, float
     return out
 
 
+def load_emd(path: Path, wait: float) -> EmdLabeler:
+    """An exported EMD network, waiting up to ``wait`` seconds for its training to write it."""
+    deadline = time.monotonic() + wait
+    while not path.is_file() and time.monotonic() < deadline:
+        time.sleep(10)
+    return EmdLabeler(path)
+
+
 def print_table(result: dict) -> None:
     print(f"{'variant':<16} {'count':>7} {'area':>7}  {'no-cut':>7} {'no-cut area':>11}")
     for variant, (cut, raw) in result.items():
@@ -176,6 +184,12 @@ def main() -> int:
     parser.add_argument("--emd", type=Path, help="also evaluate this EMD labelling network")
     parser.add_argument(
         "--emd-few-shot", default="", help="N=FILE,...: EMD networks trained on N meshes"
+    )
+    parser.add_argument(
+        "--emd-wait",
+        type=float,
+        default=0.0,
+        help="wait up to this many seconds for an EMD file still being trained",
     )
     args = parser.parse_args()
     skip = set(filter(None, args.skip.split(",")))
@@ -282,7 +296,7 @@ def main() -> int:
         f"smoothing {args.smoothing}"
     )
     print_table(result)
-    emd = EmdLabeler(args.emd) if args.emd else None
+    emd = load_emd(args.emd, args.emd_wait) if args.emd else None
     if emd is not None:
         training = emd.metadata["training"]
         print(
@@ -330,7 +344,7 @@ def main() -> int:
         print("\nfew-shot, EMD network (validation, original meshes; draw 0)")
         print(f"{'meshes':>6} {'count':>7} {'area':>7} {'train s':>8}")
     for count, file in sorted(emd_files.items(), key=lambda item: int(item[0])):
-        network = EmdLabeler(file)
+        network = load_emd(Path(file), args.emd_wait)
         (score, _raw) = evaluate(network, {"original": described["original"]})["original"]
         seconds = network.metadata["training"]["train_seconds"]
         print(f"{int(count):6d} {score[0]:7.4f} {score[1]:7.4f} {seconds:8.0f}")

@@ -15,7 +15,14 @@ Tables:
 * times: training (features per mesh, fit), labelling a ~100k-face mesh with its ShDF
   given (a validation mesh subdivided x64), and the model file's size.
 
+``--emd FILE``: also the EMD labelling network exported by ``python -m
+model_export.train_labeler`` (trained on the same training split), on the same
+validation meshes, the same per-sample-to-face mapping and graph cut, side by side;
+``--emd-few-shot 10=FILE,30=FILE``: its few-shot rows (networks trained with ``--meshes
+N``, draw 0, the trees' first draw).
+
     python benchmarks/bench_labeler.py [--cache-dir DIR] [--limit N] [--output FILE]
+        [--emd FILE] [--emd-few-shot N=FILE,...]
 """
 
 from __future__ import annotations
@@ -30,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from neural_shdf.labeling import load_labeler, save_labeler
-from neural_shdf.labeling._library import TriangleMesh, compute_shdf, load_mesh
+from neural_shdf.labeling._library import TriangleMesh, load_mesh
 from neural_shdf.labeling.features import FEATURE_VERSION
 from neural_shdf.labeling.labeler import (
     AUGMENT_EVERY,
@@ -46,6 +53,10 @@ from neural_shdf.labeling.labeler import (
 
 print = functools.partial(print, flush=True)  # noqa: A001
 REPO_ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO_ROOT))
+
+from model_export.labeling_data import EmdLabeler, cached_shdf  # noqa: E402
+
 DEFAULT_DIR = REPO_ROOT / ".." / "shared" / "data" / "human-seg"
 DEFAULT_CACHE = Path.home() / ".cache" / "neural-shdf" / "labeler"
 NAMES = ("head", "hands", "forearms", "upper arms", "torso", "thighs", "lower legs", "feet")
@@ -53,16 +64,6 @@ SMOOTHING_GRID = (0.0, 0.001, 0.003, 0.01, 0.03)
 #: Training meshes of the model the smoothing is tuned with (keeps the run short).
 TUNE_FIT_MESHES = 60
 FEW_SHOT = (1, 3, 10, 30)
-
-
-def cached_shdf(mesh: TriangleMesh, name: str, cache_dir: Path) -> np.ndarray:
-    path = cache_dir / "shdf" / f"{name}-{mesh.content_hash()[:16]}.npy"
-    if path.is_file():
-        return np.load(path)
-    values = compute_shdf(mesh, method="exact").values
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.save(path, values)
-    return values
 
 
 def cached_rows(
@@ -77,7 +78,7 @@ def cached_rows(
             )
     start = time.perf_counter()
     mesh = load_mesh(path)
-    description = describe_mesh(mesh, compute_shdf(mesh, method="exact").values)
+    description = describe_mesh(mesh, cached_shdf(mesh, name, cache_dir))
     rows = training_rows(description, labels)
     seconds = time.perf_counter() - start
     file.parent.mkdir(parents=True, exist_ok=True)
@@ -129,17 +130,38 @@ def accuracy(
 
 
 def evaluate(labeler, described, smoothing=None) -> dict[str, tuple[float, float]]:
-    """Mean (by count, area-weighted) accuracy per variant, before and after the cut."""
+    """Mean (by count, area-weighted) accuracy per variant, before and after the cut.
+    ``labeler``: the trees (``Labeler``) or an ``EmdLabeler``."""
+
+    def label(description, value):
+        if isinstance(labeler, EmdLabeler):
+            return labeler.label_description(description, value)
+        return label_description(description, labeler, value)
+
     out = {}
     for variant, items in described.items():
         cut, raw = [], []
         for description, truth in items:
-            classes, _ = label_description(description, labeler, smoothing)
+            classes, _ = label(description, smoothing)
             cut.append(accuracy(description, truth, classes, labeler.label_values))
-            plain, _ = label_description(description, labeler, 0.0)
+            plain, _ = label(description, 0.0)
             raw.append(accuracy(description, truth, plain, labeler.label_values))
         out[variant] = (tuple(np.mean(cut, axis=0)), tuple(np.mean(raw, axis=0)))
     return out
+
+
+def load_emd(path: Path, wait: float) -> EmdLabeler:
+    """An exported EMD network, waiting up to ``wait`` seconds for its training to write it."""
+    deadline = time.monotonic() + wait
+    while not path.is_file() and time.monotonic() < deadline:
+        time.sleep(10)
+    return EmdLabeler(path)
+
+
+def print_table(result: dict) -> None:
+    print(f"{'variant':<16} {'count':>7} {'area':>7}  {'no-cut':>7} {'no-cut area':>11}")
+    for variant, (cut, raw) in result.items():
+        print(f"{variant:<16} {cut[0]:7.4f} {cut[1]:7.4f}  {raw[0]:7.4f} {raw[1]:11.4f}")
 
 
 def describe_cached(mesh, name, cache_dir) -> MeshDescription:
@@ -159,6 +181,16 @@ def main() -> int:
         "--no-augment", action="store_true", help="no subdivided copies of training meshes"
     )
     parser.add_argument("--skip", default="", help="comma list of: few-shot,variants,timing")
+    parser.add_argument("--emd", type=Path, help="also evaluate this EMD labelling network")
+    parser.add_argument(
+        "--emd-few-shot", default="", help="N=FILE,...: EMD networks trained on N meshes"
+    )
+    parser.add_argument(
+        "--emd-wait",
+        type=float,
+        default=0.0,
+        help="wait up to this many seconds for an EMD file still being trained",
+    )
     args = parser.parse_args()
     skip = set(filter(None, args.skip.split(",")))
     if not (args.data_dir / "train").is_dir():
@@ -263,9 +295,16 @@ def main() -> int:
         f"\nvalidation ({len(validation)} meshes), all {len(names)} training meshes, "
         f"smoothing {args.smoothing}"
     )
-    print(f"{'variant':<16} {'count':>7} {'area':>7}  {'no-cut':>7} {'no-cut area':>11}")
-    for variant, (cut, raw) in result.items():
-        print(f"{variant:<16} {cut[0]:7.4f} {cut[1]:7.4f}  {raw[0]:7.4f} {raw[1]:11.4f}")
+    print_table(result)
+    emd = load_emd(args.emd, args.emd_wait) if args.emd else None
+    if emd is not None:
+        training = emd.metadata["training"]
+        print(
+            f"\nEMD network {args.emd.name} ({training['meshes']} training meshes, "
+            f"{training['steps']} steps in {training['train_seconds']:.0f} s), "
+            f"smoothing {emd.metadata['smoothing']}, same validation meshes"
+        )
+        print_table(evaluate(emd, described))
 
     if "few-shot" not in skip:
         print(f"\nfew-shot (validation, original meshes; mean of {args.draws} draws)")
@@ -298,6 +337,17 @@ def main() -> int:
                 f"{count:6d} {scores[:, 0].mean():7.4f} {scores[:, 1].mean():7.4f} "
                 f"{scores[:, 0].min():7.4f} {np.mean(seconds):6.1f}"
             )
+    emd_files = dict(item.split("=", 1) for item in filter(None, args.emd_few_shot.split(",")))
+    if emd is not None and emd_files:
+        emd_files[str(len(names))] = str(args.emd)
+    if emd_files:
+        print("\nfew-shot, EMD network (validation, original meshes; draw 0)")
+        print(f"{'meshes':>6} {'count':>7} {'area':>7} {'train s':>8}")
+    for count, file in sorted(emd_files.items(), key=lambda item: int(item[0])):
+        network = load_emd(Path(file), args.emd_wait)
+        (score, _raw) = evaluate(network, {"original": described["original"]})["original"]
+        seconds = network.metadata["training"]["train_seconds"]
+        print(f"{int(count):6d} {score[0]:7.4f} {score[1]:7.4f} {seconds:8.0f}")
 
     if "timing" not in skip:
         mesh = load_mesh(validation[0])
@@ -314,6 +364,17 @@ def main() -> int:
             f"\nlabelling {big.face_count} faces, ShDF given: median {np.median(times):.2f} s of 3 "
             f"(face graph, orientation, features, trees, graph cut)"
         )
+        if emd is not None:
+            times = []
+            for _ in range(3):
+                fresh = TriangleMesh(big.vertices, big.faces)
+                begin = time.perf_counter()
+                emd.label_description(describe_mesh(fresh, shdf))
+                times.append(time.perf_counter() - begin)
+            print(
+                f"EMD network, the same mesh: median {np.median(times):.2f} s of 3 "
+                "(the same description, sample graph, onnxruntime, graph cut)"
+            )
     print(
         f"\ntraining on {len(names)} meshes: fit {fit_seconds:.0f} s + features "
         f"{np.sum(feature_seconds):.0f} s uncached ({np.mean(feature_seconds):.2f} s per mesh); "

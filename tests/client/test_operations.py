@@ -60,3 +60,36 @@ def test_labels_and_shdf_decode_from_their_binary_forms():
     assert decoded[0] == np.float32(0.25) and np.isnan(decoded[1])
     with pytest.raises(ValueError, match="3 faces"):
         decode_shdf(values.tobytes(), faces=3)
+
+
+def test_the_labeller_list_follows_every_page():
+    from neural_shdf.client.operations import list_labelers
+
+    def info(index: int) -> dict:
+        return {
+            "labeler_id": f"{index:064x}",
+            "label_names": ["neck", "ball"],
+            "label_values": [2, 5],
+            "feature_version": 3,
+            "smoothing": 0.003,
+            "training_meshes": 2,
+            "size_bytes": 100,
+            "stored_at": 1.0,
+        }
+
+    pages = [
+        {"labelers": [info(0), info(1)], "total": 3, "next_offset": 2},
+        {"labelers": [info(2)], "total": 3, "next_offset": None},
+    ]
+    operation = list_labelers()
+    call = next(operation)
+    offsets = []
+    with pytest.raises(StopIteration) as done:
+        for page in pages:
+            offsets.append(call.params["offset"])
+            assert (call.method, call.path) == ("GET", "/v1/labelers")
+            call = operation.send(
+                httpx.Response(200, json=page, request=httpx.Request("GET", "http://x"))
+            )
+    assert offsets == [0, 2]
+    assert [entry.labeler_id for entry in done.value.value] == [f"{i:064x}" for i in range(3)]

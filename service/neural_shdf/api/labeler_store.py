@@ -108,12 +108,14 @@ class LabelerStore:
             raise labeler_missing(identifier)
         return meta
 
-    def list(self) -> list[dict[str, Any]]:
-        """Every stored labeller's description, oldest first (ids whose entries are gone,
-        evicted say, are left out)."""
+    def list(self, offset: int = 0, limit: int | None = None) -> tuple[list[dict[str, Any]], int]:
+        """(descriptions of the stored labellers ``offset`` to ``offset + limit`` oldest
+        first, how many are indexed); only the page's entries are read, and ids whose
+        entries are gone (evicted, say) are left out of it."""
         ids = self.cache.get_json(labeler_index_key()) or []
-        found = [self.cache.get_json(labeler_meta_key(i)) for i in ids]
-        return [meta for meta in found if meta is not None]
+        page = ids[offset:] if limit is None else ids[offset : offset + limit]
+        found = [self.cache.get_json(labeler_meta_key(i)) for i in page]
+        return [meta for meta in found if meta is not None], len(ids)
 
     def file(self, identifier: str) -> bytes:
         """A stored labeller's file as uploaded; 404 when it is not stored."""

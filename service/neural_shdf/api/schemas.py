@@ -842,7 +842,11 @@ class LabelerInfo(BaseModel):
 class LabelerList(BaseModel):
     """The stored part labellers, oldest first."""
 
-    labelers: list[LabelerInfo] = Field(description="Stored labellers.", examples=[[]])
+    labelers: list[LabelerInfo] = Field(description="Stored labellers of this page.", examples=[[]])
+    total: int = Field(description="Labellers stored in all.", examples=[0])
+    next_offset: int | None = Field(
+        description="`offset` of the next page; null after the last page.", examples=[None]
+    )
 
 
 class LabelerTrainForm(BaseModel):

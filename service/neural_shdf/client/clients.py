@@ -269,9 +269,8 @@ class Client(_Settings):
         return self.run(operation)
 
     def labelers(self) -> list[LabelerInfo]:
-        """The stored labellers, oldest first."""
-        body = self.run(ops.get_json("/v1/labelers"))
-        return [LabelerInfo.from_json(entry) for entry in body["labelers"]]
+        """The stored labellers, oldest first (every page)."""
+        return self.run(ops.list_labelers())
 
     def labeler(self, labeler_id: str) -> LabelerInfo:
         """A stored labeller's names and metadata."""
@@ -457,8 +456,7 @@ class AsyncClient(_Settings):
         return await self.run(operation)
 
     async def labelers(self) -> list[LabelerInfo]:
-        body = await self.run(ops.get_json("/v1/labelers"))
-        return [LabelerInfo.from_json(entry) for entry in body["labelers"]]
+        return await self.run(ops.list_labelers())
 
     async def labeler(self, labeler_id: str) -> LabelerInfo:
         return LabelerInfo.from_json(await self.run(ops.get_json(f"/v1/labelers/{labeler_id}")))

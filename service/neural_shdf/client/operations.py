@@ -298,6 +298,18 @@ def get_json(path: str) -> Operation:
     return response.json()
 
 
+def list_labelers() -> Operation:
+    """Every stored labeller, oldest first, following the pages of ``GET /v1/labelers``."""
+    entries: list[LabelerInfo] = []
+    offset: int | None = 0
+    while offset is not None:
+        call = Call("GET", "/v1/labelers", params={"offset": offset})
+        body = raise_for_error((yield call)).json()
+        entries += [LabelerInfo.from_json(entry) for entry in body["labelers"]]
+        offset = body.get("next_offset")
+    return entries
+
+
 def upload_labeler(source: str | Path | bytes) -> Operation:
     """Upload a labeller file (checked by the service, stored under its content id)."""
     if isinstance(source, bytes | bytearray | memoryview):

@@ -279,16 +279,25 @@ def train_labeler(
 
 
 def face_probabilities(description: MeshDescription, node_probabilities: NDArray) -> NDArray:
-    """(F, classes) probabilities per triangle: each vertex interpolates its nearest
-    samples (normal-aware, as the neural ShDF), a triangle takes its vertices' mean."""
+    """(F, classes) probabilities per triangle from probabilities per node."""
+    return sample_face_probabilities(
+        description, np.asarray(node_probabilities)[description.nodes.samples_node]
+    )
+
+
+def sample_face_probabilities(
+    description: MeshDescription, sample_probabilities: NDArray
+) -> NDArray:
+    """(F, classes) probabilities per triangle from probabilities per Poisson sample: each
+    vertex interpolates its nearest samples (normal-aware, as the neural ShDF), a triangle
+    takes its vertices' mean."""
     samples = description.nodes.samples
     faces = description.mesh.oriented.faces
-    classes = node_probabilities.shape[1]
+    classes = sample_probabilities.shape[1]
     out = np.empty((len(faces), classes))
-    per_sample = node_probabilities[description.nodes.samples_node]
     for column in range(classes):
         per_vertex = interpolate_samples(
-            per_sample[:, column],
+            sample_probabilities[:, column],
             samples.normals,
             samples.vertex_samples,
             samples.vertex_sample_distance,
@@ -305,11 +314,18 @@ def label_description(
 ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
     """(class per triangle, its probability) for a described mesh."""
     probabilities = face_probabilities(description, labeler.predict_proba(description.features))
-
-    mesh = description.mesh.oriented
     smoothing = (
         labeler.metadata.get("smoothing", DEFAULT_SMOOTHING) if smoothing is None else smoothing
     )
+    return coherent_description_labels(description, probabilities, smoothing)
+
+
+def coherent_description_labels(
+    description: MeshDescription, probabilities: NDArray, smoothing: float
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """(class per triangle, its probability) after the graph cut, from (F, classes)
+    probabilities per triangle of a described mesh."""
+    mesh = description.mesh.oriented
     classes = coherent_labels(
         probabilities,
         description.graph,

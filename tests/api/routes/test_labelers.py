@@ -59,7 +59,8 @@ def test_upload_list_read_download_and_delete(client, labeler_file):
     assert info["size_bytes"] == len(labeler_file) and info["training_meshes"] == 2
     again = upload_labeler(client, labeler_file, "copy.npz").json()
     assert again == info  # content-addressed: one entry, first stored time kept
-    assert client.get("/v1/labelers").json() == {"labelers": [info]}
+    page = {"labelers": [info], "total": 1, "next_offset": None}
+    assert client.get("/v1/labelers").json() == page
     assert client.get(f"/v1/labelers/{identifier}").json() == info
     download = client.get(f"/v1/labelers/{identifier}/file")
     assert download.status_code == 200 and download.content == labeler_file
@@ -67,8 +68,32 @@ def test_upload_list_read_download_and_delete(client, labeler_file):
     for path in (f"/v1/labelers/{identifier}", f"/v1/labelers/{identifier}/file"):
         gone = client.get(path)
         assert gone.status_code == 404 and gone.json()["error"]["code"] == "labeler_not_found"
-    assert client.get("/v1/labelers").json() == {"labelers": []}
+    assert client.get("/v1/labelers").json() == {"labelers": [], "total": 0, "next_offset": None}
     assert client.delete(f"/v1/labelers/{identifier}").status_code == 404
+
+
+def test_the_list_comes_a_page_at_a_time(client, labeler_file):
+    from dataclasses import replace
+
+    from neural_shdf.labeling import labeler_bytes
+
+    base = load_labeler(labeler_file)
+    stored = [
+        upload_labeler(
+            client, labeler_bytes(replace(base, label_names=(f"neck{i}", "ball")))
+        ).json()["labeler_id"]
+        for i in range(3)
+    ]
+    first = client.get("/v1/labelers", params={"limit": 2}).json()
+    assert [e["labeler_id"] for e in first["labelers"]] == stored[:2]
+    assert (first["total"], first["next_offset"]) == (3, 2)
+    second = client.get("/v1/labelers", params={"limit": 2, "offset": 2}).json()
+    assert [e["labeler_id"] for e in second["labelers"]] == stored[2:]
+    assert second["next_offset"] is None
+    for query in ({"limit": 0}, {"limit": 1001}, {"offset": -1}):
+        assert client.get("/v1/labelers", params=query).status_code == 422
+    for identifier in stored:
+        assert client.delete(f"/v1/labelers/{identifier}").status_code == 204
 
 
 def rewritten(data: bytes, change) -> bytes:
@@ -113,7 +138,7 @@ def test_files_that_are_not_sound_labellers_are_refused_before_use(app_factory, 
         too_big = upload_labeler(client, labeler_file + b"\0" * (1024**2 + 1))
         assert too_big.status_code == 413
         assert too_big.json()["error"]["detail"]["max_labeler_bytes"] > 0
-        assert client.get("/v1/labelers").json() == {"labelers": []}
+        assert client.get("/v1/labelers").json()["labelers"] == []
 
 
 def test_segment_with_a_labeler_gives_named_parts_from_the_cached_shdf(

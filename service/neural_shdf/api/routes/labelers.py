@@ -7,7 +7,7 @@ import re
 from typing import Annotated
 
 import numpy as np
-from fastapi import APIRouter, File, Form, Path, Response, UploadFile
+from fastapi import APIRouter, File, Form, Path, Query, Response, UploadFile
 
 from neural_shdf.api.errors import ApiError
 from neural_shdf.api.jobs import JobAccepted
@@ -36,6 +36,9 @@ LabelerId = Annotated[
 ]
 #: Media type of a labeller file (a NumPy .npz archive).
 LABELER_MEDIA_TYPE = "application/x-npz"
+#: Labellers per page of ``GET /v1/labelers``: by default and at most.
+DEFAULT_PAGE = 100
+MAX_PAGE = 1000
 
 
 @router.post(
@@ -66,9 +69,21 @@ async def upload_labeler(
     summary="Stored part labellers",
     response_model=LabelerList,
 )
-async def list_labelers(engine: EngineDep) -> LabelerList:
-    """Every stored labeller with its label names, oldest first."""
-    return LabelerList(labelers=[LabelerInfo(**m) for m in await engine.io(engine.labelers.list)])
+async def list_labelers(
+    engine: EngineDep,
+    offset: Annotated[int, Query(ge=0, description="Labellers to skip (oldest first).")] = 0,
+    limit: Annotated[
+        int, Query(ge=1, le=MAX_PAGE, description="Labellers in this page at most.")
+    ] = DEFAULT_PAGE,
+) -> LabelerList:
+    """Stored labellers with their label names, oldest first, a page at a time:
+    `next_offset` is the next page's `offset` (null after the last page)."""
+    entries, total = await engine.io(engine.labelers.list, offset, limit)
+    return LabelerList(
+        labelers=[LabelerInfo(**m) for m in entries],
+        total=total,
+        next_offset=offset + limit if offset + limit < total else None,
+    )
 
 
 @router.get(

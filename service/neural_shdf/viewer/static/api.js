@@ -177,9 +177,16 @@ export function segmentQuery(request) {
   return query.toString();
 }
 
-/** GET /v1/labelers: the stored part labellers ({labeler_id, label_names, label_values, ...}). */
+/** GET /v1/labelers, every page: the stored part labellers ({labeler_id, label_names, ...}). */
 export async function listLabelers() {
-  return (await (await checked(await fetch('/v1/labelers'))).json()).labelers;
+  const labelers = [];
+  let offset = 0;
+  while (offset !== null && offset !== undefined) {
+    const page = await (await checked(await fetch(`/v1/labelers?offset=${offset}`))).json();
+    labelers.push(...page.labelers);
+    offset = page.next_offset;
+  }
+  return labelers;
 }
 
 /** POST /v1/labelers: upload a labeller file (checked by the service); its description. */

@@ -25,6 +25,7 @@ import sys
 import tarfile
 import time
 import zlib
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -315,6 +316,20 @@ def all_sources(cache: Path) -> list[tuple[str, object]]:
     return sorted(sources, key=lambda s: hashlib.sha1(s[0].encode()).hexdigest())
 
 
+def file_logger(path: Path) -> Callable[[str], None]:
+    """A ``log(message)`` printing time-stamped lines and appending them to ``path`` (a
+    long run's record that survives the terminal; the file stays open for the process)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    log_file = open(path, "a")  # noqa: SIM115 - open for the whole run
+
+    def log(message: str) -> None:
+        line = f"{time.strftime('%H:%M:%S')} {message}"
+        print(line, file=log_file, flush=True)
+        print(line, flush=True)
+
+    return log
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cache", type=Path, default=DEFAULT_CACHE)
@@ -324,13 +339,7 @@ def main(argv: list[str] | None = None) -> int:
     cache = args.cache.expanduser()
     cache.mkdir(parents=True, exist_ok=True)
     part, parts = (int(x) for x in args.part.split("/"))
-    log_file = open(cache / f"data-{part}.log", "a")  # noqa: SIM115
-
-    def log(message: str) -> None:
-        line = f"{time.strftime('%H:%M:%S')} {message}"
-        print(line, file=log_file, flush=True)
-        print(line, flush=True)
-
+    log = file_logger(cache / f"data-{part}.log")
     sources = all_sources(cache)[part::parts]
     if args.limit:
         sources = sources[: args.limit]

@@ -18,7 +18,13 @@ import numpy as np
 import torch
 
 from model_export.data import DEFAULT_CACHE, TRAINING_RAY_COUNT
-from model_export.shdf_task import INPUT_NAMES, OUTPUT_NAMES, ShdfNetwork, to_tensors
+from model_export.shdf_task import (
+    INPUT_NAMES,
+    OUTPUT_NAMES,
+    ShdfNetwork,
+    export_graph_network,
+    to_tensors,
+)
 from neural_shdf.shdf.neural.graph import (
     EDGE_FEATURES,
     FEATURE_SPEC_VERSION,
@@ -45,26 +51,8 @@ def example_inputs(
 
 def export_onnx(model: ShdfNetwork, path: Path) -> None:
     """Write ``model`` as ONNX with dynamic node and edge counts."""
-    model.eval()
     example = to_tensors(example_inputs(node_columns=model.node_norm.mean.numel()))
-    args = tuple(example[name] for name in INPUT_NAMES)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    torch.onnx.export(
-        model,
-        args,
-        str(path),
-        dynamo=False,
-        opset_version=OPSET,
-        input_names=list(INPUT_NAMES),
-        output_names=list(OUTPUT_NAMES),
-        dynamic_axes={
-            "node_features": {0: "nodes"},
-            "edge_features": {0: "edges"},
-            "senders": {0: "edges"},
-            "receivers": {0: "edges"},
-            "log_diameter": {0: "nodes"},
-        },
-    )
+    export_graph_network(model, example, path, OUTPUT_NAMES[0], OPSET)
 
 
 def max_difference(model: ShdfNetwork, path: Path, inputs: dict[str, np.ndarray]) -> float:

@@ -19,11 +19,10 @@ from torch import nn
 
 from model_export.core_model import EncodeProcessDecode
 from model_export.labeling_data import GRAPH_SPEC, INPUT_EDGE_FEATURES, INPUT_NODE_FEATURES
-from model_export.shdf_task import Normaliser, to_tensors
+from model_export.shdf_task import INPUT_NAMES, Normaliser, export_graph_network, to_tensors
 from neural_shdf.labeling.features import FEATURE_VERSION
 from neural_shdf.shdf.neural.graph import FEATURE_SPEC_VERSION, NODE_FEATURES
 
-INPUT_NAMES = ("node_features", "edge_features", "senders", "receivers")
 OUTPUT_NAMES = ("log_probabilities",)
 FORMAT = "neural-shdf-emd-labeler"
 FORMAT_VERSION = 1
@@ -116,25 +115,7 @@ def export_onnx(model: LabelNetwork, path: Path, metadata: dict[str, Any]) -> No
     in its ``metadata_props``, with the format, versions and input names."""
     import onnx
 
-    model.eval()
-    example = to_tensors(example_inputs(64, 400))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    torch.onnx.export(
-        model,
-        tuple(example[name] for name in INPUT_NAMES),
-        str(path),
-        dynamo=False,
-        opset_version=OPSET,
-        input_names=list(INPUT_NAMES),
-        output_names=list(OUTPUT_NAMES),
-        dynamic_axes={
-            "node_features": {0: "nodes"},
-            "edge_features": {0: "edges"},
-            "senders": {0: "edges"},
-            "receivers": {0: "edges"},
-            "log_probabilities": {0: "nodes"},
-        },
-    )
+    export_graph_network(model, to_tensors(example_inputs(64, 400)), path, OUTPUT_NAMES[0], OPSET)
     proto = onnx.load(str(path))
     props = {
         "format": FORMAT,

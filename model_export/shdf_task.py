@@ -8,6 +8,8 @@ diameter directly and the service needs no constants besides the graph spec.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import torch
 from torch import nn
@@ -155,3 +157,28 @@ def batch_graphs(graphs: list[dict[str, np.ndarray]]) -> dict[str, torch.Tensor]
         parts["target"].append(g["target"].astype(np.float32))
         offset += n
     return to_tensors({k: np.concatenate(v) for k, v in parts.items()})
+
+
+def export_graph_network(
+    model: nn.Module, inputs: dict[str, torch.Tensor], path: Path, output: str, opset: int
+) -> None:
+    """Trace ``model`` on ``inputs`` into ONNX at ``path``: the sample graph's four inputs
+    (``INPUT_NAMES``) and one per-node ``output``, with dynamic numbers of nodes and edges."""
+    model.eval()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.onnx.export(
+        model,
+        tuple(inputs[name] for name in INPUT_NAMES),
+        str(path),
+        dynamo=False,
+        opset_version=opset,
+        input_names=list(INPUT_NAMES),
+        output_names=[output],
+        dynamic_axes={
+            "node_features": {0: "nodes"},
+            "edge_features": {0: "edges"},
+            "senders": {0: "edges"},
+            "receivers": {0: "edges"},
+            output: {0: "nodes"},
+        },
+    )

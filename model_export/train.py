@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from model_export.data import DEFAULT_CACHE, graph_folder
+from model_export.data import DEFAULT_CACHE, file_logger, graph_folder
 from model_export.shdf_task import ShdfNetwork, batch_graphs
 from neural_shdf.shdf.neural.graph import (
     EDGE_FEATURES,
@@ -187,13 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     cache = args.cache.expanduser()
     run = cache / args.run
-    run.mkdir(parents=True, exist_ok=True)
-    log_file = open(run / "train.log", "a")  # noqa: SIM115
-
-    def log(message: str) -> None:
-        line = f"{time.strftime('%H:%M:%S')} {message}"
-        print(line, file=log_file, flush=True)
-        print(line, flush=True)
+    log = file_logger(run / "train.log")
 
     train = GraphStore(graph_folder(cache) / "train", knn=args.knn, cone=args.cone, rays=args.rays)
     val = GraphStore(graph_folder(cache) / "val", knn=args.knn, cone=args.cone, rays=args.rays)

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from model_export.data import file_logger
 from model_export.labeling_data import (
     cached_shdf,
     human_seg_split,
@@ -140,13 +141,7 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     cache = args.cache.expanduser()
     run = cache / args.run
-    run.mkdir(parents=True, exist_ok=True)
-    log_file = open(run / "train.log", "a")  # noqa: SIM115
-
-    def log(message: str) -> None:
-        line = f"{time.strftime('%H:%M:%S')} {message}"
-        print(line, file=log_file, flush=True)
-        print(line, flush=True)
+    log = file_logger(run / "train.log")
 
     training, _validation = human_seg_split(args.data_dir, args.every)
     if args.limit:

@@ -50,6 +50,38 @@ def renewed_normals(
     return result
 
 
+@kernel(inline=True)
+def _face_normal(  # pragma: no cover - numba
+    vertices: NDArray[np.float64],
+    faces: NDArray[np.int64],
+    face: int,
+    area_eps: float,
+    normals: NDArray[np.float64],
+) -> float:
+    """Face ``face``'s unit normal into ``normals`` (zero when its cross product is at most
+    ``area_eps`` long); returns that length, twice the area."""
+    a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
+    ux = vertices[b, 0] - vertices[a, 0]
+    uy = vertices[b, 1] - vertices[a, 1]
+    uz = vertices[b, 2] - vertices[a, 2]
+    vx = vertices[c, 0] - vertices[a, 0]
+    vy = vertices[c, 1] - vertices[a, 1]
+    vz = vertices[c, 2] - vertices[a, 2]
+    cx = uy * vz - uz * vy
+    cy = uz * vx - ux * vz
+    cz = ux * vy - uy * vx
+    norm = math.sqrt(cx * cx + cy * cy + cz * cz)
+    if norm > area_eps:
+        normals[face, 0] = cx / norm
+        normals[face, 1] = cy / norm
+        normals[face, 2] = cz / norm
+    else:
+        normals[face, 0] = 0.0
+        normals[face, 1] = 0.0
+        normals[face, 2] = 0.0
+    return norm
+
+
 @kernel
 def _renew_normals(  # pragma: no cover - numba
     vertices: NDArray[np.float64],
@@ -60,27 +92,8 @@ def _renew_normals(  # pragma: no cover - numba
 ) -> None:
     """``_normals_and_areas``' normal of each face in ``rows``, into ``normals``."""
     for face in range(faces.shape[0]):
-        if not rows[face]:
-            continue
-        a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
-        ux = vertices[b, 0] - vertices[a, 0]
-        uy = vertices[b, 1] - vertices[a, 1]
-        uz = vertices[b, 2] - vertices[a, 2]
-        vx = vertices[c, 0] - vertices[a, 0]
-        vy = vertices[c, 1] - vertices[a, 1]
-        vz = vertices[c, 2] - vertices[a, 2]
-        cx = uy * vz - uz * vy
-        cy = uz * vx - ux * vz
-        cz = ux * vy - uy * vx
-        norm = math.sqrt(cx * cx + cy * cy + cz * cz)
-        if norm > area_eps:
-            normals[face, 0] = cx / norm
-            normals[face, 1] = cy / norm
-            normals[face, 2] = cz / norm
-        else:
-            normals[face, 0] = 0.0
-            normals[face, 1] = 0.0
-            normals[face, 2] = 0.0
+        if rows[face]:
+            _face_normal(vertices, faces, face, area_eps, normals)
 
 
 def count_zero_rows(normals: NDArray[Any]) -> int:
@@ -136,26 +149,7 @@ def _normals_and_areas(  # pragma: no cover - numba
 ) -> None:
     """Cross product of two edges per face: its direction the normal, half its length the area."""
     for face in range(faces.shape[0]):
-        a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
-        ux = vertices[b, 0] - vertices[a, 0]
-        uy = vertices[b, 1] - vertices[a, 1]
-        uz = vertices[b, 2] - vertices[a, 2]
-        vx = vertices[c, 0] - vertices[a, 0]
-        vy = vertices[c, 1] - vertices[a, 1]
-        vz = vertices[c, 2] - vertices[a, 2]
-        cx = uy * vz - uz * vy
-        cy = uz * vx - ux * vz
-        cz = ux * vy - uy * vx
-        norm = math.sqrt(cx * cx + cy * cy + cz * cz)
-        if norm > area_eps:
-            normals[face, 0] = cx / norm
-            normals[face, 1] = cy / norm
-            normals[face, 2] = cz / norm
-        else:
-            normals[face, 0] = 0.0
-            normals[face, 1] = 0.0
-            normals[face, 2] = 0.0
-        areas[face] = 0.5 * norm
+        areas[face] = 0.5 * _face_normal(vertices, faces, face, area_eps, normals)
 
 
 def face_centroids(vertices: NDArray[Any], faces: NDArray[Any]) -> NDArray[Any]:

@@ -231,35 +231,38 @@ def _find(parent: NDArray[np.int64], node: int) -> int:  # pragma: no cover - nu
 
 
 @kernel(inline=True)
-def _find_parity(  # pragma: no cover - numba
-    parent: NDArray[np.int64], parity: NDArray[np.int8], node: int
-) -> tuple[int, np.int8]:
-    """(root, parity of ``node`` against it); the path is pointed at the root."""
-    root, total = node, np.int8(0)
-    while parent[root] != root:
-        total ^= parity[root]
-        root = parent[root]
+def _find_linked(link: NDArray[np.int64], node: int) -> tuple[int, int]:  # pragma: no cover
+    """(root, parity of ``node`` against it) in a union-find with parity packed as
+    ``link[x] = 2 * parent + parity against the parent`` (one load per step); the path is
+    pointed at the root."""
+    root, total = node, 0
+    while link[root] >> 1 != root:
+        total ^= link[root] & 1
+        root = link[root] >> 1
     remaining = total
-    while parent[node] != root and parent[node] != node:
-        following, step = parent[node], parity[node]
-        parent[node], parity[node] = root, remaining
+    while True:
+        following = link[node] >> 1
+        if following == root or following == node:
+            break
+        step = link[node] & 1
+        link[node] = 2 * root + remaining
         remaining ^= step
         node = following
     return root, total
 
 
 @kernel(inline=True)
-def _join(  # pragma: no cover - numba
-    parent: NDArray[np.int64], parity: NDArray[np.int8], a: int, b: int, differ: np.int8
+def _join_linked(  # pragma: no cover - numba
+    link: NDArray[np.int64], a: int, b: int, differ: int
 ) -> None:
-    """Put ``a`` and ``b`` in one set with parity(a) ^ parity(b) == ``differ`` (kept as
-    found where they already share one: a non-orientable surface)."""
-    root_a, parity_a = _find_parity(parent, parity, a)
-    root_b, parity_b = _find_parity(parent, parity, b)
+    """Put ``a`` and ``b`` in one set of ``_find_linked`` with parity(a) ^ parity(b) ==
+    ``differ``, under the lower root (kept as found where they already share one: a
+    non-orientable surface)."""
+    root_a, parity_a = _find_linked(link, a)
+    root_b, parity_b = _find_linked(link, b)
     if root_a != root_b:
         low, high = min(root_a, root_b), max(root_a, root_b)
-        parent[high] = low
-        parity[high] = parity_a ^ parity_b ^ differ
+        link[high] = 2 * low + (parity_a ^ parity_b ^ differ)
 
 
 @kernel(inline=True)
@@ -355,8 +358,7 @@ def _orient_patches(  # pragma: no cover
     first_copy = np.full(face_count, -1, dtype=np.int64)
     # Patches: a union-find over faces whose parity says whether a face is wound against
     # its root (the patch's lowest face); joined across each manifold edge.
-    parent = np.arange(face_count)
-    parity = np.zeros(face_count, dtype=np.int8)
+    link = 2 * np.arange(face_count)
     vertex_parent = np.arange(n_vertices)
     on_hole = np.zeros(n_vertices, dtype=np.bool_)  # on an edge of one face
     cut_start = np.empty(edge_count, dtype=np.int64)  # edges of one face, or of 3 or more
@@ -373,7 +375,6 @@ def _orient_patches(  # pragma: no cover
             # each of its edges, so the lowest face of the copies is their original on
             # whichever edge finds them first. Collapsed faces (``skip`` and no original)
             # take no part.
-            lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
             if j - i == 2:
                 f, g = edge_table[i, 1], edge_table[i + 1, 1]
                 usable = (not skip[f] or first_copy[f] >= 0) and (not skip[g] or first_copy[g] >= 0)
@@ -383,6 +384,7 @@ def _orient_patches(  # pragma: no cover
                     first_copy[second] = first if first_copy[first] < 0 else first_copy[first]
                     skip[second] = True
             else:
+                lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
                 keys = np.empty(j - i, dtype=np.int64)
                 count = 0
                 for k in range(i, j):
@@ -412,7 +414,7 @@ def _orient_patches(  # pragma: no cover
                     g, g_at = face, k
         if members == 2:
             # Faces wound alike run their shared edge in opposite directions.
-            _join(parent, parity, f, g, np.int8(forward[f_at] == forward[g_at]))
+            _join_linked(link, f, g, 1 if forward[f_at] == forward[g_at] else 0)
         elif members > 0:
             lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
             if members > 2:
@@ -435,7 +437,7 @@ def _orient_patches(  # pragma: no cover
     for face in range(face_count):
         if skip[face]:
             continue
-        root, flipped = _find_parity(parent, parity, face)
+        root, flipped = _find_linked(link, face)
         if root == face:
             patch[face] = patch_count
             patch_count += 1

@@ -14,7 +14,6 @@ from neural_shdf.geometry import (
     face_normals,
     grid_cells,
     principal_coordinates,
-    renewed_normals,
     weld_faces,
     zero_area_limit,
 )
@@ -321,13 +320,14 @@ def test_grid_cells_partition_the_points_alike_whatever_the_axis_signs():
     assert len(set(grid_cells(np.array([[0.3, -0.3, 0.0], [0, 0, 0], [0.6, 0, 0]]), 1.0))) == 2
 
 
-def test_renewed_normals_are_those_of_the_triangles_as_listed_bit_for_bit():
+def test_normals_with_the_limit_given_are_those_found_with_it():
     sphere = trimesh.creation.icosphere(subdivisions=2)
     vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
     faces = np.vstack([faces, [[0, 0, 1]]])  # and a degenerate triangle
-    normals, _ = face_normals(vertices, faces)
-    rows = np.arange(len(faces)) % 3 == 0
-    reversed_rows = np.where(rows[:, None], faces[:, ::-1], faces)
-    expected, _ = face_normals(vertices, reversed_rows)
-    np.testing.assert_array_equal(renewed_normals(vertices, reversed_rows, rows, normals), expected)
-    assert count_zero_rows(expected) == 1
+    normals, areas = face_normals(vertices, faces)
+    given = face_normals(vertices, faces, area_limit=zero_area_limit(vertices, faces))
+    np.testing.assert_array_equal(given[0], normals)
+    np.testing.assert_array_equal(given[1], areas)
+    assert count_zero_rows(normals) == 1
+    # A limit above every triangle's doubled area leaves no normal.
+    assert count_zero_rows(face_normals(vertices, faces, area_limit=1.0)[0]) == len(faces)

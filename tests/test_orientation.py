@@ -7,12 +7,19 @@ import numpy as np
 import pytest
 import trimesh
 
-from neural_shdf.geometry import build_face_graph, face_centroids, weld_faces
+from neural_shdf.geometry import (
+    build_face_graph,
+    face_centroids,
+    face_normals,
+    weld_faces,
+    zero_area_limit,
+)
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import load_mesh
 from neural_shdf.orientation import (
     hole_caps,
     orient_faces,
+    reverse_flipped,
     reverse_rows,
     reversed_slots,
     welded_edges,
@@ -358,7 +365,6 @@ def _messy_meshes(seed: int):
 def test_the_patch_kernel_matches_its_reference_bit_for_bit(seed: int):
     """The packed union-find gives the reference kernel's every output, non-orientable
     strips (where the join order decides) included."""
-    from neural_shdf.geometry import face_normals
     from neural_shdf.orientation import _orient_patches
     from tests.orientation_reference import reference_orient_patches
 
@@ -371,3 +377,22 @@ def test_the_patch_kernel_matches_its_reference_bit_for_bit(seed: int):
         expected = reference_orient_patches(*arguments)
         for ours, theirs in zip(got, expected, strict=True):
             np.testing.assert_array_equal(ours, theirs)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_oriented_copy_in_one_pass_is_the_rows_slots_and_normals_one_by_one(seed: int):
+    """``reverse_flipped`` gives what reversing the rows, permuting the slots and computing
+    the reversed triangles' normals afresh give, bit for bit (degenerate rows included)."""
+    rng = np.random.default_rng(seed)
+    for vertices, faces in _messy_meshes(seed):
+        welded = weld_faces(vertices, faces)
+        _, slot = welded_edges(welded)
+        normals, _ = face_normals(vertices, faces)
+        limit = zero_area_limit(vertices, faces)
+        for flips in (orient_faces(vertices, faces).flips, rng.random(len(faces)) < 0.5):
+            got = reverse_flipped(vertices, faces, welded, slot, flips, normals, limit)
+            backwards = reverse_rows(faces, flips)
+            np.testing.assert_array_equal(got[0], backwards)
+            np.testing.assert_array_equal(got[1], reverse_rows(welded, flips))
+            np.testing.assert_array_equal(got[2], reversed_slots(slot, flips))
+            np.testing.assert_array_equal(got[3], face_normals(vertices, backwards)[0])

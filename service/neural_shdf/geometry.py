@@ -20,34 +20,21 @@ EDGE_CLIQUE = 4
 
 
 def face_normals(
-    vertices: NDArray[Any], faces: NDArray[Any]
+    vertices: NDArray[Any], faces: NDArray[Any], *, area_limit: float | None = None
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Unit normals (F, 3) and areas (F,) of triangles; degenerate faces get a zero normal.
 
+    ``area_limit``: ``zero_area_limit(vertices, faces)`` where the caller has it.
     ``TriangleMesh.normals_and_areas`` caches this per mesh; call that where a mesh exists.
     """
     vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
     faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    if area_limit is None:
+        area_limit = zero_area_limit(vertices, faces)
     normals = np.empty((len(faces), 3), dtype=np.float64)
     areas = np.empty(len(faces), dtype=np.float64)
-    _normals_and_areas(vertices, faces, zero_area_limit(vertices, faces), normals, areas)
+    _normals_and_areas(vertices, faces, area_limit, normals, areas)
     return normals, areas
-
-
-def renewed_normals(
-    vertices: NDArray[Any], faces: NDArray[Any], rows: NDArray[Any], normals: NDArray[Any]
-) -> NDArray[np.float64]:
-    """``normals`` (F, 3) with the rows where ``rows`` (F,) is set computed again from
-    ``faces``, as ``face_normals(vertices, faces)`` would give them bit for bit (the same
-    triangles' corners: the same degenerate limit), the others copied."""
-    vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
-    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
-    result = np.array(normals, dtype=np.float64)
-    if np.any(rows):
-        _renew_normals(
-            vertices, faces, zero_area_limit(vertices, faces), np.asarray(rows, bool), result
-        )
-    return result
 
 
 @kernel(inline=True)
@@ -80,20 +67,6 @@ def _face_normal(  # pragma: no cover - numba
         normals[face, 1] = 0.0
         normals[face, 2] = 0.0
     return norm
-
-
-@kernel
-def _renew_normals(  # pragma: no cover - numba
-    vertices: NDArray[np.float64],
-    faces: NDArray[np.int64],
-    area_eps: float,
-    rows: NDArray[np.bool_],
-    normals: NDArray[np.float64],
-) -> None:
-    """``_normals_and_areas``' normal of each face in ``rows``, into ``normals``."""
-    for face in range(faces.shape[0]):
-        if rows[face]:
-            _face_normal(vertices, faces, face, area_eps, normals)
 
 
 def count_zero_rows(normals: NDArray[Any]) -> int:

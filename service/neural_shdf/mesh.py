@@ -17,13 +17,14 @@ from neural_shdf.geometry import (
     count_zero_rows,
     face_centroids,
     face_normals,
-    renewed_normals,
     weld_faces,
+    zero_area_limit,
 )
 from neural_shdf.orientation import (
     MeshDiagnostics,
     Orientation,
     orient_faces,
+    reverse_flipped,
     reverse_rows,
     reversed_slots,
 )
@@ -102,13 +103,20 @@ class TriangleMesh:
         return light
 
     @cached_property
+    def zero_area_limit(self) -> float:
+        """Twice-area at or below which a triangle is degenerate
+        (``geometry.zero_area_limit``), computed once per mesh (and seeded by the loaders,
+        which check it first): the same for every winding of the triangles."""
+        return zero_area_limit(self.vertices, self.faces)
+
+    @cached_property
     def normals_and_areas(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Unit normal (F, 3) and area (F,) of each triangle, computed once per mesh.
 
         Degenerate triangles get a zero normal (``geometry.face_normals``). The
         arrays are shared by every caller: do not modify them.
         """
-        normals, areas = face_normals(self.vertices, self.faces)
+        normals, areas = face_normals(self.vertices, self.faces, area_limit=self.zero_area_limit)
         normals.flags.writeable = False
         areas.flags.writeable = False
         return normals, areas
@@ -183,8 +191,20 @@ class TriangleMesh:
         flips = self.orientation.flips
         if not flips.any():
             return self
-        faces = reverse_rows(self.faces, flips)
-        welded = reverse_rows(self.welded_faces, flips)
+        given_normals, areas = self.normals_and_areas
+        edge_table, slot = self.welded_edges
+        # One pass: the reversed rows of the triangles and of their welding, the edge slots
+        # of the reversed rows, and their normals computed from the new order (bit for bit
+        # those of a file wound that way); the other rows copied.
+        faces, welded, oriented_slot, normals = reverse_flipped(
+            self.vertices,
+            self.faces,
+            self.welded_faces,
+            slot,
+            flips,
+            given_normals,
+            self.zero_area_limit,
+        )
         coincident, coincident_edges = self.coincident_welding
         if coincident is self.welded_faces:
             oriented_coincident = welded
@@ -192,21 +212,18 @@ class TriangleMesh:
             oriented_coincident = reverse_rows(coincident, flips)
             oriented_coincident.flags.writeable = False
         oriented = TriangleMesh(self.vertices, faces, self.face_origin, self.input_face_count)
-        given_normals, areas = self.normals_and_areas
-        # The reversed rows' normals computed from their new order (bit for bit those of a
-        # file wound that way), the others kept.
-        normals = renewed_normals(self.vertices, faces, flips, given_normals)
         normals.flags.writeable = False
         welded.flags.writeable = False
-        # Seed the caches: the areas, the welding and the edges do not change with the winding.
-        edge_table, slot = self.welded_edges
-        oriented_edges = (edge_table, reversed_slots(slot, flips))
+        # Seed the caches: the areas, the welding, the edges and the degenerate limit do not
+        # change with the winding.
+        oriented_edges = (edge_table, oriented_slot)
         if oriented_coincident is not welded:
             coincident_table, coincident_slot = coincident_edges
             coincident_edges = (coincident_table, reversed_slots(coincident_slot, flips))
         else:
             coincident_edges = oriented_edges
         oriented.__dict__.update(
+            zero_area_limit=self.zero_area_limit,
             normals_and_areas=(normals, areas),
             coincident_welding=(oriented_coincident, coincident_edges),
             welded_faces=welded,

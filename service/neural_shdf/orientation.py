@@ -48,7 +48,13 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from neural_shdf.compiled import kernel
-from neural_shdf.geometry import _sorted_edges, face_normals, weld_faces, zero_area_limit
+from neural_shdf.geometry import (
+    _face_normal,
+    _sorted_edges,
+    face_normals,
+    weld_faces,
+    zero_area_limit,
+)
 
 #: ``hole_caps`` closes nothing where boundary edges outnumber this share of the triangles:
 #: such a surface is mostly open (a soup of separate sheets), and caps would not stand for
@@ -198,6 +204,82 @@ def reverse_rows(faces: NDArray[Any], flips: NDArray[Any]) -> NDArray[np.int64]:
     return _permute_flipped_rows(faces, np.asarray(flips, dtype=bool), 2, 1, 0)
 
 
+def reverse_flipped(
+    vertices: NDArray[Any],
+    faces: NDArray[Any],
+    welded: NDArray[Any],
+    slot: NDArray[Any],
+    flips: NDArray[Any],
+    normals: NDArray[Any],
+    area_limit: float,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+    """The arrays of the oriented copy of a mesh, in one pass over its triangles.
+
+    Returns ``reverse_rows(faces, flips)``, ``reverse_rows(welded, flips)``,
+    ``reversed_slots(slot, flips)`` and ``normals`` with the reversed rows' normals computed
+    again from their new order, bit for bit those of ``geometry.face_normals`` of the
+    reversed triangles (``area_limit``: ``zero_area_limit(vertices, faces)``, which the
+    winding does not change); the other rows copied.
+    """
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    welded = np.ascontiguousarray(welded, dtype=np.int64).reshape(-1, 3)
+    slot = np.ascontiguousarray(slot, dtype=np.int64).reshape(-1)
+    normals = np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
+    reversed_faces, reversed_welded = np.empty_like(faces), np.empty_like(welded)
+    reversed_slot, renewed = np.empty_like(slot), np.empty_like(normals)
+    _reverse_flipped(
+        vertices,
+        faces,
+        welded,
+        slot,
+        np.asarray(flips, dtype=bool),
+        normals,
+        float(area_limit),
+        reversed_faces,
+        reversed_welded,
+        reversed_slot,
+        renewed,
+    )
+    return reversed_faces, reversed_welded, reversed_slot, renewed
+
+
+@kernel
+def _reverse_flipped(  # pragma: no cover - numba
+    vertices: NDArray[np.float64],
+    faces: NDArray[np.int64],
+    welded: NDArray[np.int64],
+    slot: NDArray[np.int64],
+    flips: NDArray[np.bool_],
+    normals: NDArray[np.float64],
+    area_limit: float,
+    reversed_faces: NDArray[np.int64],
+    reversed_welded: NDArray[np.int64],
+    reversed_slot: NDArray[np.int64],
+    renewed: NDArray[np.float64],
+) -> None:
+    """``reverse_flipped`` into the arrays given: rows (a, b, c) -> (c, b, a), slots of
+    corners 0, 1, 2 -> those of 1, 0, 2 (``reversed_slots``), normals from the new rows."""
+    for face in range(faces.shape[0]):
+        if flips[face]:
+            reversed_faces[face, 0] = faces[face, 2]
+            reversed_faces[face, 1] = faces[face, 1]
+            reversed_faces[face, 2] = faces[face, 0]
+            reversed_welded[face, 0] = welded[face, 2]
+            reversed_welded[face, 1] = welded[face, 1]
+            reversed_welded[face, 2] = welded[face, 0]
+            reversed_slot[3 * face] = slot[3 * face + 1]
+            reversed_slot[3 * face + 1] = slot[3 * face]
+            reversed_slot[3 * face + 2] = slot[3 * face + 2]
+            _face_normal(vertices, reversed_faces, face, area_limit, renewed)
+        else:
+            for corner in range(3):
+                reversed_faces[face, corner] = faces[face, corner]
+                reversed_welded[face, corner] = welded[face, corner]
+                reversed_slot[3 * face + corner] = slot[3 * face + corner]
+                renewed[face, corner] = normals[face, corner]
+
+
 @kernel
 def _permute_flipped_rows(  # pragma: no cover - numba
     rows: NDArray[np.int64], flips: NDArray[np.bool_], first: int, second: int, third: int
@@ -242,7 +324,7 @@ def _find_linked(link: NDArray[np.int64], node: int) -> tuple[int, int]:  # prag
     remaining = total
     while True:
         following = link[node] >> 1
-        if following == root or following == node:
+        if following == root or following == node:  # noqa: SIM109 - compiled
             break
         step = link[node] & 1
         link[node] = 2 * root + remaining

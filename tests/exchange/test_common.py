@@ -32,3 +32,11 @@ def test_a_mesh_of_only_collinear_triangles_is_refused_at_any_size(scale):
     line = np.array([[0, 0, 0], [1, 2, 3], [2, 4, 6], [4, 8, 12]], dtype=np.float64) * scale
     with pytest.raises(InvalidGeometryError, match="zero area.*on one line"):
         load_mesh(obj_text(line, np.array([[0, 1, 2], [0, 1, 3], [0, 0, 3]])), "obj")
+
+
+def test_a_loaded_mesh_carries_the_degenerate_limit_it_was_checked_with():
+    from neural_shdf.geometry import zero_area_limit
+
+    mesh = load_mesh(obj_text(TETRAHEDRON * 3.0, TETRAHEDRON_FACES), "obj")
+    assert "zero_area_limit" in mesh.__dict__  # seeded, not measured again
+    assert mesh.zero_area_limit == zero_area_limit(mesh.vertices, mesh.faces)

@@ -210,13 +210,15 @@ def build_mesh(
                 else "all their corners are at one point"
             )
         )
-    return TriangleMesh(
+    mesh = TriangleMesh(
         vertices=vertices,
         faces=faces,
         # TriangleMesh takes None (one triangle per input face); its field is typed as set.
         face_origin=face_origin,  # type: ignore[arg-type]
         input_face_count=input_face_count,
     )
+    mesh.__dict__["zero_area_limit"] = limit  # the normals use the same limit
+    return mesh
 
 
 def polygon_mesh(

@@ -452,6 +452,14 @@ def _orient_patches(  # pragma: no cover
         j = i + 1
         while j < edge_count and edge_table[j, 0] == edge_table[i, 0]:
             j += 1
+        if j - i == 2:
+            f, g = edge_table[i, 1], edge_table[i + 1, 1]
+            if not skip[f] and not skip[g] and vertex_sum[f] != vertex_sum[g]:
+                # The usual manifold edge (two faces, neither a copy nor collapsed), what
+                # the general steps below conclude for it without their look-ups.
+                _join_linked(link, f, g, 1 if forward[i] == forward[i + 1] else 0)
+                i = j
+                continue
         if j - i >= 2:
             # Duplicates: the same third vertex on one edge. Every copy of a triangle is on
             # each of its edges, so the lowest face of the copies is their original on

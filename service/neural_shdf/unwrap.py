@@ -8,9 +8,10 @@ balanced, connected halves along a straightened border when it still fails), so 
 chart lies within one part and seams run where parts meet, plus whatever cuts a part
 still needs to flatten. Sliver charts are merged into a neighbour of their part where the
 two flatten as one; only pieces that never flatten (non-manifold ones) are charted by
-xatlas, inside the piece. xatlas packs all charts into one atlas. UVs are per triangle
-corner, in ``[0, 1]``, with ``v`` pointing up (OBJ's and trimesh's convention; the GLB
-writer flips it for glTF).
+xatlas, inside the piece. xatlas packs all charts into one atlas, and every chart's
+corners are mapped through the affine map its packing found (so none depends on xatlas
+placing it). UVs are per triangle corner, in ``[0, 1]``, with ``v`` pointing up (OBJ's
+and trimesh's convention; the GLB writer flips it for glTF).
 """
 
 from __future__ import annotations
@@ -169,7 +170,8 @@ def unwrap(mesh: TriangleMesh, labels: NDArray, params: UnwrapParams | None = No
     halved (up to ``max_splits`` times); one that can be halved no further is kept as one
     chart within ``LAST_PIECE_STRETCH`` times ``max_stretch``, else (non-manifold,
     overlapping itself) charted by xatlas inside the piece. Sliver charts are merged into
-    a neighbour of their part where the two flatten as one. xatlas packs all charts.
+    a neighbour of their part where the two flatten as one. xatlas packs all charts (see
+    ``_pack``).
     ``labels``: a part per triangle or per input face (see ``part_labels_per_triangle``).
     Deterministic.
     """

@@ -319,3 +319,99 @@ def test_a_piece_is_halved_into_two_connected_halves_of_similar_size():
     for half in (0, 1):
         members = np.flatnonzero(halves == half)
         assert len(_connected_pieces(sphere.faces, members)) == 1
+
+
+def _signed_uv_areas(corner_uvs: np.ndarray) -> np.ndarray:
+    s, t = corner_uvs[:, :, 0], corner_uvs[:, :, 1]
+    return (s[:, 1] - s[:, 0]) * (t[:, 2] - t[:, 0]) - (s[:, 2] - s[:, 0]) * (t[:, 1] - t[:, 0])
+
+
+def _charts_with_two_signs(atlas) -> list[int]:
+    """Charts holding triangles of both orientations in UV (a flip inside the chart)."""
+    sign = np.sign(_signed_uv_areas(atlas.corner_uvs))
+    charted = atlas.chart >= 0
+    positive = np.bincount(atlas.chart[charted], weights=sign[charted] > 0)
+    negative = np.bincount(atlas.chart[charted], weights=sign[charted] < 0)
+    return np.flatnonzero((positive > 0) & (negative > 0)).tolist()
+
+
+def _grid_with_thin_ear(n: int, spacing: float, height: float) -> TriangleMesh:
+    """A flat n x n grid of ``spacing``-sized squares plus one thin triangle ("ear") on the
+    middle of its bottom border, ``height`` tall, whose apex no other triangle uses."""
+    grid = _grid_mesh(n)
+    middle = n // 2
+    apex = [[(middle + 0.5), -height / spacing, 0.0]]
+    vertices = np.concatenate([grid.vertices, apex]) * spacing
+    ear = [[middle, len(vertices) - 1, middle + 1]]
+    return TriangleMesh(vertices, np.concatenate([grid.faces, ear]))
+
+
+def test_a_thin_triangle_of_a_dense_scan_keeps_its_place_in_the_packed_chart():
+    """On a dense scan's scale a thin, valid triangle (2% of a square's area here; under
+    float32's epsilon in UV area) is one xatlas's packer drops as degenerate, leaving its
+    own vertex at the atlas origin: the triangle then crossed the atlas, flipped."""
+    mesh = _grid_with_thin_ear(16, spacing=0.003, height=0.02 * 0.003)
+    labels = np.zeros(mesh.face_count, dtype=np.int64)
+    atlas = unwrap(mesh, labels)
+    assert atlas.chart_count == 1
+    assert _charts_with_two_signs(atlas) == []
+    _assert_valid_atlas(mesh, labels, atlas)
+    # The ear keeps its shape: its UV area against the squares' is that in 3D (2%).
+    areas = np.abs(_signed_uv_areas(atlas.corner_uvs))
+    assert areas[-1] / np.median(areas[:-1]) == pytest.approx(0.02, rel=0.05)
+    quality = uv_quality(mesh.vertices, mesh.faces, atlas.corner_uvs, atlas.chart)
+    assert quality.l2_stretch == pytest.approx(1.0, abs=1e-3)
+
+
+def test_every_corner_follows_its_charts_map_where_xatlas_left_it_unplaced():
+    """Two charts xatlas turned, mirrored and scaled (a little differently along each axis);
+    one triangle it dropped and one vertex it left at the origin are mapped with the rest."""
+    from neural_shdf.unwrap import _refit_charts
+
+    rng = np.random.default_rng(3)
+    source = rng.random((40, 3, 2)) * 10
+    source[20:, :, 0] += 30  # the second chart, beside the first
+    owner = np.repeat([0, 1], 20)
+    maps = [
+        (np.array([[0.0, -2.0], [2.01, 0.0]]), np.array([5.0, 7.0])),  # turned a quarter
+        (np.array([[1.5, 0.2], [0.2, -1.5]]), np.array([-40.0, 90.0])),  # mirrored
+    ]
+    expected = np.empty_like(source)
+    for chart, (matrix, shift) in enumerate(maps):
+        expected[owner == chart] = source[owner == chart] @ matrix.T + shift
+    placed = expected.copy()
+    packed_chart = owner[::-1].copy()  # xatlas numbers its charts its own way
+    packed_chart[3] = -1  # dropped: placed anywhere
+    placed[3] = [[0.1, 0.0], [0.0, 0.0], [0.2, 0.1]]
+    placed[25, 1] = [0.0, 0.0]  # a vertex xatlas never placed
+    mapped = _refit_charts(source, placed, owner, packed_chart, tolerance=0.25)
+    np.testing.assert_allclose(mapped, expected, atol=1e-9)
+    # A chart xatlas dropped whole has no map to follow: xatlas's placement stays.
+    packed_chart[owner == 1] = -1
+    mapped = _refit_charts(source, placed, owner, packed_chart, tolerance=0.25)
+    np.testing.assert_allclose(mapped[owner == 0], expected[owner == 0], atol=1e-9)
+    np.testing.assert_array_equal(mapped[owner == 1], placed[owner == 1])
+
+
+@pytest.mark.slow
+@pytest.mark.needs_data
+def test_no_chart_of_a_dense_scan_has_a_flipped_triangle_after_packing(shared_data):
+    """The horse head scan (250k faces, dense-dev), cut into slabs along its longest axis:
+    xatlas's packer dropped 58 of its thin triangles as degenerate, 6 of which flipped."""
+    from neural_shdf.mesh_io import load_mesh
+
+    path = (
+        shared_data / "dense-dev" / "polygonjs__models__resources__threedscans.com__horse_head.ply"
+    )
+    if not path.is_file():
+        pytest.skip(f"{path} is absent")
+    mesh = load_mesh(path)
+    centres = mesh.vertices[mesh.faces].mean(axis=1)
+    axis = int(np.argmax(np.ptp(mesh.vertices, axis=0)))
+    labels = np.digitize(centres[:, axis], np.quantile(centres[:, axis], [0.25, 0.5, 0.75]))
+    atlas = unwrap(mesh, labels)
+    assert _charts_with_two_signs(atlas) == []
+    quality = uv_quality(mesh.vertices, mesh.faces, atlas.corner_uvs, atlas.chart)
+    assert quality.flipped_fraction == 0
+    assert quality.overlapping_texels == 0
+    assert quality.l2_stretch < 1.2

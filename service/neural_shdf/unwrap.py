@@ -8,9 +8,10 @@ balanced, connected halves along a straightened border when it still fails), so 
 chart lies within one part and seams run where parts meet, plus whatever cuts a part
 still needs to flatten. Sliver charts are merged into a neighbour of their part where the
 two flatten as one; only pieces that never flatten (non-manifold ones) are charted by
-xatlas, inside the piece. xatlas packs all charts into one atlas. UVs are per triangle
-corner, in ``[0, 1]``, with ``v`` pointing up (OBJ's and trimesh's convention; the GLB
-writer flips it for glTF).
+xatlas, inside the piece. xatlas packs all charts into one atlas, and every chart's
+corners are mapped through the affine map its packing found (so none depends on xatlas
+placing it). UVs are per triangle corner, in ``[0, 1]``, with ``v`` pointing up (OBJ's
+and trimesh's convention; the GLB writer flips it for glTF).
 """
 
 from __future__ import annotations
@@ -169,7 +170,8 @@ def unwrap(mesh: TriangleMesh, labels: NDArray, params: UnwrapParams | None = No
     halved (up to ``max_splits`` times); one that can be halved no further is kept as one
     chart within ``LAST_PIECE_STRETCH`` times ``max_stretch``, else (non-manifold,
     overlapping itself) charted by xatlas inside the piece. Sliver charts are merged into
-    a neighbour of their part where the two flatten as one. xatlas packs all charts.
+    a neighbour of their part where the two flatten as one. xatlas packs all charts (see
+    ``_pack``).
     ``labels``: a part per triangle or per input face (see ``part_labels_per_triangle``).
     Deterministic.
     """
@@ -833,6 +835,15 @@ def _xatlas_charts(
     return charts
 
 
+#: Median triangle area (UV units squared) the charts are scaled to before xatlas packs
+#: them: xatlas drops UV triangles under float32's epsilon in area as degenerate, which a
+#: dense scan's thin triangles are at the surface's scale.
+PACK_TRIANGLE_AREA = 1.0
+#: A corner xatlas placed further than this many texels from its chart's fitted map is one
+#: it did not place (a vertex only triangles it dropped use): left out of the refit.
+PLACED_TOLERANCE_TEXELS = 0.25
+
+
 def _pack(
     mesh: TriangleMesh,
     corner_uvs: NDArray,
@@ -840,21 +851,17 @@ def _pack(
     chart_part: NDArray[np.int64],
     params: UnwrapParams,
 ) -> UvAtlas:
-    """Pack charts (UVs at the surface's scale) into one atlas with xatlas."""
+    """Pack charts (UVs at the surface's scale) into one atlas with xatlas.
+
+    xatlas moves, turns, mirrors and scales each chart as a whole (scaled a little
+    differently along its two axes to fit whole texels), an affine map per chart, so that
+    map is fitted from the corners xatlas placed and every corner of the chart is mapped
+    through it (``_refit_charts``): no corner depends on xatlas placing it (it leaves a
+    vertex that only triangles it deems degenerate use where it falls)."""
 
     charted = np.flatnonzero(chart >= 0)
-    # xatlas finds UV charts by shared UV positions: lay the charts out side by side first.
-    laid_out = corner_uvs[charted].copy()
     owner = chart[charted]
-    low = np.full((len(chart_part), 2), np.inf)
-    high = np.full((len(chart_part), 2), -np.inf)
-    np.minimum.at(low, owner, laid_out.min(axis=1))
-    np.maximum.at(high, owner, laid_out.max(axis=1))
-    width = high[:, 0] - low[:, 0]
-    gap = 0.1 * float(width.max(initial=1.0)) + 1e-6
-    shift = np.concatenate([[0.0], np.cumsum(width + gap)[:-1]]) - low[:, 0]
-    laid_out[:, :, 0] += shift[owner][:, None]
-    laid_out[:, :, 1] -= low[owner, 1][:, None]
+    laid_out = _side_by_side(corner_uvs[charted], owner, len(chart_part))
     quantum = 2.0**-30 * max(float(np.abs(laid_out).max(initial=1.0)), 1e-30)
     keys = np.column_stack(
         [np.repeat(owner, 3), np.round(laid_out.reshape(-1, 2) / quantum)]
@@ -862,6 +869,58 @@ def _pack(
     unique, inverse = unique_rows(keys, return_inverse=True)
     uv_vertices = np.ascontiguousarray(unique[:, 1:] * quantum, dtype=np.float32)
     uv_faces = np.ascontiguousarray(inverse.reshape(-1, 3), dtype=np.uint32)
+    atlas = _xatlas_pack(uv_vertices, uv_faces, params)
+    _, indices, uvs = atlas.get_mesh(0)
+    placed = uvs.astype(np.float64)[indices.astype(np.int64)]
+    # The chart xatlas made of each triangle (-1: one it dropped), one per chart of ours.
+    packed_chart = np.full(len(charted), -1, dtype=np.int64)
+    for index in range(atlas.get_mesh_chart_count(0)):
+        packed_chart[np.asarray(atlas.get_mesh_chart(0, index).faces, dtype=np.int64)] = index
+    # Fitted in texels, where the tolerance is set, from the float32 positions xatlas got.
+    texels = np.array([max(atlas.width, 1), max(atlas.height, 1)], dtype=np.float64)
+    source = uv_vertices.astype(np.float64)[inverse.reshape(-1, 3)]
+    refitted = _refit_charts(source, placed * texels, owner, packed_chart, PLACED_TOLERANCE_TEXELS)
+    packed = np.zeros_like(corner_uvs)
+    packed[charted] = refitted / texels
+    np.clip(packed, 0.0, 1.0, out=packed)
+    return UvAtlas(
+        corner_uvs=packed,
+        chart=chart,
+        chart_part=chart_part,
+        width=int(atlas.width),
+        height=int(atlas.height),
+        utilization=float(atlas.utilization),
+    )
+
+
+def _side_by_side(
+    corner_uvs: NDArray[np.float64], owner: NDArray[np.int64], charts: int
+) -> NDArray[np.float64]:
+    """Charts laid out side by side in one strip (xatlas finds UV charts by shared UV
+    positions), scaled so that the median triangle has ``PACK_TRIANGLE_AREA``."""
+    laid_out = corner_uvs.copy()
+    low = np.full((charts, 2), np.inf)
+    high = np.full((charts, 2), -np.inf)
+    np.minimum.at(low, owner, laid_out.min(axis=1))
+    np.maximum.at(high, owner, laid_out.max(axis=1))
+    width = high[:, 0] - low[:, 0]
+    gap = 0.1 * float(width.max(initial=1.0)) + 1e-6
+    shift = np.concatenate([[0.0], np.cumsum(width + gap)[:-1]]) - low[:, 0]
+    laid_out[:, :, 0] += shift[owner][:, None]
+    laid_out[:, :, 1] -= low[owner, 1][:, None]
+    flat = np.arange(3 * len(laid_out)).reshape(-1, 3)
+    areas = np.abs(_triangle_areas(laid_out.reshape(-1, 2), flat))
+    median = float(np.median(areas)) if len(areas) else 0.0
+    if median > 0:
+        laid_out *= math.sqrt(PACK_TRIANGLE_AREA / median)
+    return laid_out
+
+
+def _xatlas_pack(
+    uv_vertices: NDArray[np.float32], uv_faces: NDArray[np.uint32], params: UnwrapParams
+) -> xatlas.Atlas:
+    """xatlas's packing of a UV mesh into one atlas of ``params.atlas_size`` texels,
+    charts a little smaller each pass until they fit (``PACK_ATTEMPTS``)."""
     texels_per_unit = 0.0  # first pass: xatlas's estimate for the resolution
     for attempt in range(PACK_ATTEMPTS + 1):
         last = attempt == PACK_ATTEMPTS
@@ -880,18 +939,94 @@ def _pack(
         # The estimate overshot: scale the charts down until they fit one atlas.
         shrink = min(params.atlas_size / side, 0.97) if atlas.atlas_count == 1 else 0.92
         texels_per_unit = float(atlas.texels_per_unit) * shrink
-    _, indices, uvs = atlas.get_mesh(0)
-    packed = np.zeros_like(corner_uvs)
-    packed[charted] = uvs.astype(np.float64)[indices.astype(np.int64)]
-    np.clip(packed, 0.0, 1.0, out=packed)
-    return UvAtlas(
-        corner_uvs=packed,
-        chart=chart,
-        chart_part=chart_part,
-        width=int(atlas.width),
-        height=int(atlas.height),
-        utilization=float(atlas.utilization),
+    return atlas
+
+
+def _refit_charts(
+    source: NDArray[np.float64],
+    placed: NDArray[np.float64],
+    owner: NDArray[np.int64],
+    packed_chart: NDArray[np.int64],
+    tolerance: float,
+) -> NDArray[np.float64]:
+    """(n, 3, 2) corners ``source`` mapped through the affine map that takes each packed
+    chart's corners in ``source`` to where xatlas ``placed`` them, fitted by least squares
+    on every triangle xatlas kept, then twice more on the corners it left within
+    ``tolerance``.
+
+    A triangle xatlas dropped (``packed_chart`` -1) follows the packed chart holding most
+    of its chart (``owner``); where there is none, or where a packed chart's fit leaves
+    fewer than half its corners within ``tolerance``, xatlas's placement is kept."""
+    if len(owner) == 0:
+        return placed
+    kept = packed_chart >= 0
+    groups = int(packed_chart.max(initial=-1)) + 1
+    # Each chart of ours: the packed chart holding most of its triangles (-1: none).
+    counts = sp.csr_matrix(
+        (np.ones(int(kept.sum())), (owner[kept], packed_chart[kept])),
+        shape=(int(owner.max()) + 1, max(groups, 1)),
     )
+    majority = np.asarray(counts.argmax(axis=1)).reshape(-1)
+    majority[np.asarray(counts.sum(axis=1)).reshape(-1) == 0] = -1
+    group = np.where(kept, packed_chart, majority[owner])
+    fitted = np.repeat(group >= 0, 3)
+    corner_group = np.repeat(np.maximum(group, 0), 3)
+    q = source.reshape(-1, 2)
+    p = placed.reshape(-1, 2)
+    weight = np.repeat(kept, 3).astype(np.float64)
+    for _ in range(3):
+        matrix, shift = _fit_affine_maps(q, p, corner_group, weight, max(groups, 1))
+        mapped = np.einsum("nij,nj->ni", matrix[corner_group], q) + shift[corner_group]
+        within = np.linalg.norm(mapped - p, axis=1) <= tolerance
+        weight = (within & fitted).astype(np.float64)
+    corners = np.bincount(corner_group, minlength=max(groups, 1)).astype(np.float64)
+    share = np.bincount(corner_group, weights=weight, minlength=max(groups, 1)).astype(np.float64)
+    share /= np.maximum(corners, 1.0)
+    trusted = fitted & (share[corner_group] >= 0.5)
+    return np.where(trusted[:, None], mapped, p).reshape(-1, 3, 2)
+
+
+def _fit_affine_maps(
+    q: NDArray[np.float64],
+    p: NDArray[np.float64],
+    group: NDArray[np.int64],
+    weight: NDArray[np.float64],
+    groups: int,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Per group, the (2, 2) matrix and shift of the weighted least-squares affine map
+    ``p ~ matrix @ q + shift`` (the identity where the group's weighted points are
+    collinear or fewer than three)."""
+
+    def total(values: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.bincount(group, weights=weight * values, minlength=groups).astype(np.float64)
+
+    mass = total(np.ones(len(q)))
+    safe = np.maximum(mass, 1e-300)
+    q_mean = np.column_stack([total(q[:, 0]), total(q[:, 1])]) / safe[:, None]
+    p_mean = np.column_stack([total(p[:, 0]), total(p[:, 1])]) / safe[:, None]
+    qc = q - q_mean[group]
+    pc = p - p_mean[group]
+    # Normal equations per group: matrix = (sum p q^T) (sum q q^T)^-1.
+    qq = np.empty((groups, 2, 2))
+    pq = np.empty((groups, 2, 2))
+    for i in range(2):
+        for j in range(2):
+            qq[:, i, j] = total(qc[:, i] * qc[:, j])
+            pq[:, i, j] = total(pc[:, i] * qc[:, j])
+    det = qq[:, 0, 0] * qq[:, 1, 1] - qq[:, 0, 1] * qq[:, 1, 0]
+    scale = qq[:, 0, 0] * qq[:, 1, 1]
+    usable = det > 1e-12 * np.maximum(scale, 1e-300)
+    det = np.where(usable, det, 1.0)
+    inverse = np.empty_like(qq)
+    inverse[:, 0, 0] = qq[:, 1, 1] / det
+    inverse[:, 1, 1] = qq[:, 0, 0] / det
+    inverse[:, 0, 1] = -qq[:, 0, 1] / det
+    inverse[:, 1, 0] = -qq[:, 1, 0] / det
+    matrix = pq @ inverse
+    matrix[~usable] = np.eye(2)
+    shift = p_mean - np.einsum("nij,nj->ni", matrix, q_mean)
+    shift[~usable] = 0.0
+    return matrix, shift
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ def test_keys_are_those_of_entries_already_stored():
     default became 60,000 with ALGORITHM_VERSION 4: 414bf0d6c3ff6c837360 and
     abf72f349aece7c1b1db before; the unwrap parameters' when ``straighten`` came and
     ``max_splits`` became 6, so no atlas of the older unwrap is served: 203b420a2ae496b19c77
-    before)."""
+    before, then 05554be3b0150226fa47 until ``ATLAS_VERSION`` 2 joined the digest)."""
     shdf = f"{__version__}:a{ALGORITHM_VERSION}:29858baf9f98992f4f770532"
     assert keys.shdf_version("exact", None, 0) == shdf
     assert keys.shdf_key(MESH, "exact", 0, None) == f"{MESH}:shdf:{shdf}"
@@ -43,7 +43,7 @@ def test_keys_are_those_of_entries_already_stored():
     metis = SegmentParams(smoothing=0.5, clusters=4, partitioner="metis")
     assert keys.segmentation_key(MESH, shdf, metis).endswith(f":{shdf}:b29cf18113fe3d7c8076")
     atlas = keys.atlas_key(segmentation, UnwrapParams())
-    assert atlas == f"{segmentation}:uv:05554be3b0150226fa47"
+    assert atlas == f"{segmentation}:uv:52f119a5fb576f584832"
     assert keys.atlas_png_key(atlas) == f"{atlas}:png"
     assert keys.segmentation_basis_key(MESH, shdf, 4, 0) == f"{MESH}:basis:{shdf}:4:0"
     assert (keys.mesh_key(MESH), keys.meta_key(MESH)) == (f"{MESH}:mesh", f"{MESH}:meta")

@@ -144,9 +144,17 @@ def segmentation_basis_key(
     return f"{mesh_id}:basis:{shdf_version}:{clusters}:{seed}" + (":sym" if symmetry else "")
 
 
+#: Version of the unwrap's output (in atlas keys, beside the unwrap parameters), raised when
+#: the same parameters give other UVs: 2, every corner mapped through its chart's packing
+#: (the atlases of 1 could hold a dense scan's thin triangles flipped across the atlas).
+ATLAS_VERSION = 2
+
+
 def atlas_key(segmentation_key: str, unwrap: UnwrapParams) -> str:
-    """A UV atlas by part: its segmentation's key plus the unwrap parameters."""
-    digest = hashlib.sha256(json.dumps(asdict(unwrap), sort_keys=True).encode())
+    """A UV atlas by part: its segmentation's key plus the unwrap parameters and
+    ``ATLAS_VERSION``."""
+    used: dict[str, object] = {**asdict(unwrap), "atlas_version": ATLAS_VERSION}
+    digest = hashlib.sha256(json.dumps(used, sort_keys=True).encode())
     return f"{segmentation_key}:uv:{digest.hexdigest()[:20]}"
 
 

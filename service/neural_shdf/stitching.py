@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
 from neural_shdf.geometry import FaceGraph
-from neural_shdf.orientation import MAX_BOUNDARY_SHARE, _find, _union
+from neural_shdf.orientation import MAX_BOUNDARY_SHARE, _find, _union, boundary_edge_rows
 
 #: Boundary vertices of different shells closer than this many local boundary edge
 #: lengths (their boundary edges' mean length) are stitched.
@@ -54,13 +54,7 @@ def boundary_edges(
     edges: tuple[NDArray[np.int64], NDArray[np.int64]], vertex_count: int
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """(lo, hi) vertex indices of the edges of only one triangle, from ``welded_edges``."""
-    keys = edges[0][:, 0]
-    alone = np.ones(len(keys), dtype=bool)
-    if len(keys) > 1:
-        repeated = keys[1:] == keys[:-1]
-        alone[1:] &= ~repeated
-        alone[:-1] &= ~repeated
-    boundary = keys[alone]
+    boundary = edges[0][boundary_edge_rows(edges[0]), 0]
     return boundary // vertex_count, boundary % vertex_count
 
 

@@ -34,7 +34,7 @@ from neural_shdf import constants
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, face_centroids
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.orientation import MeshDiagnostics, hole_caps
+from neural_shdf.orientation import MeshDiagnostics, hole_caps, open_boundary_faces
 from neural_shdf.segment.params import check_seed
 from neural_shdf.shdf.embree import Scene
 from neural_shdf.shdf.exact import raw_shdf, raw_shdf_at_points
@@ -371,6 +371,10 @@ def compute_shdf(
         smooth=resolved == "exact",
         # the patch filter of wide windows places patches by centroid (exact only)
         centroids=face_centroids(mesh.vertices, mesh.faces) if resolved == "exact" else None,
+        # the file's own open edges, stitched seams included: rays cross their slits too
+        rim=open_boundary_faces(mesh.coincident_welding[1], mesh.face_count)
+        if diagnostics.boundary_loops > 0
+        else None,
         progress=None
         if progress is None
         else (lambda done: progress(ray_share + (1 - ray_share) * done)),

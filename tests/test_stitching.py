@@ -10,7 +10,14 @@ from scipy.sparse.csgraph import connected_components
 from neural_shdf.geometry import weld_faces
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.orientation import hole_caps, welded_edges
-from neural_shdf.stitching import STITCH_TOLERANCE, boundary_edges, stitch_counts, stitch_shells
+from neural_shdf.stitching import (
+    STITCH_TOLERANCE,
+    boundary_edges,
+    cap_spokes,
+    closing_caps,
+    stitch_counts,
+    stitch_shells,
+)
 
 
 def _sphere(subdivisions: int = 3) -> tuple[np.ndarray, np.ndarray]:
@@ -193,3 +200,35 @@ def test_a_mostly_open_mesh_of_separate_sheets_is_not_stitched():
     soup_faces = np.arange(len(soup_vertices)).reshape(-1, 3)
     coincident, stitched = _stitched(soup_vertices, soup_faces)
     assert stitched is coincident
+
+
+def test_cap_spokes_join_the_rim_faces_along_each_hole() -> None:
+    """A sphere with a hole: one spoke per rim vertex, between the triangles on the rim
+    edges before and after it, as long as the vertex is from the loop's centroid."""
+    vertices, faces = _sphere()
+    kept = faces[vertices[faces, 2].mean(axis=1) < 0.8]  # a round hole at the top
+    mesh = TriangleMesh(vertices, kept)
+    welded, edges = mesh.welded_faces, mesh.welded_edges
+    coincident, _ = mesh.coincident_welding
+    capped, caps = closing_caps(mesh.vertices, coincident, welded, edges)
+    pairs, lengths = cap_spokes(capped, len(mesh.vertices), welded, edges, caps)
+    rim_vertices = np.unique(caps[:, :2])
+    assert len(pairs) == len(caps) == len(rim_vertices)
+    rim = np.unique(pairs)
+    edge_faces = boundary_edges(edges, len(mesh.vertices))
+    assert len(edge_faces[0]) == len(caps)
+    # every rim triangle touches the hole, and the spokes reach the loop's centroid
+    assert np.all(np.isin(kept[rim], rim_vertices).any(axis=1))
+    centre = vertices[rim_vertices].mean(axis=0)
+    np.testing.assert_allclose(
+        np.sort(lengths), np.sort(np.linalg.norm(vertices[rim_vertices] - centre, axis=1))
+    )
+    # a closed mesh has no caps and no spokes
+    whole = TriangleMesh(vertices, faces)
+    capped, caps = closing_caps(
+        whole.vertices, whole.coincident_welding[0], whole.welded_faces, whole.welded_edges
+    )
+    assert len(caps) == 0
+    assert (
+        len(cap_spokes(capped, len(vertices), whole.welded_faces, whole.welded_edges, caps)[0]) == 0
+    )

@@ -610,6 +610,29 @@ def _face_flips(  # pragma: no cover - numba
     return flips
 
 
+def boundary_edge_rows(edge_table: NDArray[Any]) -> NDArray[np.int64]:
+    """Rows of a ``welded_edges`` table whose vertex pair has no other entry: the open
+    boundary's edges (each on one triangle)."""
+    keys = np.asarray(edge_table)[:, 0]
+    alone = np.ones(len(keys), dtype=bool)
+    if len(keys) > 1:
+        repeated = keys[1:] == keys[:-1]
+        alone[1:] &= ~repeated
+        alone[:-1] &= ~repeated
+    return np.flatnonzero(alone)
+
+
+def open_boundary_faces(
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]], face_count: int
+) -> NDArray[np.bool_]:
+    """(F,) whether each triangle has an open boundary edge (``welded_edges``' ``edges``):
+    the rims of holes, of a missing base and of slits left between shells."""
+    edge_table, _ = edges
+    rim = np.zeros(face_count, dtype=bool)
+    rim[np.asarray(edge_table)[boundary_edge_rows(edge_table), 1]] = True
+    return rim
+
+
 def hole_caps(
     vertices: NDArray[Any], faces: NDArray[Any], edges: tuple[NDArray[np.int64], NDArray[np.int64]]
 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
@@ -627,12 +650,7 @@ def hole_caps(
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     edge_table, _ = edges
     keys = edge_table[:, 0]
-    alone = np.ones(len(keys), dtype=bool)  # the only entry of its vertex pair
-    if len(keys) > 1:
-        repeated = keys[1:] == keys[:-1]
-        alone[1:] &= ~repeated
-        alone[:-1] &= ~repeated
-    boundary = np.flatnonzero(alone)
+    boundary = boundary_edge_rows(edge_table)
     if len(boundary) == 0 or len(boundary) > MAX_BOUNDARY_SHARE * len(faces):
         return vertices, np.zeros((0, 3), dtype=np.int64)
     n_vertices = int(faces.max()) + 1

@@ -34,7 +34,13 @@ from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
 from neural_shdf.geometry import FaceGraph
-from neural_shdf.orientation import MAX_BOUNDARY_SHARE, _find, _union
+from neural_shdf.orientation import (
+    MAX_BOUNDARY_SHARE,
+    _find,
+    _union,
+    boundary_edge_rows,
+    hole_caps,
+)
 
 #: Boundary vertices of different shells closer than this many local boundary edge
 #: lengths (their boundary edges' mean length) are stitched.
@@ -54,13 +60,7 @@ def boundary_edges(
     edges: tuple[NDArray[np.int64], NDArray[np.int64]], vertex_count: int
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """(lo, hi) vertex indices of the edges of only one triangle, from ``welded_edges``."""
-    keys = edges[0][:, 0]
-    alone = np.ones(len(keys), dtype=bool)
-    if len(keys) > 1:
-        repeated = keys[1:] == keys[:-1]
-        alone[1:] &= ~repeated
-        alone[:-1] &= ~repeated
-    boundary = keys[alone]
+    boundary = edges[0][boundary_edge_rows(edges[0]), 0]
     return boundary // vertex_count, boundary % vertex_count
 
 
@@ -350,3 +350,61 @@ def bridge_gaps(
         bridged[rest[reached]] = True
     bridges = np.stack([start, end, target], axis=1)[slit & bridged]
     return np.vstack([caps[~(slit & bridged)], bridges])
+
+
+def closing_caps(
+    vertices: NDArray[Any],
+    coincident: NDArray[Any],
+    welded: NDArray[Any],
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]],
+) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """(vertices with a centroid per open loop appended, triangles) that close the open
+    loops of the outward-facing ``welded`` triangles (``edges``: their ``welded_edges``;
+    ``coincident``: the triangles before stitching): ``orientation.hole_caps``' fans, with
+    the slits left between stitched shells bridged (``bridge_gaps``) and the bridges first."""
+    vertices_out, caps = hole_caps(vertices, welded, edges)
+    if coincident is not welded:  # slits left between stitched shells
+        caps = bridge_gaps(vertices, coincident, welded, edges, caps)
+        # Bridges (to a vertex of the surface) first: they count as surface for the rays.
+        caps = caps[np.argsort(caps[:, 2] >= len(vertices), kind="stable")]
+    return vertices_out, caps
+
+
+def cap_spokes(
+    vertices: NDArray[Any],
+    surface_vertex_count: int,
+    welded: NDArray[Any],
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]],
+    caps: NDArray[Any],
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Where two fan triangles of a hole's cap meet: (the mesh's triangles on their rim
+    edges (S, 2), the length of the spoke they share (S,)).
+
+    Where the two triangles lie in different parts, the boundary between the parts runs
+    into the hole; over the cap it would go on along the spokes
+    (``segment.hierarchy.merge_tree``). ``vertices``, ``caps``: ``closing_caps``' (the
+    mesh's ``surface_vertex_count`` vertices, then a centroid per loop: its fan); ``welded``,
+    ``edges``: the triangles the caps close and their ``welded_edges``. Slits bridged
+    between shells have no spoke.
+    """
+    caps = np.asarray(caps, dtype=np.int64).reshape(-1, 3)
+    fans = caps[caps[:, 2] >= surface_vertex_count]
+    if len(fans) == 0:
+        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
+    start, end, centre = fans[:, 0], fans[:, 1], fans[:, 2]
+    total = len(vertices)
+    # The fan triangle that starts where each one ends, over the same loop (a loop is a
+    # cycle; where a rim touches itself a vertex starts two: either will do).
+    keys = start * total + centre
+    order = np.argsort(keys, kind="stable")
+    wanted = end * total + centre
+    following = order[np.minimum(np.searchsorted(keys[order], wanted), len(order) - 1)]
+    found = keys[following] == wanted
+    vertex_count = int(np.asarray(welded).max()) + 1
+    table = np.asarray(edges[0])
+    low, high = np.minimum(start, end), np.maximum(start, end)
+    owner = table[np.searchsorted(table[:, 0], low * vertex_count + high), 1]
+    pairs = np.stack([owner, owner[following]], axis=1)[found]
+    points = np.asarray(vertices, dtype=np.float64)
+    spoke = points[end[found]] - points[centre[found]]
+    return pairs, np.linalg.norm(spoke, axis=1)

@@ -10,10 +10,12 @@ import trimesh
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import build_face_graph, face_centroids, face_normals
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.orientation import open_boundary_faces
 from neural_shdf.shdf.postprocess import (
     EXACT_WINDOW_MAX,
     bilateral_smooth,
     bilateral_window,
+    faces_away_from,
     fill_missing,
     linear_normalize,
     log_normalize,
@@ -272,3 +274,38 @@ def test_sorted_adjacency_is_the_graphs_csr() -> None:
     expected = graph.csr()
     np.testing.assert_array_equal(indptr, expected.indptr)
     np.testing.assert_array_equal(indices, expected.indices)
+
+
+def test_normalisation_leaves_out_faces_near_open_rims() -> None:
+    """The min and max come from faces farther than the window from a hole's rim: an odd
+    value on a rim face no longer squeezes the others, and is clipped to [0, 1]."""
+    ball = trimesh.creation.icosphere(subdivisions=3)
+    centroids = np.asarray(ball.triangles_center)
+    kept = np.flatnonzero(centroids[:, 2] < 0.9)  # a hole at the top
+    mesh = TriangleMesh(np.asarray(ball.vertices), np.asarray(ball.faces)[kept])
+    graph = mesh.face_graph
+    rim = open_boundary_faces(mesh.welded_edges, mesh.face_count)
+    assert 0 < rim.sum() < 0.2 * mesh.face_count
+    raw = centroids[kept, 0] + 2.0  # 1..3 over the ball
+    raw[np.flatnonzero(rim)[0]] = 30.0  # one rim face reads a far wall
+    away = faces_away_from(rim, graph, 2)
+    values = postprocess_shdf(raw, graph, window_size=2, smooth=False, rim=rim)
+    expected = (raw - raw[away].min()) / (raw[away].max() - raw[away].min())
+    np.testing.assert_allclose(values[away], expected[away])
+    assert values.max() == 1.0 and values[np.flatnonzero(rim)[0]] == 1.0
+    squeezed = postprocess_shdf(raw, graph, window_size=2, smooth=False)
+    assert np.ptp(squeezed[away]) < 0.1  # without the rim: everything near 0
+    # A closed mesh (no rim) is normalised over every face, as before.
+    closed = TriangleMesh(np.asarray(ball.vertices), np.asarray(ball.faces))
+    assert not open_boundary_faces(closed.welded_edges, closed.face_count).any()
+
+
+def test_faces_away_from_counts_edge_rings() -> None:
+    ball = trimesh.creation.icosphere(subdivisions=2)
+    mesh = TriangleMesh(np.asarray(ball.vertices), np.asarray(ball.faces))
+    graph = mesh.face_graph
+    seed = np.zeros(mesh.face_count, dtype=bool)
+    seed[0] = True
+    assert faces_away_from(seed, graph, 0).sum() == mesh.face_count - 1
+    assert faces_away_from(seed, graph, 1).sum() == mesh.face_count - 4
+    assert faces_away_from(np.zeros_like(seed), graph, 3).all()

@@ -212,6 +212,7 @@ def merge_tree(
     values: NDArray[Any],
     cost: MergeCost | None = None,
     mirror_leaf: NDArray[Any] | None = None,
+    spokes: tuple[NDArray[Any], NDArray[Any]] | None = None,
 ) -> PartTree:
     """The merge tree of the parts ``leaf_labels`` (canonical: 0..L-1 by lowest face).
 
@@ -221,6 +222,10 @@ def merge_tree(
     mirror merge, both at the dearer of their two costs, so that the tree's cuts at its
     automatic count are mirror images too (greedy merging alone lets near-equal costs go
     either way).
+    ``spokes``: (pairs of faces, lengths) where the fans over holes would join rim faces
+    (``stitching.cap_spokes``): between faces of two parts, flat boundary as long as the
+    spoke, as if the fan were surface. A hole on a boundary shortened it, which reads as a
+    narrower neck and a dearer merge: holes kept extra parts.
     """
     cost = MergeCost() if cost is None else cost
     leaves = np.asarray(leaf_labels, dtype=np.int64)
@@ -239,14 +244,22 @@ def merge_tree(
 
     a, b = leaves[graph.pairs[:, 0]], leaves[graph.pairs[:, 1]]
     cut = np.flatnonzero(a != b)
-    low, high = np.minimum(a[cut], b[cut]), np.maximum(a[cut], b[cut])
-    keys, inverse = np.unique(low * leaf_count + high, return_inverse=True)
-    inverse = inverse.reshape(-1)
     lengths = graph.edge_length[cut]
-    boundary = np.bincount(inverse, weights=lengths, minlength=len(keys))
     depth = np.where(graph.concave[cut], graph.dihedral[cut] / np.pi, 0.0)
     if face_count > FINE_TESSELLATION_FACES:  # a crease spread over many small folds
         depth = np.minimum(depth * max(1.0, REFERENCE_BENDING / mean_bending(graph)), 1.0)
+    a, b = a[cut], b[cut]
+    if spokes is not None and len(spokes[0]):
+        spoke_pairs = np.asarray(spokes[0], dtype=np.int64).reshape(-1, 2)
+        sa, sb = leaves[spoke_pairs[:, 0]], leaves[spoke_pairs[:, 1]]
+        across = sa != sb
+        a, b = np.concatenate([a, sa[across]]), np.concatenate([b, sb[across]])
+        lengths = np.concatenate([lengths, np.asarray(spokes[1], dtype=np.float64)[across]])
+        depth = np.concatenate([depth, np.zeros(int(across.sum()))])
+    low, high = np.minimum(a, b), np.maximum(a, b)
+    keys, inverse = np.unique(low * leaf_count + high, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    boundary = np.bincount(inverse, weights=lengths, minlength=len(keys))
     concave = np.bincount(inverse, weights=lengths * depth, minlength=len(keys))
 
     node_count = 2 * leaf_count - 1

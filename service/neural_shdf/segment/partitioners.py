@@ -46,6 +46,9 @@ class Partitioning:
     #: The mesh's crease graph where ``params.crease_boundaries`` (else None).
     creases: CreaseGraph | None
     lap: Callable[[str], None]
+    #: Where the fans over the mesh's holes join rim faces (``stitching.cap_spokes``):
+    #: boundary across the holes for the part tree; None for a closed mesh.
+    spokes: tuple[NDArray[np.int64], NDArray[np.float64]] | None = None
 
     @cached_property
     def edge_weights(self) -> NDArray[np.float64]:
@@ -120,7 +123,14 @@ class GraphCutPartitioner:
             mirror_leaf = mirror_leaves(parts, reflection.mirror, geometry.areas)
             work.lap("symmetry")
         leaves = canonical_labels(parts)
-        tree = merge_tree(leaves, graph, geometry.areas, work.basis.values, mirror_leaf=mirror_leaf)
+        tree = merge_tree(
+            leaves,
+            graph,
+            geometry.areas,
+            work.basis.values,
+            mirror_leaf=mirror_leaf,
+            spokes=work.spokes,
+        )
         count = automatic_part_count(tree) if params.parts is None else params.parts
         labels = tree.labels(count)
         work.lap("hierarchy")
@@ -137,7 +147,8 @@ class MetisPartitioner:
             count = params.parts
         else:
             leaves = canonical_labels(graph_cut_parts(work))
-            count = automatic_part_count(merge_tree(leaves, graph, geometry.areas, basis.values))
+            tree = merge_tree(leaves, graph, geometry.areas, basis.values, spokes=work.spokes)
+            count = automatic_part_count(tree)
         weights = metis_edge_weights(work.edge_weights, basis.posteriors, graph.pairs)
         parts = metis_partition(
             graph,

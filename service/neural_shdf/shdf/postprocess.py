@@ -565,6 +565,47 @@ def linear_normalize(values: NDArray[Any]) -> NDArray[np.float64]:
     return np.clip((values - low) / (high - low), 0.0, 1.0)
 
 
+def faces_away_from(seeds: NDArray[Any], graph: FaceGraph, rings: int) -> NDArray[np.bool_]:
+    """(F,) whether each face is more than ``rings`` edge rings from every ``seeds`` face."""
+    near = np.asarray(seeds, dtype=bool).copy()
+    if not near.any():
+        return ~near
+    adjacency = graph.csr()
+    front = near.astype(np.float64)
+    for _ in range(rings):
+        front = adjacency @ front
+        reached = (front > 0) & ~near
+        if not reached.any():
+            break
+        near |= reached
+        front = reached.astype(np.float64)
+    return ~near
+
+
+def normalize_away_from_rims(
+    values: NDArray[Any], graph: FaceGraph, rim: NDArray[Any] | None, rings: int
+) -> NDArray[np.float64]:
+    """``linear_normalize`` with the min and max taken over the faces more than ``rings``
+    edge rings from an open boundary (``rim``: the faces with an open edge), values outside
+    clipped; over every face where there is no rim or fewer than half the faces are that
+    far (a mostly open sheet).
+
+    Rays near a hole's or a missing base's rim meet the cap or the far side at odd angles,
+    and the filter spreads what they read over its window: a few such faces set the min
+    or the max and squeezed every other value (a cup with holes read as one part).
+    """
+    values = np.asarray(values, dtype=np.float64)
+    if rim is None or not np.any(rim) or len(values) == 0:
+        return linear_normalize(values)
+    away = faces_away_from(rim, graph, rings)
+    if 2 * int(np.count_nonzero(away)) < len(values):
+        return linear_normalize(values)
+    low, high = float(values[away].min()), float(values[away].max())
+    if not high > low:
+        return linear_normalize(values)
+    return np.clip((values - low) / (high - low), 0.0, 1.0)
+
+
 def log_normalize(
     values: NDArray[Any], alpha: float = LOG_NORMALIZATION_ALPHA
 ) -> NDArray[np.float64]:
@@ -583,6 +624,7 @@ def postprocess_shdf(
     range_sigma_factor: float = RANGE_SIGMA_FACTOR,
     smooth: bool = True,
     centroids: NDArray[Any] | None = None,
+    rim: NDArray[Any] | None = None,
     progress: Progress | None = None,
 ) -> NDArray[np.float64]:
     """Raw diameters (NaN = no value) -> ShDF in [0, 1], as CGAL post-processes ``sdf_values``.
@@ -595,14 +637,17 @@ def postprocess_shdf(
         smooth: False skips the bilateral filter (filling and normalisation only).
         centroids: (F, 3) face centroids; with them, windows wider than
             ``EXACT_WINDOW_MAX`` rings are filtered over patches (``patch_bilateral``).
+        rim: (F,) the faces with an open boundary edge, or None: the normalisation's
+            min and max come from the faces farther than the window from them
+            (``normalize_away_from_rims``).
         progress: called with the fraction done, in [0, 1] (the filter is most of it).
     """
     raw = np.asarray(raw, dtype=np.float64)
     if len(raw) != graph.face_count:
         raise ParameterError(f"{len(raw)} ShDF values for a face graph of {graph.face_count} faces")
     values = fill_missing(raw, graph)
+    window = bilateral_window(len(values)) if window_size is None else window_size
     if smooth:
-        window = bilateral_window(len(values)) if window_size is None else window_size
         filter_ = bilateral_smooth
         if centroids is not None and window > EXACT_WINDOW_MAX:
             filter_ = functools.partial(patch_bilateral, centroids=centroids)
@@ -614,7 +659,7 @@ def postprocess_shdf(
             range_sigma_factor=range_sigma_factor,
             progress=progress,
         )
-    result = linear_normalize(values)
+    result = normalize_away_from_rims(values, graph, rim, window)
     if progress is not None:
         progress(1.0)
     return result

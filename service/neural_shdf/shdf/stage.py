@@ -34,7 +34,7 @@ from neural_shdf import constants
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, face_centroids
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.orientation import MeshDiagnostics, hole_caps
+from neural_shdf.orientation import MeshDiagnostics, open_boundary_faces
 from neural_shdf.segment.params import check_seed
 from neural_shdf.shdf.embree import Scene
 from neural_shdf.shdf.exact import raw_shdf, raw_shdf_at_points
@@ -57,7 +57,7 @@ from neural_shdf.shdf.sampling import (
     vertex_normal_sums,
     with_vertex_map,
 )
-from neural_shdf.stitching import bridge_gaps
+from neural_shdf.stitching import closing_caps
 
 ShdfMethod = Literal["auto", "exact", "sampled", "neural"]
 RawMethod = Literal["exact", "sampled", "neural"]
@@ -174,12 +174,8 @@ def ray_targets(mesh: TriangleMesh, close_holes: bool) -> tuple[NDArray[Any], ND
     missing surface was instead of reading whatever lies beyond as material."""
     if not close_holes:
         return mesh.vertices, mesh.faces
-    vertices, caps = hole_caps(mesh.vertices, mesh.welded_faces, mesh.welded_edges)
     coincident, _ = mesh.coincident_welding
-    if coincident is not mesh.welded_faces:  # slits left between stitched shells
-        caps = bridge_gaps(mesh.vertices, coincident, mesh.welded_faces, mesh.welded_edges, caps)
-        # Bridges (to a vertex of the surface) first: they count as surface for the rays.
-        caps = caps[np.argsort(caps[:, 2] >= len(mesh.vertices), kind="stable")]
+    vertices, caps = closing_caps(mesh.vertices, coincident, mesh.welded_faces, mesh.welded_edges)
     return vertices, np.vstack([mesh.faces, caps])
 
 
@@ -371,6 +367,10 @@ def compute_shdf(
         smooth=resolved == "exact",
         # the patch filter of wide windows places patches by centroid (exact only)
         centroids=face_centroids(mesh.vertices, mesh.faces) if resolved == "exact" else None,
+        # the file's own open edges, stitched seams included: rays cross their slits too
+        rim=open_boundary_faces(mesh.coincident_welding[1], mesh.face_count)
+        if diagnostics.boundary_loops > 0
+        else None,
         progress=None
         if progress is None
         else (lambda done: progress(ray_share + (1 - ray_share) * done)),

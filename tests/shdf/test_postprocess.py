@@ -309,3 +309,28 @@ def test_faces_away_from_counts_edge_rings() -> None:
     assert faces_away_from(seed, graph, 0).sum() == mesh.face_count - 1
     assert faces_away_from(seed, graph, 1).sum() == mesh.face_count - 4
     assert faces_away_from(np.zeros_like(seed), graph, 3).all()
+
+
+def test_faces_away_from_matches_ring_by_ring_definition() -> None:
+    """The one-walk band equals growing the seed set one edge ring at a time, on an open
+    multi-shell mesh with scattered seeds (a seed next to a seed, a ring past the shells)."""
+    rng = np.random.default_rng(7)
+    ball = trimesh.creation.icosphere(subdivisions=3)
+    faces = np.asarray(ball.faces)
+    faces = faces[rng.random(len(faces)) > 0.05]  # holes
+    offset = len(ball.vertices)
+    mesh = TriangleMesh(
+        np.concatenate([ball.vertices, np.asarray(ball.vertices) + 3.0]),
+        np.concatenate([faces, faces[:200] + offset]),
+    )
+    graph = mesh.face_graph
+    neighbours: list[list[int]] = [[] for _ in range(mesh.face_count)]
+    for a, b in graph.pairs:
+        neighbours[a].append(int(b))
+        neighbours[b].append(int(a))
+    for rings in (0, 1, 3, 40):
+        seeds = rng.random(mesh.face_count) < 0.01
+        near = seeds.copy()
+        for _ in range(rings):
+            near[[n for face in np.flatnonzero(near) for n in neighbours[face]]] = True
+        np.testing.assert_array_equal(faces_away_from(seeds, graph, rings), ~near)

@@ -568,18 +568,43 @@ def linear_normalize(values: NDArray[Any]) -> NDArray[np.float64]:
 def faces_away_from(seeds: NDArray[Any], graph: FaceGraph, rings: int) -> NDArray[np.bool_]:
     """(F,) whether each face is more than ``rings`` edge rings from every ``seeds`` face."""
     near = np.asarray(seeds, dtype=bool).copy()
-    if not near.any():
+    if not near.any() or rings <= 0:
         return ~near
-    adjacency = graph.csr()
-    front = near.astype(np.float64)
-    for _ in range(rings):
-        front = adjacency @ front
-        reached = (front > 0) & ~near
-        if not reached.any():
-            break
-        near |= reached
-        front = reached.astype(np.float64)
+    indptr, indices = adjacency_lists(graph.pairs, graph.face_count)
+    _spread_rings(np.flatnonzero(near), rings, indptr, indices, near)
     return ~near
+
+
+@kernel
+def _spread_rings(  # pragma: no cover - numba
+    starts: NDArray[Any],
+    max_ring: int,
+    indptr: NDArray[Any],
+    indices: NDArray[Any],
+    near: NDArray[Any],
+) -> None:
+    """Marks in ``near`` every node within ``max_ring`` edge rings of ``starts`` (already
+    marked): one breadth-first walk from all of them, touching only the band it reaches."""
+    queue = np.empty(len(near), dtype=np.int64)
+    ring = np.empty(len(near), dtype=np.int64)
+    tail = 0
+    for start in starts:
+        queue[tail] = start
+        ring[tail] = 0
+        tail += 1
+    head = 0
+    while head < tail:
+        current, level = queue[head], ring[head]
+        head += 1
+        if level == max_ring:
+            continue
+        for edge in range(indptr[current], indptr[current + 1]):
+            other = indices[edge]
+            if not near[other]:
+                near[other] = True
+                queue[tail] = other
+                ring[tail] = level + 1
+                tail += 1
 
 
 def normalize_away_from_rims(

@@ -157,6 +157,36 @@ def _bilateral_vectorised(
 
 
 @kernel(inline=True)
+def _grow_rings(
+    tail: int,
+    max_ring: int,
+    indptr: NDArray[Any],
+    indices: NDArray[Any],
+    seen: NDArray[Any],
+    mark: Any,
+    queue: NDArray[Any],
+    ring: NDArray[Any],
+) -> int:
+    """Breadth-first walk from the ``tail`` nodes already in ``queue`` (their rings in
+    ``ring``, each marked ``seen[node] == mark``) up to ``max_ring`` edge rings: appends
+    the nodes reached with their rings, marks them, and returns the new count."""
+    head = 0
+    while head < tail:
+        current, level = queue[head], ring[head]
+        head += 1
+        if level == max_ring:
+            continue
+        for edge in range(indptr[current], indptr[current + 1]):
+            other = indices[edge]
+            if seen[other] != mark:
+                seen[other] = mark
+                queue[tail] = other
+                ring[tail] = level + 1
+                tail += 1
+    return tail
+
+
+@kernel(inline=True)
 def _walk_rings(
     start: int,
     max_ring: int,
@@ -172,20 +202,7 @@ def _walk_rings(
     queue[0] = start
     ring[0] = 0
     seen_by[start] = start
-    head, tail = 0, 1
-    while head < tail:
-        current, level = queue[head], ring[head]
-        head += 1
-        if level == max_ring:
-            continue
-        for edge in range(indptr[current], indptr[current + 1]):
-            other = indices[edge]
-            if seen_by[other] != start:
-                seen_by[other] = start
-                queue[tail] = other
-                ring[tail] = level + 1
-                tail += 1
-    return tail
+    return _grow_rings(1, max_ring, indptr, indices, seen_by, start, queue, ring)
 
 
 def _bilateral_faces(
@@ -586,25 +603,9 @@ def _spread_rings(  # pragma: no cover - numba
     """Marks in ``near`` every node within ``max_ring`` edge rings of ``starts`` (already
     marked): one breadth-first walk from all of them, touching only the band it reaches."""
     queue = np.empty(len(near), dtype=np.int64)
-    ring = np.empty(len(near), dtype=np.int64)
-    tail = 0
-    for start in starts:
-        queue[tail] = start
-        ring[tail] = 0
-        tail += 1
-    head = 0
-    while head < tail:
-        current, level = queue[head], ring[head]
-        head += 1
-        if level == max_ring:
-            continue
-        for edge in range(indptr[current], indptr[current + 1]):
-            other = indices[edge]
-            if not near[other]:
-                near[other] = True
-                queue[tail] = other
-                ring[tail] = level + 1
-                tail += 1
+    ring = np.zeros(len(near), dtype=np.int64)
+    queue[: len(starts)] = starts
+    _grow_rings(len(starts), max_ring, indptr, indices, near, True, queue, ring)
 
 
 def normalize_away_from_rims(

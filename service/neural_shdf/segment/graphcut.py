@@ -15,6 +15,12 @@ alpha-expansion, and each finer level only re-solves a band around the
 boundaries: energies close to the direct solve's in a fraction of its time
 (docs/benchmarks.md, "Measurements behind constants"); at 1M faces a direct solve
 would need tens of max-flows over the whole mesh.
+
+Where clusters interleave and creases abound (scans), grouping by cheapest cluster stalls
+above ``COARSE_NODES`` (the dense-dev skull: 100k faces to 10.6k nodes). Such a
+hierarchy keeps the stalled level's grid; each solve coarsens it further by the labels a
+few sweeps of iterated conditional modes give at that smoothing, solves the smaller graph,
+and runs one full expansion cycle back at the stalled level.
 """
 
 from __future__ import annotations

@@ -208,9 +208,11 @@ def interleaved_sphere(seed: int):
     """A sphere whose faces' cheapest of 4 labels is noise around two halves: coarsening
     by cheapest label stalls far above a few hundred nodes."""
     mesh = trimesh.creation.icosphere(5)
-    normals, areas = face_normals(mesh.vertices, mesh.faces)
-    graph = build_face_graph(mesh.vertices, mesh.faces, normals)
-    centroids = face_centroids(mesh.vertices, mesh.faces)
+    vertices = np.asarray(mesh.vertices) * (2.0, 1.0, 0.5)
+    vertices[:, 0] += 0.3 * vertices[:, 0] ** 2  # no symmetry: the mesh's axes are defined
+    normals, areas = face_normals(vertices, mesh.faces)
+    graph = build_face_graph(vertices, mesh.faces, normals)
+    centroids = face_centroids(vertices, mesh.faces)
     rng = np.random.default_rng(seed)
     top = centroids[:, 2] > 0
     p = rng.uniform(0.05, 1.0, (len(centroids), 4))
@@ -221,7 +223,10 @@ def interleaved_sphere(seed: int):
 
 
 def test_a_stalled_hierarchy_coarsens_further_per_smoothing_and_stays_close_to_direct():
+    from scipy.spatial.transform import Rotation
+
     data, graph, centroids, areas = interleaved_sphere(3)
+    rotation = Rotation.random(random_state=4).as_matrix()
     unit = dihedral_weights(graph, 1.0)
     hierarchy = cut_hierarchy(data, graph.pairs, unit, centroids, areas, coarse_nodes=300)
     assert hierarchy.stalled is not None and len(hierarchy.levels[-1].data) > 300
@@ -233,6 +238,14 @@ def test_a_stalled_hierarchy_coarsens_further_per_smoothing_and_stays_close_to_d
         np.testing.assert_array_equal(hierarchy.solve(scale), labels)
         fresh = cut_hierarchy(data, graph.pairs, unit, centroids, areas, coarse_nodes=300)
         np.testing.assert_array_equal(fresh.solve(scale), labels)
+        # The same in another pose and scale: the grid past the stall turns with the mesh.
+        moved = cut_hierarchy(
+            data, graph.pairs, unit, 3.0 * centroids @ rotation.T + 100.0, 9.0 * areas, 300
+        )
+        np.testing.assert_array_equal(moved.solve(scale), labels)
+        for level, turned in zip(levels, moved._smoothed_levels(scale), strict=True):
+            if level.coarse_of is not None:
+                np.testing.assert_array_equal(turned.coarse_of, level.coarse_of)
         weights = unit * scale
         direct = alpha_expansion(data, graph.pairs, weights)
         e_direct = labelling_energy(direct, data, graph.pairs, weights)

@@ -573,7 +573,9 @@ def cut_hierarchy(
     crease edges and nodes preferring different labels never grouped), with data and
     edge weights summed, so a labelling that is constant on groups has the same energy
     at every level. Scaling ``unit_weights`` scales every level's weights alike, so the
-    hierarchy does not depend on the smoothing.
+    hierarchy does not depend on the smoothing. Where it stops shrinking above
+    ``coarse_nodes``, ``stalled`` keeps the top level's grid for ``solve`` to coarsen
+    further by each smoothing's own preferences.
     """
     data = np.asarray(data, dtype=np.float64)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
@@ -596,12 +598,7 @@ def cut_hierarchy(
     top = levels[-1]
     stalled = None
     if len(top.data) > coarse_nodes and top.positions is not None:
-        stalled = StalledTop(
-            top.positions,
-            top.cell_size,
-            crease_weight,
-            coarse_nodes,
-        )
+        stalled = StalledTop(top.positions, top.cell_size, crease_weight, coarse_nodes)
     levels[-1] = replace(top, positions=None)
     return CutHierarchy(tuple(levels), rings, stalled)
 

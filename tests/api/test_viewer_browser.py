@@ -693,3 +693,37 @@ def test_symmetric_parts_checkbox_sends_symmetry_and_shows_the_apis_labels(page,
     controls["crease_boundaries"] = detail["request"]["crease_boundaries"]
     assert_colours_match(shown, api_labels(server, mesh_id, controls))
     assert severe(page) == []
+
+
+@pytest.mark.parametrize("dtype", ["int8", "int16", "int32"])
+def test_base64_labels_decode_the_same_with_and_without_the_native_decoder(page, dtype):
+    """The service's packed labels (``pack_integers``) decode to the same Int32Array by
+    ``Uint8Array.fromBase64`` and by the plain loop used where a browser lacks it."""
+    import base64
+
+    rng = np.random.default_rng(7)
+    info = np.iinfo(dtype)
+    values = rng.integers(info.min, info.max, 1001, endpoint=True).astype(dtype)
+    values[:2] = (info.min, info.max)
+    packed = base64.b64encode(values.astype(np.dtype(dtype).newbyteorder("<")).tobytes()).decode()
+    page.js(
+        """
+        window.__decoded = null;
+        import('/viewer/static/api.js').then((api) => {
+          const native = Array.from(api.decodeIntegers(arguments[0], arguments[1]));
+          const own = Uint8Array.fromBase64;
+          Uint8Array.fromBase64 = undefined;  // as in a browser without it
+          try {
+            window.__decoded = [native, Array.from(api.decodeIntegers(arguments[0], arguments[1]))];
+          } finally {
+            Uint8Array.fromBase64 = own;
+          }
+        });
+        """,
+        packed,
+        dtype,
+    )
+    native, looped = page.wait_for("return window.__decoded", timeout_s=30)
+    assert native == values.tolist()
+    assert looped == values.tolist()
+    assert page.js("return typeof Uint8Array.fromBase64") == "function"  # this Chromium has it

@@ -1,13 +1,22 @@
 """Boundary refinement onto concave creases: misplaced boundaries move, parts survive."""
 
+import heapq
+import math
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from neural_shdf.geometry import build_face_graph, face_centroids, face_normals, weld_faces
+from neural_shdf.geometry import (
+    adjacency_lists,
+    build_face_graph,
+    face_centroids,
+    face_normals,
+    weld_faces,
+)
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.creases import (
+    _dijkstra,
     crease_capacities,
     crease_graph,
     snap_boundaries_to_creases,
@@ -158,3 +167,57 @@ def test_coarse_crease_nodes_are_the_same_in_any_pose():
     np.testing.assert_array_equal(turned.node_of, kept.node_of)
     expected = 2.0 * kept.centroids @ rotation.T - 50.0
     np.testing.assert_allclose(turned.centroids, expected, atol=1e-9)
+
+
+def tuple_heap_dijkstra(indptr, neighbour, centroids, parts, seed_boundary, low, high, limit):
+    """The band search as it was written with Python's heapq over (distance, node,
+    boundary) tuples: the array heap must give the same distances and owners."""
+    count, none = len(parts), len(limit)
+    distance = np.full(count, np.inf)
+    owner = np.full(count, -1, dtype=np.int64)
+    done = np.zeros(count, dtype=bool)
+    heap = []
+    for face in range(count):
+        if seed_boundary[face] < none:
+            distance[face], owner[face] = 0.0, seed_boundary[face]
+            heap.append((0.0, face, int(seed_boundary[face])))
+    heapq.heapify(heap)
+    while heap:
+        d, face, boundary = heapq.heappop(heap)
+        if done[face]:
+            continue
+        done[face] = True
+        if d > limit[boundary]:
+            continue
+        for other in neighbour[indptr[face] : indptr[face + 1]]:
+            if done[other] or parts[other] not in (low[boundary], high[boundary]):
+                continue
+            dx, dy, dz = centroids[face] - centroids[other]
+            candidate = d + math.sqrt(dx * dx + dy * dy + dz * dz)
+            if candidate < distance[other] or (
+                candidate == distance[other] and boundary < owner[other]
+            ):
+                distance[other], owner[other] = candidate, boundary
+                heapq.heappush(heap, (candidate, int(other), boundary))
+    return distance, owner
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_band_search_matches_the_tuple_heap_it_replaced(seed):
+    # Grid centroids: many exactly equal distances, so ties between boundaries decide.
+    rng = np.random.default_rng(seed)
+    count = 600
+    centroids = rng.integers(0, 6, (count, 3)).astype(np.float64)
+    pairs = np.unique(np.sort(rng.integers(0, count, (2400, 2)), axis=1), axis=0)
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    indptr, neighbour = adjacency_lists(pairs, count)
+    parts = rng.integers(0, 4, count)
+    boundaries = np.array([[0, 1], [0, 2], [1, 3], [2, 3], [1, 2]])
+    seed_boundary = np.where(rng.random(count) < 0.1, rng.integers(0, 5, count), 5)
+    limit = rng.uniform(2.0, 12.0, 5)
+    arguments = (indptr, neighbour, centroids, parts, seed_boundary)
+    arguments += (boundaries[:, 0].copy(), boundaries[:, 1].copy(), limit)
+    distance, owner = _dijkstra(*arguments)
+    expected_distance, expected_owner = tuple_heap_dijkstra(*arguments)
+    np.testing.assert_array_equal(distance, expected_distance)
+    np.testing.assert_array_equal(owner, expected_owner)

@@ -171,6 +171,15 @@ def test_midpoint_subdivision_keeps_the_mean_bending():
     assert mean_bending(graph_and_areas(fine_vertices, fine_faces)[0]) == pytest.approx(coarse)
 
 
+def test_mean_bending_is_worked_out_once_per_graph(monkeypatch):
+    mesh, _ = dumbbell(3000)
+    graph = graph_and_areas(np.asarray(mesh.vertices), np.asarray(mesh.faces))[0]
+    fresh = hierarchy._mean_bending(graph)
+    assert mean_bending(graph) == fresh  # the same float as the pass itself
+    monkeypatch.setattr(hierarchy, "_mean_bending", lambda graph: pytest.fail("computed again"))
+    assert mean_bending(graph) == fresh
+
+
 def test_cost_prefers_small_similar_parts_across_flat_wide_boundaries():
     cost = MergeCost()
     base = dict(area_a=1.0, area_b=4.0, mean_a=0.5, mean_b=0.5, boundary=2.0, concave=0.0,

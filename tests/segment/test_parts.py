@@ -4,7 +4,12 @@ import numpy as np
 import pytest
 
 from neural_shdf.geometry import FaceGraph
-from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
+from neural_shdf.segment.parts import (
+    canonical_labels,
+    connected_components,
+    connected_parts,
+    merge_small_parts,
+)
 
 
 def path_graph(count: int, lengths=None) -> FaceGraph:
@@ -81,6 +86,24 @@ def test_connected_parts_match_scipy_components_numbered_by_lowest_face(seed):
     np.testing.assert_array_equal(
         connected_parts(labels, pairs, count), canonical_labels(components)
     )
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_connected_parts_compare_labels_in_the_kernel_as_the_edge_mask_did(seed):
+    # The earlier path: a mask of edges with equal labels, then connected_components.
+    rng = np.random.default_rng(seed)
+    count = 2000
+    pairs = np.unique(np.sort(rng.integers(0, count, (5000, 2)), axis=1), axis=0)
+    for labels in (rng.integers(-2, 4, count), rng.integers(0, 10**9, count) * 7):
+        keep = labels[pairs[:, 0]] == labels[pairs[:, 1]]
+        np.testing.assert_array_equal(
+            connected_parts(labels, pairs, count), connected_components(pairs, keep, count)
+        )
+
+
+def test_connected_parts_refuse_labels_for_fewer_faces_than_the_graph():
+    with pytest.raises(IndexError):
+        connected_parts(np.zeros(3, dtype=np.int64), np.array([[0, 5]]), 6)
 
 
 @pytest.mark.parametrize(

@@ -32,7 +32,6 @@ Runs on the graph cut's parts before the merge tree is built, so every cut of th
 
 from __future__ import annotations
 
-import heapq
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -471,6 +470,18 @@ def _majority_parts(
     return choice
 
 
+@kernel(inline=True)
+def _before(
+    distance: NDArray[Any], face: NDArray[Any], boundary: NDArray[Any], i: int, j: int
+) -> bool:  # pragma: no cover - numba
+    """Whether heap entry ``i`` pops before ``j``: (distance, face, boundary) in order."""
+    if distance[i] != distance[j]:
+        return bool(distance[i] < distance[j])
+    if face[i] != face[j]:
+        return bool(face[i] < face[j])
+    return bool(boundary[i] < boundary[j])
+
+
 @kernel
 def _dijkstra(
     indptr: NDArray[Any],
@@ -487,22 +498,52 @@ def _dijkstra(
     Multi-source Dijkstra from the boundary nodes, spreading only through the two parts
     of a boundary; a node farther than its boundary's ``limit`` is reached but not
     spread from (so each band side knows whether it ends before the limit).
+
+    The queue is a binary heap over three flat arrays (no tuples): entries pop in
+    (distance, node, boundary) order, and no entry is pushed twice, so the order of pops
+    (and the result) is that of any priority queue on those keys.
     """
     face_count = len(parts)
     none = len(limit)
     distance = np.full(face_count, np.inf)
     owner = np.full(face_count, -1, dtype=np.int64)
     done = np.zeros(face_count, dtype=np.bool_)
-    heap: list[tuple[float, Any, Any]] = [(0.0, np.int64(0), np.int64(0))]
-    heap.pop()
+    # Each node spreads once, pushing at most one entry per neighbour slot.
+    capacity = face_count + len(neighbour)
+    heap_distance = np.empty(capacity)
+    heap_face = np.empty(capacity, dtype=np.int64)
+    heap_boundary = np.empty(capacity, dtype=np.int64)
+    size = 0
     for face in range(face_count):
         if seed_boundary[face] < none:
             distance[face] = 0.0
             owner[face] = seed_boundary[face]
-            heap.append((0.0, np.int64(face), seed_boundary[face]))
-    heapq.heapify(heap)
-    while heap:
-        d, face, boundary = heapq.heappop(heap)
+            heap_distance[size] = 0.0
+            heap_face[size] = face
+            heap_boundary[size] = seed_boundary[face]
+            size += 1
+    # Seeds in face order all at distance 0: already a heap.
+    while size > 0:
+        d, face, boundary = heap_distance[0], heap_face[0], heap_boundary[0]
+        size -= 1
+        if size > 0:  # the last entry to the root, sifted down
+            heap_distance[0] = heap_distance[size]
+            heap_face[0] = heap_face[size]
+            heap_boundary[0] = heap_boundary[size]
+            i = 0
+            while True:
+                smallest = i
+                left, right = 2 * i + 1, 2 * i + 2
+                if left < size and _before(heap_distance, heap_face, heap_boundary, left, smallest):
+                    smallest = left
+                if right < size and _before(
+                    heap_distance, heap_face, heap_boundary, right, smallest
+                ):
+                    smallest = right
+                if smallest == i:
+                    break
+                _swap(heap_distance, heap_face, heap_boundary, i, smallest)
+                i = smallest
         if done[face]:
             continue
         done[face] = True
@@ -524,5 +565,24 @@ def _dijkstra(
             ):
                 distance[other] = candidate
                 owner[other] = boundary
-                heapq.heappush(heap, (candidate, other, boundary))
+                i = size  # push, sifted up
+                heap_distance[i] = candidate
+                heap_face[i] = other
+                heap_boundary[i] = boundary
+                size += 1
+                while i > 0:
+                    up = (i - 1) // 2
+                    if not _before(heap_distance, heap_face, heap_boundary, i, up):
+                        break
+                    _swap(heap_distance, heap_face, heap_boundary, i, up)
+                    i = up
     return distance, owner
+
+
+@kernel(inline=True)
+def _swap(
+    distance: NDArray[Any], face: NDArray[Any], boundary: NDArray[Any], i: int, j: int
+) -> None:  # pragma: no cover - numba
+    distance[i], distance[j] = distance[j], distance[i]
+    face[i], face[j] = face[j], face[i]
+    boundary[i], boundary[j] = boundary[j], boundary[i]

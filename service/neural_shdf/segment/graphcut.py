@@ -15,11 +15,17 @@ alpha-expansion, and each finer level only re-solves a band around the
 boundaries: energies close to the direct solve's in a fraction of its time
 (docs/benchmarks.md, "Measurements behind constants"); at 1M faces a direct solve
 would need tens of max-flows over the whole mesh.
+
+Where clusters interleave and creases abound (scans), grouping by cheapest cluster stalls
+above ``COARSE_NODES`` (the dense-dev skull: 100k faces to 10.6k nodes). Such a
+hierarchy keeps the stalled level's grid; each solve coarsens it further by the labels a
+few sweeps of iterated conditional modes give at that smoothing, solves the smaller graph,
+and runs one full expansion cycle back at the stalled level.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, cast
 
 import maxflow
@@ -50,6 +56,11 @@ BAND_RINGS = 3
 BAND_CYCLES = 1
 #: Edges cheaper than this fraction of the median edge weight (creases) are never coarsened.
 CREASE_FRACTION = 0.5
+#: Coarsening past a stall (``CutHierarchy.solve``): creases are edges lighter than this
+#: times the crease weight (on noisy scans most coarse edges pass for creases).
+SMOOTHED_CREASE_SCALE = 0.5
+#: Sweeps of iterated conditional modes that decide which nodes group past a stall.
+PREFERENCE_SWEEPS = 4
 
 
 def data_costs(
@@ -450,6 +461,9 @@ class CutLevel:
     coarse_of: NDArray[np.int64] | None
     #: ``adjacency_lists`` for the boundary band (None at the coarsest level).
     adjacency: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None
+    #: While coarsening: the nodes' grid coordinates and the next level's cell size.
+    positions: NDArray[np.float64] | None = None
+    cell_size: float = 0.0
 
     @property
     def nbytes(self) -> int:
@@ -458,6 +472,20 @@ class CutLevel:
         if self.adjacency is not None:
             size += sum(a.nbytes for a in self.adjacency)
         return size
+
+
+@dataclass(frozen=True)
+class StalledTop:
+    """Where coarsening by cheapest label stopped above ``coarse_nodes`` nodes (interleaved
+    clusters): what ``CutHierarchy.solve`` needs to coarsen the top level further by each
+    smoothing's own label preference."""
+
+    #: Grid coordinates of the top level's nodes (``principal_coordinates`` of their first faces).
+    positions: NDArray[np.float64]
+    #: The grid cell size of the next level.
+    cell_size: float
+    crease_weight: float
+    coarse_nodes: int
 
 
 @dataclass(frozen=True)
@@ -471,10 +499,13 @@ class CutHierarchy:
 
     levels: tuple[CutLevel, ...]
     rings: int = BAND_RINGS
+    #: Set when coarsening stalled above ``coarse_nodes``: ``solve`` coarsens further.
+    stalled: StalledTop | None = None
 
     @property
     def nbytes(self) -> int:
-        return sum(level.nbytes for level in self.levels)
+        size = sum(level.nbytes for level in self.levels)
+        return size + (self.stalled.positions.nbytes if self.stalled is not None else 0)
 
     def solve(self, smoothing: float) -> NDArray[np.int64]:
         """Labels minimising E with edge weights ``unit_weights * smoothing``; deterministic."""
@@ -483,20 +514,46 @@ class CutHierarchy:
             # No smoothness term (or one label): each node's cheapest label is optimal.
             cheapest: NDArray[np.int64] = np.argmin(finest.data, axis=1).astype(np.int64)
             return cheapest
-        top = self.levels[-1]
+        levels = self.levels
+        if self.stalled is not None:
+            levels = levels[:-1] + self._smoothed_levels(smoothing)
+        top = levels[-1]
         labels = alpha_expansion(top.data, top.pairs, top.unit_weights * smoothing)
-        for level in reversed(self.levels[:-1]):
+        for index in reversed(range(len(levels) - 1)):
+            level = levels[index]
             labels = labels[level.coarse_of]
+            weights = level.unit_weights * smoothing
+            if index == len(self.levels) - 1:
+                # The stalled level: grouping by smoothed preference leads alpha-expansion
+                # to other local minima than a direct solve there; one full cycle of
+                # expansion moves from the coarse labels recovers the direct solve's
+                # energy (docs/benchmarks.md) in a fraction of its moves.
+                labels = alpha_expansion(level.data, level.pairs, weights, labels, max_cycles=1)
+                continue
             band = near_boundary(labels, level.pairs, len(level.data), self.rings, level.adjacency)
             labels = banded_alpha_expansion(
-                level.data[band],
-                level.pairs,
-                level.unit_weights * smoothing,
-                labels,
-                band,
-                BAND_CYCLES,
+                level.data[band], level.pairs, weights, labels, band, BAND_CYCLES
             )
         return labels
+
+    def _smoothed_levels(self, smoothing: float) -> tuple[CutLevel, ...]:
+        """The stalled top level coarsened further, grouping nodes by the labels a few
+        sweeps of iterated conditional modes give at this smoothing (``smoothed_preference``)
+        rather than by their cheapest label, which interleaves where clusters overlap."""
+        top, stalled = self.levels[-1], cast(StalledTop, self.stalled)
+        preferred = smoothed_preference(top.data, top.pairs, top.unit_weights * smoothing)
+        levels = coarsen_levels(
+            top.pairs,
+            top.unit_weights,
+            top.data,
+            stalled.positions,
+            stalled.cell_size,
+            SMOOTHED_CREASE_SCALE * stalled.crease_weight,
+            stalled.coarse_nodes,
+            self.rings,
+            preferred,
+        )
+        return (top,) if len(levels) == 1 else tuple(levels)
 
 
 def cut_hierarchy(
@@ -516,7 +573,9 @@ def cut_hierarchy(
     crease edges and nodes preferring different labels never grouped), with data and
     edge weights summed, so a labelling that is constant on groups has the same energy
     at every level. Scaling ``unit_weights`` scales every level's weights alike, so the
-    hierarchy does not depend on the smoothing.
+    hierarchy does not depend on the smoothing. Where it stops shrinking above
+    ``coarse_nodes``, ``stalled`` keeps the top level's grid for ``solve`` to coarsen
+    further by each smoothing's own preferences.
     """
     data = np.asarray(data, dtype=np.float64)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
@@ -533,13 +592,41 @@ def cut_hierarchy(
     cell_size = np.sqrt(FACES_PER_CELL * mean_area)
     crease_weight = CREASE_FRACTION * float(np.median(weights)) if len(weights) else 0.0
 
+    levels = coarsen_levels(
+        pairs, weights, data, positions, cell_size, crease_weight, coarse_nodes, rings
+    )
+    top = levels[-1]
+    stalled = None
+    if len(top.data) > coarse_nodes and top.positions is not None:
+        stalled = StalledTop(top.positions, top.cell_size, crease_weight, coarse_nodes)
+    levels[-1] = replace(top, positions=None)
+    return CutHierarchy(tuple(levels), rings, stalled)
+
+
+def coarsen_levels(
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
+    data: NDArray[Any],
+    positions: NDArray[Any],
+    cell_size: float,
+    crease_weight: float,
+    coarse_nodes: int,
+    rings: int,
+    preferred: NDArray[Any] | None = None,
+) -> list[CutLevel]:
+    """The levels from this graph (first) to the coarsest (last): grid-cell pieces grouped
+    (``coarsen``) until at most ``coarse_nodes`` nodes remain or a level would keep more
+    than 80% of its nodes. ``preferred``: the label each node prefers (default: its cheapest);
+    a group prefers its nodes' label. The coarsest level keeps its nodes' ``positions``
+    and the next ``cell_size``."""
     levels: list[CutLevel] = []
     level_pairs, level_weights, level_data = pairs, weights, data
     while len(level_data) > coarse_nodes:
         count = len(level_data)
         cells = grid_cells(positions, cell_size)
+        level_preferred = level_data.argmin(axis=1) if preferred is None else preferred
         coarse_of = coarsen(
-            level_pairs, level_weights, count, cells, crease_weight, level_data.argmin(axis=1)
+            level_pairs, level_weights, count, cells, crease_weight, level_preferred
         )
         coarse_count = int(coarse_of.max()) + 1
         if coarse_count > 0.8 * count:
@@ -551,6 +638,8 @@ def cut_hierarchy(
         first = np.full(coarse_count, -1, dtype=np.int64)
         first[coarse_of[::-1]] = np.arange(count)[::-1]
         positions, cell_size = positions[first], 2.0 * cell_size  # a node at its first face
+        if preferred is not None:
+            preferred = preferred[first]
         levels.append(
             CutLevel(
                 level_pairs,
@@ -561,8 +650,80 @@ def cut_hierarchy(
             )
         )
         level_pairs, level_weights, level_data = coarse_pairs, coarse_weights, summed_data
-    levels.append(CutLevel(level_pairs, level_weights, level_data, None))
-    return CutHierarchy(tuple(levels), rings)
+    levels.append(
+        CutLevel(level_pairs, level_weights, level_data, None, None, positions, cell_size)
+    )
+    return levels
+
+
+def smoothed_preference(
+    data: NDArray[Any], pairs: NDArray[Any], weights: NDArray[Any], sweeps: int = PREFERENCE_SWEEPS
+) -> NDArray[np.int64]:
+    """Each node's label after ``sweeps`` sweeps of iterated conditional modes (in node
+    order, from the cheapest labels): the label minimising its data cost plus the weight
+    of its edges to nodes of other labels. Deterministic."""
+    data = np.asarray(data, dtype=np.float64)
+    pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
+    indptr, neighbours, edge_of = _weighted_adjacency(pairs, len(data))
+    return _iterated_modes(
+        data, indptr, neighbours, edge_of, np.asarray(weights, np.float64), sweeps
+    )
+
+
+@kernel
+def _weighted_adjacency(
+    pairs: NDArray[Any], node_count: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:  # pragma: no cover
+    """(indptr, neighbour, edge) of each node's edges, CSR-style."""
+    indptr = np.zeros(node_count + 1, dtype=np.int64)
+    for row in range(len(pairs)):
+        indptr[pairs[row, 0] + 1] += 1
+        indptr[pairs[row, 1] + 1] += 1
+    for node in range(node_count):
+        indptr[node + 1] += indptr[node]
+    fill = indptr[:-1].copy()
+    neighbours = np.empty(2 * len(pairs), dtype=np.int64)
+    edge_of = np.empty(2 * len(pairs), dtype=np.int64)
+    for row in range(len(pairs)):
+        a, b = pairs[row, 0], pairs[row, 1]
+        neighbours[fill[a]], edge_of[fill[a]] = b, row
+        fill[a] += 1
+        neighbours[fill[b]], edge_of[fill[b]] = a, row
+        fill[b] += 1
+    return indptr, neighbours, edge_of
+
+
+@kernel
+def _iterated_modes(
+    data: NDArray[Any],
+    indptr: NDArray[Any],
+    neighbours: NDArray[Any],
+    edge_of: NDArray[Any],
+    weights: NDArray[Any],
+    sweeps: int,
+) -> NDArray[np.int64]:  # pragma: no cover - compiled
+    count, label_count = data.shape
+    labels = np.empty(count, dtype=np.int64)
+    for node in range(count):
+        labels[node] = np.argmin(data[node])
+    cost = np.empty(label_count)
+    for _ in range(sweeps):
+        changed = 0
+        for node in range(count):
+            for label in range(label_count):
+                cost[label] = data[node, label]
+            for j in range(indptr[node], indptr[node + 1]):
+                cost[labels[neighbours[j]]] -= weights[edge_of[j]]
+            best = labels[node]
+            for label in range(label_count):
+                if cost[label] < cost[best]:
+                    best = label
+            if best != labels[node]:
+                labels[node] = best
+                changed += 1
+        if changed == 0:
+            break
+    return labels
 
 
 def multilevel_alpha_expansion(

@@ -197,7 +197,16 @@ def mean_bending(graph: FaceGraph) -> float:
     """The mean dihedral angle in radians of the mesh's bent edges (above ``FLAT_ANGLE``),
     weighted by edge length: its resolution against its curvature. Flat edges do not
     count, so splitting flat faces (midpoint subdivision) keeps it; ``REFERENCE_BENDING``
-    for a flat mesh."""
+    for a flat mesh. Worked out once per graph (it depends on the mesh only) and kept on it,
+    so a kept graph serves every re-segmentation without the pass over its edges."""
+    kept = graph.__dict__.get("_mean_bending")
+    if kept is None:
+        kept = _mean_bending(graph)
+        object.__setattr__(graph, "_mean_bending", kept)  # frozen: a cache, not a field
+    return float(kept)
+
+
+def _mean_bending(graph: FaceGraph) -> float:
     weights = np.where(graph.dihedral > FLAT_ANGLE, graph.edge_length, 0.0)
     total = float(weights.sum())
     if not total > 0:

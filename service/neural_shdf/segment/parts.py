@@ -77,10 +77,15 @@ def _first_seen_order(
 def connected_parts(
     labels: NDArray[Any], pairs: NDArray[Any], face_count: int
 ) -> NDArray[np.int64]:
-    """Connected components of faces with equal labels, as canonical part ids."""
-    labels = np.asarray(labels, dtype=np.int64)
-    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
-    return connected_components(pairs, labels[pairs[:, 0]] == labels[pairs[:, 1]], face_count)
+    """Connected components of faces with equal labels, as canonical part ids (the labels
+    compared edge by edge inside the union-find: no per-edge arrays)."""
+    if face_count == 0:
+        return np.zeros(0, dtype=np.int64)
+    labels = np.ascontiguousarray(labels, dtype=np.int64).reshape(-1)
+    pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
+    if len(pairs) and int(pairs.max()) >= len(labels):
+        raise IndexError(f"{len(labels)} labels for a graph over more faces")
+    return _components(pairs, np.zeros(0, dtype=np.bool_), labels, face_count)
 
 
 def connected_components(
@@ -91,15 +96,21 @@ def connected_components(
     if node_count == 0:
         return np.zeros(0, dtype=np.int64)
     return _components(
-        np.asarray(pairs, dtype=np.int64).reshape(-1, 2), np.asarray(keep, bool), node_count
+        np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+        np.asarray(keep, bool),
+        np.zeros(0, dtype=np.int64),
+        node_count,
     )
 
 
 @kernel
 def _components(
-    pairs: NDArray[Any], keep: NDArray[Any], node_count: int
+    pairs: NDArray[Any], keep: NDArray[Any], labels: NDArray[Any], node_count: int
 ) -> NDArray[np.int64]:  # pragma: no cover - compiled
+    """Union-find over the edges ``keep`` marks, or, when ``keep`` is empty, the edges
+    whose two nodes have equal ``labels``."""
     root = np.arange(node_count)
+    by_label = len(keep) == 0
 
     def find(node: int) -> int:
         while root[node] != node:
@@ -108,8 +119,9 @@ def _components(
         return node
 
     for edge in range(len(pairs)):
-        if keep[edge]:
-            ra, rb = find(pairs[edge, 0]), find(pairs[edge, 1])
+        a, b = pairs[edge, 0], pairs[edge, 1]
+        if (labels[a] == labels[b]) if by_label else keep[edge]:
+            ra, rb = find(a), find(b)
             if ra < rb:
                 root[rb] = ra
             elif rb < ra:

@@ -491,15 +491,25 @@ def adjacency_lists(
     one counting pass. With sorted unique pairs (``a < b``, as ``FaceGraph.pairs``) each
     node's neighbours come ascending, the arrays of the symmetric CSR matrix."""
     pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
-    return _adjacency_lists(pairs, node_count)
+    indptr, neighbours, _ = _adjacency_lists(pairs, node_count, False)
+    return indptr, neighbours
+
+
+def adjacency_with_edges(
+    pairs: NDArray[Any], node_count: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """``adjacency_lists`` and, beside each neighbour, the row of ``pairs`` linking them
+    (to look up an edge's weight)."""
+    pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
+    return _adjacency_lists(pairs, node_count, True)
 
 
 @kernel
 def _adjacency_lists(  # pragma: no cover - numba
-    pairs: NDArray[np.int64], node_count: int
-) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    pairs: NDArray[np.int64], node_count: int, with_edges: bool
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
     """A node's smaller neighbours arrive as second members (ascending when the pairs are
-    sorted), then its larger ones as first members."""
+    sorted), then its larger ones as first members; ``edge_of`` stays empty unless asked."""
     indptr = np.zeros(node_count + 1, dtype=np.int64)
     for row in range(len(pairs)):
         indptr[pairs[row, 0] + 1] += 1
@@ -508,12 +518,17 @@ def _adjacency_lists(  # pragma: no cover - numba
         indptr[node + 1] += indptr[node]
     fill = indptr[:-1].copy()
     neighbours = np.empty(2 * len(pairs), dtype=np.int64)
+    edge_of = np.empty(2 * len(pairs) if with_edges else 0, dtype=np.int64)
     for row in range(len(pairs)):  # smaller neighbours
         larger = pairs[row, 1]
         neighbours[fill[larger]] = pairs[row, 0]
+        if with_edges:
+            edge_of[fill[larger]] = row
         fill[larger] += 1
     for row in range(len(pairs)):  # then the larger ones
         smaller = pairs[row, 0]
         neighbours[fill[smaller]] = pairs[row, 1]
+        if with_edges:
+            edge_of[fill[smaller]] = row
         fill[smaller] += 1
-    return indptr, neighbours
+    return indptr, neighbours, edge_of

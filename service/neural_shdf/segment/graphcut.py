@@ -33,7 +33,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
-from neural_shdf.geometry import FaceGraph, adjacency_lists, grid_cells, principal_coordinates
+from neural_shdf.geometry import (
+    FaceGraph,
+    adjacency_lists,
+    adjacency_with_edges,
+    grid_cells,
+    principal_coordinates,
+)
 from neural_shdf.segment.parts import connected_components
 
 #: CGAL: probabilities below this are clamped before ``-log``.
@@ -664,33 +670,10 @@ def smoothed_preference(
     of its edges to nodes of other labels. Deterministic."""
     data = np.asarray(data, dtype=np.float64)
     pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
-    indptr, neighbours, edge_of = _weighted_adjacency(pairs, len(data))
+    indptr, neighbours, edge_of = adjacency_with_edges(pairs, len(data))
     return _iterated_modes(
         data, indptr, neighbours, edge_of, np.asarray(weights, np.float64), sweeps
     )
-
-
-@kernel
-def _weighted_adjacency(
-    pairs: NDArray[Any], node_count: int
-) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:  # pragma: no cover
-    """(indptr, neighbour, edge) of each node's edges, CSR-style."""
-    indptr = np.zeros(node_count + 1, dtype=np.int64)
-    for row in range(len(pairs)):
-        indptr[pairs[row, 0] + 1] += 1
-        indptr[pairs[row, 1] + 1] += 1
-    for node in range(node_count):
-        indptr[node + 1] += indptr[node]
-    fill = indptr[:-1].copy()
-    neighbours = np.empty(2 * len(pairs), dtype=np.int64)
-    edge_of = np.empty(2 * len(pairs), dtype=np.int64)
-    for row in range(len(pairs)):
-        a, b = pairs[row, 0], pairs[row, 1]
-        neighbours[fill[a]], edge_of[fill[a]] = b, row
-        fill[a] += 1
-        neighbours[fill[b]], edge_of[fill[b]] = a, row
-        fill[b] += 1
-    return indptr, neighbours, edge_of
 
 
 @kernel

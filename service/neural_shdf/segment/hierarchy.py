@@ -67,8 +67,6 @@ CONCAVITY_WEIGHT = 8.0
 #: the mean across the threshold (a shell variant of psb 24: 1-RI 0.061 -> 0.378).
 #: 0.04 and 0.07 tried on 8 tuning models subdivided, uncapped 0.1 on psb-dev (worse).
 REFERENCE_BENDING = 0.07
-#: Edges folding less than this (radians) are flat to ``mean_bending``.
-FLAT_ANGLE = 1e-6
 #: Smallest neck ratio (a shell with no shared boundary counts as this narrow).
 NECK_FLOOR = 0.05
 
@@ -194,24 +192,10 @@ class PartTree:
 
 
 def mean_bending(graph: FaceGraph) -> float:
-    """The mean dihedral angle in radians of the mesh's bent edges (above ``FLAT_ANGLE``),
-    weighted by edge length: its resolution against its curvature. Flat edges do not
-    count, so splitting flat faces (midpoint subdivision) keeps it; ``REFERENCE_BENDING``
-    for a flat mesh. Worked out once per graph (it depends on the mesh only) and kept on it,
-    so a kept graph serves every re-segmentation without the pass over its edges."""
-    kept = graph.__dict__.get("_mean_bending")
-    if kept is None:
-        kept = _mean_bending(graph)
-        object.__setattr__(graph, "_mean_bending", kept)  # frozen: a cache, not a field
-    return float(kept)
-
-
-def _mean_bending(graph: FaceGraph) -> float:
-    weights = np.where(graph.dihedral > FLAT_ANGLE, graph.edge_length, 0.0)
-    total = float(weights.sum())
-    if not total > 0:
-        return REFERENCE_BENDING
-    return float(np.dot(graph.dihedral, weights)) / total
+    """The mesh's resolution against its curvature: ``FaceGraph.mean_bending`` (kept on the
+    graph, so a kept graph serves every re-segmentation without the pass over its edges),
+    ``REFERENCE_BENDING`` for a flat mesh."""
+    return graph.mean_bending or REFERENCE_BENDING
 
 
 def merge_tree(

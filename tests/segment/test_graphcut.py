@@ -250,3 +250,53 @@ def test_a_stalled_hierarchy_coarsens_further_per_smoothing_and_stays_close_to_d
         direct = alpha_expansion(data, graph.pairs, weights)
         e_direct = labelling_energy(direct, data, graph.pairs, weights)
         assert labelling_energy(labels, data, graph.pairs, weights) <= 1.02 * e_direct
+
+
+def midpoint_lifted(vertices, faces, passes):
+    """(vertices, faces, coarse face of each face) after ``passes`` midpoint subdivisions."""
+    origin = np.arange(len(faces))
+    for _ in range(passes):
+        vertices, faces, index = trimesh.remesh.subdivide(vertices, faces, return_index=True)
+        parent = np.empty(len(faces), dtype=np.int64)
+        for face, children in index.items():
+            parent[children] = face
+        origin = origin[parent]
+    return vertices, faces, origin
+
+
+def cut_energy(vertices, faces, posteriors, labels, params):
+    """The graph cut's energy of ``labels`` as ``segment`` weighs it: area-weighted data
+    costs plus the dihedral weights at ``params.smoothing_for(faces)``."""
+    from neural_shdf.segment.graphcut import data_costs
+    from neural_shdf.segment.parts import FaceData
+
+    graph = build_face_graph(vertices, faces)
+    data = data_costs(posteriors, FaceData.of(vertices, faces).face_weight)
+    weights = dihedral_weights(graph, params.smoothing_for(len(faces)))
+    return labelling_energy(labels, data, graph.pairs, weights)
+
+
+def test_energy_of_a_lifted_labelling_is_resolution_invariant_above_the_reference():
+    """Midpoint subdivision keeps the surface; a labelling lifted to the children must cost
+    the same per face on every mesh above ``reference_faces`` (data grows with the faces,
+    a cut with the edges along it, the smoothing's sqrt(faces) makes up the difference)."""
+    from neural_shdf.segment import SegmentParams
+
+    sphere = trimesh.creation.icosphere(2)
+    vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    rng = np.random.default_rng(3)
+    posteriors = rng.dirichlet(np.ones(3), size=len(faces))
+    centres = sphere.triangles_center
+    labels = (centres[:, 0] > 0.2).astype(np.int64) + (centres[:, 1] > 0.3)
+    params = SegmentParams(smoothing=0.3, reference_faces=len(faces))
+    per_face = []
+    for passes in range(3):
+        v, f, origin = midpoint_lifted(vertices, faces, passes)
+        energy = cut_energy(v, f, posteriors[origin], labels[origin], params)
+        per_face.append(energy / len(f))
+    np.testing.assert_allclose(per_face, per_face[0], rtol=1e-9)
+    # Without the normalisation the cut's share halves with each pass (CGAL's energy).
+    raw = SegmentParams(smoothing=0.3, reference_faces=None)
+    coarse = cut_energy(vertices, faces, posteriors, labels, raw) / len(faces)
+    v, f, origin = midpoint_lifted(vertices, faces, 1)
+    assert cut_energy(v, f, posteriors[origin], labels[origin], raw) / len(f) < 0.9 * coarse

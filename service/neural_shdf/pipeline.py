@@ -71,10 +71,12 @@ def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "sampled", "neural")) ->
     ramp = np.linspace(0.0, 1.0, len(mesh.faces))
     basis = prepare_segment(mesh, ramp, SegmentParams())
     centroids, areas = basis.geometry.centroids, basis.geometry.areas
-    coarse = cut_hierarchy(
-        basis.data, mesh.face_graph.pairs, basis.unit_weights, centroids, areas, 1
-    )
-    coarse.solve(0.06)
+    graph = mesh.face_graph
+    for lengths in (None, graph.edge_length):  # fine tessellations judge creases per length
+        coarse = cut_hierarchy(
+            basis.data, graph.pairs, basis.unit_weights, centroids, areas, 1, lengths=lengths
+        )
+        coarse.solve(0.06)
     from neural_shdf.exchange._usda_arrays import warm_up as warm_up_usda
 
     warm_up_usda()  # the .usda array kernel

@@ -300,3 +300,35 @@ def test_energy_of_a_lifted_labelling_is_resolution_invariant_above_the_referenc
     coarse = cut_energy(vertices, faces, posteriors, labels, raw) / len(faces)
     v, f, origin = midpoint_lifted(vertices, faces, 1)
     assert cut_energy(v, f, posteriors[origin], labels[origin], raw) / len(f) < 0.9 * coarse
+
+
+@pytest.mark.parametrize("with_lengths", [True, False])
+def test_coarse_nodes_keep_to_the_original_edges_of_a_midpoint_subdivided_mesh(with_lengths):
+    """Given edge lengths, creases are judged per unit length at every level, so no coarse
+    node crosses a bent edge of the original mesh (three edges in four are flat, and the
+    dearest to cut); judged by summed weight, coarse levels group across them."""
+    sphere = trimesh.creation.icosphere(2)
+    vertices, faces, origin = midpoint_lifted(
+        np.asarray(sphere.vertices), np.asarray(sphere.faces), 2
+    )
+    graph = build_face_graph(vertices, faces)
+    normals, areas = face_normals(vertices, faces)
+    data = np.zeros((len(faces), 2))
+    data[:, 1] = 1.0  # one preferred label everywhere: only creases stop the grouping
+    hierarchy = cut_hierarchy(
+        data,
+        graph.pairs,
+        dihedral_weights(graph, 1.0),
+        face_centroids(vertices, faces),
+        areas,
+        coarse_nodes=50,
+        lengths=graph.edge_length if with_lengths else None,
+    )
+    assert len(hierarchy.levels) >= 3
+    node = np.arange(len(faces))
+    for level in hierarchy.levels[:-1]:
+        node = level.coarse_of[node]
+    originals_per_node = np.bincount(
+        np.unique(node * len(sphere.faces) + origin) // len(sphere.faces)
+    )
+    assert (originals_per_node.max() == 1) == with_lengths

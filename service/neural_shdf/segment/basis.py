@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from neural_shdf.constants import FINE_TESSELLATION_FACES
 from neural_shdf.geometry import FaceGraph
 from neural_shdf.segment.graphcut import CutHierarchy, cut_hierarchy
 from neural_shdf.segment.mixture import Mixture
@@ -53,6 +54,8 @@ class SegmentBasis:
                 self.unit_weights,
                 self.geometry.centroids,
                 self.geometry.areas,
+                # Fine tessellations judge creases per unit length at every level.
+                lengths=graph.edge_length if graph.face_count > FINE_TESSELLATION_FACES else None,
             )
         return self._cut
 

@@ -61,6 +61,12 @@ BAND_RINGS = 3
 #: Expansion cycles per band solve (the coarse level already placed the labels).
 BAND_CYCLES = 1
 #: Edges cheaper than this fraction of the median edge weight (creases) are never coarsened.
+#: With edge lengths (``cut_hierarchy(lengths=...)``, fine tessellations) the weight per
+#: unit length is compared, at every level: a coarse edge sums many fine ones, and on a
+#: midpoint-subdivided mesh grouping across the original edges priced the coarse
+#: boundaries by the flat (dearest) edges, so the coarse solve missed parts (psb 102, 142
+#: at 500k-1.3M faces: 3 graph-cut parts instead of 19-23, a labelling dearer than the
+#: published mesh's lifted one; docs/messy-meshes.md, Resolution).
 CREASE_FRACTION = 0.5
 #: Coarsening past a stall (``CutHierarchy.solve``): creases are edges lighter than this
 #: times the crease weight (on noisy scans most coarse edges pass for creases).
@@ -492,6 +498,8 @@ class StalledTop:
     cell_size: float
     crease_weight: float
     coarse_nodes: int
+    #: Summed edge lengths of the top level's edges where creases are judged per length.
+    lengths: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)
@@ -558,7 +566,8 @@ class CutHierarchy:
             stalled.coarse_nodes,
             self.rings,
             preferred,
-        )
+            stalled.lengths,
+        )[0]
         return (top,) if len(levels) == 1 else tuple(levels)
 
 
@@ -570,6 +579,7 @@ def cut_hierarchy(
     areas: NDArray[Any],
     coarse_nodes: int = COARSE_NODES,
     rings: int = BAND_RINGS,
+    lengths: NDArray[Any] | None = None,
 ) -> CutHierarchy:
     """Coarsen the graph until at most ``coarse_nodes`` nodes remain (or it stops shrinking).
 
@@ -581,7 +591,10 @@ def cut_hierarchy(
     at every level. Scaling ``unit_weights`` scales every level's weights alike, so the
     hierarchy does not depend on the smoothing. Where it stops shrinking above
     ``coarse_nodes``, ``stalled`` keeps the top level's grid for ``solve`` to coarsen
-    further by each smoothing's own preferences.
+    further by each smoothing's own preferences. ``lengths`` (the edges' lengths): creases
+    are edges whose weight per unit length is below ``CREASE_FRACTION`` times the median,
+    judged so at every level (coarse edges sum lengths as they sum weights); without them,
+    edges lighter than ``CREASE_FRACTION`` times the median weight.
     """
     data = np.asarray(data, dtype=np.float64)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
@@ -596,15 +609,26 @@ def cut_hierarchy(
         extent = float(np.ptp(positions, axis=0).max()) or 1.0
         mean_area = extent**2 / node_count
     cell_size = np.sqrt(FACES_PER_CELL * mean_area)
-    crease_weight = CREASE_FRACTION * float(np.median(weights)) if len(weights) else 0.0
+    if lengths is not None:
+        lengths = np.asarray(lengths, dtype=np.float64)
+    per_length = weights if lengths is None else _per_length(weights, lengths)
+    crease_weight = CREASE_FRACTION * float(np.median(per_length)) if len(weights) else 0.0
 
-    levels = coarsen_levels(
-        pairs, weights, data, positions, cell_size, crease_weight, coarse_nodes, rings
+    levels, top_lengths = coarsen_levels(
+        pairs,
+        weights,
+        data,
+        positions,
+        cell_size,
+        crease_weight,
+        coarse_nodes,
+        rings,
+        lengths=lengths,
     )
     top = levels[-1]
     stalled = None
     if len(top.data) > coarse_nodes and top.positions is not None:
-        stalled = StalledTop(top.positions, top.cell_size, crease_weight, coarse_nodes)
+        stalled = StalledTop(top.positions, top.cell_size, crease_weight, coarse_nodes, top_lengths)
     levels[-1] = replace(top, positions=None)
     return CutHierarchy(tuple(levels), rings, stalled)
 
@@ -619,21 +643,26 @@ def coarsen_levels(
     coarse_nodes: int,
     rings: int,
     preferred: NDArray[Any] | None = None,
-) -> list[CutLevel]:
+    lengths: NDArray[Any] | None = None,
+) -> tuple[list[CutLevel], NDArray[np.float64] | None]:
     """The levels from this graph (first) to the coarsest (last): grid-cell pieces grouped
     (``coarsen``) until at most ``coarse_nodes`` nodes remain or a level would keep more
     than 80% of its nodes. ``preferred``: the label each node prefers (default: its cheapest);
     a group prefers its nodes' label. The coarsest level keeps its nodes' ``positions``
-    and the next ``cell_size``."""
+    and the next ``cell_size``. ``lengths``: the edges' lengths, where ``crease_weight`` is
+    a weight per unit length (summed per coarse edge like the weights; the coarsest
+    level's are returned beside the levels)."""
     levels: list[CutLevel] = []
     level_pairs, level_weights, level_data = pairs, weights, data
+    level_lengths = lengths
     while len(level_data) > coarse_nodes:
         count = len(level_data)
         cells = grid_cells(positions, cell_size)
         level_preferred = level_data.argmin(axis=1) if preferred is None else preferred
-        coarse_of = coarsen(
-            level_pairs, level_weights, count, cells, crease_weight, level_preferred
+        judged = (
+            level_weights if level_lengths is None else _per_length(level_weights, level_lengths)
         )
+        coarse_of = coarsen(level_pairs, judged, count, cells, crease_weight, level_preferred)
         coarse_count = int(coarse_of.max()) + 1
         if coarse_count > 0.8 * count:
             break  # no longer shrinking (many tiny shells, or all creases)
@@ -641,6 +670,8 @@ def coarsen_levels(
         coarse_pairs, coarse_weights = coarse_graph(
             coarse_of, level_pairs, level_weights, coarse_count
         )
+        if level_lengths is not None:
+            level_lengths = coarse_graph(coarse_of, level_pairs, level_lengths, coarse_count)[1]
         first = np.full(coarse_count, -1, dtype=np.int64)
         first[coarse_of[::-1]] = np.arange(count)[::-1]
         positions, cell_size = positions[first], 2.0 * cell_size  # a node at its first face
@@ -659,7 +690,14 @@ def coarsen_levels(
     levels.append(
         CutLevel(level_pairs, level_weights, level_data, None, None, positions, cell_size)
     )
-    return levels
+    return levels, level_lengths
+
+
+def _per_length(weights: NDArray[Any], lengths: NDArray[Any]) -> NDArray[np.float64]:
+    """Weight per unit length of each edge (an edge of zero length: its weight)."""
+    result: NDArray[np.float64] = np.asarray(weights, dtype=np.float64).copy()
+    np.divide(weights, lengths, out=result, where=np.asarray(lengths) > 0)
+    return result
 
 
 def smoothed_preference(

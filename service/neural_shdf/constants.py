@@ -26,8 +26,9 @@ DEFAULT_MAX_VERTICES = 6_000_000
 #: Meshes above this many triangles are fine tessellations: the segmentation's graph cut
 #: is normalised to this many faces (``SegmentParams.reference_faces``) and the part
 #: tree's concave angles are measured against the mesh's mean bending
-#: (``segment.hierarchy.mean_bending``), so that the same shape at 1M faces gives the same
-#: parts. Below it (every psb-dev mesh and its production variants) neither applies.
+#: (``segment.hierarchy.mean_bending``) and the multilevel graph cut judges creases per
+#: unit length (``segment.basis``), so that the same shape at 1M faces gives the same
+#: parts. Below it (every psb-dev mesh and its production variants) none applies.
 FINE_TESSELLATION_FACES = 60_000
 
 #: Version of the algorithms' results (ShDF, segmentation, atlas): part of the cache key of

@@ -408,3 +408,159 @@ def cap_spokes(
     points = np.asarray(vertices, dtype=np.float64)
     spoke = points[end[found]] - points[centre[found]]
     return pairs, np.linalg.norm(spoke, axis=1)
+
+
+#: Share of the boundary edges between two stitched shells that must agree on their relative
+#: winding for the two to be oriented together (a few wrong stitches do not decide it).
+SEAM_VOTE_SHARE = 2.0 / 3.0
+
+
+def orient_stitched_shells(
+    vertices: NDArray[Any],
+    coincident: NDArray[Any],
+    coincident_edges: tuple[NDArray[np.int64], NDArray[np.int64]],
+    stitched: NDArray[Any],
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]],
+    flips: NDArray[Any],
+) -> NDArray[np.bool_]:
+    """``flips`` (``orientation.orient_faces`` of ``coincident``: each shell on its own) with
+    shells stitched together turned to one winding and out of the solid they make together.
+
+    A piece cut from a surface cannot always tell its outside from its own capped volume: a
+    band of a thin-walled cup (outer wall, rim, inner wall) closed by a fan over each of its
+    two loops encloses a negative volume when its inner side reaches deeper than its outer
+    one, and the whole piece was turned inside out. Here each open boundary edge of a shell
+    (``coincident``, ``coincident_edges``: its ``orientation.welded_edges``) votes with the
+    nearest boundary edge of another shell stitched to it (``stitched``, ``edges``: the
+    stitched triangles and their edges) within ``STITCH_TOLERANCE`` edge lengths: wound
+    alike, the surface goes on across the cut, so their triangles face the same way.
+    Shells whose edges agree (``SEAM_VOTE_SHARE``, clearest pairs first) join a group,
+    which faces out by the signed volume of the group closed by ``closing_caps`` (where
+    that cannot decide, as its largest shell decided alone). Shells in no group keep
+    ``flips``.
+    Returns ``flips`` itself where nothing is stitched or nothing changes.
+    """
+    from scipy.spatial import cKDTree
+
+    from neural_shdf.orientation import AMBIGUOUS_VOLUME, reverse_rows
+
+    flips = np.asarray(flips, dtype=bool)
+    if stitched is coincident or len(flips) == 0:
+        return flips
+    vertices = np.asarray(vertices, dtype=np.float64)
+    coincident = np.asarray(coincident, dtype=np.int64).reshape(-1, 3)
+    stitched = np.asarray(stitched, dtype=np.int64).reshape(-1, 3)
+    _, face_shell = np.unique(
+        _vertex_shells(coincident, len(vertices))[coincident[:, 0]], return_inverse=True
+    )
+    shell_count = int(face_shell.max()) + 1
+    component = _vertex_shells(stitched, len(vertices))[stitched[:, 0]]
+    # Each shell's open boundary edges and the normal of their triangle as ``flips`` winds it.
+    own_table = np.asarray(coincident_edges[0])
+    rows = boundary_edge_rows(own_table)
+    if len(rows) == 0:
+        return flips
+    owner = own_table[rows, 1]
+    lo, hi = boundary_edges(coincident_edges, int(coincident.max()) + 1)
+    cross, _ = _areas(vertices, coincident[owner])
+    normal = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-300)
+    normal[flips[owner]] *= -1.0
+    length = np.linalg.norm(vertices[hi] - vertices[lo], axis=1)
+    middle = 0.5 * (vertices[lo] + vertices[hi])
+    shell, piece = face_shell[owner], component[owner]
+    count = min(_NEIGHBOURS, len(rows))
+    distance, found = cKDTree(middle).query(
+        middle, k=count, distance_upper_bound=STITCH_TOLERANCE * float(length.max())
+    )
+    distance, found = distance.reshape(len(rows), -1), found.reshape(len(rows), -1)
+    inside = found < len(rows)
+    other = np.where(inside, found, 0)
+    candidate = inside & (shell[other] != shell[:, None]) & (piece[other] == piece[:, None])
+    candidate &= distance <= 0.5 * STITCH_TOLERANCE * (length[:, None] + length[other])
+    voting = np.flatnonzero(candidate.any(axis=1))
+    if len(voting) == 0:
+        return flips
+    nearest = other[voting, np.argmax(candidate[voting], axis=1)]
+    # Across a cut the surface goes on: wound alike, the triangles on either side face
+    # the same way (a fold of more than 60 degrees along the cut casts no vote).
+    facing = np.einsum("ij,ij->i", normal[voting], normal[nearest])
+    clear = np.abs(facing) >= 0.5
+    voting, nearest, agree = voting[clear], nearest[clear], facing[clear] > 0
+    if len(voting) == 0:
+        return flips
+    a = np.minimum(shell[voting], shell[nearest])
+    b = np.maximum(shell[voting], shell[nearest])
+    pair, pair_of = np.unique(a * shell_count + b, return_inverse=True)
+    votes = np.bincount(pair_of, minlength=len(pair)).astype(np.float64)
+    agreeing = np.bincount(pair_of, agree.astype(np.float64), minlength=len(pair))
+    share = np.maximum(agreeing, votes - agreeing) / votes
+    decided = np.flatnonzero(share >= SEAM_VOTE_SHARE)
+    # Union-find with parity over the shells, the clearest pairs first (ties: pair order).
+    order = decided[np.lexsort((decided, -np.abs(2 * agreeing[decided] - votes[decided])))]
+    parent = np.arange(shell_count)
+    parity = np.zeros(shell_count, dtype=bool)  # against the parent
+
+    def find(node: int) -> tuple[int, bool]:
+        turned = False
+        while parent[node] != node:
+            turned ^= bool(parity[node])
+            node = int(parent[node])
+        return node, turned
+
+    for index in order.tolist():
+        s, t = divmod(int(pair[index]), shell_count)
+        (root_s, turn_s), (root_t, turn_t) = find(s), find(t)
+        if root_s == root_t:
+            continue
+        differ = agreeing[index] < votes[index] - agreeing[index]
+        low, high = min(root_s, root_t), max(root_s, root_t)
+        parent[high] = low
+        parity[high] = turn_s ^ turn_t ^ differ
+    root_turn = [find(s) for s in range(shell_count)]
+    group = np.array([root for root, _ in root_turn], dtype=np.int64)
+    turn = np.array([turned for _, turned in root_turn], dtype=bool)
+    members = np.bincount(group, minlength=shell_count)
+    if members.max() < 2:
+        return flips
+    # Each group wound as its root shell, then closed and measured.
+    together = flips ^ turn[face_shell]
+    oriented = reverse_rows(stitched, together)
+    closed_vertices, caps = closing_caps(vertices, coincident, oriented, edges)
+    table = np.asarray(edges[0])
+    keys = table[:, 0]
+    vertex_count = int(stitched.max()) + 1
+    centre = vertices.mean(axis=0)
+
+    def six_volumes(points: NDArray[np.float64], triangles: NDArray[np.int64]) -> NDArray:
+        p = points[triangles] - centre
+        return np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2]))
+
+    face_group = group[face_shell]
+    six = np.bincount(face_group, six_volumes(vertices, oriented), minlength=shell_count)
+    if len(caps):
+        cap_keys = np.minimum(caps[:, 0], caps[:, 1]) * vertex_count
+        cap_keys += np.maximum(caps[:, 0], caps[:, 1])
+        owner = table[np.minimum(np.searchsorted(keys, cap_keys), len(keys) - 1), 1]
+        cap_volume = six_volumes(closed_vertices, caps)
+        six += np.bincount(face_group[owner], cap_volume, minlength=shell_count)
+    volume = six.astype(np.float64) / 6.0
+    _, areas = _areas(vertices, coincident)
+    area = np.bincount(face_group, areas, minlength=shell_count)
+    shell_area = np.bincount(face_shell, areas, minlength=shell_count)
+    # Where the volume cannot decide: as the group's largest shell decided on its own.
+    largest = np.full(shell_count, -1, dtype=np.int64)
+    for member in np.argsort(shell_area, kind="stable").tolist():
+        largest[group[member]] = member
+    ambiguous = np.abs(volume) < AMBIGUOUS_VOLUME * area**1.5
+    group_turn = np.where(ambiguous, turn[np.maximum(largest, 0)], volume < 0)
+    result = together ^ group_turn[face_group]
+    single = members[face_group] < 2
+    result[single] = flips[single]
+    return flips if np.array_equal(result, flips) else result
+
+
+def _areas(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> tuple[NDArray, NDArray]:
+    """(cross products, areas) of the triangles."""
+    p = vertices[faces]
+    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    return cross, 0.5 * np.linalg.norm(cross, axis=1)

@@ -7,7 +7,7 @@ import numpy as np
 import trimesh
 from scipy.sparse.csgraph import connected_components
 
-from neural_shdf.geometry import weld_faces
+from neural_shdf.geometry import face_normals, weld_faces
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.orientation import hole_caps, orient_faces, welded_edges
 from neural_shdf.stitching import (
@@ -291,7 +291,13 @@ def test_shells_not_stitched_keep_their_own_orientation():
     coincident = weld_faces(vertices, faces)
     edges = welded_edges(coincident)
     flips = np.zeros(len(faces), dtype=bool)
-    assert orient_stitched_shells(vertices, coincident, edges, coincident, edges, flips) is flips
+    normals, areas = face_normals(vertices, faces)
+    assert (
+        orient_stitched_shells(
+            vertices, coincident, edges, coincident, edges, flips, normals, areas
+        )
+        is flips
+    )
     # Halves too far apart to be stitched: each faces out of its own half.
     vertices, faces, _ = _halves(2 * STITCH_TOLERANCE)
     mesh = TriangleMesh(vertices, faces)

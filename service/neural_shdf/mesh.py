@@ -181,6 +181,8 @@ class TriangleMesh:
             self.welded_faces,
             self.welded_edges,
             alone.flips,
+            normals,
+            areas,
         )
         if flips is alone.flips:
             return alone

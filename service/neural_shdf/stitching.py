@@ -422,6 +422,8 @@ def orient_stitched_shells(
     stitched: NDArray[Any],
     edges: tuple[NDArray[np.int64], NDArray[np.int64]],
     flips: NDArray[Any],
+    normals: NDArray[Any],
+    areas: NDArray[Any],
 ) -> NDArray[np.bool_]:
     """``flips`` (``orientation.orient_faces`` of ``coincident``: each shell on its own) with
     shells stitched together turned to one winding and out of the solid they make together.
@@ -450,11 +452,17 @@ def orient_stitched_shells(
     vertices = np.asarray(vertices, dtype=np.float64)
     coincident = np.asarray(coincident, dtype=np.int64).reshape(-1, 3)
     stitched = np.asarray(stitched, dtype=np.int64).reshape(-1, 3)
-    _, face_shell = np.unique(
-        _vertex_shells(coincident, len(vertices))[coincident[:, 0]], return_inverse=True
-    )
+    # Shells numbered 0.. in order of their lowest vertex (no sort: a pass over the roots).
+    root = _vertex_shells(coincident, len(vertices))
+    is_root = np.zeros(len(vertices), dtype=bool)
+    is_root[root[coincident[:, 0]]] = True
+    vertex_shell = (np.cumsum(is_root) - 1)[root]
+    face_shell = vertex_shell[coincident[:, 0]]
     shell_count = int(face_shell.max()) + 1
-    component = _vertex_shells(stitched, len(vertices))[stitched[:, 0]]
+    # Shells stitched to each other: a stitched corner takes a vertex of the other shell.
+    changed = coincident != stitched
+    ours, theirs = vertex_shell[coincident[changed]], vertex_shell[stitched[changed]]
+    stitched_pairs = np.unique(np.minimum(ours, theirs) * shell_count + np.maximum(ours, theirs))
     # Each shell's open boundary edges and the normal of their triangle as ``flips`` winds it.
     own_table = np.asarray(coincident_edges[0])
     rows = boundary_edge_rows(own_table)
@@ -462,12 +470,10 @@ def orient_stitched_shells(
         return flips
     owner = own_table[rows, 1]
     lo, hi = boundary_edges(coincident_edges, int(coincident.max()) + 1)
-    cross, _ = _areas(vertices, coincident[owner])
-    normal = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-300)
-    normal[flips[owner]] *= -1.0
+    normal = np.where(flips[owner, None], -1.0, 1.0) * np.asarray(normals)[owner]
     length = np.linalg.norm(vertices[hi] - vertices[lo], axis=1)
     middle = 0.5 * (vertices[lo] + vertices[hi])
-    shell, piece = face_shell[owner], component[owner]
+    shell = face_shell[owner]
     count = min(_NEIGHBOURS, len(rows))
     distance, found = cKDTree(middle).query(
         middle, k=count, distance_upper_bound=STITCH_TOLERANCE * float(length.max())
@@ -475,7 +481,9 @@ def orient_stitched_shells(
     distance, found = distance.reshape(len(rows), -1), found.reshape(len(rows), -1)
     inside = found < len(rows)
     other = np.where(inside, found, 0)
-    candidate = inside & (shell[other] != shell[:, None]) & (piece[other] == piece[:, None])
+    low = np.minimum(shell[other], shell[:, None])
+    high = np.maximum(shell[other], shell[:, None])
+    candidate = inside & (low != high) & np.isin(low * shell_count + high, stitched_pairs)
     candidate &= distance <= 0.5 * STITCH_TOLERANCE * (length[:, None] + length[other])
     voting = np.flatnonzero(candidate.any(axis=1))
     if len(voting) == 0:
@@ -529,22 +537,17 @@ def orient_stitched_shells(
     table = np.asarray(edges[0])
     keys = table[:, 0]
     vertex_count = int(stitched.max()) + 1
-    centre = vertices.mean(axis=0)
-
-    def six_volumes(points: NDArray[np.float64], triangles: NDArray[np.int64]) -> NDArray:
-        p = points[triangles] - centre
-        return np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2]))
-
     face_group = group[face_shell]
-    six = np.bincount(face_group, six_volumes(vertices, oriented), minlength=shell_count)
+    centre = vertices.mean(axis=0)
+    six = np.zeros(shell_count)
+    _add_six_volumes(vertices, oriented, face_group, centre, six)
     if len(caps):
         cap_keys = np.minimum(caps[:, 0], caps[:, 1]) * vertex_count
         cap_keys += np.maximum(caps[:, 0], caps[:, 1])
         owner = table[np.minimum(np.searchsorted(keys, cap_keys), len(keys) - 1), 1]
-        cap_volume = six_volumes(closed_vertices, caps)
-        six += np.bincount(face_group[owner], cap_volume, minlength=shell_count)
-    volume = six.astype(np.float64) / 6.0
-    _, areas = _areas(vertices, coincident)
+        _add_six_volumes(closed_vertices, caps, face_group[owner], centre, six)
+    volume = six / 6.0
+    areas = np.asarray(areas, dtype=np.float64)
     area = np.bincount(face_group, areas, minlength=shell_count)
     shell_area = np.bincount(face_shell, areas, minlength=shell_count)
     # Where the volume cannot decide: as the group's largest shell decided on its own.
@@ -559,8 +562,33 @@ def orient_stitched_shells(
     return flips if np.array_equal(result, flips) else result
 
 
-def _areas(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> tuple[NDArray, NDArray]:
-    """(cross products, areas) of the triangles."""
-    p = vertices[faces]
-    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    return cross, 0.5 * np.linalg.norm(cross, axis=1)
+@kernel
+def _add_six_volumes(  # pragma: no cover - numba
+    vertices: NDArray[np.float64],
+    triangles: NDArray[np.int64],
+    group: NDArray[np.int64],
+    centre: NDArray[np.float64],
+    six: NDArray[np.float64],
+) -> None:
+    """Adds to ``six[group[t]]`` six times the signed volume of the tetrahedron from
+    ``centre`` to each triangle ``t``."""
+    for t in range(triangles.shape[0]):
+        a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+        ax, ay, az = (
+            vertices[a, 0] - centre[0],
+            vertices[a, 1] - centre[1],
+            vertices[a, 2] - centre[2],
+        )
+        bx, by, bz = (
+            vertices[b, 0] - centre[0],
+            vertices[b, 1] - centre[1],
+            vertices[b, 2] - centre[2],
+        )
+        cx, cy, cz = (
+            vertices[c, 0] - centre[0],
+            vertices[c, 1] - centre[1],
+            vertices[c, 2] - centre[2],
+        )
+        six[group[t]] += (
+            ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
+        )

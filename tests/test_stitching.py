@@ -303,3 +303,24 @@ def test_shells_not_stitched_keep_their_own_orientation():
     mesh = TriangleMesh(vertices, faces)
     assert mesh.diagnostics.stitched_shells == 0
     assert not mesh.orientation.flips.any()
+
+
+def test_a_flat_sheet_in_stitched_pieces_takes_the_winding_of_its_largest_piece():
+    n = 32  # a grid of n x n squares: boundary edges a small share of the triangles
+    x, y = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1), indexing="ij")
+    vertices = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    corner = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).ravel()
+    faces = np.concatenate(
+        [
+            np.stack([corner, corner + n + 1, corner + n + 2], axis=1),
+            np.stack([corner, corner + n + 2, corner + 1], axis=1),
+        ]
+    )
+    small = (vertices[faces, 0].mean(axis=1) > 0.5).astype(np.int64)  # a quarter of it
+    edge = float(np.median(np.linalg.norm(vertices[faces[:, 0]] - vertices[faces[:, 1]], axis=1)))
+    moved, split = _split(vertices, faces, small, np.array([[0, 0, 0], [0.5 * edge, 0, 0]]))
+    given = split.copy()
+    given[small == 1] = split[small == 1][:, ::-1]  # the small piece wound the other way
+    mesh = TriangleMesh(moved, given)
+    assert mesh.diagnostics.stitched_shells == 2
+    np.testing.assert_array_equal(mesh.orientation.flips, small == 1)

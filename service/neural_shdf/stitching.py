@@ -524,9 +524,10 @@ def orient_stitched_shells(
         low, high = min(root_s, root_t), max(root_s, root_t)
         parent[high] = low
         parity[high] = turn_s ^ turn_t ^ differ
-    root_turn = [find(s) for s in range(shell_count)]
-    group = np.array([root for root, _ in root_turn], dtype=np.int64)
-    turn = np.array([turned for _, turned in root_turn], dtype=bool)
+    group = np.arange(shell_count)  # a shell in no decided pair is its own group
+    turn = np.zeros(shell_count, dtype=bool)
+    for member in np.unique(np.divmod(pair[order], shell_count)).tolist():
+        group[member], turn[member] = find(member)
     members = np.bincount(group, minlength=shell_count)
     if members.max() < 2:
         return flips

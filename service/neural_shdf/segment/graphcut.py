@@ -291,29 +291,73 @@ def banded_alpha_expansion(
     nodes = np.flatnonzero(band)
     if len(nodes) == 0:
         return labels.copy()
-    local = np.full(len(labels), -1, dtype=np.int64)
-    local[nodes] = np.arange(len(nodes))
-    sub_data = np.array(band_data, dtype=np.float64)
-    a, b = pairs[:, 0], pairs[:, 1]
-    label_count = sub_data.shape[1]
-    for inner, outer in ((a, b), (b, a)):
-        edge = np.flatnonzero(band[inner] & ~band[outer])
-        rows = local[inner[edge]]
-        sub_data += np.bincount(rows, weights=weights[edge], minlength=len(nodes))[:, None]
-        cell = rows * label_count + labels[outer[edge]]
-        sub_data -= np.bincount(cell, weights=weights[edge], minlength=sub_data.size).reshape(
-            sub_data.shape
-        )
-    inside = np.flatnonzero(band[a] & band[b])
-    sub_pairs = local[pairs[inside]]
-    # Only labels in or beside the band can win there.
-    touching = np.flatnonzero(band[a] != band[b])
-    alphas = np.union1d(labels[nodes], labels[pairs[touching].reshape(-1)])
+    sub_data, sub_pairs, sub_weights, alphas = _band_problem(
+        np.array(band_data, dtype=np.float64),
+        nodes,
+        band,
+        labels,
+        np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+        np.asarray(weights, dtype=np.float64),
+    )
     result = labels.copy()
     result[nodes] = alpha_expansion(
-        sub_data, sub_pairs, weights[inside], labels[nodes], max_cycles, alphas
+        sub_data, sub_pairs, sub_weights, labels[nodes], max_cycles, alphas
     )
     return result
+
+
+@kernel
+def _band_problem(
+    sub_data: NDArray[Any],
+    nodes: NDArray[Any],
+    band: NDArray[Any],
+    labels: NDArray[Any],
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
+) -> tuple[NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]]:  # pragma: no cover
+    """``banded_alpha_expansion``'s sub-problem in two passes over the edges: the band's
+    data costs (updated in place) with each edge to a fixed node folded in, the edges
+    inside the band (local ids) with their weights, and the labels in or beside the band
+    (sorted). Sums run in edge order, per edge side, as ``np.bincount`` would add them."""
+    count, label_count = sub_data.shape
+    local = np.full(len(labels), -1, dtype=np.int64)
+    for i in range(count):
+        local[nodes[i]] = i
+    candidate = np.zeros(label_count, dtype=np.bool_)
+    for i in range(count):
+        candidate[labels[nodes[i]]] = True
+    inside = 0
+    for edge in range(len(pairs)):
+        if band[pairs[edge, 0]] and band[pairs[edge, 1]]:
+            inside += 1
+    sub_pairs = np.empty((inside, 2), dtype=np.int64)
+    sub_weights = np.empty(inside)
+    row = 0
+    for edge in range(len(pairs)):
+        a, b = pairs[edge, 0], pairs[edge, 1]
+        if band[a] and band[b]:
+            sub_pairs[row, 0] = local[a]
+            sub_pairs[row, 1] = local[b]
+            sub_weights[row] = weights[edge]
+            row += 1
+        elif band[a] != band[b]:
+            candidate[labels[a]] = True
+            candidate[labels[b]] = True
+    for side in range(2):  # band node first in the pair, then second
+        cut = np.zeros(count)
+        kept = np.zeros((count, label_count))
+        for edge in range(len(pairs)):
+            inner, outer = pairs[edge, side], pairs[edge, 1 - side]
+            if band[inner] and not band[outer]:
+                cut[local[inner]] += weights[edge]
+                kept[local[inner], labels[outer]] += weights[edge]
+        for i in range(count):
+            for label in range(label_count):
+                sub_data[i, label] += cut[i]
+        for i in range(count):
+            for label in range(label_count):
+                sub_data[i, label] -= kept[i, label]
+    return sub_data, sub_pairs, sub_weights, np.flatnonzero(candidate)
 
 
 def near_boundary(
@@ -492,6 +536,13 @@ class StalledTop:
     cell_size: float
     crease_weight: float
     coarse_nodes: int
+    #: ``adjacency_with_edges`` of the top level, for ``smoothed_preference`` at each smoothing.
+    adjacency: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]] | None = None
+
+    @property
+    def nbytes(self) -> int:
+        arrays = (self.positions, *(self.adjacency or ()))
+        return sum(a.nbytes for a in arrays)
 
 
 @dataclass(frozen=True)
@@ -511,7 +562,7 @@ class CutHierarchy:
     @property
     def nbytes(self) -> int:
         size = sum(level.nbytes for level in self.levels)
-        return size + (self.stalled.positions.nbytes if self.stalled is not None else 0)
+        return size + (self.stalled.nbytes if self.stalled is not None else 0)
 
     def solve(self, smoothing: float) -> NDArray[np.int64]:
         """Labels minimising E with edge weights ``unit_weights * smoothing``; deterministic."""
@@ -547,7 +598,9 @@ class CutHierarchy:
         sweeps of iterated conditional modes give at this smoothing (``smoothed_preference``)
         rather than by their cheapest label, which interleaves where clusters overlap."""
         top, stalled = self.levels[-1], cast(StalledTop, self.stalled)
-        preferred = smoothed_preference(top.data, top.pairs, top.unit_weights * smoothing)
+        preferred = smoothed_preference(
+            top.data, top.pairs, top.unit_weights * smoothing, adjacency=stalled.adjacency
+        )
         levels = coarsen_levels(
             top.pairs,
             top.unit_weights,
@@ -604,7 +657,8 @@ def cut_hierarchy(
     top = levels[-1]
     stalled = None
     if len(top.data) > coarse_nodes and top.positions is not None:
-        stalled = StalledTop(top.positions, top.cell_size, crease_weight, coarse_nodes)
+        adjacency = adjacency_with_edges(top.pairs, len(top.data))  # kept for every smoothing
+        stalled = StalledTop(top.positions, top.cell_size, crease_weight, coarse_nodes, adjacency)
     levels[-1] = replace(top, positions=None)
     return CutHierarchy(tuple(levels), rings, stalled)
 
@@ -663,14 +717,21 @@ def coarsen_levels(
 
 
 def smoothed_preference(
-    data: NDArray[Any], pairs: NDArray[Any], weights: NDArray[Any], sweeps: int = PREFERENCE_SWEEPS
+    data: NDArray[Any],
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
+    sweeps: int = PREFERENCE_SWEEPS,
+    adjacency: tuple[NDArray[Any], NDArray[Any], NDArray[Any]] | None = None,
 ) -> NDArray[np.int64]:
     """Each node's label after ``sweeps`` sweeps of iterated conditional modes (in node
     order, from the cheapest labels): the label minimising its data cost plus the weight
-    of its edges to nodes of other labels. Deterministic."""
+    of its edges to nodes of other labels. Deterministic. ``adjacency``:
+    ``adjacency_with_edges(pairs, len(data))`` where the caller keeps it."""
     data = np.asarray(data, dtype=np.float64)
-    pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
-    indptr, neighbours, edge_of = adjacency_with_edges(pairs, len(data))
+    if adjacency is None:
+        pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
+        adjacency = adjacency_with_edges(pairs, len(data))
+    indptr, neighbours, edge_of = adjacency
     return _iterated_modes(
         data, indptr, neighbours, edge_of, np.asarray(weights, np.float64), sweeps
     )

@@ -315,10 +315,12 @@ def _band_problem(
     pairs: NDArray[Any],
     weights: NDArray[Any],
 ) -> tuple[NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]]:  # pragma: no cover
-    """``banded_alpha_expansion``'s sub-problem in two passes over the edges: the band's
-    data costs (updated in place) with each edge to a fixed node folded in, the edges
-    inside the band (local ids) with their weights, and the labels in or beside the band
-    (sorted). Sums run in edge order, per edge side, as ``np.bincount`` would add them."""
+    """``banded_alpha_expansion``'s sub-problem: the band's data costs (updated in place)
+    with each edge to a fixed node folded in, the edges inside the band (local ids) with
+    their weights, and the labels in or beside the band (sorted).
+
+    The folded sums add as ``np.bincount`` would (per side of the edges, in edge order,
+    from zero, then onto the costs), so the floats are those of the numpy folding."""
     count, label_count = sub_data.shape
     local = np.full(len(labels), -1, dtype=np.int64)
     for i in range(count):
@@ -326,37 +328,47 @@ def _band_problem(
     candidate = np.zeros(label_count, dtype=np.bool_)
     for i in range(count):
         candidate[labels[nodes[i]]] = True
-    inside = 0
+    inside = np.empty(len(pairs), dtype=np.int64)
+    leaving = np.empty(len(pairs), dtype=np.int64)  # band node first, then second (negated)
+    inside_count = leaving_count = 0
     for edge in range(len(pairs)):
-        if band[pairs[edge, 0]] and band[pairs[edge, 1]]:
-            inside += 1
-    sub_pairs = np.empty((inside, 2), dtype=np.int64)
-    sub_weights = np.empty(inside)
-    row = 0
-    for edge in range(len(pairs)):
-        a, b = pairs[edge, 0], pairs[edge, 1]
-        if band[a] and band[b]:
-            sub_pairs[row, 0] = local[a]
-            sub_pairs[row, 1] = local[b]
-            sub_weights[row] = weights[edge]
-            row += 1
-        elif band[a] != band[b]:
-            candidate[labels[a]] = True
-            candidate[labels[b]] = True
-    for side in range(2):  # band node first in the pair, then second
-        cut = np.zeros(count)
-        kept = np.zeros((count, label_count))
-        for edge in range(len(pairs)):
-            inner, outer = pairs[edge, side], pairs[edge, 1 - side]
-            if band[inner] and not band[outer]:
-                cut[local[inner]] += weights[edge]
-                kept[local[inner], labels[outer]] += weights[edge]
-        for i in range(count):
-            for label in range(label_count):
-                sub_data[i, label] += cut[i]
-        for i in range(count):
-            for label in range(label_count):
-                sub_data[i, label] -= kept[i, label]
+        in_a, in_b = band[pairs[edge, 0]], band[pairs[edge, 1]]
+        if in_a and in_b:
+            inside[inside_count] = edge
+            inside_count += 1
+        elif in_a or in_b:
+            leaving[leaving_count] = edge if in_a else -1 - edge
+            leaving_count += 1
+            candidate[labels[pairs[edge, 0]]] = True
+            candidate[labels[pairs[edge, 1]]] = True
+    sub_pairs = np.empty((inside_count, 2), dtype=np.int64)
+    sub_weights = np.empty(inside_count)
+    for row in range(inside_count):
+        edge = inside[row]
+        sub_pairs[row, 0] = local[pairs[edge, 0]]
+        sub_pairs[row, 1] = local[pairs[edge, 1]]
+        sub_weights[row] = weights[edge]
+    cut = np.zeros(count)
+    kept = np.zeros((count, label_count))
+    for side in range(2):
+        for j in range(leaving_count):
+            if (leaving[j] >= 0) == (side == 0):
+                edge = leaving[j] if side == 0 else -1 - leaving[j]
+                row = local[pairs[edge, side]]
+                cut[row] += weights[edge]
+                kept[row, labels[pairs[edge, 1 - side]]] += weights[edge]
+        # Adding or subtracting the zeros of untouched rows and cells changes no float.
+        for j in range(leaving_count):
+            if (leaving[j] >= 0) == (side == 0):
+                edge = leaving[j] if side == 0 else -1 - leaving[j]
+                row = local[pairs[edge, side]]
+                if cut[row] != 0.0 or kept[row].any():
+                    for label in range(label_count):
+                        sub_data[row, label] += cut[row]
+                    for label in range(label_count):
+                        sub_data[row, label] -= kept[row, label]
+                    cut[row] = 0.0
+                    kept[row] = 0.0
     return sub_data, sub_pairs, sub_weights, np.flatnonzero(candidate)
 
 

@@ -278,6 +278,9 @@ def test_a_stalled_hierarchy_coarsens_further_per_smoothing_and_stays_close_to_d
     assert kept is not None
     for array, built in zip(kept, adjacency_with_edges(top.pairs, len(top.data)), strict=True):
         np.testing.assert_array_equal(array, built)
+    levels_bytes = sum(level.nbytes for level in hierarchy.levels)
+    kept_bytes = hierarchy.stalled.positions.nbytes + sum(array.nbytes for array in kept)
+    assert hierarchy.nbytes == levels_bytes + kept_bytes  # counted in the working set
     for scale in (0.005, 0.02, 0.1):
         levels = hierarchy._smoothed_levels(scale)
         assert len(levels[-1].data) < len(hierarchy.levels[-1].data) / 2

@@ -119,6 +119,23 @@ def test_weld_matches_an_exact_row_sort_and_folds_negative_zero():
     assert weld_faces(signed_zero, np.array([[0, 1, 2]])).tolist() == [[0, 0, 2]]
 
 
+def test_weld_without_coincident_vertices_is_a_view_the_caller_can_freeze():
+    """Nothing to weld: the same indices without a copy, and freezing the result (as
+    ``TriangleMesh`` does) leaves the caller's array writeable."""
+    mesh = trimesh.creation.icosphere(2)
+    faces = np.array(mesh.faces, dtype=np.int64)
+    welded = weld_faces(mesh.vertices, faces)
+    np.testing.assert_array_equal(welded, faces)
+    assert np.shares_memory(welded, faces) and welded is not faces
+    welded.flags.writeable = False
+    assert faces.flags.writeable
+    # one coincident pair (a copy of vertex 0 used by face 0): a new array again
+    vertices = np.vstack([mesh.vertices, mesh.vertices[:1]])
+    faces[0, 0] = len(mesh.vertices)
+    assert not np.shares_memory(weld_faces(vertices, faces), faces)
+    assert weld_faces(vertices, faces)[0, 0] == 0
+
+
 # ---- the compiled kernels against a plain, independent computation ----
 
 

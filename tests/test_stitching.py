@@ -7,14 +7,15 @@ import numpy as np
 import trimesh
 from scipy.sparse.csgraph import connected_components
 
-from neural_shdf.geometry import weld_faces
+from neural_shdf.geometry import face_normals, weld_faces
 from neural_shdf.mesh import TriangleMesh
-from neural_shdf.orientation import hole_caps, welded_edges
+from neural_shdf.orientation import hole_caps, orient_faces, welded_edges
 from neural_shdf.stitching import (
     STITCH_TOLERANCE,
     boundary_edges,
     cap_spokes,
     closing_caps,
+    orient_stitched_shells,
     stitch_counts,
     stitch_shells,
 )
@@ -43,6 +44,36 @@ def _halves(shift: float) -> tuple[np.ndarray, np.ndarray, float]:
     offset = np.array([[0.0, 0.0, 0.0], [0.6, 0.0, 0.8]]) * shift * edge
     moved, split = _split(vertices, faces, upper, offset)
     return moved, split, edge
+
+
+def _cup_pieces(shift: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A thin-walled cup (a closed surface: outer wall and bottom, rim, inner wall and
+    bottom) cut in two pieces, the band from the outer wall's middle over the rim down to
+    near the inner bottom moved by ``shift`` edge lengths: (vertices, faces, band faces).
+    Alone, the band capped over its two loops encloses a negative volume (its inner side
+    reaches deeper than its outer one), and so does the inner bottom (a bowl)."""
+    wall = 0.06
+    profile = np.array(
+        [[0, 0], [1, 0], [1, 2], [1 - wall, 2], [1 - wall, wall], [0, wall]], dtype=float
+    )
+    dense = np.concatenate(
+        [
+            np.linspace(a, b, 12, endpoint=False)
+            for a, b in zip(profile[:-1], profile[1:], strict=True)
+        ]
+        + [profile[-1:]]
+    )
+    cup = trimesh.creation.revolve(dense, sections=48)
+    cup.merge_vertices()
+    cup.update_faces(cup.nondegenerate_faces())
+    vertices, faces = np.asarray(cup.vertices), np.asarray(cup.faces)
+    centre = vertices[faces].mean(axis=1)
+    inner = np.hypot(centre[:, 0], centre[:, 1]) < 1 - wall / 2
+    band = np.where(inner, centre[:, 2] > 0.3, centre[:, 2] > 1.2) | (centre[:, 2] > 2 - wall / 2)
+    edge = float(np.median(np.linalg.norm(vertices[faces[:, 0]] - vertices[faces[:, 1]], axis=1)))
+    offset = np.array([[0.0, 0.0, 0.0], [0.6, 0.0, 0.8]]) * shift * edge
+    moved, split = _split(vertices, faces, band.astype(np.int64), offset)
+    return moved, split, band
 
 
 def _stitched(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -232,3 +263,64 @@ def test_cap_spokes_join_the_rim_faces_along_each_hole() -> None:
     assert (
         len(cap_spokes(capped, len(vertices), whole.welded_faces, whole.welded_edges, caps)[0]) == 0
     )
+
+
+def test_pieces_of_a_thin_walled_cup_face_out_of_the_cup_together():
+    for shift in (0.3, 1.0):
+        vertices, faces, _ = _cup_pieces(shift)
+        mesh = TriangleMesh(vertices, faces)
+        coincident, edges = mesh.coincident_welding
+        alone = orient_faces(vertices, faces, welded=coincident, edges=edges)
+        assert alone.flips.sum() > len(faces) / 2  # each piece on its own: band and bowl turned
+        assert mesh.diagnostics.stitched_shells == 3
+        assert not mesh.orientation.flips.any()
+        assert mesh.diagnostics.reoriented_faces == 0
+
+
+def test_a_stitched_piece_wound_inside_out_in_the_file_is_turned_back():
+    vertices, faces, band = _cup_pieces(1.0)
+    for reversed_faces in (band, np.ones(len(faces), dtype=bool)):
+        given = faces.copy()
+        given[reversed_faces] = faces[reversed_faces][:, ::-1]
+        mesh = TriangleMesh(vertices, given)
+        np.testing.assert_array_equal(mesh.orientation.flips, reversed_faces)
+
+
+def test_shells_not_stitched_keep_their_own_orientation():
+    vertices, faces = _sphere()
+    coincident = weld_faces(vertices, faces)
+    edges = welded_edges(coincident)
+    flips = np.zeros(len(faces), dtype=bool)
+    normals, areas = face_normals(vertices, faces)
+    assert (
+        orient_stitched_shells(
+            vertices, coincident, edges, coincident, edges, flips, normals, areas
+        )
+        is flips
+    )
+    # Halves too far apart to be stitched: each faces out of its own half.
+    vertices, faces, _ = _halves(2 * STITCH_TOLERANCE)
+    mesh = TriangleMesh(vertices, faces)
+    assert mesh.diagnostics.stitched_shells == 0
+    assert not mesh.orientation.flips.any()
+
+
+def test_a_flat_sheet_in_stitched_pieces_takes_the_winding_of_its_largest_piece():
+    n = 32  # a grid of n x n squares: boundary edges a small share of the triangles
+    x, y = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1), indexing="ij")
+    vertices = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    corner = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).ravel()
+    faces = np.concatenate(
+        [
+            np.stack([corner, corner + n + 1, corner + n + 2], axis=1),
+            np.stack([corner, corner + n + 2, corner + 1], axis=1),
+        ]
+    )
+    small = (vertices[faces, 0].mean(axis=1) > 0.5).astype(np.int64)  # a quarter of it
+    edge = float(np.median(np.linalg.norm(vertices[faces[:, 0]] - vertices[faces[:, 1]], axis=1)))
+    moved, split = _split(vertices, faces, small, np.array([[0, 0, 0], [0.5 * edge, 0, 0]]))
+    given = split.copy()
+    given[small == 1] = split[small == 1][:, ::-1]  # the small piece wound the other way
+    mesh = TriangleMesh(moved, given)
+    assert mesh.diagnostics.stitched_shells == 2
+    np.testing.assert_array_equal(mesh.orientation.flips, small == 1)

@@ -453,20 +453,27 @@ def weld_faces(vertices: NDArray[Any], faces: NDArray[Any]) -> NDArray[np.int64]
     Faces keep their order and count; only the adjacency they imply changes
     (an STL triangle soup becomes connected). Each index becomes the lowest
     index of a vertex at the same position (-0.0 equals 0.0). Used for graphs,
-    never for output.
+    never for output. Where no two vertices coincide: a new view of ``faces`` (as int64),
+    not a copy.
     """
     faces = np.ascontiguousarray(faces, dtype=np.int64)
     if len(vertices) == 0:
-        return faces
+        return faces.view()
     _check_indices(faces.reshape(-1, 3), len(vertices))
     bits = (np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3) + 0.0).view(np.uint64)
-    welded: NDArray[np.int64] = _first_of_equal_rows(bits)[faces]
+    representative, merged = _first_of_equal_rows(bits)
+    if not merged:
+        return faces.view()
+    welded: NDArray[np.int64] = representative[faces]
     return welded
 
 
 @kernel
-def _first_of_equal_rows(bits: NDArray[np.uint64]) -> NDArray[np.int64]:  # pragma: no cover - numba
-    """For each row of ``bits`` (V, 3), the lowest index of an equal row (a hash table)."""
+def _first_of_equal_rows(
+    bits: NDArray[np.uint64],
+) -> tuple[NDArray[np.int64], bool]:  # pragma: no cover - numba
+    """For each row of ``bits`` (V, 3), the lowest index of an equal row (a hash table);
+    and whether any row has an equal row before it."""
     count = bits.shape[0]
     capacity = 16
     while capacity < 2 * count:
@@ -474,6 +481,7 @@ def _first_of_equal_rows(bits: NDArray[np.uint64]) -> NDArray[np.int64]:  # prag
     mask = np.uint64(capacity - 1)
     table = np.full(capacity, -1, dtype=np.int64)
     representative = np.empty(count, dtype=np.int64)
+    merged = False
     for row in range(count):
         key = bits[row, 0] * np.uint64(0x9E3779B97F4A7C15)
         key ^= bits[row, 1] * np.uint64(0xC2B2AE3D27D4EB4F) + (key >> np.uint64(29))
@@ -494,9 +502,10 @@ def _first_of_equal_rows(bits: NDArray[np.uint64]) -> NDArray[np.int64]:  # prag
                 and bits[other, 2] == bits[row, 2]
             ):
                 representative[row] = other
+                merged = True
                 break
             slot = (slot + np.uint64(1)) & mask
-    return representative
+    return representative, merged
 
 
 def adjacency_lists(

@@ -30,7 +30,12 @@ from neural_shdf.orientation import (
 )
 from neural_shdf.orientation import welded_edges as sorted_welded_edges
 from neural_shdf.segment.creases import CreaseGraph, crease_graph
-from neural_shdf.stitching import stitch_counts, stitch_shells, stitched_edge_geometry
+from neural_shdf.stitching import (
+    orient_stitched_shells,
+    stitch_counts,
+    stitch_shells,
+    stitched_edge_geometry,
+)
 
 
 @dataclass(frozen=True, eq=False)
@@ -155,11 +160,12 @@ class TriangleMesh:
 
     @cached_property
     def orientation(self) -> Orientation:
-        """Which triangles to reverse so that every shell faces out of its solid, and what
-        the pass found in the mesh (``orientation.orient_faces``); computed once per mesh."""
+        """Which triangles to reverse so that every shell faces out of its solid (shells
+        stitched together out of theirs: ``stitching.orient_stitched_shells``), and what the
+        pass found in the mesh (``orientation.orient_faces``); computed once per mesh."""
         coincident, edges = self.coincident_welding
         normals, areas = self.normals_and_areas
-        return orient_faces(
+        alone = orient_faces(
             self.vertices,
             self.faces,
             welded=coincident,
@@ -167,6 +173,21 @@ class TriangleMesh:
             edges=edges,
             degenerate=count_zero_rows(normals),
         )
+        # Shells stitched together face out of the solid they make together.
+        flips = orient_stitched_shells(
+            self.vertices,
+            coincident,
+            edges,
+            self.welded_faces,
+            self.welded_edges,
+            alone.flips,
+            normals,
+            areas,
+        )
+        if flips is alone.flips:
+            return alone
+        diagnostics = replace(alone.diagnostics, reoriented_faces=int(flips.sum()))
+        return replace(alone, flips=flips, diagnostics=diagnostics)
 
     @cached_property
     def diagnostics(self) -> MeshDiagnostics:

@@ -31,7 +31,9 @@ Every shell faces outward on its own, as a solid modeller exports separate solid
 eyes inside a head face out of the eyes. The inner wall of a hollow solid's cavity
 is a shell of its own too and is also turned to face out of the region it encloses
 (into the cavity), which is not what a solid modeller writes for a cavity; the
-geometry alone cannot tell an eye from a cavity.
+geometry alone cannot tell an eye from a cavity. Open shells stitched into one surface
+are then turned together (``stitching.orient_stitched_shells``, which
+``TriangleMesh.orientation`` applies after this pass).
 
 ``hole_caps`` closes the open boundary loops of an oriented mesh with the same fans,
 for the ShDF's rays only (``shdf.stage.ray_targets``).

@@ -408,3 +408,188 @@ def cap_spokes(
     points = np.asarray(vertices, dtype=np.float64)
     spoke = points[end[found]] - points[centre[found]]
     return pairs, np.linalg.norm(spoke, axis=1)
+
+
+#: Share of the boundary edges between two stitched shells that must agree on their relative
+#: winding for the two to be oriented together (a few wrong stitches do not decide it).
+SEAM_VOTE_SHARE = 2.0 / 3.0
+
+
+def orient_stitched_shells(
+    vertices: NDArray[Any],
+    coincident: NDArray[Any],
+    coincident_edges: tuple[NDArray[np.int64], NDArray[np.int64]],
+    stitched: NDArray[Any],
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]],
+    flips: NDArray[Any],
+    normals: NDArray[Any],
+    areas: NDArray[Any],
+) -> NDArray[np.bool_]:
+    """``flips`` (``orientation.orient_faces`` of ``coincident``: each shell on its own) with
+    shells stitched together turned to one winding and out of the solid they make together.
+
+    A piece cut from a surface cannot always tell its outside from its own capped volume: a
+    band of a thin-walled cup (outer wall, rim, inner wall) closed by a fan over each of its
+    two loops encloses a negative volume when its inner side reaches deeper than its outer
+    one, and the whole piece was turned inside out. Here each open boundary edge of a shell
+    (``coincident``, ``coincident_edges``: its ``orientation.welded_edges``) votes with the
+    nearest boundary edge of another shell stitched to it (``stitched``, ``edges``: the
+    stitched triangles and their edges) within ``STITCH_TOLERANCE`` edge lengths: wound
+    alike, the surface goes on across the cut, so their triangles face the same way.
+    Shells whose edges agree (``SEAM_VOTE_SHARE``, clearest pairs first) join a group,
+    which faces out by the signed volume of the group closed by ``closing_caps`` (where
+    that cannot decide, as its largest shell decided alone). Shells in no group keep
+    ``flips``.
+    Returns ``flips`` itself where nothing is stitched or nothing changes.
+    """
+    from scipy.spatial import cKDTree
+
+    from neural_shdf.orientation import AMBIGUOUS_VOLUME, reverse_rows
+
+    flips = np.asarray(flips, dtype=bool)
+    if stitched is coincident or len(flips) == 0:
+        return flips
+    vertices = np.asarray(vertices, dtype=np.float64)
+    coincident = np.asarray(coincident, dtype=np.int64).reshape(-1, 3)
+    stitched = np.asarray(stitched, dtype=np.int64).reshape(-1, 3)
+    # Shells numbered 0.. in order of their lowest vertex (no sort: a pass over the roots).
+    root = _vertex_shells(coincident, len(vertices))
+    is_root = np.zeros(len(vertices), dtype=bool)
+    is_root[root[coincident[:, 0]]] = True
+    vertex_shell = (np.cumsum(is_root) - 1)[root]
+    face_shell = vertex_shell[coincident[:, 0]]
+    shell_count = int(face_shell.max()) + 1
+    # Shells stitched to each other: a stitched corner takes a vertex of the other shell.
+    changed = coincident != stitched
+    ours, theirs = vertex_shell[coincident[changed]], vertex_shell[stitched[changed]]
+    stitched_pairs = np.unique(np.minimum(ours, theirs) * shell_count + np.maximum(ours, theirs))
+    # Each shell's open boundary edges and the normal of their triangle as ``flips`` winds it.
+    own_table = np.asarray(coincident_edges[0])
+    rows = boundary_edge_rows(own_table)
+    if len(rows) == 0:
+        return flips
+    owner = own_table[rows, 1]
+    lo, hi = boundary_edges(coincident_edges, int(coincident.max()) + 1)
+    normal = np.where(flips[owner, None], -1.0, 1.0) * np.asarray(normals)[owner]
+    length = np.linalg.norm(vertices[hi] - vertices[lo], axis=1)
+    middle = 0.5 * (vertices[lo] + vertices[hi])
+    shell = face_shell[owner]
+    count = min(_NEIGHBOURS, len(rows))
+    distance, found = cKDTree(middle).query(
+        middle, k=count, distance_upper_bound=STITCH_TOLERANCE * float(length.max())
+    )
+    distance, found = distance.reshape(len(rows), -1), found.reshape(len(rows), -1)
+    inside = found < len(rows)
+    other = np.where(inside, found, 0)
+    low = np.minimum(shell[other], shell[:, None])
+    high = np.maximum(shell[other], shell[:, None])
+    candidate = inside & (low != high) & np.isin(low * shell_count + high, stitched_pairs)
+    candidate &= distance <= 0.5 * STITCH_TOLERANCE * (length[:, None] + length[other])
+    voting = np.flatnonzero(candidate.any(axis=1))
+    if len(voting) == 0:
+        return flips
+    nearest = other[voting, np.argmax(candidate[voting], axis=1)]
+    # Across a cut the surface goes on: wound alike, the triangles on either side face
+    # the same way (a fold of more than 60 degrees along the cut casts no vote).
+    facing = np.einsum("ij,ij->i", normal[voting], normal[nearest])
+    clear = np.abs(facing) >= 0.5
+    voting, nearest, agree = voting[clear], nearest[clear], facing[clear] > 0
+    if len(voting) == 0:
+        return flips
+    a = np.minimum(shell[voting], shell[nearest])
+    b = np.maximum(shell[voting], shell[nearest])
+    pair, pair_of = np.unique(a * shell_count + b, return_inverse=True)
+    votes = np.bincount(pair_of, minlength=len(pair)).astype(np.float64)
+    agreeing = np.bincount(pair_of, agree.astype(np.float64), minlength=len(pair))
+    share = np.maximum(agreeing, votes - agreeing) / votes
+    decided = np.flatnonzero(share >= SEAM_VOTE_SHARE)
+    # Union-find with parity over the shells, the clearest pairs first (ties: pair order).
+    order = decided[np.lexsort((decided, -np.abs(2 * agreeing[decided] - votes[decided])))]
+    parent = np.arange(shell_count)
+    parity = np.zeros(shell_count, dtype=bool)  # against the parent
+
+    def find(node: int) -> tuple[int, bool]:
+        turned = False
+        while parent[node] != node:
+            turned ^= bool(parity[node])
+            node = int(parent[node])
+        return node, turned
+
+    for index in order.tolist():
+        s, t = divmod(int(pair[index]), shell_count)
+        (root_s, turn_s), (root_t, turn_t) = find(s), find(t)
+        if root_s == root_t:
+            continue
+        differ = agreeing[index] < votes[index] - agreeing[index]
+        low, high = min(root_s, root_t), max(root_s, root_t)
+        parent[high] = low
+        parity[high] = turn_s ^ turn_t ^ differ
+    group = np.arange(shell_count)  # a shell in no decided pair is its own group
+    turn = np.zeros(shell_count, dtype=bool)
+    for member in np.unique(np.divmod(pair[order], shell_count)).tolist():
+        group[member], turn[member] = find(member)
+    members = np.bincount(group, minlength=shell_count)
+    if members.max() < 2:
+        return flips
+    # Each group wound as its root shell, then closed and measured.
+    together = flips ^ turn[face_shell]
+    oriented = reverse_rows(stitched, together)
+    closed_vertices, caps = closing_caps(vertices, coincident, oriented, edges)
+    table = np.asarray(edges[0])
+    keys = table[:, 0]
+    vertex_count = int(stitched.max()) + 1
+    face_group = group[face_shell]
+    centre = vertices.mean(axis=0)
+    six = np.zeros(shell_count)
+    _add_six_volumes(vertices, oriented, face_group, centre, six)
+    if len(caps):
+        cap_keys = np.minimum(caps[:, 0], caps[:, 1]) * vertex_count
+        cap_keys += np.maximum(caps[:, 0], caps[:, 1])
+        owner = table[np.minimum(np.searchsorted(keys, cap_keys), len(keys) - 1), 1]
+        _add_six_volumes(closed_vertices, caps, face_group[owner], centre, six)
+    volume = six / 6.0
+    areas = np.asarray(areas, dtype=np.float64)
+    area = np.bincount(face_group, areas, minlength=shell_count)
+    shell_area = np.bincount(face_shell, areas, minlength=shell_count)
+    # Where the volume cannot decide: as the group's largest shell decided on its own.
+    largest = np.full(shell_count, -1, dtype=np.int64)
+    for member in np.argsort(shell_area, kind="stable").tolist():
+        largest[group[member]] = member
+    ambiguous = np.abs(volume) < AMBIGUOUS_VOLUME * area**1.5
+    group_turn = np.where(ambiguous, turn[np.maximum(largest, 0)], volume < 0)
+    result = together ^ group_turn[face_group]
+    single = members[face_group] < 2
+    result[single] = flips[single]
+    return flips if np.array_equal(result, flips) else result
+
+
+@kernel
+def _add_six_volumes(  # pragma: no cover - numba
+    vertices: NDArray[np.float64],
+    triangles: NDArray[np.int64],
+    group: NDArray[np.int64],
+    centre: NDArray[np.float64],
+    six: NDArray[np.float64],
+) -> None:
+    """Adds to ``six[group[t]]`` six times the signed volume of the tetrahedron from
+    ``centre`` to each triangle ``t``."""
+    for t in range(triangles.shape[0]):
+        a, b, c = triangles[t, 0], triangles[t, 1], triangles[t, 2]
+        ax, ay, az = (
+            vertices[a, 0] - centre[0],
+            vertices[a, 1] - centre[1],
+            vertices[a, 2] - centre[2],
+        )
+        bx, by, bz = (
+            vertices[b, 0] - centre[0],
+            vertices[b, 1] - centre[1],
+            vertices[b, 2] - centre[2],
+        )
+        cx, cy, cz = (
+            vertices[c, 0] - centre[0],
+            vertices[c, 1] - centre[1],
+            vertices[c, 2] - centre[2],
+        )
+        six[group[t]] += (
+            ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
+        )

@@ -16,6 +16,7 @@ from neural_shdf.geometry import (
 )
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.creases import (
+    _band_costs,
     _dijkstra,
     crease_capacities,
     crease_graph,
@@ -221,3 +222,39 @@ def test_band_search_matches_the_tuple_heap_it_replaced(seed):
     expected_distance, expected_owner = tuple_heap_dijkstra(*arguments)
     np.testing.assert_array_equal(distance, expected_distance)
     np.testing.assert_array_equal(owner, expected_owner)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_band_costs_match_the_add_at_folding_they_replaced(seed):
+    rng = np.random.default_rng(seed)
+    count = 400
+    pairs = np.unique(np.sort(rng.integers(0, count, (1600, 2)), axis=1), axis=0)
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    capacity = 10.0 ** rng.uniform(-3, 3, len(pairs))  # sums that round
+    parts = rng.integers(0, 4, count)
+    owner = rng.integers(0, 3, count)
+    in_band = rng.random(count) < 0.6
+    nodes = np.flatnonzero(in_band)
+    local = np.full(count, -1, dtype=np.int64)
+    local[nodes] = np.arange(len(nodes))
+    low_part, high_part = rng.integers(0, 2, len(nodes)), rng.integers(2, 4, len(nodes))
+    start_low, start_high = rng.random(len(nodes)), rng.random(len(nodes))
+    cost_low, cost_high = start_low.copy(), start_high.copy()
+    inside = _band_costs(
+        cost_low, cost_high, in_band, owner, local, parts, low_part, high_part, pairs, capacity
+    )
+    # The numpy folding ``_min_cut_in_bands`` used before, bit for bit.
+    a, b = pairs[:, 0], pairs[:, 1]
+    band_a, band_b = in_band[a], in_band[b]
+    same_band = band_a & band_b & (owner[a] == owner[b])
+    expected_low, expected_high = start_low.copy(), start_high.copy()
+    for inner, outer, mask in ((a, b, band_a & ~same_band), (b, a, band_b & ~same_band)):
+        edges = np.flatnonzero(mask)
+        rows = local[inner[edges]]
+        other = parts[outer[edges]]
+        weight = capacity[edges]
+        np.add.at(expected_low, rows, np.where(other != low_part[rows], weight, 0.0))
+        np.add.at(expected_high, rows, np.where(other != high_part[rows], weight, 0.0))
+    np.testing.assert_array_equal(cost_low, expected_low)
+    np.testing.assert_array_equal(cost_high, expected_high)
+    np.testing.assert_array_equal(inside, np.flatnonzero(same_band))

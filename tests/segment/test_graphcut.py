@@ -6,10 +6,16 @@ import numpy as np
 import pytest
 import trimesh
 
-from neural_shdf.geometry import build_face_graph, face_centroids, face_normals
+from neural_shdf.geometry import (
+    adjacency_with_edges,
+    build_face_graph,
+    face_centroids,
+    face_normals,
+)
 from neural_shdf.segment.graphcut import (
     ANGLE_EPS,
     LAMBDA_SCALE,
+    _band_problem,
     alpha_expansion,
     banded_alpha_expansion,
     coarse_data,
@@ -71,6 +77,42 @@ def test_banded_solve_changes_only_the_band():
         labelling_energy(result, data, pairs, weights)
         <= labelling_energy(start, data, pairs, weights) + 1e-9
     )
+
+
+def bincount_band_problem(band_data, pairs, weights, labels, band):
+    """The band's sub-problem as ``banded_alpha_expansion`` built it with numpy before
+    ``_band_problem`` (the reference for the float sums)."""
+    nodes = np.flatnonzero(band)
+    local = np.full(len(labels), -1, dtype=np.int64)
+    local[nodes] = np.arange(len(nodes))
+    sub_data = np.array(band_data, dtype=np.float64)
+    a, b = pairs[:, 0], pairs[:, 1]
+    label_count = sub_data.shape[1]
+    for inner, outer in ((a, b), (b, a)):
+        edge = np.flatnonzero(band[inner] & ~band[outer])
+        rows = local[inner[edge]]
+        sub_data += np.bincount(rows, weights=weights[edge], minlength=len(nodes))[:, None]
+        cell = rows * label_count + labels[outer[edge]]
+        sub_data -= np.bincount(cell, weights=weights[edge], minlength=sub_data.size).reshape(
+            sub_data.shape
+        )
+    inside = np.flatnonzero(band[a] & band[b])
+    touching = np.flatnonzero(band[a] != band[b])
+    alphas = np.union1d(labels[nodes], labels[pairs[touching].reshape(-1)])
+    return sub_data, local[pairs[inside]], weights[inside], alphas
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_band_problem_matches_the_bincount_folding_it_replaced(seed):
+    data, pairs, weights, start = random_problem(seed, nodes=60, labels=5)
+    rng = np.random.default_rng(seed)
+    weights = weights * 10.0 ** rng.uniform(-3, 3, len(weights))  # sums that round
+    band = rng.random(60) < 0.5
+    nodes = np.flatnonzero(band)
+    got = _band_problem(data[band].copy(), nodes, band, start, pairs, weights)
+    expected = bincount_band_problem(data[band], pairs, weights, start, band)
+    for array, reference in zip(got, expected, strict=True):
+        np.testing.assert_array_equal(array, reference)  # bit for bit
 
 
 def test_near_boundary_grows_by_rings():
@@ -230,6 +272,15 @@ def test_a_stalled_hierarchy_coarsens_further_per_smoothing_and_stays_close_to_d
     unit = dihedral_weights(graph, 1.0)
     hierarchy = cut_hierarchy(data, graph.pairs, unit, centroids, areas, coarse_nodes=300)
     assert hierarchy.stalled is not None and len(hierarchy.levels[-1].data) > 300
+    # The top level's adjacency is built once, with the hierarchy, for every smoothing.
+    top = hierarchy.levels[-1]
+    kept = hierarchy.stalled.adjacency
+    assert kept is not None
+    for array, built in zip(kept, adjacency_with_edges(top.pairs, len(top.data)), strict=True):
+        np.testing.assert_array_equal(array, built)
+    levels_bytes = sum(level.nbytes for level in hierarchy.levels)
+    kept_bytes = hierarchy.stalled.positions.nbytes + sum(array.nbytes for array in kept)
+    assert hierarchy.nbytes == levels_bytes + kept_bytes  # counted in the working set
     for scale in (0.005, 0.02, 0.1):
         levels = hierarchy._smoothed_levels(scale)
         assert len(levels[-1].data) < len(hierarchy.levels[-1].data) / 2

@@ -321,24 +321,23 @@ def _min_cut_in_bands(
     is_high = parts[nodes] == high_part
     cost_low = np.where(is_high, change[nodes], 0.0)  # paid when the face takes its low part
     cost_high = np.where(is_high, 0.0, change[nodes])
-    a, b = pairs[:, 0], pairs[:, 1]
-    band_a, band_b = in_band[a], in_band[b]
-    same_band = band_a & band_b & (owner[a] == owner[b])
-    # An edge to a face that keeps its part (outside, or in another band): cut unless
-    # the band face takes that part.
-    for inner, outer, mask in ((a, b, band_a & ~same_band), (b, a, band_b & ~same_band)):
-        edges = np.flatnonzero(mask)
-        rows = local[inner[edges]]
-        other = parts[outer[edges]]
-        weight = capacity[edges]
-        np.add.at(cost_low, rows, np.where(other != low_part[rows], weight, 0.0))
-        np.add.at(cost_high, rows, np.where(other != high_part[rows], weight, 0.0))
-    inside = np.flatnonzero(same_band)
+    inside = _band_costs(
+        cost_low,
+        cost_high,
+        in_band,
+        owner,
+        local,
+        parts,
+        low_part,
+        high_part,
+        np.ascontiguousarray(pairs, dtype=np.int64),
+        np.asarray(capacity, dtype=np.float64),
+    )
     flow = maxflow.Graph[float](len(nodes), len(inside))
     flow.add_nodes(len(nodes))
     if len(inside):
         weight = capacity[inside]
-        flow.add_edges(local[a[inside]], local[b[inside]], weight, weight)
+        flow.add_edges(local[pairs[inside, 0]], local[pairs[inside, 1]], weight, weight)
     shift = np.minimum(cost_low, cost_high)
     # Sink side (True) = high part, which pays the source capacity.
     flow.add_grid_tedges(np.arange(len(nodes)), cost_high - shift, cost_low - shift)
@@ -347,6 +346,47 @@ def _min_cut_in_bands(
     result = parts.copy()
     result[nodes] = np.where(high, high_part, low_part)
     return result
+
+
+@kernel
+def _band_costs(
+    cost_low: NDArray[Any],
+    cost_high: NDArray[Any],
+    in_band: NDArray[Any],
+    owner: NDArray[Any],
+    local: NDArray[Any],
+    parts: NDArray[Any],
+    low_part: NDArray[Any],
+    high_part: NDArray[Any],
+    pairs: NDArray[Any],
+    capacity: NDArray[Any],
+) -> NDArray[np.int64]:  # pragma: no cover - numba
+    """``_min_cut_in_bands``' unary costs (added in place, edge by edge in order, first the
+    edges whose first face is in a band, then those whose second is) and the edges inside
+    one band. An edge to a face that keeps its part (outside, or in another band) is cut
+    unless the band face takes that part."""
+    same_band = np.zeros(len(pairs), dtype=np.bool_)
+    inside = 0
+    for edge in range(len(pairs)):
+        a, b = pairs[edge, 0], pairs[edge, 1]
+        if in_band[a] and in_band[b] and owner[a] == owner[b]:
+            same_band[edge] = True
+            inside += 1
+    for side in range(2):
+        for edge in range(len(pairs)):
+            inner, outer = pairs[edge, side], pairs[edge, 1 - side]
+            if in_band[inner] and not same_band[edge]:
+                row = local[inner]
+                other = parts[outer]
+                cost_low[row] += capacity[edge] if other != low_part[row] else 0.0
+                cost_high[row] += capacity[edge] if other != high_part[row] else 0.0
+    edges = np.empty(inside, dtype=np.int64)
+    count = 0
+    for edge in range(len(pairs)):
+        if same_band[edge]:
+            edges[count] = edge
+            count += 1
+    return edges
 
 
 @kernel

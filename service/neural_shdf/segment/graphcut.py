@@ -297,29 +297,85 @@ def banded_alpha_expansion(
     nodes = np.flatnonzero(band)
     if len(nodes) == 0:
         return labels.copy()
-    local = np.full(len(labels), -1, dtype=np.int64)
-    local[nodes] = np.arange(len(nodes))
-    sub_data = np.array(band_data, dtype=np.float64)
-    a, b = pairs[:, 0], pairs[:, 1]
-    label_count = sub_data.shape[1]
-    for inner, outer in ((a, b), (b, a)):
-        edge = np.flatnonzero(band[inner] & ~band[outer])
-        rows = local[inner[edge]]
-        sub_data += np.bincount(rows, weights=weights[edge], minlength=len(nodes))[:, None]
-        cell = rows * label_count + labels[outer[edge]]
-        sub_data -= np.bincount(cell, weights=weights[edge], minlength=sub_data.size).reshape(
-            sub_data.shape
-        )
-    inside = np.flatnonzero(band[a] & band[b])
-    sub_pairs = local[pairs[inside]]
-    # Only labels in or beside the band can win there.
-    touching = np.flatnonzero(band[a] != band[b])
-    alphas = np.union1d(labels[nodes], labels[pairs[touching].reshape(-1)])
+    sub_data, sub_pairs, sub_weights, alphas = _band_problem(
+        np.array(band_data, dtype=np.float64),
+        nodes,
+        band,
+        labels,
+        np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+        np.asarray(weights, dtype=np.float64),
+    )
     result = labels.copy()
     result[nodes] = alpha_expansion(
-        sub_data, sub_pairs, weights[inside], labels[nodes], max_cycles, alphas
+        sub_data, sub_pairs, sub_weights, labels[nodes], max_cycles, alphas
     )
     return result
+
+
+@kernel
+def _band_problem(
+    sub_data: NDArray[Any],
+    nodes: NDArray[Any],
+    band: NDArray[Any],
+    labels: NDArray[Any],
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
+) -> tuple[NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]]:  # pragma: no cover
+    """``banded_alpha_expansion``'s sub-problem: the band's data costs (updated in place)
+    with each edge to a fixed node folded in, the edges inside the band (local ids) with
+    their weights, and the labels in or beside the band (sorted).
+
+    The folded sums add as ``np.bincount`` would (per side of the edges, in edge order,
+    from zero, then onto the costs), so the floats are those of the numpy folding."""
+    count, label_count = sub_data.shape
+    local = np.full(len(labels), -1, dtype=np.int64)
+    for i in range(count):
+        local[nodes[i]] = i
+    candidate = np.zeros(label_count, dtype=np.bool_)
+    for i in range(count):
+        candidate[labels[nodes[i]]] = True
+    inside = np.empty(len(pairs), dtype=np.int64)
+    leaving = np.empty(len(pairs), dtype=np.int64)  # band node first, then second (negated)
+    inside_count = leaving_count = 0
+    for edge in range(len(pairs)):
+        in_a, in_b = band[pairs[edge, 0]], band[pairs[edge, 1]]
+        if in_a and in_b:
+            inside[inside_count] = edge
+            inside_count += 1
+        elif in_a or in_b:
+            leaving[leaving_count] = edge if in_a else -1 - edge
+            leaving_count += 1
+            candidate[labels[pairs[edge, 0]]] = True
+            candidate[labels[pairs[edge, 1]]] = True
+    sub_pairs = np.empty((inside_count, 2), dtype=np.int64)
+    sub_weights = np.empty(inside_count)
+    for row in range(inside_count):
+        edge = inside[row]
+        sub_pairs[row, 0] = local[pairs[edge, 0]]
+        sub_pairs[row, 1] = local[pairs[edge, 1]]
+        sub_weights[row] = weights[edge]
+    cut = np.zeros(count)
+    kept = np.zeros((count, label_count))
+    for side in range(2):
+        for j in range(leaving_count):
+            if (leaving[j] >= 0) == (side == 0):
+                edge = leaving[j] if side == 0 else -1 - leaving[j]
+                row = local[pairs[edge, side]]
+                cut[row] += weights[edge]
+                kept[row, labels[pairs[edge, 1 - side]]] += weights[edge]
+        # Adding or subtracting the zeros of untouched rows and cells changes no float.
+        for j in range(leaving_count):
+            if (leaving[j] >= 0) == (side == 0):
+                edge = leaving[j] if side == 0 else -1 - leaving[j]
+                row = local[pairs[edge, side]]
+                if cut[row] != 0.0 or kept[row].any():
+                    for label in range(label_count):
+                        sub_data[row, label] += cut[row]
+                    for label in range(label_count):
+                        sub_data[row, label] -= kept[row, label]
+                    cut[row] = 0.0
+                    kept[row] = 0.0
+    return sub_data, sub_pairs, sub_weights, np.flatnonzero(candidate)
 
 
 def near_boundary(
@@ -498,8 +554,17 @@ class StalledTop:
     cell_size: float
     crease_weight: float
     coarse_nodes: int
+    #: ``adjacency_with_edges`` of the top level, for ``smoothed_preference`` at each smoothing.
+    adjacency: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]] | None = None
     #: Summed edge lengths of the top level's edges where creases are judged per length.
     lengths: NDArray[np.float64] | None = None
+
+    @property
+    def nbytes(self) -> int:
+        arrays = (self.positions, *(self.adjacency or ()))
+        if self.lengths is not None:
+            arrays = (*arrays, self.lengths)
+        return sum(a.nbytes for a in arrays)
 
 
 @dataclass(frozen=True)
@@ -519,7 +584,7 @@ class CutHierarchy:
     @property
     def nbytes(self) -> int:
         size = sum(level.nbytes for level in self.levels)
-        return size + (self.stalled.positions.nbytes if self.stalled is not None else 0)
+        return size + (self.stalled.nbytes if self.stalled is not None else 0)
 
     def solve(self, smoothing: float) -> NDArray[np.int64]:
         """Labels minimising E with edge weights ``unit_weights * smoothing``; deterministic."""
@@ -555,7 +620,9 @@ class CutHierarchy:
         sweeps of iterated conditional modes give at this smoothing (``smoothed_preference``)
         rather than by their cheapest label, which interleaves where clusters overlap."""
         top, stalled = self.levels[-1], cast(StalledTop, self.stalled)
-        preferred = smoothed_preference(top.data, top.pairs, top.unit_weights * smoothing)
+        preferred = smoothed_preference(
+            top.data, top.pairs, top.unit_weights * smoothing, adjacency=stalled.adjacency
+        )
         levels = coarsen_levels(
             top.pairs,
             top.unit_weights,
@@ -628,7 +695,10 @@ def cut_hierarchy(
     top = levels[-1]
     stalled = None
     if len(top.data) > coarse_nodes and top.positions is not None:
-        stalled = StalledTop(top.positions, top.cell_size, crease_weight, coarse_nodes, top_lengths)
+        adjacency = adjacency_with_edges(top.pairs, len(top.data))  # kept for every smoothing
+        stalled = StalledTop(
+            top.positions, top.cell_size, crease_weight, coarse_nodes, adjacency, top_lengths
+        )
     levels[-1] = replace(top, positions=None)
     return CutHierarchy(tuple(levels), rings, stalled)
 
@@ -701,14 +771,21 @@ def _per_length(weights: NDArray[Any], lengths: NDArray[Any]) -> NDArray[np.floa
 
 
 def smoothed_preference(
-    data: NDArray[Any], pairs: NDArray[Any], weights: NDArray[Any], sweeps: int = PREFERENCE_SWEEPS
+    data: NDArray[Any],
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
+    sweeps: int = PREFERENCE_SWEEPS,
+    adjacency: tuple[NDArray[Any], NDArray[Any], NDArray[Any]] | None = None,
 ) -> NDArray[np.int64]:
     """Each node's label after ``sweeps`` sweeps of iterated conditional modes (in node
     order, from the cheapest labels): the label minimising its data cost plus the weight
-    of its edges to nodes of other labels. Deterministic."""
+    of its edges to nodes of other labels. Deterministic. ``adjacency``:
+    ``adjacency_with_edges(pairs, len(data))`` where the caller keeps it."""
     data = np.asarray(data, dtype=np.float64)
-    pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
-    indptr, neighbours, edge_of = adjacency_with_edges(pairs, len(data))
+    if adjacency is None:
+        pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
+        adjacency = adjacency_with_edges(pairs, len(data))
+    indptr, neighbours, edge_of = adjacency
     return _iterated_modes(
         data, indptr, neighbours, edge_of, np.asarray(weights, np.float64), sweeps
     )

@@ -352,6 +352,7 @@ def raw_shdf(
     progress: Progress | None = None,
     scene: Scene | Future[Scene] | None = None,
     surface_triangles: int | None = None,
+    centroids: NDArray[Any] | None = None,
 ) -> NDArray[np.float64]:
     """Raw diameter per triangle (mesh units), NaN where no ray gave a valid hit.
 
@@ -374,6 +375,8 @@ def raw_shdf(
         surface_triangles: how many of the scene's first triangles are surface (default
             ``len(faces)``); hits on the others, holes' caps, count only as
             ``_drop_short_cap_hits`` says.
+        centroids: (F, 3) the triangles' centroids, where the caller has them (computed
+            if omitted).
     """
     _check_cone(cone_angle, ray_count)
     vertices = np.asarray(vertices, dtype=np.float64)
@@ -385,7 +388,7 @@ def raw_shdf(
     result, _, _ = _cast_rays(
         vertices,
         faces,
-        face_centroids(vertices, faces),
+        face_centroids(vertices, faces) if centroids is None else np.asarray(centroids),
         np.asarray(normals, dtype=np.float64),
         np.arange(len(faces), dtype=np.int64),
         cone_angle=cone_angle,

@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from neural_shdf import constants
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph, face_centroids
+from neural_shdf.geometry import FaceGraph
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.orientation import MeshDiagnostics, open_boundary_faces
 from neural_shdf.segment.params import check_seed
@@ -287,6 +287,7 @@ def raw_diameters(
             progress=progress,
             scene=Scene(*targets) if close_holes else None,
             surface_triangles=surface_triangles(mesh, targets[1]),
+            centroids=mesh.centroids,
         )
     if method == "sampled":
         return sampled_raw_shdf(mesh, graph, params, close_holes=close_holes)
@@ -366,7 +367,7 @@ def compute_shdf(
         window_size=window,
         smooth=resolved == "exact",
         # the patch filter of wide windows places patches by centroid (exact only)
-        centroids=face_centroids(mesh.vertices, mesh.faces) if resolved == "exact" else None,
+        centroids=mesh.centroids if resolved == "exact" else None,
         # the file's own open edges, stitched seams included: rays cross their slits too
         rim=open_boundary_faces(mesh.coincident_welding[1], mesh.face_count)
         if diagnostics.boundary_loops > 0

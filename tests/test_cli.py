@@ -558,3 +558,12 @@ def test_segment_symmetry_reports_the_mirror_plane_and_labels_like_the_library(
     result = segment(mesh, shdf, SegmentParams(symmetry=True))
     assert result.reflection is not None
     assert [int(v) for v in _read_lines(out)] == mesh.labels_to_input_faces(result.labels).tolist()
+
+
+def test_importing_the_cli_leaves_trimesh_unloaded():
+    """trimesh's import (~0.3 s, networkx and scipy.spatial with it) is paid only where a
+    GLB is written or a file is reloaded for scoring, not by every CLI run."""
+    code = "import sys, neural_shdf.cli; print('trimesh' in sys.modules)"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "False"

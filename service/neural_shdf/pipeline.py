@@ -25,7 +25,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-import trimesh
 
 from neural_shdf.errors import ModelUnavailableError
 from neural_shdf.mesh import TriangleMesh
@@ -56,6 +55,8 @@ def warm_up(methods: tuple[ShdfMethod, ...] = ("exact", "sampled", "neural")) ->
     loaded from their cache and the model session exists. Seconds taken; a neural model
     that cannot load is skipped (its error surfaces where it is used).
     """
+    import trimesh  # only here: the CLI's import stays light
+
     start = time.perf_counter()
     sphere = trimesh.creation.icosphere(subdivisions=2)
     mesh = TriangleMesh(sphere.vertices, sphere.faces)

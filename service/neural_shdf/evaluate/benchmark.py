@@ -37,7 +37,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import trimesh
 from numpy.typing import NDArray
 
 from neural_shdf import pipeline
@@ -175,6 +174,8 @@ def _metric_mesh(mesh: TriangleMesh, path: Path) -> tuple[CutGraph, int]:
         mesh.face_origin, np.arange(mesh.face_count)
     ):
         return cut_graph(mesh.vertices, mesh.faces), mesh.face_count
+    import trimesh  # only for files whose faces were rewritten; the CLI's import stays light
+
     loaded = trimesh.load(path, process=False, force="mesh")
     return cut_graph(np.asarray(loaded.vertices), np.asarray(loaded.faces)), len(loaded.faces)
 

@@ -9,7 +9,6 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-import trimesh
 from numpy.typing import NDArray
 
 from neural_shdf.arrays import unique_rows
@@ -79,6 +78,8 @@ def colored_glb(
             palette = np.concatenate([palette, np.full((len(palette), 1), 255, np.uint8)], 1)
         vertex_colors = palette[vertex_label]
     vertex_colors = linear_color_bytes(vertex_colors)
+    import trimesh  # its import (~0.3 s) only where a GLB is written, not for every CLI run
+
     out = trimesh.Trimesh(vertices, faces, vertex_colors=vertex_colors, process=False)
     return out.export(file_type="glb")
 
@@ -440,6 +441,8 @@ def unwrapped_glb(mesh: TriangleMesh, atlas: UvAtlas, *, texture_png: bytes | No
     """
     vertices, faces, uvs = uv_split_vertices(mesh, atlas)
     image = _EncodedImage(texture_png) if texture_png else None
+    import trimesh  # as in colored_glb
+
     material = trimesh.visual.material.PBRMaterial(
         baseColorTexture=image, metallicFactor=0.0, roughnessFactor=0.9
     )

@@ -14,7 +14,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-import trimesh.remesh
 from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
@@ -138,6 +137,8 @@ def subdivided_copy(
 ) -> tuple[TriangleMesh, NDArray[np.int64]]:
     """``mesh``'s triangles each split into 4, ``times`` times, and the labels per triangle
     carried to the children."""
+    import trimesh.remesh  # training only; the CLI's import stays light
+
     vertices, faces = mesh.vertices, mesh.faces
     labels = np.asarray(labels, dtype=np.int64)
     for _ in range(times):

@@ -52,7 +52,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.evaluate.benchmark import list_models, load_benchmark_mesh
 from neural_shdf.evaluate.scores import cut_distance_field, cut_graph, score_against_humans
-from neural_shdf.geometry import adjacency_lists, build_face_graph, weld_faces
+from neural_shdf.geometry import adjacency_lists, build_face_graph, midpoint_subdivide, weld_faces
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
@@ -226,13 +226,7 @@ def cached_subdivision(v: NDArray, f: NDArray, kind: str) -> tuple[NDArray, NDAr
         # trimesh's Loop pass writes face i's four children at rows 4i..4i+3.
         origin = np.arange(len(faces)) // 4**passes
     else:
-        vertices, faces, origin = v, f, np.arange(len(f))
-        for _ in range(passes):
-            vertices, faces, index = trimesh.remesh.subdivide(vertices, faces, return_index=True)
-            parent = np.empty(len(faces), dtype=np.int64)
-            for face, children in index.items():
-                parent[children] = face
-            origin = origin[parent]
+        vertices, faces, origin = midpoint_subdivide(v, f, passes)
     file.parent.mkdir(parents=True, exist_ok=True)
     np.savez(file, vertices=vertices, faces=faces, origin=origin)
     return vertices, faces, origin

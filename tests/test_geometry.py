@@ -13,6 +13,7 @@ from neural_shdf.geometry import (
     count_zero_rows,
     face_normals,
     grid_cells,
+    midpoint_subdivide,
     principal_coordinates,
     weld_faces,
     zero_area_limit,
@@ -348,3 +349,21 @@ def test_normals_with_the_limit_given_are_those_found_with_it():
     assert count_zero_rows(normals) == 1
     # A limit above every triangle's doubled area leaves no normal.
     assert count_zero_rows(face_normals(vertices, faces, area_limit=1.0)[0]) == len(faces)
+
+
+def test_midpoint_subdivision_maps_each_child_to_the_face_it_lies_in():
+    """Two passes: 16 children per face, each a sixteenth of its face's area, lying in it."""
+    mesh = trimesh.creation.box(extents=(1, 2, 3))
+    vertices, faces, origin = midpoint_subdivide(mesh.vertices, mesh.faces, 2)
+    assert len(faces) == 16 * len(mesh.faces)
+    np.testing.assert_array_equal(np.bincount(origin), np.full(len(mesh.faces), 16))
+    _, areas = face_normals(vertices, faces)
+    _, parent_areas = face_normals(mesh.vertices, mesh.faces)
+    np.testing.assert_allclose(areas, parent_areas[origin] / 16)
+    centroid = vertices[faces].mean(axis=1)
+    a, b, c = (mesh.vertices[mesh.faces[origin]][:, i] for i in range(3))
+    normal = np.cross(b - a, c - a)  # inside the parent: same side of its three edges
+    for p, q in ((a, b), (b, c), (c, a)):
+        assert np.all(np.einsum("ij,ij->i", np.cross(q - p, centroid - p), normal) > 0)
+    unchanged = midpoint_subdivide(mesh.vertices, mesh.faces, 0)
+    np.testing.assert_array_equal(unchanged[2], np.arange(12))

@@ -447,6 +447,27 @@ def _pair_geometry(  # pragma: no cover - numba
     return edge_length, dihedral, concave
 
 
+def midpoint_subdivide(
+    vertices: NDArray[Any], faces: NDArray[Any], passes: int
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """(vertices, faces, input face of each face) after ``passes`` midpoint subdivisions
+    (each triangle split into 4, the same piecewise-flat surface)."""
+    import trimesh.remesh  # only where meshes are subdivided; the CLI's import stays light
+
+    origin = np.arange(len(faces), dtype=np.int64)
+    for _ in range(passes):
+        vertices, faces, index = trimesh.remesh.subdivide(vertices, faces, return_index=True)  # type: ignore[no-untyped-call]
+        parent = np.empty(len(faces), dtype=np.int64)
+        for face, children in index.items():
+            parent[children] = face
+        origin = origin[parent]
+    return (
+        np.asarray(vertices, dtype=np.float64),
+        np.asarray(faces, dtype=np.int64),
+        origin,
+    )
+
+
 def weld_faces(vertices: NDArray[Any], faces: NDArray[Any]) -> NDArray[np.int64]:
     """Face indices rewritten so that vertices at identical positions share one index.
 

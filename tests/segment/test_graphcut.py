@@ -11,6 +11,7 @@ from neural_shdf.geometry import (
     build_face_graph,
     face_centroids,
     face_normals,
+    midpoint_subdivide,
 )
 from neural_shdf.segment.graphcut import (
     ANGLE_EPS,
@@ -303,18 +304,6 @@ def test_a_stalled_hierarchy_coarsens_further_per_smoothing_and_stays_close_to_d
         assert labelling_energy(labels, data, graph.pairs, weights) <= 1.02 * e_direct
 
 
-def midpoint_lifted(vertices, faces, passes):
-    """(vertices, faces, coarse face of each face) after ``passes`` midpoint subdivisions."""
-    origin = np.arange(len(faces))
-    for _ in range(passes):
-        vertices, faces, index = trimesh.remesh.subdivide(vertices, faces, return_index=True)
-        parent = np.empty(len(faces), dtype=np.int64)
-        for face, children in index.items():
-            parent[children] = face
-        origin = origin[parent]
-    return vertices, faces, origin
-
-
 def cut_energy(vertices, faces, posteriors, labels, params):
     """The graph cut's energy of ``labels`` as ``segment`` weighs it: area-weighted data
     costs plus the dihedral weights at ``params.smoothing_for(faces)``."""
@@ -342,14 +331,14 @@ def test_energy_of_a_lifted_labelling_is_resolution_invariant_above_the_referenc
     params = SegmentParams(smoothing=0.3, reference_faces=len(faces))
     per_face = []
     for passes in range(3):
-        v, f, origin = midpoint_lifted(vertices, faces, passes)
+        v, f, origin = midpoint_subdivide(vertices, faces, passes)
         energy = cut_energy(v, f, posteriors[origin], labels[origin], params)
         per_face.append(energy / len(f))
     np.testing.assert_allclose(per_face, per_face[0], rtol=1e-9)
     # Without the normalisation the cut's share halves with each pass (CGAL's energy).
     raw = SegmentParams(smoothing=0.3, reference_faces=None)
     coarse = cut_energy(vertices, faces, posteriors, labels, raw) / len(faces)
-    v, f, origin = midpoint_lifted(vertices, faces, 1)
+    v, f, origin = midpoint_subdivide(vertices, faces, 1)
     assert cut_energy(v, f, posteriors[origin], labels[origin], raw) / len(f) < 0.9 * coarse
 
 
@@ -359,7 +348,7 @@ def test_coarse_nodes_keep_to_the_original_edges_of_a_midpoint_subdivided_mesh(w
     node crosses a bent edge of the original mesh (three edges in four are flat, and the
     dearest to cut); judged by summed weight, coarse levels group across them."""
     sphere = trimesh.creation.icosphere(2)
-    vertices, faces, origin = midpoint_lifted(
+    vertices, faces, origin = midpoint_subdivide(
         np.asarray(sphere.vertices), np.asarray(sphere.faces), 2
     )
     graph = build_face_graph(vertices, faces)

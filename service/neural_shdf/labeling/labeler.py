@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from threadpoolctl import threadpool_limits
 
 from neural_shdf.errors import ParameterError
+from neural_shdf.geometry import midpoint_subdivide
 from neural_shdf.labeling._library import (
     FaceGraph,
     TriangleMesh,
@@ -137,17 +138,8 @@ def subdivided_copy(
 ) -> tuple[TriangleMesh, NDArray[np.int64]]:
     """``mesh``'s triangles each split into 4, ``times`` times, and the labels per triangle
     carried to the children."""
-    import trimesh.remesh  # training only; the CLI's import stays light
-
-    vertices, faces = mesh.vertices, mesh.faces
-    labels = np.asarray(labels, dtype=np.int64)
-    for _ in range(times):
-        vertices, faces, index = trimesh.remesh.subdivide(vertices, faces, return_index=True)
-        parent = np.empty(len(faces), dtype=np.int64)
-        for face, children in index.items():
-            parent[children] = face
-        labels = labels[parent]
-    return TriangleMesh(vertices, faces), labels
+    vertices, faces, origin = midpoint_subdivide(mesh.vertices, mesh.faces, times)
+    return TriangleMesh(vertices, faces), np.asarray(labels, dtype=np.int64)[origin]
 
 
 def fit_labeler(

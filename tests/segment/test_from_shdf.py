@@ -336,3 +336,16 @@ def test_a_double_sided_export_gets_the_parts_of_the_one_sided_mesh(dumbbell_cas
     basis = prepare_segment(mesh, np.tile(shdf, 2), params)
     again = segment(mesh, np.tile(shdf, 2), params, basis=basis)
     np.testing.assert_array_equal(again.labels, doubled.labels)
+
+
+def test_compute_shdfs_result_segments_as_its_values():
+    """``segment(mesh, compute_shdf(mesh))`` works as a user writes it: the same labels as
+    with ``.values``, with and without a kept basis."""
+    sphere = trimesh.creation.icosphere(3)
+    mesh = TriangleMesh(sphere.vertices, sphere.faces)
+    result = compute_shdf(mesh)
+    params = SegmentParams(parts=2)
+    expected = segment(mesh, result.values, params).labels
+    np.testing.assert_array_equal(segment(mesh, result, params).labels, expected)
+    basis = prepare_segment(mesh, result, params)
+    np.testing.assert_array_equal(segment(mesh, result, params, basis=basis).labels, expected)

@@ -36,6 +36,7 @@ from neural_shdf.segment.partitioners import PARTITIONERS, Partitioning
 from neural_shdf.segment.parts import FaceData
 from neural_shdf.segment.symmetry import Reflection, detect_reflection, symmetrize
 from neural_shdf.shdf.postprocess import log_normalize
+from neural_shdf.shdf.stage import ShdfResult
 from neural_shdf.stitching import cap_spokes, closing_caps
 
 #: ShDF values may stray this far outside [0, 1] (rounding) before they are refused.
@@ -78,14 +79,15 @@ class SegmentResult:
 
 
 def prepare_segment(
-    mesh: TriangleMesh, shdf: NDArray[Any], params: SegmentParams | None = None
+    mesh: TriangleMesh, shdf: NDArray[Any] | ShdfResult, params: SegmentParams | None = None
 ) -> SegmentBasis:
     """The ``SegmentBasis`` of a mesh, its ShDF and ``params.clusters``/``seed``/``symmetry``:
     pass it to ``segment`` to try other smoothing or part counts quickly. Checks the ShDF
-    and ``params`` against the mesh (ParameterError)."""
+    and ``params`` against the mesh (ParameterError). ``shdf``: values per triangle or
+    ``compute_shdf``'s result."""
     start = time.perf_counter()
     params = params or SegmentParams()
-    shdf = validate(mesh.face_count, shdf, params)
+    shdf = validate(mesh.face_count, shdf_values(shdf), params)
     distinct = mesh.distinct
     if distinct.has_copies:
         shdf = shdf[distinct.kept]
@@ -123,19 +125,20 @@ def prepare_segment(
 
 def segment(
     mesh: TriangleMesh,
-    shdf: NDArray[Any],
+    shdf: NDArray[Any] | ShdfResult,
     params: SegmentParams | None = None,
     *,
     basis: SegmentBasis | None = None,
 ) -> SegmentResult:
     """Part label per triangle, 0..P-1 in order of each part's lowest triangle, from a ShDF
-    in [0, 1] per triangle; deterministic. Also the part tree (graph cut), the mixture
-    size, the smoothing and per-step timings.
+    in [0, 1] per triangle (or ``compute_shdf``'s result); deterministic. Also the part
+    tree (graph cut), the mixture size, the smoothing and per-step timings.
 
     ``basis``: ``prepare_segment``'s result for this mesh, ShDF, clusters and seed (kept
     by the caller to re-segment cheaply); the same labels as without it.
     """
     params = params or SegmentParams()
+    shdf = shdf_values(shdf)
     timings: dict[str, float] = {}
     clock = time.perf_counter()
 
@@ -202,6 +205,12 @@ def check_part_count(params: SegmentParams, face_count: int) -> None:
             f"parts={params.parts} is more than the mesh's {face_count} faces; "
             f"ask for at most {face_count} parts"
         )
+
+
+def shdf_values(shdf: NDArray[Any] | ShdfResult) -> NDArray[Any]:
+    """The values of ``compute_shdf``'s result; anything else as given (checked by
+    ``validate``)."""
+    return shdf.values if isinstance(shdf, ShdfResult) else shdf
 
 
 def validate(face_count: int, shdf: NDArray[Any], params: SegmentParams) -> NDArray[np.float64]:

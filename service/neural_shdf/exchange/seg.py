@@ -17,7 +17,11 @@ def write_labels(path: str | Path, labels: NDArray[Any]) -> None:
     labels = np.asarray(labels)
     if labels.ndim != 1 or labels.dtype.kind not in "iub":
         raise ParameterError("labels must be a 1-D integer array")
-    Path(path).write_text("".join(f"{int(v)}\n" for v in labels))
+    # Each distinct label formatted once (bools as 0/1), then looked up per face:
+    # formatting numpy scalars one by one took most of a second at 1M faces.
+    distinct, index = np.unique(labels, return_inverse=True)
+    lines = [f"{int(value)}\n" for value in distinct.tolist()]
+    Path(path).write_text("".join(map(lines.__getitem__, index.ravel().tolist())))
 
 
 def _read_column(path: str | Path, parse: type, what: str) -> list[Any]:

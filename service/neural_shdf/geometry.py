@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
+from threadpoolctl import threadpool_limits
 
 from neural_shdf.compiled import kernel
 from neural_shdf.constants import AREA_EPS
@@ -140,25 +141,46 @@ def face_centroids(vertices: NDArray[Any], faces: NDArray[Any]) -> NDArray[Any]:
     )
 
 
-def principal_coordinates(
+def principal_frame(
     points: NDArray[Any], weights: NDArray[Any] | None = None
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(weighted mean, principal axes as columns, largest spread first) of (N, 3) points:
+    what ``principal_coordinates`` projects on, small enough for a mesh to keep.
+    Unit weights where ``weights`` is omitted or sums to zero."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if not len(points):
+        return np.zeros(3), np.eye(3)
+    if weights is None or not float(np.sum(weights)) > 0:
+        weights = np.ones(len(points))
+    weights = np.asarray(weights, dtype=np.float64) / float(np.sum(weights))
+    mean = weights @ points
+    offsets = points - mean
+    _, axes = np.linalg.eigh((offsets * weights[:, None]).T @ offsets)
+    return mean, axes[:, ::-1]
+
+
+def principal_coordinates(
+    points: NDArray[Any],
+    weights: NDArray[Any] | None = None,
+    frame: tuple[NDArray[Any], NDArray[Any]] | None = None,
 ) -> NDArray[np.float64]:
     """(N, 3) coordinates of the points along their own principal axes (largest spread
     first), from their weighted mean: the same in any pose of the points, up to each
     axis's sign (a shape does not define it), so grids over them are laid with
     ``grid_cells``, which ignores the signs. Axes a shape does not define (equal spreads,
     e.g. about a body of revolution's axis) are whatever the eigensolver returns.
-    Unit weights where ``weights`` is omitted or sums to zero.
+    Unit weights where ``weights`` is omitted or sums to zero. ``frame``: the points'
+    ``principal_frame`` where the caller keeps it (then ``weights`` is not read).
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if not len(points):
         return points.copy()
-    if weights is None or not float(np.sum(weights)) > 0:
-        weights = np.ones(len(points))
-    weights = np.asarray(weights, dtype=np.float64) / float(np.sum(weights))
-    offsets = points - weights @ points
-    _, axes = np.linalg.eigh((offsets * weights[:, None]).T @ offsets)
-    coordinates: NDArray[np.float64] = offsets @ axes[:, ::-1]
+    mean, axes = principal_frame(points, weights) if frame is None else frame
+    offsets = points - mean
+    # One BLAS thread: the same bits as several (each row is one thread's), and on a
+    # shared machine the threads' hand-offs cost ten times the product (N x 3 by 3 x 3).
+    with threadpool_limits(limits=1, user_api="blas"):
+        coordinates: NDArray[np.float64] = offsets @ axes
     return coordinates
 
 

@@ -647,6 +647,7 @@ def cut_hierarchy(
     coarse_nodes: int = COARSE_NODES,
     rings: int = BAND_RINGS,
     lengths: NDArray[Any] | None = None,
+    frame: tuple[NDArray[Any], NDArray[Any]] | None = None,
 ) -> CutHierarchy:
     """Coarsen the graph until at most ``coarse_nodes`` nodes remain (or it stops shrinking).
 
@@ -661,7 +662,8 @@ def cut_hierarchy(
     further by each smoothing's own preferences. ``lengths`` (the edges' lengths): creases
     are edges whose weight per unit length is below ``CREASE_FRACTION`` times the median,
     judged so at every level (coarse edges sum lengths as they sum weights); without them,
-    edges lighter than ``CREASE_FRACTION`` times the median weight.
+    edges lighter than ``CREASE_FRACTION`` times the median weight. ``frame``:
+    ``principal_frame(centroids, areas)`` where the caller keeps it.
     """
     data = np.asarray(data, dtype=np.float64)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
@@ -670,7 +672,7 @@ def cut_hierarchy(
     if node_count <= coarse_nodes or data.shape[1] <= 1:
         return CutHierarchy((CutLevel(pairs, weights, data, None),), rings)
 
-    positions = principal_coordinates(centroids, areas)  # the grid turns with the mesh
+    positions = principal_coordinates(centroids, areas, frame)  # the grid turns with the mesh
     mean_area = float(np.mean(areas))
     if not mean_area > 0:
         extent = float(np.ptp(positions, axis=0).max()) or 1.0

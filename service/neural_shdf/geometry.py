@@ -191,10 +191,32 @@ def grid_cells(coordinates: NDArray[Any], size: float) -> NDArray[np.int64]:
     coordinates = np.asarray(coordinates, dtype=np.float64).reshape(-1, 3)
     if not len(coordinates):
         return np.zeros(0, dtype=np.int64)
-    cells = np.floor(coordinates / size + 0.5).astype(np.int64)
-    cells -= cells.min(axis=0)
-    span = cells.max(axis=0) + 1
-    keys: NDArray[np.int64] = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+    return _grid_cells(np.ascontiguousarray(coordinates), float(size))
+
+
+@kernel
+def _grid_cells(  # pragma: no cover - compiled
+    coordinates: NDArray[np.float64], size: float
+) -> NDArray[np.int64]:
+    """``floor(c / size + 0.5)`` per axis, shifted to start at 0, as one key per point:
+    two passes (the bounds, then the keys) instead of numpy's (N, 3) temporaries."""
+    low = np.empty(3, dtype=np.int64)
+    high = np.empty(3, dtype=np.int64)
+    for axis in range(3):
+        cell = np.int64(np.floor(coordinates[0, axis] / size + 0.5))
+        low[axis], high[axis] = cell, cell
+    for point in range(coordinates.shape[0]):
+        for axis in range(3):
+            cell = np.int64(np.floor(coordinates[point, axis] / size + 0.5))
+            low[axis] = min(low[axis], cell)
+            high[axis] = max(high[axis], cell)
+    span1, span2 = high[1] - low[1] + 1, high[2] - low[2] + 1
+    keys = np.empty(coordinates.shape[0], dtype=np.int64)
+    for point in range(coordinates.shape[0]):
+        x = np.int64(np.floor(coordinates[point, 0] / size + 0.5)) - low[0]
+        y = np.int64(np.floor(coordinates[point, 1] / size + 0.5)) - low[1]
+        z = np.int64(np.floor(coordinates[point, 2] / size + 0.5)) - low[2]
+        keys[point] = (x * span1 + y) * span2 + z
     return keys
 
 

@@ -279,8 +279,11 @@ def _coarse_graph(
     """
     total = float(areas.sum())
     positions = principal_coordinates(centroids, areas, frame)
-    extent = float(np.ptp(positions, axis=0).max()) if len(positions) else 0.0
-    cell = math.sqrt(total / target_nodes) if total > 0 else (extent or 1.0) / 200.0
+    if total > 0:
+        cell = math.sqrt(total / target_nodes)
+    else:  # no area: a share of the extent (its pass over the positions only here)
+        extent = float(np.ptp(positions, axis=0).max()) if len(positions) else 0.0
+        cell = (extent or 1.0) / 200.0
     coarse = _coarsen(
         np.ascontiguousarray(graph.pairs, dtype=np.int64),
         np.ascontiguousarray(graph.edge_length, dtype=np.float64),

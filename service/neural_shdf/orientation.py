@@ -620,13 +620,31 @@ def _face_flips(  # pragma: no cover - numba
 def boundary_edge_rows(edge_table: NDArray[Any]) -> NDArray[np.int64]:
     """Rows of a ``welded_edges`` table whose vertex pair has no other entry: the open
     boundary's edges (each on one triangle)."""
-    keys = np.asarray(edge_table)[:, 0]
-    alone = np.ones(len(keys), dtype=bool)
-    if len(keys) > 1:
-        repeated = keys[1:] == keys[:-1]
-        alone[1:] &= ~repeated
-        alone[:-1] &= ~repeated
-    return np.flatnonzero(alone)
+    return _alone_rows(np.ascontiguousarray(edge_table, dtype=np.int64).reshape(-1, 2))
+
+
+@kernel
+def _alone_rows(edge_table: NDArray[np.int64]) -> NDArray[np.int64]:  # pragma: no cover
+    """``boundary_edge_rows`` in two passes over the keys (count, then fill) instead of
+    numpy's four boolean temporaries; the result sized to the boundary."""
+    count = edge_table.shape[0]
+    found = 0
+    for row in range(count):
+        key = edge_table[row, 0]
+        if (row == 0 or edge_table[row - 1, 0] != key) and (
+            row + 1 == count or edge_table[row + 1, 0] != key
+        ):
+            found += 1
+    rows = np.empty(found, dtype=np.int64)
+    found = 0
+    for row in range(count):
+        key = edge_table[row, 0]
+        if (row == 0 or edge_table[row - 1, 0] != key) and (
+            row + 1 == count or edge_table[row + 1, 0] != key
+        ):
+            rows[found] = row
+            found += 1
+    return rows
 
 
 def open_boundary_faces(

@@ -15,6 +15,7 @@ from neural_shdf.geometry import (
     grid_cells,
     midpoint_subdivide,
     principal_coordinates,
+    principal_frame,
     weld_faces,
     zero_area_limit,
 )
@@ -318,6 +319,37 @@ def test_principal_coordinates_are_the_same_in_any_pose_up_to_axis_signs():
     # No weight: every point counts alike.
     unweighted = principal_coordinates(points, np.zeros(500))
     np.testing.assert_allclose(unweighted.mean(axis=0), 0.0, atol=1e-12)
+
+
+def test_principal_coordinates_from_a_kept_frame_are_the_same_bits():
+    rng = np.random.default_rng(5)
+    points = rng.normal(size=(20_000, 3)) * (30.0, 2.0, 0.5) + (1e3, -7.0, 3.0)
+    weights = rng.uniform(0.0, 2.0, len(points))
+    frame = principal_frame(points, weights)
+    fresh = principal_coordinates(points, weights)
+    # What principal_coordinates computed before it took a frame: numpy's product as such.
+    offsets = points - weights / weights.sum() @ points
+    _, axes = np.linalg.eigh((offsets * (weights / weights.sum())[:, None]).T @ offsets)
+    np.testing.assert_array_equal(fresh, offsets @ axes[:, ::-1])
+    np.testing.assert_array_equal(principal_coordinates(points, weights, frame), fresh)
+    np.testing.assert_array_equal(principal_coordinates(points, None, frame), fresh)
+
+
+def test_grid_cells_are_the_numpy_formula_bit_for_bit():
+    def numpy_cells(coordinates, size):
+        cells = np.floor(coordinates / size + 0.5).astype(np.int64)
+        cells -= cells.min(axis=0)
+        span = cells.max(axis=0) + 1
+        return (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+
+    rng = np.random.default_rng(6)
+    for trial in range(20):
+        coordinates = rng.normal(size=(int(rng.integers(1, 5000)), 3)) * 10.0 ** (trial % 5 - 2)
+        size = float(10.0 ** rng.uniform(-3, 1))
+        if trial % 3 == 0:  # points on the cell walls
+            coordinates, size = np.round(coordinates * 4) / 8, 0.25
+        np.testing.assert_array_equal(grid_cells(coordinates, size), numpy_cells(coordinates, size))
+    assert grid_cells(np.zeros((0, 3)), 1.0).shape == (0,)
 
 
 def test_grid_cells_partition_the_points_alike_whatever_the_axis_signs():

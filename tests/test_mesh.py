@@ -73,3 +73,37 @@ def test_polygon_of_degenerate_triangles_counts_them_equally():
     mesh = TriangleMesh(vertices, [[0, 1, 2], [0, 2, 3]], face_origin=[0, 0], input_face_count=1)
     np.testing.assert_allclose(mesh.to_input_faces(np.array([1.0, 3.0])), [2.0])
     assert mesh.labels_to_input_faces(np.array([5, 4])).tolist() == [4]
+
+
+def test_the_kept_principal_frame_gives_the_crease_graph_and_cut_of_a_fresh_one():
+    from neural_shdf.geometry import principal_frame
+    from neural_shdf.pipeline import SegmentParams
+    from neural_shdf.segment.creases import crease_graph
+    from neural_shdf.segment.from_shdf import prepare_segment
+    from neural_shdf.segment.graphcut import cut_hierarchy
+
+    sphere = trimesh.creation.icosphere(subdivisions=5)
+    vertices = np.asarray(sphere.vertices) * (3.0, 1.0, 0.5)
+    mesh = TriangleMesh(vertices, np.asarray(sphere.faces))
+    areas = mesh.normals_and_areas[1]
+    frame = mesh.principal_frame
+    fresh = principal_frame(mesh.centroids, areas)
+    np.testing.assert_array_equal(frame[0], fresh[0])
+    np.testing.assert_array_equal(frame[1], fresh[1])
+    kept = mesh.crease_graph
+    alone = crease_graph(mesh.face_graph, areas, mesh.centroids, coarse_above=1_000)
+    shared = crease_graph(mesh.face_graph, areas, mesh.centroids, coarse_above=1_000, frame=frame)
+    np.testing.assert_array_equal(alone.node_of, shared.node_of)
+    np.testing.assert_array_equal(alone.capacity, shared.capacity)
+    assert kept.node_of is None  # below COARSE_ABOVE_FACES: the face graph itself
+    shdf = (mesh.centroids[:, 0] - vertices[:, 0].min()) / np.ptp(vertices[:, 0])
+    basis = prepare_segment(mesh, shdf, SegmentParams(clusters=3))
+    assert basis.frame is frame
+    graph = mesh.face_graph
+    cut = basis.cut(graph)
+    fresh_cut = cut_hierarchy(basis.data, graph.pairs, basis.unit_weights, mesh.centroids, areas)
+    assert len(cut.levels) == len(fresh_cut.levels) > 1
+    for level, other in zip(cut.levels, fresh_cut.levels, strict=True):
+        np.testing.assert_array_equal(level.pairs, other.pairs)
+        np.testing.assert_array_equal(level.unit_weights, other.unit_weights)
+        np.testing.assert_array_equal(level.data, other.data)

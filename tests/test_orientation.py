@@ -17,6 +17,7 @@ from neural_shdf.geometry import (
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import load_mesh
 from neural_shdf.orientation import (
+    boundary_edge_rows,
     hole_caps,
     orient_faces,
     reverse_flipped,
@@ -396,3 +397,19 @@ def test_the_oriented_copy_in_one_pass_is_the_rows_slots_and_normals_one_by_one(
             np.testing.assert_array_equal(got[1], reverse_rows(welded, flips))
             np.testing.assert_array_equal(got[2], reversed_slots(slot, flips))
             np.testing.assert_array_equal(got[3], face_normals(vertices, backwards)[0])
+
+
+def test_boundary_edge_rows_are_the_keys_without_a_neighbour_alike():
+    rng = np.random.default_rng(8)
+    for count in (0, 1, 2, 3, 50, 5000):
+        keys = np.sort(rng.integers(0, count // 2 + 1, count))
+        table = np.stack([keys, rng.integers(0, 100, count)], axis=1)
+        alone = [
+            row
+            for row in range(count)
+            if (row == 0 or keys[row - 1] != keys[row])
+            and (row + 1 == count or keys[row + 1] != keys[row])
+        ]
+        rows = boundary_edge_rows(table)
+        np.testing.assert_array_equal(rows, np.array(alone, dtype=np.int64))
+        assert rows.dtype == np.int64

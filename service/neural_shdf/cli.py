@@ -15,21 +15,15 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from neural_shdf.constants import DEFAULT_MAX_FACES, DEFAULT_MAX_VERTICES
 from neural_shdf.errors import ModelUnavailableError, NeuralShdfError, ParameterError
-from neural_shdf.evaluate.benchmark import format_table, run_eval
-from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb, unwrapped_glb
-from neural_shdf.exchange.obj_writer import write_obj_with_uvs
 from neural_shdf.exchange.seg import write_labels, write_values
-from neural_shdf.exchange.usd import USD_EXTENSIONS, write_mesh_parts_usd, write_usd_parts
 from neural_shdf.labeling.cli import add_labeler_parser, labeler_option, segment_with_labeler
 from neural_shdf.mesh_io import detect_format, load_mesh, normalize_format
 from neural_shdf.pipeline import SegmentParams, compute_shdf, segment
 from neural_shdf.segment.params import AUTO_CLUSTERS, DEFAULT_CREASE_BOUNDARIES
 from neural_shdf.segment.tree_document import write_part_tree
-from neural_shdf.unwrap import UnwrapParams, atlas_layout_png, unwrap
 
 #: Exit codes: 0 ok, 1 unexpected failure, 2 bad input or usage, 3 model unavailable.
 EXIT_BAD_INPUT = 2
@@ -47,6 +41,8 @@ def progress_bar(
     Only on a terminal: redirected to a file or a pipe, stderr gets no ``\r`` frames.
     The returned function takes the fraction done (from any thread; it never goes back).
     """
+    from tqdm import tqdm  # lazy, like the writers below: start-up counts at 1M faces too
+
     bar = tqdm(
         total=PROGRESS_STEPS,
         desc=description,
@@ -151,6 +147,8 @@ def cmd_segment(args: argparse.Namespace) -> int:
     write_labels(args.output, face_labels)
     if args.tree:
         write_part_tree(args.tree, result.tree, face_leaves, result.part_count)
+    if args.colored or args.parts_glb:
+        from neural_shdf.exchange.gltf_writer import colored_glb, parts_glb
     if args.colored:
         Path(args.colored).write_bytes(colored_glb(mesh, labels))
     if args.parts_glb:
@@ -173,6 +171,8 @@ def cmd_segment(args: argparse.Namespace) -> int:
 
 def _write_usd(args: argparse.Namespace, mesh, face_labels: np.ndarray) -> None:
     """The parts as USD: a USD input's own stage with subsets, else a new stage of its faces."""
+    from neural_shdf.exchange.usd import USD_EXTENSIONS, write_mesh_parts_usd, write_usd_parts
+
     file_type = normalize_format(args.format) if args.format else detect_format(args.mesh)
     if file_type in USD_EXTENSIONS:
         write_usd_parts(args.mesh, face_labels, args.usd, input_format=file_type)
@@ -181,6 +181,10 @@ def _write_usd(args: argparse.Namespace, mesh, face_labels: np.ndarray) -> None:
 
 
 def cmd_unwrap(args: argparse.Namespace) -> int:
+    from neural_shdf.exchange.gltf_writer import unwrapped_glb
+    from neural_shdf.exchange.obj_writer import write_obj_with_uvs
+    from neural_shdf.unwrap import UnwrapParams, atlas_layout_png, unwrap
+
     output = Path(args.output)
     if output.suffix.lower() not in (".glb", ".obj"):
         raise ParameterError(f"-o must end in .glb or .obj, got {output.name!r}")
@@ -216,6 +220,8 @@ def cmd_unwrap(args: argparse.Namespace) -> int:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
+    from neural_shdf.evaluate.benchmark import format_table, run_eval
+
     bench_dir = Path(args.bench_dir)
     if not (bench_dir / "off").is_dir() or not (bench_dir / "seg").is_dir():
         raise FileNotFoundError(

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
+from threadpoolctl import threadpool_limits
 
 from neural_shdf.compiled import kernel
 from neural_shdf.constants import AREA_EPS
@@ -140,25 +141,46 @@ def face_centroids(vertices: NDArray[Any], faces: NDArray[Any]) -> NDArray[Any]:
     )
 
 
-def principal_coordinates(
+def principal_frame(
     points: NDArray[Any], weights: NDArray[Any] | None = None
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(weighted mean, principal axes as columns, largest spread first) of (N, 3) points:
+    what ``principal_coordinates`` projects on, small enough for a mesh to keep.
+    Unit weights where ``weights`` is omitted or sums to zero."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if not len(points):
+        return np.zeros(3), np.eye(3)
+    if weights is None or not float(np.sum(weights)) > 0:
+        weights = np.ones(len(points))
+    weights = np.asarray(weights, dtype=np.float64) / float(np.sum(weights))
+    mean = weights @ points
+    offsets = points - mean
+    _, axes = np.linalg.eigh((offsets * weights[:, None]).T @ offsets)
+    return mean, axes[:, ::-1]
+
+
+def principal_coordinates(
+    points: NDArray[Any],
+    weights: NDArray[Any] | None = None,
+    frame: tuple[NDArray[Any], NDArray[Any]] | None = None,
 ) -> NDArray[np.float64]:
     """(N, 3) coordinates of the points along their own principal axes (largest spread
     first), from their weighted mean: the same in any pose of the points, up to each
     axis's sign (a shape does not define it), so grids over them are laid with
     ``grid_cells``, which ignores the signs. Axes a shape does not define (equal spreads,
     e.g. about a body of revolution's axis) are whatever the eigensolver returns.
-    Unit weights where ``weights`` is omitted or sums to zero.
+    Unit weights where ``weights`` is omitted or sums to zero. ``frame``: the points'
+    ``principal_frame`` where the caller keeps it (then ``weights`` is not read).
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if not len(points):
         return points.copy()
-    if weights is None or not float(np.sum(weights)) > 0:
-        weights = np.ones(len(points))
-    weights = np.asarray(weights, dtype=np.float64) / float(np.sum(weights))
-    offsets = points - weights @ points
-    _, axes = np.linalg.eigh((offsets * weights[:, None]).T @ offsets)
-    coordinates: NDArray[np.float64] = offsets @ axes[:, ::-1]
+    mean, axes = principal_frame(points, weights) if frame is None else frame
+    offsets = points - mean
+    # One BLAS thread: the same bits as several (each row is one thread's), and on a
+    # shared machine the threads' hand-offs cost ten times the product (N x 3 by 3 x 3).
+    with threadpool_limits(limits=1, user_api="blas"):
+        coordinates: NDArray[np.float64] = offsets @ axes
     return coordinates
 
 
@@ -169,10 +191,32 @@ def grid_cells(coordinates: NDArray[Any], size: float) -> NDArray[np.int64]:
     coordinates = np.asarray(coordinates, dtype=np.float64).reshape(-1, 3)
     if not len(coordinates):
         return np.zeros(0, dtype=np.int64)
-    cells = np.floor(coordinates / size + 0.5).astype(np.int64)
-    cells -= cells.min(axis=0)
-    span = cells.max(axis=0) + 1
-    keys: NDArray[np.int64] = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]
+    return _grid_cells(np.ascontiguousarray(coordinates), float(size))
+
+
+@kernel
+def _grid_cells(  # pragma: no cover - compiled
+    coordinates: NDArray[np.float64], size: float
+) -> NDArray[np.int64]:
+    """``floor(c / size + 0.5)`` per axis, shifted to start at 0, as one key per point:
+    two passes (the bounds, then the keys) instead of numpy's (N, 3) temporaries."""
+    low = np.empty(3, dtype=np.int64)
+    high = np.empty(3, dtype=np.int64)
+    for axis in range(3):
+        cell = np.int64(np.floor(coordinates[0, axis] / size + 0.5))
+        low[axis], high[axis] = cell, cell
+    for point in range(coordinates.shape[0]):
+        for axis in range(3):
+            cell = np.int64(np.floor(coordinates[point, axis] / size + 0.5))
+            low[axis] = min(low[axis], cell)
+            high[axis] = max(high[axis], cell)
+    span1, span2 = high[1] - low[1] + 1, high[2] - low[2] + 1
+    keys = np.empty(coordinates.shape[0], dtype=np.int64)
+    for point in range(coordinates.shape[0]):
+        x = np.int64(np.floor(coordinates[point, 0] / size + 0.5)) - low[0]
+        y = np.int64(np.floor(coordinates[point, 1] / size + 0.5)) - low[1]
+        z = np.int64(np.floor(coordinates[point, 2] / size + 0.5)) - low[2]
+        keys[point] = (x * span1 + y) * span2 + z
     return keys
 
 

@@ -17,6 +17,7 @@ from neural_shdf.geometry import (
     count_zero_rows,
     face_centroids,
     face_normals,
+    principal_frame,
     weld_faces,
     zero_area_limit,
 )
@@ -308,13 +309,22 @@ class TriangleMesh:
         return centroids
 
     @cached_property
+    def principal_frame(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``geometry.principal_frame`` of the centroids weighted by the areas: the axes
+        the graph cut's and the crease graph's grids are laid along, computed once per
+        mesh (a mean and three axes, not the coordinates)."""
+        return principal_frame(self.centroids, self.normals_and_areas[1])
+
+    @cached_property
     def crease_graph(self) -> CreaseGraph:
         """The graph the segmentation's crease refinement runs on (``segment.creases``): it
         depends on the mesh only, so every ShDF and mixture of the mesh shares it."""
         oriented = self.oriented
         if oriented is not self:
             return oriented.crease_graph
-        return crease_graph(self.face_graph, self.normals_and_areas[1], self.centroids)
+        return crease_graph(
+            self.face_graph, self.normals_and_areas[1], self.centroids, frame=self.principal_frame
+        )
 
     def content_hash(self) -> str:
         """SHA-256 of the canonical geometry: vertices, triangles and face origins."""

@@ -517,14 +517,10 @@ def _orient_patches(  # pragma: no cover
             cuts += 1
             _union(vertex_parent, lo, hi)
         i = j
-    # Patch numbers by lowest face, relative windings and signed volumes in one pass.
+    # Patch numbers by lowest face and relative windings, then (arrays sized by the patch
+    # count, usually a handful rather than one per face) the areas and signed volumes.
     patch = np.full(face_count, -1, dtype=np.int64)
     relative = np.zeros(face_count, dtype=np.int8)
-    volume = np.zeros(face_count)
-    patch_area = np.zeros(face_count)
-    flipped_area = np.zeros(face_count)
-    point = np.zeros(6)
-    point[:3] = centre
     patch_count = 0
     for face in range(face_count):
         if skip[face]:
@@ -536,18 +532,27 @@ def _orient_patches(  # pragma: no cover
         else:
             patch[face] = patch[root]
         relative[face] = flipped
+    volume = np.zeros(patch_count)
+    patch_area = np.zeros(patch_count)
+    flipped_area = np.zeros(patch_count)
+    point = np.zeros(6)
+    point[:3] = centre
+    for face in range(face_count):
+        if skip[face]:
+            continue
+        flipped = relative[face]
         a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
         patch_area[patch[face]] += areas[face]
         if flipped:
             b, c = c, b
             flipped_area[patch[face]] += areas[face]
         volume[patch[face]] += _signed_volume(vertices, a, b, c, point)
-    volume = volume[:patch_count]
-    # Loop centres: the vertices of each component of open edges.
-    loop_sum = np.zeros((n_vertices, 3))
-    loop_size = np.zeros(n_vertices, dtype=np.int64)
-    counted = np.zeros(n_vertices, dtype=np.bool_)
-    seen = np.zeros(n_vertices, dtype=np.bool_)
+    # Loop centres: the vertices of each component of open edges (none on a closed mesh).
+    per_vertex = n_vertices if cuts else 0
+    loop_sum = np.zeros((per_vertex, 3))
+    loop_size = np.zeros(per_vertex, dtype=np.int64)
+    counted = np.zeros(per_vertex, dtype=np.bool_)
+    seen = np.zeros(per_vertex, dtype=np.bool_)
     loops = 0
     for cut in range(cuts):
         key = edge_table[cut_start[cut], 0]
@@ -591,8 +596,8 @@ def _orient_patches(  # pragma: no cover
         relative,
         volume / 6.0,
         is_open,
-        patch_area[:patch_count],
-        flipped_area[:patch_count],
+        patch_area,
+        flipped_area,
         shells,
         loops,
         non_manifold,
@@ -615,13 +620,31 @@ def _face_flips(  # pragma: no cover - numba
 def boundary_edge_rows(edge_table: NDArray[Any]) -> NDArray[np.int64]:
     """Rows of a ``welded_edges`` table whose vertex pair has no other entry: the open
     boundary's edges (each on one triangle)."""
-    keys = np.asarray(edge_table)[:, 0]
-    alone = np.ones(len(keys), dtype=bool)
-    if len(keys) > 1:
-        repeated = keys[1:] == keys[:-1]
-        alone[1:] &= ~repeated
-        alone[:-1] &= ~repeated
-    return np.flatnonzero(alone)
+    return _alone_rows(np.ascontiguousarray(edge_table, dtype=np.int64).reshape(-1, 2))
+
+
+@kernel
+def _alone_rows(edge_table: NDArray[np.int64]) -> NDArray[np.int64]:  # pragma: no cover
+    """``boundary_edge_rows`` in two passes over the keys (count, then fill) instead of
+    numpy's four boolean temporaries; the result sized to the boundary."""
+    count = edge_table.shape[0]
+    found = 0
+    for row in range(count):
+        key = edge_table[row, 0]
+        if (row == 0 or edge_table[row - 1, 0] != key) and (
+            row + 1 == count or edge_table[row + 1, 0] != key
+        ):
+            found += 1
+    rows = np.empty(found, dtype=np.int64)
+    found = 0
+    for row in range(count):
+        key = edge_table[row, 0]
+        if (row == 0 or edge_table[row - 1, 0] != key) and (
+            row + 1 == count or edge_table[row + 1, 0] != key
+        ):
+            rows[found] = row
+            found += 1
+    return rows
 
 
 def open_boundary_faces(

@@ -15,6 +15,22 @@ def test_label_file_round_trip(tmp_path):
     np.testing.assert_array_equal(read_labels(path), labels)
 
 
+@pytest.mark.parametrize(
+    "labels",
+    [
+        np.array([True, False, True]),
+        np.array([], dtype=np.int32),
+        np.array([2**63 + 5, 3, 2**63 + 5], dtype=np.uint64),
+        np.array([-3, 7, -3, 0], dtype=np.int8),
+        np.random.default_rng(1).integers(-5, 40, 5000),
+    ],
+)
+def test_label_file_text_is_each_integer_per_line(tmp_path, labels):
+    path = tmp_path / "mesh.seg"
+    write_labels(path, labels)
+    assert path.read_text() == "".join(f"{int(label)}\n" for label in labels)
+
+
 def test_bad_label_file_names_the_line(tmp_path):
     path = tmp_path / "bad.seg"
     path.write_text("1\n2\nthree\n")

@@ -186,6 +186,35 @@ def test_one_cut_hierarchy_serves_every_smoothing_scale():
     np.testing.assert_array_equal(hierarchy.solve(0.0), np.argmin(data, axis=1))
 
 
+def test_coarse_graph_groups_as_the_numpy_steps_did_and_sums_more_weights_alike():
+    rng = np.random.default_rng(3)
+    for trial in range(10):
+        nodes = int(rng.integers(2, 3000))
+        count = int(rng.integers(1, nodes))
+        pairs = rng.integers(0, nodes, (int(rng.integers(0, 8000)), 2))
+        weights = rng.uniform(0.0, 1.0, len(pairs)) * 10.0 ** (trial - 5)
+        lengths = rng.uniform(0.0, 1.0, len(pairs))
+        coarse_of = rng.integers(0, count, nodes)
+        ca, cb = coarse_of[pairs[:, 0]], coarse_of[pairs[:, 1]]
+        cross = np.flatnonzero(ca != cb)
+        low, high = np.minimum(ca[cross], cb[cross]), np.maximum(ca[cross], cb[cross])
+        order = np.argsort(low * count + high, kind="stable")
+        low, high = low[order], high[order]
+        coarse_pairs, summed, summed_lengths = coarse_graph(
+            coarse_of, pairs, weights, count, lengths
+        )
+        if len(cross) == 0:
+            assert coarse_pairs.shape == (0, 2) and len(summed) == len(summed_lengths) == 0
+            continue
+        starts = np.flatnonzero(np.r_[True, (low[1:] != low[:-1]) | (high[1:] != high[:-1])])
+        np.testing.assert_array_equal(coarse_pairs, np.stack([low[starts], high[starts]], 1))
+        np.testing.assert_array_equal(summed, np.add.reduceat(weights[cross[order]], starts))
+        np.testing.assert_array_equal(
+            summed_lengths, np.add.reduceat(lengths[cross[order]], starts)
+        )
+        np.testing.assert_array_equal(coarse_graph(coarse_of, pairs, weights, count)[1], summed)
+
+
 def test_coarse_graph_sums_the_weights_between_coarse_nodes():
     import scipy.sparse as sp
 

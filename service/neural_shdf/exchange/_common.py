@@ -172,8 +172,10 @@ def build_mesh(
             f"the {format_name} file contains no triangles or polygons (is it a point cloud "
             "or a line drawing?); export the surface as faces"
         )
-    bad_vertex = ~np.isfinite(vertices).all(axis=1)
-    if bad_vertex.any():
+    # Each check reduces the whole array first (one pass) and looks for the culprit only
+    # in a file that fails it: per-row reductions cost 0.1 s at 1M faces.
+    if not np.isfinite(vertices).all():
+        bad_vertex = ~np.isfinite(vertices).all(axis=1)
         index = int(np.flatnonzero(bad_vertex)[0])
         raise InvalidGeometryError(
             f"{int(bad_vertex.sum())} vertices have NaN or infinite coordinates "
@@ -187,8 +189,8 @@ def build_mesh(
             f"{MAX_COORDINATE:.0e}, where squared lengths overflow the float32 geometry of "
             "the ray tracer and the network; rescale the mesh (e.g. to metres or millimetres)"
         )
-    bad_face = (faces < 0).any(axis=1) | (faces >= len(vertices)).any(axis=1)
-    if bad_face.any():
+    if int(faces.min()) < 0 or int(faces.max()) >= len(vertices):
+        bad_face = (faces < 0).any(axis=1) | (faces >= len(vertices)).any(axis=1)
         index = int(np.flatnonzero(bad_face)[0])
         face = index if face_origin is None else int(face_origin[index])
         raise InvalidGeometryError(

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import struct
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -16,7 +16,9 @@ from neural_shdf.errors import ParameterError
 from neural_shdf.exchange.attributes import FaceGroup, Materials, SceneObject, SurfaceAttributes
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.palette import UNLABELED_COLOR, linear_color_bytes, part_colors
-from neural_shdf.unwrap import UvAtlas
+
+if TYPE_CHECKING:  # the unwrapper is imported where UVs are written, not by every reader
+    from neural_shdf.unwrap import UvAtlas
 
 
 def _check_labels(mesh: TriangleMesh, labels: NDArray) -> NDArray[np.int64]:

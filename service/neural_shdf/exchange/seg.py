@@ -17,7 +17,17 @@ def write_labels(path: str | Path, labels: NDArray[Any]) -> None:
     labels = np.asarray(labels)
     if labels.ndim != 1 or labels.dtype.kind not in "iub":
         raise ParameterError("labels must be a 1-D integer array")
-    Path(path).write_text("".join(f"{int(v)}\n" for v in labels))
+    # Each label formatted once (bools as 0/1), then looked up per face: formatting numpy
+    # scalars one by one took most of a second at 1M faces.
+    low, high = (int(labels.min()), int(labels.max())) if len(labels) else (0, -1)
+    if low >= -(2**62) and high < 2**62 and high - low <= len(labels):
+        # Part labels: a small range, a table over it (no sort).
+        lines = [f"{value}\n" for value in range(low, high + 1)]
+        index = labels.astype(np.int64) - low
+    else:
+        distinct, index = np.unique(labels, return_inverse=True)
+        lines = [f"{int(value)}\n" for value in distinct.tolist()]
+    Path(path).write_text("".join(map(lines.__getitem__, index.ravel().tolist())))
 
 
 def _read_column(path: str | Path, parse: type, what: str) -> list[Any]:

@@ -43,6 +43,9 @@ class SegmentBasis:
     seconds: float = 0.0
     symmetry: bool = False
     reflection: Reflection | None = None
+    #: ``principal_frame`` of the centroids weighted by the areas (the mesh's, shared
+    #: with its crease graph), for the coarse graphs' grid.
+    frame: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
     _cut: CutHierarchy | None = field(default=None, repr=False)
 
     def cut(self, graph: FaceGraph) -> CutHierarchy:
@@ -56,6 +59,7 @@ class SegmentBasis:
                 self.geometry.areas,
                 # Fine tessellations judge creases per unit length at every level.
                 lengths=graph.edge_length if graph.face_count > FINE_TESSELLATION_FACES else None,
+                frame=self.frame,
             )
         return self._cut
 

@@ -141,16 +141,18 @@ def crease_graph(
     strength: float = CONCAVITY_STRENGTH,
     coarse_above: int = COARSE_ABOVE_FACES,
     coarse_nodes: int = COARSE_NODES,
+    frame: tuple[NDArray[Any], NDArray[Any]] | None = None,
 ) -> CreaseGraph:
     """The ``CreaseGraph`` of a mesh: its face graph, or above ``coarse_above`` faces about
-    ``coarse_nodes`` coarse nodes; edge costs by ``crease_capacities(graph, strength)``."""
+    ``coarse_nodes`` coarse nodes; edge costs by ``crease_capacities(graph, strength)``.
+    ``frame``: ``principal_frame(centroids, areas)`` where the caller keeps it."""
     areas = np.asarray(areas, dtype=np.float64)
     centroids = np.asarray(centroids, dtype=np.float64)
     capacity = crease_capacities(graph, strength)
     node_of = None
     if graph.face_count > coarse_above:
         graph, areas, centroids, capacity, node_of = _coarse_graph(
-            graph, areas, centroids, capacity, coarse_nodes
+            graph, areas, centroids, capacity, coarse_nodes, frame
         )
     indptr, neighbour = adjacency_lists(graph.pairs, graph.face_count)
     return CreaseGraph(graph, areas, centroids, capacity, indptr, neighbour, node_of)
@@ -266,6 +268,7 @@ def _coarse_graph(
     centroids: NDArray[Any],
     capacity: NDArray[Any],
     target_nodes: int,
+    frame: tuple[NDArray[Any], NDArray[Any]] | None = None,
 ) -> tuple[FaceGraph, NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]]:
     """Coarse nodes: connected pieces of one grid cell, never grouped across a concave
     crease; cells sized for about ``target_nodes`` nodes, laid along the mesh's own axes
@@ -275,9 +278,12 @@ def _coarse_graph(
     nodes are numbered by their lowest face.
     """
     total = float(areas.sum())
-    positions = principal_coordinates(centroids, areas)
-    extent = float(np.ptp(positions, axis=0).max()) if len(positions) else 0.0
-    cell = math.sqrt(total / target_nodes) if total > 0 else (extent or 1.0) / 200.0
+    positions = principal_coordinates(centroids, areas, frame)
+    if total > 0:
+        cell = math.sqrt(total / target_nodes)
+    else:  # no area: a share of the extent (its pass over the positions only here)
+        extent = float(np.ptp(positions, axis=0).max()) if len(positions) else 0.0
+        cell = (extent or 1.0) / 200.0
     coarse = _coarsen(
         np.ascontiguousarray(graph.pairs, dtype=np.int64),
         np.ascontiguousarray(graph.edge_length, dtype=np.float64),

@@ -120,6 +120,7 @@ def prepare_segment(
         seconds=time.perf_counter() - start,
         symmetry=params.symmetry,
         reflection=reflection,
+        frame=mesh.principal_frame,
     )
 
 

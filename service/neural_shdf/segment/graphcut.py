@@ -456,30 +456,69 @@ def coarsen(
 
 
 def coarse_graph(
-    coarse_of: NDArray[Any], pairs: NDArray[Any], weights: NDArray[Any], coarse_count: int
-) -> tuple[NDArray[Any], NDArray[Any]]:
+    coarse_of: NDArray[Any],
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
+    coarse_count: int,
+    *more_weights: NDArray[Any],
+) -> tuple[NDArray[Any], ...]:
     """Edges between coarse nodes (pairs sorted by low, then high node) with summed weights;
-    each sum adds its fine edges in their order."""
-    ca, cb = coarse_of[pairs[:, 0]], coarse_of[pairs[:, 1]]
-    cross = np.flatnonzero(ca != cb)
-    low, high = np.minimum(ca[cross], cb[cross]), np.maximum(ca[cross], cb[cross])
-    order = _pair_order(low, high, coarse_count)
-    low, high = low[order], high[order]
-    if len(order) == 0:
-        return np.zeros((0, 2), dtype=np.int64), np.zeros(0)
-    starts = np.flatnonzero(np.r_[True, (low[1:] != low[:-1]) | (high[1:] != high[:-1])])
-    summed = np.add.reduceat(np.asarray(weights, dtype=np.float64)[cross[order]], starts)
-    return np.stack([low[starts], high[starts]], axis=1), summed
+    each sum adds its fine edges in their order. ``more_weights``: other per-edge values
+    summed over the same edges (returned after the weights), grouped once."""
+    coarse_pairs, fine_edges, starts = _coarse_edges(
+        np.asarray(coarse_of, dtype=np.int64),
+        np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2),
+        coarse_count,
+    )
+    if len(fine_edges) == 0:
+        return (coarse_pairs, *(np.zeros(0) for _ in range(1 + len(more_weights))))
+    # numpy's reduceat keeps the sums' rounding (pairwise within long runs) as it was.
+    return (
+        coarse_pairs,
+        *(
+            np.add.reduceat(np.asarray(values, dtype=np.float64)[fine_edges], starts)
+            for values in (weights, *more_weights)
+        ),
+    )
 
 
 @kernel
-def _pair_order(
-    low: NDArray[Any], high: NDArray[Any], count: int
-) -> NDArray[np.int64]:  # pragma: no cover - compiled
-    """``argsort(low * count + high, kind="stable")`` for ids in 0..count-1, in O(n + count):
-    a stable counting sort by ``high``, then by ``low``."""
-    by_high = _counting_order(high, np.arange(len(high)), count)
-    return _counting_order(low, by_high, count)
+def _coarse_edges(
+    coarse_of: NDArray[Any], pairs: NDArray[Any], coarse_count: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:  # pragma: no cover
+    """(coarse pairs, the fine edges between two coarse nodes grouped by coarse pair in
+    fine-edge order, where each group starts): one pass over the edges, then a stable
+    counting sort by high node, then by low node (``argsort(low * count + high)``)."""
+    cross = np.empty(len(pairs), dtype=np.int64)
+    count = 0
+    for edge in range(len(pairs)):
+        if coarse_of[pairs[edge, 0]] != coarse_of[pairs[edge, 1]]:
+            cross[count] = edge
+            count += 1
+    cross = cross[:count]
+    low = np.empty(count, dtype=np.int64)
+    high = np.empty(count, dtype=np.int64)
+    for i in range(count):
+        a, b = coarse_of[pairs[cross[i], 0]], coarse_of[pairs[cross[i], 1]]
+        low[i], high[i] = min(a, b), max(a, b)
+    order = _counting_order(
+        low, _counting_order(high, np.arange(count), coarse_count), coarse_count
+    )
+    starts = np.empty(count, dtype=np.int64)
+    groups = 0
+    for i in range(count):
+        if i == 0 or low[order[i]] != low[order[i - 1]] or high[order[i]] != high[order[i - 1]]:
+            starts[groups] = i
+            groups += 1
+    starts = starts[:groups]
+    coarse_pairs = np.empty((groups, 2), dtype=np.int64)
+    for group in range(groups):
+        coarse_pairs[group, 0] = low[order[starts[group]]]
+        coarse_pairs[group, 1] = high[order[starts[group]]]
+    fine_edges = np.empty(count, dtype=np.int64)
+    for i in range(count):
+        fine_edges[i] = cross[order[i]]
+    return coarse_pairs, fine_edges, starts
 
 
 @kernel(inline=True)
@@ -647,6 +686,7 @@ def cut_hierarchy(
     coarse_nodes: int = COARSE_NODES,
     rings: int = BAND_RINGS,
     lengths: NDArray[Any] | None = None,
+    frame: tuple[NDArray[Any], NDArray[Any]] | None = None,
 ) -> CutHierarchy:
     """Coarsen the graph until at most ``coarse_nodes`` nodes remain (or it stops shrinking).
 
@@ -661,7 +701,8 @@ def cut_hierarchy(
     further by each smoothing's own preferences. ``lengths`` (the edges' lengths): creases
     are edges whose weight per unit length is below ``CREASE_FRACTION`` times the median,
     judged so at every level (coarse edges sum lengths as they sum weights); without them,
-    edges lighter than ``CREASE_FRACTION`` times the median weight.
+    edges lighter than ``CREASE_FRACTION`` times the median weight. ``frame``:
+    ``principal_frame(centroids, areas)`` where the caller keeps it.
     """
     data = np.asarray(data, dtype=np.float64)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
@@ -670,7 +711,7 @@ def cut_hierarchy(
     if node_count <= coarse_nodes or data.shape[1] <= 1:
         return CutHierarchy((CutLevel(pairs, weights, data, None),), rings)
 
-    positions = principal_coordinates(centroids, areas)  # the grid turns with the mesh
+    positions = principal_coordinates(centroids, areas, frame)  # the grid turns with the mesh
     mean_area = float(np.mean(areas))
     if not mean_area > 0:
         extent = float(np.ptp(positions, axis=0).max()) or 1.0
@@ -737,11 +778,14 @@ def coarsen_levels(
         if coarse_count > 0.8 * count:
             break  # no longer shrinking (many tiny shells, or all creases)
         summed_data = coarse_data(coarse_of, level_data, coarse_count)
-        coarse_pairs, coarse_weights = coarse_graph(
-            coarse_of, level_pairs, level_weights, coarse_count
-        )
-        if level_lengths is not None:
-            level_lengths = coarse_graph(coarse_of, level_pairs, level_lengths, coarse_count)[1]
+        if level_lengths is None:
+            coarse_pairs, coarse_weights = coarse_graph(
+                coarse_of, level_pairs, level_weights, coarse_count
+            )
+        else:
+            coarse_pairs, coarse_weights, level_lengths = coarse_graph(
+                coarse_of, level_pairs, level_weights, coarse_count, level_lengths
+            )
         first = np.full(coarse_count, -1, dtype=np.int64)
         first[coarse_of[::-1]] = np.arange(count)[::-1]
         positions, cell_size = positions[first], 2.0 * cell_size  # a node at its first face

@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 import trimesh
+from threadpoolctl import threadpool_limits
 
 from neural_shdf.constants import AREA_EPS
 from neural_shdf.geometry import (
@@ -327,12 +328,28 @@ def test_principal_coordinates_from_a_kept_frame_are_the_same_bits():
     weights = rng.uniform(0.0, 2.0, len(points))
     frame = principal_frame(points, weights)
     fresh = principal_coordinates(points, weights)
-    # What principal_coordinates computed before it took a frame: numpy's product as such.
-    offsets = points - weights / weights.sum() @ points
-    _, axes = np.linalg.eigh((offsets * (weights / weights.sum())[:, None]).T @ offsets)
-    np.testing.assert_array_equal(fresh, offsets @ axes[:, ::-1])
+    # What principal_coordinates computed before it took a frame: numpy's products as
+    # such, on one BLAS thread.
+    with threadpool_limits(limits=1, user_api="blas"):
+        offsets = points - weights / weights.sum() @ points
+        _, axes = np.linalg.eigh((offsets * (weights / weights.sum())[:, None]).T @ offsets)
+        np.testing.assert_array_equal(fresh, offsets @ axes[:, ::-1])
     np.testing.assert_array_equal(principal_coordinates(points, weights, frame), fresh)
     np.testing.assert_array_equal(principal_coordinates(points, None, frame), fresh)
+
+
+def test_principal_frame_does_not_depend_on_the_callers_blas_threads():
+    # Grid cells are laid over this frame: its bits must not follow the core count.
+    rng = np.random.default_rng(7)
+    points = rng.normal(size=(400_000, 3)) * (30.0, 2.0, 0.5) + (1e3, -7.0, 3.0)
+    weights = rng.uniform(0.0, 2.0, len(points))
+    frames = []
+    for threads in (1, 2, 4):
+        with threadpool_limits(limits=threads, user_api="blas"):
+            frames.append(principal_frame(points, weights))
+    for mean, axes in frames[1:]:
+        np.testing.assert_array_equal(mean, frames[0][0])
+        np.testing.assert_array_equal(axes, frames[0][1])
 
 
 def test_grid_cells_are_the_numpy_formula_bit_for_bit():

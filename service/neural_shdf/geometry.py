@@ -153,9 +153,12 @@ def principal_frame(
     if weights is None or not float(np.sum(weights)) > 0:
         weights = np.ones(len(points))
     weights = np.asarray(weights, dtype=np.float64) / float(np.sum(weights))
-    mean = weights @ points
-    offsets = points - mean
-    _, axes = np.linalg.eigh((offsets * weights[:, None]).T @ offsets)
+    # One BLAS thread: a product split over threads sums in another order, so the frame
+    # (and the grid cells laid over it) would depend on the machine's core count.
+    with threadpool_limits(limits=1, user_api="blas"):
+        mean = weights @ points
+        offsets = points - mean
+        _, axes = np.linalg.eigh((offsets * weights[:, None]).T @ offsets)
     return mean, axes[:, ::-1]
 
 

@@ -22,6 +22,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from neural_shdf.geometry import principal_frame
+
 #: Share of the surface area a plane must pair with mirror faces to count as a symmetry.
 MIN_MATCHED_AREA = 0.9
 #: A reflected centroid pairs with a face closer than this fraction of the bounding box's
@@ -110,10 +112,8 @@ def detect_reflection(centroids: NDArray, normals: NDArray, areas: NDArray) -> R
     total = float(areas.sum())
     if len(areas) < 4 or total <= 0:
         return None
-    weights = areas / total
-    centre = weights @ centroids
-    spread = (centroids - centre) * np.sqrt(weights)[:, None]
-    _, axes = np.linalg.eigh(spread.T @ spread)
+    centre, axes = principal_frame(centroids, areas)
+    axes = axes[:, ::-1]  # planes across the smallest spread first
     diagonal = float(np.linalg.norm(centroids.max(axis=0) - centroids.min(axis=0)))
     distance = max(MATCH_DISTANCE * diagonal, 1.5 * float(np.sqrt(2.0 * np.median(areas))))
     tree = cKDTree(centroids)

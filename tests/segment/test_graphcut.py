@@ -24,6 +24,7 @@ from neural_shdf.segment.graphcut import (
     cut_hierarchy,
     dihedral_weights,
     expansion_move,
+    label_reach,
     labelling_energy,
     multilevel_alpha_expansion,
     near_boundary,
@@ -77,6 +78,63 @@ def test_banded_solve_changes_only_the_band():
     assert (
         labelling_energy(result, data, pairs, weights)
         <= labelling_energy(start, data, pairs, weights) + 1e-9
+    )
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_expansion_move_with_allowed_nodes_is_the_best_of_their_expansions(seed):
+    data, pairs, weights, start = random_problem(seed)
+    allowed = np.random.default_rng(seed).random(len(start)) < 0.6
+    for alpha in range(data.shape[1]):
+        moved = expansion_move(start, alpha, data, pairs, weights, allowed)
+        best = min(
+            labelling_energy(np.where(np.array(switch, bool), alpha, start), data, pairs, weights)
+            for switch in itertools.product((0, 1), repeat=len(start))
+            if not np.any(np.array(switch, bool) & ~allowed)
+        )
+        assert labelling_energy(moved, data, pairs, weights) == pytest.approx(best)
+        assert set(np.flatnonzero(moved != start)) <= set(np.flatnonzero(allowed))
+
+
+def test_label_reach_counts_hops_through_the_band():
+    # A path 0-1-...-9; the band is 2..8, label 3 at node 0 (outside), 1 at node 9 (outside).
+    pairs = np.array([(i, i + 1) for i in range(9)])
+    labels = np.array([3, 0, 0, 0, 0, 0, 0, 2, 0, 1])
+    band = np.zeros(10, dtype=bool)
+    band[2:9] = True
+    nodes = np.flatnonzero(band)
+    local = np.full(10, -1)
+    local[nodes] = np.arange(len(nodes))
+    inside = pairs[band[pairs[:, 0]] & band[pairs[:, 1]]]
+    reach = label_reach(labels, nodes, band, pairs, local[inside], 4, 2)
+    # Node 2: its label 0 and node 1's (0, one hop); node 8: node 9's 1 and node 7's 2.
+    assert reach[local[2]].tolist() == [True, False, False, False]
+    assert reach[local[8]].tolist() == [True, True, True, False]
+    assert reach[local[6]].tolist() == [True, False, True, False]
+    # Label 3 (node 0, outside, beside node 1 outside) never enters the band.
+    assert not reach[:, 3].any()
+    far = label_reach(labels, nodes, band, pairs, local[inside], 4, 7)
+    assert far[:, :3].all() and far[local[2], 1]
+
+
+def test_banded_solve_with_label_hops_keeps_far_labels_out():
+    # A path of 12 nodes: node 0 labelled 2, nodes 1..10 (the band) 0, node 11 1; every
+    # node prefers label 2. Unrestricted, the whole band takes 2; within 2 hops only nodes
+    # 1 and 2 can (the band's other nodes keep 0 or take 1).
+    count = 12
+    pairs = np.array([(i, i + 1) for i in range(count - 1)])
+    weights = np.full(len(pairs), 0.1)
+    data = np.tile([1.0, 1.0, 0.5], (count, 1))
+    labels = np.zeros(count, dtype=np.int64)
+    labels[0], labels[-1] = 2, 1
+    band = np.zeros(count, dtype=bool)
+    band[1:11] = True
+    free = banded_alpha_expansion(data[band], pairs, weights, labels, band)
+    assert (free[1:11] == 2).all()
+    held = banded_alpha_expansion(data[band], pairs, weights, labels, band, label_hops=2)
+    assert (held[1:3] == 2).all() and (held[3:11] != 2).all()
+    assert labelling_energy(held, data, pairs, weights) < labelling_energy(
+        labels, data, pairs, weights
     )
 
 

@@ -12,7 +12,8 @@ multilevel graph cut, after Lombaert et al. 2005): faces are grouped into
 connected pieces of a 3-D grid (never across creases or across faces that
 prefer different clusters), the coarsest graph is solved exactly by
 alpha-expansion, and each finer level only re-solves a band around the
-boundaries: energies close to the direct solve's in a fraction of its time
+boundaries, where a node may take only the labels found near it (``BAND_LABEL_HOPS``):
+energies close to the direct solve's in a fraction of its time
 (docs/benchmarks.md, "Measurements behind constants"); at 1M faces a direct solve
 would need tens of max-flows over the whole mesh.
 

@@ -106,21 +106,22 @@ def test_label_reach_counts_hops_through_the_band():
     local = np.full(10, -1)
     local[nodes] = np.arange(len(nodes))
     inside = pairs[band[pairs[:, 0]] & band[pairs[:, 1]]]
-    reach = label_reach(labels, nodes, band, pairs, local[inside], 4, 2)
-    # Node 2: its label 0 and node 1's (0, one hop); node 8: node 9's 1 and node 7's 2.
+    reach = label_reach(labels, nodes, band, pairs, local[inside], 4, 1)
+    # One hop: node 2 has and borders 0 (nodes 1, 3); node 8 borders 1 (node 9) and is
+    # beside node 7 (2).
     assert reach[local[2]].tolist() == [True, False, False, False]
     assert reach[local[8]].tolist() == [True, True, True, False]
     assert reach[local[6]].tolist() == [True, False, True, False]
-    # Label 3 (node 0, outside, beside node 1 outside) never enters the band.
+    # Label 3 (node 0, outside, beside node 1 outside) borders no band node.
     assert not reach[:, 3].any()
-    far = label_reach(labels, nodes, band, pairs, local[inside], 4, 7)
+    far = label_reach(labels, nodes, band, pairs, local[inside], 4, 6)
     assert far[:, :3].all() and far[local[2], 1]
 
 
 def test_banded_solve_with_label_hops_keeps_far_labels_out():
     # A path of 12 nodes: node 0 labelled 2, nodes 1..10 (the band) 0, node 11 1; every
-    # node prefers label 2. Unrestricted, the whole band takes 2; within 2 hops only nodes
-    # 1 and 2 can (the band's other nodes keep 0 or take 1).
+    # node prefers label 2. Unrestricted, the whole band takes 2; with one hop only node 1
+    # (bordering node 0) and node 2 (beside it) can (the others keep 0 or take 1).
     count = 12
     pairs = np.array([(i, i + 1) for i in range(count - 1)])
     weights = np.full(len(pairs), 0.1)
@@ -131,7 +132,7 @@ def test_banded_solve_with_label_hops_keeps_far_labels_out():
     band[1:11] = True
     free = banded_alpha_expansion(data[band], pairs, weights, labels, band)
     assert (free[1:11] == 2).all()
-    held = banded_alpha_expansion(data[band], pairs, weights, labels, band, label_hops=2)
+    held = banded_alpha_expansion(data[band], pairs, weights, labels, band, label_hops=1)
     assert (held[1:3] == 2).all() and (held[3:11] != 2).all()
     assert labelling_energy(held, data, pairs, weights) < labelling_energy(
         labels, data, pairs, weights

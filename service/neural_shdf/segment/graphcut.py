@@ -61,13 +61,14 @@ FACES_PER_CELL = 16
 BAND_RINGS = 3
 #: Expansion cycles per band solve (the coarse level already placed the labels).
 BAND_CYCLES = 1
-#: In the multilevel solve's bands a node may take only the labels found within this many
-#: hops of it (through the band; its neighbours outside the band count as one hop): a
-#: band's expansion moves then cover the nodes near each label's regions instead of the
-#: whole band per label (on the noisy dense-dev lucy at 100k faces the bands hold up to 70%
-#: of a level's nodes, with all 9 labels). Twice ``BAND_RINGS``: a label reaches across the
-#: band from either side (docs/benchmarks.md, "Measurements behind constants").
-BAND_LABEL_HOPS = 2 * BAND_RINGS
+#: In the multilevel solve's bands a node may take only the labels that the band's nodes
+#: within this many hops of it (over the band's edges, itself included) have or border
+#: (``label_reach``): a band's expansion moves then cover the nodes near each label's regions
+#: instead of the whole band per label (on the noisy dense-dev lucy at 100k faces the bands
+#: hold up to 70% of a level's nodes, with all 9 labels). About the band's width
+#: (``2 * BAND_RINGS`` nodes across a boundary): a label reaches across it from either side
+#: (docs/benchmarks.md, "Measurements behind constants").
+BAND_LABEL_HOPS = 2 * BAND_RINGS - 1
 #: Edges cheaper than this fraction of the median edge weight (creases) are never coarsened.
 #: With edge lengths (``cut_hierarchy(lengths=...)``, fine tessellations) the weight per
 #: unit length is compared, at every level: a coarse edge sums many fine ones, and on a
@@ -326,7 +327,8 @@ def banded_alpha_expansion(
     Edges from the band to fixed nodes become unary costs (cutting them when
     leaving the fixed neighbour's label), so the result is optimal-by-moves
     for the band given everything outside it. ``label_hops``: a band node may take only
-    the labels found within that many hops of it (``label_reach``; default: any label).
+    the labels that band nodes within that many hops of it have or border (``label_reach``;
+    default: any label).
     """
     labels = np.asarray(labels, dtype=np.int64)
     band = np.asarray(band, dtype=bool)
@@ -370,10 +372,10 @@ def label_reach(
     label_count: int,
     hops: int,
 ) -> NDArray[np.bool_]:
-    """(len(nodes), label_count): the labels found within ``hops`` hops of each band node
-    (``nodes``, the band's nodes in order; ``band_pairs``: the edges inside the band in
-    their local ids): its own label, its neighbours' outside the band (one hop), and those
-    of band nodes reached over ``band_pairs``."""
+    """(len(nodes), label_count): for each band node (``nodes``, the band's nodes in order),
+    the labels that the band nodes within ``hops`` hops of it over ``band_pairs`` (the edges
+    inside the band, in local ids; the node itself at 0 hops) have or border (the labels
+    of their neighbours outside the band)."""
     if label_count > 64:  # one bit per label below: no restriction past that
         return np.ones((len(nodes), label_count), dtype=np.bool_)
     return _label_reach(
@@ -412,7 +414,7 @@ def _label_reach(
         elif band[b] and not band[a]:
             reach[local[b]] |= one << np.uint64(labels[a])
     previous = np.empty_like(reach)
-    for _ in range(hops - 1):  # one hop through the band per pass
+    for _ in range(hops):  # one hop through the band per pass
         previous[:] = reach
         for edge in range(len(band_pairs)):
             a, b = band_pairs[edge, 0], band_pairs[edge, 1]

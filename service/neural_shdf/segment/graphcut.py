@@ -82,6 +82,11 @@ CREASE_FRACTION = 0.5
 SMOOTHED_CREASE_SCALE = 0.5
 #: Sweeps of iterated conditional modes that decide which nodes group past a stall.
 PREFERENCE_SWEEPS = 4
+#: Coarsening past a stall goes on until at most this many nodes remain (fewer than
+#: ``COARSE_NODES``): the full cycle at the stalled level places the labels anyway, and the
+#: smaller top's expansion moves cost less (lucy's top 1,600 -> 800 nodes; energies in
+#: docs/benchmarks.md, "Measurements behind constants").
+SMOOTHED_COARSE_NODES = 1000
 
 
 def data_costs(
@@ -745,7 +750,7 @@ class CutHierarchy:
             stalled.positions,
             stalled.cell_size,
             SMOOTHED_CREASE_SCALE * stalled.crease_weight,
-            stalled.coarse_nodes,
+            min(stalled.coarse_nodes, SMOOTHED_COARSE_NODES),
             self.rings,
             preferred,
             stalled.lengths,

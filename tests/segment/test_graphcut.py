@@ -15,7 +15,9 @@ from neural_shdf.geometry import (
 )
 from neural_shdf.segment.graphcut import (
     ANGLE_EPS,
+    COARSE_NODES,
     LAMBDA_SCALE,
+    SMOOTHED_COARSE_NODES,
     _band_problem,
     alpha_expansion,
     banded_alpha_expansion,
@@ -306,10 +308,10 @@ def test_smoothed_preference_ends_where_no_single_node_change_helps(seed):
         assert labelling_energy(flipped, data, pairs, weights) >= energy - 1e-9
 
 
-def interleaved_sphere(seed: int):
+def interleaved_sphere(seed: int, subdivisions: int = 5):
     """A sphere whose faces' cheapest of 4 labels is noise around two halves: coarsening
     by cheapest label stalls far above a few hundred nodes."""
-    mesh = trimesh.creation.icosphere(5)
+    mesh = trimesh.creation.icosphere(subdivisions)
     vertices = np.asarray(mesh.vertices) * (2.0, 1.0, 0.5)
     vertices[:, 0] += 0.3 * vertices[:, 0] ** 2  # no symmetry: the mesh's axes are defined
     normals, areas = face_normals(vertices, mesh.faces)
@@ -361,6 +363,17 @@ def test_a_stalled_hierarchy_coarsens_further_per_smoothing_and_stays_close_to_d
         direct = alpha_expansion(data, graph.pairs, weights)
         e_direct = labelling_energy(direct, data, graph.pairs, weights)
         assert labelling_energy(labels, data, graph.pairs, weights) <= 1.02 * e_direct
+
+
+def test_coarsening_past_a_stall_goes_on_below_coarse_nodes():
+    data, graph, centroids, areas = interleaved_sphere(3, subdivisions=6)
+    hierarchy = cut_hierarchy(data, graph.pairs, dihedral_weights(graph, 1.0), centroids, areas)
+    assert hierarchy.stalled is not None and len(hierarchy.levels[-1].data) > COARSE_NODES
+    for scale in (0.005, 0.1):
+        levels = hierarchy._smoothed_levels(scale)
+        # Past COARSE_NODES (where coarsening used to stop) to SMOOTHED_COARSE_NODES.
+        assert len(levels[-2].data) > SMOOTHED_COARSE_NODES >= len(levels[-1].data)
+        assert len(levels[-2].data) <= COARSE_NODES
 
 
 def cut_energy(vertices, faces, posteriors, labels, params):

@@ -7,8 +7,8 @@ Starts ``neural-shdf serve`` (temp cache) and headless Chromium (/usr/bin/chromi
 the CPU), opens the viewer, uploads a mesh of about each size (psb-dev 1, 9.4k faces, and
 dense-dev's skull, 100k faces, or with ``--mesh lucy`` dense-dev lucy, 99,970 faces, when
 ../shared/data is present; otherwise tessellated tori), waits for its parts, then releases a
-slider ``--repeat`` times, each time to a value never
-requested before (so the service really segments: no cache helps), and reads the page's own
+slider ``--repeat`` times, each time to a value never requested before (so the service
+really segments: no cache helps), and reads the page's own
 measurement: ``performance.now()`` from the slider's change event to the first animation frame
 after the new colours were drawn. Also reported: the same for a value seen before (the page's
 own cache), for a new mixture size k (``new k``: the service fits the mixture and coarsens the

@@ -1,13 +1,14 @@
 """Web viewer latency in real Chromium: slider release to new colours on screen.
 
-``python benchmarks/bench_viewer.py [--repeat 8] [--sizes 10000,100000] [--screenshot PNG]
-[--busy | --both]``
+``python benchmarks/bench_viewer.py [--repeat 8] [--sizes 10000,100000] [--mesh NAME]
+[--screenshot PNG] [--busy | --both]``
 
 Starts ``neural-shdf serve`` (temp cache) and headless Chromium (/usr/bin/chromium, WebGL on
 the CPU), opens the viewer, uploads a mesh of about each size (psb-dev 1, 9.4k faces, and
-dense-dev's skull, 100k faces, when ../shared/data is present; otherwise tessellated tori),
-waits for its parts, then releases a slider ``--repeat`` times, each time to a value never
-requested before (so the service really segments: no cache helps), and reads the page's own
+dense-dev's skull, 100k faces, or with ``--mesh lucy`` dense-dev lucy, 99,970 faces, when
+../shared/data is present; otherwise tessellated tori), waits for its parts, then releases a
+slider ``--repeat`` times, each time to a value never requested before (so the service
+really segments: no cache helps), and reads the page's own
 measurement: ``performance.now()`` from the slider's change event to the first animation frame
 after the new colours were drawn. Also reported: the same for a value seen before (the page's
 own cache), for a new mixture size k (``new k``: the service fits the mixture and coarsens the
@@ -55,15 +56,18 @@ from tests.api.viewer_browser import (  # noqa: E402
 SMOOTHING_VALUES = (0.1, 0.12, 0.14, 0.16, 0.18, 0.2, 0.25, 0.3, 0.4, 0.5, 0.7, 1, 1.5, 2)
 TARGET_MS = 150.0
 DATA = REPO_ROOT.parent / "shared" / "data"
-MESHES = {
-    10_000: DATA / "psb-dev" / "off" / "1.off",
-    100_000: DATA / "dense-dev" / "odedstein__objects__skull__skull.ply",
+#: dense-dev meshes of about 100k faces that ``--mesh`` picks for the 100,000 size.
+DENSE_MESHES = {
+    "skull": DATA / "dense-dev" / "odedstein__objects__skull__skull.ply",
+    "lucy": DATA / "dense-dev" / "vtkdata__Data__lucy.ply",
 }
+MESHES = {10_000: DATA / "psb-dev" / "off" / "1.off"}
 
 
-def mesh_file(faces: int, folder: Path) -> Path:
-    """The data mesh of about ``faces`` faces, else a torus with that many triangles."""
-    path = MESHES.get(faces)
+def mesh_file(faces: int, folder: Path, dense: str = "skull") -> Path:
+    """The data mesh of about ``faces`` faces (``dense``: which dense-dev mesh at 100k),
+    else a torus with that many triangles."""
+    path = DENSE_MESHES[dense] if faces == 100_000 else MESHES.get(faces)
     if path is not None and path.is_file():
         return path
     ring = int(np.sqrt(faces / 2))
@@ -91,6 +95,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=8, help="slider releases per mesh")
     parser.add_argument("--sizes", default="10000,100000")
+    parser.add_argument(
+        "--mesh",
+        choices=sorted(DENSE_MESHES),
+        default="skull",
+        help="the dense-dev mesh used at 100,000 faces",
+    )
     parser.add_argument("--screenshot", type=Path, help="save the page on psb-dev 381 here")
     parser.add_argument("--busy", action="store_true", help="keep one core busy meanwhile")
     parser.add_argument(
@@ -129,7 +139,7 @@ def run(args: argparse.Namespace) -> None:
                 f"{'ratio':>6}"
             )
             for size in [int(s) for s in args.sizes.split(",")]:
-                path = mesh_file(size, folder)
+                path = mesh_file(size, folder, args.mesh)
                 start = time.perf_counter()
                 page.upload(path)
                 if page.status() == "error":

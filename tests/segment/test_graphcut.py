@@ -15,7 +15,9 @@ from neural_shdf.geometry import (
 )
 from neural_shdf.segment.graphcut import (
     ANGLE_EPS,
+    COARSE_NODES,
     LAMBDA_SCALE,
+    SMOOTHED_COARSE_NODES,
     _band_problem,
     alpha_expansion,
     banded_alpha_expansion,
@@ -24,6 +26,7 @@ from neural_shdf.segment.graphcut import (
     cut_hierarchy,
     dihedral_weights,
     expansion_move,
+    label_reach,
     labelling_energy,
     multilevel_alpha_expansion,
     near_boundary,
@@ -77,6 +80,64 @@ def test_banded_solve_changes_only_the_band():
     assert (
         labelling_energy(result, data, pairs, weights)
         <= labelling_energy(start, data, pairs, weights) + 1e-9
+    )
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_expansion_move_with_allowed_nodes_is_the_best_of_their_expansions(seed):
+    data, pairs, weights, start = random_problem(seed)
+    allowed = np.random.default_rng(seed).random(len(start)) < 0.6
+    for alpha in range(data.shape[1]):
+        moved = expansion_move(start, alpha, data, pairs, weights, allowed)
+        best = min(
+            labelling_energy(np.where(np.array(switch, bool), alpha, start), data, pairs, weights)
+            for switch in itertools.product((0, 1), repeat=len(start))
+            if not np.any(np.array(switch, bool) & ~allowed)
+        )
+        assert labelling_energy(moved, data, pairs, weights) == pytest.approx(best)
+        assert set(np.flatnonzero(moved != start)) <= set(np.flatnonzero(allowed))
+
+
+def test_label_reach_counts_hops_through_the_band():
+    # A path 0-1-...-9; the band is 2..8, label 3 at node 0 (outside), 1 at node 9 (outside).
+    pairs = np.array([(i, i + 1) for i in range(9)])
+    labels = np.array([3, 0, 0, 0, 0, 0, 0, 2, 0, 1])
+    band = np.zeros(10, dtype=bool)
+    band[2:9] = True
+    nodes = np.flatnonzero(band)
+    local = np.full(10, -1)
+    local[nodes] = np.arange(len(nodes))
+    inside = pairs[band[pairs[:, 0]] & band[pairs[:, 1]]]
+    reach = label_reach(labels, nodes, band, pairs, local[inside], 4, 1)
+    # One hop: node 2 has and borders 0 (nodes 1, 3); node 8 borders 1 (node 9) and is
+    # beside node 7 (2).
+    assert reach[local[2]].tolist() == [True, False, False, False]
+    assert reach[local[8]].tolist() == [True, True, True, False]
+    assert reach[local[6]].tolist() == [True, False, True, False]
+    # Label 3 (node 0, outside, beside node 1 outside) borders no band node.
+    assert not reach[:, 3].any()
+    far = label_reach(labels, nodes, band, pairs, local[inside], 4, 6)
+    assert far[:, :3].all() and far[local[2], 1]
+
+
+def test_banded_solve_with_label_hops_keeps_far_labels_out():
+    # A path of 12 nodes: node 0 labelled 2, nodes 1..10 (the band) 0, node 11 1; every
+    # node prefers label 2. Unrestricted, the whole band takes 2; with one hop only node 1
+    # (bordering node 0) and node 2 (beside it) can (the others keep 0 or take 1).
+    count = 12
+    pairs = np.array([(i, i + 1) for i in range(count - 1)])
+    weights = np.full(len(pairs), 0.1)
+    data = np.tile([1.0, 1.0, 0.5], (count, 1))
+    labels = np.zeros(count, dtype=np.int64)
+    labels[0], labels[-1] = 2, 1
+    band = np.zeros(count, dtype=bool)
+    band[1:11] = True
+    free = banded_alpha_expansion(data[band], pairs, weights, labels, band)
+    assert (free[1:11] == 2).all()
+    held = banded_alpha_expansion(data[band], pairs, weights, labels, band, label_hops=1)
+    assert (held[1:3] == 2).all() and (held[3:11] != 2).all()
+    assert labelling_energy(held, data, pairs, weights) < labelling_energy(
+        labels, data, pairs, weights
     )
 
 
@@ -276,10 +337,10 @@ def test_smoothed_preference_ends_where_no_single_node_change_helps(seed):
         assert labelling_energy(flipped, data, pairs, weights) >= energy - 1e-9
 
 
-def interleaved_sphere(seed: int):
+def interleaved_sphere(seed: int, subdivisions: int = 5):
     """A sphere whose faces' cheapest of 4 labels is noise around two halves: coarsening
     by cheapest label stalls far above a few hundred nodes."""
-    mesh = trimesh.creation.icosphere(5)
+    mesh = trimesh.creation.icosphere(subdivisions)
     vertices = np.asarray(mesh.vertices) * (2.0, 1.0, 0.5)
     vertices[:, 0] += 0.3 * vertices[:, 0] ** 2  # no symmetry: the mesh's axes are defined
     normals, areas = face_normals(vertices, mesh.faces)
@@ -331,6 +392,17 @@ def test_a_stalled_hierarchy_coarsens_further_per_smoothing_and_stays_close_to_d
         direct = alpha_expansion(data, graph.pairs, weights)
         e_direct = labelling_energy(direct, data, graph.pairs, weights)
         assert labelling_energy(labels, data, graph.pairs, weights) <= 1.02 * e_direct
+
+
+def test_coarsening_past_a_stall_goes_on_below_coarse_nodes():
+    data, graph, centroids, areas = interleaved_sphere(3, subdivisions=6)
+    hierarchy = cut_hierarchy(data, graph.pairs, dihedral_weights(graph, 1.0), centroids, areas)
+    assert hierarchy.stalled is not None and len(hierarchy.levels[-1].data) > COARSE_NODES
+    for scale in (0.005, 0.1):
+        levels = hierarchy._smoothed_levels(scale)
+        # Past COARSE_NODES (where coarsening used to stop) to SMOOTHED_COARSE_NODES.
+        assert len(levels[-2].data) > SMOOTHED_COARSE_NODES >= len(levels[-1].data)
+        assert len(levels[-2].data) <= COARSE_NODES
 
 
 def cut_energy(vertices, faces, posteriors, labels, params):

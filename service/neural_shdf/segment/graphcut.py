@@ -12,7 +12,8 @@ multilevel graph cut, after Lombaert et al. 2005): faces are grouped into
 connected pieces of a 3-D grid (never across creases or across faces that
 prefer different clusters), the coarsest graph is solved exactly by
 alpha-expansion, and each finer level only re-solves a band around the
-boundaries: energies close to the direct solve's in a fraction of its time
+boundaries, where a node may take only the labels found near it (``BAND_LABEL_HOPS``):
+energies close to the direct solve's in a fraction of its time
 (docs/benchmarks.md, "Measurements behind constants"); at 1M faces a direct solve
 would need tens of max-flows over the whole mesh.
 
@@ -60,6 +61,14 @@ FACES_PER_CELL = 16
 BAND_RINGS = 3
 #: Expansion cycles per band solve (the coarse level already placed the labels).
 BAND_CYCLES = 1
+#: In the multilevel solve's bands a node may take only the labels that the band's nodes
+#: within this many hops of it (over the band's edges, itself included) have or border
+#: (``label_reach``): a band's expansion moves then cover the nodes near each label's regions
+#: instead of the whole band per label (on the noisy dense-dev lucy at 100k faces the bands
+#: hold up to 70% of a level's nodes, with all 9 labels). About the band's width
+#: (``2 * BAND_RINGS`` nodes across a boundary): a label reaches across it from either side
+#: (docs/benchmarks.md, "Measurements behind constants").
+BAND_LABEL_HOPS = 2 * BAND_RINGS - 1
 #: Edges cheaper than this fraction of the median edge weight (creases) are never coarsened.
 #: With edge lengths (``cut_hierarchy(lengths=...)``, fine tessellations) the weight per
 #: unit length is compared, at every level: a coarse edge sums many fine ones, and on a
@@ -73,6 +82,11 @@ CREASE_FRACTION = 0.5
 SMOOTHED_CREASE_SCALE = 0.5
 #: Sweeps of iterated conditional modes that decide which nodes group past a stall.
 PREFERENCE_SWEEPS = 4
+#: Coarsening past a stall goes on until at most this many nodes remain (fewer than
+#: ``COARSE_NODES``): the full cycle at the stalled level places the labels anyway, and the
+#: smaller top's expansion moves cost less (lucy's top 1,600 -> 800 nodes; energies in
+#: docs/benchmarks.md, "Measurements behind constants").
+SMOOTHED_COARSE_NODES = 1000
 
 
 def data_costs(
@@ -145,17 +159,25 @@ def _labelling_energy(
 
 @kernel
 def _expansion_graph(
-    labels: NDArray[Any], alpha: int, data: NDArray[Any], pairs: NDArray[Any], weights: NDArray[Any]
+    labels: NDArray[Any],
+    alpha: int,
+    data: NDArray[Any],
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
+    allowed: NDArray[Any],
 ) -> tuple[
     NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any], NDArray[Any]
 ]:  # pragma: no cover - compiled
     """The max-flow graph of one expansion move, in one pass: the free nodes (label not
-    ``alpha``), their terminal capacities and the edges between free nodes.
+    ``alpha``, ``allowed`` to take it), their terminal capacities and the edges between
+    free nodes.
 
     Node x = 1 (sink side) means "switch to alpha" and pays the source capacity. An edge
     to a node already labelled alpha: keeping our label cuts it. Between two free nodes
     of one label: Potts w * [x_a != x_b]. Of different labels: w * (1 - x_a x_b)
     = w * (1 - x_a) + w * x_a (1 - x_b), i.e. a keep cost on a and an edge b -> a.
+    An edge to a node that keeps its other label (not allowed alpha): switching cuts it,
+    keeping cuts it where the labels differ.
     Capacities are shifted by min(keep, switch) per node (the cut changes by a constant).
     """
     count = len(labels)
@@ -163,7 +185,7 @@ def _expansion_graph(
     nodes = np.empty(count, dtype=np.int64)
     free = 0
     for node in range(count):
-        if labels[node] != alpha:
+        if labels[node] != alpha and allowed[node]:
             node_of[node] = free
             nodes[free] = node
             free += 1
@@ -191,10 +213,16 @@ def _expansion_graph(
                 forward[edges] = 0.0
                 keep[a] += w
             edges += 1
-        elif a >= 0:
-            keep[a] += w
-        elif b >= 0:
-            keep[b] += w
+        else:
+            for inside, outside in ((a, pairs[edge, 1]), (b, pairs[edge, 0])):
+                if inside < 0:
+                    continue
+                if labels[outside] == alpha:
+                    keep[inside] += w
+                else:  # fixed to another label
+                    switch[inside] += w
+                    if labels[outside] != labels[nodes[inside]]:
+                        keep[inside] += w
     for i in range(free):
         shift = min(keep[i], switch[i])
         keep[i] -= shift
@@ -203,9 +231,15 @@ def _expansion_graph(
 
 
 def expansion_move(
-    labels: NDArray[Any], alpha: int, data: NDArray[Any], pairs: NDArray[Any], weights: NDArray[Any]
+    labels: NDArray[Any],
+    alpha: int,
+    data: NDArray[Any],
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
+    allowed: NDArray[Any] | None = None,
 ) -> NDArray[np.int64]:
-    """The best labelling reachable by letting any face switch to ``alpha`` (one max-flow)."""
+    """The best labelling reachable by letting any face switch to ``alpha`` (one max-flow);
+    ``allowed``: which faces may (default: all)."""
     labels = np.asarray(labels, dtype=np.int64)
     nodes, source_cap, sink_cap, edge_a, edge_b, forward, backward = _expansion_graph(
         labels,
@@ -213,6 +247,9 @@ def expansion_move(
         np.asarray(data, dtype=np.float64),
         np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
         np.asarray(weights, dtype=np.float64),
+        np.ones(len(labels), dtype=np.bool_)
+        if allowed is None
+        else np.ascontiguousarray(allowed, dtype=np.bool_),
     )
     if len(nodes) == 0:
         return labels
@@ -236,13 +273,15 @@ def alpha_expansion(
     labels: NDArray[Any] | None = None,
     max_cycles: int = MAX_CYCLES,
     alphas: NDArray[Any] | None = None,
+    candidates: NDArray[Any] | None = None,
 ) -> NDArray[np.int64]:
     """Minimise E(l) by alpha-expansion from ``labels`` (default: each face's cheapest label).
 
     Labels are expanded in order 0..k-1, cyclically, until every label's move
     has failed to lower the energy since the last one that did (or after
     ``max_cycles`` cycles); deterministic. ``alphas`` limits which labels are
-    expanded (default: all).
+    expanded (default: all); ``candidates`` ((F, k) bool) which labels each face may
+    take (default: all).
     """
     data = np.asarray(data, dtype=np.float64)
     pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
@@ -264,7 +303,8 @@ def alpha_expansion(
     failures = 0
     for move in range(max_cycles * len(order)):
         alpha = int(order[move % len(order)])
-        candidate = expansion_move(current, alpha, data, pairs, weights)
+        allowed = None if candidates is None else candidates[:, alpha]
+        candidate = expansion_move(current, alpha, data, pairs, weights, allowed)
         candidate_energy = labelling_energy(candidate, data, pairs, weights)
         if candidate_energy < energy - tolerance:
             current, energy = candidate, candidate_energy
@@ -283,6 +323,7 @@ def banded_alpha_expansion(
     labels: NDArray[Any],
     band: NDArray[Any],
     max_cycles: int = MAX_CYCLES,
+    label_hops: int | None = None,
 ) -> NDArray[np.int64]:
     """Alpha-expansion where only ``band`` nodes may change; the rest stay fixed.
 
@@ -290,7 +331,9 @@ def banded_alpha_expansion(
 
     Edges from the band to fixed nodes become unary costs (cutting them when
     leaving the fixed neighbour's label), so the result is optimal-by-moves
-    for the band given everything outside it.
+    for the band given everything outside it. ``label_hops``: a band node may take only
+    the labels that band nodes within that many hops of it have or border (``label_reach``;
+    default: any label).
     """
     labels = np.asarray(labels, dtype=np.int64)
     band = np.asarray(band, dtype=bool)
@@ -305,10 +348,87 @@ def banded_alpha_expansion(
         np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
         np.asarray(weights, dtype=np.float64),
     )
+    candidates = (
+        None
+        if label_hops is None
+        else label_reach(
+            labels,
+            nodes,
+            band,
+            np.asarray(pairs, dtype=np.int64).reshape(-1, 2),
+            sub_pairs,
+            sub_data.shape[1],
+            label_hops,
+        )
+    )
     result = labels.copy()
     result[nodes] = alpha_expansion(
-        sub_data, sub_pairs, sub_weights, labels[nodes], max_cycles, alphas
+        sub_data, sub_pairs, sub_weights, labels[nodes], max_cycles, alphas, candidates
     )
+    return result
+
+
+def label_reach(
+    labels: NDArray[Any],
+    nodes: NDArray[Any],
+    band: NDArray[Any],
+    pairs: NDArray[Any],
+    band_pairs: NDArray[Any],
+    label_count: int,
+    hops: int,
+) -> NDArray[np.bool_]:
+    """(len(nodes), label_count): for each band node (``nodes``, the band's nodes in order),
+    the labels that the band nodes within ``hops`` hops of it over ``band_pairs`` (the edges
+    inside the band, in local ids; the node itself at 0 hops) have or border (the labels
+    of their neighbours outside the band)."""
+    if label_count > 64:  # one bit per label below: no restriction past that
+        return np.ones((len(nodes), label_count), dtype=np.bool_)
+    return _label_reach(
+        np.asarray(labels, dtype=np.int64),
+        np.asarray(nodes, dtype=np.int64),
+        np.asarray(band, dtype=np.bool_),
+        pairs,
+        np.asarray(band_pairs, dtype=np.int64).reshape(-1, 2),
+        label_count,
+        hops,
+    )
+
+
+@kernel
+def _label_reach(
+    labels: NDArray[Any],
+    nodes: NDArray[Any],
+    band: NDArray[Any],
+    pairs: NDArray[Any],
+    band_pairs: NDArray[Any],
+    label_count: int,
+    hops: int,
+) -> NDArray[np.bool_]:  # pragma: no cover - compiled
+    """``label_reach`` with a bit per label (at most 64 labels: ``MAX_CLUSTERS`` is 32)."""
+    count = len(nodes)
+    local = np.full(len(labels), -1, dtype=np.int64)
+    reach = np.zeros(count, dtype=np.uint64)
+    one = np.uint64(1)
+    for i in range(count):
+        local[nodes[i]] = i
+        reach[i] |= one << np.uint64(labels[nodes[i]])
+    for edge in range(len(pairs)):
+        a, b = pairs[edge, 0], pairs[edge, 1]
+        if band[a] and not band[b]:
+            reach[local[a]] |= one << np.uint64(labels[b])
+        elif band[b] and not band[a]:
+            reach[local[b]] |= one << np.uint64(labels[a])
+    previous = np.empty_like(reach)
+    for _ in range(hops):  # one hop through the band per pass
+        previous[:] = reach
+        for edge in range(len(band_pairs)):
+            a, b = band_pairs[edge, 0], band_pairs[edge, 1]
+            reach[a] |= previous[b]
+            reach[b] |= previous[a]
+    result = np.zeros((count, label_count), dtype=np.bool_)
+    for i in range(count):
+        for label in range(label_count):
+            result[i, label] = (reach[i] >> np.uint64(label)) & one != 0
     return result
 
 
@@ -650,7 +770,7 @@ class CutHierarchy:
                 continue
             band = near_boundary(labels, level.pairs, len(level.data), self.rings, level.adjacency)
             labels = banded_alpha_expansion(
-                level.data[band], level.pairs, weights, labels, band, BAND_CYCLES
+                level.data[band], level.pairs, weights, labels, band, BAND_CYCLES, BAND_LABEL_HOPS
             )
         return labels
 
@@ -669,7 +789,7 @@ class CutHierarchy:
             stalled.positions,
             stalled.cell_size,
             SMOOTHED_CREASE_SCALE * stalled.crease_weight,
-            stalled.coarse_nodes,
+            min(stalled.coarse_nodes, SMOOTHED_COARSE_NODES),
             self.rings,
             preferred,
             stalled.lengths,

@@ -6,7 +6,12 @@ import pytest
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.from_shdf import prepare_segment, segment
 from neural_shdf.segment.params import SegmentParams
-from neural_shdf.segment.partitioners import COLLAPSED_LEAVES, Partitioning, cut_parts
+from neural_shdf.segment.partitioners import (
+    COLLAPSED_LEAVES,
+    Partitioning,
+    cut_parts,
+    part_count,
+)
 from neural_shdf.segment.parts import canonical_labels
 from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
 
@@ -66,3 +71,8 @@ def test_a_cut_into_parts_is_not_solved_again():
     parts = cut_parts(work)
     assert len(np.unique(parts)) > COLLAPSED_LEAVES
     assert np.array_equal(segment(mesh, shdf, params).tree.leaf_labels, canonical_labels(parts))
+
+
+def test_part_count_counts_distinct_labels():
+    assert part_count(np.array([3, 3, 7, 5, 7])) == 3
+    assert part_count(np.zeros(0, dtype=np.int64)) == 0

@@ -88,14 +88,21 @@ def graph_cut_parts(work: Partitioning) -> NDArray[np.int64]:
     """
     parts = cut_parts(work)
     mixture = work.basis.mixture
-    leaves = len(np.unique(parts))
+    leaves = part_count(parts)
     if leaves > COLLAPSED_LEAVES or mixture.size <= COLLAPSED_LEAVES:
         return parts
     wider = fit_mixture(
         work.basis.values, mixture.size, work.basis.seed, min_deviation=COLLAPSE_MIN_DEVIATION
     )
     again = cut_parts(replace(work, basis=work.basis.with_mixture(wider)))
-    return again if len(np.unique(again)) > leaves else parts
+    return again if part_count(again) > leaves else parts
+
+
+def part_count(parts: NDArray[np.int64]) -> int:
+    """How many distinct labels ``parts`` has (one pass: ``np.unique`` sorts, 0.1 s at 1M)."""
+    if len(parts) == 0:
+        return 0
+    return int(np.count_nonzero(np.bincount(parts - parts.min())))
 
 
 def cut_parts(work: Partitioning) -> NDArray[np.int64]:

@@ -10,7 +10,8 @@ the same faces. Variants:
 * ``reversed``: every face's winding reversed (an inside-out export);
 * ``mixed30``: 30% of the faces reversed at random (inconsistent winding);
 * ``holes``: 4% of the faces removed in 12 holes (scored on the kept faces);
-* ``nobase``: the lowest 6% of the faces (by centroid height, y) removed;
+* ``nobase``: the lowest 6% of the faces (by centroid height, y) removed
+  (``--nobase-share`` removes another share);
 * ``shuffled``: faces and vertices in random order;
 * ``transform``: a random rotation, scale x1000 and a shift far from the origin;
 * ``rotated``: a random rotation only (about the bounding-box centre);
@@ -31,7 +32,8 @@ Default models: the held-out fourth of each category (ids 4, 24, ..., 384), neve
 for tuning. Run it on two checkouts to compare code (``PYTHONPATH=.../service``).
 
     python benchmarks/bench_production.py [--bench-dir DIR] [--models 4 24 ...]
-        [--limit N] [--variants reversed holes ...] [--shells-move 0.01] [--json out.json]
+        [--limit N] [--variants reversed holes ...] [--shells-move 0.01]
+        [--nobase-share 0.06] [--json out.json]
         [--shdf-fidelity]
 """
 
@@ -114,9 +116,15 @@ def holes(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
     return kept_variant(v, f, np.flatnonzero(~removed))
 
 
-def no_base(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+#: Which share of the faces ``nobase`` removes, lowest first (``--nobase-share``).
+NOBASE_SHARE = 0.06
+
+
+def no_base(
+    v: NDArray, f: NDArray, rng: np.random.Generator, share: float = NOBASE_SHARE
+) -> Variant:
     height = v[f].mean(axis=1)[:, 1]
-    return kept_variant(v, f, np.argsort(height, kind="stable")[int(0.06 * len(f)) :])
+    return kept_variant(v, f, np.argsort(height, kind="stable")[int(share * len(f)) :])
 
 
 def shuffled(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
@@ -306,6 +314,12 @@ def main() -> int:
         default=SHELLS_MOVE,
         help="how far the shells variant moves each shell, as a share of the diagonal",
     )
+    parser.add_argument(
+        "--nobase-share",
+        type=float,
+        default=NOBASE_SHARE,
+        help="which share of the faces the nobase variant removes, lowest first",
+    )
     parser.add_argument("--json", type=Path, help="write the per-model scores here")
     parser.add_argument("--verbose", action="store_true", help="a line per model and variant")
     parser.add_argument(
@@ -315,6 +329,7 @@ def main() -> int:
     )
     args = parser.parse_args()
     VARIANTS["shells"] = functools.partial(shells, move=args.shells_move)
+    VARIANTS["nobase"] = functools.partial(no_base, share=args.nobase_share)
     if not (args.bench_dir / "off").is_dir():
         print(f"no benchmark folder at {args.bench_dir}", file=sys.stderr)
         return 1

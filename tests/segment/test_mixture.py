@@ -68,3 +68,12 @@ def test_fit_is_deterministic():
     first, second = fit_best_mixture(values), fit_best_mixture(values.copy())
     np.testing.assert_array_equal(first.means, second.means)
     np.testing.assert_array_equal(first.weights, second.weights)
+
+
+def test_min_deviation_keeps_components_off_a_single_bin():
+    values = two_populations()
+    values[: len(values) // 2] = 0.5  # half the values on one histogram bin
+    narrow = fit_mixture(values, 9)
+    wide = fit_mixture(values, 9, min_deviation=0.02)
+    assert narrow.deviations.min() < 0.002
+    assert wide.deviations.min() >= 0.02 - 1e-12

@@ -3,7 +3,7 @@ options enter, kept by a caller to re-segment one mesh cheaply."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.constants import FINE_TESSELLATION_FACES
 from neural_shdf.geometry import FaceGraph
-from neural_shdf.segment.graphcut import CutHierarchy, cut_hierarchy
+from neural_shdf.segment.graphcut import CutHierarchy, cut_hierarchy, data_costs
 from neural_shdf.segment.mixture import Mixture
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import FaceData
@@ -62,6 +62,18 @@ class SegmentBasis:
                 frame=self.frame,
             )
         return self._cut
+
+    def with_mixture(self, mixture: Mixture) -> SegmentBasis:
+        """This basis with another mixture: its posteriors and data costs (coarse graphs
+        built anew on use)."""
+        posteriors = mixture.posteriors(self.values)
+        return replace(
+            self,
+            mixture=mixture,
+            posteriors=posteriors,
+            data=data_costs(posteriors, self.geometry.face_weight),
+            _cut=None,
+        )
 
     def matches(self, params: SegmentParams, shdf: NDArray[Any]) -> bool:
         """Whether this basis is the one ``params`` on a mesh with this ShDF needs (one pass

@@ -100,13 +100,17 @@ def histogram(
 
 
 def em_fit(
-    centres: NDArray[Any], counts: NDArray[Any], clusters: int, sample_size: float
+    centres: NDArray[Any],
+    counts: NDArray[Any],
+    clusters: int,
+    sample_size: float,
+    min_deviation: float = MIN_DEVIATION,
 ) -> tuple[Mixture, float]:
     """EM for a 1-D Gaussian mixture on binned data; returns the mixture and its BIC.
 
     Counts are rescaled to ``sample_size`` points, which sets how strongly BIC
     penalises extra components. Starts from quantile means, equal weights and
-    a shared deviation; deterministic.
+    a shared deviation; deterministic. No component is narrower than ``min_deviation``.
     """
     weights_n = counts / counts.sum() * sample_size
     total = weights_n.sum()
@@ -115,7 +119,7 @@ def em_fit(
     means = centres[np.minimum(np.searchsorted(cumulative, quantiles), len(centres) - 1)]
     overall_mean = float(np.sum(weights_n * centres) / total)
     overall_sd = float(np.sqrt(np.sum(weights_n * (centres - overall_mean) ** 2) / total))
-    deviations = np.full(clusters, max(overall_sd / clusters, MIN_DEVIATION))
+    deviations = np.full(clusters, max(overall_sd / clusters, min_deviation))
     mixing = np.full(clusters, 1.0 / clusters)
     previous = -np.inf
     log_norm = 0.5 * np.log(2 * np.pi)
@@ -130,7 +134,7 @@ def em_fit(
         mass = np.maximum(responsibility.sum(axis=0), 1e-12)
         means = (responsibility * centres[:, None]).sum(axis=0) / mass
         variance = (responsibility * (centres[:, None] - means[None, :]) ** 2).sum(axis=0) / mass
-        deviations = np.sqrt(np.maximum(variance, MIN_DEVIATION**2))
+        deviations = np.sqrt(np.maximum(variance, min_deviation**2))
         mixing = np.maximum(mass / total, 1e-12)
         mixing /= mixing.sum()
         if log_likelihood - previous < EM_TOLERANCE * total:
@@ -141,14 +145,17 @@ def em_fit(
     return Mixture(means[order], deviations[order], mixing[order]), float(bic)
 
 
-def fit_mixture(values: NDArray[Any], clusters: int, seed: int = 0) -> Mixture:
-    """Fit ``clusters`` Gaussians to values in [0, 1] (fewer if there are fewer distinct bins).
+def fit_mixture(
+    values: NDArray[Any], clusters: int, seed: int = 0, min_deviation: float = MIN_DEVIATION
+) -> Mixture:
+    """Fit ``clusters`` Gaussians to values in [0, 1] (fewer if there are fewer distinct bins),
+    none narrower than ``min_deviation``.
 
     ``seed`` is accepted for a uniform interface; the fit is deterministic.
     """
     centres, counts = histogram(values)
     clusters = max(1, min(int(clusters), len(centres)))
-    return em_fit(centres, counts, clusters, float(counts.sum()))[0]
+    return em_fit(centres, counts, clusters, float(counts.sum()), min_deviation)[0]
 
 
 def fit_best_mixture(

@@ -15,7 +15,7 @@ smoothing lambda at the mesh's resolution) and return (labels, part tree or None
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import Protocol
 
@@ -27,6 +27,7 @@ from neural_shdf.segment.basis import SegmentBasis
 from neural_shdf.segment.creases import CreaseGraph, snap_boundaries_to_creases
 from neural_shdf.segment.hierarchy import PartTree, automatic_part_count, merge_tree
 from neural_shdf.segment.metis import metis_edge_weights, metis_partition
+from neural_shdf.segment.mixture import fit_mixture
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
 from neural_shdf.segment.refine import refine_parts, smooth_boundaries
@@ -56,6 +57,14 @@ class Partitioning:
         return self.basis.unit_weights * self.smoothing
 
 
+#: A graph cut that leaves at most this many parts (leaves) although the mixture has more
+#: components has collapsed (see ``graph_cut_parts``).
+COLLAPSED_LEAVES = 2
+#: The narrowest mixture component of the refit after a collapse: about five histogram
+#: bins (``mixture.HISTOGRAM_BINS``), so that no component sits on a single bin.
+COLLAPSE_MIN_DEVIATION = 0.02
+
+
 class Partitioner(Protocol):
     def partition(self, work: Partitioning) -> tuple[NDArray[np.int64], PartTree | None]:
         """Part label per face (0..P-1 by lowest face) and the part tree, if any."""
@@ -65,7 +74,39 @@ class Partitioner(Protocol):
 def graph_cut_parts(work: Partitioning) -> NDArray[np.int64]:
     """The graph cut's parts (the part tree's leaves): alpha-expansion at ``smoothing``,
     connected runs of one cluster, optional refinement, tiny parts merged, boundaries
-    moved onto concave creases (``crease_boundaries``)."""
+    moved onto concave creases (``crease_boundaries``).
+
+    A collapse (at most ``COLLAPSED_LEAVES`` parts from a mixture of more components) is
+    solved again with the mixture refitted with no component narrower than
+    ``COLLAPSE_MIN_DEVIATION``, and the solution with more parts is kept. Such a collapse
+    came from a degenerate fit: several components on one histogram bin (many faces of
+    one ShDF value, e.g. a plate of even thickness) and one broad component (deviation
+    0.14-0.27 against 0.001-0.04) that holds every other value, so that the data term
+    prefers the broad component nearly everywhere and the smoothness gives it every face
+    (psb 141 with 10% of its faces removed from below, or its shells moved by 0.5%: one
+    part, published three; docs/messy-meshes.md).
+    """
+    parts = cut_parts(work)
+    mixture = work.basis.mixture
+    leaves = part_count(parts)
+    if leaves > COLLAPSED_LEAVES or mixture.size <= COLLAPSED_LEAVES:
+        return parts
+    wider = fit_mixture(
+        work.basis.values, mixture.size, work.basis.seed, min_deviation=COLLAPSE_MIN_DEVIATION
+    )
+    again = cut_parts(replace(work, basis=work.basis.with_mixture(wider)))
+    return again if part_count(again) > leaves else parts
+
+
+def part_count(parts: NDArray[np.int64]) -> int:
+    """How many distinct labels ``parts`` has (one pass: ``np.unique`` sorts, 0.1 s at 1M)."""
+    if len(parts) == 0:
+        return 0
+    return int(np.count_nonzero(np.bincount(parts - parts.min())))
+
+
+def cut_parts(work: Partitioning) -> NDArray[np.int64]:
+    """``graph_cut_parts`` without the second solve after a collapse."""
     graph, params, basis, lap = work.graph, work.params, work.basis, work.lap
     geometry = basis.geometry
     clusters = basis.cut(graph).solve(work.smoothing)

@@ -1,0 +1,78 @@
+"""The graph-cut partitioner: a cut that collapses into one part is solved again."""
+
+import numpy as np
+import pytest
+
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.segment.from_shdf import prepare_segment, segment
+from neural_shdf.segment.params import SegmentParams
+from neural_shdf.segment.partitioners import (
+    COLLAPSED_LEAVES,
+    Partitioning,
+    cut_parts,
+    part_count,
+)
+from neural_shdf.segment.parts import canonical_labels
+from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
+
+
+@pytest.fixture(scope="module")
+def spiked_dumbbell():
+    """A dumbbell whose ShDF has 60% of its faces, scattered over the whole surface, at
+    one value (0.5): the mixture puts several components on that histogram bin and one
+    broad component over every other value."""
+    mesh, shdf = dumbbell(4000)
+    rng = np.random.default_rng(1)
+    values = np.clip(shdf + 0.05 * rng.normal(size=len(shdf)), 0.0, 1.0)
+    values[rng.random(len(values)) < 0.6] = 0.5
+    return TriangleMesh(np.asarray(mesh.vertices), np.asarray(mesh.faces)), values
+
+
+def test_spiked_values_fit_a_degenerate_mixture_whose_cut_collapses(spiked_dumbbell):
+    mesh, values = spiked_dumbbell
+    basis = prepare_segment(mesh, values, SegmentParams())
+    spikes = np.sum(basis.mixture.deviations < 0.002)
+    assert spikes >= 4 and basis.mixture.deviations.max() > 0.2
+    work = Partitioning(
+        graph=mesh.face_graph,
+        basis=basis,
+        params=SegmentParams(),
+        smoothing=SegmentParams().effective_smoothing,
+        creases=mesh.crease_graph,
+        lap=lambda step: None,
+    )
+    assert len(np.unique(cut_parts(work))) <= COLLAPSED_LEAVES  # one part without the refit
+
+
+def test_collapsed_cut_is_solved_again_with_wider_components(spiked_dumbbell):
+    mesh, values = spiked_dumbbell
+    result = segment(mesh, values, SegmentParams())
+    assert result.part_count == 3  # the two balls and the neck, not one part
+    z = mesh.centroids[:, 2]
+    left, right = result.labels[z < -JUNCTION_Z - 0.2], result.labels[z > JUNCTION_Z + 0.2]
+    assert np.bincount(left).max() > 0.9 * len(left)
+    assert np.bincount(right).max() > 0.9 * len(right)
+    assert np.argmax(np.bincount(left)) != np.argmax(np.bincount(right))
+    assert np.array_equal(result.labels, segment(mesh, values, SegmentParams()).labels)
+
+
+def test_a_cut_into_parts_is_not_solved_again():
+    mesh, shdf = dumbbell(4000)
+    mesh = TriangleMesh(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    params = SegmentParams()
+    work = Partitioning(
+        graph=mesh.face_graph,
+        basis=prepare_segment(mesh, shdf, params),
+        params=params,
+        smoothing=params.effective_smoothing,
+        creases=mesh.crease_graph,
+        lap=lambda step: None,
+    )
+    parts = cut_parts(work)
+    assert len(np.unique(parts)) > COLLAPSED_LEAVES
+    assert np.array_equal(segment(mesh, shdf, params).tree.leaf_labels, canonical_labels(parts))
+
+
+def test_part_count_counts_distinct_labels():
+    assert part_count(np.array([3, 3, 7, 5, 7])) == 3
+    assert part_count(np.zeros(0, dtype=np.int64)) == 0

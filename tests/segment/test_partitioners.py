@@ -7,6 +7,7 @@ from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment.from_shdf import prepare_segment, segment
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.partitioners import (
+    COLLAPSE_MIN_DEVIATION,
     COLLAPSED_LEAVES,
     Partitioning,
     cut_parts,
@@ -76,3 +77,18 @@ def test_a_cut_into_parts_is_not_solved_again():
 def test_part_count_counts_distinct_labels():
     assert part_count(np.array([3, 3, 7, 5, 7])) == 3
     assert part_count(np.zeros(0, dtype=np.int64)) == 0
+
+
+def test_a_kept_basis_refits_a_collapse_once_with_the_labels_of_a_fresh_one(spiked_dumbbell):
+    mesh, values = spiked_dumbbell
+    params = SegmentParams()
+    basis = prepare_segment(mesh, values, params)
+    kept = segment(mesh, values, params, basis=basis)
+    widened = basis.widened(COLLAPSE_MIN_DEVIATION)
+    assert basis.widened(COLLAPSE_MIN_DEVIATION) is widened  # refitted and coarsened once
+    assert widened._cut is not None  # its coarse graphs were built by the first solve
+    assert basis.nbytes > basis.with_mixture(basis.mixture).nbytes
+    again = segment(mesh, values, params, basis=basis)
+    fresh = segment(mesh, values, params)
+    assert np.array_equal(kept.labels, fresh.labels)
+    assert np.array_equal(again.labels, fresh.labels)

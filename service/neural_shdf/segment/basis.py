@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 from neural_shdf.constants import FINE_TESSELLATION_FACES
 from neural_shdf.geometry import FaceGraph
 from neural_shdf.segment.graphcut import CutHierarchy, cut_hierarchy, data_costs
-from neural_shdf.segment.mixture import Mixture
+from neural_shdf.segment.mixture import Mixture, fit_mixture
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import FaceData
 from neural_shdf.segment.symmetry import Reflection
@@ -47,6 +47,8 @@ class SegmentBasis:
     #: with its crease graph), for the coarse graphs' grid.
     frame: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
     _cut: CutHierarchy | None = field(default=None, repr=False)
+    #: ``widened``'s basis, with the minimum deviation it was fitted with.
+    _widened: tuple[float, SegmentBasis] | None = field(default=None, repr=False)
 
     def cut(self, graph: FaceGraph) -> CutHierarchy:
         """The graph cut's coarse graphs over ``graph`` (built once)."""
@@ -63,6 +65,17 @@ class SegmentBasis:
             )
         return self._cut
 
+    def widened(self, min_deviation: float) -> SegmentBasis:
+        """This basis with its mixture refitted with no component narrower than
+        ``min_deviation`` (built once, coarse graphs included: a caller that keeps the basis
+        pays the refit once, not per smoothing value)."""
+        if self._widened is None or self._widened[0] != min_deviation:
+            mixture = fit_mixture(
+                self.values, self.mixture.size, self.seed, min_deviation=min_deviation
+            )
+            self._widened = (min_deviation, self.with_mixture(mixture))
+        return self._widened[1]
+
     def with_mixture(self, mixture: Mixture) -> SegmentBasis:
         """This basis with another mixture: its posteriors and data costs (coarse graphs
         built anew on use)."""
@@ -73,6 +86,7 @@ class SegmentBasis:
             posteriors=posteriors,
             data=data_costs(posteriors, self.geometry.face_weight),
             _cut=None,
+            _widened=None,
         )
 
     def matches(self, params: SegmentParams, shdf: NDArray[Any]) -> bool:
@@ -100,4 +114,11 @@ class SegmentBasis:
             finest = self._cut.levels[0]  # shares the data, weights and the graph's pairs
             size += self._cut.nbytes - finest.data.nbytes - finest.unit_weights.nbytes
             size -= finest.pairs.nbytes
+        if self._widened is not None:  # shares the face data, ShDF and weights
+            widened = self._widened[1]
+            size += widened.posteriors.nbytes + widened.data.nbytes
+            if widened._cut is not None:
+                finest = widened._cut.levels[0]
+                size += widened._cut.nbytes - finest.data.nbytes - finest.unit_weights.nbytes
+                size -= finest.pairs.nbytes
         return size

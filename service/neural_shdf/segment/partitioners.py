@@ -27,7 +27,6 @@ from neural_shdf.segment.basis import SegmentBasis
 from neural_shdf.segment.creases import CreaseGraph, snap_boundaries_to_creases
 from neural_shdf.segment.hierarchy import PartTree, automatic_part_count, merge_tree
 from neural_shdf.segment.metis import metis_edge_weights, metis_partition
-from neural_shdf.segment.mixture import fit_mixture
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
 from neural_shdf.segment.refine import refine_parts, smooth_boundaries
@@ -91,10 +90,7 @@ def graph_cut_parts(work: Partitioning) -> NDArray[np.int64]:
     leaves = part_count(parts)
     if leaves > COLLAPSED_LEAVES or mixture.size <= COLLAPSED_LEAVES:
         return parts
-    wider = fit_mixture(
-        work.basis.values, mixture.size, work.basis.seed, min_deviation=COLLAPSE_MIN_DEVIATION
-    )
-    again = cut_parts(replace(work, basis=work.basis.with_mixture(wider)))
+    again = cut_parts(replace(work, basis=work.basis.widened(COLLAPSE_MIN_DEVIATION)))
     return again if part_count(again) > leaves else parts
 
 

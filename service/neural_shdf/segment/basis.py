@@ -102,6 +102,15 @@ class SegmentBasis:
         shdf = np.asarray(shdf, dtype=np.float64).reshape(-1)
         return shdf.shape == self.shdf.shape and np.array_equal(np.clip(shdf, 0.0, 1.0), self.shdf)
 
+    def _cut_nbytes(self) -> int:
+        """Memory the coarse graphs add (their finest level shares the data, the weights and
+        the graph's pairs); 0 before they are built."""
+        if self._cut is None:
+            return 0
+        finest = self._cut.levels[0]
+        shared = finest.data.nbytes + finest.unit_weights.nbytes + finest.pairs.nbytes
+        return int(self._cut.nbytes - shared)
+
     @property
     def nbytes(self) -> int:
         """Memory held (arrays only), for callers that bound a cache of bases."""
@@ -110,15 +119,8 @@ class SegmentBasis:
         size = sum(a.nbytes for a in arrays + geometry)
         if self.reflection is not None:
             size += self.reflection.mirror.nbytes
-        if self._cut is not None:
-            finest = self._cut.levels[0]  # shares the data, weights and the graph's pairs
-            size += self._cut.nbytes - finest.data.nbytes - finest.unit_weights.nbytes
-            size -= finest.pairs.nbytes
+        size += self._cut_nbytes()
         if self._widened is not None:  # shares the face data, ShDF and weights
             widened = self._widened[1]
-            size += widened.posteriors.nbytes + widened.data.nbytes
-            if widened._cut is not None:
-                finest = widened._cut.levels[0]
-                size += widened._cut.nbytes - finest.data.nbytes - finest.unit_weights.nbytes
-                size -= finest.pairs.nbytes
+            size += widened.posteriors.nbytes + widened.data.nbytes + widened._cut_nbytes()
         return size

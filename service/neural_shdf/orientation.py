@@ -158,7 +158,7 @@ def orient_faces(
         loops,
         non_manifold,
     ) = _orient_patches(
-        welded, edge_table, slot, n_vertices, vertices, vertices.mean(axis=0), areas
+        welded, edge_table, slot, n_vertices, vertices, _column_means(vertices), areas
     )
     ambiguous = (volume == 0) | (is_open & (np.abs(volume) < AMBIGUOUS_VOLUME * patch_area**1.5))
     # Where the volume cannot decide, the winding of most of the patch's area in the file.
@@ -182,6 +182,17 @@ def orient_faces(
         duplicate_faces=len(copies),
     )
     return Orientation(flips, diagnostics, np.asarray(first_copy, dtype=np.int64))
+
+
+@kernel
+def _column_means(rows: NDArray[np.float64]) -> NDArray[np.float64]:  # pragma: no cover
+    """``rows.mean(axis=0)`` of an (N, 3) array, bit for bit (numpy adds the rows in order
+    along that axis), without numpy's strided reduction, ten times slower here."""
+    total = np.zeros(3)
+    for row in range(rows.shape[0]):
+        for axis in range(3):
+            total[axis] += rows[row, axis]
+    return total / rows.shape[0]
 
 
 def welded_edges(welded: NDArray[Any]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -358,6 +369,18 @@ def _union(parent: NDArray[np.int64], a: int, b: int) -> int:  # pragma: no cove
     return min(a, b)
 
 
+#: The bits of ``_orient_patches``' byte per edge entry: its face runs the edge lo -> hi; its
+#: face repeats a vertex; a hash of its face's third vertex (``_third_hash``).
+_FORWARD, _COLLAPSED, _HASH = 1, 2, 0xFC
+
+
+@kernel(inline=True)
+def _third_hash(vertex: int) -> int:  # pragma: no cover - numba
+    """Six bits of a multiplicative (Fibonacci) hash of ``vertex``, in ``_HASH``'s place:
+    two faces on an edge whose third vertices hash apart are no copies of each other."""
+    return (((vertex * -7046029254386353131) >> 58) & 63) << 2
+
+
 @kernel(inline=True)
 def _third_vertex(  # pragma: no cover - numba
     faces: NDArray[np.int64], face: int, lo: int, hi: int
@@ -421,32 +444,31 @@ def _orient_patches(  # pragma: no cover
     """
     face_count = faces.shape[0]
     edge_count = edge_table.shape[0]
-    # Per edge entry: whether its face runs it lo -> hi (one pass in face order, so the
-    # edges need no look-up of their faces). Faces that repeat a vertex take no part
-    # (their edges would pair them with themselves).
+    # Per edge entry, one byte written in face order (so the edges need no look-up of their
+    # faces): whether its face runs it lo -> hi, whether that face repeats a vertex (such
+    # faces take no part: their edges would pair them with themselves), and a hash of the
+    # face's third vertex, off the edge.
     skip = np.zeros(face_count, dtype=np.bool_)
-    forward = np.zeros(edge_count, dtype=np.bool_)
-    # Per face, the sum of its vertices: two faces on an edge have the same third vertex
-    # where their sums agree, read without a look-up of either face's row.
-    vertex_sum = np.empty(face_count, dtype=np.int64)
+    entry = np.zeros(edge_count, dtype=np.uint8)
     for face in range(face_count):
         a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
-        vertex_sum[face] = a + b + c
         if a == b or b == c or a == c:  # noqa: SIM109 - compiled
             skip[face] = True
+            for corner in range(3):
+                if slot[3 * face + corner] >= 0:
+                    entry[slot[3 * face + corner]] = _COLLAPSED
             continue
-        forward[slot[3 * face]] = a < b
-        forward[slot[3 * face + 1]] = b < c
-        forward[slot[3 * face + 2]] = c < a
+        entry[slot[3 * face]] = (a < b) | _third_hash(c)
+        entry[slot[3 * face + 1]] = (b < c) | _third_hash(a)
+        entry[slot[3 * face + 2]] = (c < a) | _third_hash(b)
     # Manifold edges link faces; boundary and non-manifold edges join loops to cap.
     first_copy = np.full(face_count, -1, dtype=np.int64)
     # Patches: a union-find over faces whose parity says whether a face is wound against
     # its root (the patch's lowest face); joined across each manifold edge.
     link = 2 * np.arange(face_count)
-    vertex_parent = np.arange(n_vertices)
-    on_hole = np.zeros(n_vertices, dtype=np.bool_)  # on an edge of one face
     cut_start = np.empty(edge_count, dtype=np.int64)  # edges of one face, or of 3 or more
     cut_end = np.empty(edge_count, dtype=np.int64)
+    cut_hole = np.empty(edge_count, dtype=np.bool_)  # of one face
     cuts = 0
     non_manifold = 0
     i = 0
@@ -455,11 +477,20 @@ def _orient_patches(  # pragma: no cover
         while j < edge_count and edge_table[j, 0] == edge_table[i, 0]:
             j += 1
         if j - i == 2:
-            f, g = edge_table[i, 1], edge_table[i + 1, 1]
-            if not skip[f] and not skip[g] and vertex_sum[f] != vertex_sum[g]:
-                # The usual manifold edge (two faces, neither a copy nor collapsed), what
-                # the general steps below conclude for it without their look-ups.
-                _join_linked(link, f, g, 1 if forward[i] == forward[i + 1] else 0)
+            first_entry, second_entry = entry[i], entry[i + 1]
+            if (first_entry | second_entry) & _COLLAPSED == 0 and (
+                first_entry ^ second_entry
+            ) & _HASH != 0:
+                # The usual manifold edge: two faces, neither collapsed, with different
+                # third vertices (so neither a copy of the other, nor of any face: every
+                # copy of a triangle is on each of its edges), what the general steps below
+                # conclude for it without their look-ups of the faces.
+                _join_linked(
+                    link,
+                    edge_table[i, 1],
+                    edge_table[i + 1, 1],
+                    1 - ((first_entry ^ second_entry) & _FORWARD),
+                )
                 i = j
                 continue
         if j - i >= 2:
@@ -467,16 +498,15 @@ def _orient_patches(  # pragma: no cover
             # each of its edges, so the lowest face of the copies is their original on
             # whichever edge finds them first. Collapsed faces (``skip`` and no original)
             # take no part.
+            lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
             if j - i == 2:
                 f, g = edge_table[i, 1], edge_table[i + 1, 1]
                 usable = (not skip[f] or first_copy[f] >= 0) and (not skip[g] or first_copy[g] >= 0)
-                # Third vertices equal: equal vertex sums (the edge's two are shared).
-                if usable and vertex_sum[f] == vertex_sum[g]:
+                if usable and _third_vertex(faces, f, lo, hi) == _third_vertex(faces, g, lo, hi):
                     first, second = min(f, g), max(f, g)
                     first_copy[second] = first if first_copy[first] < 0 else first_copy[first]
                     skip[second] = True
             else:
-                lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
                 keys = np.empty(j - i, dtype=np.int64)
                 count = 0
                 for k in range(i, j):
@@ -506,16 +536,12 @@ def _orient_patches(  # pragma: no cover
                     g, g_at = face, k
         if members == 2:
             # Faces wound alike run their shared edge in opposite directions.
-            _join_linked(link, f, g, 1 if forward[f_at] == forward[g_at] else 0)
+            _join_linked(link, f, g, 1 - ((entry[f_at] ^ entry[g_at]) & _FORWARD))
         elif members > 0:
-            lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
             if members > 2:
                 non_manifold += 1
-            else:
-                on_hole[lo] = True
-            cut_start[cuts], cut_end[cuts] = i, j
+            cut_start[cuts], cut_end[cuts], cut_hole[cuts] = i, j, members == 1
             cuts += 1
-            _union(vertex_parent, lo, hi)
         i = j
     # Patch numbers by lowest face and relative windings, then (arrays sized by the patch
     # count, usually a handful rather than one per face) the areas and signed volumes.
@@ -525,13 +551,15 @@ def _orient_patches(  # pragma: no cover
     for face in range(face_count):
         if skip[face]:
             continue
-        root, flipped = _find_linked(link, face)
-        if root == face:
+        # A face's parent comes before it (sets join under the lower root, paths point at
+        # ancestors), so its patch and winding are known: no walk up to the root.
+        parent = link[face] >> 1
+        if parent == face:
             patch[face] = patch_count
             patch_count += 1
         else:
-            patch[face] = patch[root]
-        relative[face] = flipped
+            patch[face] = patch[parent]
+            relative[face] = (link[face] & 1) ^ relative[parent]
     volume = np.zeros(patch_count)
     patch_area = np.zeros(patch_count)
     flipped_area = np.zeros(patch_count)
@@ -549,6 +577,12 @@ def _orient_patches(  # pragma: no cover
         volume[patch[face]] += _signed_volume(vertices, a, b, c, point)
     # Loop centres: the vertices of each component of open edges (none on a closed mesh).
     per_vertex = n_vertices if cuts else 0
+    vertex_parent = np.arange(per_vertex)
+    on_hole = np.zeros(per_vertex, dtype=np.bool_)  # on an edge of one face
+    for cut in range(cuts):
+        key = edge_table[cut_start[cut], 0]
+        on_hole[key // n_vertices] |= cut_hole[cut]
+        _union(vertex_parent, key // n_vertices, key % n_vertices)
     loop_sum = np.zeros((per_vertex, 3))
     loop_size = np.zeros(per_vertex, dtype=np.int64)
     counted = np.zeros(per_vertex, dtype=np.bool_)
@@ -577,7 +611,7 @@ def _orient_patches(  # pragma: no cover
             face = edge_table[k, 1]
             if skip[face]:
                 continue
-            runs_forward = forward[k] != (relative[face] == 1)
+            runs_forward = (entry[k] & _FORWARD != 0) != (relative[face] == 1)
             # The cap runs the edge the other way round: (hi, lo, centre) after lo -> hi.
             if runs_forward:
                 volume[patch[face]] += _signed_volume(vertices, hi, lo, -1, point)

@@ -374,7 +374,11 @@ def test_the_patch_kernel_matches_its_reference_bit_for_bit(seed: int):
         table, slot = welded_edges(welded)
         _, areas = face_normals(vertices, faces)
         arguments = (welded, table, slot, int(welded.max()) + 1, vertices, vertices.mean(0), areas)
-        got = _orient_patches(*arguments)
+        first_copy, winding, *rest = _orient_patches(*arguments)
+        # 2 * patch + relative winding, -1 off any patch: the reference's two arrays.
+        patch = np.where(winding < 0, -1, winding >> 1)
+        relative = np.where(winding < 0, 0, winding & 1).astype(np.int8)
+        got = (first_copy, patch, relative, *rest)
         expected = reference_orient_patches(*arguments)
         for ours, theirs in zip(got, expected, strict=True):
             np.testing.assert_array_equal(ours, theirs)

@@ -148,8 +148,7 @@ def orient_faces(
     n_vertices = int(welded.max()) + 1
     (
         first_copy,
-        patch,
-        relative,
+        winding,
         volume,
         is_open,
         patch_area,
@@ -163,7 +162,7 @@ def orient_faces(
     ambiguous = (volume == 0) | (is_open & (np.abs(volume) < AMBIGUOUS_VOLUME * patch_area**1.5))
     # Where the volume cannot decide, the winding of most of the patch's area in the file.
     patch_flip = np.where(ambiguous, flipped_area > 0.5 * patch_area, volume < 0)
-    flips = _face_flips(patch, relative, patch_flip)
+    flips = _face_flips(winding, patch_flip)
     # Duplicates face as their first copy does; collapsed faces keep the file's winding.
     copies = np.flatnonzero(first_copy >= 0)
     originals = first_copy[copies]
@@ -228,7 +227,8 @@ def reverse_flipped(
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
     """The arrays of the oriented copy of a mesh, in one pass over its triangles.
 
-    Returns ``reverse_rows(faces, flips)``, ``reverse_rows(welded, flips)``,
+    Returns ``reverse_rows(faces, flips)``, ``reverse_rows(welded, flips)`` (a view of the
+    first where ``welded`` is ``faces``' memory: ``geometry.weld_faces`` merged nothing),
     ``reversed_slots(slot, flips)`` and ``normals`` with the reversed rows' normals computed
     again from their new order, bit for bit those of ``geometry.face_normals`` of the
     reversed triangles (``area_limit``: ``zero_area_limit(vertices, faces)``, which the
@@ -239,9 +239,10 @@ def reverse_flipped(
     welded = np.ascontiguousarray(welded, dtype=np.int64).reshape(-1, 3)
     slot = np.ascontiguousarray(slot, dtype=np.int64).reshape(-1)
     normals = np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
-    reversed_faces, reversed_welded = np.empty_like(faces), np.empty_like(welded)
-    reversed_slot, renewed = np.empty_like(slot), np.empty_like(normals)
-    _reverse_flipped(
+    same = welded.shape == faces.shape and welded.ctypes.data == faces.ctypes.data
+    # The kernel allocates the copies: fresh memory is faulted in page by page there, while
+    # numpy asks for huge pages, which can stall on compaction for longer.
+    reversed_faces, reversed_welded, reversed_slot, renewed = _reverse_flipped(
         vertices,
         faces,
         welded,
@@ -249,12 +250,14 @@ def reverse_flipped(
         np.asarray(flips, dtype=bool),
         normals,
         float(area_limit),
+        same,
+    )
+    return (
         reversed_faces,
-        reversed_welded,
+        reversed_faces.view() if same else reversed_welded,
         reversed_slot,
         renewed,
     )
-    return reversed_faces, reversed_welded, reversed_slot, renewed
 
 
 @kernel
@@ -266,21 +269,21 @@ def _reverse_flipped(  # pragma: no cover - numba
     flips: NDArray[np.bool_],
     normals: NDArray[np.float64],
     area_limit: float,
-    reversed_faces: NDArray[np.int64],
-    reversed_welded: NDArray[np.int64],
-    reversed_slot: NDArray[np.int64],
-    renewed: NDArray[np.float64],
-) -> None:
-    """``reverse_flipped`` into the arrays given: rows (a, b, c) -> (c, b, a), slots of
-    corners 0, 1, 2 -> those of 1, 0, 2 (``reversed_slots``), normals from the new rows."""
-    for face in range(faces.shape[0]):
+    same: bool,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+    """``reverse_flipped``'s arrays: rows (a, b, c) -> (c, b, a), slots of corners 0, 1, 2
+    -> those of 1, 0, 2 (``reversed_slots``), normals from the new rows; the welded rows
+    left empty (none) where ``same``: they are the rows."""
+    count = faces.shape[0]
+    reversed_faces = np.empty((count, 3), dtype=np.int64)
+    reversed_welded = np.empty((0 if same else count, 3), dtype=np.int64)
+    reversed_slot = np.empty(3 * count, dtype=np.int64)
+    renewed = np.empty((count, 3), dtype=np.float64)
+    for face in range(count):
         if flips[face]:
             reversed_faces[face, 0] = faces[face, 2]
             reversed_faces[face, 1] = faces[face, 1]
             reversed_faces[face, 2] = faces[face, 0]
-            reversed_welded[face, 0] = welded[face, 2]
-            reversed_welded[face, 1] = welded[face, 1]
-            reversed_welded[face, 2] = welded[face, 0]
             reversed_slot[3 * face] = slot[3 * face + 1]
             reversed_slot[3 * face + 1] = slot[3 * face]
             reversed_slot[3 * face + 2] = slot[3 * face + 2]
@@ -288,9 +291,18 @@ def _reverse_flipped(  # pragma: no cover - numba
         else:
             for corner in range(3):
                 reversed_faces[face, corner] = faces[face, corner]
-                reversed_welded[face, corner] = welded[face, corner]
                 reversed_slot[3 * face + corner] = slot[3 * face + corner]
                 renewed[face, corner] = normals[face, corner]
+    if not same:
+        for face in range(count):
+            if flips[face]:
+                reversed_welded[face, 0] = welded[face, 2]
+                reversed_welded[face, 1] = welded[face, 1]
+                reversed_welded[face, 2] = welded[face, 0]
+            else:
+                for corner in range(3):
+                    reversed_welded[face, corner] = welded[face, corner]
+    return reversed_faces, reversed_welded, reversed_slot, renewed
 
 
 @kernel
@@ -424,7 +436,6 @@ def _orient_patches(  # pragma: no cover
 ) -> tuple[
     NDArray[np.int64],
     NDArray[np.int64],
-    NDArray[np.int8],
     NDArray[np.float64],
     NDArray[np.bool_],
     NDArray[np.float64],
@@ -437,9 +448,9 @@ def _orient_patches(  # pragma: no cover
     patch its capped signed volume, openness, area and the area its relative winding
     reverses; shell, loop and non-manifold counts.
 
-    Returns (first copy (F,) or -1, patch (F,) or -1 (duplicates and collapsed faces),
-    relative flip (F,) int8, volume (P,), open (P,), area (P,), reversed area (P,),
-    shells, boundary loops, non-manifold edges). ``edge_table, slot`` from
+    Returns (first copy (F,) or -1, winding (F,): 2 * patch + relative flip, or -1
+    (duplicates and collapsed faces), volume (P,), open (P,), area (P,), reversed area
+    (P,), shells, boundary loops, non-manifold edges). ``edge_table, slot`` from
     ``welded_edges``; ``areas`` (F,) the triangles' areas.
     """
     face_count = faces.shape[0]
@@ -545,21 +556,19 @@ def _orient_patches(  # pragma: no cover
         i = j
     # Patch numbers by lowest face and relative windings, then (arrays sized by the patch
     # count, usually a handful rather than one per face) the areas and signed volumes.
-    patch = np.full(face_count, -1, dtype=np.int64)
-    relative = np.zeros(face_count, dtype=np.int8)
+    # In place, ``link`` becomes ``winding``: 2 * patch + relative winding, or -1. A face's
+    # parent comes before it (sets join under the lower root, paths point at ancestors), so
+    # the parent's entry is already rewritten: no walk up to the root.
+    winding = link
     patch_count = 0
     for face in range(face_count):
         if skip[face]:
-            continue
-        # A face's parent comes before it (sets join under the lower root, paths point at
-        # ancestors), so its patch and winding are known: no walk up to the root.
-        parent = link[face] >> 1
-        if parent == face:
-            patch[face] = patch_count
+            winding[face] = -1  # never a parent: duplicates and collapsed faces join nothing
+        elif link[face] >> 1 == face:
+            winding[face] = 2 * patch_count
             patch_count += 1
         else:
-            patch[face] = patch[parent]
-            relative[face] = (link[face] & 1) ^ relative[parent]
+            winding[face] = winding[link[face] >> 1] ^ (link[face] & 1)
     volume = np.zeros(patch_count)
     patch_area = np.zeros(patch_count)
     flipped_area = np.zeros(patch_count)
@@ -568,13 +577,13 @@ def _orient_patches(  # pragma: no cover
     for face in range(face_count):
         if skip[face]:
             continue
-        flipped = relative[face]
+        patch = winding[face] >> 1
         a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
-        patch_area[patch[face]] += areas[face]
-        if flipped:
+        patch_area[patch] += areas[face]
+        if winding[face] & 1:
             b, c = c, b
-            flipped_area[patch[face]] += areas[face]
-        volume[patch[face]] += _signed_volume(vertices, a, b, c, point)
+            flipped_area[patch] += areas[face]
+        volume[patch] += _signed_volume(vertices, a, b, c, point)
     # Loop centres: the vertices of each component of open edges (none on a closed mesh).
     per_vertex = n_vertices if cuts else 0
     vertex_parent = np.arange(per_vertex)
@@ -611,23 +620,23 @@ def _orient_patches(  # pragma: no cover
             face = edge_table[k, 1]
             if skip[face]:
                 continue
-            runs_forward = (entry[k] & _FORWARD != 0) != (relative[face] == 1)
+            patch = winding[face] >> 1
+            runs_forward = (entry[k] & _FORWARD) != (winding[face] & 1)
             # The cap runs the edge the other way round: (hi, lo, centre) after lo -> hi.
             if runs_forward:
-                volume[patch[face]] += _signed_volume(vertices, hi, lo, -1, point)
+                volume[patch] += _signed_volume(vertices, hi, lo, -1, point)
             else:
-                volume[patch[face]] += _signed_volume(vertices, lo, hi, -1, point)
-            is_open[patch[face]] = True
+                volume[patch] += _signed_volume(vertices, lo, hi, -1, point)
+            is_open[patch] = True
             # Shells: patches joined through non-manifold edges.
-            first = patch[face] if first < 0 else _union(patch_parent, first, patch[face])
+            first = patch if first < 0 else _union(patch_parent, first, patch)
     shells = 0
     for p in range(patch_count):
         if _find(patch_parent, p) == p:
             shells += 1
     return (
         first_copy,
-        patch,
-        relative,
+        winding,
         volume / 6.0,
         is_open,
         patch_area,
@@ -640,14 +649,15 @@ def _orient_patches(  # pragma: no cover
 
 @kernel
 def _face_flips(  # pragma: no cover - numba
-    patch: NDArray[np.int64], relative: NDArray[np.int8], patch_flip: NDArray[np.bool_]
+    winding: NDArray[np.int64], patch_flip: NDArray[np.bool_]
 ) -> NDArray[np.bool_]:
-    """Per face: its winding against its patch's root, reversed where the patch is; False
-    for faces of no patch (duplicates, collapsed faces)."""
-    flips = np.zeros(len(patch), dtype=np.bool_)
-    for face in range(len(patch)):
-        if patch[face] >= 0:
-            flips[face] = (relative[face] != 0) != patch_flip[patch[face]]
+    """Per face (``winding``: 2 * patch + winding against the patch's root, -1 for faces of
+    no patch): that winding, reversed where the patch is; False for faces of no patch
+    (duplicates, collapsed faces)."""
+    flips = np.zeros(len(winding), dtype=np.bool_)
+    for face in range(len(winding)):
+        if winding[face] >= 0:
+            flips[face] = (winding[face] & 1 != 0) != patch_flip[winding[face] >> 1]
     return flips
 
 

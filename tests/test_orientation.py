@@ -389,18 +389,39 @@ def test_the_oriented_copy_in_one_pass_is_the_rows_slots_and_normals_one_by_one(
     """``reverse_flipped`` gives what reversing the rows, permuting the slots and computing
     the reversed triangles' normals afresh give, bit for bit (degenerate rows included)."""
     rng = np.random.default_rng(seed)
-    for vertices, faces in _messy_meshes(seed):
-        welded = weld_faces(vertices, faces)
-        _, slot = welded_edges(welded)
-        normals, _ = face_normals(vertices, faces)
-        limit = zero_area_limit(vertices, faces)
-        for flips in (orient_faces(vertices, faces).flips, rng.random(len(faces)) < 0.5):
-            got = reverse_flipped(vertices, faces, welded, slot, flips, normals, limit)
-            backwards = reverse_rows(faces, flips)
-            np.testing.assert_array_equal(got[0], backwards)
-            np.testing.assert_array_equal(got[1], reverse_rows(welded, flips))
-            np.testing.assert_array_equal(got[2], reversed_slots(slot, flips))
-            np.testing.assert_array_equal(got[3], face_normals(vertices, backwards)[0])
+    for given_vertices, given_faces in _messy_meshes(seed):
+        # Also with coincident vertices (a copy of each of the first ten, used by some
+        # faces): then the welded rows are not the rows.
+        copies = np.vstack([given_vertices, given_vertices[:10]])
+        moved = np.where(
+            (given_faces < 10) & (rng.random(given_faces.shape) < 0.5),
+            given_faces + len(given_vertices),
+            given_faces,
+        )
+        for vertices, faces in ((given_vertices, given_faces), (copies, moved)):
+            welded = weld_faces(vertices, faces)
+            _, slot = welded_edges(welded)
+            normals, _ = face_normals(vertices, faces)
+            limit = zero_area_limit(vertices, faces)
+            for flips in (orient_faces(vertices, faces).flips, rng.random(len(faces)) < 0.5):
+                got = reverse_flipped(vertices, faces, welded, slot, flips, normals, limit)
+                backwards = reverse_rows(faces, flips)
+                np.testing.assert_array_equal(got[0], backwards)
+                np.testing.assert_array_equal(got[1], reverse_rows(welded, flips))
+                # Where the welding merged nothing the welded rows share the rows' memory.
+                assert np.shares_memory(got[0], got[1]) == np.shares_memory(faces, welded)
+                np.testing.assert_array_equal(got[2], reversed_slots(slot, flips))
+                np.testing.assert_array_equal(got[3], face_normals(vertices, backwards)[0])
+
+
+def test_column_means_are_numpys_bit_for_bit():
+    """The compiled mean (the capped volumes' reference point) adds the rows in numpy's order."""
+    from neural_shdf.orientation import _column_means
+
+    rng = np.random.default_rng(3)
+    for count in (1, 2, 7, 100, 4097, 300_000):
+        rows = rng.normal(size=(count, 3)) * rng.uniform(0.1, 1e3) + rng.normal(size=3) * 100
+        np.testing.assert_array_equal(_column_means(rows), rows.mean(axis=0))
 
 
 def test_boundary_edge_rows_are_the_keys_without_a_neighbour_alike():

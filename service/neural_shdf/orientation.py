@@ -191,7 +191,8 @@ def _column_means(rows: NDArray[np.float64]) -> NDArray[np.float64]:  # pragma: 
     for row in range(rows.shape[0]):
         for axis in range(3):
             total[axis] += rows[row, axis]
-    return total / rows.shape[0]
+    means: NDArray[np.float64] = total / rows.shape[0]
+    return means
 
 
 def welded_edges(welded: NDArray[Any]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:

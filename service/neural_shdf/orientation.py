@@ -373,6 +373,18 @@ def _join_linked(  # pragma: no cover - numba
         link[high] = 2 * low + (parity_a ^ parity_b ^ differ)
 
 
+@kernel
+def _join(parent: NDArray[np.int64], a: int, b: int) -> None:  # pragma: no cover - numba
+    """Join the sets of ``a`` and ``b`` under the smaller root. ``_union`` without its result:
+    a compiled helper returning a value read after its store kept reference counting in
+    every loop that called it (4x slower in ``stitching._vertex_shells``)."""
+    a, b = _find(parent, a), _find(parent, b)
+    if a < b:
+        parent[b] = a
+    elif b < a:
+        parent[a] = b
+
+
 @kernel(inline=True)
 def _union(parent: NDArray[np.int64], a: int, b: int) -> int:  # pragma: no cover - numba
     """Join the sets of ``a`` and ``b`` under the smaller root; that root."""
@@ -592,7 +604,7 @@ def _orient_patches(  # pragma: no cover
     for cut in range(cuts):
         key = edge_table[cut_start[cut], 0]
         on_hole[key // n_vertices] |= cut_hole[cut]
-        _union(vertex_parent, key // n_vertices, key % n_vertices)
+        _join(vertex_parent, key // n_vertices, key % n_vertices)
     loop_sum = np.zeros((per_vertex, 3))
     loop_size = np.zeros(per_vertex, dtype=np.int64)
     counted = np.zeros(per_vertex, dtype=np.bool_)

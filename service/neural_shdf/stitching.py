@@ -37,7 +37,7 @@ from neural_shdf.geometry import FaceGraph
 from neural_shdf.orientation import (
     MAX_BOUNDARY_SHARE,
     _find,
-    _union,
+    _join,
     boundary_edge_rows,
     hole_caps,
 )
@@ -232,8 +232,8 @@ def _vertex_shells(  # pragma: no cover - numba
     """Per vertex, the lowest vertex of its shell (vertices connected through triangles)."""
     parent = np.arange(vertex_count)
     for face in range(faces.shape[0]):
-        _union(parent, faces[face, 0], faces[face, 1])
-        _union(parent, faces[face, 0], faces[face, 2])
+        _join(parent, faces[face, 0], faces[face, 1])
+        _join(parent, faces[face, 0], faces[face, 2])
     for vertex in range(vertex_count):
         parent[vertex] = _find(parent, vertex)
     return parent

@@ -87,6 +87,12 @@ PREFERENCE_SWEEPS = 4
 #: smaller top's expansion moves cost less (lucy's top 1,600 -> 800 nodes; energies in
 #: docs/benchmarks.md, "Measurements behind constants").
 SMOOTHED_COARSE_NODES = 1000
+#: Expansion cycles at a top coarsened past a stall (elsewhere the top runs to convergence,
+#: ``MAX_CYCLES``): the full cycle at the stalled level follows, so the moves past two
+#: cycles, mostly a last cycle that all fail and only show the top converged, are left out
+#: (lucy: 27-32 moves a value to at most 18; energies in docs/benchmarks.md, "Measurements
+#: behind constants").
+SMOOTHED_TOP_CYCLES = 2
 
 
 def data_costs(
@@ -801,7 +807,9 @@ class CutHierarchy:
         if self.stalled is not None:
             levels = levels[:-1] + self._smoothed_levels(smoothing)
         top = levels[-1]
-        labels = alpha_expansion(top.data, top.pairs, top.unit_weights * smoothing)
+        # A top coarsened past a stall is followed by the full cycle at the stalled level.
+        cycles = SMOOTHED_TOP_CYCLES if len(levels) > len(self.levels) else MAX_CYCLES
+        labels = alpha_expansion(top.data, top.pairs, top.unit_weights * smoothing, None, cycles)
         for index in reversed(range(len(levels) - 1)):
             level = levels[index]
             labels = labels[level.coarse_of]

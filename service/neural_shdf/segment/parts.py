@@ -210,7 +210,7 @@ def _part_boundaries(
     parts: NDArray[Any], graph: FaceGraph, part_count: int
 ) -> list[dict[int, float]]:
     """For each part, {neighbour part: total length of the shared boundary}."""
-    cut, pair_keys = _cut_edges(
+    cut, pair_keys = cut_edges(
         np.ascontiguousarray(parts, dtype=np.int64),
         np.ascontiguousarray(graph.pairs, dtype=np.int64).reshape(-1, 2),
         part_count,
@@ -226,7 +226,7 @@ def _part_boundaries(
 
 
 @kernel
-def _cut_edges(
+def cut_edges(
     parts: NDArray[Any], pairs: NDArray[Any], part_count: int
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:  # pragma: no cover - compiled
     """The edges between two parts, in order, and each one's pair key ``low * part_count +

@@ -107,3 +107,39 @@ def test_the_kept_principal_frame_gives_the_crease_graph_and_cut_of_a_fresh_one(
         np.testing.assert_array_equal(level.pairs, other.pairs)
         np.testing.assert_array_equal(level.unit_weights, other.unit_weights)
         np.testing.assert_array_equal(level.data, other.data)
+
+
+def test_a_mesh_keeps_the_spokes_over_its_holes_for_every_segmentation():
+    from neural_shdf.pipeline import SegmentParams, prepare_segment, segment
+    from neural_shdf.segment.hierarchy import merge_tree
+    from neural_shdf.stitching import cap_spokes, closing_caps
+
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    vertices = np.asarray(sphere.vertices) * (2.0, 1.0, 1.0)
+    faces = np.asarray(sphere.faces)
+    mesh = TriangleMesh(vertices, faces[vertices[faces, 2].mean(axis=1) < 0.8])  # a hole
+    work = mesh.distinct.mesh
+    coincident, _ = work.coincident_welding
+    capped, caps = closing_caps(work.vertices, coincident, work.welded_faces, work.welded_edges)
+    pairs, lengths = cap_spokes(
+        capped, len(work.vertices), work.welded_faces, work.welded_edges, caps
+    )
+    kept = work.hole_spokes
+    assert len(kept[0]) == len(caps) > 0
+    np.testing.assert_array_equal(kept[0], pairs)
+    np.testing.assert_array_equal(kept[1], lengths)
+    shdf = (mesh.centroids[:, 0] - vertices[:, 0].min()) / np.ptp(vertices[:, 0])
+    basis = prepare_segment(mesh, shdf, SegmentParams(clusters=3))
+    for smoothing in (0.1, 0.3):
+        result = segment(mesh, shdf, SegmentParams(clusters=3, smoothing=smoothing), basis=basis)
+        # The tree is the one built with the spokes computed afresh, and they are kept.
+        tree = merge_tree(
+            result.tree.leaf_labels,
+            work.face_graph,
+            basis.geometry.areas,
+            basis.values,
+            spokes=(pairs, lengths),
+        )
+        np.testing.assert_array_equal(result.tree.merges, tree.merges)
+        np.testing.assert_array_equal(result.tree.costs, tree.costs)
+        assert work.hole_spokes is kept

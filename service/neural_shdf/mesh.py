@@ -32,6 +32,8 @@ from neural_shdf.orientation import (
 from neural_shdf.orientation import welded_edges as sorted_welded_edges
 from neural_shdf.segment.creases import CreaseGraph, crease_graph
 from neural_shdf.stitching import (
+    cap_spokes,
+    closing_caps,
     orient_stitched_shells,
     stitch_counts,
     stitch_shells,
@@ -325,6 +327,17 @@ class TriangleMesh:
         return crease_graph(
             self.face_graph, self.normals_and_areas[1], self.centroids, frame=self.principal_frame
         )
+
+    @cached_property
+    def hole_spokes(self) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """``stitching.cap_spokes`` of the caps over this mesh's holes (its triangles as
+        they are): where the part tree counts boundary across a hole. It depends on the mesh
+        only, so a kept mesh builds it once for every segmentation, not per slider value
+        (dense-dev zenobia, 462k faces, 2 holes: 21 ms each)."""
+        coincident, _ = self.coincident_welding
+        welded, edges = self.welded_faces, self.welded_edges
+        vertices, caps = closing_caps(self.vertices, coincident, welded, edges)
+        return cap_spokes(vertices, len(self.vertices), welded, edges, caps)
 
     def content_hash(self) -> str:
         """SHA-256 of the canonical geometry: vertices, triangles and face origins."""

@@ -227,6 +227,35 @@ def test_compact_labels_use_the_narrowest_integer(labels, dtype):
     assert decoded.tolist() == labels
 
 
+@pytest.mark.parametrize(
+    ("labels", "dtype"), [([0, -1, 5, 127], "int8"), ([0, 128, -1], "int16"), ([2**15, 0], "int32")]
+)
+def test_cached_segmentations_keep_labels_narrow_and_read_back_as_int32(labels, dtype):
+    from neural_shdf.api.segmentation import StoredSegmentation
+    from neural_shdf.store.codec import decode_arrays, encode_arrays
+
+    per_face = np.array(labels, dtype=np.int32)
+    result = StoredSegmentation(
+        labels=per_face,
+        triangle_labels=per_face[::-1].copy(),
+        part_faces=np.zeros(0, np.int64),
+        part_area=np.zeros(0),
+        part_mean_shdf=np.zeros(0),
+        segment_seconds=0.5,
+        leaf_labels=per_face,
+    )
+    arrays = result.arrays()
+    assert {arrays[name].dtype.name for name in ("labels", "triangle_labels", "leaf_labels")} == {
+        dtype
+    }
+    back = StoredSegmentation.from_arrays(decode_arrays(encode_arrays(arrays)))
+    for name in ("labels", "triangle_labels", "leaf_labels"):
+        assert getattr(back, name).dtype == np.int32
+        assert getattr(back, name).tolist() == getattr(result, name).tolist()
+    assert back.labels_base64 == result.labels_base64
+    assert back.segment_seconds == 0.5
+
+
 def test_the_model_setting_decides_which_network_computes(app_factory, capsule_obj, tmp_path):
     """Settings.model is the network that computes, not only the readiness and the cache key."""
     from neural_shdf.pipeline import compute_shdf

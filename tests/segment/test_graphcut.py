@@ -17,7 +17,9 @@ from neural_shdf.segment.graphcut import (
     ANGLE_EPS,
     COARSE_NODES,
     LAMBDA_SCALE,
+    MAX_CYCLES,
     SMOOTHED_COARSE_NODES,
+    SMOOTHED_TOP_CYCLES,
     _band_problem,
     alpha_expansion,
     banded_alpha_expansion,
@@ -403,6 +405,35 @@ def test_coarsening_past_a_stall_goes_on_below_coarse_nodes():
         # Past COARSE_NODES (where coarsening used to stop) to SMOOTHED_COARSE_NODES.
         assert len(levels[-2].data) > SMOOTHED_COARSE_NODES >= len(levels[-1].data)
         assert len(levels[-2].data) <= COARSE_NODES
+
+
+def test_a_top_past_a_stall_runs_two_cycles_and_an_unstalled_top_converges(monkeypatch):
+    from neural_shdf.segment import graphcut
+
+    tops = []  # (nodes, max_cycles) of each solve from the cheapest labels: the tops
+    expand = graphcut.alpha_expansion
+
+    def recorded(data, pairs, weights, labels=None, max_cycles=MAX_CYCLES, *rest):
+        if labels is None:
+            tops.append((len(data), max_cycles))
+        return expand(data, pairs, weights, labels, max_cycles, *rest)
+
+    monkeypatch.setattr(graphcut, "alpha_expansion", recorded)
+    data, graph, centroids, areas = interleaved_sphere(3)
+    unit = dihedral_weights(graph, 1.0)
+    stalled = cut_hierarchy(data, graph.pairs, unit, centroids, areas, coarse_nodes=300)
+    assert stalled.stalled is not None
+    stalled.solve(0.02)
+    assert tops == [(len(stalled._smoothed_levels(0.02)[-1].data), SMOOTHED_TOP_CYCLES)]
+    tops.clear()
+    # Labels that do not interleave: coarsening reaches 1,000 nodes, whose solve converges.
+    smooth = np.full((len(data), 4), 3.0)
+    smooth[np.arange(len(data)), (centroids[:, 2] <= 0).astype(int)] = 0.5
+    unstalled = cut_hierarchy(smooth, graph.pairs, unit, centroids, areas, coarse_nodes=1000)
+    assert unstalled.stalled is None
+    unstalled.solve(0.02)
+    assert tops == [(len(unstalled.levels[-1].data), MAX_CYCLES)]
+    assert SMOOTHED_TOP_CYCLES < MAX_CYCLES
 
 
 def cut_energy(vertices, faces, posteriors, labels, params):

@@ -226,8 +226,13 @@ def _snap(
     limit = width * np.minimum(length / (2 * math.pi), np.sqrt(smaller / math.pi))
 
     # Seeds: the nodes on each boundary (a node on several: its lowest boundary id).
-    seed_boundary = np.full(node_count, boundary_count, dtype=np.int64)
-    np.minimum.at(seed_boundary, pairs[cut].reshape(-1), np.repeat(boundary_of_edge, 2))
+    seed_boundary = _seed_boundaries(
+        np.ascontiguousarray(pairs, dtype=np.int64),
+        cut,
+        boundary_of_edge,
+        node_count,
+        boundary_count,
+    )
     distance, owner = _dijkstra(
         creases.indptr,
         creases.neighbour,
@@ -244,8 +249,7 @@ def _snap(
     reached = np.flatnonzero(owner >= 0)
     side = (parts[reached] == boundary_high[owner[reached]]).astype(np.int64)
     slot = owner[reached] * 2 + side
-    depth = np.zeros(2 * boundary_count)
-    np.maximum.at(depth, slot, distance[reached])
+    depth = _deepest(slot, distance[reached], 2 * boundary_count)
     side_limit = np.repeat(limit, 2)
     side_limit = np.where(depth > side_limit, side_limit, side_share * depth)
     in_band = np.zeros(node_count, dtype=bool)
@@ -494,6 +498,35 @@ def _coarsen(
         lengths[:edges].copy(),
         capacities[:edges].copy(),
     )
+
+
+@kernel
+def _seed_boundaries(
+    pairs: NDArray[Any],
+    cut: NDArray[Any],
+    boundary_of_edge: NDArray[Any],
+    node_count: int,
+    none: int,
+) -> NDArray[np.int64]:  # pragma: no cover - numba
+    """Each node's lowest boundary id over the cut edges ``cut`` it is on (``none`` where it
+    is on none)."""
+    seed = np.full(node_count, none, dtype=np.int64)
+    for i in range(len(cut)):
+        for side in range(2):
+            node = pairs[cut[i], side]
+            seed[node] = min(seed[node], boundary_of_edge[i])
+    return seed
+
+
+@kernel
+def _deepest(
+    slot: NDArray[Any], distance: NDArray[Any], slots: int
+) -> NDArray[np.float64]:  # pragma: no cover - numba
+    """The largest ``distance`` per ``slot`` (0 where a slot has none)."""
+    depth = np.zeros(slots)
+    for i in range(len(slot)):
+        depth[slot[i]] = max(depth[slot[i]], distance[i])
+    return depth
 
 
 @kernel

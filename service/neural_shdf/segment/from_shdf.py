@@ -37,7 +37,6 @@ from neural_shdf.segment.parts import FaceData
 from neural_shdf.segment.symmetry import Reflection, detect_reflection, symmetrize
 from neural_shdf.shdf.postprocess import log_normalize
 from neural_shdf.shdf.stage import ShdfResult
-from neural_shdf.stitching import cap_spokes, closing_caps
 
 #: ShDF values may stray this far outside [0, 1] (rounding) before they are refused.
 SHDF_TOLERANCE = 1e-6
@@ -173,7 +172,7 @@ def segment(
         smoothing=params.smoothing_for(work.face_count),
         creases=work.crease_graph if params.crease_boundaries else None,
         lap=lap,
-        spokes=hole_spokes(work) if diagnostics.boundary_loops > 0 else None,
+        spokes=work.hole_spokes if diagnostics.boundary_loops > 0 else None,
     )
     labels, tree = PARTITIONERS[params.partitioner].partition(partitioning)
     if distinct.has_copies:  # each copy in its first copy's part (kept in order: same numbering)
@@ -189,14 +188,6 @@ def segment(
         diagnostics,
         basis.reflection,
     )
-
-
-def hole_spokes(mesh: TriangleMesh) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-    """``stitching.cap_spokes`` of the caps over ``mesh``'s holes (oriented, distinct)."""
-    coincident, _ = mesh.coincident_welding
-    welded, edges = mesh.welded_faces, mesh.welded_edges
-    vertices, caps = closing_caps(mesh.vertices, coincident, welded, edges)
-    return cap_spokes(vertices, len(mesh.vertices), welded, edges, caps)
 
 
 def check_part_count(params: SegmentParams, face_count: int) -> None:

@@ -87,6 +87,12 @@ PREFERENCE_SWEEPS = 4
 #: smaller top's expansion moves cost less (lucy's top 1,600 -> 800 nodes; energies in
 #: docs/benchmarks.md, "Measurements behind constants").
 SMOOTHED_COARSE_NODES = 1000
+#: Expansion cycles at a top coarsened past a stall (elsewhere the top runs to convergence,
+#: ``MAX_CYCLES``): the full cycle at the stalled level follows, so the moves past two
+#: cycles, mostly a last cycle that all fail and only show the top converged, are left out
+#: (lucy: 27-32 moves a value to at most 18; energies in docs/benchmarks.md, "Measurements
+#: behind constants").
+SMOOTHED_TOP_CYCLES = 2
 
 
 def data_costs(
@@ -241,7 +247,7 @@ def expansion_move(
     """The best labelling reachable by letting any face switch to ``alpha`` (one max-flow);
     ``allowed``: which faces may (default: all)."""
     labels = np.asarray(labels, dtype=np.int64)
-    nodes, source_cap, sink_cap, edge_a, edge_b, forward, backward = _expansion_graph(
+    moved = _switched(
         labels,
         alpha,
         np.asarray(data, dtype=np.float64),
@@ -251,8 +257,28 @@ def expansion_move(
         if allowed is None
         else np.ascontiguousarray(allowed, dtype=np.bool_),
     )
-    if len(nodes) == 0:
+    if moved is None:
         return labels
+    result = labels.copy()
+    result[moved] = alpha
+    return result
+
+
+def _switched(
+    labels: NDArray[np.int64],
+    alpha: int,
+    data: NDArray[np.float64],
+    pairs: NDArray[np.int64],
+    weights: NDArray[np.float64],
+    allowed: NDArray[np.bool_],
+) -> NDArray[np.int64] | None:
+    """``expansion_move`` on arrays already of its kernels' types: the nodes that switch to
+    ``alpha``, or None when none does."""
+    nodes, source_cap, sink_cap, edge_a, edge_b, forward, backward = _expansion_graph(
+        labels, alpha, data, pairs, weights, allowed
+    )
+    if len(nodes) == 0:
+        return None
     graph = maxflow.Graph[float](len(nodes), len(edge_a))
     graph.add_nodes(len(nodes))
     if len(edge_a):
@@ -261,9 +287,8 @@ def expansion_move(
     graph.add_grid_tedges(index, source_cap, sink_cap)
     graph.maxflow()
     switch = graph.get_grid_segments(index)
-    result = labels.copy()
-    result[nodes[switch]] = alpha
-    return result
+    moved: NDArray[np.int64] = nodes[switch]
+    return moved if len(moved) else None
 
 
 def alpha_expansion(
@@ -297,15 +322,26 @@ def alpha_expansion(
         return current
     energy = labelling_energy(current, data, pairs, weights)
     tolerance = 1e-9 * max(1.0, abs(energy))
+    # Which nodes may take each label, one contiguous row per label (all: one row).
+    allowed_rows = (
+        np.ones((1, len(current)), dtype=np.bool_)
+        if candidates is None
+        else np.ascontiguousarray(np.asarray(candidates, dtype=np.bool_).T)
+    )
     # Right after a successful move for alpha, alpha's move cannot gain again
     # until another label changes something: k - 1 failures in a row suffice.
     failures_to_stop = len(order)
     failures = 0
     for move in range(max_cycles * len(order)):
         alpha = int(order[move % len(order)])
-        allowed = None if candidates is None else candidates[:, alpha]
-        candidate = expansion_move(current, alpha, data, pairs, weights, allowed)
-        candidate_energy = labelling_energy(candidate, data, pairs, weights)
+        allowed = allowed_rows[0 if candidates is None else alpha]
+        moved = _switched(current, alpha, data, pairs, weights, allowed)
+        # A move that switches no node leaves the labels, and so the energy, as they are.
+        candidate_energy = energy
+        if moved is not None:
+            candidate = current.copy()
+            candidate[moved] = alpha
+            candidate_energy = float(_labelling_energy(candidate, data, pairs, weights))
         if candidate_energy < energy - tolerance:
             current, energy = candidate, candidate_energy
             failures, failures_to_stop = 0, len(order) - 1
@@ -335,13 +371,28 @@ def banded_alpha_expansion(
     the labels that band nodes within that many hops of it have or border (``label_reach``;
     default: any label).
     """
+    return _solve_band(
+        np.array(band_data, dtype=np.float64), pairs, weights, labels, band, max_cycles, label_hops
+    )
+
+
+def _solve_band(
+    band_data: NDArray[np.float64],
+    pairs: NDArray[Any],
+    weights: NDArray[Any],
+    labels: NDArray[Any],
+    band: NDArray[Any],
+    max_cycles: int,
+    label_hops: int | None,
+) -> NDArray[np.int64]:
+    """``banded_alpha_expansion`` on band data costs it may change in place (its own copy)."""
     labels = np.asarray(labels, dtype=np.int64)
     band = np.asarray(band, dtype=bool)
     nodes = np.flatnonzero(band)
     if len(nodes) == 0:
         return labels.copy()
     sub_data, sub_pairs, sub_weights, alphas = _band_problem(
-        np.array(band_data, dtype=np.float64),
+        band_data,
         nodes,
         band,
         labels,
@@ -756,7 +807,9 @@ class CutHierarchy:
         if self.stalled is not None:
             levels = levels[:-1] + self._smoothed_levels(smoothing)
         top = levels[-1]
-        labels = alpha_expansion(top.data, top.pairs, top.unit_weights * smoothing)
+        # A top coarsened past a stall is followed by the full cycle at the stalled level.
+        cycles = SMOOTHED_TOP_CYCLES if len(levels) > len(self.levels) else MAX_CYCLES
+        labels = alpha_expansion(top.data, top.pairs, top.unit_weights * smoothing, None, cycles)
         for index in reversed(range(len(levels) - 1)):
             level = levels[index]
             labels = labels[level.coarse_of]
@@ -769,7 +822,8 @@ class CutHierarchy:
                 labels = alpha_expansion(level.data, level.pairs, weights, labels, max_cycles=1)
                 continue
             band = near_boundary(labels, level.pairs, len(level.data), self.rings, level.adjacency)
-            labels = banded_alpha_expansion(
+            # ``level.data[band]`` is a fresh copy: the band solve folds its edges into it.
+            labels = _solve_band(
                 level.data[band], level.pairs, weights, labels, band, BAND_CYCLES, BAND_LABEL_HOPS
             )
         return labels
@@ -793,6 +847,7 @@ class CutHierarchy:
             self.rings,
             preferred,
             stalled.lengths,
+            first_band=False,  # the stalled level runs a full cycle
         )[0]
         return (top,) if len(levels) == 1 else tuple(levels)
 
@@ -875,6 +930,8 @@ def coarsen_levels(
     rings: int,
     preferred: NDArray[Any] | None = None,
     lengths: NDArray[Any] | None = None,
+    *,
+    first_band: bool = True,
 ) -> tuple[list[CutLevel], NDArray[np.float64] | None]:
     """The levels from this graph (first) to the coarsest (last): grid-cell pieces grouped
     (``coarsen``) until at most ``coarse_nodes`` nodes remain or a level would keep more
@@ -882,7 +939,8 @@ def coarsen_levels(
     a group prefers its nodes' label. The coarsest level keeps its nodes' ``positions``
     and the next ``cell_size``. ``lengths``: the edges' lengths, where ``crease_weight`` is
     a weight per unit length (summed per coarse edge like the weights; the coarsest
-    level's are returned beside the levels)."""
+    level's are returned beside the levels). ``first_band``: whether this graph is re-solved
+    in a band (False: no adjacency built for it)."""
     levels: list[CutLevel] = []
     level_pairs, level_weights, level_data = pairs, weights, data
     level_lengths = lengths
@@ -917,7 +975,9 @@ def coarsen_levels(
                 level_weights,
                 level_data,
                 coarse_of,
-                adjacency_lists(level_pairs, count) if rings > 1 else None,
+                adjacency_lists(level_pairs, count)
+                if rings > 1 and (levels or first_band)
+                else None,
             )
         )
         level_pairs, level_weights, level_data = coarse_pairs, coarse_weights, summed_data

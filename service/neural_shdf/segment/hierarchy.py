@@ -42,6 +42,7 @@ from neural_shdf.compiled import kernel
 from neural_shdf.constants import FINE_TESSELLATION_FACES
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph
+from neural_shdf.segment.parts import cut_edges
 
 # The weights were tuned on 57 psb-dev models (the 4th model of each category held out),
 # first for the Rand index at the humans' most frequent part count, then the size
@@ -235,13 +236,13 @@ def merge_tree(
     moment = np.bincount(leaves, weights=areas * values, minlength=leaf_count)
     total_area = float(area.sum())
 
-    a, b = leaves[graph.pairs[:, 0]], leaves[graph.pairs[:, 1]]
-    cut = np.flatnonzero(a != b)
+    pairs = np.ascontiguousarray(graph.pairs, dtype=np.int64).reshape(-1, 2)
+    cut = cut_edges(leaves, pairs, leaf_count)[0]  # one pass, no per-edge arrays
+    a, b = leaves[pairs[cut, 0]], leaves[pairs[cut, 1]]
     lengths = graph.edge_length[cut]
     depth = np.where(graph.concave[cut], graph.dihedral[cut] / np.pi, 0.0)
     if face_count > FINE_TESSELLATION_FACES:  # a crease spread over many small folds
         depth = np.minimum(depth * max(1.0, REFERENCE_BENDING / mean_bending(graph)), 1.0)
-    a, b = a[cut], b[cut]
     if spokes is not None and len(spokes[0]):
         spoke_pairs = np.asarray(spokes[0], dtype=np.int64).reshape(-1, 2)
         sa, sb = leaves[spoke_pairs[:, 0]], leaves[spoke_pairs[:, 1]]

@@ -210,10 +210,12 @@ def _part_boundaries(
     parts: NDArray[Any], graph: FaceGraph, part_count: int
 ) -> list[dict[int, float]]:
     """For each part, {neighbour part: total length of the shared boundary}."""
-    a, b = parts[graph.pairs[:, 0]], parts[graph.pairs[:, 1]]
-    cut = a != b
-    low, high = np.minimum(a[cut], b[cut]), np.maximum(a[cut], b[cut])
-    keys, inverse = np.unique(low * part_count + high, return_inverse=True)
+    cut, pair_keys = cut_edges(
+        np.ascontiguousarray(parts, dtype=np.int64),
+        np.ascontiguousarray(graph.pairs, dtype=np.int64).reshape(-1, 2),
+        part_count,
+    )
+    keys, inverse = np.unique(pair_keys, return_inverse=True)
     lengths = np.bincount(inverse.reshape(-1), weights=graph.edge_length[cut])
     neighbours: list[dict[int, float]] = [{} for _ in range(part_count)]
     for key, length in zip(keys.tolist(), lengths.tolist(), strict=True):
@@ -221,6 +223,24 @@ def _part_boundaries(
         neighbours[i][j] = length
         neighbours[j][i] = length
     return neighbours
+
+
+@kernel
+def cut_edges(
+    parts: NDArray[Any], pairs: NDArray[Any], part_count: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:  # pragma: no cover - compiled
+    """The edges between two parts, in order, and each one's pair key ``low * part_count +
+    high`` (one pass, no per-edge arrays of the whole graph)."""
+    cut = np.empty(len(pairs), dtype=np.int64)
+    keys = np.empty(len(pairs), dtype=np.int64)
+    count = 0
+    for edge in range(len(pairs)):
+        a, b = parts[pairs[edge, 0]], parts[pairs[edge, 1]]
+        if a != b:
+            cut[count] = edge
+            keys[count] = min(a, b) * part_count + max(a, b)
+            count += 1
+    return cut[:count].copy(), keys[:count].copy()
 
 
 def _resolve(owner: NDArray[Any]) -> NDArray[np.int64]:

@@ -375,23 +375,14 @@ def _join_linked(  # pragma: no cover - numba
 
 @kernel
 def _join(parent: NDArray[np.int64], a: int, b: int) -> None:  # pragma: no cover - numba
-    """Join the sets of ``a`` and ``b`` under the smaller root. ``_union`` without its result:
-    a compiled helper returning a value read after its store kept reference counting in
-    every loop that called it (4x slower in ``stitching._vertex_shells``)."""
+    """Join the sets of ``a`` and ``b`` under the smaller root. No result: written as
+    ``parent[max(a, b)] = min(a, b); return min(a, b)`` it compiled 4x slower in
+    ``stitching._vertex_shells``' loop (and branches returning the root, 7x)."""
     a, b = _find(parent, a), _find(parent, b)
     if a < b:
         parent[b] = a
     elif b < a:
         parent[a] = b
-
-
-@kernel(inline=True)
-def _union(parent: NDArray[np.int64], a: int, b: int) -> int:  # pragma: no cover - numba
-    """Join the sets of ``a`` and ``b`` under the smaller root; that root."""
-    a, b = _find(parent, a), _find(parent, b)
-    if a != b:
-        parent[max(a, b)] = min(a, b)
-    return min(a, b)
 
 
 #: The bits of ``_orient_patches``' byte per edge entry: its face runs the edge lo -> hi; its
@@ -642,7 +633,10 @@ def _orient_patches(  # pragma: no cover
                 volume[patch] += _signed_volume(vertices, lo, hi, -1, point)
             is_open[patch] = True
             # Shells: patches joined through non-manifold edges.
-            first = patch if first < 0 else _union(patch_parent, first, patch)
+            if first < 0:
+                first = patch
+            else:
+                _join(patch_parent, first, patch)
     shells = 0
     for p in range(patch_count):
         if _find(patch_parent, p) == p:

@@ -377,7 +377,7 @@ def test_the_patch_kernel_matches_its_reference_bit_for_bit(seed: int):
             welded, table, slot, int(welded.max()) + 1, vertices, vertices.mean(0), areas
         )
         for link_type in (np.int32, np.int64):
-            link = np.arange(0, 2 * len(faces), 2, dtype=link_type)
+            link = np.empty(0, dtype=link_type)
             arguments = (welded, table, slot, vertices, vertices.mean(0), areas, link)
             first_copy, winding, *rest = _orient_patches(*arguments)
             assert winding.dtype == link_type

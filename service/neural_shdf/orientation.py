@@ -162,9 +162,9 @@ def orient_faces(
         vertices,
         _column_means(vertices),
         areas,
-        # The union-find's array, in 32 bits where the faces allow: half the memory its
+        # The union-find's integers in 32 bits where the faces allow: half the memory its
         # scattered loads and stores walk.
-        np.arange(0, 2 * count, 2, dtype=np.int32 if 2 * count < 2**31 else np.int64),
+        np.empty(0, dtype=np.int32 if 2 * count < 2**31 else np.int64),
     )
     ambiguous = (volume == 0) | (is_open & (np.abs(volume) < AMBIGUOUS_VOLUME * patch_area**1.5))
     # Where the volume cannot decide, the winding of most of the patch's area in the file.
@@ -443,7 +443,7 @@ def _orient_patches(  # pragma: no cover
     vertices: NDArray[np.float64],
     centre: NDArray[np.float64],
     areas: NDArray[np.float64],
-    link: NDArray[np.integer[Any]],
+    link_type: NDArray[np.integer[Any]],
 ) -> tuple[
     NDArray[np.int64],
     NDArray[np.integer[Any]],
@@ -462,8 +462,8 @@ def _orient_patches(  # pragma: no cover
     Returns (first copy (F,) or -1, winding (F,): 2 * patch + relative flip, or -1
     (duplicates and collapsed faces), volume (P,), open (P,), area (P,), reversed area
     (P,), shells, boundary loops, non-manifold edges). ``edge_table, slot`` from
-    ``welded_edges``; ``areas`` (F,) the triangles' areas; ``link`` (F,) ``2 * face``, which
-    becomes the winding in place.
+    ``welded_edges``; ``areas`` (F,) the triangles' areas; ``link_type``: an empty array of
+    the integers of the union-find (which becomes the winding in place).
     """
     face_count = faces.shape[0]
     edge_count = edge_table.shape[0]
@@ -473,8 +473,12 @@ def _orient_patches(  # pragma: no cover
     # face's third vertex, off the edge.
     skip = np.zeros(face_count, dtype=np.bool_)
     entry = np.zeros(edge_count, dtype=np.uint8)
+    # Patches: a union-find over faces whose parity says whether a face is wound against
+    # its root (the patch's lowest face); joined across each manifold edge below.
+    link = np.empty(face_count, link_type.dtype)
     top = -1  # the highest vertex: the edge keys are lo * (top + 1) + hi
     for face in range(face_count):
+        link[face] = 2 * face
         a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
         top = max(top, a, b, c)
         if a == b or b == c or a == c:  # noqa: SIM109 - compiled
@@ -489,8 +493,6 @@ def _orient_patches(  # pragma: no cover
     n_vertices = top + 1
     # Manifold edges link faces; boundary and non-manifold edges join loops to cap.
     first_copy = np.full(face_count, -1, dtype=np.int64)
-    # Patches: a union-find over faces (``link``) whose parity says whether a face is wound
-    # against its root (the patch's lowest face); joined across each manifold edge.
     cut_start = np.empty(edge_count, dtype=np.int64)  # edges of one face, or of 3 or more
     cut_end = np.empty(edge_count, dtype=np.int64)
     cut_hole = np.empty(edge_count, dtype=np.bool_)  # of one face

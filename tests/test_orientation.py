@@ -365,7 +365,7 @@ def _messy_meshes(seed: int):
 @pytest.mark.parametrize("seed", range(6))
 def test_the_patch_kernel_matches_its_reference_bit_for_bit(seed: int):
     """The packed union-find gives the reference kernel's every output, non-orientable
-    strips (where the join order decides) included."""
+    strips (where the join order decides) included, with 32- and 64-bit links."""
     from neural_shdf.orientation import _orient_patches
     from tests.orientation_reference import reference_orient_patches
 
@@ -373,15 +373,20 @@ def test_the_patch_kernel_matches_its_reference_bit_for_bit(seed: int):
         welded = weld_faces(vertices, faces)
         table, slot = welded_edges(welded)
         _, areas = face_normals(vertices, faces)
-        arguments = (welded, table, slot, int(welded.max()) + 1, vertices, vertices.mean(0), areas)
-        first_copy, winding, *rest = _orient_patches(*arguments)
-        # 2 * patch + relative winding, -1 off any patch: the reference's two arrays.
-        patch = np.where(winding < 0, -1, winding >> 1)
-        relative = np.where(winding < 0, 0, winding & 1).astype(np.int8)
-        got = (first_copy, patch, relative, *rest)
-        expected = reference_orient_patches(*arguments)
-        for ours, theirs in zip(got, expected, strict=True):
-            np.testing.assert_array_equal(ours, theirs)
+        expected = reference_orient_patches(
+            welded, table, slot, int(welded.max()) + 1, vertices, vertices.mean(0), areas
+        )
+        for link_type in (np.int32, np.int64):
+            link = np.empty(0, dtype=link_type)
+            arguments = (welded, table, slot, vertices, vertices.mean(0), areas, link)
+            first_copy, winding, *rest = _orient_patches(*arguments)
+            assert winding.dtype == link_type
+            # 2 * patch + relative winding, -1 off any patch: the reference's two arrays.
+            patch = np.where(winding < 0, -1, winding >> 1)
+            relative = np.where(winding < 0, 0, winding & 1).astype(np.int8)
+            got = (first_copy, patch, relative, *rest)
+            for ours, theirs in zip(got, expected, strict=True):
+                np.testing.assert_array_equal(ours, theirs)
 
 
 @pytest.mark.parametrize("seed", range(3))

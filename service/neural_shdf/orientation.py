@@ -145,7 +145,6 @@ def orient_faces(
         _, areas = face_normals(vertices, faces)
     areas = np.asarray(areas, dtype=np.float64)
     edge_table, slot = welded_edges(welded) if edges is None else edges
-    n_vertices = int(welded.max()) + 1
     (
         first_copy,
         winding,
@@ -157,7 +156,15 @@ def orient_faces(
         loops,
         non_manifold,
     ) = _orient_patches(
-        welded, edge_table, slot, n_vertices, vertices, _column_means(vertices), areas
+        welded,
+        edge_table,
+        slot,
+        vertices,
+        _column_means(vertices),
+        areas,
+        # The union-find's integers in 32 bits where the faces allow: half the memory its
+        # scattered loads and stores walk.
+        np.empty(0, dtype=np.int32 if 2 * count < 2**31 else np.int64),
     )
     ambiguous = (volume == 0) | (is_open & (np.abs(volume) < AMBIGUOUS_VOLUME * patch_area**1.5))
     # Where the volume cannot decide, the winding of most of the patch's area in the file.
@@ -339,7 +346,7 @@ def _find(parent: NDArray[np.int64], node: int) -> int:  # pragma: no cover - nu
 
 
 @kernel(inline=True)
-def _find_linked(link: NDArray[np.int64], node: int) -> tuple[int, int]:  # pragma: no cover
+def _find_linked(link: NDArray[np.integer[Any]], node: int) -> tuple[int, int]:  # pragma: no cover
     """(root, parity of ``node`` against it) in a union-find with parity packed as
     ``link[x] = 2 * parent + parity against the parent`` (one load per step); the path is
     pointed at the root."""
@@ -361,7 +368,7 @@ def _find_linked(link: NDArray[np.int64], node: int) -> tuple[int, int]:  # prag
 
 @kernel(inline=True)
 def _join_linked(  # pragma: no cover - numba
-    link: NDArray[np.int64], a: int, b: int, differ: int
+    link: NDArray[np.integer[Any]], a: int, b: int, differ: int
 ) -> None:
     """Put ``a`` and ``b`` in one set of ``_find_linked`` with parity(a) ^ parity(b) ==
     ``differ``, under the lower root (kept as found where they already share one: a
@@ -433,13 +440,13 @@ def _orient_patches(  # pragma: no cover
     faces: NDArray[np.int64],
     edge_table: NDArray[np.int64],
     slot: NDArray[np.int64],
-    n_vertices: int,
     vertices: NDArray[np.float64],
     centre: NDArray[np.float64],
     areas: NDArray[np.float64],
+    link_type: NDArray[np.integer[Any]],
 ) -> tuple[
     NDArray[np.int64],
-    NDArray[np.int64],
+    NDArray[np.integer[Any]],
     NDArray[np.float64],
     NDArray[np.bool_],
     NDArray[np.float64],
@@ -455,7 +462,8 @@ def _orient_patches(  # pragma: no cover
     Returns (first copy (F,) or -1, winding (F,): 2 * patch + relative flip, or -1
     (duplicates and collapsed faces), volume (P,), open (P,), area (P,), reversed area
     (P,), shells, boundary loops, non-manifold edges). ``edge_table, slot`` from
-    ``welded_edges``; ``areas`` (F,) the triangles' areas.
+    ``welded_edges``; ``areas`` (F,) the triangles' areas; ``link_type``: an empty array of
+    the integers of the union-find (which becomes the winding in place).
     """
     face_count = faces.shape[0]
     edge_count = edge_table.shape[0]
@@ -465,8 +473,14 @@ def _orient_patches(  # pragma: no cover
     # face's third vertex, off the edge.
     skip = np.zeros(face_count, dtype=np.bool_)
     entry = np.zeros(edge_count, dtype=np.uint8)
+    # Patches: a union-find over faces whose parity says whether a face is wound against
+    # its root (the patch's lowest face); joined across each manifold edge below.
+    link = np.empty(face_count, link_type.dtype)
+    top = -1  # the highest vertex: the edge keys are lo * (top + 1) + hi
     for face in range(face_count):
+        link[face] = 2 * face
         a, b, c = faces[face, 0], faces[face, 1], faces[face, 2]
+        top = max(top, a, b, c)
         if a == b or b == c or a == c:  # noqa: SIM109 - compiled
             skip[face] = True
             for corner in range(3):
@@ -476,11 +490,9 @@ def _orient_patches(  # pragma: no cover
         entry[slot[3 * face]] = (a < b) | _third_hash(c)
         entry[slot[3 * face + 1]] = (b < c) | _third_hash(a)
         entry[slot[3 * face + 2]] = (c < a) | _third_hash(b)
+    n_vertices = top + 1
     # Manifold edges link faces; boundary and non-manifold edges join loops to cap.
     first_copy = np.full(face_count, -1, dtype=np.int64)
-    # Patches: a union-find over faces whose parity says whether a face is wound against
-    # its root (the patch's lowest face); joined across each manifold edge.
-    link = 2 * np.arange(face_count)
     cut_start = np.empty(edge_count, dtype=np.int64)  # edges of one face, or of 3 or more
     cut_end = np.empty(edge_count, dtype=np.int64)
     cut_hole = np.empty(edge_count, dtype=np.bool_)  # of one face
@@ -656,7 +668,7 @@ def _orient_patches(  # pragma: no cover
 
 @kernel
 def _face_flips(  # pragma: no cover - numba
-    winding: NDArray[np.int64], patch_flip: NDArray[np.bool_]
+    winding: NDArray[np.integer[Any]], patch_flip: NDArray[np.bool_]
 ) -> NDArray[np.bool_]:
     """Per face (``winding``: 2 * patch + winding against the patch's root, -1 for faces of
     no patch): that winding, reversed where the patch is; False for faces of no patch

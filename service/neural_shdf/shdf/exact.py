@@ -133,18 +133,19 @@ def _face_tangents(
     offsets = np.empty((3, 3))
     squared = np.empty(3)
     for k in range(len(which)):
-        face = faces[which[k]]
+        # Indexed by row: a view of the row per face kept reference counting in the loop.
+        row = which[k]
         for i in range(3):
             # Offset of corner i from the centroid, from the two edges leaving it (no
             # cancellation far from the origin); squared length of the opposite edge.
             j, m = (i + 1) % 3, (i + 2) % 3
             length = 0.0
             for axis in range(3):
-                here = vertices[face[i], axis]
+                here = vertices[faces[row, i], axis]
                 offsets[i, axis] = (
-                    (here - vertices[face[j], axis]) + (here - vertices[face[m], axis])
+                    (here - vertices[faces[row, j], axis]) + (here - vertices[faces[row, m], axis])
                 ) / 3.0
-                edge = vertices[face[m], axis] - vertices[face[j], axis]
+                edge = vertices[faces[row, m], axis] - vertices[faces[row, j], axis]
                 length += edge * edge
             squared[i] = length
         mean = (squared[0] + squared[1] + squared[2]) / 3.0
@@ -163,7 +164,7 @@ def _face_tangents(
         if not norm > tolerance * scale:  # equilateral: the corner of smallest index
             first = 0
             for i in range(1, 3):
-                if face[i] < face[first]:
+                if faces[row, i] < faces[row, first]:
                     first = i
             norm = 0.0
             for axis in range(3):

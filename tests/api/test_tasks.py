@@ -176,6 +176,31 @@ def test_an_abandoned_shdf_request_is_cancelled_in_the_service(tmp_path):
         assert metric('neural_shdf_shdf_computations_total{method="exact"}') == 0
 
 
+def test_compute_once_can_store_on_the_io_pool_after_answering(tmp_path):
+    """``store_later``: the result is returned while its store still runs on an I/O
+    thread (a slider's new value does not wait for the cache write)."""
+    tasks = runner(tmp_path)
+    writing, finish, stored = threading.Event(), threading.Event(), []
+
+    def store(value: int, _: object) -> None:
+        writing.set()
+        finish.wait(30)
+        stored.append((value, threading.current_thread().name))
+
+    try:
+        value, cached = tasks.compute_once("m:x", lambda: None, lambda: 5, store, store_later=True)
+        assert (value, cached, stored) == (5, False, [])
+        assert writing.wait(30)
+        finish.set()
+        deadline = time.monotonic() + 30
+        while not stored and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert stored[0][0] == 5 and stored[0][1].startswith("io")
+    finally:
+        finish.set()
+        asyncio.run(tasks.close())
+
+
 def _refuse(found: int) -> None:
     from neural_shdf.errors import MeshTooLargeError
 

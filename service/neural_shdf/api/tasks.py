@@ -217,10 +217,13 @@ class TaskRunner:
         compute: Callable[[], T],
         store: Callable[[T, G | None], None],
         guard: Callable[[], G] | None = None,
+        *,
+        store_later: bool = False,
     ) -> tuple[T, bool]:
         """``ResultCache.compute_once`` within the lock timeout, stopping before it computes
-        if no request waits any more (it may have waited long for the lock). Blocking: call
-        it on the compute pool (``single_flight``)."""
+        if no request waits any more (it may have waited long for the lock). ``store_later``:
+        return the result first and store it on the I/O pool (the lock held until it is
+        stored). Blocking: call it on the compute pool (``single_flight``)."""
         return self.cache.compute_once(
             key,
             lookup,
@@ -229,7 +232,11 @@ class TaskRunner:
             wait_s=self.settings.lock_timeout_s,
             guard=guard,
             before_compute=checkpoint,
+            store_later=self._on_io_pool if store_later else None,
         )
+
+    def _on_io_pool(self, fn: Callable[[], None]) -> None:
+        self.io_executor.submit(fn)
 
     def spawn(self, coroutine: Coroutine[Any, Any, Any]) -> asyncio.Task[Any]:
         """Run ``coroutine`` in the background, kept alive until it ends or ``close``; it

@@ -201,6 +201,22 @@ def test_compute_once_can_store_on_the_io_pool_after_answering(tmp_path):
         asyncio.run(tasks.close())
 
 
+def test_a_store_still_queued_at_shutdown_runs_there(tmp_path):
+    """Closing the runner cancels what waits on the I/O pool; a queued store then runs
+    where it was cancelled, so its result lands and its lock is released."""
+    tasks = runner(tmp_path, io_threads=1)
+    busy, stored = threading.Event(), []
+    tasks.io_executor.submit(busy.wait, 30)  # the one I/O thread is taken
+    tasks.compute_once(
+        "m:x", lambda: None, lambda: 5, lambda value, _: stored.append(value), store_later=True
+    )
+    assert stored == []
+    asyncio.run(tasks.close())
+    busy.set()
+    assert stored == [5]
+    assert tasks.cache.backend.lease_holder("lock:m:x") is None
+
+
 def _refuse(found: int) -> None:
     from neural_shdf.errors import MeshTooLargeError
 

@@ -236,7 +236,10 @@ class TaskRunner:
         )
 
     def _on_io_pool(self, fn: Callable[[], None]) -> None:
-        self.io_executor.submit(fn)
+        """Run ``fn`` on the I/O pool; if shutting down cancels it first, where it was
+        cancelled (a store then still lands and its lock is released)."""
+        future = self.io_executor.submit(fn)
+        future.add_done_callback(lambda done: fn() if done.cancelled() else None)
 
     def spawn(self, coroutine: Coroutine[Any, Any, Any]) -> asyncio.Task[Any]:
         """Run ``coroutine`` in the background, kept alive until it ends or ``close``; it

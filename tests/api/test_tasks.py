@@ -14,7 +14,7 @@ import trimesh
 
 from neural_shdf.api.clients import Client, current_client
 from neural_shdf.api.errors import ApiError
-from neural_shdf.api.tasks import TaskRunner, checkpoint
+from neural_shdf.api.tasks import STORE_DELAY_S, TaskRunner, checkpoint
 from neural_shdf.store.backends import DiskBackend
 from neural_shdf.store.cache import ResultCache
 from tests.api.api_helpers import make_settings
@@ -176,9 +176,9 @@ def test_an_abandoned_shdf_request_is_cancelled_in_the_service(tmp_path):
         assert metric('neural_shdf_shdf_computations_total{method="exact"}') == 0
 
 
-def test_compute_once_can_store_on_the_io_pool_after_answering(tmp_path):
-    """``store_later``: the result is returned while its store still runs on an I/O
-    thread (a slider's new value does not wait for the cache write)."""
+def test_compute_once_can_store_on_the_store_thread_after_answering(tmp_path):
+    """``store_later``: the result is returned while its store still waits or runs on the
+    store thread (a slider's new value does not wait for the cache write)."""
     tasks = runner(tmp_path)
     writing, finish, stored = threading.Event(), threading.Event(), []
 
@@ -189,24 +189,26 @@ def test_compute_once_can_store_on_the_io_pool_after_answering(tmp_path):
 
     try:
         value, cached = tasks.compute_once("m:x", lambda: None, lambda: 5, store, store_later=True)
+        returned = time.monotonic()
         assert (value, cached, stored) == (5, False, [])
         assert writing.wait(30)
+        assert time.monotonic() - returned > STORE_DELAY_S / 2  # after the answer went out
         finish.set()
         deadline = time.monotonic() + 30
         while not stored and time.monotonic() < deadline:
             time.sleep(0.01)
-        assert stored[0][0] == 5 and stored[0][1].startswith("io")
+        assert stored[0][0] == 5 and stored[0][1].startswith("store")
     finally:
         finish.set()
         asyncio.run(tasks.close())
 
 
 def test_a_store_still_queued_at_shutdown_runs_there(tmp_path):
-    """Closing the runner cancels what waits on the I/O pool; a queued store then runs
+    """Closing the runner cancels what waits for the store thread; a queued store then runs
     where it was cancelled, so its result lands and its lock is released."""
-    tasks = runner(tmp_path, io_threads=1)
+    tasks = runner(tmp_path)
     busy, stored = threading.Event(), []
-    tasks.io_executor.submit(busy.wait, 30)  # the one I/O thread is taken
+    tasks.store_executor.submit(busy.wait, 30)  # the store thread is taken
     tasks.compute_once(
         "m:x", lambda: None, lambda: 5, lambda value, _: stored.append(value), store_later=True
     )

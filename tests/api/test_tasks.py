@@ -14,7 +14,7 @@ import trimesh
 
 from neural_shdf.api.clients import Client, current_client
 from neural_shdf.api.errors import ApiError
-from neural_shdf.api.tasks import TaskRunner, checkpoint
+from neural_shdf.api.tasks import STORE_DELAY_S, TaskRunner, checkpoint
 from neural_shdf.store.backends import DiskBackend
 from neural_shdf.store.cache import ResultCache
 from tests.api.api_helpers import make_settings
@@ -174,6 +174,49 @@ def test_an_abandoned_shdf_request_is_cancelled_in_the_service(tmp_path):
             assert time.monotonic() < deadline, "the abandoned computation was not cancelled"
             time.sleep(0.2)
         assert metric('neural_shdf_shdf_computations_total{method="exact"}') == 0
+
+
+def test_compute_once_can_store_on_the_store_thread_after_answering(tmp_path):
+    """``store_later``: the result is returned while its store still waits or runs on the
+    store thread (a slider's new value does not wait for the cache write)."""
+    tasks = runner(tmp_path)
+    writing, finish, stored = threading.Event(), threading.Event(), []
+
+    def store(value: int, _: object) -> None:
+        writing.set()
+        finish.wait(30)
+        stored.append((value, threading.current_thread().name))
+
+    try:
+        value, cached = tasks.compute_once("m:x", lambda: None, lambda: 5, store, store_later=True)
+        returned = time.monotonic()
+        assert (value, cached, stored) == (5, False, [])
+        assert writing.wait(30)
+        assert time.monotonic() - returned > STORE_DELAY_S / 2  # after the answer went out
+        finish.set()
+        deadline = time.monotonic() + 30
+        while not stored and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert stored[0][0] == 5 and stored[0][1].startswith("store")
+    finally:
+        finish.set()
+        asyncio.run(tasks.close())
+
+
+def test_a_store_still_queued_at_shutdown_runs_there(tmp_path):
+    """Closing the runner cancels what waits for the store thread; a queued store then runs
+    where it was cancelled, so its result lands and its lock is released."""
+    tasks = runner(tmp_path)
+    busy, stored = threading.Event(), []
+    tasks.store_executor.submit(busy.wait, 30)  # the store thread is taken
+    tasks.compute_once(
+        "m:x", lambda: None, lambda: 5, lambda value, _: stored.append(value), store_later=True
+    )
+    assert stored == []
+    asyncio.run(tasks.close())
+    busy.set()
+    assert stored == [5]
+    assert tasks.cache.backend.lease_holder("lock:m:x") is None
 
 
 def _refuse(found: int) -> None:

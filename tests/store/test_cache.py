@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -88,6 +89,62 @@ def test_compute_once_checks_before_computing(tmp_path):
     )  # fmt: skip
     assert (value, cached, stored) == (7, False, [(7, "guard")])
     assert cache.backend.lease_holder("lock:m:x") is None  # released
+
+
+def test_compute_once_can_store_after_returning_holding_the_lock(tmp_path):
+    """``store_later``: the result comes back before it is stored; the lock is held until
+    it is, so a caller waiting for it finds the stored result (no second computation); a
+    failing store is logged, the lock still released."""
+    cache = ResultCache(DiskBackend(tmp_path / "c", 10 * 1024**2), memory_items=0)
+    pending: list = []
+    computed = []
+
+    def compute() -> dict[str, np.ndarray]:
+        computed.append(1)
+        return {"v": np.arange(3)}
+
+    def store(value, _) -> None:
+        cache.put_arrays("m:x", value, group="m")
+
+    value, cached = cache.compute_once(
+        "m:x", lambda: cache.get_arrays("m:x"), compute, store, wait_s=30,
+        store_later=pending.append,
+    )  # fmt: skip
+    assert not cached and cache.get_arrays("m:x") is None  # returned, not stored yet
+    assert cache.backend.lease_holder("lock:m:x") is not None  # the store holds the lock
+    second: list = []
+    waiter = threading.Thread(
+        target=lambda: second.append(
+            cache.compute_once("m:x", lambda: cache.get_arrays("m:x"), compute, store, wait_s=30)
+        )
+    )
+    waiter.start()
+    time.sleep(0.2)
+    assert not second  # waits for the lock
+    pending.pop()()
+    waiter.join(30)
+    assert computed == [1] and second[0][1] is True
+    np.testing.assert_array_equal(second[0][0]["v"], value["v"])
+    assert cache.backend.lease_holder("lock:m:x") is None
+
+    def failing(*_) -> None:
+        raise OSError("disk full")
+
+    cache.compute_once(
+        "m:y", lambda: None, lambda: 1, failing, wait_s=5, store_later=pending.append
+    )
+    pending.pop()()  # logged, not raised
+    assert cache.backend.lease_holder("lock:m:y") is None
+
+    def refused(_) -> None:
+        raise RuntimeError("cannot schedule new futures after shutdown")
+
+    stored = []
+    cache.compute_once(
+        "m:z", lambda: None, lambda: 2, lambda *args: stored.append(args), wait_s=5,
+        store_later=refused,
+    )  # fmt: skip
+    assert stored == [(2, None)] and cache.backend.lease_holder("lock:m:z") is None
 
 
 def test_config_from_the_environment_then_overrides(tmp_path):

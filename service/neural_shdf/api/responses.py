@@ -99,17 +99,19 @@ def segmentation_response(
         "method": method,
         "faces": len(result.labels),
         "part_count": len(parts),
-        "labels_base64": result.labels_base64[0] if compact else None,
         "labels_dtype": result.labels_base64[1] if compact else None,
         "timings": timings,
     }
     if source_id is not None:
         body["source_id"] = source_id
     labels = "null" if compact else result.labels_json
+    # Base64 needs no JSON escaping: spliced in, not scanned by json.dumps (0.5-1 ms at 100k).
+    packed = f'"{result.labels_base64[0]}"' if compact else "null"
     hierarchy = (result if tree_of is None else tree_of).hierarchy_json(compact)
     rest = json.dumps(body, separators=(",", ":"))
     return Response(
-        f'{{"labels":{labels},"hierarchy":{hierarchy},"parts":{json_list(parts)},{rest[1:]}'.encode(),
+        f'{{"labels":{labels},"labels_base64":{packed},"hierarchy":{hierarchy},'
+        f'"parts":{json_list(parts)},{rest[1:]}'.encode(),
         media_type="application/json",
     )
 

@@ -80,13 +80,15 @@ class StoredSegmentation:
                     tree, self.leaf_labels, len(self.part_faces), as_arrays=True
                 )
                 packed = pack_integers(self.leaf_labels) if compact else (None, None)
-                document["leaf_labels_base64"], document["leaf_labels_dtype"] = packed
-                # The arrays (one per input face, two per leaf) a chunk at a time, the rest whole.
+                document["leaf_labels_dtype"] = packed[1]
+                # The arrays (one per input face, two per leaf) a chunk at a time, the rest whole;
+                # base64 needs no escaping: spliced in, not scanned by json.dumps.
                 arrays = {
                     key: "null" if compact and key == "leaf_labels" else json_array(values)
                     for key in ("leaf_labels", "parent", "merge_cost", "merge_height")
                     for values in (document.pop(key),)
                 }
+                arrays["leaf_labels_base64"] = f'"{packed[0]}"' if compact else "null"
                 rest = json.dumps(document, separators=(",", ":"))
                 members = "".join(f'"{key}":{text},' for key, text in arrays.items())
                 cached = "{" + members + rest[1:]
@@ -228,6 +230,21 @@ class SegmentationService:
         self.metrics.segment_seconds.observe(seconds)
         return summarize(mesh, segmentation, shdf, seconds)
 
+    def _compute_remembered(
+        self,
+        key: str,
+        mesh_id: str,
+        method: str,
+        mesh: TriangleMesh,
+        shdf: NDArray,
+        params: SegmentParams,
+    ) -> StoredSegmentation:
+        """``_compute``, the result remembered in memory at once (its store comes after the
+        answer: a request meanwhile finds it here)."""
+        result = self._compute(mesh_id, method, mesh, shdf, params)
+        self.cache.remember(key, result)
+        return result
+
     async def _recall_fresh(self, mesh_id: str, key: str) -> StoredSegmentation | None:
         """This process's memory of the result, unless the mesh was deleted meanwhile."""
         result = self.cache.recall(key)
@@ -266,10 +283,18 @@ class SegmentationService:
                         key,
                         functools.partial(self.cached, key),
                         functools.partial(
-                            self._compute, mesh_id, method, mesh, outcome.values, params
+                            self._compute_remembered,
+                            key,
+                            mesh_id,
+                            method,
+                            mesh,
+                            outcome.values,
+                            params,
                         ),
                         functools.partial(self._store, key, mesh_id),
                         functools.partial(self.meshes.guard, mesh_id),
+                        # The answer (a slider's new value) does not wait for the write.
+                        store_later=True,
                     ),
                 )
             )

@@ -28,6 +28,7 @@ import multiprocessing
 import os
 import pickle
 import threading
+import time
 from collections.abc import Awaitable, Callable, Coroutine
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -44,6 +45,11 @@ from neural_shdf.store.cache import ResultCache
 
 T = TypeVar("T")
 G = TypeVar("G")
+
+#: A result stored after its answer (``compute_once(store_later=True)``) is written this long
+#: after it went back: by then the answer is serialised and sent, which the write (framing,
+#: diskcache's Python around SQLite) would otherwise share the GIL and a core with.
+STORE_DELAY_S = 0.03
 
 
 class ComputationCancelled(Exception):  # noqa: N818 - a signal, raised at checkpoints
@@ -93,6 +99,8 @@ class TaskRunner:
         self.cache = cache
         self.executor = ThreadPoolExecutor(settings.compute_threads, thread_name_prefix="compute")
         self.io_executor = ThreadPoolExecutor(settings.io_threads, thread_name_prefix="io")
+        # Results stored after their answer (``compute_once(store_later=True)``), one at a time.
+        self.store_executor = ThreadPoolExecutor(1, thread_name_prefix="store")
         self._isolated: ProcessPoolExecutor | None = None
         self._isolated_lock = threading.Lock()
         self.share = settings.compute_share or max(1, settings.compute_threads - 1)
@@ -217,10 +225,13 @@ class TaskRunner:
         compute: Callable[[], T],
         store: Callable[[T, G | None], None],
         guard: Callable[[], G] | None = None,
+        *,
+        store_later: bool = False,
     ) -> tuple[T, bool]:
         """``ResultCache.compute_once`` within the lock timeout, stopping before it computes
-        if no request waits any more (it may have waited long for the lock). Blocking: call
-        it on the compute pool (``single_flight``)."""
+        if no request waits any more (it may have waited long for the lock). ``store_later``:
+        return the result first and store it on the store thread soon after (the lock held
+        until it is stored). Blocking: call it on the compute pool (``single_flight``)."""
         return self.cache.compute_once(
             key,
             lookup,
@@ -229,7 +240,20 @@ class TaskRunner:
             wait_s=self.settings.lock_timeout_s,
             guard=guard,
             before_compute=checkpoint,
+            store_later=self._store_soon if store_later else None,
         )
+
+    def _store_soon(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` (a store) on the store thread ``STORE_DELAY_S`` from now; if shutting
+        down cancels it first, where it was cancelled (it still lands, its lock released)."""
+        due = time.monotonic() + STORE_DELAY_S
+
+        def when_due() -> None:
+            time.sleep(max(0.0, due - time.monotonic()))
+            fn()
+
+        future = self.store_executor.submit(when_due)
+        future.add_done_callback(lambda done: fn() if done.cancelled() else None)
 
     def spawn(self, coroutine: Coroutine[Any, Any, Any]) -> asyncio.Task[Any]:
         """Run ``coroutine`` in the background, kept alive until it ends or ``close``; it
@@ -275,6 +299,7 @@ class TaskRunner:
             task.cancel()
         self.executor.shutdown(wait=False, cancel_futures=True)
         self.io_executor.shutdown(wait=False, cancel_futures=True)
+        self.store_executor.shutdown(wait=False, cancel_futures=True)
         if self._isolated is not None:
             self._isolated.shutdown(wait=False, cancel_futures=True)
 

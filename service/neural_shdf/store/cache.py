@@ -260,21 +260,41 @@ class ResultCache:
         wait_s: float,
         guard: Callable[[], G] | None = None,
         before_compute: Callable[[], None] = lambda: None,
+        store_later: Callable[[Callable[[], None]], None] | None = None,
     ) -> tuple[T, bool]:
         """Under the lock for ``key``: ``lookup`` again (another worker or replica may have
         finished meanwhile), else ``compute`` and ``store``. Returns (result, was cached).
         ``guard``: taken before computing (it raises when the mesh is gone) and handed to
         ``store``, which stores only while it still holds (deletion is final).
         ``before_compute``: runs once the lock is held and nothing was found (the service
-        checks there whether anyone still waits). Blocking."""
-        with self.lock(key, wait_s):
+        checks there whether anyone still waits). ``store_later``: runs a callable
+        elsewhere (a thread pool); then the result is returned before it is stored, and
+        the lock is held until it is (a worker waiting for it still finds the result), an
+        error of the store logged. Blocking."""
+        with contextlib.ExitStack() as held_lock:
+            held_lock.enter_context(self.lock(key, wait_s))
             found = lookup()
             if found is not None:
                 return found, True
             before_compute()
             held = guard() if guard is not None else None
             result = compute()
-            store(result, held)
+            if store_later is None:
+                store(result, held)
+                return result, False
+            release = held_lock.pop_all()  # the lock now goes with the store
+
+            def store_then_release() -> None:
+                with release:
+                    try:
+                        store(result, held)
+                    except Exception as exc:  # noqa: BLE001 - the result was served
+                        logger.warning("%s was not stored: %s", key, exc)
+
+            try:
+                store_later(store_then_release)
+            except Exception:  # noqa: BLE001 - nowhere to hand it (shutting down): store here
+                store_then_release()
             return result, False
 
     def health(self) -> tuple[bool, str]:

@@ -229,7 +229,9 @@ export function setUpEditing(page) {
         update();
         return;
       }
-      const tree = body.hierarchy && state.tree ? { tree: state.tree.tree, leafLabels: state.tree.leafLabels } : null;
+      // The leaves are decoded when an edit first needs them (state.tree decodes them once).
+      const kept = body.hierarchy ? state.tree : null;
+      const tree = kept ? { tree: kept.tree, get leafLabels() { return kept.leafLabels; } } : null;
       Object.assign(session, { base: { body, request, labels, tree }, edits: [], result: null });
       $('edit-status').textContent = '';
       update();

@@ -331,9 +331,16 @@ function keepTree(body, request) {
     return;
   }
   if (state.tree?.body === body) return;
-  const leafLabels = api.decodeLeafLabels(tree);
-  const sums = leafSums(tree.leaf_count, leafLabels, state.geometry, state.shdf);
-  state.tree = { tree, leafLabels, sums, body, request };
+  // The leaves are decoded and summed at the first cut of this tree, not for every answer:
+  // a new smoothing value is shown without them (two passes over the faces).
+  const { geometry, shdf } = state;
+  let leafLabels = null;
+  let sums = null;
+  state.tree = {
+    tree, body, request,
+    get leafLabels() { return (leafLabels ??= api.decodeLeafLabels(tree)); },
+    get sums() { return (sums ??= leafSums(tree.leaf_count, this.leafLabels, geometry, shdf)); },
+  };
   $('parts').max = String(Math.max(1, Math.min(tree.leaf_count, config.maxParts)));
   showValues();
 }

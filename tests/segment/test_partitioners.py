@@ -12,6 +12,7 @@ from neural_shdf.segment.partitioners import (
     Partitioning,
     cut_parts,
     part_count,
+    refit_key,
 )
 from neural_shdf.segment.parts import canonical_labels
 from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
@@ -92,3 +93,55 @@ def test_a_kept_basis_refits_a_collapse_once_with_the_labels_of_a_fresh_one(spik
     fresh = segment(mesh, values, params)
     assert np.array_equal(kept.labels, fresh.labels)
     assert np.array_equal(again.labels, fresh.labels)
+
+
+def partitioning(mesh, basis, params):
+    return Partitioning(
+        graph=mesh.face_graph,
+        basis=basis,
+        params=params,
+        smoothing=params.smoothing_for(mesh.face_count),
+        creases=mesh.crease_graph,
+        lap=lambda step: None,
+    )
+
+
+def test_a_collapse_that_smoothing_makes_is_not_solved_again():
+    mesh, shdf = dumbbell(4000)
+    mesh = TriangleMesh(np.asarray(mesh.vertices), np.asarray(mesh.faces))
+    params = SegmentParams(smoothing=2.0)  # high enough to merge the dumbbell into one part
+    basis = prepare_segment(mesh, shdf, params)
+    result = segment(mesh, shdf, params, basis=basis)
+    assert result.tree.leaf_count <= COLLAPSED_LEAVES
+    assert basis._widened is None  # the fit did not collapse at the default: no refit
+    assert basis.refit_wins == {refit_key(params): False}
+    assert np.array_equal(
+        result.tree.leaf_labels, canonical_labels(cut_parts(partitioning(mesh, basis, params)))
+    )
+
+
+def test_a_degenerate_fit_is_refitted_at_every_smoothing(spiked_dumbbell):
+    mesh, values = spiked_dumbbell
+    params = SegmentParams(smoothing=0.15)
+    fresh_basis = prepare_segment(mesh, values, params)
+    fresh = segment(mesh, values, params, basis=fresh_basis)  # decides at the default first
+    assert fresh_basis.refit_wins == {refit_key(params): True}
+    assert part_count(cut_parts(partitioning(mesh, fresh_basis, params))) == 1
+    assert fresh.part_count == 3  # the widened mixture's cut
+    kept = prepare_segment(mesh, values, SegmentParams())
+    segment(mesh, values, SegmentParams(), basis=kept)
+    assert np.array_equal(segment(mesh, values, params, basis=kept).labels, fresh.labels)
+    assert np.array_equal(segment(mesh, values, params).labels, fresh.labels)
+
+
+def test_the_refit_decision_holds_per_option_set(spiked_dumbbell):
+    mesh, values = spiked_dumbbell
+    basis = prepare_segment(mesh, values, SegmentParams())
+    segment(mesh, values, SegmentParams(smoothing=0.15), basis=basis)
+    segment(mesh, values, SegmentParams(smoothing=0.2, parts=2), basis=basis)
+    segment(mesh, values, SegmentParams(smoothing=0.2, crease_boundaries=False), basis=basis)
+    assert set(basis.refit_wins) == {
+        refit_key(SegmentParams()),
+        refit_key(SegmentParams(crease_boundaries=False)),
+    }
+    assert basis.with_mixture(basis.mixture).refit_wins == {}

@@ -49,6 +49,9 @@ class SegmentBasis:
     _cut: CutHierarchy | None = field(default=None, repr=False)
     #: ``widened``'s basis, with the minimum deviation it was fitted with.
     _widened: tuple[float, SegmentBasis] | None = field(default=None, repr=False)
+    #: Per options (``partitioners.refit_key``): whether at the default smoothing the cut
+    #: collapsed and the widened mixture's cut had more parts.
+    refit_wins: dict[SegmentParams, bool] = field(default_factory=dict, repr=False)
 
     def cut(self, graph: FaceGraph) -> CutHierarchy:
         """The graph cut's coarse graphs over ``graph`` (built once)."""
@@ -87,6 +90,7 @@ class SegmentBasis:
             data=data_costs(posteriors, self.geometry.face_weight),
             _cut=None,
             _widened=None,
+            refit_wins={},
         )
 
     def matches(self, params: SegmentParams, shdf: NDArray[Any]) -> bool:

@@ -84,14 +84,47 @@ def graph_cut_parts(work: Partitioning) -> NDArray[np.int64]:
     prefers the broad component nearly everywhere and the smoothness gives it every face
     (psb 141 with 10% of its faces removed from below, or its shells moved by 0.5%: one
     part, published three; docs/messy-meshes.md).
+
+    A high smoothing merges parts by design, so away from the default smoothing a collapse
+    is solved again only where the refit won at the default smoothing (decided once per
+    basis and options: ``refit_wins_at_default``): a fit that is not degenerate costs one
+    solve at every smoothing value.
     """
     parts = cut_parts(work)
     mixture = work.basis.mixture
     leaves = part_count(parts)
     if leaves > COLLAPSED_LEAVES or mixture.size <= COLLAPSED_LEAVES:
         return parts
+    default = default_smoothing(work)
+    if work.smoothing != default and not refit_wins_at_default(work, default):
+        return parts
     again = cut_parts(replace(work, basis=work.basis.widened(COLLAPSE_MIN_DEVIATION)))
-    return again if part_count(again) > leaves else parts
+    wins = part_count(again) > leaves
+    if work.smoothing == default:
+        work.basis.refit_wins[refit_key(work.params)] = wins
+    return again if wins else parts
+
+
+def default_smoothing(work: Partitioning) -> float:
+    """The smoothing lambda of the default ``SegmentParams.smoothing`` on this graph."""
+    return replace(work.params, smoothing=None).smoothing_for(work.graph.face_count)
+
+
+def refit_key(params: SegmentParams) -> SegmentParams:
+    """``params`` less what ``graph_cut_parts`` does not read (the smoothing and what
+    comes after the leaves): the options a refit decision at the default smoothing holds for."""
+    return replace(params, smoothing=None, parts=None, boundary_smoothing=False)
+
+
+def refit_wins_at_default(work: Partitioning, default: float) -> bool:
+    """Whether at the ``default`` smoothing the cut collapses and the refitted mixture's
+    cut has more parts (solved once per basis and options, then remembered)."""
+    key = refit_key(work.params)
+    wins = work.basis.refit_wins.get(key)
+    if wins is None:
+        graph_cut_parts(replace(work, smoothing=default))  # records a collapse's outcome
+        wins = work.basis.refit_wins.setdefault(key, False)
+    return wins
 
 
 def part_count(parts: NDArray[np.int64]) -> int:

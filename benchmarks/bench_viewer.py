@@ -1,6 +1,6 @@
 """Web viewer latency in real Chromium: slider release to new colours on screen.
 
-``python benchmarks/bench_viewer.py [--repeat 8] [--sizes 10000,100000] [--mesh NAME]
+``python benchmarks/bench_viewer.py [--repeat 14] [--sizes 10000,100000] [--mesh NAME]
 [--screenshot PNG] [--busy | --both]``
 
 Starts ``neural-shdf serve`` (temp cache) and headless Chromium (/usr/bin/chromium, WebGL on
@@ -93,7 +93,12 @@ def summary(values: list[float]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=8, help="slider releases per mesh")
+    parser.add_argument(
+        "--repeat",
+        type=int,
+        default=len(SMOOTHING_VALUES),
+        help="slider releases per mesh (default: every value, the slider's whole range)",
+    )
     parser.add_argument("--sizes", default="10000,100000")
     parser.add_argument(
         "--mesh",

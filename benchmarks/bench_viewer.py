@@ -156,6 +156,9 @@ def run(args: argparse.Namespace) -> None:
                 cold = [page.release_smoothing(value) for value in values]
                 service_cpu_ms = (cpu_seconds(pid) - cpu_before) * 1000 / args.repeat
                 warm = [page.release_smoothing(value) for value in values]
+                # Back to the first value (seen: the page's cache) so that the parts slider
+                # cuts a tree of several leaves (high smoothing leaves one or two).
+                page.release_smoothing(values[0])
                 leaves = page.js("return window.shdfViewer.state.body.hierarchy.leaf_count")
                 sent = segment_requests(page)
                 cuts = [

@@ -1,9 +1,10 @@
-"""The graph-cut partitioner: a cut that collapses into one part is solved again."""
+"""The graph-cut partitioner: a cut that collapses is solved again with a wider mixture."""
 
 import numpy as np
 import pytest
 
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.segment import partitioners
 from neural_shdf.segment.from_shdf import prepare_segment, segment
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.partitioners import (
@@ -106,40 +107,73 @@ def partitioning(mesh, basis, params):
     )
 
 
-def test_a_collapse_that_smoothing_makes_is_not_solved_again():
-    mesh, shdf = dumbbell(4000)
+@pytest.fixture(scope="module")
+def two_halves():
+    """A dumbbell whose ShDF is one noisy value on each half: two parts at every smoothing,
+    from a mixture of more components whose refit finds no more."""
+    mesh, _ = dumbbell(4000)
     mesh = TriangleMesh(np.asarray(mesh.vertices), np.asarray(mesh.faces))
-    params = SegmentParams(smoothing=2.0)  # high enough to merge the dumbbell into one part
-    basis = prepare_segment(mesh, shdf, params)
-    result = segment(mesh, shdf, params, basis=basis)
-    assert result.tree.leaf_count <= COLLAPSED_LEAVES
-    assert basis._widened is None  # the fit did not collapse at the default: no refit
-    assert basis.refit_wins == {refit_key(params): False}
-    assert np.array_equal(
-        result.tree.leaf_labels, canonical_labels(cut_parts(partitioning(mesh, basis, params)))
-    )
+    z = mesh.centroids[:, 2]
+    noise = np.random.default_rng(2).normal(size=len(z))
+    return mesh, np.clip(np.where(z < 0, 0.3, 0.7) + 0.05 * noise, 0.0, 1.0)
 
 
-def test_a_degenerate_fit_is_refitted_at_every_smoothing(spiked_dumbbell):
+def counted_cuts(monkeypatch):
+    """Calls of ``cut_parts`` (each one graph cut solved) while the test runs."""
+    calls = []
+
+    def counting(work):
+        calls.append(work.smoothing)
+        return cut_parts(work)
+
+    monkeypatch.setattr(partitioners, "cut_parts", counting)
+    return calls
+
+
+def test_two_parts_that_smoothing_makes_are_cut_once(two_halves, monkeypatch):
+    mesh, values = two_halves
+    basis = prepare_segment(mesh, values, SegmentParams())
+    segment(mesh, values, SegmentParams(), basis=basis)  # collapses at the default: refitted
+    assert basis.refit_wins == {refit_key(SegmentParams()): False}  # into no more parts
+    calls = counted_cuts(monkeypatch)
+    params = SegmentParams(smoothing=1.0)
+    result = segment(mesh, values, params, basis=basis)
+    assert calls == [params.smoothing_for(mesh.face_count)]  # one cut, not solved again
+    assert result.tree.leaf_count == 2
+    fresh = prepare_segment(mesh, values, params)
+    assert np.array_equal(segment(mesh, values, params, basis=fresh).labels, result.labels)
+    assert fresh.refit_wins == basis.refit_wins  # decided at the default on first use
+
+
+def test_two_parts_are_cut_again_where_the_refit_won_at_the_default(two_halves, monkeypatch):
+    mesh, values = two_halves
+    basis = prepare_segment(mesh, values, SegmentParams())
+    basis.refit_wins[refit_key(SegmentParams())] = True  # as a degenerate fit's basis has it
+    calls = counted_cuts(monkeypatch)
+    segment(mesh, values, SegmentParams(smoothing=1.0), basis=basis)
+    assert len(calls) == 2 and basis._widened is not None
+
+
+def test_one_part_is_cut_again_at_any_smoothing(spiked_dumbbell, monkeypatch):
     mesh, values = spiked_dumbbell
     params = SegmentParams(smoothing=0.15)
-    fresh_basis = prepare_segment(mesh, values, params)
-    fresh = segment(mesh, values, params, basis=fresh_basis)  # decides at the default first
-    assert fresh_basis.refit_wins == {refit_key(params): True}
-    assert part_count(cut_parts(partitioning(mesh, fresh_basis, params))) == 1
-    assert fresh.part_count == 3  # the widened mixture's cut
-    kept = prepare_segment(mesh, values, SegmentParams())
-    segment(mesh, values, SegmentParams(), basis=kept)
-    assert np.array_equal(segment(mesh, values, params, basis=kept).labels, fresh.labels)
-    assert np.array_equal(segment(mesh, values, params).labels, fresh.labels)
+    basis = prepare_segment(mesh, values, params)
+    work = partitioning(mesh, basis, params)
+    assert part_count(cut_parts(work)) == 1
+    calls = counted_cuts(monkeypatch)
+    result = segment(mesh, values, params, basis=basis)
+    assert len(calls) == 2 and basis.refit_wins == {}  # the default not consulted
+    assert result.part_count == 3  # the widened mixture's cut
+    monkeypatch.undo()
+    assert np.array_equal(segment(mesh, values, params).labels, result.labels)
 
 
-def test_the_refit_decision_holds_per_option_set(spiked_dumbbell):
-    mesh, values = spiked_dumbbell
+def test_the_refit_decision_holds_per_option_set(two_halves):
+    mesh, values = two_halves
     basis = prepare_segment(mesh, values, SegmentParams())
-    segment(mesh, values, SegmentParams(smoothing=0.15), basis=basis)
-    segment(mesh, values, SegmentParams(smoothing=0.2, parts=2), basis=basis)
-    segment(mesh, values, SegmentParams(smoothing=0.2, crease_boundaries=False), basis=basis)
+    segment(mesh, values, SegmentParams(smoothing=1.0), basis=basis)
+    segment(mesh, values, SegmentParams(smoothing=2.0, parts=1), basis=basis)
+    segment(mesh, values, SegmentParams(smoothing=2.0, crease_boundaries=False), basis=basis)
     assert set(basis.refit_wins) == {
         refit_key(SegmentParams()),
         refit_key(SegmentParams(crease_boundaries=False)),

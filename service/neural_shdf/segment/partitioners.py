@@ -85,10 +85,11 @@ def graph_cut_parts(work: Partitioning) -> NDArray[np.int64]:
     (psb 141 with 10% of its faces removed from below, or its shells moved by 0.5%: one
     part, published three; docs/messy-meshes.md).
 
-    A high smoothing merges parts by design, so away from the default smoothing a collapse
-    is solved again only where the refit won at the default smoothing (decided once per
-    basis and options: ``refit_wins_at_default``): a fit that is not degenerate costs one
-    solve at every smoothing value.
+    A high smoothing merges parts by design, so away from the default smoothing a cut into
+    two parts is solved again only where the refit won at the default smoothing (decided
+    once per basis and options: ``refit_wins_at_default``); one part is solved again at any
+    smoothing (a fit degenerate at that smoothing only: psb 141 at 0.3, one part, five
+    with the refit). Two parts from a fit that is not degenerate cost one solve.
     """
     parts = cut_parts(work)
     mixture = work.basis.mixture
@@ -96,7 +97,7 @@ def graph_cut_parts(work: Partitioning) -> NDArray[np.int64]:
     if leaves > COLLAPSED_LEAVES or mixture.size <= COLLAPSED_LEAVES:
         return parts
     default = default_smoothing(work)
-    if work.smoothing != default and not refit_wins_at_default(work, default):
+    if leaves > 1 and work.smoothing != default and not refit_wins_at_default(work, default):
         return parts
     again = cut_parts(replace(work, basis=work.basis.widened(COLLAPSE_MIN_DEVIATION)))
     wins = part_count(again) > leaves

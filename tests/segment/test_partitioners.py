@@ -174,6 +174,7 @@ def test_the_refit_decision_holds_per_option_set(two_halves):
     segment(mesh, values, SegmentParams(smoothing=1.0), basis=basis)
     segment(mesh, values, SegmentParams(smoothing=2.0, parts=1), basis=basis)
     segment(mesh, values, SegmentParams(smoothing=2.0, crease_boundaries=False), basis=basis)
+    segment(mesh, values, SegmentParams(smoothing=2.0, partitioner="metis"), basis=basis)
     assert set(basis.refit_wins) == {
         refit_key(SegmentParams()),
         refit_key(SegmentParams(crease_boundaries=False)),

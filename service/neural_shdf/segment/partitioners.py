@@ -114,7 +114,9 @@ def default_smoothing(work: Partitioning) -> float:
 def refit_key(params: SegmentParams) -> SegmentParams:
     """``params`` less what ``graph_cut_parts`` does not read (the smoothing and what
     comes after the leaves): the options a refit decision at the default smoothing holds for."""
-    return replace(params, smoothing=None, parts=None, boundary_smoothing=False)
+    return replace(
+        params, partitioner="graphcut", smoothing=None, parts=None, boundary_smoothing=False
+    )
 
 
 def refit_wins_at_default(work: Partitioning, default: float) -> bool:

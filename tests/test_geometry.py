@@ -12,6 +12,7 @@ from neural_shdf.geometry import (
     EDGE_CLIQUE,
     build_face_graph,
     count_zero_rows,
+    face_adjacency,
     face_normals,
     grid_cells,
     midpoint_subdivide,
@@ -224,6 +225,45 @@ def test_kernels_match_a_plain_computation_on_messy_meshes(seed):
         clear = np.abs(table[:, 2]) > 1e-9
         np.testing.assert_array_equal(graph.concave[clear], table[clear, 2] > 0)
         assert graph.face_count == len(faces)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_the_face_links_are_the_same_for_every_winding(seed):
+    """``face_adjacency`` can run before the orientation is known: rows listed backwards
+    (any subset, degenerate rows and edges of many faces included) give the same arrays."""
+    vertices, faces = _messy_mesh(seed)
+    rng = np.random.default_rng(100 + seed)
+    # an edge of more than EDGE_CLIQUE faces, so the chained links are covered too
+    faces = np.concatenate(
+        [
+            faces,
+            np.column_stack(
+                [
+                    np.zeros(EDGE_CLIQUE + 3, int),
+                    np.ones(EDGE_CLIQUE + 3, int),
+                    rng.integers(2, len(vertices), EDGE_CLIQUE + 3),
+                ]
+            ),
+        ]
+    )
+    pairs, edge_vertices = face_adjacency(faces)
+    flipped = rng.random(len(faces)) < 0.5
+    rewound = np.where(flipped[:, None], faces[:, ::-1], faces)
+    rolled = np.roll(rewound, int(rng.integers(1, 3)), axis=1)  # other first corners too
+    for other in (rewound, rolled):
+        other_pairs, other_edge_vertices = face_adjacency(other)
+        np.testing.assert_array_equal(other_pairs, pairs)
+        np.testing.assert_array_equal(other_edge_vertices, edge_vertices)
+        normals, _ = face_normals(vertices, other)
+        given = build_face_graph(vertices, other, normals, adjacency=(pairs, edge_vertices))
+        afresh = build_face_graph(vertices, other, normals)
+        for name in ("pairs", "edge_vertices", "edge_length", "dihedral", "concave"):
+            np.testing.assert_array_equal(getattr(given, name), getattr(afresh, name))
+
+
+def test_face_links_refuse_negative_indices():
+    with pytest.raises(IndexError):
+        face_adjacency(np.array([[0, 1, -1]]))
 
 
 def test_kernels_handle_a_high_valence_hub_and_an_edge_of_many_faces():

@@ -233,6 +233,9 @@ def test_the_face_graph_from_the_shared_edges_is_the_one_built_afresh():
     )
     for name in ("pairs", "edge_vertices", "edge_length", "dihedral", "concave"):
         np.testing.assert_array_equal(getattr(shared, name), getattr(afresh, name))
+    # the links were worked out beside the pass, on the file's winding, and shared
+    assert oriented.face_adjacency is variant.face_adjacency
+    assert shared.pairs is variant.face_adjacency[0]
 
 
 def test_caps_close_each_hole_facing_outward():

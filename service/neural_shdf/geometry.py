@@ -285,6 +285,7 @@ def build_face_graph(
     normals: NDArray[Any] | None = None,
     *,
     edges: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None,
+    adjacency: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None,
 ) -> FaceGraph:
     """Face adjacency over shared edges.
 
@@ -296,7 +297,8 @@ def build_face_graph(
     Edges are found by vertex index, so callers that want welding must weld first.
     Two faces that share several edges are linked once, through the edge shared by
     the fewest faces (ties: the lowest vertex pair). ``edges``: ``_sorted_edges`` of
-    ``faces`` where the caller has them (``orientation.welded_edges``).
+    ``faces`` where the caller has them (``orientation.welded_edges``); ``adjacency``:
+    ``face_adjacency(faces)`` where the caller has it (of these faces in any winding).
     """
     vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
     faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
@@ -308,11 +310,26 @@ def build_face_graph(
         return FaceGraph(empty, empty, np.zeros(0), np.zeros(0), np.zeros(0, bool), 0)
     _check_indices(faces, len(vertices))
     normals = np.ascontiguousarray(normals, dtype=np.float64).reshape(n_faces, 3)
-    n_vertices = int(faces.max()) + 1
-    edge_table, slot = _sorted_edges(faces, n_vertices) if edges is None else edges
-    pairs, edge_vertices = _adjacent_pairs(faces, edge_table, slot, n_vertices, EDGE_CLIQUE)
+    pairs, edge_vertices = face_adjacency(faces, edges) if adjacency is None else adjacency
     edge_length, dihedral, concave = _pair_geometry(vertices, faces, normals, pairs, edge_vertices)
     return FaceGraph(pairs, edge_vertices, edge_length, dihedral, concave, n_faces)
+
+
+def face_adjacency(
+    faces: NDArray[Any], edges: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """``(pairs, edge_vertices)`` of ``build_face_graph``: the faces linked over shared
+    edges and the edge each link crosses. The same arrays for any winding of the faces
+    (the links depend on which vertices a face has, not their order), so they can be
+    worked out before the orientation is known. ``edges`` as in ``build_face_graph``."""
+    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(faces) == 0:
+        empty = np.zeros((0, 2), dtype=np.int64)
+        return empty, empty.copy()
+    n_vertices = int(faces.max()) + 1
+    _check_indices(faces, n_vertices)  # no negative index reaches the kernels
+    edge_table, slot = _sorted_edges(faces, n_vertices) if edges is None else edges
+    return _adjacent_pairs(faces, edge_table, slot, n_vertices, EDGE_CLIQUE)
 
 
 def _check_indices(faces: NDArray[np.int64], vertex_count: int) -> None:

@@ -4,6 +4,7 @@ trimesh caches its properties) and its link back to the input file's faces."""
 from __future__ import annotations
 
 import hashlib
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any
@@ -15,6 +16,7 @@ from neural_shdf.geometry import (
     FaceGraph,
     build_face_graph,
     count_zero_rows,
+    face_adjacency,
     face_centroids,
     face_normals,
     principal_frame,
@@ -162,20 +164,34 @@ class TriangleMesh:
         return seeded if seeded is not None else sorted_welded_edges(welded)
 
     @cached_property
+    def face_adjacency(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """The links of ``face_graph`` (``geometry.face_adjacency`` of ``welded_faces``):
+        the same for every winding, so ``oriented`` shares them."""
+        pairs, edge_vertices = face_adjacency(self.welded_faces, self.welded_edges)
+        pairs.flags.writeable = False
+        edge_vertices.flags.writeable = False
+        return pairs, edge_vertices
+
+    @cached_property
     def orientation(self) -> Orientation:
         """Which triangles to reverse so that every shell faces out of its solid (shells
         stitched together out of theirs: ``stitching.orient_stitched_shells``), and what the
         pass found in the mesh (``orientation.orient_faces``); computed once per mesh."""
         coincident, edges = self.coincident_welding
         normals, areas = self.normals_and_areas
-        alone = orient_faces(
-            self.vertices,
-            self.faces,
-            welded=coincident,
-            areas=areas,
-            edges=edges,
-            degenerate=count_zero_rows(normals),
-        )
+        # The face graph's links do not depend on the winding: they are worked out beside
+        # the pass (both kernels release the GIL), which then adds little to the wall time.
+        with ThreadPoolExecutor(max_workers=1) as beside:
+            adjacency = beside.submit(lambda: self.face_adjacency)
+            alone = orient_faces(
+                self.vertices,
+                self.faces,
+                welded=coincident,
+                areas=areas,
+                edges=edges,
+                degenerate=count_zero_rows(normals),
+            )
+            adjacency.result()
         # Shells stitched together face out of the solid they make together.
         flips = orient_stitched_shells(
             self.vertices,
@@ -238,8 +254,8 @@ class TriangleMesh:
         oriented = TriangleMesh(self.vertices, faces, self.face_origin, self.input_face_count)
         normals.flags.writeable = False
         welded.flags.writeable = False
-        # Seed the caches: the areas, the welding, the edges and the degenerate limit do not
-        # change with the winding.
+        # Seed the caches: the areas, the welding, the edges, the face links and the degenerate
+        # limit do not change with the winding.
         oriented_edges = (edge_table, oriented_slot)
         if oriented_coincident is not welded:
             coincident_table, coincident_slot = coincident_edges
@@ -252,6 +268,7 @@ class TriangleMesh:
             coincident_welding=(oriented_coincident, coincident_edges),
             welded_faces=welded,
             welded_edges=oriented_edges,
+            face_adjacency=self.face_adjacency,
         )
         oriented.__dict__["oriented"] = oriented
         return oriented
@@ -294,7 +311,9 @@ class TriangleMesh:
             return oriented.face_graph
         normals, _ = self.normals_and_areas
         welded = self.welded_faces
-        graph = build_face_graph(self.vertices, welded, normals, edges=self.welded_edges)
+        graph = build_face_graph(
+            self.vertices, welded, normals, edges=self.welded_edges, adjacency=self.face_adjacency
+        )
         coincident, _ = self.coincident_welding
         if coincident is welded:
             return graph

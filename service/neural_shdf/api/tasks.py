@@ -385,8 +385,9 @@ def _end_with_parent(parent_pid: int) -> None:
         # The kernel sends SIGKILL at once, even while a call holds the GIL. Strictly it
         # follows the parent's thread that started the worker: a compute thread, which
         # lives until the compute pool shuts down (when the worker is ended anyway).
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+        with contextlib.suppress(OSError, AttributeError):  # no prctl: the thread below
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
     _exit_when_orphaned(parent_pid)
 
 

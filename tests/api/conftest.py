@@ -92,7 +92,12 @@ def running_server(
     finally:
         if process.poll() is None:
             process.terminate()
-            process.wait(timeout=30)
+            try:  # uvicorn lets requests in flight finish for up to 10 s
+                process.wait(timeout=30)
+            except subprocess.TimeoutExpired:  # report it, without leaving the server running
+                process.kill()
+                process.wait()
+                raise
         if log is not None:
             log.close()
 

@@ -1,24 +1,33 @@
-"""The task runner: work no one waits for stops at its next checkpoint, and one client's
-requests (abandoned or not) never hold every compute thread."""
+"""The task runner: work no one waits for stops at its next checkpoint, one client's
+requests (abandoned or not) never hold every compute thread, and its worker process never
+outlives it."""
 
 from __future__ import annotations
 
 import asyncio
+import os
+import subprocess
+import sys
 import threading
 import time
+from collections.abc import Iterable
 from pathlib import Path
 
 import httpx
+import psutil
 import pytest
 import trimesh
 
 from neural_shdf.api.clients import Client, current_client
 from neural_shdf.api.errors import ApiError
 from neural_shdf.api.tasks import STORE_DELAY_S, TaskRunner, checkpoint
+from neural_shdf.client import Client as ServiceClient
 from neural_shdf.store.backends import DiskBackend
 from neural_shdf.store.cache import ResultCache
-from tests.api.api_helpers import make_settings
+from tests.api.api_helpers import make_settings, quad_dumbbell_obj
 from tests.api.conftest import running_server
+
+REPOSITORY = Path(__file__).resolve().parents[2]
 
 
 class FakePeer:
@@ -307,3 +316,152 @@ def test_a_dead_worker_process_is_a_503_and_the_next_call_starts_a_new_one(tmp_p
         assert tasks.isolated(os.getpid) not in (first, os.getpid())
     finally:
         asyncio.run(tasks.close())
+
+
+def _alive(process: psutil.Process) -> bool:
+    try:
+        return process.is_running() and process.status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
+def _still_alive(processes: Iterable[psutil.Process], within_s: float = 5.0) -> list[int]:
+    """The pids of ``processes`` still alive after up to ``within_s``; those are then
+    killed, so that a failing test leaves nothing behind either."""
+    processes = list(processes)
+    deadline = time.monotonic() + within_s
+    while any(_alive(p) for p in processes) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    alive = [p for p in processes if _alive(p)]
+    for process in alive:
+        process.kill()
+    return [p.pid for p in alive]
+
+
+def _mark_then_sleep(mark: str, seconds: float) -> None:
+    Path(mark).touch()
+    time.sleep(seconds)
+
+
+def test_closing_ends_the_worker_process_even_mid_call(tmp_path):
+    """``close`` ends the isolated worker while it computes: asked to exit through its pool,
+    it would only read that once its call returned, and only if this process still ran."""
+    tasks = runner(tmp_path)
+    worker = psutil.Process(tasks.isolated(os.getpid))
+    mark, answers = tmp_path / "started", []
+
+    def busy() -> None:
+        try:
+            tasks.isolated(_mark_then_sleep, str(mark), 60)
+        except ApiError as exc:
+            answers.append(exc.code)
+
+    call = threading.Thread(target=busy)
+    call.start()
+    try:
+        deadline = time.monotonic() + 30
+        while not mark.exists() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert mark.exists()
+        asyncio.run(tasks.close())
+    finally:
+        leftover = _still_alive([worker])
+    call.join(10)
+    assert leftover == []
+    assert answers == ["shutting_down"]
+    with pytest.raises(ApiError) as raised:  # no new worker after close
+        tasks.isolated(os.getpid)
+    assert raised.value.status_code == 503 and raised.value.code == "shutting_down"
+
+
+def _server_process(base: str) -> psutil.Process:
+    """The `neural-shdf serve` process (a child of this one) listening at ``base``."""
+    port = base.rsplit(":", 1)[1]
+    for child in psutil.Process().children():
+        with_port = child.environ().get("NEURAL_SHDF_PORT") == port
+        if with_port and "neural_shdf.api.serve" in child.cmdline():
+            return child
+    raise AssertionError(f"no server process on port {port}")
+
+
+def test_a_stopped_service_leaves_no_process_behind(tmp_path):
+    """A real `neural-shdf serve` stopped with SIGTERM (as a container stop, systemd and the
+    test fixtures do) while its worker process packs an atlas leaves no process behind.
+    uvicorn re-raises the SIGTERM once its own shutdown is done, which ends the server
+    without the clean-up that would tell its pool's worker (and the resource tracker that
+    waits on it) to exit."""
+    data = quad_dumbbell_obj(rings=12, sectors=8)
+    with running_server(tmp_path / "cache", sync_face_threshold=10, warm_up=False) as base:
+        server = _server_process(base)
+        with ServiceClient(base, progress=False) as client:
+            mesh_id = client.upload(data, file_type="obj").mesh_id  # its ShDF job, waited for
+        # An 8192-texel atlas: xatlas packs for seconds in the worker process, as a job.
+        query = {"clusters": 3, "atlas_size": 8192}
+        url = f"{base}/v1/meshes/{mesh_id}/segmentation/uvs"
+        assert httpx.get(url, params=query, timeout=60).status_code == 202
+        deadline = time.monotonic() + 120
+        worker, used = None, 0.0
+        while worker is None or sum(worker.cpu_times()[:2]) < used + 1.0:
+            assert time.monotonic() < deadline, "the worker process never got busy"
+            if worker is None:
+                workers = [p for p in server.children() if "spawn_main" in " ".join(p.cmdline())]
+                if workers:
+                    worker, used = workers[0], sum(workers[0].cpu_times()[:2])
+            time.sleep(0.1)
+        started = server.children(recursive=True)  # the worker and the resource tracker
+    assert not _alive(server)
+    assert _still_alive(started) == []
+
+
+#: Scripts that start a worker process, print its pid, then keep it busy for a minute.
+SERVICE_WORKER = """
+import os, sys, time
+from pathlib import Path
+from neural_shdf.api.tasks import TaskRunner
+from neural_shdf.store.backends import DiskBackend
+from neural_shdf.store.cache import ResultCache
+from tests.api.api_helpers import make_settings
+cache = Path(sys.argv[1])
+tasks = TaskRunner(make_settings(cache), ResultCache(DiskBackend(cache, 2**30)))
+print(tasks.isolated(os.getpid), flush=True)
+tasks.isolated(time.sleep, 60)
+"""
+WATCH_ONLY_WORKER = """
+import multiprocessing, os, time
+from concurrent.futures import ProcessPoolExecutor
+from neural_shdf.api.tasks import _exit_when_orphaned
+spawn = multiprocessing.get_context("spawn")
+pool = ProcessPoolExecutor(1, spawn, initializer=_exit_when_orphaned, initargs=(os.getpid(),))
+print(pool.submit(os.getpid).result(), flush=True)
+pool.submit(time.sleep, 60).result()
+"""
+
+
+@pytest.mark.parametrize(
+    "script", [SERVICE_WORKER, WATCH_ONLY_WORKER], ids=["service-worker", "portable-watch"]
+)
+def test_a_worker_process_ends_with_its_killed_parent(tmp_path, script):
+    """SIGKILL (the OOM killer, a container stop) runs no clean-up in the parent: the
+    worker ends by itself, by the kernel's parent-death signal (Linux) or, anywhere, its
+    thread that watches the parent."""
+    env = dict(
+        os.environ, PYTHONPATH=os.pathsep.join([str(REPOSITORY / "service"), str(REPOSITORY)])
+    )
+    parent = subprocess.Popen(
+        [sys.executable, "-c", script, str(tmp_path / "cache")],
+        stdout=subprocess.PIPE,
+        env=env,
+        cwd=REPOSITORY,
+    )
+    assert parent.stdout is not None
+    try:
+        worker = psutil.Process(int(parent.stdout.readline()))
+        assert worker.ppid() == parent.pid
+        parent.kill()
+        parent.wait(10)
+        assert _still_alive([worker]) == []
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait()
+        parent.stdout.close()  # never read to its end: the worker shares it while alive

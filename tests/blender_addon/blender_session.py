@@ -11,6 +11,7 @@ import contextlib
 import importlib
 import json
 import os
+import shutil
 import sys
 import tempfile
 import time
@@ -379,4 +380,6 @@ if __name__ == "__main__":
         status = 1
     sys.stdout.flush()
     sys.stderr.flush()
+    # Blender's exit removes its session's temporary folder (blender_XXXXXX); skipped, so here.
+    shutil.rmtree(bpy.app.tempdir, ignore_errors=True)
     os._exit(status)  # Blender's own exit may hang or report leaks; the records are written

@@ -68,7 +68,13 @@ def run_blender(
         folder = tmp_path_factory.mktemp("blender")
         spec, out = folder / "spec.json", folder / "out.json"
         spec.write_text(json.dumps({"zip": str(addon_zip), "steps": steps}))
-        env = {**os.environ, "BLENDER_USER_RESOURCES": str(folder / "user")}
+        # Blender's temporary files (its session folder among them) under this test's folder.
+        (folder / "tmp").mkdir()
+        env = {
+            **os.environ,
+            "BLENDER_USER_RESOURCES": str(folder / "user"),
+            "TMPDIR": str(folder / "tmp"),
+        }
         done = subprocess.run(
             [interpreter, str(SESSION_SCRIPT), str(spec), str(out)],
             env=env,
@@ -77,6 +83,8 @@ def run_blender(
             timeout=timeout_s,
         )
         assert done.returncode == 0 and out.is_file(), done.stdout[-3000:] + done.stderr[-3000:]
+        left = [path.name for path in (folder / "tmp").iterdir()]
+        assert not left, f"the Blender session left temporary files: {left}"
         return json.loads(out.read_text())
 
     return run

@@ -23,17 +23,21 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import contextvars
+import ctypes
 import functools
 import multiprocessing
 import os
 import pickle
+import signal
+import sys
 import threading
 import time
 from collections.abc import Awaitable, Callable, Coroutine
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from multiprocessing import shared_memory
+from multiprocessing.process import BaseProcess
 from typing import Any, TypeVar
 
 import numpy as np
@@ -50,6 +54,12 @@ G = TypeVar("G")
 #: after it went back: by then the answer is serialised and sent, which the write (framing,
 #: diskcache's Python around SQLite) would otherwise share the GIL and a core with.
 STORE_DELAY_S = 0.03
+
+#: How often the worker process checks that the service process that started it still runs
+#: (where the kernel cannot tell it, or it missed the moment); and how long ``close`` lets a
+#: worker take to end after SIGTERM before it sends SIGKILL.
+PARENT_POLL_S = 0.5
+WORKER_STOP_S = 2.0
 
 
 class ComputationCancelled(Exception):  # noqa: N818 - a signal, raised at checkpoints
@@ -103,6 +113,7 @@ class TaskRunner:
         self.store_executor = ThreadPoolExecutor(1, thread_name_prefix="store")
         self._isolated: ProcessPoolExecutor | None = None
         self._isolated_lock = threading.Lock()
+        self._closed = False  # no new worker process once closed
         self.share = settings.compute_share or max(1, settings.compute_threads - 1)
         self._inflight: dict[str, Flight] = {}
         self._shares: dict[str, asyncio.Semaphore] = {}
@@ -270,26 +281,32 @@ class TaskRunner:
         """``function(*args)`` in a worker process (started on first use, then kept), for
         library code that holds the GIL for seconds (xatlas's packing): in a thread it
         would stall the event loop, and with it every other request. Arguments and result
-        are pickled; so are the project's exceptions. Blocking: call it on the compute pool."""
+        are pickled; so are the project's exceptions. Blocking: call it on the compute pool
+        (on Linux the worker dies with the thread that started it; the pool's threads live
+        until ``close``, which ends the worker, and the worker ends with this process however
+        it dies)."""
         with self._isolated_lock:
+            if self._closed:
+                raise _shutting_down()
             if self._isolated is None:
-                # spawn: forking a process whose threads hold locks can deadlock the child
-                context = multiprocessing.get_context("spawn")
-                self._isolated = ProcessPoolExecutor(max_workers=1, mp_context=context)
+                self._isolated = _worker_pool()
             pool = self._isolated
         try:
             shared = _SharedArguments.fitting(args)
             if shared is None:  # no room in /dev/shm (a container's default is 64 MB)
-                return pool.submit(function, *args).result()
+                return _submit(pool, function, *args).result()
             with shared:
                 payload, block_name, sizes = shared.handle
-                future = pool.submit(_call_with_shared, function, payload, block_name, sizes)
+                future = _submit(pool, _call_with_shared, function, payload, block_name, sizes)
                 return future.result()
         except BrokenProcessPool:
-            # The worker died (killed for memory, say): the next call starts a new one.
+            # The worker died (killed for memory, or ended by ``close``): the next call
+            # starts a new one.
             with self._isolated_lock:
                 if self._isolated is pool:
                     self._isolated = None
+                if self._closed:
+                    raise _shutting_down() from None
             raise ApiError(
                 503, "worker_lost", "the worker process died during this request; retry it"
             ) from None
@@ -300,8 +317,93 @@ class TaskRunner:
         self.executor.shutdown(wait=False, cancel_futures=True)
         self.io_executor.shutdown(wait=False, cancel_futures=True)
         self.store_executor.shutdown(wait=False, cancel_futures=True)
-        if self._isolated is not None:
-            self._isolated.shutdown(wait=False, cancel_futures=True)
+        with self._isolated_lock:
+            self._closed = True
+            pool, self._isolated = self._isolated, None
+        if pool is not None:
+            # Ended here, busy or not: uvicorn re-raises the SIGTERM it stopped on once its
+            # shutdown is done, which kills this process without the clean-up that would
+            # tell an idle worker to exit (and a busy one would not listen).
+            await asyncio.to_thread(_stop_pool, pool)
+
+
+def _shutting_down() -> ApiError:
+    return ApiError(503, "shutting_down", "the service is shutting down; retry the request")
+
+
+def _submit(pool: ProcessPoolExecutor, function: Callable[..., T], *args: Any) -> Future[T]:
+    try:
+        return pool.submit(function, *args)
+    except BrokenProcessPool:
+        raise
+    except RuntimeError:  # "cannot schedule new futures after shutdown": ``close`` ran since
+        raise _shutting_down() from None
+
+
+def _worker_pool() -> ProcessPoolExecutor:
+    """The isolated worker's pool: one process, spawned (forking a process whose threads
+    hold locks can deadlock the child), that ends when this process does."""
+    return ProcessPoolExecutor(
+        max_workers=1,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_end_with_parent,
+        initargs=(os.getpid(),),  # evaluated here, in the parent; spawn pickles it across
+    )
+
+
+def _stop_pool(pool: ProcessPoolExecutor) -> None:
+    """Shut ``pool`` down and end its worker processes (SIGTERM, then SIGKILL), waiting
+    for each; its pending calls fail (``BrokenProcessPool``)."""
+    processes = _pool_processes(pool)  # before shutdown, which drops them
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        process.terminate()
+    for process in processes:
+        process.join(WORKER_STOP_S)
+        if process.is_alive():  # stopped (SIGSTOP), or SIGTERM blocked
+            process.kill()
+            process.join(WORKER_STOP_S)
+
+
+def _pool_processes(pool: ProcessPoolExecutor) -> list[BaseProcess]:
+    """The worker processes ``pool`` started so far. Python has no public handle on them
+    before 3.14 (``terminate_workers``, which still does not wait for them); every version
+    since 3.2 keeps them in ``_processes`` (pid -> Process), as 3.14's method reads them."""
+    return list((pool._processes or {}).values())
+
+
+#: ``<linux/prctl.h>``: the signal the kernel sends a process when its parent ends.
+_PR_SET_PDEATHSIG = 1
+
+
+def _end_with_parent(parent_pid: int) -> None:
+    """The worker's initializer: end the worker when the service process ``parent_pid``
+    ends, however it ends (SIGKILL by the OOM killer or a container stop runs no clean-up).
+    An orphaned worker would otherwise wait on its call queue for ever: it holds its own
+    copy of the queue's write end, so it never reads end-of-file."""
+    if sys.platform.startswith("linux"):
+        # The kernel sends SIGKILL at once, even while a call holds the GIL. Strictly it
+        # follows the parent's thread that started the worker: a compute thread, which
+        # lives until the compute pool shuts down (when the worker is ended anyway).
+        with contextlib.suppress(OSError, AttributeError):  # no prctl: the thread below
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    _exit_when_orphaned(parent_pid)
+
+
+def _exit_when_orphaned(parent_pid: int) -> None:
+    """Exit this process within ``PARENT_POLL_S`` of ``parent_pid`` ending (its parent
+    changes), from a daemon thread: portable, and it covers the parent that ended before
+    the kernel was told to watch it."""
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)
+
+    if os.getppid() != parent_pid:
+        os._exit(1)
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
 class _SharedArguments:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import psutil
 import pytest
 import trimesh
 
@@ -24,6 +25,7 @@ from neural_shdf.cli import EXIT_BAD_INPUT, main
 from neural_shdf.segment import SegmentParams
 from tests.api.api_helpers import TEST_METHOD
 from tests.conftest import REPO_ROOT
+from tests.test_processes import gone_within
 
 
 def _shape(index: int) -> trimesh.Trimesh:
@@ -198,6 +200,40 @@ def test_killed_batch_leaves_whole_files_and_rerun_redoes_nothing_finished(tmp_p
     assert sum(r["status"] == "skipped" for r in rows) == len(finished)
     assert sum(r["status"] == "ok" for r in rows) == 8 - len(finished)
     assert not list(out.rglob("*.tmp"))
+
+
+def test_workers_of_a_killed_batch_end_with_it(tmp_path: Path):
+    """Only the batch process killed (the OOM killer picks the largest, not the group):
+    its pool's workers end by themselves rather than wait for work for ever."""
+    _library(tmp_path / "in", 8)
+    env = {**os.environ, "PYTHONPATH": f"{REPO_ROOT / 'service'}:{REPO_ROOT}"}
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "neural_shdf.cli", "batch", str(tmp_path / "in"),
+               "-o", str(out), "--method", TEST_METHOD, "--workers", "2", "-q"]  # fmt: skip
+    process = subprocess.Popen(command, env=env, start_new_session=True)
+    try:
+        batch = psutil.Process(process.pid)
+        deadline = time.monotonic() + 120
+        while len(workers := _pool_workers(batch)) < 2:
+            assert process.poll() is None, "the batch ended before it could be killed"
+            assert time.monotonic() < deadline, "the batch started no workers"
+            time.sleep(0.05)
+        process.kill()
+        process.wait()
+        assert [w.pid for w in workers if not gone_within(w, 5.0)] == []
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+
+
+def _pool_workers(process: psutil.Process) -> list[psutil.Process]:
+    """The spawned pool workers among ``process``'s children."""
+    try:
+        children = process.children()
+        return [c for c in children if "spawn_main" in " ".join(c.cmdline())]
+    except psutil.NoSuchProcess:
+        return []
 
 
 # -- Dask distributed: a real LocalCluster of 2 worker processes ------------------------

@@ -23,7 +23,6 @@ import dataclasses
 import hashlib
 import io
 import json
-import multiprocessing
 import os
 import resource
 import socket
@@ -32,7 +31,7 @@ import tempfile
 import time
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import Future, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,6 +54,7 @@ from neural_shdf.exchange.seg import write_labels, write_values
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.mesh_io import SUPPORTED_FORMATS
 from neural_shdf.pipeline import compute_shdf, segment
+from neural_shdf.processes import spawn_pool
 from neural_shdf.segment import SegmentParams
 from neural_shdf.segment.params import check_seed
 from neural_shdf.shdf.neural.inference import load_model, model_path, set_session_threads
@@ -538,10 +538,9 @@ def _run_local_pool(tasks: list[Task], out_dir: str, config: BatchConfig, key: s
     assets it may have held are retried, each at most ``MAX_ATTEMPTS`` times."""
     attempts = dict.fromkeys((index for index, _ in tasks), 0)
     pending = list(tasks)
-    context = multiprocessing.get_context("spawn")
     while pending:
         broken: list[Task] = []
-        with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
+        with spawn_pool(workers) as pool:  # workers end with this process, however it ends
             futures: dict[Future, Task] = {
                 pool.submit(process_asset, asset, out_dir, config, key): (index, asset)
                 for index, asset in pending

@@ -429,9 +429,9 @@ tasks.isolated(time.sleep, 60)
 WATCH_ONLY_WORKER = """
 import multiprocessing, os, time
 from concurrent.futures import ProcessPoolExecutor
-from neural_shdf.api.tasks import _exit_when_orphaned
+from neural_shdf.processes import exit_when_orphaned
 spawn = multiprocessing.get_context("spawn")
-pool = ProcessPoolExecutor(1, spawn, initializer=_exit_when_orphaned, initargs=(os.getpid(),))
+pool = ProcessPoolExecutor(1, spawn, initializer=exit_when_orphaned, initargs=(os.getpid(),))
 print(pool.submit(os.getpid).result(), flush=True)
 pool.submit(time.sleep, 60).result()
 """

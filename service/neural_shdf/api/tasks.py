@@ -23,13 +23,9 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import contextvars
-import ctypes
 import functools
-import multiprocessing
 import os
 import pickle
-import signal
-import sys
 import threading
 import time
 from collections.abc import Awaitable, Callable, Coroutine
@@ -45,6 +41,7 @@ import numpy as np
 from neural_shdf.api.clients import BACKGROUND, current_client
 from neural_shdf.api.errors import ApiError
 from neural_shdf.api.settings import Settings
+from neural_shdf.processes import spawn_pool
 from neural_shdf.store.cache import ResultCache
 
 T = TypeVar("T")
@@ -55,10 +52,7 @@ G = TypeVar("G")
 #: diskcache's Python around SQLite) would otherwise share the GIL and a core with.
 STORE_DELAY_S = 0.03
 
-#: How often the worker process checks that the service process that started it still runs
-#: (where the kernel cannot tell it, or it missed the moment); and how long ``close`` lets a
-#: worker take to end after SIGTERM before it sends SIGKILL.
-PARENT_POLL_S = 0.5
+#: How long ``close`` lets a worker take to end after SIGTERM before it sends SIGKILL.
 WORKER_STOP_S = 2.0
 
 
@@ -341,14 +335,9 @@ def _submit(pool: ProcessPoolExecutor, function: Callable[..., T], *args: Any) -
 
 
 def _worker_pool() -> ProcessPoolExecutor:
-    """The isolated worker's pool: one process, spawned (forking a process whose threads
-    hold locks can deadlock the child), that ends when this process does."""
-    return ProcessPoolExecutor(
-        max_workers=1,
-        mp_context=multiprocessing.get_context("spawn"),
-        initializer=_end_with_parent,
-        initargs=(os.getpid(),),  # evaluated here, in the parent; spawn pickles it across
-    )
+    """The isolated worker's pool: one spawned process that ends when this process does
+    (``processes.spawn_pool``)."""
+    return spawn_pool(1)
 
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:
@@ -370,40 +359,6 @@ def _pool_processes(pool: ProcessPoolExecutor) -> list[BaseProcess]:
     before 3.14 (``terminate_workers``, which still does not wait for them); every version
     since 3.2 keeps them in ``_processes`` (pid -> Process), as 3.14's method reads them."""
     return list((pool._processes or {}).values())
-
-
-#: ``<linux/prctl.h>``: the signal the kernel sends a process when its parent ends.
-_PR_SET_PDEATHSIG = 1
-
-
-def _end_with_parent(parent_pid: int) -> None:
-    """The worker's initializer: end the worker when the service process ``parent_pid``
-    ends, however it ends (SIGKILL by the OOM killer or a container stop runs no clean-up).
-    An orphaned worker would otherwise wait on its call queue for ever: it holds its own
-    copy of the queue's write end, so it never reads end-of-file."""
-    if sys.platform.startswith("linux"):
-        # The kernel sends SIGKILL at once, even while a call holds the GIL. Strictly it
-        # follows the parent's thread that started the worker: a compute thread, which
-        # lives until the compute pool shuts down (when the worker is ended anyway).
-        with contextlib.suppress(OSError, AttributeError):  # no prctl: the thread below
-            libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    _exit_when_orphaned(parent_pid)
-
-
-def _exit_when_orphaned(parent_pid: int) -> None:
-    """Exit this process within ``PARENT_POLL_S`` of ``parent_pid`` ending (its parent
-    changes), from a daemon thread: portable, and it covers the parent that ended before
-    the kernel was told to watch it."""
-
-    def watch() -> None:
-        while os.getppid() == parent_pid:
-            time.sleep(PARENT_POLL_S)
-        os._exit(1)
-
-    if os.getppid() != parent_pid:
-        os._exit(1)
-    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
 class _SharedArguments:

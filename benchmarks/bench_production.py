@@ -26,7 +26,17 @@ the same faces. Variants:
   shape at production resolution); each published face takes the label most of its
   children have (ties: the smallest). Subdivided meshes are cached (``--cache-dir``);
 * ``midpoint``: the same number of midpoint subdivisions (the same piecewise-flat
-  surface, sharp creases kept), labels mapped back the same way.
+  surface, sharp creases kept), labels mapped back the same way;
+* ``decimated``: quadric decimation (``fast_simplification``) to about a quarter of the
+  faces (the same shape at a lower resolution);
+* ``remeshed``: one Loop subdivision pass, then quadric decimation back to about the
+  published face count (another triangulation of the same shape, no vertex kept).
+
+``decimated`` and ``remeshed`` faces have no published parent, so labels map the other
+way: every published face takes the label of the variant face at the closest point to its
+centroid, and all published faces are scored. For these two, ``--verbose`` and ``--json``
+also give how far the surfaces lie apart (published vertices to the variant surface and
+back, as shares of the bounding diagonal).
 
 Default models: the held-out fourth of each category (ids 4, 24, ..., 384), never used
 for tuning. Run it on two checkouts to compare code (``PYTHONPATH=.../service``).
@@ -74,11 +84,12 @@ def is_held_out(model_id: int) -> bool:
 
 
 class Variant:
-    """A changed mesh, and for each of its faces the published face it is."""
+    """A changed mesh, and for each of its faces the published face it is (``origin``),
+    or ``None`` for a re-triangulated surface whose faces are no published face."""
 
-    def __init__(self, vertices: NDArray, faces: NDArray, origin: NDArray) -> None:
+    def __init__(self, vertices: NDArray, faces: NDArray, origin: NDArray | None) -> None:
         self.mesh = TriangleMesh(vertices, faces)
-        self.origin = np.asarray(origin, dtype=np.int64)
+        self.origin = None if origin is None else np.asarray(origin, dtype=np.int64)
 
 
 def reversed_faces(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
@@ -250,6 +261,66 @@ def midpoint(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
     return Variant(*cached_subdivision(v, f, "midpoint"))
 
 
+#: ``decimated``: the share of the faces quadric decimation removes.
+DECIMATED_REDUCTION = 0.75
+
+
+def decimate(v: NDArray, f: NDArray, reduction: float) -> tuple[NDArray, NDArray]:
+    """Quadric decimation removing about ``reduction`` of the faces (as bench_neural.py)."""
+    import fast_simplification
+
+    vertices, faces = fast_simplification.simplify(
+        v.astype(np.float32), f.astype(np.int32), reduction
+    )
+    return np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+
+
+def decimated(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+    """About a quarter of the faces, by quadric decimation."""
+    return Variant(*decimate(v, f, DECIMATED_REDUCTION), None)
+
+
+def remeshed(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+    """One Loop pass (every vertex moves, the surface smooths a little), then quadric
+    decimation back to about the published face count: another triangulation."""
+    import trimesh.remesh
+
+    fine_vertices, fine_faces = trimesh.remesh.subdivide_loop(v, f, iterations=1)
+    return Variant(*decimate(fine_vertices, fine_faces, 1.0 - len(f) / len(fine_faces)), None)
+
+
+def closest_faces(vertices: NDArray, faces: NDArray, points: NDArray) -> tuple[NDArray, NDArray]:
+    """(the triangle holding the closest surface point to each point, its distance): an
+    exact closest-point query (ties: the smaller triangle). Candidates are the triangles
+    whose bounding sphere comes within the distance to the nearest centroid's triangle;
+    triangles are searched in groups of similar size, so a few slivers stay cheap."""
+    from scipy.spatial import cKDTree
+    from trimesh.triangles import closest_point
+
+    triangles = vertices[faces]
+    centres = triangles.mean(axis=1)
+    radius = np.linalg.norm(triangles - centres[:, None], axis=2).max(axis=1)
+    _, nearest = cKDTree(centres).query(points)
+    bound = np.linalg.norm(closest_point(triangles[nearest], points) - points, axis=1)
+    size = np.ceil(np.log2(np.maximum(radius / max(np.median(radius), 1e-300), 1.0)))
+    pairs_point, pairs_face = [], []
+    for group in np.unique(size):
+        members = np.flatnonzero(size == group)
+        candidates = cKDTree(centres[members]).query_ball_point(
+            points, bound + radius[members].max() + 1e-12
+        )
+        counts = np.fromiter((len(c) for c in candidates), dtype=np.int64, count=len(points))
+        pairs_point.append(np.repeat(np.arange(len(points)), counts))
+        pairs_face.append(members[np.concatenate([np.asarray(c, np.int64) for c in candidates])])
+    point, face = np.concatenate(pairs_point), np.concatenate(pairs_face)
+    near = np.linalg.norm(centres[face] - points[point], axis=1) - radius[face] <= bound[point]
+    point, face = point[near], face[near]
+    distance = np.linalg.norm(closest_point(triangles[face], points[point]) - points[point], axis=1)
+    order = np.lexsort((face, distance, point))  # by point, then distance, then triangle
+    first = order[np.r_[True, point[order][1:] != point[order][:-1]]]
+    return face[first], distance[first]
+
+
 def majority_per_face(origin: NDArray, labels: NDArray) -> tuple[NDArray, NDArray]:
     """(published faces, sorted; the label most of each one's variant faces have, ties:
     the smallest)."""
@@ -258,6 +329,35 @@ def majority_per_face(origin: NDArray, labels: NDArray) -> tuple[NDArray, NDArra
     counts = np.zeros((len(kept), len(label_values)), dtype=np.int64)
     np.add.at(counts, (face, label), 1)
     return kept, label_values[counts.argmax(axis=1)]
+
+
+def closest_face_labels(variant: Variant, labels: NDArray, v: NDArray, f: NDArray) -> NDArray:
+    """The label per published face of a variant with no published parent per face: the
+    label of the variant face at the closest point to the published face's centroid (a
+    closest point on the triangles, not the nearest centroid, which on coarse meshes picks
+    the wrong side of part borders)."""
+    centroids = v[f].mean(axis=1)
+    face, _ = closest_faces(variant.mesh.vertices, variant.mesh.faces, centroids)
+    return np.asarray(labels)[face]
+
+
+def labels_on_published(
+    variant: Variant, labels: NDArray, v: NDArray, f: NDArray
+) -> tuple[NDArray, NDArray]:
+    """(published faces scored, sorted; their labels) of a variant's labels."""
+    if variant.origin is None:
+        return np.arange(len(f)), closest_face_labels(variant, labels, v, f)
+    return majority_per_face(variant.origin, labels)
+
+
+def surface_distance(v: NDArray, f: NDArray, variant: Variant) -> tuple[float, float]:
+    """(mean, max) distance of the published vertices to the variant surface and of the
+    variant vertices to the published surface (max of both ways), as shares of the
+    published bounding diagonal."""
+    diagonal = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    _, there = closest_faces(variant.mesh.vertices, variant.mesh.faces, v)
+    _, back = closest_faces(v, f, variant.mesh.vertices)
+    return float(there.mean()) / diagonal, float(max(there.max(), back.max())) / diagonal
 
 
 VARIANTS: dict[str, Callable[[NDArray, NDArray, np.random.Generator], Variant]] = {
@@ -274,6 +374,8 @@ VARIANTS: dict[str, Callable[[NDArray, NDArray, np.random.Generator], Variant]] 
     "shells": shells,
     "subdivided": subdivided,
     "midpoint": midpoint,
+    "decimated": decimated,
+    "remeshed": remeshed,
 }
 
 
@@ -346,6 +448,7 @@ def main() -> int:
     rows: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name in args.variants}
     per_model: list[dict] = []
     fidelity: dict[str, list[float]] = {name: [] for name in args.variants}
+    distances: dict[str, list[tuple[float, float]]] = {name: [] for name in args.variants}
     start = time.perf_counter()
     for model_id in args.models:
         model = models[model_id]
@@ -359,7 +462,10 @@ def main() -> int:
             clock = time.perf_counter()
             labels, note = default_segmentation(variant.mesh)
             seconds = time.perf_counter() - clock
-            kept, kept_labels = majority_per_face(variant.origin, labels)
+            kept, kept_labels = labels_on_published(variant, labels, v, f)
+            apart = surface_distance(v, f, variant) if variant.origin is None else None
+            if apart is not None:
+                distances[name].append(apart)
             base = score(v, f, kept, published[kept], humans)
             ours = score(v, f, kept, kept_labels, humans)
             rows[name].append((*base, *ours))
@@ -378,6 +484,7 @@ def main() -> int:
                     "faces": variant.mesh.face_count,
                     "parts": [int(published.max()) + 1, int(labels.max()) + 1],
                     "seconds": seconds,
+                    "surface_distance": apart,
                 }
             )
             if args.verbose:
@@ -385,7 +492,8 @@ def main() -> int:
                     f"{model_id:4d} {name:10s} published 1-RI {base[0]:.3f} CD {base[1]:.3f}"
                     f"  variant 1-RI {ours[0]:.3f} CD {ours[1]:.3f}"
                     f"  parts {int(published.max()) + 1} -> {int(labels.max()) + 1}"
-                    f"  {variant.mesh.face_count} faces {seconds:.1f} s  {note}",
+                    f"  {variant.mesh.face_count} faces {seconds:.1f} s  {note}"
+                    + (f"  apart {apart[0]:.5f} / {apart[1]:.4f}" if apart else ""),
                     file=sys.stderr,
                     flush=True,
                 )
@@ -400,6 +508,14 @@ def main() -> int:
             f"{name:10s} {b_ri:15.3f} {v_ri:13.3f} {v_ri - b_ri:+7.3f}"
             f" {b_cd:13.3f} {v_cd:11.3f} {v_cd - b_cd:+7.3f}"
         )
+    for name, apart in distances.items():
+        if apart:
+            mean, most = np.asarray(apart).T
+            print(
+                f"{name:10s} surfaces apart (share of the diagonal): mean {np.mean(mean):.5f}"
+                f" (largest per model {mean.max():.5f}), max {np.median(most):.4f} median,"
+                f" {most.max():.4f} largest"
+            )
     for name, values in fidelity.items():
         if values:
             print(f"{name:10s} default ShDF vs exact, median Pearson {np.median(values):.4f}")

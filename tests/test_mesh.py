@@ -143,3 +143,31 @@ def test_a_mesh_keeps_the_spokes_over_its_holes_for_every_segmentation():
         np.testing.assert_array_equal(result.tree.merges, tree.merges)
         np.testing.assert_array_equal(result.tree.costs, tree.costs)
         assert work.hole_spokes is kept
+
+
+def test_meshes_oriented_on_many_threads_at_once_get_what_one_thread_gets():
+    """The pass works out the face links on a second thread; several requests orienting
+    meshes at once (the service's compute pool) neither deadlock nor mix their results."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    rng = np.random.default_rng(5)
+    windings = [np.where((rng.random(len(faces)) < share)[:, None], faces[:, ::-1], faces)
+                for share in (0.0, 0.3, 1.0, 0.5, 0.0, 1.0)]  # fmt: skip
+
+    def graph_of(rows: np.ndarray) -> tuple:
+        mesh = TriangleMesh(vertices, rows)
+        graph = mesh.face_graph
+        return mesh.orientation.flips, graph.pairs, graph.dihedral, graph.concave
+
+    alone = [graph_of(rows) for rows in windings]
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        together = list(pool.map(graph_of, windings * 3, timeout=120))
+    for index, result in enumerate(together):
+        for mine, expected in zip(result, alone[index % len(windings)], strict=True):
+            np.testing.assert_array_equal(mine, expected)
+    # every winding comes out facing outward, with the same graph
+    for result in alone[1:]:
+        for mine, expected in zip(result[1:], alone[0][1:], strict=True):
+            np.testing.assert_array_equal(mine, expected)

@@ -311,9 +311,7 @@ class TriangleMesh:
             return oriented.face_graph
         normals, _ = self.normals_and_areas
         welded = self.welded_faces
-        graph = build_face_graph(
-            self.vertices, welded, normals, edges=self.welded_edges, adjacency=self.face_adjacency
-        )
+        graph = build_face_graph(self.vertices, welded, normals, adjacency=self.face_adjacency)
         coincident, _ = self.coincident_welding
         if coincident is welded:
             return graph

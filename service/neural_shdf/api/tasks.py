@@ -283,7 +283,7 @@ class TaskRunner:
             if self._closed:
                 raise _shutting_down()
             if self._isolated is None:
-                self._isolated = _worker_pool()
+                self._isolated = spawn_pool(1)  # ends with this process, however it ends
             pool = self._isolated
         try:
             shared = _SharedArguments.fitting(args)
@@ -326,18 +326,13 @@ def _shutting_down() -> ApiError:
 
 
 def _submit(pool: ProcessPoolExecutor, function: Callable[..., T], *args: Any) -> Future[T]:
+    """``pool.submit``, with a pool that ``close`` shut down meanwhile read as shutting down."""
     try:
         return pool.submit(function, *args)
-    except BrokenProcessPool:
+    except BrokenProcessPool:  # a RuntimeError too: the caller tells a dead worker apart
         raise
     except RuntimeError:  # "cannot schedule new futures after shutdown": ``close`` ran since
         raise _shutting_down() from None
-
-
-def _worker_pool() -> ProcessPoolExecutor:
-    """The isolated worker's pool: one spawned process that ends when this process does
-    (``processes.spawn_pool``)."""
-    return spawn_pool(1)
 
 
 def _stop_pool(pool: ProcessPoolExecutor) -> None:

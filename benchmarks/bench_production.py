@@ -64,7 +64,13 @@ from numpy.typing import NDArray
 
 from neural_shdf.evaluate.benchmark import list_models, load_benchmark_mesh
 from neural_shdf.evaluate.scores import cut_distance_field, cut_graph, score_against_humans
-from neural_shdf.geometry import adjacency_lists, build_face_graph, midpoint_subdivide, weld_faces
+from neural_shdf.geometry import (
+    adjacency_lists,
+    build_face_graph,
+    midpoint_subdivide,
+    split_region,
+    weld_faces,
+)
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
@@ -261,6 +267,38 @@ def midpoint(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
     return Variant(*cached_subdivision(v, f, "midpoint"))
 
 
+#: ``refined``: the share of the surface area split finely, and the face count it reaches.
+REFINED_AREA_SHARE = 0.2
+REFINED_FACES = 100_000
+
+
+def grown_region(v: NDArray, f: NDArray, share: float, rng: np.random.Generator) -> NDArray:
+    """Faces grown breadth-first from a random face until they hold ``share`` of the area."""
+    graph = build_face_graph(v, weld_faces(v, f))
+    indptr, neighbours = adjacency_lists(graph.pairs, len(f))
+    areas = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    inside = np.zeros(len(f), dtype=bool)
+    start = int(rng.integers(len(f)))
+    inside[start] = True
+    queue, held = deque([start]), float(areas[start])
+    while queue and held < share * areas.sum():
+        face = queue.popleft()
+        for other in neighbours[indptr[face] : indptr[face + 1]].tolist():
+            if not inside[other]:
+                inside[other] = True
+                held += float(areas[other])
+                queue.append(other)
+    return inside
+
+
+def refined(v: NDArray, f: NDArray, rng: np.random.Generator) -> Variant:
+    """``REFINED_AREA_SHARE`` of the surface split finely enough for ``REFINED_FACES`` faces
+    in all (a sculpted detail on a coarser body, as scans and sculpts often are)."""
+    inside = grown_region(v, f, REFINED_AREA_SHARE, rng)
+    splits = max(2, int(np.ceil(np.sqrt(1 + max(REFINED_FACES - len(f), 0) / inside.sum()))))
+    return Variant(*split_region(v, f, inside, splits))
+
+
 #: ``decimated``: the share of the faces quadric decimation removes.
 DECIMATED_REDUCTION = 0.75
 
@@ -375,6 +413,7 @@ VARIANTS: dict[str, Callable[[NDArray, NDArray, np.random.Generator], Variant]] 
     "subdivided": subdivided,
     "midpoint": midpoint,
     "decimated": decimated,
+    "refined": refined,
     "remeshed": remeshed,
 }
 

@@ -12,12 +12,14 @@ from neural_shdf.geometry import (
     EDGE_CLIQUE,
     build_face_graph,
     count_zero_rows,
+    equivalent_face_count,
     face_adjacency,
     face_normals,
     grid_cells,
     midpoint_subdivide,
     principal_coordinates,
     principal_frame,
+    split_region,
     weld_faces,
     zero_area_limit,
 )
@@ -456,3 +458,35 @@ def test_midpoint_subdivision_maps_each_child_to_the_face_it_lies_in():
         assert np.all(np.einsum("ij,ij->i", np.cross(q - p, centroid - p), normal) > 0)
     unchanged = midpoint_subdivide(mesh.vertices, mesh.faces, 0)
     np.testing.assert_array_equal(unchanged[2], np.arange(12))
+
+
+def test_equivalent_face_count_reads_the_area_not_the_face_count():
+    sphere = trimesh.creation.icosphere(3)
+    areas = face_normals(sphere.vertices, sphere.faces)[1]
+    assert equivalent_face_count(areas) == pytest.approx(len(areas), rel=0.1)
+    # A tenth of the surface split 1-to-16: 2.5x the faces, about the same surface.
+    split = np.concatenate([np.ones(900), np.full(1600, 1 / 16)])
+    assert equivalent_face_count(split) == pytest.approx(1000)
+    # Most of the area in small faces: counted at their size.
+    assert equivalent_face_count(np.concatenate([np.ones(100), np.full(1600, 1 / 16)])) == 3200
+    assert equivalent_face_count(np.zeros(7)) == 7
+    assert equivalent_face_count(np.zeros(0)) == 0
+
+
+@pytest.mark.parametrize("splits", [1, 2, 4])
+def test_split_region_keeps_the_surface_closed_and_each_face_in_its_place(splits):
+    sphere = trimesh.creation.icosphere(2)
+    vertices, faces = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    region = sphere.triangles_center[:, 2] > 0.6
+    new_vertices, new_faces, origin = split_region(vertices, faces[:, ::-1], region, splits)
+    split = trimesh.Trimesh(new_vertices, new_faces)  # merges the shared edge points
+    assert split.is_watertight  # no T-junction: every edge has two faces
+    assert split.volume == pytest.approx(-sphere.volume)  # the input's (reversed) winding
+    assert np.all(np.diff(origin) >= 0)  # pieces in their face's place
+    pieces = np.bincount(origin, minlength=len(faces))
+    assert np.all(pieces[region] == splits**2)
+    assert set(np.unique(pieces[~region]).tolist()) <= {1, splits, splits**2}
+    areas = face_normals(new_vertices, new_faces)[1]
+    np.testing.assert_allclose(
+        np.bincount(origin, weights=areas), face_normals(vertices, faces)[1], rtol=1e-9
+    )

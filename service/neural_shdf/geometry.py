@@ -236,6 +236,23 @@ def _face_centroids(  # pragma: no cover - compiled
     return centroids
 
 
+def equivalent_face_count(areas: NDArray[Any]) -> float:
+    """How many faces tessellate the surface, counted at the size most of its area has:
+    the total area over the area-weighted median face area (half the surface lies in faces
+    at most that large). The face count when all faces have one area (0.56-1.1 of it on the
+    psb-dev meshes); a mesh split finely in a small region counts as it did before the
+    split, where the face count grows with the split. The face count when no face has
+    area."""
+    areas = np.asarray(areas, dtype=np.float64).reshape(-1)
+    total = float(areas.sum())
+    if not total > 0:
+        return float(len(areas))
+    ordered = np.sort(areas)
+    held = np.cumsum(ordered)
+    median = float(ordered[min(int(np.searchsorted(held, 0.5 * held[-1])), len(ordered) - 1)])
+    return total / median
+
+
 #: Edges folding less than this (radians) are flat to ``FaceGraph.mean_bending``.
 FLAT_ANGLE = 1e-6
 
@@ -529,6 +546,106 @@ def midpoint_subdivide(
         np.asarray(vertices, dtype=np.float64),
         np.asarray(faces, dtype=np.int64),
         origin,
+    )
+
+
+def split_region(
+    vertices: NDArray[Any], faces: NDArray[Any], region: NDArray[Any], splits: int
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """(vertices, faces, input face of each face) with the faces of ``region`` (a boolean
+    mask) split 1-to-``splits``**2 (points at k/splits along each edge, shared by the faces
+    on both sides) and every face outside with one split edge fanned from its opposite
+    corner into ``splits`` triangles, so no T-junction is left (a face outside with two or
+    more split edges joins the region): the same piecewise-flat surface, finely tessellated
+    in one place, as a sculpted detail on a coarser body. Winding is kept; faces keep their
+    input order (each face's pieces in its place). Edges are matched on coincident
+    vertices (``weld_faces``)."""
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    if splits < 1:
+        raise ValueError(f"splits must be >= 1, got {splits}")
+    welded = weld_faces(vertices, faces).tolist()
+    inside = np.asarray(region, dtype=bool).copy()
+    while True:
+        split_edges = {
+            (min(a, b), max(a, b))
+            for row in np.flatnonzero(inside).tolist()
+            for a, b in zip(welded[row], welded[row][1:] + welded[row][:1], strict=True)
+        }
+        grows = [
+            not inside[row]
+            and sum(
+                (min(a, b), max(a, b)) in split_edges for a, b in zip(w, w[1:] + w[:1], strict=True)
+            )
+            >= 2
+            for row, w in enumerate(welded)
+        ]
+        if not any(grows):
+            break
+        inside |= np.asarray(grows)
+    points: list[NDArray[np.float64]] = list(vertices)
+    index_of: dict[tuple[int, ...], int] = {}
+
+    def point(key: tuple[int, ...], position: NDArray[np.float64]) -> int:
+        if key not in index_of:
+            index_of[key] = len(points)
+            points.append(position)
+        return index_of[key]
+
+    def along(a: int, b: int, first: int, last: int) -> list[int]:
+        """Vertex ids along the edge from input vertex ``first`` (welded ``a``) to ``last``."""
+        low_first = a < b
+        start, end = (first, last) if low_first else (last, first)
+        ids = [start]
+        ids += [
+            point(
+                (-1, min(a, b), max(a, b), k),
+                vertices[start] + k / splits * (vertices[end] - vertices[start]),
+            )
+            for k in range(1, splits)
+        ]
+        ids.append(end)
+        return ids if low_first else ids[::-1]
+
+    out: list[tuple[int, int, int]] = []
+    origin: list[int] = []
+    for row, ((a, b, c), (i, j, k)) in enumerate(zip(welded, faces.tolist(), strict=True)):
+        if inside[row]:
+            ab, ac, bc = along(a, b, i, j), along(a, c, i, k), along(b, c, j, k)
+
+            lattice: dict[tuple[int, int], int] = {}
+            for s in range(splits + 1):
+                for t in range(splits + 1 - s):
+                    if t == 0:
+                        lattice[s, t] = ab[s]
+                    elif s == 0:
+                        lattice[s, t] = ac[t]
+                    elif s + t == splits:
+                        lattice[s, t] = bc[t]
+                    else:
+                        offset = s * (vertices[j] - vertices[i]) + t * (vertices[k] - vertices[i])
+                        lattice[s, t] = point((row, s, t), vertices[i] + offset / splits)
+            for s in range(splits):
+                for t in range(splits - s):
+                    out.append((lattice[s, t], lattice[s + 1, t], lattice[s, t + 1]))
+                    if s + t + 2 <= splits:
+                        out.append((lattice[s + 1, t], lattice[s + 1, t + 1], lattice[s, t + 1]))
+        else:
+            corners, ids = (a, b, c), (i, j, k)
+            for side in range(3):
+                x, y = corners[side], corners[(side + 1) % 3]
+                if (min(x, y), max(x, y)) in split_edges:
+                    apex = ids[(side + 2) % 3]
+                    run = along(x, y, ids[side], ids[(side + 1) % 3])
+                    out += [(apex, run[n], run[n + 1]) for n in range(splits)]
+                    break
+            else:
+                out.append((i, j, k))
+        origin += [row] * (len(out) - len(origin))
+    return (
+        np.asarray(points, dtype=np.float64).reshape(-1, 3),
+        np.asarray(out, dtype=np.int64).reshape(-1, 3),
+        np.asarray(origin, dtype=np.int64),
     )
 
 

@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from neural_shdf.geometry import FLAT_ANGLE, build_face_graph, face_normals, weld_faces
+from neural_shdf.geometry import (
+    FLAT_ANGLE,
+    build_face_graph,
+    face_normals,
+    split_region,
+    weld_faces,
+)
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams, hierarchy
@@ -325,6 +331,31 @@ def test_coarse_meshes_keep_raw_angles_whatever_their_bending(monkeypatch):
     default = merge_tree(regions, graph, areas, values).costs
     monkeypatch.setattr(hierarchy, "REFERENCE_BENDING", 0.0)
     np.testing.assert_array_equal(merge_tree(regions, graph, areas, values).costs, default)
+
+
+def test_a_finely_split_detail_does_not_make_a_coarse_mesh_fine(monkeypatch):
+    """The bending rule reads the surface's resolution (``equivalent_face_count``), not
+    the face count: the top fifth of a coarse mesh split 1-to-36 (6x the faces, the same
+    surface and creases) keeps the raw angles, so its merges cost what the unsplit mesh's
+    do. Judged by its face count the mesh was fine and its concavity was rescaled."""
+    monkeypatch.setattr(hierarchy, "FINE_TESSELLATION_FACES", 10_000)
+    monkeypatch.setattr(hierarchy, "REFERENCE_BENDING", 0.3)  # above the dumbbell's 0.15
+    mesh, shdf = dumbbell(3000)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    top_first = np.argsort(-mesh.triangles_center[:, 2])
+    detail = np.zeros(len(faces), dtype=bool)
+    detail[top_first[np.cumsum(mesh.area_faces[top_first]) <= 0.2 * mesh.area]] = True
+    split_vertices, split_faces, parent = split_region(vertices, faces, detail, 6)
+    assert len(faces) < 10_000 < len(split_faces)
+    z = mesh.triangles_center[:, 2]
+    regions = np.where(z < -JUNCTION_Z, 0, np.where(z > JUNCTION_Z, 2, 1))
+    values = log_normalize(shdf)
+    graph, areas = graph_and_areas(vertices, faces)
+    split_graph, split_areas = graph_and_areas(split_vertices, split_faces)
+    assert mean_bending(split_graph) < hierarchy.REFERENCE_BENDING  # the rule would scale
+    coarse = merge_tree(regions, graph, areas, values).costs
+    split = merge_tree(regions[parent], split_graph, split_areas, values[parent]).costs
+    np.testing.assert_allclose(split, coarse, rtol=1e-6)
 
 
 def test_mirror_merges_are_made_together_at_one_cost():

@@ -4,13 +4,14 @@ options enter, kept by a caller to re-segment one mesh cheaply."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.constants import FINE_TESSELLATION_FACES
-from neural_shdf.geometry import FaceGraph
+from neural_shdf.geometry import FaceGraph, equivalent_face_count
 from neural_shdf.segment.graphcut import CutHierarchy, cut_hierarchy, data_costs
 from neural_shdf.segment.mixture import Mixture, fit_mixture
 from neural_shdf.segment.params import SegmentParams
@@ -52,6 +53,12 @@ class SegmentBasis:
     #: Per options (``partitioners.refit_key``): whether at the default smoothing the cut
     #: collapsed and the widened mixture's cut had more parts.
     refit_wins: dict[SegmentParams, bool] = field(default_factory=dict, repr=False)
+
+    @cached_property
+    def equivalent_faces(self) -> float:
+        """``geometry.equivalent_face_count`` of the faces' areas (a sort: worked out once
+        per basis, not per re-segmentation)."""
+        return equivalent_face_count(self.geometry.areas)
 
     def cut(self, graph: FaceGraph) -> CutHierarchy:
         """The graph cut's coarse graphs over ``graph`` (built once)."""

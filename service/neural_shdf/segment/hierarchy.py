@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 from neural_shdf.compiled import kernel
 from neural_shdf.constants import FINE_TESSELLATION_FACES
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph
+from neural_shdf.geometry import FaceGraph, equivalent_face_count
 from neural_shdf.segment.parts import cut_edges
 
 # The weights were tuned on 57 psb-dev models (the 4th model of each category held out),
@@ -59,7 +59,8 @@ NECK_EXPONENT = 2.0
 COST_CONSTANT = 0.005
 #: Weight of the boundary's mean concave angle (over pi); the result is flat around it.
 CONCAVITY_WEIGHT = 8.0
-#: A mesh above ``FINE_TESSELLATION_FACES`` whose edges bend less than this on average
+#: A surface finer than ``FINE_TESSELLATION_FACES`` (``geometry.equivalent_face_count``)
+#: whose edges bend less than this on average
 #: (``mean_bending``, radians) has its concave angles scaled by ``REFERENCE_BENDING /
 #: mean bending`` (each at most pi): a finer
 #: tessellation of a smooth shape spreads a crease over more edges, each folding less (a
@@ -207,6 +208,7 @@ def merge_tree(
     cost: MergeCost | None = None,
     mirror_leaf: NDArray[Any] | None = None,
     spokes: tuple[NDArray[Any], NDArray[Any]] | None = None,
+    equivalent_faces: float | None = None,
 ) -> PartTree:
     """The merge tree of the parts ``leaf_labels`` (canonical: 0..L-1 by lowest face).
 
@@ -220,6 +222,8 @@ def merge_tree(
     (``stitching.cap_spokes``): between faces of two parts, flat boundary as long as the
     spoke, as if the fan were surface. A hole on a boundary shortened it, which reads as a
     narrower neck and a dearer merge: holes kept extra parts.
+    ``equivalent_faces``: ``geometry.equivalent_face_count(areas)`` where the caller keeps
+    it (``SegmentBasis.equivalent_faces``); worked out here otherwise.
     """
     cost = MergeCost() if cost is None else cost
     leaves = np.asarray(leaf_labels, dtype=np.int64)
@@ -241,7 +245,9 @@ def merge_tree(
     a, b = leaves[pairs[cut, 0]], leaves[pairs[cut, 1]]
     lengths = graph.edge_length[cut]
     depth = np.where(graph.concave[cut], graph.dihedral[cut] / np.pi, 0.0)
-    if face_count > FINE_TESSELLATION_FACES:  # a crease spread over many small folds
+    if equivalent_faces is None:
+        equivalent_faces = equivalent_face_count(areas)
+    if equivalent_faces > FINE_TESSELLATION_FACES:  # a crease spread over many small folds
         depth = np.minimum(depth * max(1.0, REFERENCE_BENDING / mean_bending(graph)), 1.0)
     if spokes is not None and len(spokes[0]):
         spoke_pairs = np.asarray(spokes[0], dtype=np.int64).reshape(-1, 2)

@@ -203,6 +203,7 @@ class GraphCutPartitioner:
             work.basis.values,
             mirror_leaf=mirror_leaf,
             spokes=work.spokes,
+            equivalent_faces=work.basis.equivalent_faces,
         )
         count = automatic_part_count(tree) if params.parts is None else params.parts
         labels = tree.labels(count)
@@ -220,7 +221,14 @@ class MetisPartitioner:
             count = params.parts
         else:
             leaves = canonical_labels(graph_cut_parts(work))
-            tree = merge_tree(leaves, graph, geometry.areas, basis.values, spokes=work.spokes)
+            tree = merge_tree(
+                leaves,
+                graph,
+                geometry.areas,
+                basis.values,
+                spokes=work.spokes,
+                equivalent_faces=basis.equivalent_faces,
+            )
             count = automatic_part_count(tree)
         weights = metis_edge_weights(work.edge_weights, basis.posteriors, graph.pairs)
         parts = metis_partition(

@@ -30,7 +30,11 @@ the same faces. Variants:
 * ``decimated``: quadric decimation (``fast_simplification``) to about a quarter of the
   faces (the same shape at a lower resolution);
 * ``remeshed``: one Loop subdivision pass, then quadric decimation back to about the
-  published face count (another triangulation of the same shape, no vertex kept).
+  published face count (another triangulation of the same shape, no vertex kept);
+* ``refined``: a region holding a fifth of the area split 1-to-n² (``geometry.split_region``,
+  no T-junction) for about 100k faces in all, the rest as published (a sculpted or
+  densely scanned detail on a coarser body); each published face takes the label most of
+  its pieces have.
 
 ``decimated`` and ``remeshed`` faces have no published parent, so labels map the other
 way: every published face takes the label of the variant face at the closest point to its

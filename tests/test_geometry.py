@@ -490,3 +490,11 @@ def test_split_region_keeps_the_surface_closed_and_each_face_in_its_place(splits
     np.testing.assert_allclose(
         np.bincount(origin, weights=areas), face_normals(vertices, faces)[1], rtol=1e-9
     )
+
+
+def test_split_region_checks_its_arguments():
+    sphere = trimesh.creation.icosphere(1)
+    with pytest.raises(ValueError, match="splits"):
+        split_region(sphere.vertices, sphere.faces, np.ones(len(sphere.faces), bool), 0)
+    with pytest.raises(ValueError, match="region has 3 entries"):
+        split_region(sphere.vertices, sphere.faces, np.ones(3, bool), 2)

@@ -564,8 +564,10 @@ def split_region(
     vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
     if splits < 1:
         raise ValueError(f"splits must be >= 1, got {splits}")
+    inside = np.asarray(region, dtype=bool).reshape(-1).copy()
+    if len(inside) != len(faces):
+        raise ValueError(f"region has {len(inside)} entries for {len(faces)} faces")
     welded = weld_faces(vertices, faces).tolist()
-    inside = np.asarray(region, dtype=bool).copy()
     while True:
         split_edges = {
             (min(a, b), max(a, b))

@@ -238,6 +238,25 @@ def test_the_face_graph_from_the_shared_edges_is_the_one_built_afresh():
     assert shared.pairs is variant.face_adjacency[0]
 
 
+def test_the_oriented_copy_derives_its_edges_only_when_asked():
+    """A closed mesh's ShDF and segmentation never read the oriented copy's edge slots, so
+    the copy does not write them; asked for, they are those of its own triangles."""
+    published = _dumbbell()
+    mixed = np.random.default_rng(5).random(published.face_count) < 0.3
+    variant = TriangleMesh(published.vertices, _reverse(published.faces, mixed))
+    _labels(variant)
+    oriented = variant.oriented
+    assert "welded_edges" not in oriented.__dict__
+    assert "coincident_welding" not in oriented.__dict__
+    table, slot = oriented.welded_edges
+    fresh_table, fresh_slot = welded_edges(weld_faces(oriented.vertices, oriented.faces))
+    np.testing.assert_array_equal(table, fresh_table)
+    np.testing.assert_array_equal(slot, fresh_slot)
+    coincident, edges = oriented.coincident_welding
+    assert coincident is oriented.welded_faces
+    assert edges is oriented.welded_edges
+
+
 def test_caps_close_each_hole_facing_outward():
     vertices, faces = _sphere(3)
     centres = vertices[faces].mean(axis=1)
@@ -408,18 +427,16 @@ def test_the_oriented_copy_in_one_pass_is_the_rows_slots_and_normals_one_by_one(
         )
         for vertices, faces in ((given_vertices, given_faces), (copies, moved)):
             welded = weld_faces(vertices, faces)
-            _, slot = welded_edges(welded)
             normals, _ = face_normals(vertices, faces)
             limit = zero_area_limit(vertices, faces)
             for flips in (orient_faces(vertices, faces).flips, rng.random(len(faces)) < 0.5):
-                got = reverse_flipped(vertices, faces, welded, slot, flips, normals, limit)
+                got = reverse_flipped(vertices, faces, welded, flips, normals, limit)
                 backwards = reverse_rows(faces, flips)
                 np.testing.assert_array_equal(got[0], backwards)
                 np.testing.assert_array_equal(got[1], reverse_rows(welded, flips))
                 # Where the welding merged nothing the welded rows share the rows' memory.
                 assert np.shares_memory(got[0], got[1]) == np.shares_memory(faces, welded)
-                np.testing.assert_array_equal(got[2], reversed_slots(slot, flips))
-                np.testing.assert_array_equal(got[3], face_normals(vertices, backwards)[0])
+                np.testing.assert_array_equal(got[2], face_normals(vertices, backwards)[0])
 
 
 def test_column_means_are_numpys_bit_for_bit():

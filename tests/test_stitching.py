@@ -286,6 +286,25 @@ def test_a_stitched_piece_wound_inside_out_in_the_file_is_turned_back():
         np.testing.assert_array_equal(mesh.orientation.flips, reversed_faces)
 
 
+def test_a_stitched_mesh_oriented_derives_both_weldings_edges_as_built_afresh():
+    vertices, faces, band = _cup_pieces(1.0)
+    given = faces.copy()
+    given[band] = faces[band][:, ::-1]
+    oriented = TriangleMesh(vertices, given).oriented
+    afresh = TriangleMesh(oriented.vertices, oriented.faces)
+    assert oriented.welded_faces is not oriented.coincident_faces  # pieces stitched
+    for name in ("coincident_welding", "welded_edges"):
+        assert name not in oriented.__dict__
+    coincident, (table, slot) = oriented.coincident_welding
+    fresh_coincident, (fresh_table, fresh_slot) = afresh.coincident_welding
+    np.testing.assert_array_equal(coincident, fresh_coincident)
+    np.testing.assert_array_equal(table, fresh_table)
+    np.testing.assert_array_equal(slot, fresh_slot)
+    for got, fresh in zip(oriented.welded_edges, afresh.welded_edges, strict=True):
+        np.testing.assert_array_equal(got, fresh)
+    np.testing.assert_array_equal(oriented.welded_faces, afresh.welded_faces)
+
+
 def test_shells_not_stitched_keep_their_own_orientation():
     vertices, faces = _sphere()
     coincident = weld_faces(vertices, faces)

@@ -43,6 +43,17 @@ from neural_shdf.stitching import (
 )
 
 
+@dataclass(frozen=True)
+class Reversal:
+    """How ``TriangleMesh.oriented`` derives its edges from its source's on first use: the
+    triangles reversed, the source's ``welded_edges``, and its ``coincident_welding`` edges
+    where those are not the same (None where the coincident faces are the welded ones)."""
+
+    flips: NDArray[np.bool_]
+    welded_edges: tuple[NDArray[np.int64], NDArray[np.int64]]
+    coincident_edges: tuple[NDArray[np.int64], NDArray[np.int64]] | None
+
+
 @dataclass(frozen=True, eq=False)
 class TriangleMesh:
     """Triangles in a fixed order, plus the input face each triangle came from.
@@ -136,10 +147,22 @@ class TriangleMesh:
         self,
     ) -> tuple[NDArray[np.int64], tuple[NDArray[np.int64], NDArray[np.int64]]]:
         """``faces`` with coincident vertices sharing one index (``geometry.weld_faces``) and
-        their sorted edges (``orientation.welded_edges``): what the orientation pass works on."""
+        their sorted edges (``orientation.welded_edges``): what the orientation pass works on.
+        ``oriented`` derives its edges from its source's on first use (``_reversed_from``)."""
+        reversal = self.__dict__.get("_reversed_from")
+        if reversal is not None:
+            if reversal.coincident_edges is None:  # the same array as ``welded_faces``
+                return self.welded_faces, self.welded_edges
+            table, slot = reversal.coincident_edges
+            return self.coincident_faces, (table, reversed_slots(slot, reversal.flips))
         coincident = weld_faces(self.vertices, self.faces)
         coincident.flags.writeable = False
         return coincident, sorted_welded_edges(coincident)
+
+    @cached_property
+    def coincident_faces(self) -> NDArray[np.int64]:
+        """``coincident_welding``'s faces alone (``oriented`` has them without its edges)."""
+        return self.coincident_welding[0]
 
     @cached_property
     def welded_faces(self) -> NDArray[np.int64]:
@@ -158,7 +181,12 @@ class TriangleMesh:
     @cached_property
     def welded_edges(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """The edges of ``welded_faces`` sorted by vertex pair (``orientation.welded_edges``),
-        computed once per mesh for the face graph and the hole caps."""
+        computed once per mesh for the face graph and the hole caps; ``oriented``'s from its
+        source's, with the reversed triangles' slots permuted, on first use."""
+        reversal = self.__dict__.get("_reversed_from")
+        if reversal is not None:
+            table, slot = reversal.welded_edges
+            return table, reversed_slots(slot, reversal.flips)
         welded = self.welded_faces  # seeds the edges it sorted on the way
         seeded = self.__dict__.get("welded_edges")
         return seeded if seeded is not None else sorted_welded_edges(welded)
@@ -212,9 +240,7 @@ class TriangleMesh:
     def diagnostics(self) -> MeshDiagnostics:
         """What the mesh had and what was done about it: the orientation pass's findings
         (``orientation``) and the shells stitched for the graphs (``welded_faces``)."""
-        stitched_shells, stitched_vertices = stitch_counts(
-            self.coincident_welding[0], self.welded_faces
-        )
+        stitched_shells, stitched_vertices = stitch_counts(self.coincident_faces, self.welded_faces)
         return replace(
             self.orientation.diagnostics,
             stitched_shells=stitched_shells,
@@ -232,43 +258,36 @@ class TriangleMesh:
         if not flips.any():
             return self
         given_normals, areas = self.normals_and_areas
-        edge_table, slot = self.welded_edges
-        # One pass: the reversed rows of the triangles and of their welding, the edge slots
-        # of the reversed rows, and their normals computed from the new order (bit for bit
-        # those of a file wound that way); the other rows copied.
-        faces, welded, oriented_slot, normals = reverse_flipped(
+        # One pass: the reversed rows of the triangles and of their welding, and their
+        # normals computed from the new order (bit for bit those of a file wound that way);
+        # the other rows copied. The edges' slots are permuted only if asked for.
+        faces, welded, normals = reverse_flipped(
             self.vertices,
             self.faces,
             self.welded_faces,
-            slot,
             flips,
             given_normals,
             self.zero_area_limit,
         )
-        coincident, coincident_edges = self.coincident_welding
+        coincident = self.coincident_faces
         if coincident is self.welded_faces:
-            oriented_coincident = welded
+            oriented_coincident, coincident_edges = welded, None
         else:
             oriented_coincident = reverse_rows(coincident, flips)
             oriented_coincident.flags.writeable = False
+            coincident_edges = self.coincident_welding[1]
         oriented = TriangleMesh(self.vertices, faces, self.face_origin, self.input_face_count)
         normals.flags.writeable = False
         welded.flags.writeable = False
-        # Seed the caches: the areas, the welding, the edges, the face links and the degenerate
-        # limit do not change with the winding.
-        oriented_edges = (edge_table, oriented_slot)
-        if oriented_coincident is not welded:
-            coincident_table, coincident_slot = coincident_edges
-            coincident_edges = (coincident_table, reversed_slots(coincident_slot, flips))
-        else:
-            coincident_edges = oriented_edges
+        # Seed the caches: the areas, the welding, the face links and the degenerate limit
+        # do not change with the winding; the edges follow from this mesh's on first use.
         oriented.__dict__.update(
             zero_area_limit=self.zero_area_limit,
             normals_and_areas=(normals, areas),
-            coincident_welding=(oriented_coincident, coincident_edges),
+            coincident_faces=oriented_coincident,
             welded_faces=welded,
-            welded_edges=oriented_edges,
             face_adjacency=self.face_adjacency,
+            _reversed_from=Reversal(flips, self.welded_edges, coincident_edges),
         )
         oriented.__dict__["oriented"] = oriented
         return oriented
@@ -312,7 +331,7 @@ class TriangleMesh:
         normals, _ = self.normals_and_areas
         welded = self.welded_faces
         graph = build_face_graph(self.vertices, welded, normals, adjacency=self.face_adjacency)
-        coincident, _ = self.coincident_welding
+        coincident = self.coincident_faces
         if coincident is welded:
             return graph
         return stitched_edge_geometry(graph, self.vertices, self.faces, normals, coincident, welded)

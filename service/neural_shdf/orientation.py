@@ -228,33 +228,31 @@ def reverse_flipped(
     vertices: NDArray[Any],
     faces: NDArray[Any],
     welded: NDArray[Any],
-    slot: NDArray[Any],
     flips: NDArray[Any],
     normals: NDArray[Any],
     area_limit: float,
-) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
     """The arrays of the oriented copy of a mesh, in one pass over its triangles.
 
     Returns ``reverse_rows(faces, flips)``, ``reverse_rows(welded, flips)`` (a view of the
-    first where ``welded`` is ``faces``' memory: ``geometry.weld_faces`` merged nothing),
-    ``reversed_slots(slot, flips)`` and ``normals`` with the reversed rows' normals computed
+    first where ``welded`` is ``faces``' memory: ``geometry.weld_faces`` merged nothing)
+    and ``normals`` with the reversed rows' normals computed
     again from their new order, bit for bit those of ``geometry.face_normals`` of the
     reversed triangles (``area_limit``: ``zero_area_limit(vertices, faces)``, which the
-    winding does not change); the other rows copied.
+    winding does not change); the other rows copied. The edges' slots
+    (``reversed_slots``) are left to whoever asks: a closed mesh's segmentation never does.
     """
     vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
     faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
     welded = np.ascontiguousarray(welded, dtype=np.int64).reshape(-1, 3)
-    slot = np.ascontiguousarray(slot, dtype=np.int64).reshape(-1)
     normals = np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
     same = welded.shape == faces.shape and welded.ctypes.data == faces.ctypes.data
     # The kernel allocates the copies: fresh memory is faulted in page by page there, while
     # numpy asks for huge pages, which can stall on compaction for longer.
-    reversed_faces, reversed_welded, reversed_slot, renewed = _reverse_flipped(
+    reversed_faces, reversed_welded, renewed = _reverse_flipped(
         vertices,
         faces,
         welded,
-        slot,
         np.asarray(flips, dtype=bool),
         normals,
         float(area_limit),
@@ -263,7 +261,6 @@ def reverse_flipped(
     return (
         reversed_faces,
         reversed_faces.view() if same else reversed_welded,
-        reversed_slot,
         renewed,
     )
 
@@ -273,33 +270,26 @@ def _reverse_flipped(  # pragma: no cover - numba
     vertices: NDArray[np.float64],
     faces: NDArray[np.int64],
     welded: NDArray[np.int64],
-    slot: NDArray[np.int64],
     flips: NDArray[np.bool_],
     normals: NDArray[np.float64],
     area_limit: float,
     same: bool,
-) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
-    """``reverse_flipped``'s arrays: rows (a, b, c) -> (c, b, a), slots of corners 0, 1, 2
-    -> those of 1, 0, 2 (``reversed_slots``), normals from the new rows; the welded rows
-    left empty (none) where ``same``: they are the rows."""
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+    """``reverse_flipped``'s arrays: rows (a, b, c) -> (c, b, a), normals from the new
+    rows; the welded rows left empty (none) where ``same``: they are the rows."""
     count = faces.shape[0]
     reversed_faces = np.empty((count, 3), dtype=np.int64)
     reversed_welded = np.empty((0 if same else count, 3), dtype=np.int64)
-    reversed_slot = np.empty(3 * count, dtype=np.int64)
     renewed = np.empty((count, 3), dtype=np.float64)
     for face in range(count):
         if flips[face]:
             reversed_faces[face, 0] = faces[face, 2]
             reversed_faces[face, 1] = faces[face, 1]
             reversed_faces[face, 2] = faces[face, 0]
-            reversed_slot[3 * face] = slot[3 * face + 1]
-            reversed_slot[3 * face + 1] = slot[3 * face]
-            reversed_slot[3 * face + 2] = slot[3 * face + 2]
             _face_normal(vertices, reversed_faces, face, area_limit, renewed)
         else:
             for corner in range(3):
                 reversed_faces[face, corner] = faces[face, corner]
-                reversed_slot[3 * face + corner] = slot[3 * face + corner]
                 renewed[face, corner] = normals[face, corner]
     if not same:
         for face in range(count):
@@ -310,7 +300,7 @@ def _reverse_flipped(  # pragma: no cover - numba
             else:
                 for corner in range(3):
                     reversed_welded[face, corner] = welded[face, corner]
-    return reversed_faces, reversed_welded, reversed_slot, renewed
+    return reversed_faces, reversed_welded, renewed
 
 
 @kernel

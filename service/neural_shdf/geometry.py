@@ -567,24 +567,21 @@ def split_region(
     inside = np.asarray(region, dtype=bool).reshape(-1).copy()
     if len(inside) != len(faces):
         raise ValueError(f"region has {len(inside)} entries for {len(faces)} faces")
-    welded = weld_faces(vertices, faces).tolist()
+    welded_rows = weld_faces(vertices, faces)
+    # Edge ids of each face's sides (a, b), (b, c), (c, a), on the welded vertices.
+    ends = np.stack([welded_rows, np.roll(welded_rows, -1, axis=1)], axis=2)
+    keys = ends.min(axis=2) * (int(welded_rows.max(initial=0)) + 1) + ends.max(axis=2)
+    _, side_edge = np.unique(keys.reshape(-1), return_inverse=True)
+    side_edge = side_edge.reshape(-1, 3)
     while True:
-        split_edges = {
-            (min(a, b), max(a, b))
-            for row in np.flatnonzero(inside).tolist()
-            for a, b in zip(welded[row], welded[row][1:] + welded[row][:1], strict=True)
-        }
-        grows = [
-            not inside[row]
-            and sum(
-                (min(a, b), max(a, b)) in split_edges for a, b in zip(w, w[1:] + w[:1], strict=True)
-            )
-            >= 2
-            for row, w in enumerate(welded)
-        ]
-        if not any(grows):
+        is_split = np.zeros(int(side_edge.max(initial=-1)) + 1, dtype=bool)
+        is_split[side_edge[inside].reshape(-1)] = True
+        grows = ~inside & (is_split[side_edge].sum(axis=1) >= 2)
+        if not grows.any():
             break
-        inside |= np.asarray(grows)
+        inside |= grows
+    split_side = is_split[side_edge]
+    welded = welded_rows.tolist()
     points: list[NDArray[np.float64]] = list(vertices)
     index_of: dict[tuple[int, ...], int] = {}
 
@@ -636,7 +633,7 @@ def split_region(
             corners, ids = (a, b, c), (i, j, k)
             for side in range(3):
                 x, y = corners[side], corners[(side + 1) % 3]
-                if (min(x, y), max(x, y)) in split_edges:
+                if split_side[row, side]:
                     apex = ids[(side + 2) % 3]
                     run = along(x, y, ids[side], ids[(side + 1) % 3])
                     out += [(apex, run[n], run[n + 1]) for n in range(splits)]

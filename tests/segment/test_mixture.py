@@ -4,12 +4,21 @@ import numpy as np
 import pytest
 from sklearn.mixture import GaussianMixture
 
+from neural_shdf.geometry import face_normals, split_region
+from neural_shdf.mesh import TriangleMesh
+from neural_shdf.segment import mixture
+from neural_shdf.segment.from_shdf import prepare_segment
 from neural_shdf.segment.mixture import (
+    UNEVEN_TESSELLATION,
     choose_cluster_count,
     fit_best_mixture,
     fit_mixture,
+    histogram,
     prefers_split,
+    value_weights,
 )
+from neural_shdf.segment.params import SegmentParams
+from neural_shdf.segment.synthetic import dumbbell
 
 
 def two_populations(n: int = 20000, seed: int = 0) -> np.ndarray:
@@ -77,3 +86,117 @@ def test_min_deviation_keeps_components_off_a_single_bin():
     wide = fit_mixture(values, 9, min_deviation=0.02)
     assert narrow.deviations.min() < 0.002
     assert wide.deviations.min() >= 0.02 - 1e-12
+
+
+def split_areas(coarse: int, fine: int, pieces: int) -> np.ndarray:
+    """Face areas of ``coarse`` unit faces and ``fine`` unit faces split into ``pieces``."""
+    return np.concatenate([np.ones(coarse), np.full(fine * pieces, 1.0 / pieces)])
+
+
+@pytest.mark.parametrize(
+    "areas",
+    [
+        np.ones(1000),
+        np.random.default_rng(0).uniform(0.5, 1.5, 1000),  # uneven, but like a modelled mesh
+        split_areas(800, 200, 2),  # face count / equivalent count 1.2
+        np.zeros(10),
+        np.zeros(0),
+    ],
+)
+def test_faces_count_once_on_an_evenly_tessellated_mesh(areas):
+    assert value_weights(areas) is None
+
+
+def test_faces_count_by_area_where_a_fine_region_outnumbers_the_surface():
+    areas = split_areas(800, 200, 100)  # 20,800 faces for the surface of 800 equal ones
+    weights = value_weights(areas)
+    assert weights is not None
+    np.testing.assert_allclose(weights, areas / areas.mean())
+    assert weights.sum() == pytest.approx(len(areas))
+
+
+def test_the_weights_blend_in_without_a_jump():
+    """Between ``UNEVEN_TESSELLATION`` and twice it (face count over the equivalent
+    count) the weights move from counting faces to their areas, continuously."""
+    exponents = []
+    for pieces in (3, 4, 5, 6, 8, 10, 12, 16, 24, 40):
+        # 40% of the area split: the area-weighted median face is a coarse one
+        areas = split_areas(1200, 800, pieces)
+        weights = value_weights(areas)
+        ratio = len(areas) / 2000
+        if ratio <= UNEVEN_TESSELLATION:
+            assert weights is None
+            exponents.append(0.0)
+            continue
+        assert weights is not None
+        # weights ~ (area / mean) ** blend: the blend from two faces' weights
+        blend = np.log(weights[0] / weights[-1]) / np.log(pieces)
+        expected = np.clip(np.log2(ratio / UNEVEN_TESSELLATION), 0.0, 1.0)
+        assert blend == pytest.approx(expected)
+        exponents.append(blend)
+    assert exponents == sorted(exponents) and exponents[-1] == pytest.approx(1.0)
+
+
+def test_integer_weights_fit_as_repeated_values():
+    rng = np.random.default_rng(3)
+    values = two_populations(4000)
+    weights = rng.integers(1, 4, len(values)).astype(float)
+    weighted = fit_mixture(values, 3, weights=weights)
+    repeated = fit_mixture(np.repeat(values, weights.astype(int)), 3)
+    np.testing.assert_allclose(weighted.means, repeated.means, rtol=1e-9)
+    np.testing.assert_allclose(weighted.weights, repeated.weights, rtol=1e-9)
+    centres, counts = histogram(values, weights=weights)
+    assert counts.sum() == pytest.approx(weights.sum())
+    assert fit_best_mixture(values, weights=weights).size == fit_best_mixture(
+        np.repeat(values, weights.astype(int))
+    ).size
+    assert prefers_split(values, weights=weights)
+
+
+def finely_split_dumbbell():
+    """A dumbbell (its synthetic ShDF) and the same surface with its top fifth split
+    1-to-64, each piece carrying its face's value: (coarse mesh, values, split mesh, parent)."""
+    mesh, shdf = dumbbell(3000)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    top_first = np.argsort(-mesh.triangles_center[:, 2])
+    detail = np.zeros(len(faces), dtype=bool)
+    detail[top_first[np.cumsum(mesh.area_faces[top_first]) <= 0.2 * mesh.area]] = True
+    split_vertices, split_faces, parent = split_region(vertices, faces, detail, 8)
+    coarse = TriangleMesh(vertices, faces)
+    return coarse, shdf, TriangleMesh(split_vertices, split_faces), parent
+
+
+def test_a_finely_split_detail_gets_the_mixture_of_its_surface():
+    """The segmentation's mixture (``prepare_segment``) of a surface whose top fifth is
+    split 1-to-64 is the area-weighted fit of the unsplit surface, to rounding: the split
+    does not move it. Counting faces, the detail's values (13x the faces of the rest)
+    pull the components to the balls' thickness."""
+    coarse, shdf, split, parent = finely_split_dumbbell()
+    params = SegmentParams(clusters=5)
+    ratio_coarse = value_weights(coarse.normals_and_areas[1])
+    assert ratio_coarse is None  # the coarse dumbbell counts faces
+    areas = coarse.normals_and_areas[1]
+    basis = prepare_segment(coarse, shdf, params)
+    surface = fit_mixture(basis.values, 5, weights=areas / areas.mean())
+    found = prepare_segment(split, shdf[parent], params).mixture
+    np.testing.assert_allclose(found.means, surface.means, atol=1e-9)
+    np.testing.assert_allclose(found.weights, surface.weights, atol=1e-9)
+    counted = fit_mixture(basis.values[parent], 5)
+    assert np.abs(counted.means - surface.means).max() > 0.05
+
+
+def test_the_widened_refit_weighs_as_the_first_fit(monkeypatch):
+    coarse, shdf, split, parent = finely_split_dumbbell()
+    basis = prepare_segment(split, shdf[parent], SegmentParams(clusters=5))
+    seen = []
+    original = mixture.histogram
+
+    def spy(values, bins=mixture.HISTOGRAM_BINS, weights=None):
+        seen.append(weights)
+        return original(values, bins, weights)
+
+    monkeypatch.setattr(mixture, "histogram", spy)
+    basis.widened(0.02)
+    assert seen and seen[0] is not None
+    _, areas = face_normals(split.vertices, split.faces)
+    np.testing.assert_allclose(seen[0], areas / areas.mean())

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from neural_shdf.constants import FINE_TESSELLATION_FACES
 from neural_shdf.geometry import FaceGraph, equivalent_face_count
 from neural_shdf.segment.graphcut import CutHierarchy, cut_hierarchy, data_costs
-from neural_shdf.segment.mixture import Mixture, fit_mixture
+from neural_shdf.segment.mixture import Mixture, fit_mixture, value_weights
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import FaceData
 from neural_shdf.segment.symmetry import Reflection
@@ -81,7 +81,11 @@ class SegmentBasis:
         pays the refit once, not per smoothing value)."""
         if self._widened is None or self._widened[0] != min_deviation:
             mixture = fit_mixture(
-                self.values, self.mixture.size, self.seed, min_deviation=min_deviation
+                self.values,
+                self.mixture.size,
+                self.seed,
+                min_deviation=min_deviation,
+                weights=value_weights(self.geometry.areas),
             )
             self._widened = (min_deviation, self.with_mixture(mixture))
         return self._widened[1]

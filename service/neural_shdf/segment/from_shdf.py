@@ -30,7 +30,7 @@ from neural_shdf.orientation import MeshDiagnostics
 from neural_shdf.segment.basis import SegmentBasis
 from neural_shdf.segment.graphcut import data_costs, dihedral_weights
 from neural_shdf.segment.hierarchy import PartTree
-from neural_shdf.segment.mixture import fit_best_mixture, fit_mixture
+from neural_shdf.segment.mixture import fit_best_mixture, fit_mixture, value_weights
 from neural_shdf.segment.params import AUTO_CLUSTERS, DEFAULT_CLUSTERS, SegmentParams
 from neural_shdf.segment.partitioners import PARTITIONERS, Partitioning
 from neural_shdf.segment.parts import FaceData
@@ -100,11 +100,12 @@ def prepare_segment(
         reflection = detect_reflection(mesh.centroids, normals, areas)
         if reflection is not None:  # both sides get the same evidence
             values = symmetrize(values, reflection.mirror)
+    weights = value_weights(geometry.areas)  # None unless unevenly tessellated
     if params.clusters == AUTO_CLUSTERS:
-        mixture = fit_best_mixture(values, params.seed)
+        mixture = fit_best_mixture(values, params.seed, weights=weights)
     else:
         clusters = DEFAULT_CLUSTERS if params.clusters is None else params.clusters
-        mixture = fit_mixture(values, clusters, params.seed)
+        mixture = fit_mixture(values, clusters, params.seed, weights=weights)
     posteriors = mixture.posteriors(values)
     return SegmentBasis(
         clusters=params.clusters,

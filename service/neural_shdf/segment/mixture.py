@@ -7,6 +7,11 @@ deterministic. (scikit-learn's GaussianMixture on raw values gives the same
 fit - the tests check that - but its per-iteration overhead alone, times the
 7 candidate sizes of the BIC search, exceeded the time budget of large meshes.)
 Posteriors for every face are then evaluated in numpy.
+
+Each face counts once, as in CGAL, on a mesh tessellated about evenly; where the
+tessellation's density varies far more than modelled meshes' does (a sculpted or densely
+scanned detail on a coarse body), faces count by their area (``value_weights``), so that
+the finely split region does not decide the mixture for the whole surface.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
+from neural_shdf.geometry import equivalent_face_count
 from neural_shdf.segment.params import CLUSTER_CANDIDATES
 
 #: Histogram bins over [0, 1] the mixture is fitted on.
@@ -30,6 +36,13 @@ EM_TOLERANCE = 1e-4
 EM_MAX_ITERATIONS = 200
 #: Smallest standard deviation of a component (keeps densities finite).
 MIN_DEVIATION = 1e-3
+#: A mesh with more than this many faces per face of its surface's resolution (face count
+#: over ``geometry.equivalent_face_count``) is unevenly tessellated: its mixture weighs
+#: faces towards their areas, fully from twice this ratio (``value_weights``). The
+#: ratio is at most 1.8 on psb-dev, 1.22 on the human body set and 2.6 on the dense-dev
+#: scans (none of which this changes); a fifth of a psb-dev mesh split to ~100k faces
+#: reaches 2.5-55, of a 1,500-face human body 63-74.
+UNEVEN_TESSELLATION = 3.0
 
 
 @dataclass(frozen=True)
@@ -88,13 +101,46 @@ def _posteriors(
     return result
 
 
+def value_weights(areas: NDArray[Any]) -> NDArray[np.float64] | None:
+    """How much each face's value counts in the mixture's fit: ``None`` (once each) on a
+    mesh tessellated about evenly, else ``(area / mean area) ** blend``, scaled to sum to
+    the face count, where ``blend`` rises from 0 to 1 as the face count goes from
+    ``UNEVEN_TESSELLATION`` to twice that times the surface's resolution
+    (``geometry.equivalent_face_count``): no jump at any ratio.
+
+    Counting faces lets a finely split region decide the mixture: a fifth of a 1,500-face
+    body split to 100k faces gets nearly every face, its parts then fall under the part
+    tree's threshold and the body comes out in 3-5 parts instead of 11-14
+    (``benchmarks/bench_production.py --variants refined``). Below the ratio the count
+    is kept: there, where artists put more faces is where the detail is, and the part
+    tree was tuned on such fits.
+    """
+    areas = np.asarray(areas, dtype=np.float64).reshape(-1)
+    mean = float(areas.mean()) if len(areas) else 0.0
+    # The ratio is the area-weighted median face area over the mean area, at most the
+    # largest over the mean: most meshes are decided by one pass over the areas.
+    if not mean > 0 or float(areas.max()) <= UNEVEN_TESSELLATION * mean:
+        return None
+    ratio = len(areas) / equivalent_face_count(areas)
+    blend = float(np.clip(np.log2(ratio / UNEVEN_TESSELLATION), 0.0, 1.0))
+    if blend <= 0.0:
+        return None
+    weights: NDArray[np.float64] = (areas / mean) ** blend
+    weights *= len(areas) / weights.sum()
+    return weights
+
+
 def histogram(
-    values: NDArray[Any], bins: int = HISTOGRAM_BINS
+    values: NDArray[Any], bins: int = HISTOGRAM_BINS, weights: NDArray[Any] | None = None
 ) -> tuple[NDArray[Any], NDArray[Any]]:
-    """Bin centres and counts of values in [0, 1] (the sufficient data of a 1-D fit)."""
+    """Bin centres and counts of values in [0, 1] (the sufficient data of a 1-D fit);
+    with ``weights`` (one per value), the bins sum them instead of counting."""
     values = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0)
     index = np.minimum((values * bins).astype(np.int64), bins - 1)
-    counts = np.bincount(index, minlength=bins).astype(np.float64)
+    if weights is None:
+        counts = np.bincount(index, minlength=bins).astype(np.float64)
+    else:
+        counts = np.bincount(index, weights=np.asarray(weights, np.float64), minlength=bins)
     used = counts > 0
     return ((np.arange(bins) + 0.5) / bins)[used], counts[used]
 
@@ -146,28 +192,35 @@ def em_fit(
 
 
 def fit_mixture(
-    values: NDArray[Any], clusters: int, seed: int = 0, min_deviation: float = MIN_DEVIATION
+    values: NDArray[Any],
+    clusters: int,
+    seed: int = 0,
+    min_deviation: float = MIN_DEVIATION,
+    weights: NDArray[Any] | None = None,
 ) -> Mixture:
     """Fit ``clusters`` Gaussians to values in [0, 1] (fewer if there are fewer distinct bins),
-    none narrower than ``min_deviation``.
+    none narrower than ``min_deviation``; ``weights``: ``value_weights`` of the faces.
 
     ``seed`` is accepted for a uniform interface; the fit is deterministic.
     """
-    centres, counts = histogram(values)
+    centres, counts = histogram(values, weights=weights)
     clusters = max(1, min(int(clusters), len(centres)))
     return em_fit(centres, counts, clusters, float(counts.sum()), min_deviation)[0]
 
 
 def fit_best_mixture(
-    values: NDArray[Any], seed: int = 0, candidates: Sequence[int] = CLUSTER_CANDIDATES
+    values: NDArray[Any],
+    seed: int = 0,
+    candidates: Sequence[int] = CLUSTER_CANDIDATES,
+    weights: NDArray[Any] | None = None,
 ) -> Mixture:
     """The mixture with the lowest BIC among ``candidates`` sizes (1 bin: one component).
 
     BIC is computed as if there were at most ``BIC_SAMPLES`` values, so that
     on big meshes extra components must explain real structure, not noise.
-    The chosen mixture is refitted on all values.
+    The chosen mixture is refitted on all values (``weights`` as ``fit_mixture``).
     """
-    centres, counts = histogram(values)
+    centres, counts = histogram(values, weights=weights)
     usable = [k for k in candidates if 1 <= k <= len(centres)]
     if not usable:
         return em_fit(centres, counts, 1, float(counts.sum()))[0]
@@ -184,13 +237,19 @@ def choose_cluster_count(
     return fit_best_mixture(values, seed, candidates).size
 
 
-def prefers_split(values: NDArray[Any], seed: int = 0, separation: float = 2.0) -> bool:
+def prefers_split(
+    values: NDArray[Any],
+    seed: int = 0,
+    separation: float = 2.0,
+    weights: NDArray[Any] | None = None,
+) -> bool:
     """Whether ``values`` look like two populations rather than one.
 
     True when BIC prefers two Gaussians over one, both carry at least 5% of the
-    values, and their means are apart by Ashman's D >= ``separation``.
+    values, and their means are apart by Ashman's D >= ``separation`` (``weights`` as
+    ``fit_mixture``).
     """
-    centres, counts = histogram(values)
+    centres, counts = histogram(values, weights=weights)
     if len(centres) < 2 or counts.sum() < 10:
         return False
     sample_size = min(float(counts.sum()), BIC_SAMPLES)

@@ -14,7 +14,7 @@ from neural_shdf.segment.graphcut import (
     multilevel_alpha_expansion,
     near_boundary,
 )
-from neural_shdf.segment.mixture import fit_best_mixture, prefers_split
+from neural_shdf.segment.mixture import fit_best_mixture, prefers_split, value_weights
 from neural_shdf.segment.params import SegmentParams
 from neural_shdf.segment.parts import (
     FaceData,
@@ -88,9 +88,12 @@ def _refine_faces(
     if total_area > 0 and area < 2 * params.min_part_fraction * total_area:
         return None
     local_values = log_normalize(linear_normalize(shdf[faces]))
-    if not prefers_split(local_values, params.seed):
+    weights = value_weights(geometry.areas[faces])
+    if not prefers_split(local_values, params.seed, weights=weights):
         return None
-    mixture = fit_best_mixture(local_values, params.seed, REFINE_CLUSTER_CANDIDATES)
+    mixture = fit_best_mixture(
+        local_values, params.seed, REFINE_CLUSTER_CANDIDATES, weights=weights
+    )
     posteriors = mixture.posteriors(local_values)
     sub_graph, edges = induced_subgraph(graph, faces)
     sub = cut_into_parts(posteriors, sub_graph, edge_weights[edges], geometry.subset(faces))

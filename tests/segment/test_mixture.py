@@ -147,9 +147,10 @@ def test_integer_weights_fit_as_repeated_values():
     np.testing.assert_allclose(weighted.weights, repeated.weights, rtol=1e-9)
     centres, counts = histogram(values, weights=weights)
     assert counts.sum() == pytest.approx(weights.sum())
-    assert fit_best_mixture(values, weights=weights).size == fit_best_mixture(
-        np.repeat(values, weights.astype(int))
-    ).size
+    assert (
+        fit_best_mixture(values, weights=weights).size
+        == fit_best_mixture(np.repeat(values, weights.astype(int))).size
+    )
     assert prefers_split(values, weights=weights)
 
 

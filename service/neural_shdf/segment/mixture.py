@@ -137,10 +137,8 @@ def histogram(
     with ``weights`` (one per value), the bins sum them instead of counting."""
     values = np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0)
     index = np.minimum((values * bins).astype(np.int64), bins - 1)
-    if weights is None:
-        counts = np.bincount(index, minlength=bins).astype(np.float64)
-    else:
-        counts = np.bincount(index, weights=np.asarray(weights, np.float64), minlength=bins)
+    per_value = None if weights is None else np.asarray(weights, dtype=np.float64)
+    counts = np.bincount(index, weights=per_value, minlength=bins).astype(np.float64)
     used = counts > 0
     return ((np.arange(bins) + 0.5) / bins)[used], counts[used]
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from sklearn.mixture import GaussianMixture
 
-from neural_shdf.geometry import face_normals, split_region
+from neural_shdf.geometry import equivalent_face_count, face_normals, split_region
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import mixture
 from neural_shdf.segment.from_shdf import prepare_segment
@@ -201,3 +201,24 @@ def test_the_widened_refit_weighs_as_the_first_fit(monkeypatch):
     assert seen and seen[0] is not None
     _, areas = face_normals(split.vertices, split.faces)
     np.testing.assert_allclose(seen[0], areas / areas.mean())
+
+
+def test_the_equivalent_count_is_worked_out_once_per_basis(monkeypatch):
+    """The weights' equivalent face count is kept by the basis (the part tree's bending
+    rule asks for it too): one sort of the areas per segmentation basis."""
+    from neural_shdf.segment import basis as basis_module
+    from neural_shdf.segment import from_shdf
+
+    coarse, shdf, split, parent = finely_split_dumbbell()
+    calls = []
+
+    def counting(areas):
+        calls.append(len(areas))
+        return equivalent_face_count(areas)
+
+    for module in (from_shdf, basis_module, mixture):
+        monkeypatch.setattr(module, "equivalent_face_count", counting)
+    basis = prepare_segment(split, shdf[parent], SegmentParams(clusters=5))
+    assert basis.equivalent_faces == equivalent_face_count(split.normals_and_areas[1])
+    basis.widened(0.02)
+    assert calls == [split.face_count]

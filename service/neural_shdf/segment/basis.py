@@ -85,7 +85,7 @@ class SegmentBasis:
                 self.mixture.size,
                 self.seed,
                 min_deviation=min_deviation,
-                weights=value_weights(self.geometry.areas),
+                weights=value_weights(self.geometry.areas, lambda: self.equivalent_faces),
             )
             self._widened = (min_deviation, self.with_mixture(mixture))
         return self._widened[1]

@@ -17,6 +17,7 @@ structures (face graph, centroids, crease graph); copies take their first copy's
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -25,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.errors import ParameterError
+from neural_shdf.geometry import equivalent_face_count
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.orientation import MeshDiagnostics
 from neural_shdf.segment.basis import SegmentBasis
@@ -100,14 +102,15 @@ def prepare_segment(
         reflection = detect_reflection(mesh.centroids, normals, areas)
         if reflection is not None:  # both sides get the same evidence
             values = symmetrize(values, reflection.mirror)
-    weights = value_weights(geometry.areas)  # None unless unevenly tessellated
+    equivalent_faces = functools.cache(lambda: equivalent_face_count(geometry.areas))
+    weights = value_weights(geometry.areas, equivalent_faces)  # None unless uneven
     if params.clusters == AUTO_CLUSTERS:
         mixture = fit_best_mixture(values, params.seed, weights=weights)
     else:
         clusters = DEFAULT_CLUSTERS if params.clusters is None else params.clusters
         mixture = fit_mixture(values, clusters, params.seed, weights=weights)
     posteriors = mixture.posteriors(values)
-    return SegmentBasis(
+    basis = SegmentBasis(
         clusters=params.clusters,
         seed=params.seed,
         geometry=geometry,
@@ -122,6 +125,9 @@ def prepare_segment(
         reflection=reflection,
         frame=mesh.principal_frame,
     )
+    if equivalent_faces.cache_info().currsize:  # worked out for the weights: kept
+        basis.__dict__["equivalent_faces"] = equivalent_faces()
+    return basis
 
 
 def segment(

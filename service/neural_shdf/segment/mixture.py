@@ -16,7 +16,7 @@ the finely split region does not decide the mixture for the whole surface.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -101,7 +101,9 @@ def _posteriors(
     return result
 
 
-def value_weights(areas: NDArray[Any]) -> NDArray[np.float64] | None:
+def value_weights(
+    areas: NDArray[Any], equivalent_faces: Callable[[], float] | None = None
+) -> NDArray[np.float64] | None:
     """How much each face's value counts in the mixture's fit: ``None`` (once each) on a
     mesh tessellated about evenly, else ``(area / mean area) ** blend``, scaled to sum to
     the face count, where ``blend`` rises from 0 to 1 as the face count goes from
@@ -113,7 +115,8 @@ def value_weights(areas: NDArray[Any]) -> NDArray[np.float64] | None:
     tree's threshold and the body comes out in 3-5 parts instead of 11-14
     (``benchmarks/bench_production.py --variants refined``). Below the ratio the count
     is kept: there, where artists put more faces is where the detail is, and the part
-    tree was tuned on such fits.
+    tree was tuned on such fits. ``equivalent_faces``: how to get the equivalent count
+    where the caller keeps it (asked only where a face is over 3x the mean area).
     """
     areas = np.asarray(areas, dtype=np.float64).reshape(-1)
     mean = float(areas.mean()) if len(areas) else 0.0
@@ -121,7 +124,10 @@ def value_weights(areas: NDArray[Any]) -> NDArray[np.float64] | None:
     # largest over the mean: most meshes are decided by one pass over the areas.
     if not mean > 0 or float(areas.max()) <= UNEVEN_TESSELLATION * mean:
         return None
-    ratio = len(areas) / equivalent_face_count(areas)
+    equivalent = equivalent_face_count(areas) if equivalent_faces is None else equivalent_faces()
+    if not equivalent > 0:
+        return None
+    ratio = len(areas) / equivalent
     blend = float(np.clip(np.log2(ratio / UNEVEN_TESSELLATION), 0.0, 1.0))
     if blend <= 0.0:
         return None

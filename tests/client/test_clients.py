@@ -290,10 +290,14 @@ def test_segment_with_edits_matches_the_local_edit_of_the_tree(service):
         mesh_id = client.upload(capsule().export(file_type="obj").encode(), file_type="obj").mesh_id
         plain = client.segment(mesh_id, smoothing=0.02, parts=3)
         faces = len(plain.labels)
+        target = faces // 2
+        # Two faces outside the target's part, so that the paint changes the labels
+        # whichever three parts the segmentation found.
+        outside = np.flatnonzero(plain.labels != plain.labels[target])[-2:].tolist()
         document = [
             edits.shrink(0),
             edits.merge(0, faces - 1),
-            edits.paint([1, 2], to_face=faces // 2),
+            edits.paint(outside, to_face=target),
         ]
         edited = client.segment(mesh_id, smoothing=0.02, parts=3, edits=document)
         with pytest.raises(InvalidRequestError, match="out of range"):

@@ -41,7 +41,9 @@ MIN_DEVIATION = 1e-3
 #: faces towards their areas, fully from twice this ratio (``value_weights``). The
 #: ratio is at most 1.8 on psb-dev, 1.22 on the human body set and 2.6 on the dense-dev
 #: scans (none of which this changes); a fifth of a psb-dev mesh split to ~100k faces
-#: reaches 2.5-55, of a 1,500-face human body 63-74.
+#: reaches 2.5-55, of a 1,500-face human body 63-74; half the training corpus's web and
+#: CAD models (285 of 565: flat panels beside dense detail) are above it, and their parts
+#: depend less on the tessellation with the weights (``benchmarks/bench_tessellation.py``).
 UNEVEN_TESSELLATION = 3.0
 
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from neural_shdf import orientation
 from neural_shdf.geometry import (
     build_face_graph,
     face_centroids,
@@ -411,10 +412,16 @@ def test_the_patch_kernel_matches_its_reference_bit_for_bit(seed: int):
                 np.testing.assert_array_equal(ours, theirs)
 
 
+@pytest.mark.parametrize("threads", ["one", "two"])
 @pytest.mark.parametrize("seed", range(3))
-def test_the_oriented_copy_in_one_pass_is_the_rows_slots_and_normals_one_by_one(seed: int):
+def test_the_oriented_copy_in_one_pass_is_the_rows_slots_and_normals_one_by_one(
+    seed: int, threads: str, monkeypatch
+):
     """``reverse_flipped`` gives what reversing the rows, permuting the slots and computing
-    the reversed triangles' normals afresh give, bit for bit (degenerate rows included)."""
+    the reversed triangles' normals afresh give, bit for bit (degenerate rows included),
+    written by one thread or by two (each half of the rows)."""
+    if threads == "two":
+        monkeypatch.setattr(orientation, "PARALLEL_COPY_FACES", 2)
     rng = np.random.default_rng(seed)
     for given_vertices, given_faces in _messy_meshes(seed):
         # Also with coincident vertices (a copy of each of the first ten, used by some

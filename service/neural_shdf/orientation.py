@@ -41,6 +41,7 @@ for the ShDF's rays only (``shdf.stage.ray_targets``).
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -65,6 +66,9 @@ MAX_BOUNDARY_SHARE = 0.25
 #: An open patch whose capped signed volume is below this times its area^1.5 is treated
 #: as a sheet with no inside (a sphere has 0.094, a tube 1000 radii long about 0.006).
 AMBIGUOUS_VOLUME = 1e-3
+#: ``reverse_flipped`` writes the oriented copy in two threads from this many triangles
+#: (below, a thread's start costs more than it saves).
+PARALLEL_COPY_FACES = 100_000
 
 
 @dataclass(frozen=True)
@@ -241,27 +245,45 @@ def reverse_flipped(
     reversed triangles (``area_limit``: ``zero_area_limit(vertices, faces)``, which the
     winding does not change); the other rows copied. The edges' slots
     (``reversed_slots``) are left to whoever asks: a closed mesh's segmentation never does.
+    From ``PARALLEL_COPY_FACES`` triangles two threads write a half each (the copy is
+    mostly first touches of fresh memory: 1.6M triangles reversed, 54 -> 29 ms).
     """
     vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
     faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
     welded = np.ascontiguousarray(welded, dtype=np.int64).reshape(-1, 3)
     normals = np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
+    flips = np.ascontiguousarray(flips, dtype=bool).reshape(-1)
     same = welded.shape == faces.shape and welded.ctypes.data == faces.ctypes.data
+    count = len(faces)
     # The kernel allocates the copies: fresh memory is faulted in page by page there, while
     # numpy asks for huge pages, which can stall on compaction for longer.
-    reversed_faces, reversed_welded, renewed = _reverse_flipped(
-        vertices,
-        faces,
-        welded,
-        np.asarray(flips, dtype=bool),
-        normals,
-        float(area_limit),
-        same,
-    )
+    reversed_faces, reversed_welded, renewed = _empty_copy(count, same)
+    arrays = (vertices, faces, welded, flips, normals, float(area_limit), same)
+    copies = (reversed_faces, reversed_welded, renewed)
+    if count >= PARALLEL_COPY_FACES:
+        half = count // 2
+        with ThreadPoolExecutor(max_workers=1) as beside:
+            first = beside.submit(_reverse_flipped, *arrays, *copies, 0, half)
+            _reverse_flipped(*arrays, *copies, half, count)
+            first.result()
+    else:
+        _reverse_flipped(*arrays, *copies, 0, count)
     return (
         reversed_faces,
         reversed_faces.view() if same else reversed_welded,
         renewed,
+    )
+
+
+@kernel
+def _empty_copy(
+    count: int, same: bool
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:  # pragma: no cover
+    """Unwritten arrays of the oriented copy (the welded rows empty where ``same``)."""
+    return (
+        np.empty((count, 3), dtype=np.int64),
+        np.empty((0 if same else count, 3), dtype=np.int64),
+        np.empty((count, 3), dtype=np.float64),
     )
 
 
@@ -274,14 +296,15 @@ def _reverse_flipped(  # pragma: no cover - numba
     normals: NDArray[np.float64],
     area_limit: float,
     same: bool,
-) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
-    """``reverse_flipped``'s arrays: rows (a, b, c) -> (c, b, a), normals from the new
-    rows; the welded rows left empty (none) where ``same``: they are the rows."""
-    count = faces.shape[0]
-    reversed_faces = np.empty((count, 3), dtype=np.int64)
-    reversed_welded = np.empty((0 if same else count, 3), dtype=np.int64)
-    renewed = np.empty((count, 3), dtype=np.float64)
-    for face in range(count):
+    reversed_faces: NDArray[np.int64],
+    reversed_welded: NDArray[np.int64],
+    renewed: NDArray[np.float64],
+    start: int,
+    stop: int,
+) -> None:
+    """``reverse_flipped``'s rows ``start:stop``: rows (a, b, c) -> (c, b, a), normals from
+    the new rows; the welded rows left alone where ``same``: they are the rows."""
+    for face in range(start, stop):
         if flips[face]:
             reversed_faces[face, 0] = faces[face, 2]
             reversed_faces[face, 1] = faces[face, 1]
@@ -292,7 +315,7 @@ def _reverse_flipped(  # pragma: no cover - numba
                 reversed_faces[face, corner] = faces[face, corner]
                 renewed[face, corner] = normals[face, corner]
     if not same:
-        for face in range(count):
+        for face in range(start, stop):
             if flips[face]:
                 reversed_welded[face, 0] = welded[face, 2]
                 reversed_welded[face, 1] = welded[face, 1]
@@ -300,7 +323,6 @@ def _reverse_flipped(  # pragma: no cover - numba
             else:
                 for corner in range(3):
                     reversed_welded[face, corner] = welded[face, corner]
-    return reversed_faces, reversed_welded, renewed
 
 
 @kernel

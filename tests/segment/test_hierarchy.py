@@ -10,7 +10,6 @@ from neural_shdf.geometry import (
     FLAT_ANGLE,
     build_face_graph,
     face_normals,
-    split_region,
     weld_faces,
 )
 from neural_shdf.mesh import TriangleMesh
@@ -24,7 +23,7 @@ from neural_shdf.segment.hierarchy import (
     merge_tree,
 )
 from neural_shdf.segment.parts import canonical_labels, connected_parts
-from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell
+from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell, split_top
 from neural_shdf.shdf.postprocess import log_normalize
 from tests.mesh_helpers import ball_with_arm
 
@@ -342,10 +341,7 @@ def test_a_finely_split_detail_does_not_make_a_coarse_mesh_fine(monkeypatch):
     monkeypatch.setattr(hierarchy, "REFERENCE_BENDING", 0.3)  # above the dumbbell's 0.15
     mesh, shdf = dumbbell(3000)
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    top_first = np.argsort(-mesh.triangles_center[:, 2])
-    detail = np.zeros(len(faces), dtype=bool)
-    detail[top_first[np.cumsum(mesh.area_faces[top_first]) <= 0.2 * mesh.area]] = True
-    split_vertices, split_faces, parent = split_region(vertices, faces, detail, 6)
+    split_vertices, split_faces, parent = split_top(mesh, 6)
     assert len(faces) < 10_000 < len(split_faces)
     z = mesh.triangles_center[:, 2]
     regions = np.where(z < -JUNCTION_Z, 0, np.where(z > JUNCTION_Z, 2, 1))

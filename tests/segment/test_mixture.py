@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from sklearn.mixture import GaussianMixture
 
-from neural_shdf.geometry import equivalent_face_count, face_normals, split_region
+from neural_shdf.geometry import equivalent_face_count, face_normals
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import mixture
 from neural_shdf.segment.from_shdf import prepare_segment
@@ -18,7 +18,7 @@ from neural_shdf.segment.mixture import (
     value_weights,
 )
 from neural_shdf.segment.params import SegmentParams
-from neural_shdf.segment.synthetic import dumbbell
+from neural_shdf.segment.synthetic import dumbbell, split_top
 
 
 def two_populations(n: int = 20000, seed: int = 0) -> np.ndarray:
@@ -158,12 +158,8 @@ def finely_split_dumbbell():
     """A dumbbell (its synthetic ShDF) and the same surface with its top fifth split
     1-to-64, each piece carrying its face's value: (coarse mesh, values, split mesh, parent)."""
     mesh, shdf = dumbbell(3000)
-    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    top_first = np.argsort(-mesh.triangles_center[:, 2])
-    detail = np.zeros(len(faces), dtype=bool)
-    detail[top_first[np.cumsum(mesh.area_faces[top_first]) <= 0.2 * mesh.area]] = True
-    split_vertices, split_faces, parent = split_region(vertices, faces, detail, 8)
-    coarse = TriangleMesh(vertices, faces)
+    split_vertices, split_faces, parent = split_top(mesh, 8)
+    coarse = TriangleMesh(np.asarray(mesh.vertices), np.asarray(mesh.faces))
     return coarse, shdf, TriangleMesh(split_vertices, split_faces), parent
 
 

@@ -14,6 +14,8 @@ import numpy as np
 import trimesh
 from numpy.typing import NDArray
 
+from neural_shdf.geometry import split_region
+
 NECK_RADIUS = 0.3
 #: |z| where the neck meets a ball (the concave junctions).
 JUNCTION_Z = 2.0 - float(np.sqrt(1.0 - NECK_RADIUS**2))
@@ -41,3 +43,15 @@ def dumbbell(faces: int = 4000, ripple: float = 0.0) -> tuple[trimesh.Trimesh, N
         shdf = shdf + ripple * np.sin(3 * centre[:, 0]) * np.cos(2 * centre[:, 1])
     shdf = (shdf - shdf.min()) / (shdf.max() - shdf.min())
     return mesh, shdf
+
+
+def split_top(
+    mesh: trimesh.Trimesh, splits: int, share: float = 0.2
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.int64]]:
+    """(vertices, faces, input face of each face) of ``mesh`` with the top ``share`` of its
+    area (highest centroids first) split 1-to-``splits``**2 (``geometry.split_region``):
+    the same surface with a finely tessellated detail on a coarser body."""
+    top_first = np.argsort(-mesh.triangles_center[:, 2])
+    detail = np.zeros(len(mesh.faces), dtype=bool)
+    detail[top_first[np.cumsum(mesh.area_faces[top_first]) <= share * mesh.area]] = True
+    return split_region(np.asarray(mesh.vertices), np.asarray(mesh.faces), detail, splits)

@@ -8,10 +8,11 @@ fit - the tests check that - but its per-iteration overhead alone, times the
 7 candidate sizes of the BIC search, exceeded the time budget of large meshes.)
 Posteriors for every face are then evaluated in numpy.
 
-Each face counts once, as in CGAL, on a mesh tessellated about evenly; where the
-tessellation's density varies far more than modelled meshes' does (a sculpted or densely
-scanned detail on a coarse body), faces count by their area (``value_weights``), so that
-the finely split region does not decide the mixture for the whole surface.
+Each face counts once, as in CGAL, on a mesh tessellated about evenly; where a mesh has
+many more faces than its surface's resolution (a sculpted or densely scanned detail on a
+coarse body, dense curved detail beside large flat panels), faces count towards their area
+(``value_weights``), so that the finely tessellated region does not decide the mixture for
+the whole surface.
 """
 
 from __future__ import annotations

@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bench_production import majority_per_face
 
 from model_export.data import unpack_archives
 from neural_shdf.errors import MeshError
@@ -52,16 +53,6 @@ def evened(mesh: TriangleMesh) -> tuple[TriangleMesh, np.ndarray]:
     splits = int(np.clip(np.ceil(np.sqrt(np.median(areas[large]) / median)), 2, 6))
     vertices, faces, parent = split_region(mesh.vertices, mesh.faces, large, splits)
     return TriangleMesh(vertices, faces), parent
-
-
-def majority(labels: np.ndarray, parent: np.ndarray, count: int) -> np.ndarray:
-    """Per face of the file, the label most of its pieces have (ties: the smallest)."""
-    keys = parent * (int(labels.max()) + 1) + labels
-    pairs, votes = np.unique(keys, return_counts=True)
-    face, label = np.divmod(pairs, int(labels.max()) + 1)
-    order = np.lexsort((label, -votes, face))
-    first = np.searchsorted(face[order], np.arange(count))
-    return label[order][first]
 
 
 def main() -> int:
@@ -99,7 +90,7 @@ def main() -> int:
             continue
         labels = segment(mesh, compute_shdf(mesh), SegmentParams()).labels
         finer_labels = segment(finer, compute_shdf(finer), SegmentParams()).labels
-        back = majority(finer_labels, parent, mesh.face_count)
+        _, back = majority_per_face(parent, finer_labels)  # every face has pieces
         error = rand_index_error(labels, back, weights=areas)
         rows.append(error)
         finer_ratio = finer.face_count / equivalent_face_count(finer.normals_and_areas[1])

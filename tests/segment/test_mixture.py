@@ -218,3 +218,17 @@ def test_the_equivalent_count_is_worked_out_once_per_basis(monkeypatch):
     assert basis.equivalent_faces == equivalent_face_count(split.normals_and_areas[1])
     basis.widened(0.02)
     assert calls == [split.face_count]
+
+
+def test_max_deviation_keeps_every_component_narrower():
+    rng = np.random.default_rng(4)
+    values = np.clip(
+        np.concatenate([rng.normal(0.5, 0.02, 6000), rng.random(1500), rng.normal(0.7, 0.02, 3000)]),
+        0.0,
+        1.0,
+    )
+    free = fit_mixture(values, 4)
+    assert free.deviations.max() > 0.15  # the uniform spread takes a broad component
+    capped = fit_mixture(values, 4, max_deviation=0.08)
+    assert capped.deviations.max() <= 0.08 + 1e-12
+    assert np.all(np.diff(capped.means) >= 0) and np.isclose(capped.weights.sum(), 1.0)

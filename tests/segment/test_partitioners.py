@@ -1,4 +1,5 @@
-"""The graph-cut partitioner: a cut that collapses is solved again with a wider mixture."""
+"""The graph-cut partitioner: a cut that collapses is solved again with a wider mixture,
+then, where it still collapses, with no broad component."""
 
 import numpy as np
 import pytest
@@ -7,10 +8,15 @@ from neural_shdf.mesh import TriangleMesh
 from neural_shdf.segment import partitioners
 from neural_shdf.segment.from_shdf import prepare_segment, segment
 from neural_shdf.segment.params import SegmentParams
+from neural_shdf.mesh_io import load_mesh
+from neural_shdf.pipeline import compute_shdf
 from neural_shdf.segment.partitioners import (
+    COLLAPSE_MAX_DEVIATION,
     COLLAPSE_MIN_DEVIATION,
     COLLAPSED_LEAVES,
+    COLLAPSED_SHARE,
     Partitioning,
+    collapsed,
     cut_parts,
     part_count,
     refit_key,
@@ -151,7 +157,7 @@ def test_two_parts_are_cut_again_where_the_refit_won_at_the_default(two_halves, 
     basis.refit_wins[refit_key(SegmentParams())] = True  # as a degenerate fit's basis has it
     calls = counted_cuts(monkeypatch)
     segment(mesh, values, SegmentParams(smoothing=1.0), basis=basis)
-    assert len(calls) == 2 and basis._widened is not None
+    assert len(calls) == 2 and list(basis._widened) == [(COLLAPSE_MIN_DEVIATION, np.inf)]
 
 
 def test_one_part_is_cut_again_at_any_smoothing(spiked_dumbbell, monkeypatch):
@@ -180,3 +186,55 @@ def test_the_refit_decision_holds_per_option_set(two_halves):
         refit_key(SegmentParams(crease_boundaries=False)),
     }
     assert basis.with_mixture(basis.mixture).refit_wins == {}
+
+
+def test_a_cut_is_collapsed_by_its_count_or_by_one_part_holding_the_surface():
+    areas = np.ones(100)
+    assert collapsed(np.zeros(100, dtype=np.int64), areas)
+    assert collapsed(np.repeat([0, 1], 50), areas)  # at most COLLAPSED_LEAVES parts
+    crumbs = np.zeros(100, dtype=np.int64)
+    crumbs[[3, 40, 77]] = [1, 2, 3]
+    assert collapsed(crumbs, areas)  # 97% in one part
+    assert not collapsed(np.repeat([0, 1, 2], [40, 30, 30]), areas)
+    assert not collapsed(crumbs, np.where(crumbs == 0, 0.1, 10.0))  # crumbs by count only
+    assert not collapsed(np.arange(5), np.zeros(5))
+    assert COLLAPSED_SHARE == 0.9
+
+
+@pytest.fixture(scope="module")
+def bird_without_base(psb_off):
+    """psb 244 (a bird) with its lowest 6% of faces by height removed, as a scan without
+    its base (``benchmarks/bench_production.py``'s ``nobase``), and its default ShDF."""
+    mesh = load_mesh(psb_off(244))
+    height = mesh.vertices[mesh.faces].mean(axis=1)[:, 1]
+    kept = np.sort(np.argsort(height, kind="stable")[int(0.06 * mesh.face_count) :])
+    open_mesh = TriangleMesh(np.asarray(mesh.vertices), np.asarray(mesh.faces)[kept])
+    return open_mesh, compute_shdf(open_mesh).values
+
+
+def test_a_cut_still_collapsed_after_the_refit_is_solved_without_the_broad_component(
+    bird_without_base, monkeypatch
+):
+    mesh, values = bird_without_base
+    params = SegmentParams()
+    basis = prepare_segment(mesh, values, params)
+    work = partitioning(mesh, basis, params)
+    assert collapsed(cut_parts(work), basis.geometry.areas)
+    widened = basis.widened(COLLAPSE_MIN_DEVIATION)
+    assert collapsed(cut_parts(partitioning(mesh, widened, params)), basis.geometry.areas)
+    assert widened.mixture.deviations.max() > 2 * COLLAPSE_MAX_DEVIATION  # the broad one
+    result = segment(mesh, values, params, basis=basis)
+    assert (COLLAPSE_MIN_DEVIATION, COLLAPSE_MAX_DEVIATION) in basis._widened
+    assert result.tree.leaf_count > 4 and result.part_count >= 3  # body, wings, head: not one
+    areas = basis.geometry.areas
+    assert np.bincount(result.labels, weights=areas).max() < 0.8 * areas.sum()
+    assert np.array_equal(segment(mesh, values, params).labels, result.labels)  # fresh basis
+
+
+def test_a_refit_with_no_broad_component_is_not_narrowed(two_halves, monkeypatch):
+    mesh, values = two_halves
+    basis = prepare_segment(mesh, values, SegmentParams())
+    calls = counted_cuts(monkeypatch)
+    segment(mesh, values, SegmentParams(), basis=basis)  # collapses into two: refitted once
+    assert basis.widened(COLLAPSE_MIN_DEVIATION).mixture.deviations.max() <= COLLAPSE_MAX_DEVIATION
+    assert len(calls) == 2 and list(basis._widened) == [(COLLAPSE_MIN_DEVIATION, np.inf)]

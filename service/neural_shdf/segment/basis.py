@@ -48,8 +48,8 @@ class SegmentBasis:
     #: with its crease graph), for the coarse graphs' grid.
     frame: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
     _cut: CutHierarchy | None = field(default=None, repr=False)
-    #: ``widened``'s basis, with the minimum deviation it was fitted with.
-    _widened: tuple[float, SegmentBasis] | None = field(default=None, repr=False)
+    #: ``widened``'s bases by the (minimum, maximum) deviation they were fitted with.
+    _widened: dict[tuple[float, float], SegmentBasis] = field(default_factory=dict, repr=False)
     #: Per options (``partitioners.refit_key``): whether at the default smoothing the cut
     #: collapsed and the widened mixture's cut had more parts.
     refit_wins: dict[SegmentParams, bool] = field(default_factory=dict, repr=False)
@@ -75,20 +75,23 @@ class SegmentBasis:
             )
         return self._cut
 
-    def widened(self, min_deviation: float) -> SegmentBasis:
+    def widened(self, min_deviation: float, max_deviation: float = np.inf) -> SegmentBasis:
         """This basis with its mixture refitted with no component narrower than
-        ``min_deviation`` (built once, coarse graphs included: a caller that keeps the basis
-        pays the refit once, not per smoothing value)."""
-        if self._widened is None or self._widened[0] != min_deviation:
+        ``min_deviation`` nor broader than ``max_deviation`` (built once per pair, coarse
+        graphs included: a caller that keeps the basis pays each refit once, not per
+        smoothing value)."""
+        key = (min_deviation, max_deviation)
+        if key not in self._widened:
             mixture = fit_mixture(
                 self.values,
                 self.mixture.size,
                 self.seed,
                 min_deviation=min_deviation,
                 weights=value_weights(self.geometry.areas, lambda: self.equivalent_faces),
+                max_deviation=max_deviation,
             )
-            self._widened = (min_deviation, self.with_mixture(mixture))
-        return self._widened[1]
+            self._widened[key] = self.with_mixture(mixture)
+        return self._widened[key]
 
     def with_mixture(self, mixture: Mixture) -> SegmentBasis:
         """This basis with another mixture: its posteriors and data costs (coarse graphs
@@ -100,7 +103,7 @@ class SegmentBasis:
             posteriors=posteriors,
             data=data_costs(posteriors, self.geometry.face_weight),
             _cut=None,
-            _widened=None,
+            _widened={},
             refit_wins={},
         )
 
@@ -135,7 +138,6 @@ class SegmentBasis:
         if self.reflection is not None:
             size += self.reflection.mirror.nbytes
         size += self._cut_nbytes()
-        if self._widened is not None:  # shares the face data, ShDF and weights
-            widened = self._widened[1]
+        for widened in self._widened.values():  # shares the face data, ShDF and weights
             size += widened.posteriors.nbytes + widened.data.nbytes + widened._cut_nbytes()
         return size

@@ -158,6 +158,7 @@ def em_fit(
     clusters: int,
     sample_size: float,
     min_deviation: float = MIN_DEVIATION,
+    max_deviation: float = np.inf,
 ) -> tuple[Mixture, float]:
     """EM for a 1-D Gaussian mixture on binned data; returns the mixture and its BIC.
 
@@ -187,7 +188,7 @@ def em_fit(
         mass = np.maximum(responsibility.sum(axis=0), 1e-12)
         means = (responsibility * centres[:, None]).sum(axis=0) / mass
         variance = (responsibility * (centres[:, None] - means[None, :]) ** 2).sum(axis=0) / mass
-        deviations = np.sqrt(np.maximum(variance, min_deviation**2))
+        deviations = np.minimum(np.sqrt(np.maximum(variance, min_deviation**2)), max_deviation)
         mixing = np.maximum(mass / total, 1e-12)
         mixing /= mixing.sum()
         if log_likelihood - previous < EM_TOLERANCE * total:
@@ -204,6 +205,7 @@ def fit_mixture(
     seed: int = 0,
     min_deviation: float = MIN_DEVIATION,
     weights: NDArray[Any] | None = None,
+    max_deviation: float = np.inf,
 ) -> Mixture:
     """Fit ``clusters`` Gaussians to values in [0, 1] (fewer if there are fewer distinct bins),
     none narrower than ``min_deviation``; ``weights``: ``value_weights`` of the faces.
@@ -212,7 +214,7 @@ def fit_mixture(
     """
     centres, counts = histogram(values, weights=weights)
     clusters = max(1, min(int(clusters), len(centres)))
-    return em_fit(centres, counts, clusters, float(counts.sum()), min_deviation)[0]
+    return em_fit(centres, counts, clusters, float(counts.sum()), min_deviation, max_deviation)[0]
 
 
 def fit_best_mixture(

@@ -57,11 +57,18 @@ class Partitioning:
 
 
 #: A graph cut that leaves at most this many parts (leaves) although the mixture has more
-#: components has collapsed (see ``graph_cut_parts``).
+#: components has collapsed (see ``graph_cut_parts``) ...
 COLLAPSED_LEAVES = 2
+#: ... and so has one whose largest leaf holds at least this share of the surface (the
+#: rest in crumbs).
+COLLAPSED_SHARE = 0.9
 #: The narrowest mixture component of the refit after a collapse: about five histogram
 #: bins (``mixture.HISTOGRAM_BINS``), so that no component sits on a single bin.
 COLLAPSE_MIN_DEVIATION = 0.02
+#: Where that refit's cut still collapses and a component is broader than this, a second
+#: refit has none broader: the broad component (deviation 0.14-0.2 against 0.02-0.06 for
+#: the others) is the one that takes every face (see ``graph_cut_parts``).
+COLLAPSE_MAX_DEVIATION = 0.08
 
 
 class Partitioner(Protocol):
@@ -75,15 +82,19 @@ def graph_cut_parts(work: Partitioning) -> NDArray[np.int64]:
     connected runs of one cluster, optional refinement, tiny parts merged, boundaries
     moved onto concave creases (``crease_boundaries``).
 
-    A collapse (at most ``COLLAPSED_LEAVES`` parts from a mixture of more components) is
-    solved again with the mixture refitted with no component narrower than
-    ``COLLAPSE_MIN_DEVIATION``, and the solution with more parts is kept. Such a collapse
-    came from a degenerate fit: several components on one histogram bin (many faces of
-    one ShDF value, e.g. a plate of even thickness) and one broad component (deviation
-    0.14-0.27 against 0.001-0.04) that holds every other value, so that the data term
-    prefers the broad component nearly everywhere and the smoothness gives it every face
-    (psb 141 with 10% of its faces removed from below, or its shells moved by 0.5%: one
-    part, published three; docs/messy-meshes.md).
+    A collapse (``collapsed``: at most ``COLLAPSED_LEAVES`` parts, or one holding
+    ``COLLAPSED_SHARE`` of the surface, from a mixture of more components) is solved again
+    with the mixture refitted with no component narrower than ``COLLAPSE_MIN_DEVIATION``;
+    where that cut still collapses and the refit has a component broader than
+    ``COLLAPSE_MAX_DEVIATION``, once more with none broader. The solution with the most
+    parts is kept. Such a collapse comes from one broad component (deviation 0.14-0.27
+    against 0.001-0.06) that holds every value a little: the data term prefers it nearly
+    everywhere and the smoothness gives it every face. Several components on one
+    histogram bin (many faces of one ShDF value, e.g. a plate of even thickness) lead to
+    it (psb 141 with 10% of its faces removed from below, or its shells moved by 0.5%: one
+    part, published three), and so does a ShDF that varies gradually over a smooth shape
+    (psb 244, a bird, with its lowest 6% of faces removed: one part, published four;
+    docs/messy-meshes.md).
 
     A high smoothing merges parts by design, so away from the default smoothing a cut into
     two parts is solved again only where the refit won at the default smoothing (decided
@@ -92,18 +103,38 @@ def graph_cut_parts(work: Partitioning) -> NDArray[np.int64]:
     with the refit). Two parts from a fit that is not degenerate cost one solve.
     """
     parts = cut_parts(work)
-    mixture = work.basis.mixture
-    leaves = part_count(parts)
-    if leaves > COLLAPSED_LEAVES or mixture.size <= COLLAPSED_LEAVES:
+    areas = work.basis.geometry.areas
+    if work.basis.mixture.size <= COLLAPSED_LEAVES or not collapsed(parts, areas):
         return parts
+    leaves = part_count(parts)
     default = default_smoothing(work)
     if leaves > 1 and work.smoothing != default and not refit_wins_at_default(work, default):
         return parts
-    again = cut_parts(replace(work, basis=work.basis.widened(COLLAPSE_MIN_DEVIATION)))
-    wins = part_count(again) > leaves
+    best = parts
+    widened = work.basis.widened(COLLAPSE_MIN_DEVIATION)
+    again = cut_parts(replace(work, basis=widened))
+    if part_count(again) > leaves:
+        best = again
+    if collapsed(again, areas) and widened.mixture.deviations.max() > COLLAPSE_MAX_DEVIATION:
+        narrowed = work.basis.widened(COLLAPSE_MIN_DEVIATION, COLLAPSE_MAX_DEVIATION)
+        again = cut_parts(replace(work, basis=narrowed))
+        if part_count(again) > part_count(best):
+            best = again
     if work.smoothing == default:
-        work.basis.refit_wins[refit_key(work.params)] = wins
-    return again if wins else parts
+        work.basis.refit_wins[refit_key(work.params)] = best is not parts
+    return best
+
+
+def collapsed(parts: NDArray[np.int64], areas: NDArray[np.float64]) -> bool:
+    """Whether a graph cut's ``parts`` collapsed: at most ``COLLAPSED_LEAVES`` of them, or
+    one holding ``COLLAPSED_SHARE`` of the surface."""
+    if part_count(parts) <= COLLAPSED_LEAVES:
+        return True
+    total = float(areas.sum())
+    if not total > 0:
+        return False
+    largest = float(np.bincount(parts - parts.min(), weights=areas).max())
+    return largest >= COLLAPSED_SHARE * total
 
 
 def default_smoothing(work: Partitioning) -> float:

@@ -222,11 +222,8 @@ def test_the_equivalent_count_is_worked_out_once_per_basis(monkeypatch):
 
 def test_max_deviation_keeps_every_component_narrower():
     rng = np.random.default_rng(4)
-    values = np.clip(
-        np.concatenate([rng.normal(0.5, 0.02, 6000), rng.random(1500), rng.normal(0.7, 0.02, 3000)]),
-        0.0,
-        1.0,
-    )
+    peaks = [rng.normal(0.5, 0.02, 6000), rng.normal(0.7, 0.02, 3000)]
+    values = np.clip(np.concatenate([*peaks, rng.random(1500)]), 0.0, 1.0)
     free = fit_mixture(values, 4)
     assert free.deviations.max() > 0.15  # the uniform spread takes a broad component
     capped = fit_mixture(values, 4, max_deviation=0.08)

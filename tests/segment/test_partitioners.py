@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 
 from neural_shdf.mesh import TriangleMesh
+from neural_shdf.mesh_io import load_mesh
+from neural_shdf.pipeline import compute_shdf
 from neural_shdf.segment import partitioners
 from neural_shdf.segment.from_shdf import prepare_segment, segment
 from neural_shdf.segment.params import SegmentParams
-from neural_shdf.mesh_io import load_mesh
-from neural_shdf.pipeline import compute_shdf
 from neural_shdf.segment.partitioners import (
     COLLAPSE_MAX_DEVIATION,
     COLLAPSE_MIN_DEVIATION,

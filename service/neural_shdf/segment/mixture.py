@@ -164,7 +164,8 @@ def em_fit(
 
     Counts are rescaled to ``sample_size`` points, which sets how strongly BIC
     penalises extra components. Starts from quantile means, equal weights and
-    a shared deviation; deterministic. No component is narrower than ``min_deviation``.
+    a shared deviation; deterministic. No component is narrower than ``min_deviation``
+    nor broader than ``max_deviation``.
     """
     weights_n = counts / counts.sum() * sample_size
     total = weights_n.sum()
@@ -208,7 +209,8 @@ def fit_mixture(
     max_deviation: float = np.inf,
 ) -> Mixture:
     """Fit ``clusters`` Gaussians to values in [0, 1] (fewer if there are fewer distinct bins),
-    none narrower than ``min_deviation``; ``weights``: ``value_weights`` of the faces.
+    none narrower than ``min_deviation`` nor broader than ``max_deviation``; ``weights``:
+    ``value_weights`` of the faces.
 
     ``seed`` is accepted for a uniform interface; the fit is deterministic.
     """

@@ -57,10 +57,10 @@ class Partitioning:
 
 
 #: A graph cut that leaves at most this many parts (leaves) although the mixture has more
-#: components has collapsed (see ``graph_cut_parts``) ...
+#: components has collapsed (see ``graph_cut_parts``).
 COLLAPSED_LEAVES = 2
-#: ... and so has one whose largest leaf holds at least this share of the surface (the
-#: rest in crumbs).
+#: The refit after a collapse has collapsed too where it leaves at most ``COLLAPSED_LEAVES``
+#: parts or one holding at least this share of the surface (the rest in crumbs).
 COLLAPSED_SHARE = 0.9
 #: The narrowest mixture component of the refit after a collapse: about five histogram
 #: bins (``mixture.HISTOGRAM_BINS``), so that no component sits on a single bin.
@@ -82,12 +82,12 @@ def graph_cut_parts(work: Partitioning) -> NDArray[np.int64]:
     connected runs of one cluster, optional refinement, tiny parts merged, boundaries
     moved onto concave creases (``crease_boundaries``).
 
-    A collapse (``collapsed``: at most ``COLLAPSED_LEAVES`` parts, or one holding
-    ``COLLAPSED_SHARE`` of the surface, from a mixture of more components) is solved again
-    with the mixture refitted with no component narrower than ``COLLAPSE_MIN_DEVIATION``;
-    where that cut still collapses and the refit has a component broader than
-    ``COLLAPSE_MAX_DEVIATION``, once more with none broader. The solution with the most
-    parts is kept. Such a collapse comes from one broad component (deviation 0.14-0.27
+    A collapse (at most ``COLLAPSED_LEAVES`` parts from a mixture of more components) is
+    solved again with the mixture refitted with no component narrower than
+    ``COLLAPSE_MIN_DEVIATION``; where that cut has collapsed too (``collapsed``: also one
+    part holding ``COLLAPSED_SHARE`` of the surface) and the refit has a component broader
+    than ``COLLAPSE_MAX_DEVIATION``, once more with none broader. The solution with the
+    most parts is kept. Such a collapse comes from one broad component (deviation 0.14-0.27
     against 0.001-0.06) that holds every value a little: the data term prefers it nearly
     everywhere and the smoothness gives it every face. Several components on one
     histogram bin (many faces of one ShDF value, e.g. a plate of even thickness) lead to
@@ -103,10 +103,9 @@ def graph_cut_parts(work: Partitioning) -> NDArray[np.int64]:
     with the refit). Two parts from a fit that is not degenerate cost one solve.
     """
     parts = cut_parts(work)
-    areas = work.basis.geometry.areas
-    if work.basis.mixture.size <= COLLAPSED_LEAVES or not collapsed(parts, areas):
-        return parts
     leaves = part_count(parts)
+    if leaves > COLLAPSED_LEAVES or work.basis.mixture.size <= COLLAPSED_LEAVES:
+        return parts
     default = default_smoothing(work)
     if leaves > 1 and work.smoothing != default and not refit_wins_at_default(work, default):
         return parts
@@ -115,6 +114,7 @@ def graph_cut_parts(work: Partitioning) -> NDArray[np.int64]:
     again = cut_parts(replace(work, basis=widened))
     if part_count(again) > leaves:
         best = again
+    areas = work.basis.geometry.areas
     if collapsed(again, areas) and widened.mixture.deviations.max() > COLLAPSE_MAX_DEVIATION:
         narrowed = work.basis.widened(COLLAPSE_MIN_DEVIATION, COLLAPSE_MAX_DEVIATION)
         again = cut_parts(replace(work, basis=narrowed))
@@ -126,7 +126,7 @@ def graph_cut_parts(work: Partitioning) -> NDArray[np.int64]:
 
 
 def collapsed(parts: NDArray[np.int64], areas: NDArray[np.float64]) -> bool:
-    """Whether a graph cut's ``parts`` collapsed: at most ``COLLAPSED_LEAVES`` of them, or
+    """Whether a refit's ``parts`` collapsed too: at most ``COLLAPSED_LEAVES`` of them, or
     one holding ``COLLAPSED_SHARE`` of the surface."""
     if part_count(parts) <= COLLAPSED_LEAVES:
         return True

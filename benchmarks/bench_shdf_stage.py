@@ -11,7 +11,8 @@ Sections (comma-separated ``--sections``; default all):
 * ``dense``: the dense-dev scans, every producer against full exact.
 * ``million``: the dense-dev scans midpoint-subdivided to at least 800k faces (the same
   surface at production resolution): the default ShDF (``auto``) against full exact, in
-  child processes (issue 18's target: median Pearson >= 0.97 at ~1M faces).
+  child processes (issue 18's target: median Pearson >= 0.97 at ~1M faces), and the parts
+  each gives (default segmentation; area-weighted 1-RI between the two).
 * ``speed``: a dense-dev scan subdivided to ~1M faces: full exact (rays and
   post-processing apart) and ``auto`` in child processes in the same run (load and
   face graph excluded), their ratio, peak RSS, fidelity; the sample graph's stages
@@ -435,14 +436,18 @@ def speed(args: argparse.Namespace) -> None:
 def million(args: argparse.Namespace) -> None:
     import trimesh
 
+    from neural_shdf.evaluate.scores import rand_index_error
+    from neural_shdf.mesh import TriangleMesh
     from neural_shdf.mesh_io import load_mesh
+    from neural_shdf.pipeline import segment
+    from neural_shdf.segment import SegmentParams
 
     print(
         "== dense-dev scans at ~1M faces: default ShDF against full exact "
         "(target: median >= 0.97) =="
     )
     args.tmp.mkdir(parents=True, exist_ok=True)
-    correlations = []
+    correlations, part_errors = [], []
     for source in sorted((DATA / "dense-dev").glob("*.ply")):
         name = source.stem.split("__")[-1]
         mesh = load_mesh(source)
@@ -455,16 +460,25 @@ def million(args: argparse.Namespace) -> None:
         auto = child(path, "auto", args.tmp)
         r = pearson(auto["values"], exact["values"])
         correlations.append(r)
+        # The parts each ShDF gives (default segmentation), compared area-weighted.
+        dense = TriangleMesh(vertices, faces)
+        areas = dense.normals_and_areas[1]
+        by_auto = segment(dense, auto["values"], SegmentParams()).labels
+        by_exact = segment(dense, exact["values"], SegmentParams()).labels
+        part_errors.append(rand_index_error(by_auto, by_exact, weights=areas))
         print(
             f"  {name}: {len(faces)} faces, auto ({auto['ran']}) {auto['seconds']:.2f}s, "
             f"exact {exact['seconds']:.1f}s, Pearson {r:.3f}, MAE "
-            f"{np.abs(auto['values'] - exact['values']).mean():.3f}",
+            f"{np.abs(auto['values'] - exact['values']).mean():.3f}; parts "
+            f"{by_auto.max() + 1} / {by_exact.max() + 1}, 1-RI between them "
+            f"{part_errors[-1]:.3f}",
             flush=True,
         )
         path.unlink()
     print(
         f"  median Pearson {np.median(correlations):.3f} (min {min(correlations):.3f}) "
-        f"over {len(correlations)} scans"
+        f"over {len(correlations)} scans; parts from auto against exact's, area-weighted "
+        f"1-RI median {np.median(part_errors):.3f} (max {max(part_errors):.3f})"
     )
 
 

@@ -18,6 +18,11 @@ the boundary edges at the two vertices). What is stitched and what is not:
 * pairs are mutual nearest neighbours, so each vertex joins at most one other and no
   triangle collapses; a boundary edge whose two ends join the two ends of another
   shell's boundary edge becomes an ordinary edge between the two pieces;
+* pieces moved farther apart than about half their boundary's spacing: the first pairs
+  give, per two shells that meet, the median offset from one to the other, and the
+  points are matched again with each shell moved by it (``_rigid_pairs``), then with each
+  point moved by its nearest stitches' offset (``_guided_pairs``: pieces not moved as a
+  whole);
 * meshes with no open boundary, or a single shell, are returned unchanged (the same array),
   and so are mostly open ones (boundary edges more than ``MAX_BOUNDARY_SHARE`` of the
   triangles, as ``orientation.hole_caps``: separate sheets, not a surface cut in pieces),
@@ -47,6 +52,11 @@ from neural_shdf.orientation import (
 STITCH_TOLERANCE = 3.0
 #: Nearest boundary vertices looked at per boundary vertex for one of another shell.
 _NEIGHBOURS = 16
+#: Rounds that match again with each shell moved by its stitches' median offset to each
+#: shell it is stitched to (``_rigid_pairs``), before the guided rounds.
+_RIGID_ROUNDS = 3
+#: Stitches between two shells needed to move one onto the other rigidly.
+_RIGID_MIN_STITCHES = 3
 #: Rounds that match again with each vertex moved by its nearest stitches' offset.
 _GUIDED_ROUNDS = 8
 #: How far (in local boundary edge lengths) a guided pair may lie from where the offset
@@ -96,6 +106,13 @@ def stitch_shells(
     scale = np.bincount(ends.reshape(-1), np.tile(length, 2), len(on_boundary)) / incident
     partner = np.full(len(points), -1, dtype=np.int64)
     pairs = _mutual_nearest(points, boundary_shell, scale, tolerance)
+    for _ in range(_RIGID_ROUNDS):
+        partner[:] = -1
+        partner[pairs[:, 0]], partner[pairs[:, 1]] = pairs[:, 1], pairs[:, 0]
+        rigid = _rigid_pairs(points, boundary_shell, scale, partner)
+        if len(rigid) <= len(pairs):
+            break
+        pairs = rigid
     for _ in range(_GUIDED_ROUNDS):
         partner[:] = -1
         partner[pairs[:, 0]], partner[pairs[:, 1]] = pairs[:, 1], pairs[:, 0]
@@ -145,6 +162,51 @@ def stitch_counts(coincident: NDArray[Any], stitched: NDArray[Any]) -> tuple[int
     joined, members = np.unique(pairs[:, 0], return_counts=True)
     shells = int(members[members > 1].sum())
     return shells, int(vertices)
+
+
+def _rigid_pairs(
+    points: NDArray[np.float64],
+    shell: NDArray[Any],
+    scale: NDArray[np.float64],
+    partner: NDArray[np.int64],
+) -> NDArray[np.int64]:
+    """(P, 2) pairs matched again, each shell's points moved by the median offset of its
+    stitches (paired points) to each shell it is stitched to (at least
+    ``_RIGID_MIN_STITCHES``), nearest within ``_GUIDED_SLACK`` local boundary edge lengths of
+    where that offset puts them, the closest over those shells, kept where mutual. A piece
+    moved as a whole (an assembly's parts exported apart, a surface cut and shifted) has one
+    offset along its whole cut; the guided rounds' offsets of the nearest few stitches
+    follow a run of wrong first stitches (nearest points across a gap of about the boundary's
+    spacing are often a neighbour of each other's counterpart) and leave slits."""
+    from scipy.spatial import cKDTree
+
+    anchors = np.flatnonzero(partner >= 0)
+    if len(anchors) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    source, target = shell[anchors], shell[partner[anchors]]
+    links, counts = np.unique(np.stack([source, target], axis=1), axis=0, return_counts=True)
+    best = np.full(len(points), -1, dtype=np.int64)
+    best_distance = np.full(len(points), np.inf)
+    trees: dict[int, tuple[Any, NDArray[np.int64]]] = {}
+    for (a, b), count in zip(links, counts, strict=True):
+        if count < _RIGID_MIN_STITCHES:
+            continue
+        stitched = anchors[(source == a) & (target == b)]
+        offset = np.median(points[partner[stitched]] - points[stitched], axis=0)
+        if b not in trees:
+            members = np.flatnonzero(shell == b)
+            trees[b] = (cKDTree(points[members]), members)
+        tree, members = trees[b]
+        rows = np.flatnonzero(shell == a)
+        distance, found = tree.query(points[rows] + offset)
+        found = members[found]
+        limit = 0.5 * _GUIDED_SLACK * (scale[rows] + scale[found])
+        better = (distance <= limit) & (distance < best_distance[rows])
+        best[rows[better]] = found[better]
+        best_distance[rows[better]] = distance[better]
+    chosen = np.flatnonzero(best >= 0)
+    mutual = chosen[(best[best[chosen]] == chosen) & (chosen < best[chosen])]
+    return np.stack([mutual, best[mutual]], axis=1)
 
 
 def _guided_pairs(

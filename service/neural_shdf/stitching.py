@@ -106,20 +106,14 @@ def stitch_shells(
     scale = np.bincount(ends.reshape(-1), np.tile(length, 2), len(on_boundary)) / incident
     partner = np.full(len(points), -1, dtype=np.int64)
     pairs = _mutual_nearest(points, boundary_shell, scale, tolerance)
-    for _ in range(_RIGID_ROUNDS):
-        partner[:] = -1
-        partner[pairs[:, 0]], partner[pairs[:, 1]] = pairs[:, 1], pairs[:, 0]
-        rigid = _rigid_pairs(points, boundary_shell, scale, partner)
-        if len(rigid) <= len(pairs):
-            break
-        pairs = rigid
-    for _ in range(_GUIDED_ROUNDS):
-        partner[:] = -1
-        partner[pairs[:, 0]], partner[pairs[:, 1]] = pairs[:, 1], pairs[:, 0]
-        guided = _guided_pairs(points, boundary_shell, scale, partner)
-        if len(guided) <= len(pairs):
-            break
-        pairs = guided
+    for rounds, match in ((_RIGID_ROUNDS, _rigid_pairs), (_GUIDED_ROUNDS, _guided_pairs)):
+        for _ in range(rounds):
+            partner[:] = -1
+            partner[pairs[:, 0]], partner[pairs[:, 1]] = pairs[:, 1], pairs[:, 0]
+            again = match(points, boundary_shell, scale, partner)
+            if len(again) <= len(pairs):
+                break
+            pairs = again
     partner[:] = -1
     partner[pairs[:, 0]], partner[pairs[:, 1]] = pairs[:, 1], pairs[:, 0]
     stitched = welded

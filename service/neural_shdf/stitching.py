@@ -177,22 +177,30 @@ def _rigid_pairs(
     anchors = np.flatnonzero(partner >= 0)
     if len(anchors) == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    source, target = shell[anchors], shell[partner[anchors]]
-    links, counts = np.unique(np.stack([source, target], axis=1), axis=0, return_counts=True)
+    links, link_of, counts = np.unique(
+        np.stack([shell[anchors], shell[partner[anchors]]], axis=1),
+        axis=0,
+        return_inverse=True,
+        return_counts=True,
+    )
+    # Stitches grouped by their two shells, points by their shell: no pass over all the
+    # points per pair of shells (an assembly may have thousands).
+    by_link = np.split(anchors[np.argsort(link_of.reshape(-1), kind="stable")], np.cumsum(counts))
+    order = np.argsort(shell, kind="stable")
+    shells, starts = np.unique(shell[order], return_index=True)
+    members_of = dict(zip(shells.tolist(), np.split(order, starts[1:]), strict=True))
     best = np.full(len(points), -1, dtype=np.int64)
     best_distance = np.full(len(points), np.inf)
-    trees: dict[int, tuple[Any, NDArray[np.int64]]] = {}
-    for (a, b), count in zip(links, counts, strict=True):
-        if count < _RIGID_MIN_STITCHES:
+    trees: dict[int, Any] = {}
+    for (a, b), stitched in zip(links.tolist(), by_link, strict=False):
+        if len(stitched) < _RIGID_MIN_STITCHES:
             continue
-        stitched = anchors[(source == a) & (target == b)]
         offset = np.median(points[partner[stitched]] - points[stitched], axis=0)
+        members = members_of[b]
         if b not in trees:
-            members = np.flatnonzero(shell == b)
-            trees[b] = (cKDTree(points[members]), members)
-        tree, members = trees[b]
-        rows = np.flatnonzero(shell == a)
-        distance, found = tree.query(points[rows] + offset)
+            trees[b] = cKDTree(points[members])
+        rows = members_of[a]
+        distance, found = trees[b].query(points[rows] + offset)
         found = members[found]
         limit = 0.5 * _GUIDED_SLACK * (scale[rows] + scale[found])
         better = (distance <= limit) & (distance < best_distance[rows])

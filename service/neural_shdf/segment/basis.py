@@ -51,7 +51,7 @@ class SegmentBasis:
     #: ``widened``'s bases by the (minimum, maximum) deviation they were fitted with.
     _widened: dict[tuple[float, float], SegmentBasis] = field(default_factory=dict, repr=False)
     #: Per options (``partitioners.refit_key``): whether at the default smoothing the cut
-    #: collapsed and the widened mixture's cut had more parts.
+    #: collapsed and a refitted mixture's cut had more parts.
     refit_wins: dict[SegmentParams, bool] = field(default_factory=dict, repr=False)
 
     @cached_property

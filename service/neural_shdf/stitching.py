@@ -206,6 +206,11 @@ def _rigid_pairs(
         better = (distance <= limit) & (distance < best_distance[rows])
         best[rows[better]] = found[better]
         best_distance[rows[better]] = distance[better]
+    return _mutual_pairs(best)
+
+
+def _mutual_pairs(best: NDArray[np.int64]) -> NDArray[np.int64]:
+    """(P, 2) pairs of points that are each other's ``best`` (-1: none), lower index first."""
     chosen = np.flatnonzero(best >= 0)
     mutual = chosen[(best[best[chosen]] == chosen) & (chosen < best[chosen])]
     return np.stack([mutual, best[mutual]], axis=1)
@@ -249,8 +254,7 @@ def _guided_pairs(
     chosen = np.flatnonzero(candidate.any(axis=1))
     best = np.full(len(points), -1, dtype=np.int64)
     best[chosen] = found[chosen, np.argmax(candidate[chosen], axis=1)]
-    mutual = chosen[(best[best[chosen]] == chosen) & (chosen < best[chosen])]
-    return np.stack([mutual, best[mutual]], axis=1)
+    return _mutual_pairs(best)
 
 
 def _edges_on_many(faces: NDArray[np.int64], vertex_count: int) -> NDArray[np.int64]:
@@ -285,8 +289,7 @@ def _mutual_nearest(
     has = np.flatnonzero(candidate.any(axis=1))
     best = np.full(len(points), -1, dtype=np.int64)
     best[has] = other[has, np.argmax(candidate[has], axis=1)]
-    mutual = has[(best[best[has]] == has) & (has < best[has])]
-    return np.stack([mutual, best[mutual]], axis=1)
+    return _mutual_pairs(best)
 
 
 @kernel

@@ -97,6 +97,12 @@ GOLDEN[16] = GOLDEN[15]
 # moved apart as a whole are zipped along their whole cut. The golden mesh is closed:
 # version 16's result.
 GOLDEN[17] = GOLDEN[16]
+# Version 18: the same parts for a file with its faces and vertices in another order: the
+# graph cut's costs and weights rounded to be summed exactly (``graphcut.COST_QUANTUM``,
+# ``graphcut.summable`` in the crease cut), coarse nodes at their members' box centre, the
+# sweeps past a stall by position; a stitched pair keeps its vertex of lower position.
+# The golden mesh gets version 17's ShDF and labels (checked below).
+GOLDEN[18] = GOLDEN[17]
 #: Earlier versions, recorded as sha256 of (ShDF rounded to 6 decimals, labels): version 1;
 #: 2, the ray cone turning with each triangle and segmentation grids along the mesh's axes.
 HISTORY = {

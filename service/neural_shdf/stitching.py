@@ -84,7 +84,8 @@ def stitch_shells(
 
     ``welded``: triangles with coincident vertices welded (``geometry.weld_faces``);
     ``edges``: their ``orientation.welded_edges``. Returns ``welded`` itself where nothing
-    is stitched. Each stitched pair takes the lower of its two indices.
+    is stitched. Each stitched pair takes the index of its vertex of lower position (x,
+    then y, then z: the same vertex whatever order the file lists them in).
     """
     given = welded
     welded = np.asarray(welded, dtype=np.int64).reshape(-1, 3)
@@ -123,12 +124,13 @@ def stitch_shells(
             return given
         representative = np.arange(vertex_count, dtype=np.int64)
         a, b = on_boundary[joined], on_boundary[partner[joined]]
-        representative[np.maximum(a, b)] = np.minimum(a, b)
+        kept = np.where(_lower_position(points[joined], points[partner[joined]]), a, b)
+        representative[a + b - kept] = kept
         stitched = representative[welded]
         # A stitch that puts an edge on three triangles or more folds the surface (the
         # pair did not run along each other): undo the stitches at the fold's ends.
         touched = np.zeros(vertex_count, dtype=bool)
-        touched[np.minimum(a, b)] = True
+        touched[kept] = True
         near = stitched[touched[stitched].any(axis=1)]  # only their edges can have changed
         folded = _edges_on_many(near, vertex_count)
         undo = np.isin(representative[on_boundary], folded) & (partner >= 0)
@@ -137,6 +139,15 @@ def stitch_shells(
         partner[partner[undo]] = -1
         partner[undo] = -1
     return stitched
+
+
+def _lower_position(first: NDArray[Any], second: NDArray[Any]) -> NDArray[np.bool_]:
+    """Per row, whether ``first``'s point comes before ``second``'s (x, then y, then z)."""
+    differs = first != second
+    axis = np.argmax(differs, axis=1)  # the first coordinate that differs
+    rows = np.arange(len(first))
+    lower: NDArray[np.bool_] = first[rows, axis] < second[rows, axis]
+    return lower
 
 
 def stitch_counts(coincident: NDArray[Any], stitched: NDArray[Any]) -> tuple[int, int]:

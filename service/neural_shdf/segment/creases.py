@@ -47,6 +47,7 @@ from neural_shdf.geometry import (
     grid_cells,
     principal_coordinates,
 )
+from neural_shdf.segment.graphcut import summable
 from neural_shdf.segment.parts import canonical_labels, connected_parts, merge_small_parts
 
 # Tuned on the 57 psb-dev tuning models (ids 1-3 of each category), exact ShDF, for the
@@ -322,7 +323,9 @@ def _min_cut_in_bands(
     change: NDArray[Any],
 ) -> NDArray[np.int64]:
     """One max-flow: each band face picks its boundary's low (0) or high (1) part;
-    ``change``: what a face pays for leaving its part."""
+    ``change``: what a face pays for leaving its part. Both rounded to be summed exactly
+    (``graphcut.summable``): the same cut whatever order the faces come in."""
+    capacity, change = summable(capacity, change)
     nodes = np.flatnonzero(in_band)
     local = np.full(len(parts), -1, dtype=np.int64)
     local[nodes] = np.arange(len(nodes))

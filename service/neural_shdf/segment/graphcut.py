@@ -26,7 +26,9 @@ and runs one full expansion cycle back at the stalled level.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
+from functools import cached_property
 from typing import Any, cast
 
 import maxflow
@@ -51,6 +53,12 @@ ANGLE_EPS = 5e-6
 CONVEX_FACTOR = 0.08
 #: CGAL multiplies the smoothing (its lambda, in [0, 1]) by this in the edge weights.
 LAMBDA_SCALE = 100.0
+#: Costs and weights are rounded to multiples of this (a power of two) before the graph cut
+#: sums them: every sum of them is then exact, whatever order the faces come in, so the same
+#: energy has the same minimisers and max-flow returns the same cut for a file with its
+#: faces in another order (float sums in face order broke ties apart differently: a CAD
+#: part's flat panels, where many cuts cost the same, came out in other parts).
+COST_QUANTUM = 2.0**-20
 #: Hard limit on alpha-expansion cycles (it usually converges in 2-3).
 MAX_CYCLES = 8
 #: Multilevel solve: coarsen until at most this many nodes remain, solve there exactly.
@@ -107,7 +115,27 @@ def data_costs(
     np.maximum(cost, np.finfo(np.float64).eps, out=cost)
     if face_weight is not None:
         cost *= np.asarray(face_weight, dtype=np.float64)[:, None]
-    return cost
+    return quantized(cost)
+
+
+def quantized(values: NDArray[Any], quantum: float = COST_QUANTUM) -> NDArray[np.float64]:
+    """``values`` rounded to multiples of ``quantum``, a power of two (positive ones to at
+    least one): sums of them below ``2^53 * quantum`` are exact in any order."""
+    values = np.asarray(values, dtype=np.float64)
+    rounded: NDArray[np.float64] = np.round(values / quantum) * quantum
+    np.copyto(rounded, quantum, where=(values > 0) & (rounded <= 0))
+    return rounded
+
+
+def summable(*arrays: NDArray[Any]) -> tuple[NDArray[np.float64], ...]:
+    """The ``arrays`` (not negative) rounded so that every sum of their values is exact in
+    any order: to multiples of the power of two 2^-50 of their total (about 1e-15 of it)."""
+    arrays = tuple(np.asarray(values, dtype=np.float64) for values in arrays)
+    total = sum(float(values.sum()) for values in arrays)
+    if not (total > 0 and math.isfinite(total)):
+        return arrays
+    quantum = 2.0 ** (math.ceil(math.log2(total)) - 50)
+    return tuple(quantized(values, quantum) for values in arrays)
 
 
 def dihedral_weights(graph: FaceGraph, smoothing: float) -> NDArray[np.float64]:
@@ -124,7 +152,7 @@ def dihedral_weights(graph: FaceGraph, smoothing: float) -> NDArray[np.float64]:
     angle = graph.dihedral / np.pi
     angle = np.where(graph.concave, angle, angle * CONVEX_FACTOR)
     weight = -np.log(np.maximum(angle, ANGLE_EPS)) * (smoothing * LAMBDA_SCALE)
-    return weight * length_factor(graph.edge_length)
+    return quantized(weight * length_factor(graph.edge_length))
 
 
 def length_factor(edge_length: NDArray[Any]) -> NDArray[np.float64]:
@@ -769,6 +797,14 @@ class StalledTop:
     #: Summed edge lengths of the top level's edges where creases are judged per length.
     lengths: NDArray[np.float64] | None = None
 
+    @cached_property
+    def sweep_order(self) -> NDArray[np.int64]:
+        """The top level's nodes by position, |x| then |y| then |z| (the axes' signs are
+        the pose's): the order in which ``smoothed_preference`` visits them, the same
+        whatever order the faces came in."""
+        order: NDArray[np.int64] = np.lexsort(np.abs(self.positions).T[::-1])
+        return order
+
     @property
     def nbytes(self) -> int:
         arrays = (self.positions, *(self.adjacency or ()))
@@ -809,11 +845,13 @@ class CutHierarchy:
         top = levels[-1]
         # A top coarsened past a stall is followed by the full cycle at the stalled level.
         cycles = SMOOTHED_TOP_CYCLES if len(levels) > len(self.levels) else MAX_CYCLES
-        labels = alpha_expansion(top.data, top.pairs, top.unit_weights * smoothing, None, cycles)
+        labels = alpha_expansion(
+            top.data, top.pairs, quantized(top.unit_weights * smoothing), None, cycles
+        )
         for index in reversed(range(len(levels) - 1)):
             level = levels[index]
             labels = labels[level.coarse_of]
-            weights = level.unit_weights * smoothing
+            weights = quantized(level.unit_weights * smoothing)
             if index == len(self.levels) - 1:
                 # The stalled level: grouping by smoothed preference leads alpha-expansion
                 # to other local minima than a direct solve there; one full cycle of
@@ -834,7 +872,11 @@ class CutHierarchy:
         rather than by their cheapest label, which interleaves where clusters overlap."""
         top, stalled = self.levels[-1], cast(StalledTop, self.stalled)
         preferred = smoothed_preference(
-            top.data, top.pairs, top.unit_weights * smoothing, adjacency=stalled.adjacency
+            top.data,
+            top.pairs,
+            quantized(top.unit_weights * smoothing),
+            adjacency=stalled.adjacency,
+            order=stalled.sweep_order,
         )
         levels = coarsen_levels(
             top.pairs,
@@ -964,10 +1006,12 @@ def coarsen_levels(
             coarse_pairs, coarse_weights, level_lengths = coarse_graph(
                 coarse_of, level_pairs, level_weights, coarse_count, level_lengths
             )
-        first = np.full(coarse_count, -1, dtype=np.int64)
-        first[coarse_of[::-1]] = np.arange(count)[::-1]
-        positions, cell_size = positions[first], 2.0 * cell_size  # a node at its first face
-        if preferred is not None:
+        # A node at the centre of its members' box: the same point in any face order and
+        # pose (the first member by index was another point when the faces came reordered).
+        positions, cell_size = _box_centres(coarse_of, positions, coarse_count), 2.0 * cell_size
+        if preferred is not None:  # one label per group: every member prefers it
+            first = np.full(coarse_count, -1, dtype=np.int64)
+            first[coarse_of] = np.arange(count)
             preferred = preferred[first]
         levels.append(
             CutLevel(
@@ -987,6 +1031,22 @@ def coarsen_levels(
     return levels, level_lengths
 
 
+@kernel
+def _box_centres(
+    group: NDArray[np.int64], positions: NDArray[np.float64], count: int
+) -> NDArray[np.float64]:  # pragma: no cover - compiled
+    """Per group 0..count-1, the centre of its members' bounding box."""
+    low = np.full((count, 3), np.inf)
+    high = np.full((count, 3), -np.inf)
+    for node in range(len(group)):
+        g = group[node]
+        for axis in range(3):
+            low[g, axis] = min(low[g, axis], positions[node, axis])
+            high[g, axis] = max(high[g, axis], positions[node, axis])
+    centres: NDArray[np.float64] = 0.5 * (low + high)
+    return centres
+
+
 def _per_length(weights: NDArray[Any], lengths: NDArray[Any]) -> NDArray[np.float64]:
     """Weight per unit length of each edge (an edge of zero length: its weight)."""
     result: NDArray[np.float64] = np.asarray(weights, dtype=np.float64).copy()
@@ -1000,18 +1060,20 @@ def smoothed_preference(
     weights: NDArray[Any],
     sweeps: int = PREFERENCE_SWEEPS,
     adjacency: tuple[NDArray[Any], NDArray[Any], NDArray[Any]] | None = None,
+    order: NDArray[Any] | None = None,
 ) -> NDArray[np.int64]:
-    """Each node's label after ``sweeps`` sweeps of iterated conditional modes (in node
-    order, from the cheapest labels): the label minimising its data cost plus the weight
-    of its edges to nodes of other labels. Deterministic. ``adjacency``:
-    ``adjacency_with_edges(pairs, len(data))`` where the caller keeps it."""
+    """Each node's label after ``sweeps`` sweeps of iterated conditional modes (nodes in
+    ``order``, default their own; from the cheapest labels): the label minimising its data
+    cost plus the weight of its edges to nodes of other labels. Deterministic.
+    ``adjacency``: ``adjacency_with_edges(pairs, len(data))`` where the caller keeps it."""
     data = np.asarray(data, dtype=np.float64)
     if adjacency is None:
         pairs = np.ascontiguousarray(pairs, dtype=np.int64).reshape(-1, 2)
         adjacency = adjacency_with_edges(pairs, len(data))
     indptr, neighbours, edge_of = adjacency
+    order = np.arange(len(data)) if order is None else np.asarray(order, dtype=np.int64)
     return _iterated_modes(
-        data, indptr, neighbours, edge_of, np.asarray(weights, np.float64), sweeps
+        data, indptr, neighbours, edge_of, np.asarray(weights, np.float64), sweeps, order
     )
 
 
@@ -1023,6 +1085,7 @@ def _iterated_modes(
     edge_of: NDArray[Any],
     weights: NDArray[Any],
     sweeps: int,
+    order: NDArray[Any],
 ) -> NDArray[np.int64]:  # pragma: no cover - compiled
     count, label_count = data.shape
     labels = np.empty(count, dtype=np.int64)
@@ -1031,7 +1094,7 @@ def _iterated_modes(
     cost = np.empty(label_count)
     for _ in range(sweeps):
         changed = 0
-        for node in range(count):
+        for node in order:
             for label in range(label_count):
                 cost[label] = data[node, label]
             for j in range(indptr[node], indptr[node + 1]):

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from neural_shdf.geometry import FaceGraph
 from neural_shdf.segment.basis import SegmentBasis
 from neural_shdf.segment.creases import CreaseGraph, snap_boundaries_to_creases
+from neural_shdf.segment.graphcut import quantized
 from neural_shdf.segment.hierarchy import PartTree, automatic_part_count, merge_tree
 from neural_shdf.segment.metis import metis_edge_weights, metis_partition
 from neural_shdf.segment.params import SegmentParams
@@ -53,7 +54,7 @@ class Partitioning:
     @cached_property
     def edge_weights(self) -> NDArray[np.float64]:
         """The graph cut's edge weights: ``smoothing`` times the weights at smoothing 1."""
-        return self.basis.unit_weights * self.smoothing
+        return quantized(self.basis.unit_weights * self.smoothing)
 
 
 #: A graph cut that leaves at most this many parts (leaves) although the mixture has more

@@ -142,6 +142,26 @@ def test_a_fin_does_not_turn_the_box_it_stands_on():
     assert result.diagnostics.non_manifold_edges == 1
 
 
+
+@pytest.mark.parametrize("wound_out", [True, False])
+def test_a_fin_faces_away_from_the_centre_whatever_its_winding_in_the_file(wound_out: bool):
+    """A sheet has no inside: it faces away from the mesh's centre, so an inside-out file
+    gets the same triangles back (up to version 17 it kept the file's winding, and a
+    reversed export of a jet with wing sheets came out in other parts)."""
+    box = trimesh.creation.box(extents=(1, 1, 1))
+    top = [i for i, v in enumerate(box.vertices) if v[2] > 0 and v[1] < 0]
+    a, b = box.vertices[top[0]], box.vertices[top[1]]
+    vertices = np.vstack([box.vertices, a + [0, 0, 1], b + [0, 0, 1]])
+    fin = np.array([[top[0], top[1], 8], [top[1], 9, 8]])
+    faces = np.vstack([np.asarray(box.faces), fin if wound_out else fin[:, ::-1]])
+    oriented = []
+    for given in (faces, faces[:, ::-1]):
+        flips = orient_faces(vertices, given).flips
+        oriented.append(_reverse(given, flips))
+    np.testing.assert_array_equal(oriented[0], oriented[1])
+    normals, _ = face_normals(vertices, oriented[0])
+    assert np.all(normals[12:, 1] < -0.99)  # the fin, in the plane y = -0.5, faces -y
+
 def test_a_triangle_soup_is_welded_before_it_is_oriented():
     vertices, faces = _sphere(2)
     soup_vertices = vertices[faces[:, ::-1]].reshape(-1, 3)

@@ -66,6 +66,10 @@ MAX_BOUNDARY_SHARE = 0.25
 #: An open patch whose capped signed volume is below this times its area^1.5 is treated
 #: as a sheet with no inside (a sphere has 0.094, a tube 1000 radii long about 0.006).
 AMBIGUOUS_VOLUME = 1e-3
+#: Such a sheet faces away from the mesh's centre where its area-weighted normals' flux out
+#: of the centre (``_sheet_flux``) is above this times its area times the mesh's extent
+#: (a plane through the centre has none); below it, its winding in the file decides.
+SHEET_FLUX = 1e-3
 #: ``reverse_flipped`` writes the oriented copy in two threads from this many triangles
 #: (below, a thread's start costs more than it saves).
 PARALLEL_COPY_FACES = 100_000
@@ -171,8 +175,18 @@ def orient_faces(
         np.empty(0, dtype=np.int32 if 2 * count < 2**31 else np.int64),
     )
     ambiguous = (volume == 0) | (is_open & (np.abs(volume) < AMBIGUOUS_VOLUME * patch_area**1.5))
-    # Where the volume cannot decide, the winding of most of the patch's area in the file.
-    patch_flip = np.where(ambiguous, flipped_area > 0.5 * patch_area, volume < 0)
+    patch_flip = volume < 0
+    if ambiguous.any():
+        # A sheet (no inside) faces away from the mesh's centre, whatever the file's winding;
+        # where that does not decide either, the winding of most of its area in the file.
+        flux = _sheet_flux(vertices, welded, winding, ambiguous)
+        extent = float(np.linalg.norm(np.ptp(vertices, axis=0))) if len(vertices) else 0.0
+        decided = np.abs(flux) > SHEET_FLUX * patch_area * extent
+        patch_flip = np.where(
+            ambiguous,
+            np.where(decided, flux < 0, flipped_area > 0.5 * patch_area),
+            patch_flip,
+        )
     flips = _face_flips(winding, patch_flip)
     # Duplicates face as their first copy does; collapsed faces keep the file's winding.
     copies = np.flatnonzero(first_copy >= 0)
@@ -676,6 +690,28 @@ def _orient_patches(  # pragma: no cover
         loops,
         non_manifold,
     )
+
+
+def _sheet_flux(
+    vertices: NDArray[np.float64],
+    faces: NDArray[np.int64],
+    winding: NDArray[np.integer[Any]],
+    sheets: NDArray[np.bool_],
+) -> NDArray[np.float64]:
+    """Per patch, for the ``sheets`` (else 0): the sum over its triangles, wound as its
+    first face, of twice the area times the normal dotted with the centroid's offset from
+    the mean vertex: positive where the patch faces away from the mesh's centre."""
+    patch = np.asarray(winding, dtype=np.int64) >> 1
+    chosen = np.flatnonzero((np.asarray(winding) >= 0) & sheets[np.maximum(patch, 0)])
+    flux = np.zeros(len(sheets))
+    if len(chosen) == 0:
+        return flux
+    corners = vertices[faces[chosen]]
+    doubled = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    offset = corners.mean(axis=1) - vertices.mean(axis=0)
+    sign = 1.0 - 2.0 * (np.asarray(winding)[chosen] & 1)
+    np.add.at(flux, patch[chosen], sign * np.einsum("ij,ij->i", doubled, offset))
+    return flux
 
 
 @kernel

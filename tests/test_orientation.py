@@ -142,7 +142,6 @@ def test_a_fin_does_not_turn_the_box_it_stands_on():
     assert result.diagnostics.non_manifold_edges == 1
 
 
-
 @pytest.mark.parametrize("wound_out", [True, False])
 def test_a_fin_faces_away_from_the_centre_whatever_its_winding_in_the_file(wound_out: bool):
     """A sheet has no inside: it faces away from the mesh's centre, so an inside-out file
@@ -161,6 +160,7 @@ def test_a_fin_faces_away_from_the_centre_whatever_its_winding_in_the_file(wound
     np.testing.assert_array_equal(oriented[0], oriented[1])
     normals, _ = face_normals(vertices, oriented[0])
     assert np.all(normals[12:, 1] < -0.99)  # the fin, in the plane y = -0.5, faces -y
+
 
 def test_a_triangle_soup_is_welded_before_it_is_oriented():
     vertices, faces = _sphere(2)

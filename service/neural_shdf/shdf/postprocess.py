@@ -58,41 +58,67 @@ def bilateral_window(face_count: int) -> int:
 
 
 def fill_missing(values: NDArray[Any], graph: FaceGraph) -> NDArray[np.float64]:
-    """Faces with NaN take the mean of their neighbours' values, in face order.
-
-    As CGAL does: a face filled earlier counts as a neighbour value for later
-    faces; faces with no valued neighbour get the smallest original value. All
-    NaN (nothing measured) gives all zeros.
+    """Faces with NaN take the mean of their valued neighbours, ring by ring outward from the
+    measured faces: each ring from the values before it, so the result does not depend on
+    the order of the faces (CGAL fills in face order, a face filled earlier counting for
+    later ones). Faces no ring reaches (no measured face in their component) get the
+    smallest measured value; all NaN (nothing measured) gives all zeros.
     """
     out = np.asarray(values, dtype=np.float64).copy()
-    missing = np.flatnonzero(np.isnan(out))
-    if len(missing) == 0:
+    missing = np.isnan(out)
+    if not missing.any():
         return out
-    if len(missing) == len(out):
+    if missing.all():
         return np.zeros_like(out)
-    smallest = float(np.nanmin(out))
-    # Only the pairs that touch a missing face: each missing face's neighbours, ascending.
-    pairs = graph.pairs
-    touching = pairs[np.isnan(out[pairs[:, 0]]) | np.isnan(out[pairs[:, 1]])]
-    owner = np.concatenate([touching[:, 0], touching[:, 1]])
-    other = np.concatenate([touching[:, 1], touching[:, 0]])
-    order = np.lexsort((other, owner))
-    owner, other = owner[order], other[order]
-    first = np.searchsorted(owner, missing, side="left")
-    last = np.searchsorted(owner, missing, side="right")
-    still_missing = []
-    for face, start, stop in zip(missing.tolist(), first.tolist(), last.tolist(), strict=True):
-        total, count = 0.0, 0
-        for neighbour in other[start:stop].tolist():
-            value = float(out[neighbour])
-            if value == value:  # not NaN
-                total += value
-                count += 1
-        if count:
-            out[face] = total / count
-        else:
-            still_missing.append(face)
-    out[still_missing] = smallest
+    indptr, neighbours = adjacency_lists(graph.pairs, graph.face_count)
+    return _fill_rings(out, indptr, neighbours, float(np.nanmin(out)))
+
+
+@kernel
+def _fill_rings(
+    out: NDArray[np.float64], indptr: NDArray[np.int64], neighbours: NDArray[np.int64], floor: float
+) -> NDArray[np.float64]:  # pragma: no cover - numba
+    """``fill_missing`` in place on ``out``: rings of missing faces next to valued ones."""
+    count = len(out)
+    valued = ~np.isnan(out)
+    queued = np.zeros(count, dtype=np.bool_)
+    ring = np.empty(count, dtype=np.int64)
+    size = 0
+    for face in range(count):
+        if not valued[face]:
+            for j in range(indptr[face], indptr[face + 1]):
+                if valued[neighbours[j]]:
+                    ring[size] = face
+                    queued[face] = True
+                    size += 1
+                    break
+    fill = np.empty(count)
+    following = np.empty(count, dtype=np.int64)
+    while size:
+        for k in range(size):
+            face = ring[k]
+            total, n = 0.0, 0
+            for j in range(indptr[face], indptr[face + 1]):
+                if valued[neighbours[j]]:
+                    total += out[neighbours[j]]
+                    n += 1
+            fill[k] = total / n
+        for k in range(size):
+            out[ring[k]] = fill[k]
+            valued[ring[k]] = True
+        next_size = 0
+        for k in range(size):
+            for j in range(indptr[ring[k]], indptr[ring[k] + 1]):
+                other = neighbours[j]
+                if not valued[other] and not queued[other]:
+                    queued[other] = True
+                    following[next_size] = other
+                    next_size += 1
+        ring[:next_size] = following[:next_size]
+        size = next_size
+    for face in range(count):
+        if not valued[face]:
+            out[face] = floor
     return out
 
 

@@ -243,6 +243,29 @@ def test_stitched_edges_have_the_length_and_fold_of_the_uncut_surface():
     assert np.allclose(graph.edge_length, whole.edge_length)
 
 
+def _graph_by_face_pair(mesh: TriangleMesh, face_of: np.ndarray) -> dict:
+    """The face graph's edges keyed by the pair of ``face_of`` ids: (length, concave)."""
+    graph = mesh.face_graph
+    pairs = np.sort(face_of[graph.pairs], axis=1)
+    return {
+        (int(a), int(b)): (round(float(length), 9), bool(concave))
+        for (a, b), length, concave in zip(pairs, graph.edge_length, graph.concave, strict=True)
+    }
+
+
+def test_stitched_edges_measure_the_same_whatever_order_the_faces_come_in():
+    """Up to version 17 a stitched edge took its length and fold from the triangle of lower
+    index: a file listing the faces in another order read other creases there."""
+    vertices, faces, _ = _quarters(1.0)
+    # Each piece's copy of a cut vertex a little off the other's (another tessellation):
+    # the two triangles at a stitched edge measure it differently.
+    vertices = vertices + 0.003 * np.random.default_rng(7).normal(size=vertices.shape)
+    given = _graph_by_face_pair(TriangleMesh(vertices, faces), np.arange(len(faces)))
+    for seed in range(3):
+        order = np.random.default_rng(seed).permutation(len(faces))
+        assert _graph_by_face_pair(TriangleMesh(vertices, faces[order]), order) == given
+
+
 def _slit_halves(monkeypatch) -> tuple[np.ndarray, np.ndarray, float]:
     """``_halves(1.5)`` stitched without the rigid rounds: the cut zipped in part, slits
     left between the stitches (what a piece not moved as a whole leaves)."""

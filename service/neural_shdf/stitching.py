@@ -330,8 +330,9 @@ def stitched_edge_geometry(
 
     A stitched index stands for two vertices a gap apart, so the length and fold measured
     at its one position are off by the gap (a crease read as concave is cheap to cut).
-    Each edge's length is that of its first triangle's own edge, and its fold is measured
-    with the second triangle moved so that its copy of the edge meets the first's.
+    Each edge's length is the mean of its two triangles' own edges, and its fold is measured
+    from each triangle with the other moved so that its copy of the edge meets it, the two
+    measures summed (neither triangle's index decides: the same in any face order).
     ``faces``, ``normals``, ``coincident`` and ``welded``: the triangles ``graph`` was built
     on (same winding) and their normals, with coincident vertices welded, and stitched too.
     """
@@ -347,17 +348,27 @@ def stitched_edge_geometry(
     # Pairs with a stitched vertex on the edge or off it (the fold is measured there too).
     touching: NDArray[np.bool_] = np.any(stitched[welded], axis=1)
     at = np.flatnonzero(touching[graph.pairs[:, 0]] | touching[graph.pairs[:, 1]])
-    a, b = graph.pairs[at, 0], graph.pairs[at, 1]
     lo, hi = lo_all[at][:, None], hi_all[at][:, None]
-    a_lo, a_hi = np.argmax(welded[a] == lo, axis=1), np.argmax(welded[a] == hi, axis=1)
-    b_lo, b_hi = np.argmax(welded[b] == lo, axis=1), np.argmax(welded[b] == hi, axis=1)
-    first_lo, first_hi = vertices[faces[a, a_lo]], vertices[faces[a, a_hi]]
-    shift = 0.5 * (first_lo - vertices[faces[b, b_lo]] + first_hi - vertices[faces[b, b_hi]])
-    off_edge = vertices[faces[b, (3 - b_lo - b_hi) % 3]] + shift
+    normals = np.asarray(normals)
+    length = np.zeros(len(at))
+    fold = np.zeros(len(at))
+    # Each triangle's own edge, and the other's third vertex moved onto it: measured from
+    # both sides and averaged, so that neither triangle's index decides.
+    for a, b in (
+        (graph.pairs[at, 0], graph.pairs[at, 1]),
+        (graph.pairs[at, 1], graph.pairs[at, 0]),
+    ):
+        a_lo, a_hi = np.argmax(welded[a] == lo, axis=1), np.argmax(welded[a] == hi, axis=1)
+        b_lo, b_hi = np.argmax(welded[b] == lo, axis=1), np.argmax(welded[b] == hi, axis=1)
+        own_lo, own_hi = vertices[faces[a, a_lo]], vertices[faces[a, a_hi]]
+        shift = 0.5 * (own_lo - vertices[faces[b, b_lo]] + own_hi - vertices[faces[b, b_hi]])
+        off_edge = vertices[faces[b, (3 - b_lo - b_hi) % 3]] + shift
+        length += 0.5 * np.linalg.norm(own_lo - own_hi, axis=1)
+        fold += np.einsum("ij,ij->i", off_edge - own_lo, normals[a])
     edge_length = graph.edge_length.copy()
     concave = graph.concave.copy()
-    edge_length[at] = np.linalg.norm(first_lo - first_hi, axis=1)
-    concave[at] = np.einsum("ij,ij->i", off_edge - first_lo, np.asarray(normals)[a]) > 0
+    edge_length[at] = length
+    concave[at] = fold > 0
     return replace(graph, edge_length=edge_length, concave=concave)
 
 
@@ -412,7 +423,9 @@ def bridge_gaps(
     bridged = candidate.any(axis=1)
     if not bridged.any():
         return caps
-    target = nearest[np.arange(len(caps)), np.argmax(candidate, axis=1)]
+    target = nearest[
+        np.arange(len(caps)), _nearest_candidate(distance, nearest, candidate, vertices)
+    ]
     slit = np.isin(loop, loop[bridged])
     # The slits' other edges (a piece's own boundary between stitches, farther across than
     # the tolerance): bridged to the nearest vertex of another shell at any distance, so
@@ -424,10 +437,33 @@ def bridge_gaps(
         other = (shell[far] != own_shell[rest, None]) & (far != start[rest, None])
         other &= far != end[rest, None]
         reached = other.any(axis=1)
-        target[rest[reached]] = far[reached, np.argmax(other[reached], axis=1)]
+        column = _nearest_candidate(distance.reshape(len(rest), -1), far, other, vertices)
+        target[rest[reached]] = far[reached, column[reached]]
         bridged[rest[reached]] = True
     bridges = np.stack([start, end, target], axis=1)[slit & bridged]
     return np.vstack([caps[~(slit & bridged)], bridges])
+
+
+def _nearest_candidate(
+    distance: NDArray[Any], nearest: NDArray[Any], candidate: NDArray[Any], vertices: NDArray[Any]
+) -> NDArray[np.int64]:
+    """Per row, the column of the nearest ``candidate`` (ties: the vertex of lower position,
+    x then y then z, not of lower index: the same vertex whatever order the file lists
+    them in); 0 where a row has none."""
+    rows, columns = distance.shape
+    key = np.where(candidate, distance, np.inf)
+    points = vertices[nearest]
+    order = np.lexsort(
+        (
+            points[..., 2].ravel(),
+            points[..., 1].ravel(),
+            points[..., 0].ravel(),
+            key.ravel(),
+            np.repeat(np.arange(rows), columns),
+        )
+    )
+    first: NDArray[np.int64] = order.reshape(rows, columns)[:, 0] - np.arange(rows) * columns
+    return first
 
 
 def closing_caps(

@@ -52,10 +52,21 @@ tune the segmentation): a second collection of meshes, none of them looked at wh
 tuning. ``--every K`` takes every K-th of its meshes (sorted by name; many are frames of
 one animation), ``--models`` their indices in that order.
 
+``--corpus`` measures something else, on meshes with no labels: whether the parts depend
+on how a file lists the same surface. On the training corpus (151 misc + 414 shapedb
+meshes: scans, web and CAD models, most of them open, non-manifold or in many shells;
+unpacked once to ``--corpus-cache`` by ``model_export.data.unpack_archives``), every
+``--every``-th mesh of 200-150,000 faces is segmented as given and as each variant whose
+faces map one to one onto the file's (``reversed``, ``mixed30``, ``shuffled``, ``soup``,
+``seams``, ``rotated``, ``transform``, ``doublesided``); printed per variant, the mean
+area-unweighted 1-RI between the two segmentations (0: the same parts) and how many meshes
+differ at all or by more than 0.05.
+
     python benchmarks/bench_production.py [--bench-dir DIR] [--models 4 24 ...]
         [--limit N] [--every K] [--variants reversed holes ...] [--shells-move 0.01]
         [--nobase-share 0.06] [--json out.json]
         [--shdf-fidelity]
+    PYTHONPATH=service:. python benchmarks/bench_production.py --corpus [--every 4]
 """
 
 from __future__ import annotations
@@ -497,6 +508,63 @@ def score(
     return float(scores.ri_error), float(scores.cd)
 
 
+#: Variants whose faces are the file's own, one to one: the same parts are expected.
+SAME_SURFACE = (
+    "reversed",
+    "mixed30",
+    "shuffled",
+    "soup",
+    "seams",
+    "rotated",
+    "transform",
+    "doublesided",
+)
+#: Corpus meshes outside this many faces are left out (too small to cut; time).
+CORPUS_FACES = (200, 150_000)
+
+
+def corpus_consistency(cache: Path, every: int, variants: list[str], json_path: Path | None) -> int:
+    """``--corpus``: the file's own parts against each same-surface variant's (1-RI)."""
+    from model_export.data import unpack_archives
+    from neural_shdf.errors import MeshError
+    from neural_shdf.evaluate.scores import rand_index_error
+
+    shapes = unpack_archives(cache)
+    suffixes = {".obj", ".off", ".ply", ".stl"}
+    paths = sorted(p for p in shapes.rglob("*") if p.suffix.lower() in suffixes)[::every]
+    names = [name for name in variants if name in SAME_SURFACE] or list(SAME_SURFACE)
+    rows: dict[str, list[float]] = {name: [] for name in names}
+    per_mesh = []
+    start = time.perf_counter()
+    for path in paths:
+        try:
+            loaded = load_mesh(path)
+        except MeshError:
+            continue
+        if not CORPUS_FACES[0] <= loaded.face_count <= CORPUS_FACES[1]:
+            continue
+        mesh = TriangleMesh(loaded.vertices, loaded.faces)  # variants map triangles
+        given, _ = default_segmentation(mesh)
+        for name in names:
+            variant = VARIANTS[name](mesh.vertices, mesh.faces, np.random.default_rng(0))
+            labels, _ = default_segmentation(variant.mesh)
+            kept, kept_labels = labels_on_published(variant, labels, mesh.vertices, mesh.faces)
+            error = float(rand_index_error(given[kept], kept_labels))
+            rows[name].append(error)
+            per_mesh.append({"mesh": path.name, "variant": name, "ri": error})
+    print(f"{len(paths)} corpus meshes (every {every}), {time.perf_counter() - start:.0f} s")
+    print(f"{'variant':12s} {'meshes':>6s} {'mean 1-RI':>10s} {'differ':>7s} {'> 0.05':>7s}")
+    for name, errors in rows.items():
+        values = np.asarray(errors)
+        print(
+            f"{name:12s} {len(values):6d} {values.mean():10.4f}"
+            f" {int(np.sum(values > 0)):7d} {int(np.sum(values > 0.05)):7d}"
+        )
+    if json_path:
+        json_path.write_text(json.dumps(per_mesh, indent=1))
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--bench-dir", type=Path, default=DEFAULT_BENCH)
@@ -522,6 +590,14 @@ def main() -> int:
         help="which share of the faces the nobase variant removes, lowest first",
     )
     parser.add_argument("--json", type=Path, help="write the per-model scores here")
+    parser.add_argument(
+        "--corpus",
+        action="store_true",
+        help="the training corpus: the file's own parts against same-surface variants",
+    )
+    parser.add_argument(
+        "--corpus-cache", type=Path, default=Path("/tmp/neural-shdf-corpus"), help="unpacked corpus"
+    )
     parser.add_argument("--verbose", action="store_true", help="a line per model and variant")
     parser.add_argument(
         "--shdf-fidelity",
@@ -529,6 +605,10 @@ def main() -> int:
         help="also the default ShDF against full exact on each variant (Pearson; slow)",
     )
     args = parser.parse_args()
+    if args.corpus:
+        every = args.every if args.every > 1 else 4
+        chosen = args.variants if args.variants != list(VARIANTS) else list(SAME_SURFACE)
+        return corpus_consistency(args.corpus_cache, every, chosen, args.json)
     VARIANTS["shells"] = functools.partial(shells, move=args.shells_move)
     VARIANTS["nobase"] = functools.partial(no_base, share=args.nobase_share)
     if (args.bench_dir / "off").is_dir():

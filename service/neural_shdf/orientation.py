@@ -70,6 +70,13 @@ AMBIGUOUS_VOLUME = 1e-3
 #: of the centre (``_sheet_flux``) is above this times its area times the mesh's extent
 #: (a plane through the centre has none); below it, its winding in the file decides.
 SHEET_FLUX = 1e-3
+#: Failing that, it faces away from the side the mesh's area is skewed to, where the third
+#: moment (``_sheet_skew``) is above this times the mesh's area times its extent cubed: far
+#: above float rounding (an exactly symmetric mesh has none).
+SHEET_SKEW = 1e-9
+#: A sheet's capped volume (over its area^1.5) whose sign still decides where neither the
+#: flux nor the skew does: far above float rounding, far below ``AMBIGUOUS_VOLUME``.
+SHEET_VOLUME = 1e-10
 #: ``reverse_flipped`` writes the oriented copy in two threads from this many triangles
 #: (below, a thread's start costs more than it saves).
 PARALLEL_COPY_FACES = 100_000
@@ -182,11 +189,16 @@ def orient_faces(
         flux = _sheet_flux(vertices, welded, winding, ambiguous)
         extent = float(np.linalg.norm(np.ptp(vertices, axis=0))) if len(vertices) else 0.0
         decided = np.abs(flux) > SHEET_FLUX * patch_area * extent
-        patch_flip = np.where(
-            ambiguous,
-            np.where(decided, flux < 0, flipped_area > 0.5 * patch_area),
-            patch_flip,
-        )
+        # A sheet through the centre (a wing at mid-height) faces away from the side the
+        # mesh's area is skewed to; the file's winding only where neither decides.
+        skew = _sheet_skew(vertices, welded, areas, winding, ambiguous & ~decided)
+        by_skew = ~decided & (np.abs(skew) > SHEET_SKEW * float(areas.sum()) * extent**3)
+        # Then the sign of its (small) capped volume where float rounding cannot have set
+        # it (two layers of a card a hair apart); the file's winding only where none does.
+        signed = np.abs(volume) > SHEET_VOLUME * patch_area**1.5
+        file_winding = np.where(signed, volume < 0, flipped_area > 0.5 * patch_area)
+        sheet_flip = np.where(decided, flux < 0, np.where(by_skew, skew > 0, file_winding))
+        patch_flip = np.where(ambiguous, sheet_flip, patch_flip)
     flips = _face_flips(winding, patch_flip)
     # Duplicates face as their first copy does; collapsed faces keep the file's winding.
     copies = np.flatnonzero(first_copy >= 0)
@@ -712,6 +724,52 @@ def _sheet_flux(
     sign = 1.0 - 2.0 * (np.asarray(winding)[chosen] & 1)
     np.add.at(flux, patch[chosen], sign * np.einsum("ij,ij->i", doubled, offset))
     return flux
+
+
+def _sheet_skew(
+    vertices: NDArray[np.float64],
+    faces: NDArray[np.int64],
+    areas: NDArray[np.float64],
+    winding: NDArray[np.integer[Any]],
+    sheets: NDArray[np.bool_],
+) -> NDArray[np.float64]:
+    """Per patch, for the fairly flat ``sheets`` (mean normal at least half their area;
+    else 0): the third moment of the whole mesh's area about the sheet's plane, along its
+    normal wound as its first face (positive: skewed to the side the sheet faces)."""
+    skew = np.zeros(len(sheets))
+    patch = np.asarray(winding, dtype=np.int64) >> 1
+    chosen = np.flatnonzero((np.asarray(winding) >= 0) & sheets[np.maximum(patch, 0)])
+    if len(chosen) == 0:
+        return skew
+    corners = vertices[faces]
+    centroids = corners.mean(axis=1)
+    weight = float(areas.sum())
+    if not weight > 0:
+        return skew
+    centre = areas @ centroids / weight
+    offset = centroids - centre
+    second = (offset * areas[:, None]).T @ offset
+    third = np.einsum("f,fi,fj,fk->ijk", areas, offset, offset, offset)
+    doubled = np.cross(
+        corners[chosen, 1] - corners[chosen, 0], corners[chosen, 2] - corners[chosen, 0]
+    )
+    sign = 1.0 - 2.0 * (np.asarray(winding)[chosen] & 1)
+    normal_sum = np.zeros((len(sheets), 3))
+    np.add.at(normal_sum, patch[chosen], sign[:, None] * doubled)
+    area_sum = np.zeros(len(sheets))
+    np.add.at(area_sum, patch[chosen], areas[chosen])
+    moment = np.zeros((len(sheets), 3))
+    np.add.at(moment, patch[chosen], areas[chosen, None] * offset[chosen])
+    for p in np.flatnonzero(area_sum > 0):
+        length = float(np.linalg.norm(normal_sum[p]))
+        if length < area_sum[p]:  # |sum of doubled areas| below half: not flat enough
+            continue
+        n = normal_sum[p] / length
+        t = float(moment[p] @ n) / area_sum[p]  # the sheet's plane, along n from the centre
+        skew[p] = (
+            np.einsum("ijk,i,j,k->", third, n, n, n) - 3 * t * (n @ second @ n) - t**3 * weight
+        )
+    return skew
 
 
 @kernel

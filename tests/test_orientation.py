@@ -405,7 +405,6 @@ def _messy_meshes(seed: int):
         yield vertices, faces[rng.permutation(len(faces))]
 
 
-
 @pytest.mark.parametrize("seed", range(6))
 def test_an_inside_out_messy_file_gets_the_same_triangles_back(seed: int):
     """Holes, fins, duplicates, sheets, soups: every face of the file listed backwards gives
@@ -421,6 +420,7 @@ def test_an_inside_out_messy_file_gets_the_same_triangles_back(seed: int):
         collapsed = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2])
         collapsed |= faces[:, 0] == faces[:, 2]
         assert np.all(same | collapsed)
+
 
 @pytest.mark.parametrize("seed", range(6))
 def test_the_patch_kernel_matches_its_reference_bit_for_bit(seed: int):

@@ -122,8 +122,10 @@ def quantized(values: NDArray[Any], quantum: float = COST_QUANTUM) -> NDArray[np
     """``values`` rounded to multiples of ``quantum``, a power of two (positive ones to at
     least one): sums of them below ``2^53 * quantum`` are exact in any order."""
     values = np.asarray(values, dtype=np.float64)
-    rounded: NDArray[np.float64] = np.round(values / quantum) * quantum
-    np.copyto(rounded, quantum, where=(values > 0) & (rounded <= 0))
+    rounded: NDArray[np.float64] = values * (1.0 / quantum)  # exact: a power of two
+    np.rint(rounded, out=rounded)
+    np.maximum(rounded, 1.0, out=rounded, where=values > 0)
+    rounded *= quantum
     return rounded
 
 

@@ -405,6 +405,19 @@ def _messy_meshes(seed: int):
         yield vertices, faces[rng.permutation(len(faces))]
 
 
+def test_area_moments_are_the_weighted_centroid_and_central_moments():
+    from neural_shdf.orientation import _area_moments
+
+    rng = np.random.default_rng(0)
+    vertices, faces, areas = rng.normal(size=(50, 3)), rng.integers(0, 50, (80, 3)), rng.random(80)
+    centre, second, third = _area_moments(vertices, faces, areas)
+    centroids = vertices[faces].mean(axis=1)
+    np.testing.assert_allclose(centre, areas @ centroids / areas.sum())
+    offset = centroids - centre
+    np.testing.assert_allclose(second, (offset * areas[:, None]).T @ offset)
+    np.testing.assert_allclose(third, np.einsum("f,fi,fj,fk->ijk", areas, offset, offset, offset))
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_an_inside_out_messy_file_gets_the_same_triangles_back(seed: int):
     """Holes, fins, duplicates, sheets, soups: every face of the file listed backwards gives

@@ -735,41 +735,81 @@ def _sheet_skew(
 ) -> NDArray[np.float64]:
     """Per patch, for the fairly flat ``sheets`` (mean normal at least half their area;
     else 0): the third moment of the whole mesh's area about the sheet's plane, along its
-    normal wound as its first face (positive: skewed to the side the sheet faces)."""
+    normal wound as its first face (positive: skewed to the side the sheet faces). The
+    mesh's area moments up to the third are summed once (``_area_moments``); each sheet
+    then costs a few 3 x 3 products."""
     skew = np.zeros(len(sheets))
     patch = np.asarray(winding, dtype=np.int64) >> 1
     chosen = np.flatnonzero((np.asarray(winding) >= 0) & sheets[np.maximum(patch, 0)])
-    if len(chosen) == 0:
-        return skew
-    corners = vertices[faces]
-    centroids = corners.mean(axis=1)
     weight = float(areas.sum())
-    if not weight > 0:
+    if len(chosen) == 0 or not weight > 0:
         return skew
-    centre = areas @ centroids / weight
-    offset = centroids - centre
-    second = (offset * areas[:, None]).T @ offset
-    third = np.einsum("f,fi,fj,fk->ijk", areas, offset, offset, offset)
-    doubled = np.cross(
-        corners[chosen, 1] - corners[chosen, 0], corners[chosen, 2] - corners[chosen, 0]
-    )
+    centre, second, third = _area_moments(vertices, faces, areas)
+    corners = vertices[faces[chosen]]
+    doubled = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     sign = 1.0 - 2.0 * (np.asarray(winding)[chosen] & 1)
     normal_sum = np.zeros((len(sheets), 3))
     np.add.at(normal_sum, patch[chosen], sign[:, None] * doubled)
     area_sum = np.zeros(len(sheets))
     np.add.at(area_sum, patch[chosen], areas[chosen])
     moment = np.zeros((len(sheets), 3))
-    np.add.at(moment, patch[chosen], areas[chosen, None] * offset[chosen])
+    offset = corners.mean(axis=1) - centre
+    np.add.at(moment, patch[chosen], areas[chosen, None] * offset)
     for p in np.flatnonzero(area_sum > 0):
         length = float(np.linalg.norm(normal_sum[p]))
         if length < area_sum[p]:  # |sum of doubled areas| below half: not flat enough
             continue
         n = normal_sum[p] / length
         t = float(moment[p] @ n) / area_sum[p]  # the sheet's plane, along n from the centre
-        skew[p] = (
-            np.einsum("ijk,i,j,k->", third, n, n, n) - 3 * t * (n @ second @ n) - t**3 * weight
-        )
+        cubed = float(np.einsum("ijk,i,j,k->", third, n, n, n))
+        skew[p] = cubed - 3 * t * float(n @ second @ n) - t**3 * weight
     return skew
+
+
+@kernel
+def _area_moments(
+    vertices: NDArray[np.float64], faces: NDArray[np.int64], areas: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:  # pragma: no cover
+    """(area-weighted centroid (3,), second (3, 3) and third (3, 3, 3) area moments of the
+    triangles' centroids about it), in two passes over the triangles."""
+    centre = np.zeros(3)
+    weight = 0.0
+    for face in range(faces.shape[0]):
+        for axis in range(3):
+            c = (
+                vertices[faces[face, 0], axis]
+                + vertices[faces[face, 1], axis]
+                + vertices[faces[face, 2], axis]
+            ) / 3.0
+            centre[axis] += areas[face] * c
+        weight += areas[face]
+    if weight > 0:
+        centre /= weight
+    second = np.zeros((3, 3))
+    third = np.zeros((3, 3, 3))
+    offset = np.empty(3)
+    for face in range(faces.shape[0]):
+        a = areas[face]
+        for axis in range(3):
+            offset[axis] = (
+                vertices[faces[face, 0], axis]
+                + vertices[faces[face, 1], axis]
+                + vertices[faces[face, 2], axis]
+            ) / 3.0 - centre[axis]
+        for i in range(3):
+            for j in range(i, 3):
+                product = a * offset[i] * offset[j]
+                second[i, j] += product
+                for k in range(j, 3):
+                    third[i, j, k] += product * offset[k]
+    for i in range(3):
+        for j in range(i, 3):
+            second[j, i] = second[i, j]
+            for k in range(j, 3):
+                value = third[i, j, k]
+                third[i, k, j] = third[j, i, k] = third[j, k, i] = value
+                third[k, i, j] = third[k, j, i] = value
+    return centre, second, third
 
 
 @kernel

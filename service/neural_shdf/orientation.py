@@ -184,13 +184,12 @@ def orient_faces(
     ambiguous = (volume == 0) | (is_open & (np.abs(volume) < AMBIGUOUS_VOLUME * patch_area**1.5))
     patch_flip = volume < 0
     if ambiguous.any():
-        # A sheet (no inside) faces away from the mesh's centre, whatever the file's winding;
-        # where that does not decide either, the winding of most of its area in the file.
+        # A sheet (no inside) faces away from the mesh's centre, whatever the file's winding.
         flux = _sheet_flux(vertices, welded, winding, ambiguous)
         extent = float(np.linalg.norm(np.ptp(vertices, axis=0))) if len(vertices) else 0.0
         decided = np.abs(flux) > SHEET_FLUX * patch_area * extent
         # A sheet through the centre (a wing at mid-height) faces away from the side the
-        # mesh's area is skewed to; the file's winding only where neither decides.
+        # mesh's area is skewed to.
         skew = _sheet_skew(vertices, welded, areas, winding, ambiguous & ~decided)
         by_skew = ~decided & (np.abs(skew) > SHEET_SKEW * float(areas.sum()) * extent**3)
         # Then the sign of its (small) capped volume where float rounding cannot have set
@@ -713,17 +712,29 @@ def _sheet_flux(
     """Per patch, for the ``sheets`` (else 0): the sum over its triangles, wound as its
     first face, of twice the area times the normal dotted with the centroid's offset from
     the mean vertex: positive where the patch faces away from the mesh's centre."""
-    patch = np.asarray(winding, dtype=np.int64) >> 1
-    chosen = np.flatnonzero((np.asarray(winding) >= 0) & sheets[np.maximum(patch, 0)])
     flux = np.zeros(len(sheets))
+    patch, chosen, corners, doubled = _sheet_triangles(vertices, faces, winding, sheets)
     if len(chosen) == 0:
         return flux
+    offset = corners.mean(axis=1) - vertices.mean(axis=0)
+    np.add.at(flux, patch, np.einsum("ij,ij->i", doubled, offset))
+    return flux
+
+
+def _sheet_triangles(
+    vertices: NDArray[np.float64],
+    faces: NDArray[np.int64],
+    winding: NDArray[np.integer[Any]],
+    sheets: NDArray[np.bool_],
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """The triangles of the ``sheets``: (their patch, their index, their corners (T, 3, 3),
+    twice their area times their normal wound as their patch's first face (T, 3))."""
+    patch = np.asarray(winding, dtype=np.int64) >> 1
+    chosen = np.flatnonzero((np.asarray(winding) >= 0) & sheets[np.maximum(patch, 0)])
     corners = vertices[faces[chosen]]
     doubled = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    offset = corners.mean(axis=1) - vertices.mean(axis=0)
-    sign = 1.0 - 2.0 * (np.asarray(winding)[chosen] & 1)
-    np.add.at(flux, patch[chosen], sign * np.einsum("ij,ij->i", doubled, offset))
-    return flux
+    doubled *= (1.0 - 2.0 * (np.asarray(winding)[chosen] & 1))[:, None]
+    return patch[chosen], chosen, corners, doubled
 
 
 def _sheet_skew(
@@ -739,22 +750,17 @@ def _sheet_skew(
     mesh's area moments up to the third are summed once (``_area_moments``); each sheet
     then costs a few 3 x 3 products."""
     skew = np.zeros(len(sheets))
-    patch = np.asarray(winding, dtype=np.int64) >> 1
-    chosen = np.flatnonzero((np.asarray(winding) >= 0) & sheets[np.maximum(patch, 0)])
+    patch, chosen, corners, doubled = _sheet_triangles(vertices, faces, winding, sheets)
     weight = float(areas.sum())
     if len(chosen) == 0 or not weight > 0:
         return skew
     centre, second, third = _area_moments(vertices, faces, areas)
-    corners = vertices[faces[chosen]]
-    doubled = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    sign = 1.0 - 2.0 * (np.asarray(winding)[chosen] & 1)
     normal_sum = np.zeros((len(sheets), 3))
-    np.add.at(normal_sum, patch[chosen], sign[:, None] * doubled)
+    np.add.at(normal_sum, patch, doubled)
     area_sum = np.zeros(len(sheets))
-    np.add.at(area_sum, patch[chosen], areas[chosen])
+    np.add.at(area_sum, patch, areas[chosen])
     moment = np.zeros((len(sheets), 3))
-    offset = corners.mean(axis=1) - centre
-    np.add.at(moment, patch[chosen], areas[chosen, None] * offset)
+    np.add.at(moment, patch, areas[chosen, None] * (corners.mean(axis=1) - centre))
     for p in np.flatnonzero(area_sum > 0):
         length = float(np.linalg.norm(normal_sum[p]))
         if length < area_sum[p]:  # |sum of doubled areas| below half: not flat enough

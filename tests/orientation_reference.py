@@ -39,15 +39,18 @@ def _find_parity(  # pragma: no cover - numba
 @kernel(inline=True)
 def _join(  # pragma: no cover - numba
     parent: NDArray[np.int64], parity: NDArray[np.int8], a: int, b: int, differ: np.int8
-) -> None:
+) -> int:
     """Put ``a`` and ``b`` in one set with parity(a) ^ parity(b) == ``differ`` (kept as
-    found where they already share one: a non-orientable surface)."""
+    found where they already share one: a non-orientable surface); 1 where that
+    contradicts the set's parities, else 0."""
     root_a, parity_a = _find_parity(parent, parity, a)
     root_b, parity_b = _find_parity(parent, parity, b)
     if root_a != root_b:
         low, high = min(root_a, root_b), max(root_a, root_b)
         parent[high] = low
         parity[high] = parity_a ^ parity_b ^ differ
+        return 0
+    return 1 if parity_a ^ parity_b != differ else 0
 
 
 @kernel(inline=True)
@@ -151,6 +154,7 @@ def reference_orient_patches(  # pragma: no cover
     cut_end = np.empty(edge_count, dtype=np.int64)
     cuts = 0
     non_manifold = 0
+    conflicts = 0  # manifold edges whose join contradicts the set's parities
     i = 0
     while i < edge_count:
         j = i + 1
@@ -200,7 +204,7 @@ def reference_orient_patches(  # pragma: no cover
                     g, g_at = face, k
         if members == 2:
             # Faces wound alike run their shared edge in opposite directions.
-            _join(parent, parity, f, g, np.int8(forward[f_at] == forward[g_at]))
+            conflicts += _join(parent, parity, f, g, np.int8(forward[f_at] == forward[g_at]))
         elif members > 0:
             lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
             if members > 2:
@@ -290,4 +294,5 @@ def reference_orient_patches(  # pragma: no cover
         shells,
         loops,
         non_manifold,
+        conflicts,
     )

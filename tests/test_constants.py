@@ -103,6 +103,24 @@ GOLDEN[17] = GOLDEN[16]
 # sweeps past a stall by position; a stitched pair keeps its vertex of lower position.
 # The golden mesh gets version 17's ShDF and labels (checked below).
 GOLDEN[18] = GOLDEN[17]
+# Version 19: the Embree scene's triangles in an order set by their positions (ties between
+# triangles at the same distance settled alike in any face order); a non-orientable patch
+# wound along edges numbered by position. The golden mesh keeps version 18's labels; rays
+# meeting an edge between two of its triangles report the other one: ShDF within 0.0084.
+GOLDEN[19] = (
+    GOLDEN[18][0],
+    (
+        "eNrtkl9I01EUxxfbD1EIetiDxI9g95zv3YM6MYhGGxhGJAUuRJoQW/m2NjSUYuCD+TAitgfXy4geMyrtD5Pw"
+        "QWIjBhVkDFGEEIII9hxNsOVL3XOl8M2n3uTHj3N/55z7vd/7+Z0QuqnILgbUI95UbVTl82oYHTTPTzhPk3SV"
+        "RmgcLb5EKUzTLudQQxkp1LgdUdRpm8O4whcojHN6Fpe1gxL94gQmcAMfKYqTaKeGOk2ajtMJes0VLqjHPEpd"
+        "9JVH6Dv3ocpJLtCqKqtEYIhcGguYFQ1SPfCOXnJMl+AJVvQdOPyNe3Es2MJFvaTXcQ9f9FkdwU9V4ylqqoeq"
+        "yQ2O4Cj1Uie6KE4BZElUV9WQVXUpQXJaHwpWfdDoy66marDsiqDTqkUwRbPGe9jcLkm3MKozKOIV5rGkZ3BG"
+        "/9CeYAY7Oq4XtWSLJi/ZGeNUupO0V81gUQuVsOEiVBwkILS2DS+hM2EIliFEUxiHkG7xNAnpXY5awnU66P7L"
+        "2MBvTusebFC34wa28Mm5jpiaw5jjwyle4btYNyyyWNAlXUUMN3END7CG28gjpA/6P8OQiegwMxIyk+JiU8mk"
+        "tFHeTsgkiWoWVasaM7py2grHKWH03yJtXfXADYirLeNL3C4jrcXdnPH3wvvZt+bzeP7G5ya+N/GpN+ermPjM"
+        "e99XNXHBxDf2O2fr+/s/2P69vv39kh/w9/uP2FdW/f9WEfuE/Yf1w/r/rP8Bn2A4Sw=="
+    ),
+)
 #: Earlier versions, recorded as sha256 of (ShDF rounded to 6 decimals, labels): version 1;
 #: 2, the ray cone turning with each triangle and segmentation grids along the mesh's axes.
 HISTORY = {

@@ -520,3 +520,19 @@ def test_boundary_edge_rows_are_the_keys_without_a_neighbour_alike():
         rows = boundary_edge_rows(table)
         np.testing.assert_array_equal(rows, np.array(alone, dtype=np.int64))
         assert rows.dtype == np.int64
+
+
+def test_a_non_orientable_patch_gets_the_same_windings_in_any_listing():
+    """On a Moebius strip (and a closed surface with a twisted seam, like some scans) one
+    manifold edge must give way; the one that does follows the surface, not the file's
+    vertex and face numbering."""
+    vertices, faces = _moebius_strip(48)
+    expected = orient_faces(vertices, faces).flips
+    rng = np.random.default_rng(11)
+    for _ in range(6):
+        new_vertex = rng.permutation(len(vertices))
+        moved = np.empty_like(vertices)
+        moved[new_vertex] = vertices
+        origin = rng.permutation(len(faces))
+        listed = np.roll(new_vertex[faces[origin]], rng.integers(3), axis=1)  # winding kept
+        np.testing.assert_array_equal(orient_faces(moved, listed).flips, expected[origin])

@@ -160,6 +160,21 @@ def orient_faces(
         _, areas = face_normals(vertices, faces)
     areas = np.asarray(areas, dtype=np.float64)
     edge_table, slot = welded_edges(welded) if edges is None else edges
+    centre = _column_means(vertices)
+    # The union-find's integers in 32 bits where the faces allow: half the memory its
+    # scattered loads and stores walk.
+    link_type: NDArray[np.integer[Any]] = np.empty(
+        0, dtype=np.int32 if 2 * count < 2**31 else np.int64
+    )
+    patches = _orient_patches(welded, edge_table, slot, vertices, centre, areas, link_type)
+    if patches[-1]:
+        # A non-orientable patch: which manifold edge gives way follows the joins' order,
+        # the edges' by vertex number. Numbered by position instead, the same surface
+        # listed in any order gives it the same windings.
+        renumbered, by_position = _numbered_by_position(vertices, welded)
+        patches = _orient_patches(
+            renumbered, *welded_edges(renumbered), by_position, centre, areas, link_type
+        )
     (
         first_copy,
         winding,
@@ -170,17 +185,8 @@ def orient_faces(
         shells,
         loops,
         non_manifold,
-    ) = _orient_patches(
-        welded,
-        edge_table,
-        slot,
-        vertices,
-        _column_means(vertices),
-        areas,
-        # The union-find's integers in 32 bits where the faces allow: half the memory its
-        # scattered loads and stores walk.
-        np.empty(0, dtype=np.int32 if 2 * count < 2**31 else np.int64),
-    )
+        _,
+    ) = patches
     ambiguous = (volume == 0) | (is_open & (np.abs(volume) < AMBIGUOUS_VOLUME * patch_area**1.5))
     patch_flip = volume < 0
     if ambiguous.any():
@@ -217,6 +223,17 @@ def orient_faces(
         duplicate_faces=len(copies),
     )
     return Orientation(flips, diagnostics, np.asarray(first_copy, dtype=np.int64))
+
+
+def _numbered_by_position(
+    vertices: NDArray[np.float64], faces: NDArray[np.int64]
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """(faces, vertices) with the vertices renumbered in order of position (x, then y,
+    then z): the same numbers for the same surface however the file listed it."""
+    order = np.lexsort((vertices[:, 2], vertices[:, 1], vertices[:, 0]))
+    number = np.empty(len(vertices), dtype=np.int64)
+    number[order] = np.arange(len(vertices))
+    return number[faces], np.ascontiguousarray(vertices[order])
 
 
 @kernel
@@ -406,15 +423,17 @@ def _find_linked(link: NDArray[np.integer[Any]], node: int) -> tuple[int, int]: 
 @kernel(inline=True)
 def _join_linked(  # pragma: no cover - numba
     link: NDArray[np.integer[Any]], a: int, b: int, differ: int
-) -> None:
+) -> int:
     """Put ``a`` and ``b`` in one set of ``_find_linked`` with parity(a) ^ parity(b) ==
     ``differ``, under the lower root (kept as found where they already share one: a
-    non-orientable surface)."""
+    non-orientable surface); 1 where that contradicts the set's parities, else 0."""
     root_a, parity_a = _find_linked(link, a)
     root_b, parity_b = _find_linked(link, b)
     if root_a != root_b:
         low, high = min(root_a, root_b), max(root_a, root_b)
         link[high] = 2 * low + (parity_a ^ parity_b ^ differ)
+        return 0
+    return 1 if parity_a ^ parity_b != differ else 0
 
 
 @kernel
@@ -491,6 +510,7 @@ def _orient_patches(  # pragma: no cover
     int,
     int,
     int,
+    int,
 ]:
     """Duplicates, patches over manifold edges with a consistent relative winding, per
     patch its capped signed volume, openness, area and the area its relative winding
@@ -498,7 +518,9 @@ def _orient_patches(  # pragma: no cover
 
     Returns (first copy (F,) or -1, winding (F,): 2 * patch + relative flip, or -1
     (duplicates and collapsed faces), volume (P,), open (P,), area (P,), reversed area
-    (P,), shells, boundary loops, non-manifold edges). ``edge_table, slot`` from
+    (P,), shells, boundary loops, non-manifold edges, manifold edges whose winding
+    contradicts the patch's: a non-orientable patch, whose windings then follow the order
+    of the joins, the edges' order). ``edge_table, slot`` from
     ``welded_edges``; ``areas`` (F,) the triangles' areas; ``link_type``: an empty array of
     the integers of the union-find (which becomes the winding in place).
     """
@@ -535,6 +557,7 @@ def _orient_patches(  # pragma: no cover
     cut_hole = np.empty(edge_count, dtype=np.bool_)  # of one face
     cuts = 0
     non_manifold = 0
+    conflicts = 0  # manifold edges whose join contradicts the set's parities
     i = 0
     while i < edge_count:
         j = i + 1
@@ -549,7 +572,7 @@ def _orient_patches(  # pragma: no cover
                 # third vertices (so neither a copy of the other, nor of any face: every
                 # copy of a triangle is on each of its edges), what the general steps below
                 # conclude for it without their look-ups of the faces.
-                _join_linked(
+                conflicts += _join_linked(
                     link,
                     edge_table[i, 1],
                     edge_table[i + 1, 1],
@@ -600,7 +623,7 @@ def _orient_patches(  # pragma: no cover
                     g, g_at = face, k
         if members == 2:
             # Faces wound alike run their shared edge in opposite directions.
-            _join_linked(link, f, g, 1 - ((entry[f_at] ^ entry[g_at]) & _FORWARD))
+            conflicts += _join_linked(link, f, g, 1 - ((entry[f_at] ^ entry[g_at]) & _FORWARD))
         elif members > 0:
             if members > 2:
                 non_manifold += 1
@@ -700,6 +723,7 @@ def _orient_patches(  # pragma: no cover
         shells,
         loops,
         non_manifold,
+        conflicts,
     )
 
 

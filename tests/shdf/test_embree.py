@@ -83,3 +83,51 @@ def test_a_missing_library_says_what_to_install(monkeypatch):
     monkeypatch.setattr(embree, "_library_candidates", lambda: [])
     with pytest.raises(ImportError, match="embreex"):
         embree.Embree()
+
+
+def shuffled_listing(vertices: np.ndarray, faces: np.ndarray, seed: int):
+    """The same triangles with vertices and faces reordered and each one's corners turned
+    (winding kept): (vertices, faces, input face of each new face)."""
+    rng = np.random.default_rng(seed)
+    new_vertex = rng.permutation(len(vertices))
+    moved = np.empty_like(vertices)
+    moved[new_vertex] = vertices
+    origin = rng.permutation(len(faces))
+    turned = np.roll(new_vertex[faces[origin]], 1, axis=1)
+    turned[::2] = np.roll(turned[::2], 1, axis=1)
+    return moved, turned, origin
+
+
+def test_canonical_triangles_depend_on_the_positions_alone():
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    first, first_of = embree.canonical_triangles(mesh.vertices, mesh.faces, head=200)
+    vertices, faces, origin = shuffled_listing(mesh.vertices, mesh.faces, seed=5)
+    head = np.flatnonzero(origin < 200)  # the same 200 triangles first
+    order = np.concatenate([head, np.setdiff1d(np.arange(len(faces)), head)])
+    second, second_of = embree.canonical_triangles(vertices, faces[order], head=200)
+    np.testing.assert_array_equal(vertices[second], mesh.vertices[first])
+    np.testing.assert_array_equal(origin[order][second_of], first_of)
+    assert set(first_of[:200]) == set(range(200))
+    # Each triangle is its input triangle, turned to start at its lowest corner.
+    for triangle, source in zip(first[:5], first_of[:5], strict=True):
+        turns = [np.roll(mesh.faces[source], -k) for k in range(3)]
+        assert any((triangle == turn).all() for turn in turns)
+
+
+def test_a_ray_meeting_two_triangles_at_once_reports_the_same_one_in_any_order():
+    """Coincident triangles of opposite winding (a double-sided card): the hit, and so the
+    back-face test of the ShDF's rays, must not follow the file's face order."""
+    card = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], dtype=float)
+    faces = np.array([[0, 1, 2], [0, 2, 3], [0, 2, 1], [0, 3, 2]])
+    origins = np.array([[0.7, 0.2, 1.0], [0.2, 0.7, 1.0], [0.5, 0.5, 1.0]])
+    down = np.tile([0.0, 0.0, -1.0], (3, 1)).astype(np.float32)
+    normals = []
+    for seed in range(6):
+        vertices, listed, _ = shuffled_listing(card, faces, seed)
+        scene = Scene(vertices, listed)
+        hits = scene.first_hits((origins - scene.center).astype(np.float32), down)
+        assert (hits >= 0).all()
+        corners = vertices[listed[hits]]
+        normals.append(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]))
+    for other in normals[1:]:
+        np.testing.assert_array_equal(np.sign(other), np.sign(normals[0]))

@@ -328,3 +328,22 @@ def test_rays_meeting_the_cap_across_a_cut_limb_near_its_rim_are_not_read_as_thi
     rim = along[kept] < -1.8
     assert np.min(capped[rim] / whole[rim]) > 0.9
     assert capped.min() == pytest.approx(whole.min(), rel=1e-6)
+
+
+def test_raw_diameters_do_not_follow_the_face_order_where_hits_tie():
+    """A box with a double-sided wall inside (coincident faces of opposite winding): rays
+    meet both wall triangles at the same distance, and the one reported decides the
+    back-face test. Reordered faces and vertices give the same diameters bit for bit."""
+    box = trimesh.creation.box((2.0, 1.0, 1.0))
+    wall = trimesh.creation.box((0.0, 1.0, 1.0)).subdivide()  # flat: pairs of opposite faces
+    wall_vertices, wall_faces = wall.vertices, wall.faces[np.abs(wall.face_normals[:, 0]) > 0.5]
+    vertices = np.vstack([box.vertices, wall_vertices])
+    faces = np.vstack([box.faces, wall_faces + len(box.vertices)])
+    expected = raw_shdf(vertices, faces)
+    rng = np.random.default_rng(7)
+    for _ in range(3):
+        new_vertex = rng.permutation(len(vertices))
+        moved = np.empty_like(vertices)
+        moved[new_vertex] = vertices
+        origin = rng.permutation(len(faces))
+        np.testing.assert_array_equal(raw_shdf(moved, new_vertex[faces[origin]]), expected[origin])

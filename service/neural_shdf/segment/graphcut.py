@@ -911,7 +911,7 @@ def cut_hierarchy(
 
     Nodes are grouped into connected pieces of a 3-D grid laid along the mesh's own
     axes (``principal_coordinates``, ``grid_cells``: the same groups in any pose; cells
-    doubling per level, a coarse node placed at its first face;
+    doubling per level, a coarse node placed at its members' box centre;
     crease edges and nodes preferring different labels never grouped), with data and
     edge weights summed, so a labelling that is constant on groups has the same energy
     at every level. Scaling ``unit_weights`` scales every level's weights alike, so the

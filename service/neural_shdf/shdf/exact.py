@@ -269,6 +269,8 @@ def spatial_order(points: NDArray[Any], bits: int = 10) -> NDArray[np.int64]:
     """Indices that sort points along a Morton (Z-order) curve of their bounding box.
 
     Casting the rays of nearby faces one after another keeps Embree's caches warm.
+    Points in one cell go by position (x, y, z), not index: the packets, and so which of
+    two triangles at the same distance a ray reports, are the same in any face order.
     """
     if len(points) == 0:
         return np.zeros(0, dtype=np.int64)
@@ -279,7 +281,7 @@ def spatial_order(points: NDArray[Any], bits: int = 10) -> NDArray[np.int64]:
     for bit in range(bits):
         for axis in range(3):
             code |= ((cells[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
-    return np.argsort(code, kind="stable")
+    return np.lexsort((points[:, 2], points[:, 1], points[:, 0], code))
 
 
 @kernel(inline=True)
@@ -496,7 +498,9 @@ def _cast_rays(
     with ThreadPoolExecutor(max_workers=threads) as pool:
         # Building the Embree scene releases the GIL: overlap it with the set-up.
         if scene is None:
-            building = pool.submit(Scene, vertices, faces, quality)  # degenerate: never hit
+            building = pool.submit(  # degenerate triangles: never hit
+                Scene, vertices, faces, quality, surface_triangles
+            )
         elif isinstance(scene, Scene):
             building = pool.submit(lambda: scene)
         else:
@@ -525,6 +529,7 @@ def _cast_rays(
                 coefficients,
                 local_origins,
                 own_faces,
+                scene.scene_index,
                 len(faces) if surface_triangles is None else surface_triangles,
                 origin_offset,
                 retry_offset,
@@ -570,6 +575,7 @@ def _shdf_of_faces(
     coefficients: NDArray[Any],
     local_origins: NDArray[Any],
     own_faces: NDArray[Any],
+    scene_index: NDArray[Any],
     surface_faces: int,
     origin_offset: np.float32,
     retry_offset: np.float32,
@@ -582,11 +588,11 @@ def _shdf_of_faces(
 
     ``frames[k]`` holds the inward normal and the two plane vectors of origin
     ``batch[k]`` (float32), ``coefficients`` each ray's weights on them; a ray
-    hitting ``own_faces[origin]`` starts again further out; hits on triangles past the
-    first ``surface_faces`` (holes' caps) count as ``_drop_short_cap_hits`` says. Each
-    hit is read from
-    the packet itself (distance, geometric normal): no lookup of the hit
-    triangle. ``spread`` and ``hit_fraction`` are filled when not empty.
+    hitting ``own_faces[origin]`` (in the scene: ``scene_index`` of it) starts again
+    further out; hits on the scene's triangles past the first ``surface_faces`` (holes'
+    caps) count as ``_drop_short_cap_hits`` says. Each hit is read from the packet
+    itself (distance, geometric normal): no lookup of the hit triangle. ``spread`` and
+    ``hit_fraction`` are filled when not empty.
     """
     rays, ids, valid = new_packet()
     ray_count = len(coefficients)
@@ -615,7 +621,7 @@ def _shdf_of_faces(
                 set_ray(rays, ids, lane, origin, directions[lane, i], origin_offset)
             intersect_packet(intersect16, scene, arguments, rays, ids, valid, count)
             for lane in range(count):
-                own_hit[lane, i] = hit_of(ids, lane) == own_faces[batch[start + lane]]
+                own_hit[lane, i] = hit_of(ids, lane) == scene_index[own_faces[batch[start + lane]]]
                 distances[lane, i] = _exit_distance(
                     rays, ids, lane, directions[lane, i], origin_offset
                 )
@@ -637,7 +643,7 @@ def _shdf_of_faces(
             intersect_packet(intersect16, scene, arguments, rays, ids, valid, size)
             for k in range(size):
                 lane, i = retry_lane[first + k], retry_ray[first + k]
-                own = hit_of(ids, k) == own_faces[batch[start + lane]]
+                own = hit_of(ids, k) == scene_index[own_faces[batch[start + lane]]]
                 distances[lane, i] = (
                     np.nan
                     if own

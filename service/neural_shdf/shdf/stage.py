@@ -207,7 +207,7 @@ def sampled_raw_shdf(
     normals, areas = mesh.normals_and_areas
     with ThreadPoolExecutor(max_workers=2) as pool:
         targets = ray_targets(mesh, close_holes)
-        scene = pool.submit(Scene, *targets, "low")
+        scene = pool.submit(Scene, *targets, "low", surface_triangles(mesh, targets[1]))
         normal_sums = vertex_normal_sums(len(mesh.vertices), mesh.faces, normals, areas)
 
         def cast(
@@ -278,6 +278,7 @@ def raw_diameters(
     if method == "exact":
         normals, _ = mesh.normals_and_areas
         targets = ray_targets(mesh, close_holes)
+        surface = surface_triangles(mesh, targets[1])
         return raw_shdf(
             mesh.vertices,
             mesh.faces,
@@ -285,8 +286,8 @@ def raw_diameters(
             ray_count=params.ray_count,
             normals=normals,
             progress=progress,
-            scene=Scene(*targets) if close_holes else None,
-            surface_triangles=surface_triangles(mesh, targets[1]),
+            scene=Scene(*targets, surface_triangles=surface) if close_holes else None,
+            surface_triangles=surface,
             centroids=mesh.centroids,
         )
     if method == "sampled":

@@ -121,6 +121,25 @@ GOLDEN[19] = (
         "e99XNXHBxDf2O2fr+/s/2P69vv39kh/w9/uP2FdW/f9WEfuE/Yf1w/r/rP8Bn2A4Sw=="
     ),
 )
+# Version 20: the ShDF's rays cast in the mesh's own frame (``geometry.pose_frame``: its
+# principal axes, sides and RMS radius; coordinates rounded to 2^-40), so that a rotated,
+# moved or scaled copy meets the same float32 coordinates; a fold's concavity from both
+# faces' heights over the edge's midpoint. The golden mesh keeps its labels; its ShDF
+# moved by at most 0.0084.
+GOLDEN[20] = (
+    GOLDEN[19][0],
+    (
+        "eNrtkl9IU3EUxxfuIgpBD3uQuAT7nfM9e1AnBtFoI2MRSYELkSbEVr6tDQ2lGPhgPkTE9uB6GdFjRqH9YRI+"
+        "+OCIQQgZQxQhhCCCPYcKuXyp37kR+GYvvcnlcn73nPP7/r6/zz1hdFGJXcTNM940rVTlS2YQ7TTLL7hA43SD"
+        "hmgUTb5KGUzSPj9ADRVkUOM2xFCnXY7gOl+mCC7KNK6JgzL95BTGcBsfKYbTaKOGOUtCJ+kUveNlLprnPEyd"
+        "9JWH6Dv3osppLtKqqZhUcIBcGgnaFfVTPfiB3nBCyvCFluU+HP7GPTgRauKKLMg6HuGLXJAo9kyNJ2jHPDXb"
+        "3OAojlMPdaCTkhREnlR11Qx4qi6lSE/rRdFT77f6umvHNFh3RdHhqUUxQdPWe8TeLk13MSw5lPAWs1iQKZyT"
+        "bfGFcvghSZkXzZZsXrNT1ql2p+lPNYd5USoRy0WpOEhBae1aXkpnzBKsQIlmMAol3eRJUtL7HPMI1+mw+y9i"
+        "A784K93YoC7HDW7hk3MLCTODEcePM7zED7FuWeQxJ2WpIoE7uIknWMM9FBCWw/7PIHQi2u2MhO2kuNg0Oimt"
+        "VPAmZJxUNY+qp5qwunraEicpZfXfI+u56oYbVFdb1pe6XURW1N2M9fe65bN/ze/z/Y2vbFyx8WXLY3/1QJyz"
+        "ceVA37/2xwPnA8cCffbVVZ/3Fbcx6j2RwFH9qP4/678BlWM4iA=="
+    ),
+)
 #: Earlier versions, recorded as sha256 of (ShDF rounded to 6 decimals, labels): version 1;
 #: 2, the ray cone turning with each triangle and segmentation grids along the mesh's axes.
 HISTORY = {

@@ -17,6 +17,7 @@ from neural_shdf.geometry import (
     face_normals,
     grid_cells,
     midpoint_subdivide,
+    pose_frame,
     principal_coordinates,
     principal_frame,
     split_region,
@@ -176,14 +177,20 @@ def _reference_graph(vertices, faces, normals):
     pairs = sorted(best)
     edges = [best[p][1:] for p in pairs]
     rows = []
+
+    def height(face: int, lo: int, hi: int, other: int) -> float:
+        """``face``'s vertex off the edge above ``other``'s plane through the midpoint."""
+        off = [v for v in faces[face].tolist() if v not in (lo, hi)]
+        off_vertex = max(off) if off else int(faces[face, 0])
+        middle = 0.5 * (vertices[lo] + vertices[hi])
+        return float((vertices[off_vertex] - middle) @ normals[other])
+
     for (a, b), (lo, hi) in zip(pairs, edges, strict=True):
-        off = [v for v in faces[b].tolist() if v not in (lo, hi)]
-        off_vertex = max(off) if off else int(faces[b, 0])
         rows.append(
             (
                 math.acos(min(1.0, max(-1.0, float(normals[a] @ normals[b])))),
                 float(np.linalg.norm(vertices[lo] - vertices[hi])),
-                float((vertices[off_vertex] - vertices[lo]) @ normals[a]),
+                height(b, lo, hi, a) + height(a, lo, hi, b),  # concave: both above
             )
         )
     table = np.array(rows, dtype=float).reshape(-1, 3)
@@ -515,3 +522,69 @@ def test_equivalent_face_count_is_the_area_weighted_median_of_a_whole_sort():
             continue
         median = ordered[min(int(np.searchsorted(held, 0.5 * held[-1])), len(areas) - 1)]
         assert equivalent_face_count(areas) == areas.sum() / median
+
+
+def _posed(points, frame):
+    origin, rotation, scale = frame
+    return (points - origin) @ rotation / scale
+
+
+@pytest.mark.parametrize("mirrored_axis", [None, 0, 1, 2])
+def test_the_pose_frame_is_the_same_in_any_pose_and_scale(mirrored_axis):
+    """Axes from the spreads, their sides from the third moments (one axis without a side,
+    a mirror-symmetric shape, completes the other two), always a rotation."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(6)
+    points = rng.gamma(2.0, size=(400, 3)) * (3.0, 1.5, 0.5)
+    if mirrored_axis is not None:
+        points[:, mirrored_axis] -= points[:, mirrored_axis].mean()
+        points = np.vstack([points, points * np.where(np.arange(3) == mirrored_axis, -1, 1)])
+    weights = rng.uniform(0.5, 2.0, len(points)) if mirrored_axis is None else None
+    weights = np.ones(len(points)) if weights is None else weights
+    frame = pose_frame(points, weights)
+    assert np.linalg.det(frame[1]) == pytest.approx(1.0)
+    assert not np.allclose(frame[1], np.eye(3))
+    local = _posed(points, frame)
+    assert np.sum(weights @ local**2) / weights.sum() == pytest.approx(1.0)
+    for seed in range(4):
+        rotation = Rotation.random(random_state=seed).as_matrix()
+        moved = 1e3 * points @ rotation.T + (1e4, -7.0, 3.0)
+        np.testing.assert_allclose(_posed(moved, pose_frame(moved, weights)), local, atol=1e-9)
+
+
+def test_the_pose_frame_keeps_the_worlds_axes_where_the_shape_sets_none():
+    """Equal spreads (about a body of revolution's axis): the axes would be rounding's."""
+    angle = np.linspace(0, 2 * np.pi, 60, endpoint=False)
+    ring = np.stack([np.cos(angle), np.sin(angle), np.zeros(60)], axis=1)
+    points = np.vstack([ring * radius + (0, 0, height) for radius, height in ((1, 0), (2, 3))])
+    origin, rotation, scale = pose_frame(points, np.ones(len(points)))
+    np.testing.assert_array_equal(rotation, np.eye(3))
+    np.testing.assert_allclose(origin, points.mean(axis=0), atol=1e-12)
+    assert scale == pytest.approx(np.sqrt(np.mean(np.sum((points - origin) ** 2, axis=1))))
+
+
+def test_a_fold_reads_the_same_whichever_face_or_vertex_comes_first():
+    """Concavity from both faces' heights over the edge's midpoint: renumbering the faces
+    or the vertices of a nearly flat fold (where one face's height alone is rounding)
+    does not turn it."""
+    rng = np.random.default_rng(12)
+    for _ in range(200):
+        a, b = rng.normal(size=(2, 3))
+        wing = rng.normal(size=3)
+        lift = rng.normal(scale=1e-17, size=2)  # flat but for rounding
+        normal = np.cross(b - a, wing)
+        normal /= np.linalg.norm(normal)
+        other = a + b - wing + lift[0] * normal  # the second wing, in the plane
+        vertices = np.array([a, b, wing + lift[1] * normal, other])
+        faces = np.array([[0, 1, 2], [1, 0, 3]])
+        normals, _ = face_normals(vertices, faces)
+        reads = set()
+        for face_order in ([0, 1], [1, 0]):
+            for vertex_order in ([0, 1, 2, 3], [1, 0, 3, 2]):
+                new = np.argsort(vertex_order)
+                graph = build_face_graph(
+                    vertices[vertex_order], new[faces[face_order]], normals[face_order]
+                )
+                reads.add(bool(graph.concave[0]))
+        assert len(reads) == 1

@@ -162,6 +162,81 @@ def principal_frame(
     return mean, axes[:, ::-1]
 
 
+def pose_frame(
+    points: NDArray[Any],
+    weights: NDArray[Any],
+    frame: tuple[NDArray[Any], NDArray[Any]] | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """(origin, rotation, scale) that put the points in a frame of their own, the same in
+    any pose and at any scale: ``(points - origin) @ rotation / scale``, from their
+    weighted mean, divided by their RMS distance from it, along their principal axes
+    (``principal_frame``, or ``frame`` where the caller keeps it) each pointing to the
+    side its third moment leans to. A right-handed frame (a rotation: windings keep their
+    sense): an axis whose moment does not decide (a mirror-symmetric shape) completes the
+    other two. Where the shape fixes no such frame (two spreads within ``POSE_GAP``, or
+    fewer than two axes decided), the world's axes: then only the pose's rotation moves
+    the frame."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    weights = np.asarray(weights, dtype=np.float64)
+    mean, axes = principal_frame(points, weights) if frame is None else frame
+    mean = np.asarray(mean, dtype=np.float64)
+    if not len(points):
+        return mean, np.eye(3), 1.0
+    if not float(np.sum(weights)) > 0:
+        weights = np.ones(len(points))
+    second, third = _axis_moments(
+        np.ascontiguousarray(points),
+        weights / float(np.sum(weights)),
+        mean,
+        np.ascontiguousarray(axes, dtype=np.float64),
+    )
+    total = float(np.sum(second))
+    scale = float(np.sqrt(total)) if total > 0 else 1.0
+    spreads = np.sort(second)
+    if not total > 0 or np.min(np.diff(spreads)) <= POSE_GAP * total:
+        return mean, np.eye(3), scale
+    lean = np.zeros(3)
+    np.divide(third, second**1.5, out=lean, where=second > 0)
+    decided = np.abs(lean) > POSE_SKEW
+    if decided.sum() < 2:
+        return mean, np.eye(3), scale
+    rotation = np.array(axes, dtype=np.float64, copy=True) * np.where(lean < 0, -1.0, 1.0)
+    if not decided.all():  # the undecided axis completes a right-handed frame
+        free = int(np.flatnonzero(~decided)[0])
+        rotation[:, free] = np.cross(rotation[:, (free + 1) % 3], rotation[:, (free + 2) % 3])
+    elif np.linalg.det(rotation) < 0:  # all three decided, a mirror: the weakest gives way
+        rotation[:, int(np.argmin(np.abs(lean)))] *= -1.0
+    return mean, rotation, scale
+
+
+@kernel
+def _axis_moments(
+    points: NDArray[np.float64],
+    weights: NDArray[np.float64],
+    mean: NDArray[np.float64],
+    axes: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:  # pragma: no cover - compiled
+    """Weighted second and third moments of the points along each axis (columns) from
+    ``mean``: one pass (numpy's powers of an (N, 3) array took 0.18 s at 1M faces)."""
+    second = np.zeros(3)
+    third = np.zeros(3)
+    for point in range(points.shape[0]):
+        for axis in range(3):
+            along = 0.0
+            for k in range(3):
+                along += (points[point, k] - mean[k]) * axes[k, axis]
+            square = along * along
+            second[axis] += weights[point] * square
+            third[axis] += weights[point] * square * along
+    return second, third
+
+
+#: ``pose_frame``: spreads closer than this share of their sum leave the axes to rounding.
+POSE_GAP = 1e-3
+#: ``pose_frame``: an axis whose third moment over its spread^1.5 is below this has no side.
+POSE_SKEW = 1e-6
+
+
 def principal_coordinates(
     points: NDArray[Any],
     weights: NDArray[Any] | None = None,
@@ -525,19 +600,39 @@ def _pair_geometry(  # pragma: no cover - numba
         dy = vertices[lo, 1] - vertices[hi, 1]
         dz = vertices[lo, 2] - vertices[hi, 2]
         edge_length[k] = math.sqrt(dx * dx + dy * dy + dz * dz)
-        # Concave when face b's vertex off the shared edge lies above face a's plane.
-        off_edge = -1
-        for corner in range(3):
-            vertex = faces[b, corner]
-            if vertex != lo and vertex != hi and vertex > off_edge:
-                off_edge = vertex
-        if off_edge < 0:
-            off_edge = faces[b, 0]
-        height = (vertices[off_edge, 0] - vertices[lo, 0]) * normals[a, 0]
-        height += (vertices[off_edge, 1] - vertices[lo, 1]) * normals[a, 1]
-        height += (vertices[off_edge, 2] - vertices[lo, 2]) * normals[a, 2]
+        # Concave when each face's vertex off the shared edge lies above the other's plane:
+        # the two heights over the edge's midpoint summed, so that neither the faces'
+        # numbers nor the vertices' decide a fold too flat for its sign to hold.
+        height = _height_above(vertices, faces, b, lo, hi, normals, a)
+        height += _height_above(vertices, faces, a, lo, hi, normals, b)
         concave[k] = height > 0
     return edge_length, dihedral, concave
+
+
+@kernel(inline=True)
+def _height_above(  # pragma: no cover - numba
+    vertices: NDArray[np.float64],
+    faces: NDArray[np.int64],
+    face: int,
+    lo: int,
+    hi: int,
+    normals: NDArray[np.float64],
+    other: int,
+) -> float:
+    """Height of ``face``'s vertex off the edge (lo, hi) above the plane of ``other``
+    through the edge's midpoint."""
+    off_edge = -1
+    for corner in range(3):
+        vertex = faces[face, corner]
+        if vertex != lo and vertex != hi and vertex > off_edge:
+            off_edge = vertex
+    if off_edge < 0:
+        off_edge = faces[face, 0]
+    height = 0.0
+    for axis in range(3):
+        middle = 0.5 * (vertices[lo, axis] + vertices[hi, axis])
+        height += (vertices[off_edge, axis] - middle) * normals[other, axis]
+    return height
 
 
 def midpoint_subdivide(

@@ -19,6 +19,7 @@ from neural_shdf.geometry import (
     face_adjacency,
     face_centroids,
     face_normals,
+    pose_frame,
     principal_frame,
     weld_faces,
     zero_area_limit,
@@ -352,6 +353,13 @@ class TriangleMesh:
         the graph cut's and the crease graph's grids are laid along, computed once per
         mesh (a mean and three axes, not the coordinates)."""
         return principal_frame(self.centroids, self.normals_and_areas[1])
+
+    @cached_property
+    def pose_frame(self) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+        """``geometry.pose_frame`` of the centroids weighted by the areas: the frame the
+        ShDF's rays are cast in, so that a rotated, moved or scaled copy of the mesh meets
+        the same float32 coordinates in Embree (and its ties between hits alike)."""
+        return pose_frame(self.centroids, self.normals_and_areas[1], self.principal_frame)
 
     @cached_property
     def crease_graph(self) -> CreaseGraph:

@@ -29,6 +29,7 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
+from threadpoolctl import threadpool_limits
 
 from neural_shdf import constants
 from neural_shdf.errors import ParameterError
@@ -179,6 +180,29 @@ def ray_targets(mesh: TriangleMesh, close_holes: bool) -> tuple[NDArray[Any], ND
     return vertices, np.vstack([mesh.faces, caps])
 
 
+#: ``in_pose_frame``, ``turned_to_pose_frame``: values in the pose frame (unit RMS radius)
+#: rounded to multiples of 1 / POSE_GRID, so that another pose's rounding (~1e-15, and
+#: noise around an exact 0, which float32 would keep) is gone before Embree's float32.
+POSE_GRID = 2.0**40
+
+
+def in_pose_frame(mesh: TriangleMesh, points: NDArray[Any]) -> NDArray[np.float64]:
+    """Points in ``mesh.pose_frame`` (``geometry.pose_frame``): where the rays are cast."""
+    origin, rotation, scale = mesh.pose_frame
+    with threadpool_limits(limits=1, user_api="blas"):  # the same bits on any core count
+        framed: NDArray[np.float64] = (np.asarray(points, dtype=np.float64) - origin) @ rotation
+    framed *= POSE_GRID / scale
+    return np.round(framed, out=framed) / POSE_GRID
+
+
+def turned_to_pose_frame(mesh: TriangleMesh, directions: NDArray[Any]) -> NDArray[np.float64]:
+    """Directions (normals) turned into ``mesh.pose_frame``, rounded as ``in_pose_frame``."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        turned: NDArray[np.float64] = np.asarray(directions, dtype=np.float64) @ mesh.pose_frame[1]
+    turned *= POSE_GRID
+    return np.round(turned, out=turned) / POSE_GRID
+
+
 def surface_triangles(mesh: TriangleMesh, triangles: NDArray[Any]) -> int:
     """How many of ``ray_targets``' triangles are surface for the rays: the mesh's and the
     bridges across slits between stitched shells (which end at a vertex of the surface);
@@ -205,9 +229,12 @@ def sampled_raw_shdf(
     """
     workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
     normals, areas = mesh.normals_and_areas
+    scale = mesh.pose_frame[2]
     with ThreadPoolExecutor(max_workers=2) as pool:
         targets = ray_targets(mesh, close_holes)
-        scene = pool.submit(Scene, *targets, "low", surface_triangles(mesh, targets[1]))
+        surface = surface_triangles(mesh, targets[1])
+        framed = in_pose_frame(mesh, targets[0])
+        scene = pool.submit(Scene, framed, targets[1], "low", surface)
         normal_sums = vertex_normal_sums(len(mesh.vertices), mesh.faces, normals, areas)
 
         def cast(
@@ -233,18 +260,18 @@ def sampled_raw_shdf(
                 workers,
             )
             diameters, _, _ = raw_shdf_at_points(
-                mesh.vertices,
+                framed[: len(mesh.vertices)],
                 mesh.faces,
-                samples.positions,
-                samples.normals,
+                in_pose_frame(mesh, samples.positions),
+                turned_to_pose_frame(mesh, samples.normals),
                 samples.face_ids,
                 cone_angle=params.cone_angle,
                 ray_count=params.ray_count,
                 threads=workers,
                 scene=scene,
-                surface_triangles=surface_triangles(mesh, targets[1]),
+                surface_triangles=surface,
             )
-            return samples, mapped, diameters
+            return samples, mapped, diameters * scale
 
         samples, mapped, diameters = cast(params.samples)
         count = thin_part_samples(diameters / samples.radius, params)
@@ -273,23 +300,27 @@ def raw_diameters(
     """Raw diameter per triangle (mesh units, NaN = unknown) from one producer.
 
     ``mesh`` faces outward (``TriangleMesh.oriented``); ``close_holes``: its open boundary
-    loops are capped for the rays of ``exact`` and ``sampled`` (``ray_targets``).
+    loops are capped for the rays of ``exact`` and ``sampled`` (``ray_targets``). Their
+    rays are cast in ``mesh.pose_frame`` (``in_pose_frame``), the diameters scaled back.
     """
     if method == "exact":
         normals, _ = mesh.normals_and_areas
+        scale = mesh.pose_frame[2]
         targets = ray_targets(mesh, close_holes)
         surface = surface_triangles(mesh, targets[1])
-        return raw_shdf(
-            mesh.vertices,
+        framed = in_pose_frame(mesh, targets[0])
+        diameters = raw_shdf(
+            framed[: len(mesh.vertices)],
             mesh.faces,
             cone_angle=params.cone_angle,
             ray_count=params.ray_count,
-            normals=normals,
+            normals=turned_to_pose_frame(mesh, normals),
             progress=progress,
-            scene=Scene(*targets, surface_triangles=surface) if close_holes else None,
+            scene=Scene(framed, targets[1], surface_triangles=surface) if close_holes else None,
             surface_triangles=surface,
-            centroids=mesh.centroids,
+            centroids=in_pose_frame(mesh, mesh.centroids),
         )
+        return diameters * scale
     if method == "sampled":
         return sampled_raw_shdf(mesh, graph, params, close_holes=close_holes)
     if method == "neural":

@@ -588,3 +588,55 @@ def test_a_fold_reads_the_same_whichever_face_or_vertex_comes_first():
                 )
                 reads.add(bool(graph.concave[0]))
         assert len(reads) == 1
+
+
+def test_the_faces_of_a_crowded_edge_chain_by_angle_in_any_numbering():
+    """Seven fins on one edge (more than EDGE_CLIQUE): each linked to its neighbours around
+    the edge, the widest gap left open, whatever numbers the faces and vertices have."""
+    angles = np.radians([0, 40, 85, 130, 180, 225, 270])  # widest gap: 270 -> 360
+    tips = np.stack([np.zeros(7) + 0.5, np.cos(angles), np.sin(angles)], axis=1)
+    vertices = np.vstack([[[0.0, 0, 0], [1.0, 0, 0]], tips])
+    faces = np.array([[0, 1, 2 + k] for k in range(7)])
+    rng = np.random.default_rng(5)
+    expected = {(k, k + 1) for k in range(6)}
+    for _ in range(5):
+        new_vertex = rng.permutation(len(vertices))
+        moved = np.empty_like(vertices)
+        moved[new_vertex] = vertices
+        origin = rng.permutation(len(faces))
+        pairs, _ = face_adjacency(new_vertex[faces[origin]], vertices=moved)
+        assert {tuple(sorted(origin[pair])) for pair in pairs.tolist()} == expected
+    # Without positions: a chain in face order, as before.
+    pairs, _ = face_adjacency(faces[[3, 0, 5, 1, 6, 2, 4]])
+    assert len(pairs) == 6
+    # Faces collapsed onto the edge have no angle: they join the chain after the fins,
+    # and the fins' links stay the same in any numbering.
+    crowded = np.vstack([faces, [[0, 1, 1], [0, 0, 1], [1, 0, 9]]])
+    crowded_vertices = np.vstack([vertices, [[1.0, 0.0, 0.0]]])  # 9: a copy of vertex 1
+    for _ in range(5):
+        new_vertex = rng.permutation(len(crowded_vertices))
+        moved = np.empty_like(crowded_vertices)
+        moved[new_vertex] = crowded_vertices
+        origin = rng.permutation(len(crowded))
+        pairs, _ = face_adjacency(new_vertex[crowded[origin]], vertices=moved)
+        links = {tuple(sorted(origin[pair])) for pair in pairs.tolist()}
+        assert {link for link in links if max(link) < 7} == expected
+
+
+def test_fins_at_one_angle_chain_nearer_first_in_any_numbering():
+    """Two fins in one half-plane (a fin on a wall): the nearer one first around the edge,
+    whichever end of the edge has the lower number."""
+    angles = np.radians([0, 40, 85, 130, 180, 225, 270, 85])
+    reach = np.array([1, 1, 1, 1, 1, 1, 1, 2.0])
+    tips = np.stack([np.full(8, 0.5), reach * np.cos(angles), reach * np.sin(angles)], axis=1)
+    vertices = np.vstack([[[0.0, 0, 0], [1.0, 0, 0]], tips])
+    faces = np.array([[0, 1, 2 + k] for k in range(8)])
+    expected = {(0, 1), (1, 2), (2, 7), (3, 7), (3, 4), (4, 5), (5, 6)}
+    rng = np.random.default_rng(8)
+    for _ in range(8):
+        new_vertex = rng.permutation(len(vertices))
+        moved = np.empty_like(vertices)
+        moved[new_vertex] = vertices
+        origin = rng.permutation(len(faces))
+        pairs, _ = face_adjacency(new_vertex[faces[origin]], vertices=moved)
+        assert {tuple(sorted(origin[pair])) for pair in pairs.tolist()} == expected

@@ -420,12 +420,17 @@ def build_face_graph(
 
 
 def face_adjacency(
-    faces: NDArray[Any], edges: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None
+    faces: NDArray[Any],
+    edges: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None,
+    vertices: NDArray[Any] | None = None,
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """``(pairs, edge_vertices)`` of ``build_face_graph``: the faces linked over shared
     edges and the edge each link crosses. The same arrays for any winding of the faces
     (the links depend on which vertices a face has, not their order), so they can be
-    worked out before the orientation is known. ``edges`` as in ``build_face_graph``."""
+    worked out before the orientation is known. ``edges`` as in ``build_face_graph``.
+    With ``vertices``, the faces of an edge of more than ``EDGE_CLIQUE`` are chained in
+    their order around the edge (``_fan_order``: each to its neighbours in angle, the
+    widest gap left open), the same in any numbering; without, in face order."""
     faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(faces) == 0:
         empty = np.zeros((0, 2), dtype=np.int64)
@@ -433,7 +438,155 @@ def face_adjacency(
     n_vertices = int(faces.max()) + 1
     _check_indices(faces, n_vertices)  # no negative index reaches the kernels
     edge_table, slot = _sorted_edges(faces, n_vertices) if edges is None else edges
+    if vertices is not None:
+        edge_table, slot = _fan_order(
+            faces,
+            edge_table,
+            slot,
+            np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3),
+            n_vertices,
+            EDGE_CLIQUE,
+        )
     return _adjacent_pairs(faces, edge_table, slot, n_vertices, EDGE_CLIQUE)
+
+
+@kernel
+def _fan_order(
+    faces: NDArray[np.int64],
+    edge_table: NDArray[np.int64],
+    slot: NDArray[np.int64],
+    vertices: NDArray[np.float64],
+    n_vertices: int,
+    clique: int,
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:  # pragma: no cover - compiled
+    """``(edge_table, slot)`` with the faces of each edge of more than ``clique`` listed in
+    their cyclic order around the edge, starting after the widest angle between two of
+    them; faces with no direction off the edge (collapsed onto it) after them, in face
+    order. The input arrays themselves where there is no such edge."""
+    edge_count = edge_table.shape[0]
+    table, slots = edge_table, slot
+    copied = False
+    i = 0
+    while i < edge_count:
+        j = i + 1
+        while j < edge_count and edge_table[j, 0] == edge_table[i, 0]:
+            j += 1
+        if j - i > clique:
+            if not copied:
+                table, slots = edge_table.copy(), slot.copy()
+                copied = True
+            lo, hi = edge_table[i, 0] // n_vertices, edge_table[i, 0] % n_vertices
+            # The axis from the end of lower position: the sense of the angles (and the
+            # order of faces at one angle along it) the same in any vertex numbering.
+            tail, head = lo, hi
+            for k in range(3):
+                if vertices[lo, k] != vertices[hi, k]:
+                    if vertices[lo, k] > vertices[hi, k]:
+                        tail, head = hi, lo
+                    break
+            axis = vertices[head] - vertices[tail]
+            length = np.sqrt(np.sum(axis * axis))
+            axis /= max(length, 1e-300)
+            count = j - i
+            angle = np.full(count, np.inf)  # no direction: after the others
+            reach = np.zeros(count)  # distance of the face's off-edge vertex from the edge
+            off_of = np.full(count, -1)
+            reference = np.zeros(3)
+            has_reference = False
+            for k in range(count):
+                face = edge_table[i + k, 1]
+                off = -1
+                for corner in range(3):
+                    if faces[face, corner] != lo and faces[face, corner] != hi:
+                        off = faces[face, corner]
+                if off < 0:
+                    continue
+                across = vertices[off] - vertices[tail]
+                across -= np.sum(across * axis) * axis
+                size = np.sqrt(np.sum(across * across))
+                if not size > 1e-9 * length:
+                    continue
+                if not has_reference:
+                    reference = across / size
+                    has_reference = True
+                side = np.cross(axis, reference)
+                angle[k] = np.arctan2(np.sum(across * side), np.sum(across * reference))
+                # Faces in one half-plane (a fin on a wall): the nearer first, then by
+                # position, not by number; angles to 2^-30 so rounding does not split them.
+                angle[k] = np.round(angle[k] * 2.0**30) / 2.0**30
+                reach[k] = size
+                off_of[k] = off
+            order = np.argsort(angle, kind="mergesort")
+            if count <= FAN_SORT_FACES:
+                _sort_fan(order, angle, reach, off_of, vertices)
+            turning = 0
+            for k in range(count):
+                if np.isfinite(angle[k]):
+                    turning += 1
+            widest, start = -1.0, 0
+            for k in range(turning):
+                gap = angle[order[(k + 1) % turning]] - angle[order[k]]
+                if k == turning - 1:
+                    gap += 2.0 * np.pi
+                if gap > widest:
+                    widest, start = gap, (k + 1) % turning
+            for k in range(count):
+                at = order[(start + k) % turning] if k < turning else order[k]
+                source = i + at
+                table[i + k, 0] = edge_table[source, 0]
+                table[i + k, 1] = edge_table[source, 1]
+                face = edge_table[source, 1]
+                for corner in range(3):
+                    if slot[3 * face + corner] == source:
+                        slots[3 * face + corner] = i + k
+        i = j
+    return table, slots
+
+
+#: ``_fan_order``: edges of up to this many faces order faces at one angle by their
+#: distance from the edge and their position too (an insertion sort).
+FAN_SORT_FACES = 256
+
+
+@kernel(inline=True)
+def _sort_fan(
+    order: NDArray[np.int64],
+    angle: NDArray[np.float64],
+    reach: NDArray[np.float64],
+    off_of: NDArray[np.int64],
+    vertices: NDArray[np.float64],
+) -> None:  # pragma: no cover - compiled
+    """``order`` (sorted by angle) re-sorted in place by (angle, reach, off vertex's x, y,
+    z); entries without a direction (infinite angle) keep their order at the end."""
+    for i in range(1, len(order)):
+        item = order[i]
+        j = i - 1
+        while j >= 0 and _fan_after(order[j], item, angle, reach, off_of, vertices):
+            order[j + 1] = order[j]
+            j -= 1
+        order[j + 1] = item
+
+
+@kernel(inline=True)
+def _fan_after(
+    a: int,
+    b: int,
+    angle: NDArray[np.float64],
+    reach: NDArray[np.float64],
+    off_of: NDArray[np.int64],
+    vertices: NDArray[np.float64],
+) -> bool:  # pragma: no cover - compiled
+    """Whether entry ``a`` comes after ``b`` around the edge."""
+    if angle[a] != angle[b]:
+        return angle[a] > angle[b]
+    if not np.isfinite(angle[a]):
+        return False
+    if reach[a] != reach[b]:
+        return reach[a] > reach[b]
+    for axis in range(3):
+        if vertices[off_of[a], axis] != vertices[off_of[b], axis]:
+            return vertices[off_of[a], axis] > vertices[off_of[b], axis]
+    return False
 
 
 def _check_indices(faces: NDArray[np.int64], vertex_count: int) -> None:
@@ -546,9 +699,16 @@ def _adjacent_pairs(  # pragma: no cover - numba
             key = edge_table[position, 0]
             size = group_size[position]
             reach = size - 1 if size <= clique else 1  # every later face, or the next
-            for k in range(position + 1, min(position + 1 + reach, edge_count)):
+            # A chain links each face to the next and the previous (the link kept by the
+            # lower face of the two: the chain need not run in face order, ``_fan_order``).
+            first = position + 1 if size <= clique else max(position - 1, 0)
+            for k in range(first, min(position + 1 + reach, edge_count)):
+                if k == position:
+                    continue
                 if edge_table[k, 0] != key:
-                    break
+                    if k > position:
+                        break
+                    continue
                 neighbour = edge_table[k, 1]
                 if neighbour <= face:
                     continue

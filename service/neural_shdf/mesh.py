@@ -196,7 +196,7 @@ class TriangleMesh:
     def face_adjacency(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """The links of ``face_graph`` (``geometry.face_adjacency`` of ``welded_faces``):
         the same for every winding, so ``oriented`` shares them."""
-        pairs, edge_vertices = face_adjacency(self.welded_faces, self.welded_edges)
+        pairs, edge_vertices = face_adjacency(self.welded_faces, self.welded_edges, self.vertices)
         pairs.flags.writeable = False
         edge_vertices.flags.writeable = False
         return pairs, edge_vertices

@@ -578,14 +578,14 @@ def _fan_after(
 ) -> bool:  # pragma: no cover - compiled
     """Whether entry ``a`` comes after ``b`` around the edge."""
     if angle[a] != angle[b]:
-        return angle[a] > angle[b]
+        return bool(angle[a] > angle[b])
     if not np.isfinite(angle[a]):
         return False
     if reach[a] != reach[b]:
-        return reach[a] > reach[b]
+        return bool(reach[a] > reach[b])
     for axis in range(3):
         if vertices[off_of[a], axis] != vertices[off_of[b], axis]:
-            return vertices[off_of[a], axis] > vertices[off_of[b], axis]
+            return bool(vertices[off_of[a], axis] > vertices[off_of[b], axis])
     return False
 
 

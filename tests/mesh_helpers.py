@@ -52,3 +52,20 @@ def ball_with_arm(sections: int = 32, rings: int = 40) -> tuple[np.ndarray, np.n
         [np.full(sections, last), end_ring + around, end_ring + (around + 1) % sections], axis=1
     )
     return vertices, np.concatenate([sides, start_cap, end_cap]).astype(np.int64)
+
+
+def relisted(
+    vertices: np.ndarray, faces: np.ndarray, rng: np.random.Generator, turn: bool = False
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The same triangles listed another way: vertices and faces in a random order and,
+    with ``turn``, each triangle starting at another corner (winding kept). Returns
+    (vertices, faces, input face of each face)."""
+    new_vertex = rng.permutation(len(vertices))
+    moved = np.empty_like(vertices)
+    moved[new_vertex] = vertices
+    origin = rng.permutation(len(faces))
+    listed = new_vertex[faces[origin]]
+    if turn:
+        listed = np.roll(listed, 1, axis=1)
+        listed[::2] = np.roll(listed[::2], 1, axis=1)
+    return moved, listed, origin

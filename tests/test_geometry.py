@@ -24,6 +24,7 @@ from neural_shdf.geometry import (
     weld_faces,
     zero_area_limit,
 )
+from tests.mesh_helpers import relisted
 
 
 def test_normals_and_areas_of_a_box():
@@ -600,11 +601,8 @@ def test_the_faces_of_a_crowded_edge_chain_by_angle_in_any_numbering():
     rng = np.random.default_rng(5)
     expected = {(k, k + 1) for k in range(6)}
     for _ in range(5):
-        new_vertex = rng.permutation(len(vertices))
-        moved = np.empty_like(vertices)
-        moved[new_vertex] = vertices
-        origin = rng.permutation(len(faces))
-        pairs, _ = face_adjacency(new_vertex[faces[origin]], vertices=moved)
+        moved, listed, origin = relisted(vertices, faces, rng)
+        pairs, _ = face_adjacency(listed, vertices=moved)
         assert {tuple(sorted(origin[pair])) for pair in pairs.tolist()} == expected
     # Without positions: a chain in face order, as before.
     pairs, _ = face_adjacency(faces[[3, 0, 5, 1, 6, 2, 4]])
@@ -614,11 +612,8 @@ def test_the_faces_of_a_crowded_edge_chain_by_angle_in_any_numbering():
     crowded = np.vstack([faces, [[0, 1, 1], [0, 0, 1], [1, 0, 9]]])
     crowded_vertices = np.vstack([vertices, [[1.0, 0.0, 0.0]]])  # 9: a copy of vertex 1
     for _ in range(5):
-        new_vertex = rng.permutation(len(crowded_vertices))
-        moved = np.empty_like(crowded_vertices)
-        moved[new_vertex] = crowded_vertices
-        origin = rng.permutation(len(crowded))
-        pairs, _ = face_adjacency(new_vertex[crowded[origin]], vertices=moved)
+        moved, listed, origin = relisted(crowded_vertices, crowded, rng)
+        pairs, _ = face_adjacency(listed, vertices=moved)
         links = {tuple(sorted(origin[pair])) for pair in pairs.tolist()}
         assert {link for link in links if max(link) < 7} == expected
 
@@ -634,9 +629,6 @@ def test_fins_at_one_angle_chain_nearer_first_in_any_numbering():
     expected = {(0, 1), (1, 2), (2, 7), (3, 7), (3, 4), (4, 5), (5, 6)}
     rng = np.random.default_rng(8)
     for _ in range(8):
-        new_vertex = rng.permutation(len(vertices))
-        moved = np.empty_like(vertices)
-        moved[new_vertex] = vertices
-        origin = rng.permutation(len(faces))
-        pairs, _ = face_adjacency(new_vertex[faces[origin]], vertices=moved)
+        moved, listed, origin = relisted(vertices, faces, rng)
+        pairs, _ = face_adjacency(listed, vertices=moved)
         assert {tuple(sorted(origin[pair])) for pair in pairs.tolist()} == expected

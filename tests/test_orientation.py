@@ -28,6 +28,7 @@ from neural_shdf.orientation import (
 )
 from neural_shdf.pipeline import compute_shdf, segment
 from neural_shdf.shdf.stage import ShdfParams, raw_diameters
+from tests.mesh_helpers import relisted
 
 
 def _sphere(subdivisions: int = 3, radius: float = 1.0, centre=(0.0, 0.0, 0.0)):
@@ -530,9 +531,5 @@ def test_a_non_orientable_patch_gets_the_same_windings_in_any_listing():
     expected = orient_faces(vertices, faces).flips
     rng = np.random.default_rng(11)
     for _ in range(6):
-        new_vertex = rng.permutation(len(vertices))
-        moved = np.empty_like(vertices)
-        moved[new_vertex] = vertices
-        origin = rng.permutation(len(faces))
-        listed = np.roll(new_vertex[faces[origin]], rng.integers(3), axis=1)  # winding kept
+        moved, listed, origin = relisted(vertices, faces, rng, turn=True)
         np.testing.assert_array_equal(orient_faces(moved, listed).flips, expected[origin])

@@ -6,6 +6,7 @@ import trimesh
 
 from neural_shdf.shdf import embree
 from neural_shdf.shdf.embree import LANES, Scene
+from tests.mesh_helpers import relisted
 
 
 def random_rays(count: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -85,23 +86,12 @@ def test_a_missing_library_says_what_to_install(monkeypatch):
         embree.Embree()
 
 
-def shuffled_listing(vertices: np.ndarray, faces: np.ndarray, seed: int):
-    """The same triangles with vertices and faces reordered and each one's corners turned
-    (winding kept): (vertices, faces, input face of each new face)."""
-    rng = np.random.default_rng(seed)
-    new_vertex = rng.permutation(len(vertices))
-    moved = np.empty_like(vertices)
-    moved[new_vertex] = vertices
-    origin = rng.permutation(len(faces))
-    turned = np.roll(new_vertex[faces[origin]], 1, axis=1)
-    turned[::2] = np.roll(turned[::2], 1, axis=1)
-    return moved, turned, origin
-
-
 def test_canonical_triangles_depend_on_the_positions_alone():
     mesh = trimesh.creation.icosphere(subdivisions=2)
     first, first_of = embree.canonical_triangles(mesh.vertices, mesh.faces, head=200)
-    vertices, faces, origin = shuffled_listing(mesh.vertices, mesh.faces, seed=5)
+    vertices, faces, origin = relisted(
+        mesh.vertices, mesh.faces, np.random.default_rng(5), turn=True
+    )
     head = np.flatnonzero(origin < 200)  # the same 200 triangles first
     order = np.concatenate([head, np.setdiff1d(np.arange(len(faces)), head)])
     second, second_of = embree.canonical_triangles(vertices, faces[order], head=200)
@@ -123,7 +113,7 @@ def test_a_ray_meeting_two_triangles_at_once_reports_the_same_one_in_any_order()
     down = np.tile([0.0, 0.0, -1.0], (3, 1)).astype(np.float32)
     normals = []
     for seed in range(6):
-        vertices, listed, _ = shuffled_listing(card, faces, seed)
+        vertices, listed, _ = relisted(card, faces, np.random.default_rng(seed), turn=True)
         scene = Scene(vertices, listed)
         hits = scene.first_hits((origins - scene.center).astype(np.float32), down)
         assert (hits >= 0).all()

@@ -21,7 +21,7 @@ from neural_shdf.shdf.exact import (
     robust_mean,
 )
 from neural_shdf.shdf.stage import ShdfParams, raw_diameters
-from tests.mesh_helpers import balls_and_bar
+from tests.mesh_helpers import balls_and_bar, relisted
 
 
 def expected_robust_mean(lengths: np.ndarray) -> float:
@@ -343,11 +343,8 @@ def test_raw_diameters_do_not_follow_the_face_order_where_hits_tie():
     expected = raw_shdf(vertices, faces)
     rng = np.random.default_rng(7)
     for _ in range(3):
-        new_vertex = rng.permutation(len(vertices))
-        moved = np.empty_like(vertices)
-        moved[new_vertex] = vertices
-        origin = rng.permutation(len(faces))
-        np.testing.assert_array_equal(raw_shdf(moved, new_vertex[faces[origin]]), expected[origin])
+        moved, listed, origin = relisted(vertices, faces, rng)
+        np.testing.assert_array_equal(raw_shdf(moved, listed), expected[origin])
 
 
 def test_the_stage_casts_in_the_meshs_own_frame_so_ties_follow_no_pose():

@@ -407,11 +407,11 @@ def _messy_meshes(seed: int):
 
 
 def test_area_moments_are_the_weighted_centroid_and_central_moments():
-    from neural_shdf.orientation import _area_moments
+    from neural_shdf.geometry import face_centroids, weighted_moments
 
     rng = np.random.default_rng(0)
     vertices, faces, areas = rng.normal(size=(50, 3)), rng.integers(0, 50, (80, 3)), rng.random(80)
-    centre, second, third = _area_moments(vertices, faces, areas)
+    centre, second, third = weighted_moments(face_centroids(vertices, faces), areas)
     centroids = vertices[faces].mean(axis=1)
     np.testing.assert_allclose(centre, areas @ centroids / areas.sum())
     offset = centroids - centre

@@ -54,7 +54,9 @@ from neural_shdf.compiled import kernel
 from neural_shdf.geometry import (
     _face_normal,
     _sorted_edges,
+    face_centroids,
     face_normals,
+    weighted_moments,
     weld_faces,
     zero_area_limit,
 )
@@ -771,14 +773,14 @@ def _sheet_skew(
     """Per patch, for the fairly flat ``sheets`` (mean normal at least half their area;
     else 0): the third moment of the whole mesh's area about the sheet's plane, along its
     normal wound as its first face (positive: skewed to the side the sheet faces). The
-    mesh's area moments up to the third are summed once (``_area_moments``); each sheet
+    mesh's area moments up to the third are summed once (``geometry.weighted_moments``); each sheet
     then costs a few 3 x 3 products."""
     skew = np.zeros(len(sheets))
     patch, chosen, corners, doubled = _sheet_triangles(vertices, faces, winding, sheets)
     weight = float(areas.sum())
     if len(chosen) == 0 or not weight > 0:
         return skew
-    centre, second, third = _area_moments(vertices, faces, areas)
+    centre, second, third = weighted_moments(face_centroids(vertices, faces), areas)
     normal_sum = np.zeros((len(sheets), 3))
     np.add.at(normal_sum, patch, doubled)
     area_sum = np.zeros(len(sheets))
@@ -794,52 +796,6 @@ def _sheet_skew(
         cubed = float(np.einsum("ijk,i,j,k->", third, n, n, n))
         skew[p] = cubed - 3 * t * float(n @ second @ n) - t**3 * weight
     return skew
-
-
-@kernel
-def _area_moments(
-    vertices: NDArray[np.float64], faces: NDArray[np.int64], areas: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:  # pragma: no cover
-    """(area-weighted centroid (3,), second (3, 3) and third (3, 3, 3) area moments of the
-    triangles' centroids about it), in two passes over the triangles."""
-    centre = np.zeros(3)
-    weight = 0.0
-    for face in range(faces.shape[0]):
-        for axis in range(3):
-            c = (
-                vertices[faces[face, 0], axis]
-                + vertices[faces[face, 1], axis]
-                + vertices[faces[face, 2], axis]
-            ) / 3.0
-            centre[axis] += areas[face] * c
-        weight += areas[face]
-    if weight > 0:
-        centre /= weight
-    second = np.zeros((3, 3))
-    third = np.zeros((3, 3, 3))
-    offset = np.empty(3)
-    for face in range(faces.shape[0]):
-        a = areas[face]
-        for axis in range(3):
-            offset[axis] = (
-                vertices[faces[face, 0], axis]
-                + vertices[faces[face, 1], axis]
-                + vertices[faces[face, 2], axis]
-            ) / 3.0 - centre[axis]
-        for i in range(3):
-            for j in range(i, 3):
-                product = a * offset[i] * offset[j]
-                second[i, j] += product
-                for k in range(j, 3):
-                    third[i, j, k] += product * offset[k]
-    for i in range(3):
-        for j in range(i, 3):
-            second[j, i] = second[i, j]
-            for k in range(j, 3):
-                value = third[i, j, k]
-                third[i, k, j] = third[j, i, k] = third[j, k, i] = value
-                third[k, i, j] = third[k, j, i] = value
-    return centre, second, third
 
 
 @kernel

@@ -33,7 +33,7 @@ from threadpoolctl import threadpool_limits
 
 from neural_shdf import constants
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph
+from neural_shdf.geometry import FaceGraph, face_normals
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.orientation import MeshDiagnostics, open_boundary_faces
 from neural_shdf.segment.params import check_seed
@@ -181,9 +181,12 @@ def ray_targets(mesh: TriangleMesh, close_holes: bool) -> tuple[NDArray[Any], ND
 
 
 #: ``in_pose_frame``, ``turned_to_pose_frame``: values in the pose frame (unit RMS radius)
-#: rounded to multiples of 1 / POSE_GRID, so that another pose's rounding (~1e-15, and
-#: noise around an exact 0, which float32 would keep) is gone before Embree's float32.
-POSE_GRID = 2.0**40
+#: rounded to multiples of 1 / POSE_GRID, so that another pose's rounding (~1e-14 for a
+#: mesh far from the origin, and the noise around an exact 0 that float32 would keep) is
+#: gone before Embree's float32: 2^-40 left 2% of a scan's coordinates a step apart, 2^-32
+#: a few (whose tangents then tipped rays); 2^-24, float32's own step, moved the geometry
+#: by as much as float32 does again and tipped rays near a hole's cap. 2^-30: none of it.
+POSE_GRID = 2.0**30
 
 
 def in_pose_frame(mesh: TriangleMesh, points: NDArray[Any]) -> NDArray[np.float64]:
@@ -304,7 +307,6 @@ def raw_diameters(
     rays are cast in ``mesh.pose_frame`` (``in_pose_frame``), the diameters scaled back.
     """
     if method == "exact":
-        normals, _ = mesh.normals_and_areas
         scale = mesh.pose_frame[2]
         targets = ray_targets(mesh, close_holes)
         surface = surface_triangles(mesh, targets[1])
@@ -314,7 +316,9 @@ def raw_diameters(
             mesh.faces,
             cone_angle=params.cone_angle,
             ray_count=params.ray_count,
-            normals=turned_to_pose_frame(mesh, normals),
+            # From the frame's own coordinates: a sliver's normal, which rounding decides,
+            # is then the same in any pose.
+            normals=face_normals(framed, mesh.faces)[0],
             progress=progress,
             scene=Scene(framed, targets[1], surface_triangles=surface) if close_holes else None,
             surface_triangles=surface,

@@ -148,6 +148,10 @@ GOLDEN[21] = GOLDEN[20]
 # 2^-30 instead of 2^-40 (a mesh far from the origin kept 2% of them a step apart). The
 # golden mesh's ShDF moves within 2e-4, its labels not.
 GOLDEN[22] = GOLDEN[21]
+# Version 23: the face graph (dihedral angles, concavity, lengths scaled back) built from the
+# coordinates in the mesh's pose frame, and a crowded edge's faces ordered there: the same
+# graph in any pose. The golden mesh's labels and ShDF hold.
+GOLDEN[23] = GOLDEN[22]
 #: Earlier versions, recorded as sha256 of (ShDF rounded to 6 decimals, labels): version 1;
 #: 2, the ray cone turning with each triangle and segmentation grids along the mesh's axes.
 HISTORY = {

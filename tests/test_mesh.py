@@ -171,3 +171,25 @@ def test_meshes_oriented_on_many_threads_at_once_get_what_one_thread_gets():
     for result in alone[1:]:
         for mine, expected in zip(result[1:], alone[0][1:], strict=True):
             np.testing.assert_array_equal(mine, expected)
+
+
+def test_the_face_graph_is_the_same_in_any_pose_and_scale():
+    """Built in the mesh's own frame: the same links (a crowded edge's faces ordered around
+    it there), the same angles and folds to the last bit, lengths in the mesh's units."""
+    from scipy.spatial.transform import Rotation
+
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    vertices = np.asarray(sphere.vertices) * (1.6, 1.0, 0.7)
+    a, b = sphere.faces[0, 0], sphere.faces[0, 1]
+    angles = np.radians([10, 50, 95, 140, 200, 250])  # fins on one edge: a crowded edge
+    middle = 0.5 * (vertices[a] + vertices[b])
+    tips = middle + 0.3 * np.stack([np.cos(angles), np.sin(angles), np.zeros(6)], axis=1)
+    fins = [[a, b, len(vertices) + k] for k in range(6)]
+    mesh = TriangleMesh(np.vstack([vertices, tips]), np.vstack([sphere.faces, fins]))
+    rotation = Rotation.random(random_state=9).as_matrix()
+    moved = TriangleMesh(37.0 * mesh.vertices @ rotation.T + (2e3, -5.0, 40.0), mesh.faces)
+    here, there = mesh.face_graph, moved.face_graph
+    np.testing.assert_array_equal(there.pairs, here.pairs)
+    np.testing.assert_array_equal(there.dihedral, here.dihedral)
+    np.testing.assert_array_equal(there.concave, here.concave)
+    np.testing.assert_allclose(there.edge_length, 37.0 * here.edge_length, rtol=1e-12)

@@ -3,6 +3,8 @@ segmentation see on reversed, mixed, multi-shell, open and non-manifold meshes."
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import trimesh
@@ -12,6 +14,7 @@ from neural_shdf.geometry import (
     build_face_graph,
     face_centroids,
     face_normals,
+    in_frame,
     weld_faces,
     zero_area_limit,
 )
@@ -248,11 +251,14 @@ def test_the_face_graph_from_the_shared_edges_is_the_one_built_afresh():
     variant = TriangleMesh(published.vertices, _reverse(published.faces, mixed))
     oriented = variant.oriented
     shared = variant.face_graph
+    # Built in the mesh's pose frame (``TriangleMesh.face_graph``), lengths scaled back.
+    framed = in_frame(oriented.vertices, oriented.pose_frame)
     afresh = build_face_graph(
-        oriented.vertices,
+        framed,
         weld_faces(oriented.vertices, oriented.faces),
-        oriented.normals_and_areas[0],
+        face_normals(framed, oriented.faces)[0],
     )
+    afresh = replace(afresh, edge_length=afresh.edge_length * oriented.pose_frame[2])
     for name in ("pairs", "edge_vertices", "edge_length", "dihedral", "concave"):
         np.testing.assert_array_equal(getattr(shared, name), getattr(afresh, name))
     # the links were worked out beside the pass, on the file's winding, and shared

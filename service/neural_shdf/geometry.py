@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -249,6 +250,28 @@ def weighted_moments(
     return centre, second, third
 
 
+#: ``in_frame``: coordinates in a pose frame (unit RMS radius) rounded to multiples of
+#: 1 / POSE_GRID, so that another pose's rounding (~1e-14 for a mesh far from the origin,
+#: and the noise around an exact 0 that float32 would keep) is gone before Embree's float32
+#: and the face graph's angles: 2^-40 left 2% of a scan's coordinates a step apart, 2^-32 a
+#: few (whose tangents then tipped rays); 2^-24, float32's own step, moved the geometry by
+#: as much as float32 does again and tipped rays near a hole's cap. 2^-30: none of it.
+POSE_GRID = 2.0**30
+
+
+def in_frame(
+    points: NDArray[Any], frame: tuple[NDArray[Any], NDArray[Any], float], translate: bool = True
+) -> NDArray[np.float64]:
+    """``(points - origin) @ rotation / scale`` for a ``pose_frame`` (directions, with
+    ``translate=False``: only turned), rounded to multiples of 1 / ``POSE_GRID``."""
+    origin, rotation, scale = frame
+    points = np.asarray(points, dtype=np.float64)
+    with threadpool_limits(limits=1, user_api="blas"):  # the same bits on any core count
+        framed: NDArray[np.float64] = ((points - origin) if translate else points) @ rotation
+    framed *= POSE_GRID / scale if translate else POSE_GRID
+    return np.round(framed, out=framed) / POSE_GRID
+
+
 #: ``pose_frame``: spreads closer than this share of their sum leave the axes to rounding.
 POSE_GAP = 1e-3
 #: ``pose_frame``: an axis whose third moment over its spread^1.5 is below this has no side.
@@ -440,7 +463,7 @@ def build_face_graph(
 def face_adjacency(
     faces: NDArray[Any],
     edges: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None,
-    vertices: NDArray[Any] | None = None,
+    vertices: NDArray[Any] | Callable[[], NDArray[Any]] | None = None,
 ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """``(pairs, edge_vertices)`` of ``build_face_graph``: the faces linked over shared
     edges and the edge each link crosses. The same arrays for any winding of the faces
@@ -448,7 +471,8 @@ def face_adjacency(
     worked out before the orientation is known. ``edges`` as in ``build_face_graph``.
     With ``vertices``, the faces of an edge of more than ``EDGE_CLIQUE`` are chained in
     their order around the edge (``_fan_order``: each to its neighbours in angle, the
-    widest gap left open), the same in any numbering; without, in face order."""
+    widest gap left open), the same in any numbering; without, in face order. ``vertices``
+    may be a function that makes them, called only where such an edge exists."""
     faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(faces) == 0:
         empty = np.zeros((0, 2), dtype=np.int64)
@@ -456,16 +480,27 @@ def face_adjacency(
     n_vertices = int(faces.max()) + 1
     _check_indices(faces, n_vertices)  # no negative index reaches the kernels
     edge_table, slot = _sorted_edges(faces, n_vertices) if edges is None else edges
-    if vertices is not None:
+    if vertices is not None and _most_faces_on_an_edge(edge_table) > EDGE_CLIQUE:
+        positions = vertices() if callable(vertices) else vertices
         edge_table, slot = _fan_order(
             faces,
             edge_table,
             slot,
-            np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3),
+            np.ascontiguousarray(positions, dtype=np.float64).reshape(-1, 3),
             n_vertices,
             EDGE_CLIQUE,
         )
     return _adjacent_pairs(faces, edge_table, slot, n_vertices, EDGE_CLIQUE)
+
+
+@kernel
+def _most_faces_on_an_edge(edge_table: NDArray[np.int64]) -> int:  # pragma: no cover
+    """The most faces any one edge of the sorted ``edge_table`` has."""
+    most, run = 0, 0
+    for i in range(edge_table.shape[0]):
+        run = run + 1 if i > 0 and edge_table[i, 0] == edge_table[i - 1, 0] else 1
+        most = max(most, run)
+    return most
 
 
 @kernel

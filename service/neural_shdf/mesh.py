@@ -19,6 +19,7 @@ from neural_shdf.geometry import (
     face_adjacency,
     face_centroids,
     face_normals,
+    in_frame,
     pose_frame,
     principal_frame,
     weld_faces,
@@ -192,11 +193,22 @@ class TriangleMesh:
         seeded = self.__dict__.get("welded_edges")
         return seeded if seeded is not None else sorted_welded_edges(welded)
 
+    def _positions_in_own_frame(self) -> NDArray[np.float64]:
+        """The vertices in the pose frame of this listing's triangles (winding aside):
+        where ``face_adjacency`` orders the faces of a crowded edge, the same in any pose.
+        Made only where such an edge exists; not ``pose_frame``, which reads the oriented
+        copy (whose orientation pass shares these links)."""
+        areas = self.normals_and_areas[1]
+        frame = pose_frame(face_centroids(self.vertices, self.faces), areas)
+        return in_frame(self.vertices, frame)
+
     @cached_property
     def face_adjacency(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """The links of ``face_graph`` (``geometry.face_adjacency`` of ``welded_faces``):
         the same for every winding, so ``oriented`` shares them."""
-        pairs, edge_vertices = face_adjacency(self.welded_faces, self.welded_edges, self.vertices)
+        pairs, edge_vertices = face_adjacency(
+            self.welded_faces, self.welded_edges, self._positions_in_own_frame
+        )
         pairs.flags.writeable = False
         edge_vertices.flags.writeable = False
         return pairs, edge_vertices
@@ -325,17 +337,21 @@ class TriangleMesh:
     def face_graph(self) -> FaceGraph:
         """Face adjacency with coincident vertices welded (``welded_faces``), its dihedral
         angles and concave flags following the oriented normals: the graph the ShDF's
-        filters and the segmentation run on. Computed once, on ``oriented``."""
+        filters and the segmentation run on. Computed once, on ``oriented``, from the
+        coordinates in ``pose_frame`` (``geometry.in_frame``), lengths back in the mesh's
+        units: a sliver's normal, which rounding decides, is the same in any pose."""
         oriented = self.oriented
         if oriented is not self:
             return oriented.face_graph
-        normals, _ = self.normals_and_areas
+        scale = self.pose_frame[2]
+        framed = in_frame(self.vertices, self.pose_frame)
+        normals, _ = face_normals(framed, self.faces)
         welded = self.welded_faces
-        graph = build_face_graph(self.vertices, welded, normals, adjacency=self.face_adjacency)
+        graph = build_face_graph(framed, welded, normals, adjacency=self.face_adjacency)
         coincident = self.coincident_faces
-        if coincident is welded:
-            return graph
-        return stitched_edge_geometry(graph, self.vertices, self.faces, normals, coincident, welded)
+        if coincident is not welded:
+            graph = stitched_edge_geometry(graph, framed, self.faces, normals, coincident, welded)
+        return replace(graph, edge_length=graph.edge_length * scale)
 
     @cached_property
     def centroids(self) -> NDArray[np.float64]:

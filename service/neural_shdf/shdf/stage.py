@@ -29,11 +29,10 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from threadpoolctl import threadpool_limits
 
 from neural_shdf import constants
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph, face_normals
+from neural_shdf.geometry import FaceGraph, face_normals, in_frame
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.orientation import MeshDiagnostics, open_boundary_faces
 from neural_shdf.segment.params import check_seed
@@ -180,30 +179,14 @@ def ray_targets(mesh: TriangleMesh, close_holes: bool) -> tuple[NDArray[Any], ND
     return vertices, np.vstack([mesh.faces, caps])
 
 
-#: ``in_pose_frame``, ``turned_to_pose_frame``: values in the pose frame (unit RMS radius)
-#: rounded to multiples of 1 / POSE_GRID, so that another pose's rounding (~1e-14 for a
-#: mesh far from the origin, and the noise around an exact 0 that float32 would keep) is
-#: gone before Embree's float32: 2^-40 left 2% of a scan's coordinates a step apart, 2^-32
-#: a few (whose tangents then tipped rays); 2^-24, float32's own step, moved the geometry
-#: by as much as float32 does again and tipped rays near a hole's cap. 2^-30: none of it.
-POSE_GRID = 2.0**30
-
-
 def in_pose_frame(mesh: TriangleMesh, points: NDArray[Any]) -> NDArray[np.float64]:
-    """Points in ``mesh.pose_frame`` (``geometry.pose_frame``): where the rays are cast."""
-    origin, rotation, scale = mesh.pose_frame
-    with threadpool_limits(limits=1, user_api="blas"):  # the same bits on any core count
-        framed: NDArray[np.float64] = (np.asarray(points, dtype=np.float64) - origin) @ rotation
-    framed *= POSE_GRID / scale
-    return np.round(framed, out=framed) / POSE_GRID
+    """Points in ``mesh.pose_frame`` (``geometry.in_frame``): where the rays are cast."""
+    return in_frame(points, mesh.pose_frame)
 
 
 def turned_to_pose_frame(mesh: TriangleMesh, directions: NDArray[Any]) -> NDArray[np.float64]:
     """Directions (normals) turned into ``mesh.pose_frame``, rounded as ``in_pose_frame``."""
-    with threadpool_limits(limits=1, user_api="blas"):
-        turned: NDArray[np.float64] = np.asarray(directions, dtype=np.float64) @ mesh.pose_frame[1]
-    turned *= POSE_GRID
-    return np.round(turned, out=turned) / POSE_GRID
+    return in_frame(directions, mesh.pose_frame, translate=False)
 
 
 def surface_triangles(mesh: TriangleMesh, triangles: NDArray[Any]) -> int:

@@ -334,6 +334,16 @@ class TriangleMesh:
         return DistinctTriangles(unique, kept, copy_of)
 
     @cached_property
+    def pose_geometry(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(vertices, triangle normals) in ``pose_frame`` (``geometry.in_frame``), computed
+        once per mesh: what the face graph and the ShDF's rays read, the same in any pose."""
+        framed = in_frame(self.vertices, self.pose_frame)
+        normals, _ = face_normals(framed, self.faces)
+        framed.flags.writeable = False
+        normals.flags.writeable = False
+        return framed, normals
+
+    @cached_property
     def face_graph(self) -> FaceGraph:
         """Face adjacency with coincident vertices welded (``welded_faces``), its dihedral
         angles and concave flags following the oriented normals: the graph the ShDF's
@@ -344,8 +354,7 @@ class TriangleMesh:
         if oriented is not self:
             return oriented.face_graph
         scale = self.pose_frame[2]
-        framed = in_frame(self.vertices, self.pose_frame)
-        normals, _ = face_normals(framed, self.faces)
+        framed, normals = self.pose_geometry
         welded = self.welded_faces
         graph = build_face_graph(framed, welded, normals, adjacency=self.face_adjacency)
         coincident = self.coincident_faces

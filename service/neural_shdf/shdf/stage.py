@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 
 from neural_shdf import constants
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph, face_normals, in_frame
+from neural_shdf.geometry import FaceGraph, in_frame
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.orientation import MeshDiagnostics, open_boundary_faces
 from neural_shdf.segment.params import check_seed
@@ -189,6 +189,15 @@ def turned_to_pose_frame(mesh: TriangleMesh, directions: NDArray[Any]) -> NDArra
     return in_frame(directions, mesh.pose_frame, translate=False)
 
 
+def framed_targets(mesh: TriangleMesh, vertices: NDArray[Any]) -> NDArray[np.float64]:
+    """``ray_targets``' vertices in the pose frame: the mesh's own (``pose_geometry``),
+    then any the caps added."""
+    framed = mesh.pose_geometry[0]
+    if len(vertices) == len(framed):
+        return framed
+    return np.vstack([framed, in_pose_frame(mesh, vertices[len(framed) :])])
+
+
 def surface_triangles(mesh: TriangleMesh, triangles: NDArray[Any]) -> int:
     """How many of ``ray_targets``' triangles are surface for the rays: the mesh's and the
     bridges across slits between stitched shells (which end at a vertex of the surface);
@@ -219,7 +228,7 @@ def sampled_raw_shdf(
     with ThreadPoolExecutor(max_workers=2) as pool:
         targets = ray_targets(mesh, close_holes)
         surface = surface_triangles(mesh, targets[1])
-        framed = in_pose_frame(mesh, targets[0])
+        framed = framed_targets(mesh, targets[0])
         scene = pool.submit(Scene, framed, targets[1], "low", surface)
         normal_sums = vertex_normal_sums(len(mesh.vertices), mesh.faces, normals, areas)
 
@@ -293,7 +302,7 @@ def raw_diameters(
         scale = mesh.pose_frame[2]
         targets = ray_targets(mesh, close_holes)
         surface = surface_triangles(mesh, targets[1])
-        framed = in_pose_frame(mesh, targets[0])
+        framed = framed_targets(mesh, targets[0])
         diameters = raw_shdf(
             framed[: len(mesh.vertices)],
             mesh.faces,
@@ -301,7 +310,7 @@ def raw_diameters(
             ray_count=params.ray_count,
             # From the frame's own coordinates: a sliver's normal, which rounding decides,
             # is then the same in any pose.
-            normals=face_normals(framed, mesh.faces)[0],
+            normals=mesh.pose_geometry[1],
             progress=progress,
             scene=Scene(framed, targets[1], surface_triangles=surface) if close_holes else None,
             surface_triangles=surface,

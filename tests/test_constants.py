@@ -152,6 +152,13 @@ GOLDEN[22] = GOLDEN[21]
 # coordinates in the mesh's pose frame, and a crowded edge's faces ordered there: the same
 # graph in any pose. The golden mesh's labels and ShDF hold.
 GOLDEN[23] = GOLDEN[22]
+# Version 24: the ShDF and the segmentation work on the triangles listed in an order of
+# their positions in the pose frame (``TriangleMesh.distinct``, where the shape has a frame
+# of its own); the frames' sums taken in integers (``geometry.weighted_moments``: the same
+# bits in any order), the edge-ring length over every pair of the face graph
+# (``postprocess.ring_length``), the sampled ShDF drawn and cast in the pose frame. The
+# golden mesh's labels and ShDF hold.
+GOLDEN[24] = GOLDEN[23]
 #: Earlier versions, recorded as sha256 of (ShDF rounded to 6 decimals, labels): version 1;
 #: 2, the ray cone turning with each triangle and segmentation grids along the mesh's axes.
 HISTORY = {

@@ -7,6 +7,7 @@ import pytest
 import trimesh
 from threadpoolctl import threadpool_limits
 
+from neural_shdf import geometry
 from neural_shdf.constants import AREA_EPS
 from neural_shdf.geometry import (
     EDGE_CLIQUE,
@@ -17,10 +18,12 @@ from neural_shdf.geometry import (
     face_normals,
     grid_cells,
     midpoint_subdivide,
+    order_free_sum,
     pose_frame,
     principal_coordinates,
     principal_frame,
     split_region,
+    weighted_moments,
     weld_faces,
     zero_area_limit,
 )
@@ -378,14 +381,38 @@ def test_principal_coordinates_from_a_kept_frame_are_the_same_bits():
     weights = rng.uniform(0.0, 2.0, len(points))
     frame = principal_frame(points, weights)
     fresh = principal_coordinates(points, weights)
-    # What principal_coordinates computed before it took a frame: numpy's products as
-    # such, on one BLAS thread.
     with threadpool_limits(limits=1, user_api="blas"):
-        offsets = points - weights / weights.sum() @ points
-        _, axes = np.linalg.eigh((offsets * (weights / weights.sum())[:, None]).T @ offsets)
-        np.testing.assert_array_equal(fresh, offsets @ axes[:, ::-1])
+        np.testing.assert_array_equal(fresh, (points - frame[0]) @ frame[1])
     np.testing.assert_array_equal(principal_coordinates(points, weights, frame), fresh)
     np.testing.assert_array_equal(principal_coordinates(points, None, frame), fresh)
+
+
+def test_moments_and_frames_are_the_same_bits_in_any_order_of_the_points():
+    """Sums in integers: a shuffled file's frame (and every coordinate rounded in it) is
+    the original's, bit for bit; the sums agree with floating point's to rounding."""
+    rng = np.random.default_rng(3)
+    # skewed along every axis, so that the pose frame has sides
+    points = rng.gamma(2.0, size=(50_000, 3)) * (30.0, 2.0, 0.5) + (1e3, -7.0, 3.0)
+    weights = rng.uniform(0.0, 2.0, len(points))
+    order = rng.permutation(len(points))
+    for first, second in zip(
+        weighted_moments(points, weights),
+        weighted_moments(points[order], weights[order]),
+        strict=True,
+    ):
+        np.testing.assert_array_equal(first, second)
+    centre, second_moments, _ = weighted_moments(points, weights)
+    offsets = points - centre
+    np.testing.assert_allclose(centre, weights @ points / weights.sum(), rtol=1e-13)
+    np.testing.assert_allclose(second_moments, (offsets * weights[:, None]).T @ offsets, rtol=1e-11)
+    frame = pose_frame(points, weights)
+    shuffled = pose_frame(points[order], weights[order])
+    for first, second in zip(frame, shuffled, strict=True):
+        np.testing.assert_array_equal(first, second)
+    assert not np.array_equal(frame[1], np.eye(3))  # a frame of its own, not the world's
+    values = rng.normal(size=10_000) * np.exp(rng.normal(size=10_000) * 5)
+    assert order_free_sum(values) == order_free_sum(values[::-1])
+    assert order_free_sum(values) == pytest.approx(math.fsum(values), rel=1e-12, abs=1e-12)
 
 
 def test_principal_frame_does_not_depend_on_the_callers_blas_threads():
@@ -632,3 +659,36 @@ def test_fins_at_one_angle_chain_nearer_first_in_any_numbering():
         moved, listed, origin = relisted(vertices, faces, rng)
         pairs, _ = face_adjacency(listed, vertices=moved)
         assert {tuple(sorted(origin[pair])) for pair in pairs.tolist()} == expected
+
+
+def test_canonical_triangles_depend_on_the_positions_alone():
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    first, first_of = geometry.canonical_triangles(mesh.vertices, mesh.faces, head=200)
+    vertices, faces, origin = relisted(
+        mesh.vertices, mesh.faces, np.random.default_rng(5), turn=True
+    )
+    head = np.flatnonzero(origin < 200)  # the same 200 triangles first
+    order = np.concatenate([head, np.setdiff1d(np.arange(len(faces)), head)])
+    second, second_of = geometry.canonical_triangles(vertices, faces[order], head=200)
+    np.testing.assert_array_equal(vertices[second], mesh.vertices[first])
+    np.testing.assert_array_equal(origin[order][second_of], first_of)
+    assert set(first_of[:200]) == set(range(200))
+    # Each triangle is its input triangle, turned to start at its lowest corner.
+    for triangle, source in zip(first[:5], first_of[:5], strict=True):
+        turns = [np.roll(mesh.faces[source], -k) for k in range(3)]
+        assert any((triangle == turn).all() for turn in turns)
+
+
+@pytest.mark.parametrize("levels", [3, 40, 100_000])
+def test_position_ranks_order_by_x_then_y_then_z(levels: int, monkeypatch):
+    """Ties in x (CAD grids, float32 scans) are ordered by y and z, by insertion in short
+    runs and by a full sort past ``TIED_RUN``; equal positions share a rank."""
+    rng = np.random.default_rng(levels)
+    points = rng.integers(0, levels, size=(6000, 3)).astype(float)
+    by_position = np.lexsort((points[:, 2], points[:, 1], points[:, 0]))
+    ordered = points[by_position]
+    expected = np.empty(len(points), dtype=np.int64)
+    expected[by_position] = np.cumsum(np.r_[True, np.any(ordered[1:] != ordered[:-1], axis=1)])
+    for longest in (geometry.TIED_RUN, 8):  # runs of 2000, 150 and 1 for the three levels
+        monkeypatch.setattr(geometry, "TIED_RUN", longest)
+        np.testing.assert_array_equal(geometry.position_ranks(points), expected - 1)

@@ -4,6 +4,7 @@ import numpy as np
 import trimesh
 
 from neural_shdf.mesh import TriangleMesh
+from tests.mesh_helpers import relisted
 
 
 def _quad_and_triangle() -> TriangleMesh:
@@ -193,3 +194,37 @@ def test_the_face_graph_is_the_same_in_any_pose_and_scale():
     np.testing.assert_array_equal(there.dihedral, here.dihedral)
     np.testing.assert_array_equal(there.concave, here.concave)
     np.testing.assert_allclose(there.edge_length, 37.0 * here.edge_length, rtol=1e-12)
+
+
+def test_distinct_lists_the_same_surface_the_same_way_whatever_the_file_s_order():
+    """``distinct`` numbers vertices by position in the pose frame and sorts the triangles
+    by their corners: a file listing the same triangles in another order (vertices, faces
+    and each triangle's first corner) gives the same arrays, and the maps lead back."""
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    vertices = np.asarray(sphere.vertices) * (1.6, 1.0, 0.7)
+    vertices[:, 2] += 0.2 * vertices[:, 0] ** 2
+    faces = np.vstack([sphere.faces, sphere.faces[:7][:, ::-1]])  # 7 double-sided copies
+    mesh = TriangleMesh(vertices, faces)
+    other_vertices, other_faces, origin = relisted(
+        vertices, faces, np.random.default_rng(8), turn=True
+    )
+    other = TriangleMesh(other_vertices, other_faces)
+    first, second = mesh.distinct, other.distinct
+    assert first.reordered and first.has_copies and len(first.kept) == len(sphere.faces)
+    np.testing.assert_array_equal(second.mesh.vertices, first.mesh.vertices)
+    np.testing.assert_array_equal(second.mesh.faces, first.mesh.faces)
+    for distinct, source in ((first, mesh), (second, other)):
+        work = distinct.mesh
+        # each triangle is its kept triangle, facing out, turned to start at its lowest corner
+        kept = source.oriented.vertices[source.oriented.faces[distinct.kept]]
+        listed = work.vertices[work.faces]
+        turned = np.zeros(len(listed), dtype=bool)
+        for k in range(3):
+            turned |= (np.roll(kept, -k, axis=1) == listed).all(axis=(1, 2))
+        assert turned.all()
+        # every triangle (copies too) maps to one listing the same three positions
+        np.testing.assert_array_equal(
+            np.sort(source.vertices[source.faces], axis=1),
+            np.sort(listed[distinct.copy_of], axis=1),
+        )
+    np.testing.assert_array_equal(second.copy_of, first.copy_of[origin])

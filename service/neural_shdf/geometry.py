@@ -147,19 +147,17 @@ def principal_frame(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """(weighted mean, principal axes as columns, largest spread first) of (N, 3) points:
     what ``principal_coordinates`` projects on, small enough for a mesh to keep.
-    Unit weights where ``weights`` is omitted or sums to zero."""
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    Unit weights where ``weights`` is omitted or sums to zero. From
+    ``weighted_moments``: the same bits in whatever order the points come."""
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     if not len(points):
         return np.zeros(3), np.eye(3)
     if weights is None or not float(np.sum(weights)) > 0:
         weights = np.ones(len(points))
-    weights = np.asarray(weights, dtype=np.float64) / float(np.sum(weights))
-    # One BLAS thread: a product split over threads sums in another order, so the frame
-    # (and the grid cells laid over it) would depend on the machine's core count.
-    with threadpool_limits(limits=1, user_api="blas"):
-        mean = weights @ points
-        offsets = points - mean
-        _, axes = np.linalg.eigh((offsets * weights[:, None]).T @ offsets)
+    mean, second, _ = weighted_moments(
+        points, np.ascontiguousarray(weights, dtype=np.float64), False
+    )
+    _, axes = np.linalg.eigh(second)
     return mean, axes[:, ::-1]
 
 
@@ -211,43 +209,281 @@ def pose_frame(
     return mean, rotation, scale
 
 
+def has_own_frame(frame: tuple[NDArray[Any], NDArray[Any], float]) -> bool:
+    """Whether a ``pose_frame`` is the shape's own (its axes and their senses decided by
+    the shape), not the world's axes that ``pose_frame`` falls back to."""
+    return not np.array_equal(frame[1], np.eye(3))
+
+
 @kernel
 def weighted_moments(
-    points: NDArray[np.float64], weights: NDArray[np.float64]
+    points: NDArray[np.float64], weights: NDArray[np.float64], third_moments: bool = True
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:  # pragma: no cover
-    """(weighted centroid (3,), second (3, 3) and third (3, 3, 3) weighted moments of the
-    points about it, summed, not divided by the weights), in two compiled passes: the
-    orientation pass's sheet skew and ``pose_frame`` read them (numpy's products of an
-    (N, 3) array took 0.14-0.18 s at 1M faces)."""
-    centre = np.zeros(3)
-    weight = 0.0
-    for point in range(points.shape[0]):
+    """(weighted centroid (3,), second (3, 3) and, with ``third_moments``, third (3, 3, 3)
+    weighted moments of the points about it, summed, not divided by the weights), in
+    compiled passes: the orientation pass's sheet skew, ``principal_frame`` and
+    ``pose_frame`` read them (numpy's products of an (N, 3) array took 0.14-0.18 s at 1M
+    faces).
+
+    Every sum is taken in integers (``_fixed_point``: each term rounded to a power-of-two
+    step below its sum's bound), so the same points listed in another order give the
+    same bits: a floating-point sum depends on its order, and a frame that moved by a
+    rounding would move the coordinates rounded in it (``in_frame``) by a grid step.
+    """
+    count = points.shape[0]
+    bits = _fixed_point_bits(count)
+    largest_weight = 0.0
+    largest = np.zeros(3)
+    for point in range(count):
+        largest_weight = max(largest_weight, abs(weights[point]))
         for axis in range(3):
-            centre[axis] += weights[point] * points[point, axis]
-        weight += weights[point]
+            largest[axis] = max(largest[axis], abs(points[point, axis]))
+    weight_step = _fixed_point_step(largest_weight, bits)
+    steps = np.empty(3)
+    for axis in range(3):
+        steps[axis] = _fixed_point_step(largest_weight * largest[axis], bits)
+    weight_sum = np.int64(0)
+    sums = np.zeros(3, dtype=np.int64)
+    for point in range(count):
+        w = weights[point]
+        weight_sum += _fixed_point(w, weight_step)
+        for axis in range(3):
+            sums[axis] += _fixed_point(w * points[point, axis], steps[axis])
+    weight = float(weight_sum) * weight_step
+    centre = np.zeros(3)
     if weight > 0:
-        centre /= weight
-    second = np.zeros((3, 3))
-    third = np.zeros((3, 3, 3))
+        for axis in range(3):
+            centre[axis] = float(sums[axis]) * steps[axis] / weight
+    for axis in range(3):
+        largest[axis] = 0.0
+    for point in range(count):
+        for axis in range(3):
+            largest[axis] = max(largest[axis], abs(points[point, axis] - centre[axis]))
+    second_steps = np.empty((3, 3))
+    third_steps = np.empty((3, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            second_steps[i, j] = _fixed_point_step(largest_weight * largest[i] * largest[j], bits)
+            for k in range(j, 3):
+                bound = largest_weight * largest[i] * largest[j] * largest[k]
+                third_steps[i, j, k] = _fixed_point_step(bound, bits)
+    second_sums = np.zeros((3, 3), dtype=np.int64)
+    third_sums = np.zeros((3, 3, 3), dtype=np.int64)
     offset = np.empty(3)
-    for point in range(points.shape[0]):
+    for point in range(count):
         w = weights[point]
         for axis in range(3):
             offset[axis] = points[point, axis] - centre[axis]
         for i in range(3):
             for j in range(i, 3):
                 product = w * offset[i] * offset[j]
-                second[i, j] += product
-                for k in range(j, 3):
-                    third[i, j, k] += product * offset[k]
+                second_sums[i, j] += _fixed_point(product, second_steps[i, j])
+                if third_moments:
+                    for k in range(j, 3):
+                        third_sums[i, j, k] += _fixed_point(
+                            product * offset[k], third_steps[i, j, k]
+                        )
+    second = np.zeros((3, 3))
+    third = np.zeros((3, 3, 3))
     for i in range(3):
         for j in range(i, 3):
-            second[j, i] = second[i, j]
+            second[i, j] = second[j, i] = float(second_sums[i, j]) * second_steps[i, j]
             for k in range(j, 3):
-                value = third[i, j, k]
-                third[i, k, j] = third[j, i, k] = third[j, k, i] = value
-                third[k, i, j] = third[k, j, i] = value
+                value = float(third_sums[i, j, k]) * third_steps[i, j, k]
+                third[i, j, k] = third[i, k, j] = third[j, i, k] = value
+                third[j, k, i] = third[k, i, j] = third[k, j, i] = value
     return centre, second, third
+
+
+@kernel
+def order_free_sum(values: NDArray[np.float64]) -> float:  # pragma: no cover - numba
+    """The sum of ``values``, the same bits in whatever order they come (in integers, as
+    ``weighted_moments``' sums)."""
+    count = len(values)
+    bits = _fixed_point_bits(count)
+    largest = 0.0
+    for value in values:
+        largest = max(largest, abs(value))
+    step = _fixed_point_step(largest, bits)
+    total = np.int64(0)
+    for value in values:
+        total += _fixed_point(value, step)
+    return float(total) * step
+
+
+@kernel(inline=True)
+def _fixed_point_bits(count: int) -> int:  # pragma: no cover - numba
+    """Bits per term such that ``count`` terms sum within an int64 (62 bits)."""
+    bits = 62
+    while bits > 1 and (np.int64(1) << (62 - bits)) <= count:
+        bits -= 1
+    return bits
+
+
+@kernel(inline=True)
+def _fixed_point_step(bound: float, bits: int) -> float:  # pragma: no cover - numba
+    """The power of two that puts terms up to ``bound`` within ``bits`` bits."""
+    if not bound > 0 or not bound < math.inf:
+        return 1.0
+    _, exponent = math.frexp(bound)  # bound < 2**exponent
+    return max(math.ldexp(1.0, exponent - bits), 5e-324)
+
+
+@kernel(inline=True)
+def _fixed_point(term: float, step: float) -> np.int64:  # pragma: no cover - numba
+    """``term`` in whole ``step``s (nearest; exact scaling by a power of two)."""
+    return np.int64(math.floor(term / step + 0.5))
+
+
+def canonical_triangles(
+    vertices: NDArray[Any] | None,
+    faces: NDArray[Any],
+    head: int | None = None,
+    rank: NDArray[Any] | None = None,
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(triangles, input index of each) in an order set by the corners' positions alone.
+
+    Each triangle starts at its corner of lowest position (x, then y, then z; the
+    winding kept), and the triangles are sorted by their corners' positions; the first
+    ``head`` triangles (default all) stay before the others. Only triangles at the same
+    three positions keep their input order. ``rank``: the vertices' ``position_ranks``
+    where the caller has them (then ``vertices`` is not read).
+    """
+    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
+    if not len(faces):
+        return faces.copy(), np.zeros(0, dtype=np.int64)
+    if rank is None:
+        rank = position_ranks(np.asarray(vertices))
+    rank = np.ascontiguousarray(rank, dtype=np.int64)
+    ranks = int(rank.max()) + 1
+    rotated, keys = _turned_to_lowest(faces, rank)
+    block = np.zeros(len(faces), dtype=np.int64)
+    if head is not None:
+        block[head:] = 1
+    order = _corner_order(keys, block, ranks)
+    return rotated[order], order
+
+
+@kernel
+def _corner_order(
+    keys: NDArray[np.int64], block: NDArray[np.int64], ranks: int
+) -> NDArray[np.int64]:  # pragma: no cover - compiled
+    """The stable order of the rows by (block, then the three keys, each below ``ranks``):
+    a counting sort by block and first key, then each bucket by the other two (in place
+    where few; a stable sort of their combined key otherwise). A quarter of a stable sort
+    of one combined key at 1M faces."""
+    count = len(keys)
+    blocks = 1
+    for row in range(count):
+        blocks = max(blocks, block[row] + 1)
+    start = np.zeros(blocks * ranks + 1, dtype=np.int64)
+    for row in range(count):
+        start[block[row] * ranks + keys[row, 0] + 1] += 1
+    for bucket in range(blocks * ranks):
+        start[bucket + 1] += start[bucket]
+    fill = start[:-1].copy()
+    order = np.empty(count, dtype=np.int64)
+    for row in range(count):
+        bucket = block[row] * ranks + keys[row, 0]
+        order[fill[bucket]] = row
+        fill[bucket] += 1
+    for bucket in range(blocks * ranks):
+        first, end = start[bucket], start[bucket + 1]
+        if end - first > 32:
+            rows = order[first:end].copy()
+            combined = keys[rows, 1] * ranks + keys[rows, 2]
+            order[first:end] = rows[np.argsort(combined, kind="mergesort")]
+            continue
+        for i in range(first + 1, end):
+            row = order[i]
+            j = i - 1
+            while j >= first and (
+                keys[order[j], 1] > keys[row, 1]
+                or (keys[order[j], 1] == keys[row, 1] and keys[order[j], 2] > keys[row, 2])
+            ):
+                order[j + 1] = order[j]
+                j -= 1
+            order[j + 1] = row
+    return order
+
+
+def position_ranks(vertices: NDArray[Any]) -> NDArray[np.int64]:
+    """Rank of each vertex's position in (x, y, z) order; equal positions, equal ranks."""
+    return position_order(vertices)[0]
+
+
+def position_order(vertices: NDArray[Any]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """(``position_ranks``, the vertices in (x, y, z) order: ranks ascending)."""
+    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    by_x = np.argsort(vertices[:, 0], kind="stable")
+    if not _ties_sorted(vertices, by_x, TIED_RUN):  # long runs of one x (CAD): lexsort
+        by_x = np.lexsort((vertices[:, 2], vertices[:, 1], vertices[:, 0]))
+    ordered = vertices[by_x]
+    new_position = np.ones(len(vertices), dtype=np.int64)
+    new_position[1:] = np.any(ordered[1:] != ordered[:-1], axis=1)
+    rank = np.empty(len(vertices), dtype=np.int64)
+    rank[by_x] = np.cumsum(new_position) - 1
+    return rank, by_x.astype(np.int64)
+
+
+#: ``position_ranks``: runs of equal x up to this long are ordered by (y, z) in place (a
+#: float32 scan has many, up to ~100 long); a longer one sorts all vertices by (x, y, z).
+TIED_RUN = 4096
+
+
+@kernel
+def _ties_sorted(
+    vertices: NDArray[np.float64], order: NDArray[np.int64], longest: int
+) -> bool:  # pragma: no cover - compiled
+    """Order each run of equal x in ``order`` (sorted by x, stable) by (y, z): sorted by y,
+    then by insertion; False, leaving the rest as it was, at a run longer than ``longest``."""
+    start = 0
+    count = len(order)
+    while start < count:
+        end = start + 1
+        while end < count and vertices[order[end], 0] == vertices[order[start], 0]:
+            end += 1
+        if end - start > longest:
+            return False
+        if end - start > 16:
+            run = order[start:end].copy()
+            by_y = np.argsort(vertices[run, 1])
+            for i in range(len(run)):
+                order[start + i] = run[by_y[i]]
+        for i in range(start + 1, end):
+            item = order[i]
+            j = i - 1
+            while j >= start and (
+                vertices[order[j], 1] > vertices[item, 1]
+                or (
+                    vertices[order[j], 1] == vertices[item, 1]
+                    and vertices[order[j], 2] > vertices[item, 2]
+                )
+            ):
+                order[j + 1] = order[j]
+                j -= 1
+            order[j + 1] = item
+        start = end
+    return True
+
+
+@kernel
+def _turned_to_lowest(
+    faces: NDArray[np.int64], rank: NDArray[np.int64]
+) -> tuple[NDArray[np.int64], NDArray[np.int64]]:  # pragma: no cover - compiled
+    """(triangles turned to start at their corner of lowest rank, their corners' ranks)."""
+    turned = np.empty_like(faces)
+    keys = np.empty_like(faces)
+    for face in range(len(faces)):
+        low = 0
+        for corner in range(1, 3):
+            if rank[faces[face, corner]] < rank[faces[face, low]]:
+                low = corner
+        for corner in range(3):
+            vertex = faces[face, (low + corner) % 3]
+            turned[face, corner] = vertex
+            keys[face, corner] = rank[vertex]
+    return turned, keys
 
 
 #: ``in_frame``: coordinates in a pose frame (unit RMS radius) rounded to multiples of

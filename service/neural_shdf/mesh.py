@@ -15,12 +15,15 @@ from numpy.typing import NDArray
 from neural_shdf.geometry import (
     FaceGraph,
     build_face_graph,
+    canonical_triangles,
     count_zero_rows,
     face_adjacency,
     face_centroids,
     face_normals,
+    has_own_frame,
     in_frame,
     pose_frame,
+    position_order,
     principal_frame,
     weld_faces,
     zero_area_limit,
@@ -308,29 +311,47 @@ class TriangleMesh:
     @cached_property
     def distinct(self) -> DistinctTriangles:
         """``oriented`` with one copy of each set of coincident triangles (double-sided
-        cards, a triangle repeated in place): what the ShDF and the segmentation work on.
-        Copies would stop each other's rays at distance zero, weigh k times in the filters,
-        and join every neighbour through a non-manifold edge in the segmentation's graph,
-        so copies take the value and the part of their first copy. ``oriented`` itself,
-        with the identity map, when the mesh has no copies."""
+        cards, a triangle repeated in place), listed in an order set by the positions
+        alone where the shape has a frame of its own: what the ShDF and the segmentation
+        work on. Copies would stop each other's rays at distance zero, weigh k times in the
+        filters, and join every neighbour through a non-manifold edge in the segmentation's
+        graph, so copies take the value and the part of their first copy.
+
+        Where ``pose_frame`` is the shape's own, vertices are numbered by
+        ``geometry.position_ranks`` in it, each triangle starts at its lowest corner
+        (winding kept) and the triangles are sorted by their corners
+        (``geometry.canonical_triangles``): the same surface listed in any order, moved,
+        turned or scaled, is the same mesh here, so every step after it (its ties, sums,
+        samples and numbering) gives the same result. Where the shape leaves the frame to
+        the world's axes (a body of revolution, a mirror-symmetric box), an order by
+        position would follow the pose: the triangles keep the file's order (a turned copy
+        then gets the same result, a reordered one may break ties another way).
+        ``oriented`` itself, with identity maps, where nothing is left out or moved."""
         oriented = self.oriented
         first_copy = np.asarray(self.orientation.first_copy, dtype=np.int64)
-        if not len(first_copy) or first_copy.max() < 0:
-            identity = np.arange(self.face_count)
+        identity = np.arange(self.face_count)
+        copies = len(first_copy) > 0 and first_copy.max() >= 0
+        kept = np.flatnonzero(first_copy < 0) if copies else identity
+        if not len(kept):
             return DistinctTriangles(oriented, identity, identity)
-        kept = np.flatnonzero(first_copy < 0)
-        copy_of = np.searchsorted(
-            kept, np.where(first_copy < 0, np.arange(len(first_copy)), first_copy)
-        )
+        vertices, faces = oriented.vertices, oriented.faces[kept]
+        if has_own_frame(oriented.pose_frame):
+            rank, vertex_order = position_order(in_frame(vertices, oriented.pose_frame))
+            number = np.empty(len(vertex_order), dtype=np.int64)
+            number[vertex_order] = np.arange(len(vertex_order))
+            faces, order = canonical_triangles(None, number[faces], rank=rank[vertex_order])
+            vertices, kept = vertices[vertex_order], kept[order]
+        if not copies and np.array_equal(faces, oriented.faces):
+            return DistinctTriangles(oriented, identity, identity)
+        place = np.empty(self.face_count, dtype=np.int64)
+        place[kept] = np.arange(len(kept))
+        copy_of = place[np.where(first_copy < 0, identity, first_copy)] if copies else place
         unique = TriangleMesh(
-            oriented.vertices,
-            oriented.faces[kept],
-            oriented.face_origin[kept],
-            oriented.input_face_count,
+            vertices, faces, oriented.face_origin[kept], oriented.input_face_count
         )
-        normals, areas = oriented.normals_and_areas
-        # Already facing out: seed the caches rather than orient and measure again.
-        unique.__dict__.update(oriented=unique, normals_and_areas=(normals[kept], areas[kept]))
+        # Already facing out: seed the cache rather than orient again. Its pose frame is
+        # its own, from triangles listed as any listing of them would be.
+        unique.__dict__.update(oriented=unique)
         return DistinctTriangles(unique, kept, copy_of)
 
     @cached_property
@@ -480,9 +501,10 @@ class TriangleMesh:
 class DistinctTriangles:
     """A mesh's triangles without coincident copies (``TriangleMesh.distinct``).
 
-    ``mesh``: the distinct triangles, oriented, in the original order; ``kept``: the index
-    of each in the original mesh (its first copy); ``copy_of``: per original triangle, the
-    index of its copy in ``mesh`` (so ``values[copy_of]`` gives every copy its value).
+    ``mesh``: the distinct triangles, oriented, in an order of their positions; ``kept``:
+    the index of each in the original mesh (its first copy); ``copy_of``: per original
+    triangle, the index of its copy in ``mesh`` (so ``values[copy_of]`` gives every copy
+    its value).
     """
 
     mesh: TriangleMesh
@@ -492,3 +514,8 @@ class DistinctTriangles:
     @property
     def has_copies(self) -> bool:
         return len(self.kept) < len(self.copy_of)
+
+    @property
+    def reordered(self) -> bool:
+        """Whether ``mesh`` is not the original's triangles in the original order."""
+        return self.has_copies or not np.array_equal(self.kept, np.arange(len(self.kept)))

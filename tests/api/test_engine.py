@@ -307,7 +307,7 @@ def test_new_smoothing_values_reuse_the_mesh_basis(app_factory, capsule_obj):
     prepared = [key for key in engine.cache._working if ":basis:" in key]
     assert len(prepared) == 2, prepared  # default clusters, and clusters=3
     # The crease refinement's graph depends on the mesh only: the stored mesh keeps one.
-    assert "crease_graph" in engine.cache.recall(f"{mesh_id}:mesh").oriented.__dict__
+    assert "crease_graph" in engine.cache.recall(f"{mesh_id}:mesh").distinct.mesh.__dict__
     mesh = load_mesh(capsule_obj, file_type="obj")
     shdf = compute_shdf(mesh, method=TEST_METHOD, model=MODEL_FILE).values
     for body, answer in zip(bodies, answers, strict=True):

@@ -349,3 +349,54 @@ def test_compute_shdfs_result_segments_as_its_values():
     np.testing.assert_array_equal(segment(mesh, result, params).labels, expected)
     basis = prepare_segment(mesh, result, params)
     np.testing.assert_array_equal(segment(mesh, result, params, basis=basis).labels, expected)
+
+
+@pytest.mark.parametrize("partitioner", ["graphcut", "metis"])
+def test_a_file_listed_another_way_gets_the_same_parts_and_tree(dumbbell_case, partitioner):
+    """The segmentation runs on the triangles in an order of their positions
+    (``TriangleMesh.distinct``): the file's faces, vertices and corners in another order
+    give the same parts, tree and mirror map, numbered by each file's own lowest face."""
+    from tests.mesh_helpers import relisted
+
+    vertices, faces, shdf, _, _ = dumbbell_case
+    # one ball stretched and the bar bent: a shape with a frame of its own (the dumbbell's
+    # symmetry leaves its frame to the world's axes, and the file's order stands)
+    vertices = vertices * np.where(vertices[:, 2:] > 0, 1.2, 1.0) ** np.array([0, 0, 1])
+    vertices[:, 0] += 0.05 * vertices[:, 2] ** 2
+    assert not TriangleMesh(*dumbbell_case[:2]).distinct.reordered
+    params = SegmentParams(
+        partitioner=partitioner, parts=4 if partitioner == "metis" else None, symmetry=True
+    )
+    given = segment(TriangleMesh(vertices, faces), shdf, params)
+    other_vertices, other_faces, origin = relisted(
+        vertices, faces, np.random.default_rng(11), turn=True
+    )
+    other = TriangleMesh(other_vertices, other_faces)
+    assert other.distinct.reordered and not other.distinct.has_copies
+    listed = segment(other, shdf[origin], params)
+    basis = prepare_segment(other, shdf[origin], params)
+    again = segment(other, shdf[origin], params, basis=basis)
+    for result in (listed, again):
+        assert_canonical(result.labels)
+        pairs = set(zip(given.labels[origin].tolist(), result.labels.tolist(), strict=True))
+        assert len(pairs) == given.labels.max() + 1 == result.labels.max() + 1
+        if given.tree is not None:
+            assert_canonical(result.tree.leaf_labels)
+            np.testing.assert_array_equal(result.tree.costs, given.tree.costs)
+            for count in range(1, given.tree.leaf_count + 1):
+                cut = set(
+                    zip(
+                        given.tree.labels(count)[origin].tolist(),
+                        result.tree.labels(count).tolist(),
+                        strict=True,
+                    )
+                )
+                assert len(cut) == min(count, given.tree.leaf_count)
+    assert given.reflection is not None and listed.reflection is not None
+    # the mirror of each face, as the file numbers its faces
+    position = np.empty(len(origin), dtype=np.int64)
+    position[origin] = np.arange(len(origin))
+    mirror = given.reflection.mirror[origin]
+    np.testing.assert_array_equal(
+        listed.reflection.mirror, np.where(mirror >= 0, position[np.maximum(mirror, 0)], -1)
+    )

@@ -86,24 +86,6 @@ def test_a_missing_library_says_what_to_install(monkeypatch):
         embree.Embree()
 
 
-def test_canonical_triangles_depend_on_the_positions_alone():
-    mesh = trimesh.creation.icosphere(subdivisions=2)
-    first, first_of = embree.canonical_triangles(mesh.vertices, mesh.faces, head=200)
-    vertices, faces, origin = relisted(
-        mesh.vertices, mesh.faces, np.random.default_rng(5), turn=True
-    )
-    head = np.flatnonzero(origin < 200)  # the same 200 triangles first
-    order = np.concatenate([head, np.setdiff1d(np.arange(len(faces)), head)])
-    second, second_of = embree.canonical_triangles(vertices, faces[order], head=200)
-    np.testing.assert_array_equal(vertices[second], mesh.vertices[first])
-    np.testing.assert_array_equal(origin[order][second_of], first_of)
-    assert set(first_of[:200]) == set(range(200))
-    # Each triangle is its input triangle, turned to start at its lowest corner.
-    for triangle, source in zip(first[:5], first_of[:5], strict=True):
-        turns = [np.roll(mesh.faces[source], -k) for k in range(3)]
-        assert any((triangle == turn).all() for turn in turns)
-
-
 def test_a_ray_meeting_two_triangles_at_once_reports_the_same_one_in_any_order():
     """Coincident triangles of opposite winding (a double-sided card): the hit, and so the
     back-face test of the ShDF's rays, must not follow the file's face order."""
@@ -121,18 +103,3 @@ def test_a_ray_meeting_two_triangles_at_once_reports_the_same_one_in_any_order()
         normals.append(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]))
     for other in normals[1:]:
         np.testing.assert_array_equal(np.sign(other), np.sign(normals[0]))
-
-
-@pytest.mark.parametrize("levels", [3, 40, 100_000])
-def test_position_ranks_order_by_x_then_y_then_z(levels: int, monkeypatch):
-    """Ties in x (CAD grids, float32 scans) are ordered by y and z, by insertion in short
-    runs and by a full sort past ``TIED_RUN``; equal positions share a rank."""
-    rng = np.random.default_rng(levels)
-    points = rng.integers(0, levels, size=(6000, 3)).astype(float)
-    by_position = np.lexsort((points[:, 2], points[:, 1], points[:, 0]))
-    ordered = points[by_position]
-    expected = np.empty(len(points), dtype=np.int64)
-    expected[by_position] = np.cumsum(np.r_[True, np.any(ordered[1:] != ordered[:-1], axis=1)])
-    for longest in (embree.TIED_RUN, 8):  # runs of 2000, 150 and 1 for the three levels
-        monkeypatch.setattr(embree, "TIED_RUN", longest)
-        np.testing.assert_array_equal(embree.position_ranks(points), expected - 1)

@@ -155,7 +155,7 @@ class LabelingService:
         if found is not None:
             result = found
         else:
-            graph = functools.partial(self.meshes.graph, mesh_id, mesh)
+            graph = functools.partial(self.meshes.file_graph, mesh_id, mesh)
 
             def compute() -> StoredLabels:
                 checkpoint()

@@ -257,6 +257,12 @@ class MeshStore:
         with self._graph_locks[hash(f"{mesh_id}:graph") % len(self._graph_locks)]:
             return mesh.distinct.mesh.face_graph
 
+    def file_graph(self, mesh_id: str, mesh: TriangleMesh) -> FaceGraph:
+        """Face graph of the file's triangles in the file's order (``TriangleMesh.face_graph``:
+        what labelling reads per triangle), built once as ``graph``."""
+        with self._graph_locks[hash(f"{mesh_id}:file-graph") % len(self._graph_locks)]:
+            return mesh.face_graph
+
     def creases(self, mesh_id: str, mesh: TriangleMesh) -> CreaseGraph:
         """The crease refinement's graph of a mesh (``TriangleMesh.crease_graph``), built
         once as ``graph``; it serves every ShDF and mixture of the mesh."""

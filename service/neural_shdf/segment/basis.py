@@ -47,6 +47,10 @@ class SegmentBasis:
     #: ``principal_frame`` of the centroids weighted by the areas (the mesh's, shared
     #: with its crease graph), for the coarse graphs' grid.
     frame: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+    #: The file's triangle each of the basis's triangles is (``TriangleMesh.distinct.kept``:
+    #: the segmentation lists them in an order of their positions), None where it is the
+    #: file's own order: ``matches`` reads the file's ShDF through it.
+    triangles: NDArray[np.int64] | None = None
     _cut: CutHierarchy | None = field(default=None, repr=False)
     #: ``widened``'s bases by the (minimum, maximum) deviation they were fitted with.
     _widened: dict[tuple[float, float], SegmentBasis] = field(default_factory=dict, repr=False)
@@ -110,7 +114,8 @@ class SegmentBasis:
     def matches(self, params: SegmentParams, shdf: NDArray[Any]) -> bool:
         """Whether this basis is the one ``params`` on a mesh with this ShDF needs (one pass
         over the ShDF, none when it is the basis's own: a basis never stands in for
-        another field)."""
+        another field). ``shdf``: per triangle of the file (``TriangleMesh.faces``), or
+        the basis's own ``shdf``."""
         if self.clusters != params.clusters or self.seed != params.seed:
             return False
         if self.symmetry != params.symmetry:
@@ -118,6 +123,10 @@ class SegmentBasis:
         if shdf is self.shdf:
             return True
         shdf = np.asarray(shdf, dtype=np.float64).reshape(-1)
+        if self.triangles is not None:
+            if len(self.triangles) and len(shdf) <= int(self.triangles.max()):
+                return False
+            shdf = shdf[self.triangles]
         return shdf.shape == self.shdf.shape and np.array_equal(np.clip(shdf, 0.0, 1.0), self.shdf)
 
     def _cut_nbytes(self) -> int:
@@ -137,6 +146,8 @@ class SegmentBasis:
         size = sum(a.nbytes for a in arrays + geometry)
         if self.reflection is not None:
             size += self.reflection.mirror.nbytes
+        if self.triangles is not None:
+            size += self.triangles.nbytes
         size += self._cut_nbytes()
         for widened in self._widened.values():  # shares the face data, ShDF and weights
             size += widened.posteriors.nbytes + widened.data.nbytes + widened._cut_nbytes()

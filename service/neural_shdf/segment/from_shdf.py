@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import equivalent_face_count
-from neural_shdf.mesh import TriangleMesh
+from neural_shdf.mesh import DistinctTriangles, TriangleMesh
 from neural_shdf.orientation import MeshDiagnostics
 from neural_shdf.segment.basis import SegmentBasis
 from neural_shdf.segment.graphcut import data_costs, dihedral_weights
@@ -35,7 +35,7 @@ from neural_shdf.segment.hierarchy import PartTree
 from neural_shdf.segment.mixture import fit_best_mixture, fit_mixture, value_weights
 from neural_shdf.segment.params import AUTO_CLUSTERS, DEFAULT_CLUSTERS, SegmentParams
 from neural_shdf.segment.partitioners import PARTITIONERS, Partitioning
-from neural_shdf.segment.parts import FaceData
+from neural_shdf.segment.parts import FaceData, canonical_labels
 from neural_shdf.segment.symmetry import Reflection, detect_reflection, symmetrize
 from neural_shdf.shdf.postprocess import log_normalize
 from neural_shdf.shdf.stage import ShdfResult
@@ -90,8 +90,9 @@ def prepare_segment(
     params = params or SegmentParams()
     shdf = validate(mesh.face_count, shdf_values(shdf), params)
     distinct = mesh.distinct
-    if distinct.has_copies:
+    if distinct.reordered:
         shdf = shdf[distinct.kept]
+    if distinct.has_copies:
         check_part_count(params, distinct.mesh.face_count)
     mesh = distinct.mesh
     geometry = FaceData.of(mesh.vertices, mesh.faces, mesh.normals_and_areas[1], mesh.centroids)
@@ -124,6 +125,7 @@ def prepare_segment(
         symmetry=params.symmetry,
         reflection=reflection,
         frame=mesh.principal_frame,
+        triangles=distinct.kept if distinct.reordered else None,
     )
     if equivalent_faces.cache_info().currsize:  # worked out for the weights: kept
         basis.__dict__["equivalent_faces"] = equivalent_faces()
@@ -158,8 +160,6 @@ def segment(
     diagnostics = mesh.diagnostics
     distinct = mesh.distinct
     if basis is not None:
-        if distinct.has_copies and np.shape(shdf) == (mesh.face_count,):
-            shdf = np.asarray(shdf)[distinct.kept]
         if not basis.matches(params, shdf):
             raise ValueError("the segment basis was prepared for another ShDF, clusters or seed")
         check_part_count(params, distinct.mesh.face_count)
@@ -182,10 +182,10 @@ def segment(
         spokes=work.hole_spokes if diagnostics.boundary_loops > 0 else None,
     )
     labels, tree = PARTITIONERS[params.partitioner].partition(partitioning)
-    if distinct.has_copies:  # each copy in its first copy's part (kept in order: same numbering)
-        labels = labels[distinct.copy_of]
+    if distinct.reordered:  # back to the file's triangles (copies in their first copy's part)
+        labels = canonical_labels(labels[distinct.copy_of])
         if tree is not None:
-            tree = replace(tree, leaf_labels=tree.leaf_labels[distinct.copy_of])
+            tree = tree.listed_by(tree.leaf_labels[distinct.copy_of])
     return SegmentResult(
         labels,
         basis.mixture.size,
@@ -193,8 +193,20 @@ def segment(
         timings,
         tree,
         diagnostics,
-        basis.reflection,
+        file_reflection(basis.reflection, distinct),
     )
+
+
+def file_reflection(
+    reflection: Reflection | None, distinct: DistinctTriangles
+) -> Reflection | None:
+    """``reflection`` (found on ``distinct.mesh``) with each of the file's triangles mapped
+    to the file's triangle (a first copy) nearest its reflection."""
+    if reflection is None or not distinct.reordered:
+        return reflection
+    mirror = reflection.mirror[distinct.copy_of]
+    mirror = np.where(mirror >= 0, distinct.kept[np.maximum(mirror, 0)], -1)
+    return replace(reflection, mirror=mirror)
 
 
 def check_part_count(params: SegmentParams, face_count: int) -> None:

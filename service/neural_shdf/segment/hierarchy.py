@@ -43,7 +43,7 @@ from neural_shdf.compiled import kernel
 from neural_shdf.constants import FINE_TESSELLATION_FACES
 from neural_shdf.errors import ParameterError
 from neural_shdf.geometry import FaceGraph, equivalent_face_count
-from neural_shdf.segment.parts import cut_edges
+from neural_shdf.segment.parts import canonical_labels, cut_edges
 
 # The weights were tuned on 57 psb-dev models (the 4th model of each category held out),
 # first for the Rand index at the humans' most frequent part count, then the size
@@ -164,6 +164,17 @@ class PartTree:
             merges.reshape(-1, 2),
             np.asarray(costs, dtype=np.float64).reshape(-1),
         )
+
+    def listed_by(self, leaf_labels: NDArray[Any]) -> PartTree:
+        """The same tree over the faces listed another way: ``leaf_labels`` gives this
+        tree's leaf of each face in the new order; the leaves are numbered again in order
+        of their lowest face there (each merge's smaller id first, as always)."""
+        leaf_labels = np.asarray(leaf_labels, dtype=np.int64).reshape(-1)
+        renumbered = canonical_labels(leaf_labels)
+        leaves = self.leaf_count
+        node = np.arange(max(2 * leaves - 1, 0), dtype=np.int64)
+        node[leaf_labels] = renumbered
+        return PartTree(renumbered, np.sort(node[self.merges], axis=1), self.costs)
 
     def leaf_parts(self, count: int) -> NDArray[np.int64]:
         """(L,) part of each leaf when the tree is cut into ``count`` parts (clamped to 1..L).

@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
+from neural_shdf.geometry import canonical_triangles
 
 #: Rays per packet (``rtcIntersect16``).
 LANES = 16
@@ -244,107 +245,6 @@ class Scene:
         hits = np.empty(len(origins), dtype=np.int64)
         _first_hits(*self.kernel_arguments(), origins, directions, hits)
         return np.where(hits >= 0, self.triangle_of[np.maximum(hits, 0)], -1)
-
-
-def canonical_triangles(
-    vertices: NDArray[Any], faces: NDArray[Any], head: int | None = None
-) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """(triangles, input index of each) in an order set by the corners' positions alone.
-
-    Each triangle starts at its corner of lowest position (x, then y, then z; the
-    winding kept), and the triangles are sorted by their corners' positions; the first
-    ``head`` triangles (default all) stay before the others. Only triangles at the same
-    three positions keep their input order.
-    """
-    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
-    if not len(faces):
-        return faces.copy(), np.zeros(0, dtype=np.int64)
-    rank = position_ranks(vertices)
-    ranks = int(rank.max()) + 1
-    rotated, keys = _turned_to_lowest(faces, rank)
-    block = np.zeros(len(faces), dtype=np.int64)
-    if head is not None:
-        block[head:] = 1
-    if 2 * ranks**3 < 2**62:  # one integer key: a third of lexsort's time at 1M faces
-        key = ((block * ranks + keys[:, 0]) * ranks + keys[:, 1]) * ranks + keys[:, 2]
-        order = np.argsort(key, kind="stable")
-    else:
-        order = np.lexsort((keys[:, 2], keys[:, 1], keys[:, 0], block))
-    return rotated[order], order.astype(np.int64)
-
-
-def position_ranks(vertices: NDArray[Any]) -> NDArray[np.int64]:
-    """Rank of each vertex's position in (x, y, z) order; equal positions, equal ranks."""
-    vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-    by_x = np.argsort(vertices[:, 0], kind="stable")
-    if not _ties_sorted(vertices, by_x, TIED_RUN):  # long runs of one x (CAD): lexsort
-        by_x = np.lexsort((vertices[:, 2], vertices[:, 1], vertices[:, 0]))
-    ordered = vertices[by_x]
-    new_position = np.ones(len(vertices), dtype=np.int64)
-    new_position[1:] = np.any(ordered[1:] != ordered[:-1], axis=1)
-    rank = np.empty(len(vertices), dtype=np.int64)
-    rank[by_x] = np.cumsum(new_position) - 1
-    return rank
-
-
-#: ``position_ranks``: runs of equal x up to this long are ordered by (y, z) in place (a
-#: float32 scan has many, up to ~100 long); a longer one sorts all vertices by (x, y, z).
-TIED_RUN = 4096
-
-
-@kernel
-def _ties_sorted(
-    vertices: NDArray[np.float64], order: NDArray[np.int64], longest: int
-) -> bool:  # pragma: no cover - compiled
-    """Order each run of equal x in ``order`` (sorted by x, stable) by (y, z): sorted by y,
-    then by insertion; False, leaving the rest as it was, at a run longer than ``longest``."""
-    start = 0
-    count = len(order)
-    while start < count:
-        end = start + 1
-        while end < count and vertices[order[end], 0] == vertices[order[start], 0]:
-            end += 1
-        if end - start > longest:
-            return False
-        if end - start > 16:
-            run = order[start:end].copy()
-            by_y = np.argsort(vertices[run, 1])
-            for i in range(len(run)):
-                order[start + i] = run[by_y[i]]
-        for i in range(start + 1, end):
-            item = order[i]
-            j = i - 1
-            while j >= start and (
-                vertices[order[j], 1] > vertices[item, 1]
-                or (
-                    vertices[order[j], 1] == vertices[item, 1]
-                    and vertices[order[j], 2] > vertices[item, 2]
-                )
-            ):
-                order[j + 1] = order[j]
-                j -= 1
-            order[j + 1] = item
-        start = end
-    return True
-
-
-@kernel
-def _turned_to_lowest(
-    faces: NDArray[np.int64], rank: NDArray[np.int64]
-) -> tuple[NDArray[np.int64], NDArray[np.int64]]:  # pragma: no cover - compiled
-    """(triangles turned to start at their corner of lowest rank, their corners' ranks)."""
-    turned = np.empty_like(faces)
-    keys = np.empty_like(faces)
-    for face in range(len(faces)):
-        low = 0
-        for corner in range(1, 3):
-            if rank[faces[face, corner]] < rank[faces[face, low]]:
-                low = corner
-        for corner in range(3):
-            vertex = faces[face, (low + corner) % 3]
-            turned[face, corner] = vertex
-            keys[face, corner] = rank[vertex]
-    return turned, keys
 
 
 def bounding_box(vertices: NDArray[Any]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

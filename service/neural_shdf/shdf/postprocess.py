@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph, adjacency_lists
+from neural_shdf.geometry import FaceGraph, adjacency_lists, order_free_sum
 
 #: CGAL's ``CGAL_NORMALIZATION_ALPHA``: strength of the log normalisation.
 LOG_NORMALIZATION_ALPHA = 5.0
@@ -40,8 +40,6 @@ PATCH_RADIUS_FACTOR = 0.2
 #: mean distance between adjacent centroids: a least-squares fit over psb-dev and dense-dev
 #: meshes' windows (breadth-first rings zigzag; docs/benchmarks.md).
 RING_PER_SPACING = 0.82
-#: Adjacent pairs (evenly spread over the graph's sorted pairs) whose mean spacing is used.
-RING_LENGTH_PAIRS = 100_000
 #: Blocks of faces the compiled filter is split into when progress is reported.
 PROGRESS_BLOCKS = 100
 #: Time of the face-by-face bilateral filter per face and window pair, relative to casting
@@ -457,47 +455,47 @@ def _patch_bilateral_faces(  # noqa: PLR0913
 
 def ring_length(graph: FaceGraph, centroids: NDArray[Any]) -> float:
     """Straight-line distance per edge ring of the face graph: ``RING_PER_SPACING`` x the
-    mean distance between the centroids of adjacent faces (``RING_LENGTH_PAIRS`` pairs
-    evenly spread over the graph's). Turns a window in rings into a distance on the
-    surface."""
-    pairs = _spacing_pairs(graph)
-    return _ring_length(centroids[pairs[:, 0]] - centroids[pairs[:, 1]])
+    mean distance between the centroids of adjacent faces, over all the graph's pairs
+    (summed in any order to the same bits: ``geometry.order_free_sum``). Turns a window
+    in rings into a distance on the surface."""
+    pairs = np.ascontiguousarray(graph.pairs, dtype=np.int64).reshape(-1, 2)
+    offset = centroids[pairs[:, 0]] - centroids[pairs[:, 1]]
+    return _ring_length(np.sqrt(np.einsum("ij,ij->i", offset, offset)))
 
 
 def mesh_ring_length(graph: FaceGraph, vertices: NDArray[Any], faces: NDArray[Any]) -> float:
-    """``ring_length`` from the mesh, computing only the centroids of the pairs it reads."""
-    pairs = _spacing_pairs(graph)
-    offset = np.empty((len(pairs), 3))
-    _centroid_offsets(
+    """``ring_length`` from the mesh, computing the centroids' distances pair by pair."""
+    pairs = np.ascontiguousarray(graph.pairs, dtype=np.int64).reshape(-1, 2)
+    distances = np.empty(len(pairs))
+    _centroid_distances(
         np.ascontiguousarray(vertices, dtype=np.float64),
         np.ascontiguousarray(faces, dtype=np.int64),
-        np.ascontiguousarray(pairs, dtype=np.int64),
-        offset,
+        pairs,
+        distances,
     )
-    return _ring_length(offset)
+    return _ring_length(distances)
 
 
 @kernel
-def _centroid_offsets(
+def _centroid_distances(
     vertices: NDArray[Any], faces: NDArray[Any], pairs: NDArray[Any], out: NDArray[Any]
 ) -> None:
-    """Centroid of ``pairs[:, 0]`` minus centroid of ``pairs[:, 1]`` (as ``face_centroids``)."""
+    """Distance between the centroids of ``pairs[:, 0]`` and ``pairs[:, 1]`` (each centroid
+    as ``face_centroids``)."""
     for row in range(len(pairs)):
         a, b = faces[pairs[row, 0]], faces[pairs[row, 1]]
+        squared = 0.0
         for axis in range(3):
             first = (vertices[a[0], axis] + vertices[a[1], axis] + vertices[a[2], axis]) / 3.0
             second = (vertices[b[0], axis] + vertices[b[1], axis] + vertices[b[2], axis]) / 3.0
-            out[row, axis] = first - second
+            squared += (first - second) ** 2
+        out[row] = math.sqrt(squared)
 
 
-def _spacing_pairs(graph: FaceGraph) -> NDArray[np.int64]:
-    return graph.pairs[:: max(1, len(graph.pairs) // RING_LENGTH_PAIRS)]
-
-
-def _ring_length(offset: NDArray[Any]) -> float:
-    if len(offset) == 0:
+def _ring_length(distances: NDArray[np.float64]) -> float:
+    if len(distances) == 0:
         return 0.0
-    return RING_PER_SPACING * float(np.mean(np.sqrt(np.einsum("ij,ij->i", offset, offset))))
+    return RING_PER_SPACING * order_free_sum(distances) / len(distances)
 
 
 def patch_bilateral(

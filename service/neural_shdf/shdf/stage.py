@@ -217,27 +217,32 @@ def sampled_raw_shdf(
     samples (again at more of them where those show thin parts: ``thin_part_samples``),
     smoothed at the sample scale and interpolated to the faces.
 
-    The Embree scene is built (``low`` quality: a few rays per triangle) while the
-    samples are drawn, and each vertex's nearest samples are found while the rays
-    are cast (``workers`` threads, default one per CPU; the result does not depend
-    on it).
+    All of it in ``mesh.pose_frame`` (the diameters scaled back): the samples are drawn
+    on the frame's coordinates (``pose_geometry``), each face's from its corners'
+    positions there (``sampling.surface_candidates``), so the same surface listed in
+    another order, moved, turned or scaled gets the same samples. Vertex normals are
+    summed over coincident vertices (a triangle soup's are its surface's). The Embree
+    scene is built (``low`` quality: a few rays per triangle) while the samples are
+    drawn, and each vertex's nearest samples are found while the rays are cast
+    (``workers`` threads, default one per CPU; the result does not depend on it).
     """
     workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
-    normals, areas = mesh.normals_and_areas
     scale = mesh.pose_frame[2]
+    framed_vertices, normals = mesh.pose_geometry
+    areas = mesh.normals_and_areas[1] / scale**2
     with ThreadPoolExecutor(max_workers=2) as pool:
         targets = ray_targets(mesh, close_holes)
         surface = surface_triangles(mesh, targets[1])
         framed = framed_targets(mesh, targets[0])
         scene = pool.submit(Scene, framed, targets[1], "low", surface)
-        normal_sums = vertex_normal_sums(len(mesh.vertices), mesh.faces, normals, areas)
+        normal_sums = welded_normal_sums(mesh, normals, areas)
 
         def cast(
             count: int,
         ) -> tuple[SurfaceSamples, Future[SurfaceSamples], NDArray[np.float64]]:
             """Samples (their vertex map under way) and their raw diameters."""
             samples = sample_surface_points(
-                mesh.vertices,
+                framed_vertices,
                 mesh.faces,
                 count,
                 seed=params.seed,
@@ -249,16 +254,16 @@ def sampled_raw_shdf(
             mapped = pool.submit(
                 with_vertex_map,
                 samples,
-                mesh.vertices,
+                framed_vertices,
                 normal_sums,
                 DEFAULT_INTERPOLATION_NEIGHBOURS,
                 workers,
             )
             diameters, _, _ = raw_shdf_at_points(
-                framed[: len(mesh.vertices)],
+                framed_vertices,
                 mesh.faces,
-                in_pose_frame(mesh, samples.positions),
-                turned_to_pose_frame(mesh, samples.normals),
+                samples.positions,
+                samples.normals,
                 samples.face_ids,
                 cone_angle=params.cone_angle,
                 ray_count=params.ray_count,
@@ -266,7 +271,7 @@ def sampled_raw_shdf(
                 scene=scene,
                 surface_triangles=surface,
             )
-            return samples, mapped, diameters * scale
+            return samples, mapped, diameters
 
         samples, mapped, diameters = cast(params.samples)
         count = thin_part_samples(diameters / samples.radius, params)
@@ -277,10 +282,28 @@ def sampled_raw_shdf(
         diameters = fill_samples(diameters, samples.positions)
         radius, sigma = sample_filter_window(mesh, graph, params)
         smoothed = smooth_samples(
-            diameters, samples.positions, samples.normals, radius=radius, spatial_sigma=sigma
+            diameters,
+            samples.positions,
+            samples.normals,
+            radius=radius / scale,
+            spatial_sigma=sigma / scale,
         )
         samples = mapped.result()
-    return samples_to_faces(smoothed, samples, mesh.faces)
+    return samples_to_faces(smoothed, samples, mesh.faces) * scale
+
+
+def welded_normal_sums(
+    mesh: TriangleMesh, normals: NDArray[Any], areas: NDArray[Any]
+) -> NDArray[np.float64]:
+    """``vertex_normal_sums`` over the faces around each vertex's position: vertices at one
+    position (a triangle soup's, a seam's) share the sum, as if the file had listed one."""
+    coincident = mesh.coincident_faces
+    sums = vertex_normal_sums(len(mesh.vertices), coincident, normals, areas)
+    if coincident is mesh.faces:
+        return sums
+    representative = np.arange(len(mesh.vertices))
+    representative[mesh.faces.ravel()] = coincident.ravel()
+    return sums[representative]
 
 
 def raw_diameters(

@@ -196,7 +196,7 @@ def pose_frame(
     if not total > 0 or np.min(np.diff(spreads)) <= POSE_GAP * total:
         return mean, np.eye(3), scale
     lean = np.zeros(3)
-    np.divide(third, second**1.5, out=lean, where=second > 0)
+    np.divide(third, np.maximum(second, 0.0) ** 1.5, out=lean, where=second > 0)
     decided = np.abs(lean) > POSE_SKEW
     if decided.sum() < 2:
         return mean, np.eye(3), scale

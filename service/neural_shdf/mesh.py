@@ -109,22 +109,22 @@ class TriangleMesh:
 
     def portable(self) -> TriangleMesh:
         """The mesh with, of its caches, only what a segmentation needs and cannot recompute
-        cheaply (the orientation, the oriented triangles' normals, areas and face graph):
-        what is sent to another process to segment there, with the same result."""
-        oriented = self.oriented
-        light_oriented = oriented.bare()
-        light_oriented.__dict__.update(
-            normals_and_areas=oriented.normals_and_areas, face_graph=oriented.face_graph
+        cheaply (what the orientation pass found, and the triangles the segmentation works
+        on, ``distinct``, with their normals, areas and face graph): what is sent to another
+        process to segment there, with the same result."""
+        distinct = self.distinct
+        work = distinct.mesh
+        light_work = work.bare()
+        light_work.__dict__.update(
+            normals_and_areas=work.normals_and_areas,
+            face_graph=work.face_graph,
+            oriented=light_work,
+            listing=(light_work, None),
         )
-        light_oriented.__dict__["oriented"] = light_oriented
-        if oriented is self:
-            light_oriented.__dict__.update(
-                orientation=self.orientation, diagnostics=self.diagnostics
-            )
-            return light_oriented
         light = self.bare()
         light.__dict__.update(
-            orientation=self.orientation, diagnostics=self.diagnostics, oriented=light_oriented
+            diagnostics=self.diagnostics,
+            distinct=DistinctTriangles(light_work, distinct.kept, distinct.copy_of),
         )
         return light
 
@@ -220,7 +220,12 @@ class TriangleMesh:
     def orientation(self) -> Orientation:
         """Which triangles to reverse so that every shell faces out of its solid (shells
         stitched together out of theirs: ``stitching.orient_stitched_shells``), and what the
-        pass found in the mesh (``orientation.orient_faces``); computed once per mesh."""
+        pass found in the mesh (``orientation.orient_faces``); computed once per mesh, on
+        ``listing`` where it lists the triangles otherwise (then mapped back: the same
+        decisions for the same surface in any order)."""
+        listed, order = self.listing
+        if order is not None:
+            return listed_orientation(listed.orientation, order)
         coincident, edges = self.coincident_welding
         normals, areas = self.normals_and_areas
         # The face graph's links do not depend on the winding: they are worked out beside
@@ -255,7 +260,11 @@ class TriangleMesh:
     @cached_property
     def diagnostics(self) -> MeshDiagnostics:
         """What the mesh had and what was done about it: the orientation pass's findings
-        (``orientation``) and the shells stitched for the graphs (``welded_faces``)."""
+        (``orientation``) and the shells stitched for the graphs (``welded_faces``), as
+        ``listing`` found them (the counts of any listing)."""
+        listed, order = self.listing
+        if order is not None:
+            return listed.diagnostics
         stitched_shells, stitched_vertices = stitch_counts(self.coincident_faces, self.welded_faces)
         return replace(
             self.orientation.diagnostics,
@@ -309,49 +318,74 @@ class TriangleMesh:
         return oriented
 
     @cached_property
+    def listing(self) -> tuple[TriangleMesh, NDArray[np.int64] | None]:
+        """(the mesh listed in an order of its positions, the index here of each of its
+        triangles), or (``self``, None) where the shape leaves that order to the pose.
+
+        Where the triangles' pose frame (``geometry.pose_frame`` of their centroids by
+        area) is the shape's own (``geometry.has_own_frame``), the vertices are numbered by
+        ``geometry.position_order`` in it, each triangle starts at its lowest corner (its
+        winding kept) and the triangles are sorted by their corners
+        (``geometry.canonical_triangles``): the same surface listed in any order, moved,
+        turned or scaled, is then the same mesh, and the orientation pass, the ShDF and the
+        segmentation, which run on it (``orientation``, ``distinct``), give the same
+        results, mapped back to this mesh's triangles. Where the shape leaves the frame to
+        the world's axes (a body of revolution, a mirror-symmetric box) an order by
+        position would follow the pose: the file's order stands (a turned copy then gets
+        the same results; one listed otherwise may break ties another way)."""
+        if not self.face_count:
+            return self, None
+        areas = self.normals_and_areas[1]
+        frame = pose_frame(face_centroids(self.vertices, self.faces), areas)
+        if not has_own_frame(frame):
+            return self, None
+        rank, vertex_order = position_order(in_frame(self.vertices, frame))
+        number = np.empty(len(vertex_order), dtype=np.int64)
+        number[vertex_order] = np.arange(len(vertex_order))
+        faces, order = canonical_triangles(None, number[self.faces], rank=rank[vertex_order])
+        listed = TriangleMesh(
+            self.vertices[vertex_order], faces, self.face_origin[order], self.input_face_count
+        )
+        listed.__dict__.update(listing=(listed, None), zero_area_limit=self.zero_area_limit)
+        return listed, order
+
+    @cached_property
     def distinct(self) -> DistinctTriangles:
         """``oriented`` with one copy of each set of coincident triangles (double-sided
-        cards, a triangle repeated in place), listed in an order set by the positions
-        alone where the shape has a frame of its own: what the ShDF and the segmentation
-        work on. Copies would stop each other's rays at distance zero, weigh k times in the
-        filters, and join every neighbour through a non-manifold edge in the segmentation's
-        graph, so copies take the value and the part of their first copy.
-
-        Where ``pose_frame`` is the shape's own, vertices are numbered by
-        ``geometry.position_ranks`` in it, each triangle starts at its lowest corner
-        (winding kept) and the triangles are sorted by their corners
-        (``geometry.canonical_triangles``): the same surface listed in any order, moved,
-        turned or scaled, is the same mesh here, so every step after it (its ties, sums,
-        samples and numbering) gives the same result. Where the shape leaves the frame to
-        the world's axes (a body of revolution, a mirror-symmetric box), an order by
-        position would follow the pose: the triangles keep the file's order (a turned copy
-        then gets the same result, a reordered one may break ties another way).
-        ``oriented`` itself, with identity maps, where nothing is left out or moved."""
+        cards, a triangle repeated in place): what the ShDF and the segmentation work on,
+        listed as ``listing`` lists them. Copies would stop each other's rays at distance
+        zero, weigh k times in the filters, and join every neighbour through a non-manifold
+        edge in the segmentation's graph, so copies take the value and the part of their
+        first copy. ``oriented`` itself, with identity maps, where the file's order stands
+        and no triangle has a copy."""
+        listed, order = self.listing
+        if order is not None:
+            inner = listed.distinct
+            copy_of = np.empty(self.face_count, dtype=np.int64)
+            copy_of[order] = inner.copy_of
+            return DistinctTriangles(inner.mesh, order[inner.kept], copy_of)
         oriented = self.oriented
         first_copy = np.asarray(self.orientation.first_copy, dtype=np.int64)
-        identity = np.arange(self.face_count)
-        copies = len(first_copy) > 0 and first_copy.max() >= 0
-        kept = np.flatnonzero(first_copy < 0) if copies else identity
-        if not len(kept):
+        if not len(first_copy) or first_copy.max() < 0:
+            identity = np.arange(self.face_count)
             return DistinctTriangles(oriented, identity, identity)
-        vertices, faces = oriented.vertices, oriented.faces[kept]
-        if has_own_frame(oriented.pose_frame):
-            rank, vertex_order = position_order(in_frame(vertices, oriented.pose_frame))
-            number = np.empty(len(vertex_order), dtype=np.int64)
-            number[vertex_order] = np.arange(len(vertex_order))
-            faces, order = canonical_triangles(None, number[faces], rank=rank[vertex_order])
-            vertices, kept = vertices[vertex_order], kept[order]
-        if not copies and np.array_equal(faces, oriented.faces):
-            return DistinctTriangles(oriented, identity, identity)
-        place = np.empty(self.face_count, dtype=np.int64)
-        place[kept] = np.arange(len(kept))
-        copy_of = place[np.where(first_copy < 0, identity, first_copy)] if copies else place
-        unique = TriangleMesh(
-            vertices, faces, oriented.face_origin[kept], oriented.input_face_count
+        kept = np.flatnonzero(first_copy < 0)
+        copy_of = np.searchsorted(
+            kept, np.where(first_copy < 0, np.arange(len(first_copy)), first_copy)
         )
-        # Already facing out: seed the cache rather than orient again. Its pose frame is
-        # its own, from triangles listed as any listing of them would be.
-        unique.__dict__.update(oriented=unique)
+        unique = TriangleMesh(
+            oriented.vertices,
+            oriented.faces[kept],
+            oriented.face_origin[kept],
+            oriented.input_face_count,
+        )
+        normals, areas = oriented.normals_and_areas
+        # Already facing out: seed the caches rather than orient and measure again.
+        unique.__dict__.update(
+            oriented=unique,
+            normals_and_areas=(normals[kept], areas[kept]),
+            listing=(unique, None),
+        )
         return DistinctTriangles(unique, kept, copy_of)
 
     @cached_property
@@ -495,6 +529,23 @@ class TriangleMesh:
         chosen = order[first]
         out[origin[chosen]] = label[chosen]
         return out
+
+
+def listed_orientation(listed: Orientation, order: NDArray[np.int64]) -> Orientation:
+    """The orientation of a mesh whose ``listing`` (triangle ``i`` there is triangle
+    ``order[i]`` here) found ``listed``: the same flips, each copy's first copy the
+    lowest-numbered triangle here of its set."""
+    flips = np.empty_like(listed.flips)
+    flips[order] = listed.flips
+    first = np.asarray(listed.first_copy, dtype=np.int64)
+    if not len(first) or first.max() < 0:
+        return replace(listed, flips=flips)
+    root = np.where(first >= 0, first, np.arange(len(first)))
+    lowest = np.full(len(first), len(first), dtype=np.int64)
+    np.minimum.at(lowest, root, order)
+    first_copy = np.empty_like(first)
+    first_copy[order] = np.where(lowest[root] == order, -1, lowest[root])
+    return replace(listed, flips=flips, first_copy=first_copy)
 
 
 @dataclass(frozen=True)

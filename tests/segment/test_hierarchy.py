@@ -401,3 +401,27 @@ def test_a_hole_on_a_boundary_does_not_make_its_merge_dearer():
         assert result.part_count == 2
         costs.append(result.tree.costs.max())
     assert 0.6 < costs[1] / costs[0] < 1.3  # 0.76; 1.73 before
+
+
+def test_a_tree_listed_by_another_order_of_its_faces_is_the_same_tree():
+    """``listed_by``: the leaves numbered again by their lowest face in the new order, the
+    merges and costs the same tree's (every cut the same partition), and back again."""
+    tree = PartTree(
+        leaf_labels=np.array([0, 0, 1, 2, 2, 3, 1, 3]),
+        merges=np.array([[0, 1], [2, 3], [4, 5]]),
+        costs=np.array([0.1, 0.2, 0.3]),
+    )
+    order = np.array([5, 3, 0, 7, 2, 6, 1, 4])
+    listed = tree.listed_by(tree.leaf_labels[order])
+    assert listed.leaf_labels.tolist() == [0, 1, 2, 0, 3, 3, 2, 1]
+    np.testing.assert_array_equal(listed.costs, tree.costs)
+    assert (listed.merges[:, 0] < listed.merges[:, 1]).all()
+    for count in range(1, 5):
+        given, moved = tree.labels(count)[order].tolist(), listed.labels(count).tolist()
+        pairs = set(zip(given, moved, strict=True))
+        assert len(pairs) == count
+        assert listed.labels(count).tolist() == canonical_labels(listed.labels(count)).tolist()
+    back = np.argsort(order)
+    again = listed.listed_by(listed.leaf_labels[back])
+    np.testing.assert_array_equal(again.leaf_labels, tree.leaf_labels)
+    np.testing.assert_array_equal(again.merges, tree.merges)

@@ -239,6 +239,7 @@ class TriangleMesh:
                 areas=areas,
                 edges=edges,
                 degenerate=count_zero_rows(normals),
+                numbered_by_position=self.__dict__.get("_listed_by_position", False),
             )
             adjacency.result()
         # Shells stitched together face out of the solid they make together.
@@ -346,7 +347,9 @@ class TriangleMesh:
         listed = TriangleMesh(
             self.vertices[vertex_order], faces, self.face_origin[order], self.input_face_count
         )
-        listed.__dict__.update(listing=(listed, None), zero_area_limit=self.zero_area_limit)
+        listed.__dict__.update(
+            listing=(listed, None), zero_area_limit=self.zero_area_limit, _listed_by_position=True
+        )
         return listed, order
 
     @cached_property

@@ -144,12 +144,16 @@ def orient_faces(
     areas: NDArray[Any] | None = None,
     edges: tuple[NDArray[np.int64], NDArray[np.int64]] | None = None,
     degenerate: int | None = None,
+    numbered_by_position: bool = False,
 ) -> Orientation:
     """Per-triangle flips that make every shell consistently wound and facing outward.
 
     Where the caller has them: ``welded``, ``weld_faces(vertices, faces)``; ``areas``,
     the triangles' areas (``face_normals``); ``edges``, ``welded_edges(welded)``;
     ``degenerate``, how many triangles ``face_normals`` gave no normal (zero area).
+    ``numbered_by_position``: the vertices are numbered by position already
+    (``TriangleMesh.listing``, in the shape's own frame), so a non-orientable patch is
+    wound in that numbering rather than the world's x, y, z order, which a pose moves.
     Deterministic; the arrays are not modified.
     """
     vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
@@ -169,7 +173,7 @@ def orient_faces(
         0, dtype=np.int32 if 2 * count < 2**31 else np.int64
     )
     patches = _orient_patches(welded, edge_table, slot, vertices, centre, areas, link_type)
-    if patches[-1]:
+    if patches[-1] and not numbered_by_position:
         # A non-orientable patch: which manifold edge gives way follows the joins' order,
         # the edges' by vertex number. Numbered by position instead, the same surface
         # listed in any order gives it the same windings.

@@ -228,3 +228,42 @@ def test_distinct_lists_the_same_surface_the_same_way_whatever_the_file_s_order(
             np.sort(listed[distinct.copy_of], axis=1),
         )
     np.testing.assert_array_equal(second.copy_of, first.copy_of[origin])
+
+
+def test_a_non_orientable_patch_is_wound_alike_in_any_order_and_pose():
+    """A Moebius strip cannot be wound consistently: which edge gives way follows the
+    numbering. On ``listing`` (vertices numbered by position in the shape's own frame) the
+    same strip listed otherwise, turned and moved gets the same windings."""
+    from scipy.spatial.transform import Rotation
+
+    turns, across = 60, 4
+    u = np.linspace(0.0, 2.0 * np.pi, turns, endpoint=False)
+    v = np.linspace(-0.3, 0.3, across)
+    radius = 1.0 + v[None, :] * np.cos(u[:, None] / 2.0)
+    points = np.stack(
+        [
+            radius * np.cos(u[:, None]) * 1.6,  # stretched, and leaning: a frame of its own
+            radius * np.sin(u[:, None]),
+            v[None, :] * np.sin(u[:, None] / 2.0) + 0.1 * np.cos(u[:, None]) ** 3,
+        ],
+        axis=-1,
+    ).reshape(-1, 3)
+    faces = []
+    for i in range(turns):
+        for j in range(across - 1):
+            a, b = i * across + j, i * across + j + 1
+            if i + 1 < turns:
+                c, d = a + across, b + across
+            else:  # the seam joins the strip's start turned over
+                c, d = across - 1 - j, across - 2 - j
+            faces += [[a, c, b], [b, c, d]]
+    faces = np.asarray(faces)
+    mesh = TriangleMesh(points, faces)
+    assert mesh.listing[1] is not None  # listed by position
+    rotation = Rotation.random(random_state=5).as_matrix()
+    vertices, listed, origin = relisted(points, faces, np.random.default_rng(6), turn=True)
+    moved = TriangleMesh(40.0 * vertices @ rotation.T + (3e2, -7.0, 1.0), listed)
+    normals = mesh.oriented.normals_and_areas[0][origin] @ rotation.T
+    moved_normals = moved.oriented.normals_and_areas[0]
+    np.testing.assert_allclose(moved_normals, normals, atol=1e-9)
+    assert 0 < mesh.diagnostics.reoriented_faces < len(faces)

@@ -10,8 +10,10 @@ reversed. Each case is run two ways on a fresh ``TriangleMesh``, in turns:
 * ``full``: the file as given (for ``reversed``, every face backwards), ``compute_shdf``
   from scratch: the pass, the oriented copy where faces are reversed, and everything else.
 
-Per case, seconds wall (CPU of the process), medians over ``--repeat`` turns: the
-trusted run's stages (``shared``: welding, sorted edges, stitching, normals and areas;
+Both run on the mesh listed by position (``TriangleMesh.listing``, where the pass, the
+ShDF and the segmentation work since version 24; the ``listing`` stage, the same work in
+both runs). Per case, seconds wall (CPU of the process), medians over ``--repeat`` turns:
+the trusted run's stages (``shared``: welding, sorted edges, stitching, normals and areas;
 ``graph``: the diagnostics and the face graph; ``ShDF``: the rest of ``compute_shdf``,
 its rays and post-processing); the full run's ``pass`` (``orientation``, ``oriented``,
 ``diagnostics``; the face graph's links are worked out beside it, in a second thread);
@@ -45,7 +47,7 @@ from neural_shdf.orientation import Orientation
 from neural_shdf.pipeline import compute_shdf, warm_up
 
 DENSE = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "dense-dev"
-STAGES = ("shared", "graph", "ShDF")
+STAGES = ("listing", "shared", "graph", "ShDF")
 
 
 def timed(function: Callable[[], Any]) -> tuple[float, float]:
@@ -58,37 +60,44 @@ def timed(function: Callable[[], Any]) -> tuple[float, float]:
 def trusted_run(
     vertices: np.ndarray, faces: np.ndarray, orientation: Orientation
 ) -> dict[str, tuple[float, float]]:
-    """Stages of ``compute_shdf`` on a fresh mesh whose orientation is given."""
+    """Stages of ``compute_shdf`` on a fresh mesh whose listing's orientation is given."""
     mesh = TriangleMesh(vertices, faces)
-    mesh.__dict__["orientation"] = orientation
-    return {
-        "shared": timed(lambda: (mesh.welded_faces, mesh.welded_edges, mesh.normals_and_areas)),
-        "graph": timed(lambda: (mesh.diagnostics, mesh.face_graph)),
-        "ShDF": timed(lambda: compute_shdf(mesh)),
-    }
+    stages = {"listing": timed(lambda: mesh.listing)}
+    listed = mesh.listing[0]
+    listed.__dict__["orientation"] = orientation
+    stages["shared"] = timed(
+        lambda: (listed.welded_faces, listed.welded_edges, listed.normals_and_areas)
+    )
+    stages["graph"] = timed(lambda: (mesh.diagnostics, mesh.distinct.mesh.face_graph))
+    stages["ShDF"] = timed(lambda: compute_shdf(mesh))
+    return stages
 
 
 def full_run(vertices: np.ndarray, faces: np.ndarray) -> dict[str, tuple[float, float]]:
     """Stages of ``compute_shdf`` on a fresh mesh of the file as given, the pass among them."""
     mesh = TriangleMesh(vertices, faces)
-    return {
-        "shared": timed(lambda: (mesh.welded_faces, mesh.welded_edges, mesh.normals_and_areas)),
-        "pass": timed(lambda: (mesh.orientation, mesh.oriented, mesh.diagnostics)),
-        "graph": timed(lambda: mesh.face_graph),
-        "ShDF": timed(lambda: compute_shdf(mesh)),
-    }
+    stages = {"listing": timed(lambda: mesh.listing)}
+    listed = mesh.listing[0]
+    stages["shared"] = timed(
+        lambda: (listed.welded_faces, listed.welded_edges, listed.normals_and_areas)
+    )
+    stages["pass"] = timed(lambda: (mesh.orientation, mesh.distinct, mesh.diagnostics))
+    stages["graph"] = timed(lambda: mesh.distinct.mesh.face_graph)
+    stages["ShDF"] = timed(lambda: compute_shdf(mesh))
+    return stages
 
 
 def outward(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, Orientation]:
-    """The outward-facing triangles of ``faces`` and their orientation, nothing reversed."""
-    mesh = TriangleMesh(vertices, faces)
-    found = mesh.orientation
+    """The outward-facing triangles of ``faces`` and their listing's orientation, nothing
+    reversed (the pass runs on ``TriangleMesh.listing``)."""
+    straight = np.ascontiguousarray(TriangleMesh(vertices, faces).oriented.faces)
+    found = TriangleMesh(vertices, straight).listing[0].orientation
     trusted = replace(
         found,
         flips=np.zeros_like(found.flips),
         diagnostics=replace(found.diagnostics, reoriented_faces=0),
     )
-    return np.ascontiguousarray(mesh.oriented.faces), trusted
+    return straight, trusted
 
 
 def main() -> int:

@@ -539,3 +539,31 @@ def test_a_non_orientable_patch_gets_the_same_windings_in_any_listing():
     for _ in range(6):
         moved, listed, origin = relisted(vertices, faces, rng, turn=True)
         np.testing.assert_array_equal(orient_faces(moved, listed).flips, expected[origin])
+
+
+def test_shells_with_no_inside_keep_their_windings_in_any_pose():
+    """Flat closed shells (zero volume: a pose's rounding would give it a sign) and tiny
+    sheets far from the centre have no inside to face out of: they keep the file's
+    winding, so a turned and moved copy gets the same flips."""
+    from scipy.spatial.transform import Rotation
+
+    body = trimesh.creation.icosphere(subdivisions=2)
+    vertices = [np.asarray(body.vertices) * (2.0, 1.0, 0.6)]
+    faces = [np.asarray(body.faces)]
+    rng = np.random.default_rng(4)
+    count = len(vertices[0])
+    for k in range(12):  # flat tetrahedra: four points of one tilted plane
+        plane = Rotation.random(random_state=k).as_matrix()
+        points = np.array([[0, 0, 0], [1, 0.1, 0], [0.2, 1, 0], [0.9, 0.8, 0]]) * 0.05
+        vertices.append(points @ plane.T + rng.uniform(-3.0, 3.0, 3))
+        tetrahedron = np.array([[0, 1, 2], [0, 3, 1], [0, 2, 3], [1, 3, 2]])
+        faces.append(tetrahedron[:, ::-1] if k % 2 else tetrahedron)
+        faces[-1] = faces[-1] + count
+        count += 4
+    vertices, faces = np.vstack(vertices), np.vstack(faces)
+    mesh = TriangleMesh(vertices, faces)
+    rotation = Rotation.random(random_state=21).as_matrix()
+    moved = TriangleMesh(7.0 * vertices @ rotation.T + (50.0, -3.0, 9.0), faces)
+    np.testing.assert_array_equal(moved.orientation.flips, mesh.orientation.flips)
+    flat = np.arange(len(body.faces), len(faces))
+    assert not mesh.orientation.flips[flat].any()  # the file's winding kept

@@ -79,6 +79,12 @@ SHEET_SKEW = 1e-9
 #: A sheet's capped volume (over its area^1.5) whose sign still decides where neither the
 #: flux nor the skew does: far above float rounding, far below ``AMBIGUOUS_VOLUME``.
 SHEET_VOLUME = 1e-10
+#: ... and above this times its area times the mesh's extent (the rounding of a capped
+#: volume: 1e-19 on 1e-6 patches of a unit mesh, where area^1.5 x ``SHEET_VOLUME`` is too).
+SHEET_VOLUME_ROUNDING = 1e-9
+#: A patch whose faces are wound half each way (by area, within this share) keeps the
+#: winding of its first face (the listing's, ``TriangleMesh.listing``).
+WINDING_TIE = 1e-9
 #: ``reverse_flipped`` writes the oriented copy in two threads from this many triangles
 #: (below, a thread's start costs more than it saves).
 PARALLEL_COPY_FACES = 100_000
@@ -193,12 +199,17 @@ def orient_faces(
         non_manifold,
         _,
     ) = patches
-    ambiguous = (volume == 0) | (is_open & (np.abs(volume) < AMBIGUOUS_VOLUME * patch_area**1.5))
+    # The diameter about the centre, as a pose leaves it (a bounding box's diagonal turns
+    # with the axes: sheets near the thresholds below tipped under a rotation).
+    extent = 2.0 * _largest_distance(vertices, centre) if len(vertices) else 0.0
+    # A closed patch whose volume is rounding's (a flat double layer) has no inside either:
+    # its sign would follow the pose.
+    flat = np.abs(volume) <= SHEET_VOLUME_ROUNDING * patch_area * extent
+    ambiguous = flat | (is_open & (np.abs(volume) < AMBIGUOUS_VOLUME * patch_area**1.5))
     patch_flip = volume < 0
     if ambiguous.any():
         # A sheet (no inside) faces away from the mesh's centre, whatever the file's winding.
         flux = _sheet_flux(vertices, welded, winding, ambiguous)
-        extent = float(np.linalg.norm(np.ptp(vertices, axis=0))) if len(vertices) else 0.0
         decided = np.abs(flux) > SHEET_FLUX * patch_area * extent
         # A sheet through the centre (a wing at mid-height) faces away from the side the
         # mesh's area is skewed to.
@@ -206,8 +217,14 @@ def orient_faces(
         by_skew = ~decided & (np.abs(skew) > SHEET_SKEW * float(areas.sum()) * extent**3)
         # Then the sign of its (small) capped volume where float rounding cannot have set
         # it (two layers of a card a hair apart); the file's winding only where none does.
-        signed = np.abs(volume) > SHEET_VOLUME * patch_area**1.5
-        file_winding = np.where(signed, volume < 0, flipped_area > 0.5 * patch_area)
+        # (the rounding of a capped volume grows with the patch's area and its distance
+        # from the centre, not with area^1.5: a tiny patch far out took rounding's sign).
+        signed = np.abs(volume) > np.maximum(
+            SHEET_VOLUME * patch_area**1.5, SHEET_VOLUME_ROUNDING * patch_area * extent
+        )
+        # Most of the area wound against the patch's first face; a tie (two equal faces,
+        # one each way, whose areas a pose rounds apart) keeps the first face's winding.
+        file_winding = np.where(signed, volume < 0, flipped_area > (0.5 + WINDING_TIE) * patch_area)
         sheet_flip = np.where(decided, flux < 0, np.where(by_skew, skew > 0, file_winding))
         patch_flip = np.where(ambiguous, sheet_flip, patch_flip)
     flips = _face_flips(winding, patch_flip)
@@ -240,6 +257,20 @@ def _numbered_by_position(
     number = np.empty(len(vertices), dtype=np.int64)
     number[order] = np.arange(len(vertices))
     return number[faces], np.ascontiguousarray(vertices[order])
+
+
+@kernel
+def _largest_distance(
+    points: NDArray[np.float64], centre: NDArray[np.float64]
+) -> float:  # pragma: no cover - compiled
+    """The largest distance of a point from ``centre``."""
+    largest = 0.0
+    for row in range(points.shape[0]):
+        squared = 0.0
+        for axis in range(3):
+            squared += (points[row, axis] - centre[axis]) ** 2
+        largest = max(largest, squared)
+    return float(np.sqrt(largest))
 
 
 @kernel

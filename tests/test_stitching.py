@@ -424,3 +424,22 @@ def test_a_flat_sheet_in_stitched_pieces_takes_the_winding_of_its_largest_piece(
     mesh = TriangleMesh(moved, given)
     assert mesh.diagnostics.stitched_shells == 2
     np.testing.assert_array_equal(mesh.orientation.flips, small == 1)
+
+
+def test_a_listed_mesh_stitches_the_same_seams_in_any_pose():
+    """``TriangleMesh.listing`` stitches in the frame it was listed in: a turned, scaled
+    and moved copy of pieces moved apart joins the same vertices (in world coordinates,
+    the nearest-point ties and the position order of a pair followed the pose)."""
+    from scipy.spatial.transform import Rotation
+
+    vertices, faces, _ = _quarters(1.0, seed=3)
+    vertices = vertices * (1.8, 1.0, 0.7) + (0.0, 0.0, 0.2) * vertices[:, :1] ** 2
+    mesh = TriangleMesh(vertices, faces)
+    rotation = Rotation.random(random_state=8).as_matrix()
+    moved = TriangleMesh(30.0 * vertices @ rotation.T + (4e2, -9.0, 2.0), faces)
+    listed, order = mesh.listing
+    other, other_order = moved.listing
+    assert order is not None and np.array_equal(order, other_order)
+    assert listed.diagnostics.stitched_shells == 4
+    np.testing.assert_array_equal(other.welded_faces, listed.welded_faces)
+    np.testing.assert_array_equal(moved.orientation.flips, mesh.orientation.flips)

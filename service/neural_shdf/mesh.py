@@ -176,7 +176,10 @@ class TriangleMesh:
         adjacency of the face and crease graphs and of the hole caps. The same array as
         ``coincident_welding``'s where nothing is stitched."""
         coincident, edges = self.coincident_welding
-        welded = stitch_shells(self.vertices, coincident, edges)
+        # A listing stitches in the frame it was listed in: the same seams in any pose.
+        frame = self.__dict__.get("_listing_frame")
+        points = self.vertices if frame is None else in_frame(self.vertices, frame)
+        welded = stitch_shells(points, coincident, edges)
         if welded is not coincident:
             edges = sorted_welded_edges(welded)
             welded.flags.writeable = False
@@ -348,7 +351,10 @@ class TriangleMesh:
             self.vertices[vertex_order], faces, self.face_origin[order], self.input_face_count
         )
         listed.__dict__.update(
-            listing=(listed, None), zero_area_limit=self.zero_area_limit, _listed_by_position=True
+            listing=(listed, None),
+            zero_area_limit=self.zero_area_limit,
+            _listed_by_position=True,
+            _listing_frame=frame,
         )
         return listed, order
 
@@ -389,6 +395,8 @@ class TriangleMesh:
             normals_and_areas=(normals[kept], areas[kept]),
             listing=(unique, None),
         )
+        if "_listing_frame" in self.__dict__:  # stitched in the same frame as its source
+            unique.__dict__["_listing_frame"] = self.__dict__["_listing_frame"]
         return DistinctTriangles(unique, kept, copy_of)
 
     @cached_property

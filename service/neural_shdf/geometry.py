@@ -177,15 +177,18 @@ def pose_frame(
     the frame."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     weights = np.asarray(weights, dtype=np.float64)
-    mean, axes = principal_frame(points, weights) if frame is None else frame
-    mean = np.asarray(mean, dtype=np.float64)
     if not len(points):
-        return mean, np.eye(3), 1.0
+        return np.zeros(3) if frame is None else np.asarray(frame[0], np.float64), np.eye(3), 1.0
     if not float(np.sum(weights)) > 0:
         weights = np.ones(len(points))
-    _, second_moments, third_moments = weighted_moments(
+    centre, second_moments, third_moments = weighted_moments(
         np.ascontiguousarray(points), np.ascontiguousarray(weights, dtype=np.float64)
     )
+    if frame is None:  # ``principal_frame``'s, from the same moments (one pass, same bits)
+        mean, axes = centre, np.linalg.eigh(second_moments)[1][:, ::-1]
+    else:
+        mean, axes = frame
+    mean = np.asarray(mean, dtype=np.float64)
     axes = np.asarray(axes, dtype=np.float64)
     weight = float(np.sum(weights))
     second = np.einsum("ij,ia,ja->a", second_moments, axes, axes) / weight

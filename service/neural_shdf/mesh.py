@@ -242,7 +242,8 @@ class TriangleMesh:
                 areas=areas,
                 edges=edges,
                 degenerate=count_zero_rows(normals),
-                numbered_by_position=self.__dict__.get("_listed_by_position", False),
+                # a listing's vertices are numbered by position already
+                numbered_by_position="_listing_frame" in self.__dict__,
             )
             adjacency.result()
         # Shells stitched together face out of the solid they make together.
@@ -353,7 +354,6 @@ class TriangleMesh:
         listed.__dict__.update(
             listing=(listed, None),
             zero_area_limit=self.zero_area_limit,
-            _listed_by_position=True,
             _listing_frame=frame,
         )
         return listed, order

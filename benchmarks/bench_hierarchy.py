@@ -42,6 +42,7 @@ from neural_shdf.segment.creases import crease_graph, snap_boundaries_to_creases
 from neural_shdf.segment.from_shdf import prepare_segment, segment
 from neural_shdf.segment.hierarchy import automatic_part_count, merge_tree
 from neural_shdf.segment.params import SegmentParams
+from neural_shdf.segment.parts import FaceData
 from neural_shdf.segment.synthetic import dumbbell
 from neural_shdf.shdf.postprocess import log_normalize
 
@@ -141,10 +142,11 @@ def main() -> None:
     )
 
     values = log_normalize(shdf)
-    leaves = tree.leaf_labels
+    leaves = tree.leaf_labels  # in the file's face order, as the graph and the surface
+    surface = FaceData.of(vertices, faces, mesh.normals_and_areas, mesh.centroids)
 
     def build_and_cut():
-        built = merge_tree(leaves, graph, areas, values)
+        built = merge_tree(leaves, graph, surface, values)
         return built.labels(automatic_part_count(built))
 
     wall, cpu, _ = best_time(build_and_cut, args.repeat)

@@ -137,9 +137,10 @@ def test_a_mesh_keeps_the_spokes_over_its_holes_for_every_segmentation():
         tree = merge_tree(
             result.tree.leaf_labels,
             work.face_graph,
-            basis.geometry.areas,
+            basis.geometry,
             basis.values,
             spokes=(pairs, lengths),
+            frame=basis.frame,
         )
         np.testing.assert_array_equal(result.tree.merges, tree.merges)
         np.testing.assert_array_equal(result.tree.costs, tree.costs)

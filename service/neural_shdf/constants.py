@@ -26,12 +26,9 @@ DEFAULT_MAX_VERTICES = 6_000_000
 #: Meshes above this many triangles are fine tessellations: the segmentation's graph cut
 #: is normalised to this many faces (``SegmentParams.reference_faces``: its energy counts
 #: data per face and smoothness per edge, so the face count is what it normalises) and
-#: judges creases per unit length (``segment.basis``: wherever some edges are short). The
-#: part tree's concave angles are measured against the mesh's mean bending
-#: (``segment.hierarchy.mean_bending``) on surfaces finer than this many faces counted at
-#: the size most of the area has (``geometry.equivalent_face_count``), so that a finely
-#: split detail does not rescale a coarse mesh's creases. Below it (every psb-dev mesh and
-#: its production variants but ``refined``) none applies.
+#: judges creases per unit length (``segment.basis``: wherever some edges are short).
+#: Below it (every psb-dev mesh and its production variants but ``refined``) neither
+#: applies.
 FINE_TESSELLATION_FACES = 60_000
 
 #: Version of the algorithms' results (ShDF, segmentation, atlas): part of the cache key of
@@ -39,4 +36,4 @@ FINE_TESSELLATION_FACES = 60_000
 #: the code before (the package version alone did not change between such commits). Bump
 #: it whenever a result changes; tests/test_constants.py keeps the golden result of each
 #: version and fails when the result changes under the same version.
-ALGORITHM_VERSION = 24
+ALGORITHM_VERSION = 25

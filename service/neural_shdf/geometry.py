@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -620,10 +619,6 @@ def equivalent_face_count(areas: NDArray[Any]) -> float:
 MEDIAN_BINS_PER_OCTAVE = 64
 
 
-#: Edges folding less than this (radians) are flat to ``FaceGraph.mean_bending``.
-FLAT_ANGLE = 1e-6
-
-
 @dataclass(frozen=True)
 class FaceGraph:
     """Faces that share an edge, with the edge's length and dihedral angle.
@@ -643,16 +638,6 @@ class FaceGraph:
     dihedral: NDArray[np.float64]
     concave: NDArray[np.bool_]
     face_count: int
-
-    @functools.cached_property
-    def mean_bending(self) -> float:
-        """The mean dihedral angle in radians of the bent edges (above ``FLAT_ANGLE``),
-        weighted by edge length; 0.0 when none bends. Flat edges do not count, so splitting
-        flat faces (midpoint subdivision) keeps it. Worked out once per graph (kept: the
-        graph does not change)."""
-        weights = np.where(self.dihedral > FLAT_ANGLE, self.edge_length, 0.0)
-        total = float(weights.sum())
-        return float(np.dot(self.dihedral, weights)) / total if total > 0 else 0.0
 
     def csr(self, weights: NDArray[Any] | None = None) -> Any:
         """Symmetric scipy CSR adjacency matrix with the given edge weights (default 1)."""

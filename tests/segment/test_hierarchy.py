@@ -7,30 +7,31 @@ import pytest
 import trimesh
 
 from neural_shdf.geometry import (
-    FLAT_ANGLE,
     build_face_graph,
     face_normals,
     weld_faces,
 )
 from neural_shdf.mesh import TriangleMesh
 from neural_shdf.pipeline import compute_shdf, segment
-from neural_shdf.segment import SegmentParams, hierarchy
+from neural_shdf.segment import SegmentParams
 from neural_shdf.segment.hierarchy import (
     MergeCost,
     PartTree,
     automatic_part_count,
-    mean_bending,
+    boundary_folds,
     merge_tree,
 )
-from neural_shdf.segment.parts import canonical_labels, connected_parts
+from neural_shdf.segment.parts import FaceData, canonical_labels, connected_parts, cut_edges
 from neural_shdf.segment.synthetic import JUNCTION_Z, dumbbell, split_top
 from neural_shdf.shdf.postprocess import log_normalize
 from tests.mesh_helpers import ball_with_arm
 
 
-def graph_and_areas(vertices, faces):
+def graph_and_surface(vertices, faces):
+    """The face graph and ``FaceData`` of a mesh (the segmentation's inputs to the tree)."""
     normals, areas = face_normals(vertices, faces)
-    return build_face_graph(vertices, weld_faces(vertices, faces), normals), areas
+    graph = build_face_graph(vertices, weld_faces(vertices, faces), normals)
+    return graph, FaceData.of(vertices, faces, (normals, areas))
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +39,7 @@ def dumbbell_leaves():
     """A dumbbell over-segmented into 8 leaves: each ball and the neck cut by flat planes."""
     mesh, shdf = dumbbell(6000)
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    graph, areas = graph_and_areas(vertices, faces)
+    graph, surface = graph_and_surface(vertices, faces)
     centre = mesh.triangles_center
     z = centre[:, 2]
     region = np.where(z < -JUNCTION_Z, 0, np.where(z > JUNCTION_Z, 2, 1))
@@ -46,7 +47,7 @@ def dumbbell_leaves():
     pieces = region * 4 + (centre[:, 0] > 0) * 2 + (np.abs(z) > 2.0) * (region != 1)
     pieces = np.where(region == 1, 4 + (z > 0), pieces)
     leaves = connected_parts(pieces, graph.pairs, len(faces))
-    return leaves, graph, areas, log_normalize(shdf), region
+    return leaves, graph, surface, log_normalize(shdf), region
 
 
 def relabel_like_a_client(tree: PartTree, count: int) -> np.ndarray:
@@ -63,8 +64,8 @@ def relabel_like_a_client(tree: PartTree, count: int) -> np.ndarray:
 
 
 def test_tree_structure(dumbbell_leaves):
-    leaves, graph, areas, values, _ = dumbbell_leaves
-    tree = merge_tree(leaves, graph, areas, values)
+    leaves, graph, surface, values, _ = dumbbell_leaves
+    tree = merge_tree(leaves, graph, surface, values)
     count = int(leaves.max()) + 1
     assert count >= 8
     assert tree.leaf_count == count
@@ -81,8 +82,8 @@ def test_tree_structure(dumbbell_leaves):
 
 
 def test_cuts_are_nested_and_canonical(dumbbell_leaves):
-    leaves, graph, areas, values, _ = dumbbell_leaves
-    tree = merge_tree(leaves, graph, areas, values)
+    leaves, graph, surface, values, _ = dumbbell_leaves
+    tree = merge_tree(leaves, graph, surface, values)
     count = tree.leaf_count
     assert np.array_equal(tree.labels(count), leaves)
     assert np.all(tree.labels(1) == 0)
@@ -101,15 +102,15 @@ def test_cuts_are_nested_and_canonical(dumbbell_leaves):
 
 
 def test_the_documented_client_recipe_gives_the_same_cuts(dumbbell_leaves):
-    leaves, graph, areas, values, _ = dumbbell_leaves
-    tree = merge_tree(leaves, graph, areas, values)
+    leaves, graph, surface, values, _ = dumbbell_leaves
+    tree = merge_tree(leaves, graph, surface, values)
     for parts in range(1, tree.leaf_count + 1):
         assert np.array_equal(relabel_like_a_client(tree, parts), tree.labels(parts))
 
 
 def test_flat_cuts_merge_before_the_creases_between_balls_and_neck(dumbbell_leaves):
-    leaves, graph, areas, values, region = dumbbell_leaves
-    tree = merge_tree(leaves, graph, areas, values)
+    leaves, graph, surface, values, region = dumbbell_leaves
+    tree = merge_tree(leaves, graph, surface, values)
     labels = tree.labels(3)
     for part in range(3):
         inside = region[labels == part]
@@ -118,9 +119,9 @@ def test_flat_cuts_merge_before_the_creases_between_balls_and_neck(dumbbell_leav
 
 
 def test_deterministic_and_independent_of_leaf_numbering(dumbbell_leaves):
-    leaves, graph, areas, values, _ = dumbbell_leaves
-    first = merge_tree(leaves, graph, areas, values)
-    again = merge_tree(leaves.copy(), graph, areas, values)
+    leaves, graph, surface, values, _ = dumbbell_leaves
+    first = merge_tree(leaves, graph, surface, values)
+    again = merge_tree(leaves.copy(), graph, surface, values)
     assert np.array_equal(first.merges, again.merges)
     assert np.array_equal(first.costs, again.costs)
 
@@ -132,58 +133,99 @@ def loop_subdivided(vertices, faces, passes):
     return fine_vertices, fine_faces, np.arange(len(fine_faces)) // 4**passes
 
 
-def test_mean_bending_follows_the_tessellation_not_the_size():
-    mesh, _ = dumbbell(3000)
+def post_on_a_disc(spacing: float, fillet: float = 0.2) -> trimesh.Trimesh:
+    """A post (radius 0.3) standing on a disc (radius 1.5, 0.3 thick), the concave corner
+    between them rounded with radius ``fillet`` (0: sharp), revolved from a profile
+    sampled every ``spacing``: the same surface at any tessellation."""
+
+    def line(start, end):
+        start, end = np.asarray(start, float), np.asarray(end, float)
+        steps = max(1, int(np.ceil(np.linalg.norm(end - start) / spacing)))
+        return start + np.linspace(0.0, 1.0, steps + 1)[:-1, None] * (end - start)
+
+    corner = np.array([(0.3 + fillet, 0.3)])
+    if fillet > 0:
+        turn = np.linspace(1.5 * np.pi, np.pi, int(np.ceil(fillet * np.pi / 2 / spacing)) + 1)
+        corner = 0.3 + fillet + fillet * np.stack([np.cos(turn), np.sin(turn)], axis=1)
+    profile = np.concatenate(
+        [
+            line((0.0, 0.0), (1.5, 0.0)),
+            line((1.5, 0.0), (1.5, 0.3)),
+            line((1.5, 0.3), corner[0]),
+            corner[:-1],
+            line((0.3, 0.3 + fillet), (0.3, 2.0)),
+            line((0.3, 2.0), (0.0, 2.0)),
+            [(0.0, 2.0)],
+        ]
+    )
+    return trimesh.creation.revolve(profile, sections=int(np.ceil(3 * np.pi / spacing)))
+
+
+def folds_between(mesh: trimesh.Trimesh, leaves: np.ndarray) -> np.ndarray:
+    """``boundary_folds`` across every cut between the two leaves of ``mesh``."""
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    coarse = mean_bending(graph_and_areas(vertices, faces)[0])
-    assert mean_bending(graph_and_areas(1000.0 * vertices + 5.0, faces)[0]) == pytest.approx(coarse)
-    fine_vertices, fine_faces, _ = loop_subdivided(vertices, faces, 2)
-    # Each Loop pass halves the edges, so the angle between neighbours roughly halves
-    # (and the coarse grid's flat quad diagonals, which do not count, now bend a little).
-    assert 3.0 < coarse / mean_bending(graph_and_areas(fine_vertices, fine_faces)[0]) < 6.0
+    graph, surface = graph_and_surface(vertices, faces)
+    pairs = graph.pairs[cut_edges(leaves, graph.pairs, 2)[0]]
+    assert len(pairs)
+    return boundary_folds(pairs, leaves, surface)
 
 
-def test_a_crease_weighs_more_like_itself_when_finely_tessellated(monkeypatch):
-    # The rule applies above FINE_TESSELLATION_FACES: lowered so that a small mesh shows it.
-    monkeypatch.setattr(hierarchy, "FINE_TESSELLATION_FACES", 10_000)
+def post_and_disc(mesh: trimesh.Trimesh, height: float) -> np.ndarray:
+    """Leaves: the faces above ``height`` (the post), the rest (the disc)."""
+    return (mesh.triangles_center[:, 2] > height).astype(np.int64)
+
+
+def test_a_rounded_crease_folds_alike_at_any_tessellation():
+    """Per edge, a rounded crease folds by its turn over the edges across it: along these
+    cuts 0.125, 0.071, 0.038 of pi at 9k, 37k, 148k faces, or 0 where a cut runs along
+    the quads' flat diagonals. Read at the surface's scale it folds 0.20-0.25 at any
+    tessellation, wherever the cut crosses it."""
+    coarse, fine = (post_on_a_disc(spacing) for spacing in (0.1, 0.025))
+    assert len(fine.faces) > 10 * len(coarse.faces)
+    for height in (0.35, 0.4, 0.45):
+        at_coarse = folds_between(coarse, post_and_disc(coarse, height)).mean()
+        assert 0.15 < at_coarse < 0.45
+        fine_folds = folds_between(fine, post_and_disc(fine, height))
+        assert fine_folds.mean() == pytest.approx(at_coarse, rel=0.1)
+
+
+def test_a_sharp_concave_corner_folds_a_right_angle_and_a_convex_rim_none():
+    mesh = post_on_a_disc(0.05, fillet=0.0)
+    assert mesh.is_watertight and mesh.volume > 0
+    np.testing.assert_allclose(folds_between(mesh, post_and_disc(mesh, 0.3)), 0.5, atol=0.02)
+    centre = mesh.triangles_center
+    rim = (np.hypot(centre[:, 0], centre[:, 1]) > 1.45).astype(np.int64)  # the disc's edge
+    assert np.all(folds_between(mesh, rim) == 0.0)
+    inside_out = trimesh.Trimesh(mesh.vertices, mesh.faces[:, ::-1], process=False)
+    assert np.all(folds_between(inside_out, post_and_disc(mesh, 0.3)) == 0.0)  # convex now
+
+
+def test_folds_follow_the_surface_not_its_pose():
+    mesh = post_on_a_disc(0.05)
+    mesh.vertices[:, 0] *= 0.8  # an elliptic disc: principal axes of its own
+    leaves = post_and_disc(mesh, 0.4)
+    rotation = trimesh.transformations.random_rotation_matrix(np.random.default_rng(3).random(3))
+    moved = mesh.copy()
+    moved.apply_transform(rotation)
+    moved.apply_scale(1000.0)
+    moved.apply_translation([5e3, -2e3, 7e3])
+    np.testing.assert_allclose(folds_between(moved, leaves), folds_between(mesh, leaves), atol=1e-9)
+
+
+def test_a_finely_split_detail_costs_what_the_unsplit_mesh_costs():
+    """The top fifth of a dumbbell split 1-to-36 (6x the faces, the same surface and
+    creases): its merges cost what the unsplit mesh's do."""
     mesh, shdf = dumbbell(3000)
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    split_vertices, split_faces, parent = split_top(mesh, 6)
+    assert len(split_faces) > 5 * len(faces)
     z = mesh.triangles_center[:, 2]
     regions = np.where(z < -JUNCTION_Z, 0, np.where(z > JUNCTION_Z, 2, 1))
     values = log_normalize(shdf)
-    graph, areas = graph_and_areas(vertices, faces)
-    fine_vertices, fine_faces, parent = loop_subdivided(vertices, faces, 2)
-    fine_graph, fine_areas = graph_and_areas(fine_vertices, fine_faces)
-
-    def cost_ratio() -> np.ndarray:
-        coarse = merge_tree(regions, graph, areas, values).costs
-        return merge_tree(regions[parent], fine_graph, fine_areas, values[parent]).costs / coarse
-
-    scaled = cost_ratio()
-    monkeypatch.setattr(hierarchy, "REFERENCE_BENDING", 0.0)  # raw angles, as before
-    raw = cost_ratio()
-    # The fine mesh's rounded creases fold little per edge: raw angles lose most of the
-    # concavity term; scaled by the mesh's bending, the costs come closer to the coarse.
-    assert np.all(raw < 0.7)
-    assert np.all(np.abs(np.log(scaled)) < np.abs(np.log(raw)) - 0.2)
-
-
-def test_midpoint_subdivision_keeps_the_mean_bending():
-    mesh, _ = dumbbell(3000)
-    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    fine_vertices, fine_faces = trimesh.remesh.subdivide(vertices, faces)
-    coarse = mean_bending(graph_and_areas(vertices, faces)[0])
-    assert mean_bending(graph_and_areas(fine_vertices, fine_faces)[0]) == pytest.approx(coarse)
-
-
-def test_mean_bending_is_worked_out_once_per_graph():
-    mesh, _ = dumbbell(3000)
-    graph = graph_and_areas(np.asarray(mesh.vertices), np.asarray(mesh.faces))[0]
-    bent = np.where(graph.dihedral > FLAT_ANGLE, graph.edge_length, 0.0)
-    fresh = float(np.dot(graph.dihedral, bent)) / float(bent.sum())
-    assert mean_bending(graph) == fresh  # the same float as the pass itself
-    object.__setattr__(graph, "dihedral", np.zeros_like(graph.dihedral))  # would read flat
-    assert mean_bending(graph) == fresh
+    coarse = merge_tree(regions, *graph_and_surface(vertices, faces), values).costs
+    split_graph, split_surface = graph_and_surface(split_vertices, split_faces)
+    split = merge_tree(regions[parent], split_graph, split_surface, values[parent]).costs
+    np.testing.assert_allclose(split, coarse, rtol=2e-3)
 
 
 def test_cost_prefers_small_similar_parts_across_flat_wide_boundaries():
@@ -202,11 +244,11 @@ def test_separate_shells_still_make_one_tree():
                for i, r in enumerate((1.0, 0.5, 0.8))]  # fmt: skip
     mesh = trimesh.util.concatenate(spheres)
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    graph, areas = graph_and_areas(vertices, faces)
+    graph, surface = graph_and_surface(vertices, faces)
     leaves = connected_parts(np.zeros(len(faces), dtype=np.int64), graph.pairs, len(faces))
     assert leaves.max() == 2
     values = np.repeat([0.9, 0.1, 0.6], len(faces) // 3)
-    tree = merge_tree(leaves, graph, areas, values)
+    tree = merge_tree(leaves, graph, surface, values)
     assert tree.leaf_count == 3 and tree.parent[-1] == -1
     # The smallest shell (0.5) joins the one of nearest ShDF (0.8 -> 0.6) first.
     assert tree.merges[0].tolist() == [1, 2]
@@ -253,7 +295,7 @@ def test_shells_merge_in_the_order_of_the_plain_rule(case):
         case, rng.choice([1.0, 2.0], count)
     )
     vertices, faces = tetrahedra(count, scales)
-    graph, areas = graph_and_areas(vertices, faces)
+    graph, surface = graph_and_surface(vertices, faces)
     if case == "random":
         shell_values = rng.random(count)
     elif case == "equal":
@@ -266,18 +308,18 @@ def test_shells_merge_in_the_order_of_the_plain_rule(case):
         )
     values = np.repeat(shell_values, 4)
     leaves = np.repeat(np.arange(count), 4)
-    tree = merge_tree(leaves, graph, areas, values)
-    area = np.bincount(leaves, weights=areas)
-    moment = np.bincount(leaves, weights=areas * values)
+    tree = merge_tree(leaves, graph, surface, values)
+    area = np.bincount(leaves, weights=surface.areas)
+    moment = np.bincount(leaves, weights=surface.areas * values)
     assert tree.merges.tolist() == reference_shell_merges(area, moment)
 
 
 def test_twenty_thousand_shells_make_one_tree():
     count = 20_000
     vertices, faces = tetrahedra(count, 1 + np.random.default_rng(0).random(count))
-    graph, areas = graph_and_areas(vertices, faces)
+    graph, surface = graph_and_surface(vertices, faces)
     leaves = connected_parts(np.zeros(len(faces), dtype=np.int64), graph.pairs, len(faces))
-    tree = merge_tree(leaves, graph, areas, np.full(len(faces), 0.5))
+    tree = merge_tree(leaves, graph, surface, np.full(len(faces), 0.5))
     assert tree.leaf_count == count and tree.parent[-1] == -1
     assert len(np.unique(tree.merges)) == 2 * count - 2
     assert np.array_equal(tree.labels(count), leaves)
@@ -287,8 +329,10 @@ def test_twenty_thousand_shells_make_one_tree():
 def test_a_single_leaf_and_an_empty_mesh():
     mesh = trimesh.creation.icosphere(1)
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    graph, areas = graph_and_areas(vertices, faces)
-    tree = merge_tree(np.zeros(len(faces), dtype=np.int64), graph, areas, np.full(len(faces), 0.5))
+    graph, surface = graph_and_surface(vertices, faces)
+    tree = merge_tree(
+        np.zeros(len(faces), dtype=np.int64), graph, surface, np.full(len(faces), 0.5)
+    )
     assert tree.leaf_count == 1 and len(tree.merges) == 0
     assert np.all(tree.labels(5) == 0)
     assert automatic_part_count(tree) == 1
@@ -296,8 +340,8 @@ def test_a_single_leaf_and_an_empty_mesh():
 
 
 def test_from_parent_rebuilds_the_tree_and_its_cuts(dumbbell_leaves):
-    leaves, graph, areas, values, _ = dumbbell_leaves
-    tree = merge_tree(leaves, graph, areas, values)
+    leaves, graph, surface, values, _ = dumbbell_leaves
+    tree = merge_tree(leaves, graph, surface, values)
     rebuilt = PartTree.from_parent(tree.leaf_labels, tree.parent, tree.costs)
     np.testing.assert_array_equal(rebuilt.merges, tree.merges)
     np.testing.assert_array_equal(rebuilt.costs, tree.costs)
@@ -316,44 +360,6 @@ def test_from_parent_refuses_what_is_not_a_merge_tree(parent):
         PartTree.from_parent([0], parent, [0.0] * (len(parent) // 2))
 
 
-def test_coarse_meshes_keep_raw_angles_whatever_their_bending(monkeypatch):
-    """At or below FINE_TESSELLATION_FACES the tree's concavity is the raw angles: a few
-    slits or holes must not move a coarse mesh across the bending threshold."""
-    mesh, shdf = dumbbell(3000)
-    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    fine_vertices, fine_faces, parent = loop_subdivided(vertices, faces, 2)
-    assert len(fine_faces) <= hierarchy.FINE_TESSELLATION_FACES
-    z = fine_vertices[fine_faces].mean(axis=1)[:, 2]
-    regions = np.where(z < -JUNCTION_Z, 0, np.where(z > JUNCTION_Z, 2, 1))
-    graph, areas = graph_and_areas(fine_vertices, fine_faces)
-    values = log_normalize(shdf)[parent]
-    default = merge_tree(regions, graph, areas, values).costs
-    monkeypatch.setattr(hierarchy, "REFERENCE_BENDING", 0.0)
-    np.testing.assert_array_equal(merge_tree(regions, graph, areas, values).costs, default)
-
-
-def test_a_finely_split_detail_does_not_make_a_coarse_mesh_fine(monkeypatch):
-    """The bending rule reads the surface's resolution (``equivalent_face_count``), not
-    the face count: the top fifth of a coarse mesh split 1-to-36 (6x the faces, the same
-    surface and creases) keeps the raw angles, so its merges cost what the unsplit mesh's
-    do. Judged by its face count the mesh was fine and its concavity was rescaled."""
-    monkeypatch.setattr(hierarchy, "FINE_TESSELLATION_FACES", 10_000)
-    monkeypatch.setattr(hierarchy, "REFERENCE_BENDING", 0.3)  # above the dumbbell's 0.15
-    mesh, shdf = dumbbell(3000)
-    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    split_vertices, split_faces, parent = split_top(mesh, 6)
-    assert len(faces) < 10_000 < len(split_faces)
-    z = mesh.triangles_center[:, 2]
-    regions = np.where(z < -JUNCTION_Z, 0, np.where(z > JUNCTION_Z, 2, 1))
-    values = log_normalize(shdf)
-    graph, areas = graph_and_areas(vertices, faces)
-    split_graph, split_areas = graph_and_areas(split_vertices, split_faces)
-    assert mean_bending(split_graph) < hierarchy.REFERENCE_BENDING  # the rule would scale
-    coarse = merge_tree(regions, graph, areas, values).costs
-    split = merge_tree(regions[parent], split_graph, split_areas, values[parent]).costs
-    np.testing.assert_allclose(split, coarse, rtol=1e-6)
-
-
 def test_mirror_merges_are_made_together_at_one_cost():
     """A bar cut into 5 leaves symmetric about x = 0: with ``mirror_leaf`` each merge is
     followed at once by its mirror merge, at the same cost, so every cut of the tree that
@@ -362,7 +368,7 @@ def test_mirror_merges_are_made_together_at_one_cost():
     box = trimesh.creation.box([10.0, 1.0, 1.0])
     vertices, faces = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, 0.25)
     vertices, faces = np.asarray(vertices), np.asarray(faces)
-    graph, areas = graph_and_areas(vertices, faces)
+    graph, surface = graph_and_surface(vertices, faces)
     x = vertices[faces].mean(axis=1)[:, 0]
     band = np.searchsorted([-2.5, -0.5, 0.5, 2.5], x)  # 0 1 2 3 4 along x
     leaves = canonical_labels(band)
@@ -371,8 +377,8 @@ def test_mirror_merges_are_made_together_at_one_cost():
     mirror_leaf = np.array(
         [leaves[band == mirror_band[int(band[leaves == leaf][0])]][0] for leaf in range(5)]
     )
-    plain = merge_tree(leaves, graph, areas, values)
-    paired = merge_tree(leaves, graph, areas, values, mirror_leaf=mirror_leaf)
+    plain = merge_tree(leaves, graph, surface, values)
+    paired = merge_tree(leaves, graph, surface, values, mirror_leaf=mirror_leaf)
     assert plain.costs[0] != plain.costs[1]
     assert paired.costs[0] == paired.costs[1] and paired.costs[2] == paired.costs[3]
     for count in (1, 3, 5):  # counts between the two merges of no pair

@@ -95,7 +95,7 @@ def prepare_segment(
     if distinct.has_copies:
         check_part_count(params, distinct.mesh.face_count)
     mesh = distinct.mesh
-    geometry = FaceData.of(mesh.vertices, mesh.faces, mesh.normals_and_areas[1], mesh.centroids)
+    geometry = FaceData.of(mesh.vertices, mesh.faces, mesh.normals_and_areas, mesh.centroids)
     values = log_normalize(shdf)
     reflection = None
     if params.symmetry:

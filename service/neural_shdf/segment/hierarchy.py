@@ -8,10 +8,11 @@ what a person would weigh::
 
 * ``size``: the smaller part's share of the surface area (slivers go first);
 * ShDF means: area-weighted, of the log-normalised ShDF (thick and thin differ);
-* ``concavity``: length-weighted mean of ``angle / pi`` over the shared boundary's
-  concave edges (convex and flat edges count 0), the angles scaled up on meshes that
-  bend less than ``REFERENCE_BENDING`` per edge (fine tessellations), so that a crease
-  weighs about the same at any resolution: a crease is a natural boundary;
+* ``concavity``: length-weighted mean over the shared boundary of how far the surface
+  folds inward across it (``boundary_folds``: the angle / pi between the two parts' mean
+  normals within ``FOLD_SCALE`` of the surface's size; convex and flat folds count 0),
+  read at the surface's scale so that a crease weighs the same at any tessellation: a
+  crease is a natural boundary;
 * ``neck``: shared boundary length over sqrt(smaller part's area): a short cut
   around a protrusion (a finger, a handle) is natural, a long one is not.
 
@@ -32,7 +33,6 @@ from __future__ import annotations
 import heapq
 import math
 from array import array
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -40,10 +40,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
-from neural_shdf.constants import FINE_TESSELLATION_FACES
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph, equivalent_face_count
-from neural_shdf.segment.parts import canonical_labels, cut_edges
+from neural_shdf.geometry import FaceGraph, principal_coordinates
+from neural_shdf.segment.parts import FaceData, canonical_labels, cut_edges
 
 # The weights were tuned on 57 psb-dev models (the 4th model of each category held out),
 # first for the Rand index at the humans' most frequent part count, then the size
@@ -58,18 +57,10 @@ NECK_EXPONENT = 2.0
 #: Cost of merging two parts with the same ShDF across a flat boundary, relative to
 #: a difference of 1 in mean log-normalised ShDF.
 COST_CONSTANT = 0.005
-#: Weight of the boundary's mean concave angle (over pi); the result is flat around it.
-CONCAVITY_WEIGHT = 8.0
-#: A surface finer than ``FINE_TESSELLATION_FACES`` (``geometry.equivalent_face_count``)
-#: whose edges bend less than this on average
-#: (``mean_bending``, radians) has its concave angles scaled by ``REFERENCE_BENDING /
-#: mean bending`` (each at most pi): a finer
-#: tessellation of a smooth shape spreads a crease over more edges, each folding less (a
-#: Loop pass halves the angles, and the mean bending with them), so raw angles lost the
-#: crease at 1M faces. Not below that size: on coarse meshes a few slits or holes moved
-#: the mean across the threshold (a shell variant of psb 24: 1-RI 0.061 -> 0.378).
-#: 0.04 and 0.07 tried on 8 tuning models subdivided, uncapped 0.1 on psb-dev (worse).
-REFERENCE_BENDING = 0.07
+#: Weight of the boundary's mean concave fold (over pi, ``boundary_folds``). Version 25,
+#: on the 57 tuning models (1-RI / CD, automatic count): 2.5 0.140 / 0.231, 3 0.138 /
+#: 0.225, 3.5 0.138 / 0.222, 4 0.138 / 0.222 (8 with per-edge angles: 0.141 / 0.221).
+CONCAVITY_WEIGHT = 3.5
 #: Smallest neck ratio (a shell with no shared boundary counts as this narrow).
 NECK_FLOOR = 0.05
 
@@ -102,6 +93,117 @@ class MergeCost:
         similarity = self.constant + abs(mean_a - mean_b) + self.concavity_weight * concavity
         cost: float = size**self.size_exponent * similarity * neck**-self.neck_exponent
         return cost
+
+
+#: The concavity of a boundary is read between the two parts' surfaces within about
+#: this share of sqrt(surface area) of each boundary edge (``boundary_folds``).
+FOLD_SCALE = 0.02
+
+
+def boundary_folds(
+    face_pairs: NDArray[Any],
+    leaves: NDArray[Any],
+    surface: FaceData,
+    frame: tuple[NDArray[Any], NDArray[Any]] | None = None,
+    scale: float = FOLD_SCALE,
+) -> NDArray[np.float64]:
+    """How concave the surface folds across each pair of adjacent faces in different
+    leaves, as a share of pi (0 where the fold is convex or flat), read at the surface's
+    scale rather than per edge.
+
+    Around each pair, the faces of each side's leaf within about ``scale`` x sqrt(area)
+    (the 27 cells of a grid of that side around the pair's cell) give an area-weighted
+    mean normal and centroid; the fold is the angle between the two mean normals,
+    concave where they turn towards each other. A crease rounded over a few faces then
+    folds as much as a sharp one, and as much at any tessellation: per edge, a Loop pass
+    halves the angles and a decimation doubles them. ``frame``: the centroids'
+    ``principal_frame`` where the caller keeps it (the grid turns with the mesh).
+    """
+    face_pairs = np.asarray(face_pairs, dtype=np.int64).reshape(-1, 2)
+    folds = np.zeros(len(face_pairs))
+    areas = np.asarray(surface.areas, dtype=np.float64)
+    total = float(areas.sum())
+    if not len(face_pairs) or not total > 0:
+        return folds
+    leaves = np.asarray(leaves, dtype=np.int64)
+    coordinates = np.ascontiguousarray(principal_coordinates(surface.centroids, areas, frame))
+    cells, size, low, spans = _fold_cells(coordinates, scale * math.sqrt(total), FOLD_GRID_CELLS)
+    strides = np.array([spans[1] * spans[2], spans[2], 1], dtype=np.int64)
+    first, second = face_pairs[:, 0], face_pairs[:, 1]
+    middle = np.floor((coordinates[first] + coordinates[second]) / (2 * size) + 0.5)
+    around = (middle.astype(np.int64) - low) @ strides
+    groups, group_of_pair = np.unique(
+        np.stack([around, leaves[first], leaves[second]], axis=1), axis=0, return_inverse=True
+    )
+    offsets = np.array(np.meshgrid([-1, 0, 1], [-1, 0, 1], [-1, 0, 1])).reshape(3, -1).T @ strides
+    leaf_count = int(leaves.max()) + 1
+    # (cell, leaf) slots each side reads: only faces in them count, a band along the cuts.
+    wanted = [(groups[:, :1] + offsets[None, :]) * leaf_count + groups[:, 1 + side, None]
+              for side in (0, 1)]  # fmt: skip
+    slot_keys = np.unique(np.concatenate([keys.reshape(-1) for keys in wanted]))
+    near = np.zeros(int(np.prod(spans)), dtype=bool)
+    near[slot_keys // leaf_count] = True
+    band = np.flatnonzero(near[cells])
+    band_keys = cells[band] * leaf_count + leaves[band]
+    at = np.minimum(np.searchsorted(slot_keys, band_keys), len(slot_keys) - 1)
+    inside = slot_keys[at] == band_keys
+    band, at = band[inside], at[inside]
+    weights = areas[band]
+    sums = np.empty((len(slot_keys), 7))
+    for axis in range(3):
+        sums[:, axis] = np.bincount(at, weights * surface.normals[band, axis], len(slot_keys))
+        sums[:, 3 + axis] = np.bincount(at, weights * surface.centroids[band, axis], len(slot_keys))
+    sums[:, 6] = np.bincount(at, weights, len(slot_keys))
+    sides = [
+        sums[np.searchsorted(slot_keys, keys)].sum(axis=1) for keys in wanted
+    ]  # (groups, 7) per side: the 27 cells' sums
+    normal_a, normal_b = sides[0][:, :3], sides[1][:, :3]
+    tiny = np.finfo(np.float64).tiny
+    centre_a = sides[0][:, 3:6] / np.maximum(sides[0][:, 6:], tiny)
+    centre_b = sides[1][:, 3:6] / np.maximum(sides[1][:, 6:], tiny)
+    angle = np.arctan2(
+        np.linalg.norm(np.cross(normal_a, normal_b), axis=1),
+        np.einsum("ij,ij->i", normal_a, normal_b),
+    )
+    concave = np.einsum("ij,ij->i", normal_b - normal_a, centre_b - centre_a) < 0
+    return np.where(concave, angle / np.pi, 0.0)[group_of_pair.reshape(-1)]
+
+
+#: ``boundary_folds``: at most this many cells in the grid's box (a surface spread thin
+#: over a large space gets larger cells).
+FOLD_GRID_CELLS = 2**24
+
+
+@kernel
+def _fold_cells(  # pragma: no cover - compiled
+    coordinates: NDArray[np.float64], size: float, most: int
+) -> tuple[NDArray[np.int64], float, NDArray[np.int64], NDArray[np.int64]]:
+    """(each point's cell of side ``size`` as one key, the side, the lowest cell less one,
+    the cells per axis with one to spare on each side). Cell walls at ``(k + 1/2) size``;
+    the side is enlarged where the box would hold more than ``most`` cells."""
+    lowest = coordinates[0].copy()
+    highest = coordinates[0].copy()
+    for point in range(coordinates.shape[0]):
+        for axis in range(3):
+            lowest[axis] = min(lowest[axis], coordinates[point, axis])
+            highest[axis] = max(highest[axis], coordinates[point, axis])
+    cells = 1.0
+    for axis in range(3):
+        cells *= (highest[axis] - lowest[axis]) / size + 3.0
+    if cells > most:
+        size *= (cells / most) ** (1.0 / 3.0)
+    low = np.empty(3, dtype=np.int64)
+    spans = np.empty(3, dtype=np.int64)
+    for axis in range(3):
+        low[axis] = np.int64(np.floor(lowest[axis] / size + 0.5)) - 1
+        spans[axis] = np.int64(np.floor(highest[axis] / size + 0.5)) - low[axis] + 2
+    keys = np.empty(coordinates.shape[0], dtype=np.int64)
+    for point in range(coordinates.shape[0]):
+        x = np.int64(np.floor(coordinates[point, 0] / size + 0.5)) - low[0]
+        y = np.int64(np.floor(coordinates[point, 1] / size + 0.5)) - low[1]
+        z = np.int64(np.floor(coordinates[point, 2] / size + 0.5)) - low[2]
+        keys[point] = (x * spans[1] + y) * spans[2] + z
+    return keys, size, low, spans
 
 
 @dataclass(frozen=True)
@@ -205,22 +307,15 @@ class PartTree:
         return np.where(leaf_labels >= 0, parts[np.maximum(leaf_labels, 0)], -1)
 
 
-def mean_bending(graph: FaceGraph) -> float:
-    """The mesh's resolution against its curvature: ``FaceGraph.mean_bending`` (kept on the
-    graph, so a kept graph serves every re-segmentation without the pass over its edges),
-    ``REFERENCE_BENDING`` for a flat mesh."""
-    return graph.mean_bending or REFERENCE_BENDING
-
-
 def merge_tree(
     leaf_labels: NDArray[Any],
     graph: FaceGraph,
-    areas: NDArray[Any],
+    surface: FaceData,
     values: NDArray[Any],
     cost: MergeCost | None = None,
     mirror_leaf: NDArray[Any] | None = None,
     spokes: tuple[NDArray[Any], NDArray[Any]] | None = None,
-    equivalent_faces: Callable[[], float] | None = None,
+    frame: tuple[NDArray[Any], NDArray[Any]] | None = None,
 ) -> PartTree:
     """The merge tree of the parts ``leaf_labels`` (canonical: 0..L-1 by lowest face).
 
@@ -234,9 +329,8 @@ def merge_tree(
     (``stitching.cap_spokes``): between faces of two parts, flat boundary as long as the
     spoke, as if the fan were surface. A hole on a boundary shortened it, which reads as a
     narrower neck and a dearer merge: holes kept extra parts.
-    ``equivalent_faces``: how to get ``geometry.equivalent_face_count(areas)`` where the
-    caller keeps it (``SegmentBasis.equivalent_faces``); worked out here otherwise. Asked
-    only of a mesh bending less than ``REFERENCE_BENDING`` (12-15 ms at 1M faces).
+    ``surface``: the faces' areas, centroids and normals; ``frame``: the centroids'
+    ``principal_frame`` where the caller keeps it (``boundary_folds``).
     """
     cost = MergeCost() if cost is None else cost
     leaves = np.asarray(leaf_labels, dtype=np.int64)
@@ -246,7 +340,7 @@ def merge_tree(
     if face_count == 0:
         return PartTree(leaves, np.zeros((0, 2), dtype=np.int64), np.zeros(0))
     leaf_count = int(leaves.max()) + 1
-    areas = np.asarray(areas, dtype=np.float64)
+    areas = np.asarray(surface.areas, dtype=np.float64)
     if not areas.sum() > 0:
         areas = np.ones(face_count)
     area = np.bincount(leaves, weights=areas, minlength=leaf_count)
@@ -257,14 +351,7 @@ def merge_tree(
     cut = cut_edges(leaves, pairs, leaf_count)[0]  # one pass, no per-edge arrays
     a, b = leaves[pairs[cut, 0]], leaves[pairs[cut, 1]]
     lengths = graph.edge_length[cut]
-    depth = np.where(graph.concave[cut], graph.dihedral[cut] / np.pi, 0.0)
-    scale = REFERENCE_BENDING / mean_bending(graph)
-    if scale > 1.0:  # a crease spread over many small folds, if the surface is fine
-        surface_faces = (
-            equivalent_face_count(areas) if equivalent_faces is None else equivalent_faces()
-        )
-        if surface_faces > FINE_TESSELLATION_FACES:
-            depth = np.minimum(depth * scale, 1.0)
+    depth = boundary_folds(pairs[cut], leaves, surface, frame)
     if spokes is not None and len(spokes[0]):
         spoke_pairs = np.asarray(spokes[0], dtype=np.int64).reshape(-1, 2)
         sa, sb = leaves[spoke_pairs[:, 0]], leaves[spoke_pairs[:, 1]]

@@ -231,11 +231,11 @@ class GraphCutPartitioner:
         tree = merge_tree(
             leaves,
             graph,
-            geometry.areas,
+            geometry,
             work.basis.values,
             mirror_leaf=mirror_leaf,
             spokes=work.spokes,
-            equivalent_faces=lambda: work.basis.equivalent_faces,
+            frame=work.basis.frame,
         )
         count = automatic_part_count(tree) if params.parts is None else params.parts
         labels = tree.labels(count)
@@ -256,10 +256,10 @@ class MetisPartitioner:
             tree = merge_tree(
                 leaves,
                 graph,
-                geometry.areas,
+                geometry,
                 basis.values,
                 spokes=work.spokes,
-                equivalent_faces=lambda: basis.equivalent_faces,
+                frame=basis.frame,
             )
             count = automatic_part_count(tree)
         weights = metis_edge_weights(work.edge_weights, basis.posteriors, graph.pairs)

@@ -16,31 +16,38 @@ from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
 
 @dataclass(frozen=True)
 class FaceData:
-    """Per-face geometry the partitioners need: area, centroid and area over mean area."""
+    """Per-face geometry the partitioners need: area, centroid, area over mean area and
+    unit normal (facing out of the solid: the oriented mesh's)."""
 
     areas: NDArray[np.float64]
     centroids: NDArray[np.float64]
     face_weight: NDArray[np.float64]
+    normals: NDArray[np.float64]
 
     @classmethod
     def of(
         cls,
         vertices: NDArray[Any],
         faces: NDArray[Any],
-        areas: NDArray[Any] | None = None,
+        normals_and_areas: tuple[NDArray[Any], NDArray[Any]] | None = None,
         centroids: NDArray[Any] | None = None,
     ) -> FaceData:
-        """The data of ``faces``; ``areas`` and ``centroids`` where the caller has them
-        (a ``TriangleMesh`` caches both)."""
-        areas = face_normals(vertices, faces)[1] if areas is None else np.asarray(areas, float)
+        """The data of ``faces``; ``normals_and_areas`` (``geometry.face_normals``) and
+        ``centroids`` where the caller has them (a ``TriangleMesh`` caches both)."""
+        if normals_and_areas is None:
+            normals_and_areas = face_normals(vertices, faces)
+        normals = np.asarray(normals_and_areas[0], dtype=np.float64)
+        areas = np.asarray(normals_and_areas[1], dtype=np.float64)
         mean = float(areas.mean()) if len(areas) else 0.0
         weight = areas / mean if mean > 0 else np.ones(len(areas))
         centroids = face_centroids(vertices, faces) if centroids is None else centroids
-        return cls(areas, centroids, weight)
+        return cls(areas, centroids, weight, normals)
 
     def subset(self, faces: NDArray[Any]) -> FaceData:
         """The same data for some faces (weights stay relative to the whole mesh)."""
-        return FaceData(self.areas[faces], self.centroids[faces], self.face_weight[faces])
+        return FaceData(
+            self.areas[faces], self.centroids[faces], self.face_weight[faces], self.normals[faces]
+        )
 
 
 def canonical_labels(labels: NDArray[Any]) -> NDArray[np.int64]:

@@ -140,7 +140,6 @@ def test_a_mesh_keeps_the_spokes_over_its_holes_for_every_segmentation():
             basis.geometry,
             basis.values,
             spokes=(pairs, lengths),
-            frame=basis.frame,
         )
         np.testing.assert_array_equal(result.tree.merges, tree.merges)
         np.testing.assert_array_equal(result.tree.costs, tree.costs)

@@ -95,7 +95,15 @@ def prepare_segment(
     if distinct.has_copies:
         check_part_count(params, distinct.mesh.face_count)
     mesh = distinct.mesh
-    geometry = FaceData.of(mesh.vertices, mesh.faces, mesh.normals_and_areas, mesh.centroids)
+    geometry = FaceData.of(
+        mesh.vertices,
+        mesh.faces,
+        mesh.normals_and_areas,
+        mesh.centroids,
+        pose=mesh.pose_frame,
+        principal=mesh.principal_frame,
+        pose_normals=mesh.pose_geometry[1],
+    )
     values = log_normalize(shdf)
     reflection = None
     if params.symmetry:

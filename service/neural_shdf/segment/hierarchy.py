@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph, principal_coordinates
+from neural_shdf.geometry import FaceGraph
 from neural_shdf.segment.parts import FaceData, canonical_labels, cut_edges
 
 # The weights were tuned on 57 psb-dev models (the 4th model of each category held out),
@@ -106,7 +106,6 @@ def boundary_folds(
     face_pairs: NDArray[Any],
     leaves: NDArray[Any],
     surface: FaceData,
-    frame: tuple[NDArray[Any], NDArray[Any]] | None = None,
     scale: float = FOLD_SCALE,
 ) -> NDArray[np.float64]:
     """How concave the surface folds across each pair of adjacent faces in different
@@ -118,8 +117,8 @@ def boundary_folds(
     mean normal and centroid; the fold is the angle between the two mean normals,
     concave where they turn towards each other. A crease rounded over a few faces then
     folds as much as a sharp one, and as much at any tessellation: per edge, a Loop pass
-    halves the angles and a decimation doubles them. ``frame``: the centroids'
-    ``principal_frame`` where the caller keeps it (the grid turns with the mesh).
+    halves the angles and a decimation doubles them. Worked out in the mesh's pose frame
+    (``FaceData.pose_centroids``, ``pose_normals``): the same cells and sums in any pose.
     """
     face_pairs = np.asarray(face_pairs, dtype=np.int64).reshape(-1, 2)
     folds = np.zeros(len(face_pairs))
@@ -128,8 +127,9 @@ def boundary_folds(
     if not len(face_pairs) or not total > 0:
         return folds
     leaves = np.asarray(leaves, dtype=np.int64)
-    coordinates = np.ascontiguousarray(principal_coordinates(surface.centroids, areas, frame))
-    cells, size, low, spans = _fold_cells(coordinates, scale * math.sqrt(total), FOLD_GRID_CELLS)
+    coordinates = np.ascontiguousarray(surface.pose_centroids)
+    size = scale * math.sqrt(total) / surface.pose_scale
+    cells, size, low, spans = _fold_cells(coordinates, size, FOLD_GRID_CELLS)
     strides = np.array([spans[1] * spans[2], spans[2], 1], dtype=np.int64)
     first, second = face_pairs[:, 0], face_pairs[:, 1]
     middle = np.floor((coordinates[first] + coordinates[second]) / (2 * size) + 0.5)
@@ -154,8 +154,8 @@ def boundary_folds(
     weights = areas[band]
     sums = np.empty((len(slot_keys), 7))
     for axis in range(3):
-        sums[:, axis] = np.bincount(at, weights * surface.normals[band, axis], len(slot_keys))
-        sums[:, 3 + axis] = np.bincount(at, weights * surface.centroids[band, axis], len(slot_keys))
+        sums[:, axis] = np.bincount(at, weights * surface.pose_normals[band, axis], len(slot_keys))
+        sums[:, 3 + axis] = np.bincount(at, weights * coordinates[band, axis], len(slot_keys))
     sums[:, 6] = np.bincount(at, weights, len(slot_keys))
     sides = [sums[np.searchsorted(slot_keys, keys)].sum(axis=1) for keys in wanted]
     normal_a, normal_b = sides[0][:, :3], sides[1][:, :3]
@@ -316,7 +316,6 @@ def merge_tree(
     cost: MergeCost | None = None,
     mirror_leaf: NDArray[Any] | None = None,
     spokes: tuple[NDArray[Any], NDArray[Any]] | None = None,
-    frame: tuple[NDArray[Any], NDArray[Any]] | None = None,
 ) -> PartTree:
     """The merge tree of the parts ``leaf_labels`` (canonical: 0..L-1 by lowest face).
 
@@ -330,8 +329,8 @@ def merge_tree(
     (``stitching.cap_spokes``): between faces of two parts, flat boundary as long as the
     spoke, as if the fan were surface. A hole on a boundary shortened it, which reads as a
     narrower neck and a dearer merge: holes kept extra parts.
-    ``surface``: the faces' areas, centroids and normals; ``frame``: the centroids'
-    ``principal_frame`` where the caller keeps it (``boundary_folds``).
+    ``surface``: the faces' areas, and their centroids and normals in the pose frame
+    (``boundary_folds``).
     """
     cost = MergeCost() if cost is None else cost
     leaves = np.asarray(leaf_labels, dtype=np.int64)
@@ -352,7 +351,7 @@ def merge_tree(
     cut = cut_edges(leaves, pairs, leaf_count)[0]  # one pass, no per-edge arrays
     a, b = leaves[pairs[cut, 0]], leaves[pairs[cut, 1]]
     lengths = graph.edge_length[cut]
-    depth = boundary_folds(pairs[cut], leaves, surface, frame)
+    depth = boundary_folds(pairs[cut], leaves, surface)
     if spokes is not None and len(spokes[0]):
         spoke_pairs = np.asarray(spokes[0], dtype=np.int64).reshape(-1, 2)
         sa, sb = leaves[spoke_pairs[:, 0]], leaves[spoke_pairs[:, 1]]

@@ -235,7 +235,6 @@ class GraphCutPartitioner:
             work.basis.values,
             mirror_leaf=mirror_leaf,
             spokes=work.spokes,
-            frame=work.basis.frame,
         )
         count = automatic_part_count(tree) if params.parts is None else params.parts
         labels = tree.labels(count)
@@ -259,7 +258,6 @@ class MetisPartitioner:
                 geometry,
                 basis.values,
                 spokes=work.spokes,
-                frame=basis.frame,
             )
             count = automatic_part_count(tree)
         weights = metis_edge_weights(work.edge_weights, basis.posteriors, graph.pairs)

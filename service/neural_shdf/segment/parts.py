@@ -11,18 +11,30 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from neural_shdf.compiled import kernel
-from neural_shdf.geometry import FaceGraph, face_centroids, face_normals
+from neural_shdf.geometry import (
+    FaceGraph,
+    face_centroids,
+    face_normals,
+    has_own_frame,
+    in_frame,
+    pose_frame,
+    principal_frame,
+)
 
 
 @dataclass(frozen=True)
 class FaceData:
-    """Per-face geometry the partitioners need: area, centroid, area over mean area and
-    unit normal (facing out of the solid: the oriented mesh's)."""
+    """Per-face geometry the partitioners need: area, centroid and area over mean area; and
+    for the part tree's folds, the centroids and unit normals (of the oriented faces) in
+    a frame of the shape's own (``of``; rounded by ``geometry.in_frame``: the same bits in
+    any pose) with that frame's scale."""
 
     areas: NDArray[np.float64]
     centroids: NDArray[np.float64]
     face_weight: NDArray[np.float64]
-    normals: NDArray[np.float64]
+    pose_centroids: NDArray[np.float64]
+    pose_normals: NDArray[np.float64]
+    pose_scale: float
 
     @classmethod
     def of(
@@ -31,22 +43,51 @@ class FaceData:
         faces: NDArray[Any],
         normals_and_areas: tuple[NDArray[Any], NDArray[Any]] | None = None,
         centroids: NDArray[Any] | None = None,
+        pose: tuple[NDArray[Any], NDArray[Any], float] | None = None,
+        principal: tuple[NDArray[Any], NDArray[Any]] | None = None,
+        pose_normals: NDArray[Any] | None = None,
     ) -> FaceData:
-        """The data of ``faces``; ``normals_and_areas`` (``geometry.face_normals``) and
-        ``centroids`` where the caller has them (a ``TriangleMesh`` caches both)."""
+        """The data of ``faces``; ``normals_and_areas`` (``geometry.face_normals``),
+        ``centroids``, ``pose`` (``geometry.pose_frame``) and ``principal``
+        (``geometry.principal_frame``) where the caller has them (a ``TriangleMesh``
+        caches them), and ``pose_normals``, the normals computed from the coordinates in
+        ``pose`` (``TriangleMesh.pose_geometry``: a sliver's normal the same in any pose;
+        turned from the normals otherwise). Where the shape fixes no pose frame of its own
+        (it falls back to the world's axes), its principal axes turn with it instead:
+        their senses, which the shape leaves open, do not matter to a grid centred on the
+        origin."""
         if normals_and_areas is None:
             normals_and_areas = face_normals(vertices, faces)
-        normals = np.asarray(normals_and_areas[0], dtype=np.float64)
-        areas = np.asarray(normals_and_areas[1], dtype=np.float64)
+        normals, areas = normals_and_areas
+        areas = np.asarray(areas, dtype=np.float64)
         mean = float(areas.mean()) if len(areas) else 0.0
         weight = areas / mean if mean > 0 else np.ones(len(areas))
         centroids = face_centroids(vertices, faces) if centroids is None else centroids
-        return cls(areas, centroids, weight, normals)
+        principal = principal_frame(centroids, areas) if principal is None else principal
+        pose = pose_frame(centroids, areas, principal) if pose is None else pose
+        if not has_own_frame(pose):
+            pose = (pose[0], np.asarray(principal[1], dtype=np.float64), pose[2])
+            pose_normals = None
+        if pose_normals is None:
+            pose_normals = in_frame(normals, pose, translate=False)
+        return cls(
+            areas,
+            centroids,
+            weight,
+            in_frame(centroids, pose),
+            np.asarray(pose_normals, dtype=np.float64),
+            float(pose[2]),
+        )
 
     def subset(self, faces: NDArray[Any]) -> FaceData:
         """The same data for some faces (weights stay relative to the whole mesh)."""
         return FaceData(
-            self.areas[faces], self.centroids[faces], self.face_weight[faces], self.normals[faces]
+            self.areas[faces],
+            self.centroids[faces],
+            self.face_weight[faces],
+            self.pose_centroids[faces],
+            self.pose_normals[faces],
+            self.pose_scale,
         )
 
 

@@ -117,8 +117,9 @@ def boundary_folds(
     mean normal and centroid; the fold is the angle between the two mean normals,
     concave where they turn towards each other. A crease rounded over a few faces then
     folds as much as a sharp one, and as much at any tessellation: per edge, a Loop pass
-    halves the angles and a decimation doubles them. Worked out in the mesh's pose frame
-    (``FaceData.pose_centroids``, ``pose_normals``): the same cells and sums in any pose.
+    halves the angles and a decimation doubles them. Worked out in a frame of the
+    shape's own (``FaceData.pose_centroids``, ``pose_normals``): the same cells and sums
+    in any pose.
     """
     face_pairs = np.asarray(face_pairs, dtype=np.int64).reshape(-1, 2)
     folds = np.zeros(len(face_pairs))

@@ -545,18 +545,28 @@ def grid_cells(coordinates: NDArray[Any], size: float) -> NDArray[np.int64]:
     """(N,) key of each point's cell in a grid of cubes of side ``size`` centred on the
     origin (cell walls at ``(k + 1/2) size``): points share a key when they share a cell,
     and negating an axis of the coordinates gives the same partition of the points."""
+    return grid_layout(coordinates, size)[0]
+
+
+def grid_layout(
+    coordinates: NDArray[Any], size: float, margin: int = 0
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """``grid_cells``' keys, with the box's lowest cell and cells per axis, the box grown
+    by ``margin`` cells on each side: a cell's neighbour ``(dx, dy, dz)`` within the
+    margin has key ``key + (dx * spans[1] + dy) * spans[2] + dz``."""
     coordinates = np.asarray(coordinates, dtype=np.float64).reshape(-1, 3)
     if not len(coordinates):
-        return np.zeros(0, dtype=np.int64)
-    return _grid_cells(np.ascontiguousarray(coordinates), float(size))
+        return np.zeros(0, dtype=np.int64), np.zeros(3, np.int64), np.ones(3, np.int64)
+    return _grid_cells(np.ascontiguousarray(coordinates), float(size), int(margin))
 
 
 @kernel
 def _grid_cells(  # pragma: no cover - compiled
-    coordinates: NDArray[np.float64], size: float
-) -> NDArray[np.int64]:
-    """``floor(c / size + 0.5)`` per axis, shifted to start at 0, as one key per point:
-    two passes (the bounds, then the keys) instead of numpy's (N, 3) temporaries."""
+    coordinates: NDArray[np.float64], size: float, margin: int
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """``floor(c / size + 0.5)`` per axis, shifted to start at 0 (less ``margin``), as one
+    key per point: two passes (the bounds, then the keys) instead of numpy's (N, 3)
+    temporaries."""
     low = np.empty(3, dtype=np.int64)
     high = np.empty(3, dtype=np.int64)
     for axis in range(3):
@@ -567,14 +577,17 @@ def _grid_cells(  # pragma: no cover - compiled
             cell = np.int64(np.floor(coordinates[point, axis] / size + 0.5))
             low[axis] = min(low[axis], cell)
             high[axis] = max(high[axis], cell)
-    span1, span2 = high[1] - low[1] + 1, high[2] - low[2] + 1
+    spans = np.empty(3, dtype=np.int64)
+    for axis in range(3):
+        low[axis] -= margin
+        spans[axis] = high[axis] - low[axis] + 1 + margin
     keys = np.empty(coordinates.shape[0], dtype=np.int64)
     for point in range(coordinates.shape[0]):
         x = np.int64(np.floor(coordinates[point, 0] / size + 0.5)) - low[0]
         y = np.int64(np.floor(coordinates[point, 1] / size + 0.5)) - low[1]
         z = np.int64(np.floor(coordinates[point, 2] / size + 0.5)) - low[2]
-        keys[point] = (x * span1 + y) * span2 + z
-    return keys
+        keys[point] = (x * spans[1] + y) * spans[2] + z
+    return keys, low, spans
 
 
 @kernel

@@ -41,7 +41,7 @@ from numpy.typing import NDArray
 
 from neural_shdf.compiled import kernel
 from neural_shdf.errors import ParameterError
-from neural_shdf.geometry import FaceGraph
+from neural_shdf.geometry import FaceGraph, grid_layout
 from neural_shdf.segment.parts import FaceData, canonical_labels, cut_edges
 
 # The weights were tuned on 57 psb-dev models (the 4th model of each category held out),
@@ -130,7 +130,10 @@ def boundary_folds(
     leaves = np.asarray(leaves, dtype=np.int64)
     coordinates = np.ascontiguousarray(surface.pose_centroids)
     size = scale * math.sqrt(total) / surface.pose_scale
-    cells, size, low, spans = _fold_cells(coordinates, size, FOLD_GRID_CELLS)
+    box = float(np.prod(np.ptp(coordinates, axis=0) / size + 3.0))
+    if box > FOLD_GRID_CELLS:  # a surface spread thin over a large space: larger cells
+        size *= (box / FOLD_GRID_CELLS) ** (1.0 / 3.0)
+    cells, low, spans = grid_layout(coordinates, size, margin=1)
     strides = np.array([spans[1] * spans[2], spans[2], 1], dtype=np.int64)
     first, second = face_pairs[:, 0], face_pairs[:, 1]
     middle = np.floor((coordinates[first] + coordinates[second]) / (2 * size) + 0.5)
@@ -174,38 +177,6 @@ def boundary_folds(
 #: ``boundary_folds``: at most this many cells in the grid's box (a surface spread thin
 #: over a large space gets larger cells).
 FOLD_GRID_CELLS = 2**24
-
-
-@kernel
-def _fold_cells(  # pragma: no cover - compiled
-    coordinates: NDArray[np.float64], size: float, most: int
-) -> tuple[NDArray[np.int64], float, NDArray[np.int64], NDArray[np.int64]]:
-    """(each point's cell of side ``size`` as one key, the side, the lowest cell less one,
-    the cells per axis with one to spare on each side). Cell walls at ``(k + 1/2) size``;
-    the side is enlarged where the box would hold more than ``most`` cells."""
-    lowest = coordinates[0].copy()
-    highest = coordinates[0].copy()
-    for point in range(coordinates.shape[0]):
-        for axis in range(3):
-            lowest[axis] = min(lowest[axis], coordinates[point, axis])
-            highest[axis] = max(highest[axis], coordinates[point, axis])
-    cells = 1.0
-    for axis in range(3):
-        cells *= (highest[axis] - lowest[axis]) / size + 3.0
-    if cells > most:
-        size *= (cells / most) ** (1.0 / 3.0)
-    low = np.empty(3, dtype=np.int64)
-    spans = np.empty(3, dtype=np.int64)
-    for axis in range(3):
-        low[axis] = np.int64(np.floor(lowest[axis] / size + 0.5)) - 1
-        spans[axis] = np.int64(np.floor(highest[axis] / size + 0.5)) - low[axis] + 2
-    keys = np.empty(coordinates.shape[0], dtype=np.int64)
-    for point in range(coordinates.shape[0]):
-        x = np.int64(np.floor(coordinates[point, 0] / size + 0.5)) - low[0]
-        y = np.int64(np.floor(coordinates[point, 1] / size + 0.5)) - low[1]
-        z = np.int64(np.floor(coordinates[point, 2] / size + 0.5)) - low[2]
-        keys[point] = (x * spans[1] + y) * spans[2] + z
-    return keys, size, low, spans
 
 
 @dataclass(frozen=True)

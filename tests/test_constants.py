@@ -160,11 +160,15 @@ GOLDEN[23] = GOLDEN[22]
 # golden mesh's labels and ShDF hold.
 GOLDEN[24] = GOLDEN[23]
 # Version 25: the part tree's concavity read at the surface's scale
-# (``hierarchy.boundary_folds``: the angle between the two parts' mean normals within
-# ``FOLD_SCALE`` x sqrt(area) of each boundary edge, not each edge's own angle), weighed 3
-# instead of 8; the mean-bending rescaling of fine meshes dropped. The golden mesh's
-# labels and ShDF hold.
+# (``hierarchy.boundary_folds``, now ``boundary_profile``: the angle between the two
+# parts' mean normals within ``FOLD_SCALE`` x sqrt(area) of each boundary edge, not each
+# edge's own angle), weighed 3.5 instead of 8; the mean-bending rescaling of fine meshes
+# dropped. The golden mesh's labels and ShDF hold.
 GOLDEN[25] = GOLDEN[24]
+# Version 26: the part tree weighs two parts' ShDF difference by its step across their
+# boundary (``hierarchy.boundary_profile``: a slow gradient cut anywhere weighs less), the
+# automatic count's threshold 0.02 -> 0.017. The golden mesh's labels and ShDF hold.
+GOLDEN[26] = GOLDEN[25]
 #: Earlier versions, recorded as sha256 of (ShDF rounded to 6 decimals, labels): version 1;
 #: 2, the ray cone turning with each triangle and segmentation grids along the mesh's axes.
 HISTORY = {

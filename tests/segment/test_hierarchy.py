@@ -18,7 +18,7 @@ from neural_shdf.segment.hierarchy import (
     MergeCost,
     PartTree,
     automatic_part_count,
-    boundary_folds,
+    boundary_profile,
     merge_tree,
 )
 from neural_shdf.segment.parts import FaceData, canonical_labels, connected_parts, cut_edges
@@ -162,12 +162,12 @@ def post_on_a_disc(spacing: float, fillet: float = 0.2) -> trimesh.Trimesh:
 
 
 def folds_between(mesh: trimesh.Trimesh, leaves: np.ndarray) -> np.ndarray:
-    """``boundary_folds`` across every cut between the two leaves of ``mesh``."""
+    """``boundary_profile``'s folds across every cut between the two leaves of ``mesh``."""
     vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     graph, surface = graph_and_surface(vertices, faces)
     pairs = graph.pairs[cut_edges(leaves, graph.pairs, 2)[0]]
     assert len(pairs)
-    return boundary_folds(pairs, leaves, surface)
+    return boundary_profile(pairs, leaves, surface, np.zeros(len(faces))).folds
 
 
 def post_and_disc(mesh: trimesh.Trimesh, height: float) -> np.ndarray:
@@ -228,6 +228,64 @@ def test_a_finely_split_detail_costs_what_the_unsplit_mesh_costs():
     np.testing.assert_allclose(split, coarse, rtol=2e-3)
 
 
+def ramp_and_step(mesh: trimesh.Trimesh, height: float) -> tuple[np.ndarray, np.ndarray]:
+    """Two ShDF fields on ``mesh`` with the same means in each leaf of ``post_and_disc``:
+    a slow ramp with height, and the step between those means at the cut."""
+    leaves = post_and_disc(mesh, height)
+    ramp = mesh.triangles_center[:, 2] / 2.0
+    area = mesh.area_faces
+    means = np.bincount(leaves, area * ramp) / np.bincount(leaves, area)
+    return ramp, means[leaves]
+
+
+def test_a_cut_through_a_slow_gradient_steps_less_than_a_cut_at_a_step():
+    """The ShDF's step across a boundary, read at the surface's scale: a ramp cut anywhere
+    steps about its slope over a few cells, at any tessellation; a step field steps its
+    full height."""
+    for height in (0.8, 1.2):
+        per_spacing = []
+        for spacing in (0.1, 0.025):
+            mesh = post_on_a_disc(spacing)
+            vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+            graph, surface = graph_and_surface(vertices, faces)
+            leaves = post_and_disc(mesh, height)
+            pairs = graph.pairs[cut_edges(leaves, graph.pairs, 2)[0]]
+            ramp, step = ramp_and_step(mesh, height)
+            ramp_steps = boundary_profile(pairs, leaves, surface, ramp).steps
+            step_steps = boundary_profile(pairs, leaves, surface, step).steps
+            np.testing.assert_allclose(step_steps, np.ptp(step), rtol=1e-9)
+            assert ramp_steps.max() < 0.15 * np.ptp(step)
+            per_spacing.append(ramp_steps.mean())
+        assert per_spacing[1] == pytest.approx(per_spacing[0], rel=0.35)
+
+
+def test_faces_larger_than_the_cells_read_their_own_step():
+    """A box of 12 triangles: no centroid lies in the cells around its edges' midpoints,
+    so each side of a pair reads its own face (before, the step read 0 and a coarse
+    dumbbell's boxes merged with its bar)."""
+    box = trimesh.creation.box()
+    vertices, faces = np.asarray(box.vertices), np.asarray(box.faces)
+    graph, surface = graph_and_surface(vertices, faces)
+    leaves = (box.triangles_center[:, 2] > 0.49).astype(np.int64)  # the top
+    pairs = graph.pairs[cut_edges(leaves, graph.pairs, 2)[0]]
+    profile = boundary_profile(pairs, leaves, surface, leaves * 0.7)
+    np.testing.assert_allclose(profile.steps, 0.7)
+    np.testing.assert_array_equal(profile.folds, 0.0)  # convex edges
+
+
+def test_a_slow_gradient_merges_cheaper_than_a_step_of_the_same_means():
+    mesh = post_on_a_disc(0.05)
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    graph, surface = graph_and_surface(vertices, faces)
+    leaves = post_and_disc(mesh, 1.0)
+    ramp, step = ramp_and_step(mesh, 1.0)
+    at_ramp = merge_tree(leaves, graph, surface, ramp).costs[0]
+    at_step = merge_tree(leaves, graph, surface, step).costs[0]
+    means_only = merge_tree(leaves, graph, surface, ramp, MergeCost(step_exponent=0.0)).costs[0]
+    assert at_step == pytest.approx(means_only, rel=1e-9)  # the step is the means' difference
+    assert at_ramp < 0.6 * at_step
+
+
 def test_cost_prefers_small_similar_parts_across_flat_wide_boundaries():
     cost = MergeCost()
     base = dict(area_a=1.0, area_b=4.0, mean_a=0.5, mean_b=0.5, boundary=2.0, concave=0.0,
@@ -237,6 +295,9 @@ def test_cost_prefers_small_similar_parts_across_flat_wide_boundaries():
     assert cost(**{**base, "mean_a": 0.8}) > reference  # thicker or thinner
     assert cost(**{**base, "concave": 1.0}) > reference  # along a crease
     assert cost(**{**base, "boundary": 0.5}) > reference  # a narrow neck
+    # A difference that changes where the parts meet weighs fully, a gradient's less.
+    assert cost(**{**base, "mean_a": 0.8, "step": 1.2}) == cost(**{**base, "mean_a": 0.8})
+    assert cost(**{**base, "mean_a": 0.8, "step": 0.2}) < cost(**{**base, "mean_a": 0.8})
 
 
 def test_separate_shells_still_make_one_tree():

@@ -3,13 +3,19 @@
 Adjacent parts merge greedily, cheapest first, where the cost of merging A and B is
 what a person would weigh::
 
-    cost = size ** SIZE_EXPONENT * (CONSTANT + |mean ShDF_A - mean ShDF_B|
+    cost = size ** SIZE_EXPONENT * (CONSTANT + difference
            + CONCAVITY_WEIGHT * concavity) * neck ** -NECK_EXPONENT
 
 * ``size``: the smaller part's share of the surface area (slivers go first);
-* ShDF means: area-weighted, of the log-normalised ShDF (thick and thin differ);
+* ``difference``: how far the two parts' ShDF differs (thick and thin differ): the
+  difference of their area-weighted means of the log-normalised ShDF, but no more than
+  its step across their shared boundary (``boundary_profile``: the two sides' means
+  within ``FOLD_SCALE`` of the surface's size, length-weighted over the boundary), to the
+  power ``STEP_EXPONENT``. A thickness that changes where the parts meet is a natural
+  boundary; a cut through a slow gradient (a cup's wall thickening to its base, which
+  the over-segmentation may cut anywhere) is not;
 * ``concavity``: length-weighted mean over the shared boundary of how far the surface
-  folds inward across it (``boundary_folds``: the angle / pi between the two parts' mean
+  folds inward across it (``boundary_profile``: the angle / pi between the two parts' mean
   normals within ``FOLD_SCALE`` of the surface's size; convex and flat folds count 0),
   read at the surface's scale so that a crease weighs the same at any tessellation: a
   crease is a natural boundary;
@@ -34,7 +40,7 @@ import heapq
 import math
 from array import array
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -57,10 +63,17 @@ NECK_EXPONENT = 2.0
 #: Cost of merging two parts with the same ShDF across a flat boundary, relative to
 #: a difference of 1 in mean log-normalised ShDF.
 COST_CONSTANT = 0.005
-#: Weight of the boundary's mean concave fold (over pi, ``boundary_folds``). Version 25,
+#: Weight of the boundary's mean concave fold (over pi, ``boundary_profile``). Version 25,
 #: on the 57 tuning models (1-RI / CD, automatic count): 2.5 0.140 / 0.231, 3 0.138 /
 #: 0.225, 3.5 0.138 / 0.222, 4 0.138 / 0.222 (8 with per-edge angles: 0.141 / 0.221).
 CONCAVITY_WEIGHT = 3.5
+#: How much the ShDF's step across a boundary, where smaller than the parts' mean
+#: difference, stands for it (0: the means alone, 1: the step alone; see the module
+#: docstring). Version 26, 57 tuning models, 1-RI / CD at the best threshold of each:
+#: 0 0.138 / 0.222 (0.02), 0.5 0.137 / 0.222 (0.014), 0.75 0.139 / 0.223 (0.014), 1 0.139 /
+#: 0.221 (0.012); 0.5 and 1 both kept every tuning production variant within +0.01 / +0.02,
+#: 0.5 with the better published score (``bench_psb.py``, ``bench_production.py``).
+STEP_EXPONENT = 0.5
 #: Smallest neck ratio (a shell with no shared boundary counts as this narrow).
 NECK_FLOOR = 0.05
 
@@ -73,6 +86,7 @@ class MergeCost:
     neck_exponent: float = NECK_EXPONENT
     constant: float = COST_CONSTANT
     concavity_weight: float = CONCAVITY_WEIGHT
+    step_exponent: float = STEP_EXPONENT
 
     def __call__(
         self,
@@ -83,50 +97,70 @@ class MergeCost:
         boundary: float,
         concave: float,
         total_area: float,
+        step: float | None = None,
     ) -> float:
-        """Cost of merging parts a and b (``concave``: concave-angle-weighted boundary length)."""
+        """Cost of merging parts a and b (``concave``: concave-angle-weighted boundary length;
+        ``step``: ShDF-step-weighted boundary length, None where unknown)."""
         smaller = min(area_a, area_b)
         size = smaller / total_area if total_area > 0 else 0.0
         concavity = concave / boundary if boundary > 0 else 1.0
         neck = boundary / math.sqrt(smaller) if smaller > 0 else 0.0
         neck = max(neck, NECK_FLOOR)
-        similarity = self.constant + abs(mean_a - mean_b) + self.concavity_weight * concavity
+        difference = abs(mean_a - mean_b)
+        if step is not None and boundary > 0 and difference > 0:
+            local = min(step / boundary, difference)
+            difference *= (local / difference) ** self.step_exponent
+        similarity = self.constant + difference + self.concavity_weight * concavity
         cost: float = size**self.size_exponent * similarity * neck**-self.neck_exponent
         return cost
 
 
-#: The concavity of a boundary is read between the two parts' surfaces within about
-#: this share of sqrt(surface area) of each boundary edge (``boundary_folds``: one to two
-#: cells of this side). Version 25, 57 tuning models at weight 3 (1-RI / CD): 0.01 0.141 /
-#: 0.239, 0.02 0.138 / 0.225, 0.04 0.142 / 0.254.
+#: The concavity of a boundary (and its ShDF step) is read between the two parts' surfaces
+#: within about this share of sqrt(surface area) of each boundary edge (``boundary_profile``:
+#: one to two cells of this side). Version 25, 57 tuning models at weight 3 (1-RI / CD):
+#: 0.01 0.141 / 0.239, 0.02 0.138 / 0.225, 0.04 0.142 / 0.254.
 FOLD_SCALE = 0.02
 
 
-def boundary_folds(
+class BoundaryProfile(NamedTuple):
+    """What changes across each pair of adjacent faces in different leaves, read at the
+    surface's scale (``boundary_profile``)."""
+
+    #: How far the surface folds inward, as a share of pi (0: convex or flat).
+    folds: NDArray[np.float64]
+    #: How far the ShDF differs between the two sides (absolute difference of means).
+    steps: NDArray[np.float64]
+
+
+def boundary_profile(
     face_pairs: NDArray[Any],
     leaves: NDArray[Any],
     surface: FaceData,
+    values: NDArray[Any],
     scale: float = FOLD_SCALE,
-) -> NDArray[np.float64]:
-    """How concave the surface folds across each pair of adjacent faces in different
-    leaves, as a share of pi (0 where the fold is convex or flat), read at the surface's
-    scale rather than per edge.
+) -> BoundaryProfile:
+    """How concave the surface folds, and how far ``values`` (per-face ShDF) step, across
+    each pair of adjacent faces in different leaves, read at the surface's scale rather
+    than per edge.
 
     Around each pair, the faces of each side's leaf within about ``scale`` x sqrt(area)
     (the 27 cells of a grid of that side around the pair's cell) give an area-weighted
-    mean normal and centroid; the fold is the angle between the two mean normals,
-    concave where they turn towards each other. A crease rounded over a few faces then
-    folds as much as a sharp one, and as much at any tessellation: per edge, a Loop pass
-    halves the angles and a decimation doubles them. Worked out in a frame of the
-    shape's own (``FaceData.pose_centroids``, ``pose_normals``): the same cells and sums
-    in any pose.
+    mean normal, centroid and value; the fold is the angle between the two mean normals
+    over pi, concave where they turn towards each other (else 0), the step the difference
+    of the two mean values (a side whose cells hold none of its leaf's faces, faces larger
+    than the cells, reads its own face of the pair). A crease rounded over a few faces
+    then folds as much as a sharp one, and as much at any tessellation: per edge, a Loop
+    pass halves the angles and a decimation doubles them; a slow gradient of the ShDF
+    steps little wherever it is cut. Worked out in a frame of the shape's own
+    (``FaceData.pose_centroids``, ``pose_normals``): the same cells and sums in any pose.
     """
     face_pairs = np.asarray(face_pairs, dtype=np.int64).reshape(-1, 2)
-    folds = np.zeros(len(face_pairs))
+    values = np.asarray(values, dtype=np.float64)
     areas = np.asarray(surface.areas, dtype=np.float64)
     total = float(areas.sum())
     if not len(face_pairs) or not total > 0:
-        return folds
+        first, second = face_pairs[:, 0], face_pairs[:, 1]
+        return BoundaryProfile(np.zeros(len(face_pairs)), np.abs(values[first] - values[second]))
     leaves = np.asarray(leaves, dtype=np.int64)
     coordinates = np.ascontiguousarray(surface.pose_centroids)
     size = scale * math.sqrt(total) / surface.pose_scale
@@ -156,25 +190,40 @@ def boundary_folds(
     inside = slot_keys[at] == band_keys
     band, at = band[inside], at[inside]
     weights = areas[band]
-    sums = np.empty((len(slot_keys), 7))
+    sums = np.empty((len(slot_keys), 8))  # normal (3), area x centroid (3), area, area x value
     for axis in range(3):
         sums[:, axis] = np.bincount(at, weights * surface.pose_normals[band, axis], len(slot_keys))
         sums[:, 3 + axis] = np.bincount(at, weights * coordinates[band, axis], len(slot_keys))
     sums[:, 6] = np.bincount(at, weights, len(slot_keys))
-    sides = [sums[np.searchsorted(slot_keys, keys)].sum(axis=1) for keys in wanted]
-    normal_a, normal_b = sides[0][:, :3], sides[1][:, :3]
-    tiny = np.finfo(np.float64).tiny
-    centre_a = sides[0][:, 3:6] / np.maximum(sides[0][:, 6:], tiny)
-    centre_b = sides[1][:, 3:6] / np.maximum(sides[1][:, 6:], tiny)
+    sums[:, 7] = np.bincount(at, weights * values[band], len(slot_keys))
+    group_of_pair = group_of_pair.reshape(-1)
+    side_a, side_b = (
+        sums[np.searchsorted(slot_keys, keys)].sum(axis=1)[group_of_pair] for keys in wanted
+    )
+    # Faces larger than the cells can leave a side's cells empty: its own face stands in.
+    for side, faces in ((side_a, first), (side_b, second)):
+        empty = np.flatnonzero(side[:, 6] <= 0)
+        own = faces[empty]
+        side[empty, :3] = areas[own, None] * surface.pose_normals[own]
+        side[empty, 3:6] = areas[own, None] * coordinates[own]
+        side[empty, 6] = areas[own]
+        side[empty, 7] = areas[own] * values[own]
+    weight_a = np.maximum(side_a[:, 6:7], np.finfo(np.float64).tiny)
+    weight_b = np.maximum(side_b[:, 6:7], np.finfo(np.float64).tiny)
+    normal_a, normal_b = side_a[:, :3], side_b[:, :3]
     angle = np.arctan2(
         np.linalg.norm(np.cross(normal_a, normal_b), axis=1),
         np.einsum("ij,ij->i", normal_a, normal_b),
     )
-    concave = np.einsum("ij,ij->i", normal_b - normal_a, centre_b - centre_a) < 0
-    return np.where(concave, angle / np.pi, 0.0)[group_of_pair.reshape(-1)]
+    towards = np.einsum(
+        "ij,ij->i", normal_b - normal_a, side_b[:, 3:6] / weight_b - side_a[:, 3:6] / weight_a
+    )
+    folds = np.where(towards < 0, angle / np.pi, 0.0)
+    steps = np.abs(side_b[:, 7] / weight_b[:, 0] - side_a[:, 7] / weight_a[:, 0])
+    return BoundaryProfile(folds, steps)
 
 
-#: ``boundary_folds``: at most this many cells in the grid's box (a surface spread thin
+#: ``boundary_profile``: at most this many cells in the grid's box (a surface spread thin
 #: over a large space gets larger cells).
 FOLD_GRID_CELLS = 2**24
 
@@ -299,10 +348,10 @@ def merge_tree(
     either way).
     ``spokes``: (pairs of faces, lengths) where the fans over holes would join rim faces
     (``stitching.cap_spokes``): between faces of two parts, flat boundary as long as the
-    spoke, as if the fan were surface. A hole on a boundary shortened it, which reads as a
-    narrower neck and a dearer merge: holes kept extra parts.
+    spoke, as if the fan were surface (no fold, no step of the ShDF). A hole on a boundary
+    shortened it, which reads as a narrower neck and a dearer merge: holes kept extra parts.
     ``surface``: the faces' areas, and their centroids and normals in the pose frame
-    (``boundary_folds``).
+    (``boundary_profile``).
     """
     cost = MergeCost() if cost is None else cost
     leaves = np.asarray(leaf_labels, dtype=np.int64)
@@ -323,7 +372,8 @@ def merge_tree(
     cut = cut_edges(leaves, pairs, leaf_count)[0]  # one pass, no per-edge arrays
     a, b = leaves[pairs[cut, 0]], leaves[pairs[cut, 1]]
     lengths = graph.edge_length[cut]
-    depth = boundary_folds(pairs[cut], leaves, surface)
+    values = np.asarray(values, dtype=np.float64)
+    depth, step = boundary_profile(pairs[cut], leaves, surface, values)
     if spokes is not None and len(spokes[0]):
         spoke_pairs = np.asarray(spokes[0], dtype=np.int64).reshape(-1, 2)
         sa, sb = leaves[spoke_pairs[:, 0]], leaves[spoke_pairs[:, 1]]
@@ -331,28 +381,33 @@ def merge_tree(
         a, b = np.concatenate([a, sa[across]]), np.concatenate([b, sb[across]])
         lengths = np.concatenate([lengths, np.asarray(spokes[1], dtype=np.float64)[across]])
         depth = np.concatenate([depth, np.zeros(int(across.sum()))])
+        step = np.concatenate([step, np.zeros(int(across.sum()))])
     low, high = np.minimum(a, b), np.maximum(a, b)
     keys, inverse = np.unique(low * leaf_count + high, return_inverse=True)
     inverse = inverse.reshape(-1)
     boundary = np.bincount(inverse, weights=lengths, minlength=len(keys))
     concave = np.bincount(inverse, weights=lengths * depth, minlength=len(keys))
+    stepped = np.bincount(inverse, weights=lengths * step, minlength=len(keys))
 
     node_count = 2 * leaf_count - 1
     node_area = np.zeros(node_count)
     node_moment = np.zeros(node_count)
     node_area[:leaf_count] = area
     node_moment[:leaf_count] = moment
+    # Each neighbour's shared boundary: [length, concave-weighted length, step-weighted].
     neighbours: list[dict[int, list[float]]] = [{} for _ in range(node_count)]
-    for key, length, crease in zip(keys.tolist(), boundary.tolist(), concave.tolist(), strict=True):
+    for key, *shared in zip(
+        keys.tolist(), boundary.tolist(), concave.tolist(), stepped.tolist(), strict=True
+    ):
         i, j = divmod(key, leaf_count)
-        neighbours[i][j] = [length, crease]
-        neighbours[j][i] = [length, crease]
+        neighbours[i][j] = list(shared)
+        neighbours[j][i] = list(shared)
 
     def mean(node: int) -> float:
         return node_moment[node] / node_area[node] if node_area[node] > 0 else 0.0
 
-    def pair_cost(i: int, j: int, length: float, crease: float) -> float:
-        return cost(node_area[i], node_area[j], mean(i), mean(j), length, crease, total_area)
+    def pair_cost(i: int, j: int, length: float, crease: float, step: float) -> float:
+        return cost(node_area[i], node_area[j], mean(i), mean(j), length, crease, total_area, step)
 
     heap = [
         (pair_cost(i, j, *shared), i, j)
@@ -378,12 +433,12 @@ def merge_tree(
         node_moment[node] = node_moment[i] + node_moment[j]
         joined: dict[int, list[float]] = {}
         for old in (i, j):
-            for other, (length, crease) in neighbours[old].items():
+            for other, shared in neighbours[old].items():
                 if other in (i, j):
                     continue
-                entry = joined.setdefault(other, [0.0, 0.0])
-                entry[0] += length
-                entry[1] += crease
+                entry = joined.setdefault(other, [0.0, 0.0, 0.0])
+                for k, amount in enumerate(shared):
+                    entry[k] += amount
                 del neighbours[other][old]
             neighbours[old] = {}
         neighbours[node] = joined
@@ -665,8 +720,12 @@ def _shell_merge_order(
 #: Automatic part count: merges costing more than this are not made. Tuned on the same 57
 #: models for the cut discrepancy with the Rand index bounded, the same with and without
 #: boundaries on creases. Missing a cut the humans make costs more than one cut too many,
-#: so it errs towards more parts than the humans cut.
-AUTO_COST_THRESHOLD = 0.02
+#: so it errs towards more parts than the humans cut. Version 26 (with ``STEP_EXPONENT``
+#: 0.5, costs lower where parts meet on a gradient), tuning models 1-RI / CD (mean parts):
+#: 0.014 0.137 / 0.222 (7.5), 0.017 0.139 / 0.222 (7.2), 0.02 0.140 / 0.225 (7.0); version
+#: 25 at 0.02: 0.138 / 0.222 (7.3; the humans' most frequent 7.1). 0.017 keeps the count
+#: where it was; 0.014 and 0.017 tied on the tuning production variants.
+AUTO_COST_THRESHOLD = 0.017
 
 
 def automatic_part_count(tree: PartTree, threshold: float = AUTO_COST_THRESHOLD) -> int:

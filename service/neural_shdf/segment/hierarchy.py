@@ -8,12 +8,12 @@ what a person would weigh::
 
 * ``size``: the smaller part's share of the surface area (slivers go first);
 * ``difference``: how far the two parts' ShDF differs (thick and thin differ): the
-  difference of their area-weighted means of the log-normalised ShDF, but no more than
-  its step across their shared boundary (``boundary_profile``: the two sides' means
-  within ``FOLD_SCALE`` of the surface's size, length-weighted over the boundary), to the
-  power ``STEP_EXPONENT``. A thickness that changes where the parts meet is a natural
-  boundary; a cut through a slow gradient (a cup's wall thickening to its base, which
-  the over-segmentation may cut anywhere) is not;
+  difference ``d`` of their area-weighted means of the log-normalised ShDF, times
+  ``(min(step, d) / d) ** STEP_EXPONENT`` where ``step`` is the ShDF's step across their
+  shared boundary (``boundary_profile``: the two sides' means within ``FOLD_SCALE`` of the
+  surface's size, length-weighted over the boundary). A thickness that changes where the
+  parts meet is a natural boundary; a cut through a slow gradient (a cup's wall
+  thickening to its base, which the over-segmentation may cut anywhere) is not;
 * ``concavity``: length-weighted mean over the shared boundary of how far the surface
   folds inward across it (``boundary_profile``: the angle / pi between the two parts' mean
   normals within ``FOLD_SCALE`` of the surface's size; convex and flat folds count 0),

@@ -62,10 +62,15 @@ faces map one to one onto the file's (``reversed``, ``mixed30``, ``shuffled``, `
 area-unweighted 1-RI between the two segmentations (0: the same parts) and how many meshes
 differ at all or by more than 0.05.
 
+``--shdf-cache DIR`` keeps each mesh's default ShDF (by the mesh's content and a hash of
+the package outside ``neural_shdf.segment``): after a change of the segmentation alone, a
+rerun skips every ShDF (the 57 tuning models' eight re-tessellated variants: about 15 min
+with the ShDF, most of it the ShDF).
+
     python benchmarks/bench_production.py [--bench-dir DIR] [--models 4 24 ...]
         [--limit N] [--every K] [--variants reversed holes ...] [--shells-move 0.01]
         [--nobase-share 0.06] [--json out.json]
-        [--shdf-fidelity]
+        [--shdf-fidelity] [--shdf-cache DIR]
     PYTHONPATH=service:. python benchmarks/bench_production.py --corpus [--every 4]
 """
 
@@ -75,6 +80,7 @@ import argparse
 import functools
 import hashlib
 import json
+import os
 import sys
 import time
 from collections import deque
@@ -85,6 +91,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+import neural_shdf
 from neural_shdf.evaluate.benchmark import list_models, load_benchmark_mesh
 from neural_shdf.evaluate.scores import cut_distance_field, cut_graph, score_against_humans
 from neural_shdf.geometry import (
@@ -106,6 +113,41 @@ DEFAULT_CACHE = Path("/tmp/neural-shdf-bench-production")
 SUBDIVIDED_FACES = 400_000
 #: Where ``subdivided`` keeps its meshes (set from ``--cache-dir``).
 CACHE_DIR = DEFAULT_CACHE
+#: Where the default ShDF of each mesh is kept between runs (``--shdf-cache``; None: not).
+SHDF_CACHE: Path | None = None
+
+
+@functools.cache
+def shdf_fingerprint() -> str:
+    """A hash of the package's code and models outside ``neural_shdf.segment``: what the
+    default ShDF depends on. A change of the segmentation alone keeps it."""
+    package = Path(neural_shdf.__file__).resolve().parent
+    digest = hashlib.sha256()
+    for path in sorted(package.rglob("*")):
+        relative = path.relative_to(package)
+        if relative.parts[0] == "segment" or path.suffix not in {".py", ".onnx", ".json"}:
+            continue
+        digest.update(str(relative).encode() + b"\0" + path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def default_shdf(mesh: TriangleMesh) -> NDArray[np.float64]:
+    """The default ShDF of ``mesh``, kept in ``SHDF_CACHE`` by the mesh's content and the
+    ShDF code's fingerprint when a cache is set: a segmentation change re-scores every
+    variant without computing their ShDF again."""
+    if SHDF_CACHE is None:
+        return compute_shdf(mesh).values
+    path = SHDF_CACHE / shdf_fingerprint() / f"{mesh.content_hash()[:24]}.npy"
+    if path.is_file():
+        values = np.load(path)
+        if len(values) == mesh.face_count:
+            return values
+    values = compute_shdf(mesh).values
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_suffix(f".{os.getpid()}.tmp.npy")
+    np.save(temporary, values)
+    temporary.replace(path)
+    return values
 
 
 class BenchCase(NamedTuple):
@@ -490,7 +532,7 @@ VARIANTS: dict[str, Callable[[NDArray, NDArray, np.random.Generator], Variant]] 
 
 def default_segmentation(mesh: TriangleMesh) -> tuple[NDArray[np.int64], str]:
     """Labels per input face from the default path, and the mesh diagnostics if reported."""
-    shdf = compute_shdf(mesh).values
+    shdf = default_shdf(mesh)
     result = segment(mesh, shdf, SegmentParams())
     diagnostics = getattr(result, "diagnostics", None)
     note = diagnostics.summary() if diagnostics is not None else ""
@@ -591,6 +633,12 @@ def main() -> int:
     )
     parser.add_argument("--json", type=Path, help="write the per-model scores here")
     parser.add_argument(
+        "--shdf-cache",
+        type=Path,
+        help="keep each mesh's default ShDF here (by content and ShDF code; reruns after a"
+        " segmentation change skip the ShDF)",
+    )
+    parser.add_argument(
         "--corpus",
         action="store_true",
         help="the training corpus: the file's own parts against same-surface variants",
@@ -605,6 +653,8 @@ def main() -> int:
         help="also the default ShDF against full exact on each variant (Pearson; slow)",
     )
     args = parser.parse_args()
+    global SHDF_CACHE
+    SHDF_CACHE = args.shdf_cache
     if args.corpus:
         every = args.every if args.every > 1 else 4
         chosen = args.variants if args.variants != list(VARIANTS) else list(SAME_SURFACE)
